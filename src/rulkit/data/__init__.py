@@ -1,0 +1,1 @@
+"""Loaders and validators for telemetry files and real datasets."""

@@ -1,0 +1,1 @@
+"""Prognosis: propagation to a failure threshold and RUL distributions."""
