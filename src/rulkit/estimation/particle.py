@@ -1,0 +1,631 @@
+"""Sequential importance resampling (SIR) particle filter over a batch of particles (N, n_x).
+
+Seed 000 section 2.3 (eqs 13-16): the posterior ``p(x_k | y_{1:k})`` is represented by weighted
+particles (eq. 13); with the transition density as importance function the weight recursion is
+``w_k^i ∝ w_{k-1}^i p(y_k | x_k^i)`` (eq. 15); the effective sample size is
+``N_eff = 1 / sum_i (w_k^i)^2`` (eq. 16) and resampling happens when it falls below a threshold.
+
+Design (docs/engine-api.md, ``rulkit.estimation.particle``; architecture.md "Principles"):
+
+- Log-weights throughout, normalised by log-sum-exp. A degenerate update (every weight zero,
+  i.e. every log-weight -inf, or any NaN / +inf log-weight) raises ``DegenerateWeightsError``
+  naming the step, unless ``recovery="reset"`` (equal weights, step flagged in ``reset``).
+- Order of one step ``k`` (``ys[k]``): propagate ``x_k = transition(x_{k-1}, k, rng)``; weight
+  ``logw += log_likelihood(x_k, ys[k], k)`` (or the pluggable ``weight_update``); normalise;
+  ESS; summaries (of the weighted, not yet resampled set); then resample if
+  ``trigger(state)`` (when given) or ``ESS < ess_threshold * N``.
+- Missing measurements: a ``ys[k]`` with any NaN component skips the weight update at step
+  ``k`` (the transition still runs; the log-likelihood increment is 0; ``skipped[k]`` is True)
+  when ``missing="skip"`` (default); ``missing="raise"`` raises ``ValueError`` naming the row;
+  ``missing="pass"`` hands the row unchanged to ``log_likelihood``. ``±inf`` in ``ys`` is
+  always an error.
+- Log-likelihood estimate: ``log p(y_k | y_{1:k-1}) ≈ log sum_i W_{k-1}^i p(y_k | x_k^i)`` with
+  ``W_{k-1}`` the normalised weights carried into step ``k`` (``1/N`` after a resampling, which
+  gives the familiar "log mean of the likelihoods"). Its exponential is an unbiased estimate
+  of the marginal likelihood for the standard (bootstrap) weight update. With a custom
+  ``weight_update`` the same quantity is reported; it is then only a diagnostic.
+
+No per-particle Python loop; the per-step cost is a handful of numpy calls on (N,) / (N, n_x)
+arrays plus whatever the user's ``transition`` and ``log_likelihood`` cost.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
+
+__all__ = [
+    "DegenerateWeightsError",
+    "ParticleFilter",
+    "ParticleFilterResult",
+    "ParticleState",
+    "effective_sample_size",
+    "log_normalise",
+    "weighted_cov",
+    "weighted_mean",
+    "weighted_quantile",
+]
+
+FloatArray = NDArray[np.float64]
+Transition = Callable[[FloatArray, int, np.random.Generator], FloatArray]
+LogLikelihood = Callable[[FloatArray, Any, int], FloatArray]
+WeightUpdate = Callable[[FloatArray, FloatArray, "ParticleState"], FloatArray]
+Trigger = Callable[["ParticleState"], bool]
+
+DEFAULT_QUANTILES = (0.025, 0.5, 0.975)
+
+
+class DegenerateWeightsError(FloatingPointError):
+    """Every particle weight is zero (all log-weights -inf) or some log-weight is NaN / +inf.
+
+    ``step`` is the filter step at which it happened (``None`` outside a filter).
+    """
+
+    def __init__(self, message: str, step: int | None = None) -> None:
+        super().__init__(message)
+        self.step = step
+
+
+# ---------------------------------------------------------------------------------------------
+# Weight utilities
+# ---------------------------------------------------------------------------------------------
+
+
+def _describe_degenerate(logw: FloatArray) -> str:
+    n_nan = int(np.isnan(logw).sum())
+    n_pinf = int(np.isposinf(logw).sum())
+    if n_nan:
+        first = int(np.flatnonzero(np.isnan(logw))[0])
+        return f"{n_nan} of {logw.size} log-weights are NaN (first at particle {first})"
+    if n_pinf:
+        first = int(np.flatnonzero(np.isposinf(logw))[0])
+        return f"{n_pinf} of {logw.size} log-weights are +inf (first at particle {first})"
+    return f"all {logw.size} weights are zero (every log-weight is -inf)"
+
+
+def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
+    """Normalise log-weights by log-sum-exp: return ``(w, log_sum)`` with ``sum(w) == 1``.
+
+    ``log_sum = log sum_i exp(logw_i)``, computed as ``m + log sum exp(logw - m)`` with
+    ``m = max logw`` so nothing overflows (architecture.md: "normalise with log-sum-exp").
+    Raises ``DegenerateWeightsError`` when every log-weight is -inf, or any is NaN or +inf.
+    """
+    logw = np.asarray(logw, dtype=np.float64)
+    if logw.ndim != 1 or logw.size == 0:
+        raise ValueError(f"logw: expected a non-empty 1-D array, got shape {logw.shape}")
+    m = logw.max()
+    if not math.isfinite(m):  # NaN anywhere, +inf anywhere, or all -inf
+        raise DegenerateWeightsError(_describe_degenerate(logw))
+    w = np.exp(logw - m)
+    s = w.sum()
+    w /= s
+    return w, float(m + math.log(s))
+
+
+def effective_sample_size(w: FloatArray) -> float:
+    """Effective sample size ``1 / sum_i w_i^2`` of normalised weights (seed 000 eq. 16)."""
+    w = np.asarray(w, dtype=np.float64)
+    return float(1.0 / np.dot(w, w))
+
+
+def weighted_mean(x: FloatArray, w: FloatArray) -> FloatArray:
+    """Weighted mean ``sum_i w_i x_i`` of particles ``x`` (N, n_x) or (N,) with weights (N,)."""
+    return np.asarray(w, dtype=np.float64) @ np.asarray(x, dtype=np.float64)
+
+
+def weighted_cov(x: FloatArray, w: FloatArray, mean: FloatArray | None = None) -> FloatArray:
+    """Weighted covariance ``sum_i w_i (x_i - m)(x_i - m)^T`` (n_x, n_x) of particles (N, n_x).
+
+    The plug-in (posterior) second central moment of the weighted empirical measure, without a
+    small-sample correction. ``mean`` may be passed when already computed.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    if x.ndim == 1:
+        x = x[:, None]
+    m = w @ x if mean is None else mean
+    xc = x - m
+    return (xc.T * w) @ xc
+
+
+def weighted_quantile(values: FloatArray, w: FloatArray, q: float | FloatArray) -> FloatArray:
+    """Quantiles of the weighted empirical distribution (inverse of its CDF).
+
+    ``values`` (N,) or (N, n) with weights ``w`` (N,) (need not be normalised, non-negative);
+    ``q`` scalar or (n_q,) in [0, 1]. Returns shape ``q.shape + values.shape[1:]``. The
+    ``q``-quantile is the smallest value ``v`` with ``F(v) >= q``, ``F`` the weighted CDF
+    (zero-weight particles are never returned) — numpy's ``method="inverted_cdf"``, which for
+    equal weights is the classical sample quantile without interpolation.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    qa = np.asarray(q, dtype=np.float64)
+    if v.ndim not in (1, 2) or v.shape[0] != w.shape[0] or w.ndim != 1:
+        raise ValueError(
+            f"weighted_quantile: values must be (N,) or (N, n) and weights (N,), "
+            f"got {v.shape} and {w.shape}"
+        )
+    if qa.ndim > 1 or np.any((qa < 0) | (qa > 1)) or np.any(np.isnan(qa)):
+        raise ValueError(f"weighted_quantile: q must be scalar or 1-D in [0, 1], got {q!r}")
+    return _weighted_quantile(v, w, qa)
+
+
+def _weighted_quantile(v: FloatArray, w: FloatArray, qa: FloatArray) -> FloatArray:
+    one_d = v.ndim == 1
+    v2 = v[:, None] if one_d else v
+    order = np.argsort(v2, axis=0)
+    vs = np.take_along_axis(v2, order, axis=0)
+    cw = np.cumsum(w[order], axis=0)  # (N, n)
+    q1 = np.atleast_1d(qa)
+    n_q, n_col = q1.size, v2.shape[1]
+    idx = np.empty((n_q, n_col), dtype=np.intp)
+    pos = q1 > 0
+    for j in range(n_col):  # loop over state components (n_x), never over particles
+        c = cw[:, j]
+        # first index with cumulative weight >= q * total (> 0 for q = 0: skip zero weights)
+        idx[pos, j] = np.searchsorted(c, q1[pos] * c[-1], side="left")
+        idx[~pos, j] = np.searchsorted(c, 0.0, side="right")
+    np.minimum(idx, v2.shape[0] - 1, out=idx)
+    out = np.take_along_axis(vs, idx, axis=0)  # (n_q, n)
+    if one_d:
+        out = out[:, 0]
+    return out[0] if qa.ndim == 0 else out
+
+
+# ---------------------------------------------------------------------------------------------
+# State and result
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class ParticleState:
+    """Mutable state of a running particle filter (for the per-step API and the plug-ins).
+
+    ``particles`` (N, n_x); ``logw`` normalised log-weights (log-sum-exp 0) and ``weights`` their
+    exponentials; ``ess`` the effective sample size of ``weights``; ``k`` the last assimilated
+    step (-1 after ``initialise``); ``y`` the measurement of step ``k``; ``rng`` the generator
+    used for propagation and resampling; ``loglik`` the running log-likelihood estimate and
+    ``loglik_increment`` the last increment; flags of the last step: ``resampled``, ``skipped``
+    (NaN measurement), ``reset`` (degenerate weights reset to equal). ``info`` is a free dict for
+    plug-ins (e.g. an adaptive weight update may count clipped particles there).
+
+    When a ``weight_update`` or ``trigger`` plug-in is called during step ``k``: ``particles``
+    already holds the propagated ``x_k``, ``k`` and ``y`` are the current step's, and
+    ``logw``/``weights``/``ess`` are still those carried in from step ``k-1`` (for the trigger:
+    the freshly updated ones).
+    """
+
+    particles: FloatArray
+    logw: FloatArray
+    weights: FloatArray
+    rng: np.random.Generator
+    ess: float
+    k: int = -1
+    y: Any = None
+    loglik: float = 0.0
+    loglik_increment: float = 0.0
+    resampled: bool = False
+    skipped: bool = False
+    reset: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_particles(self) -> int:
+        return self.particles.shape[0]
+
+    def mean(self) -> FloatArray:
+        """Weighted mean of the particles (n_x,)."""
+        return self.weights @ self.particles
+
+    def cov(self) -> FloatArray:
+        """Weighted covariance of the particles (n_x, n_x)."""
+        return weighted_cov(self.particles, self.weights)
+
+    def quantile(self, q: float | FloatArray) -> FloatArray:
+        """Weighted marginal quantiles per state component, shape ``q.shape + (n_x,)``."""
+        return weighted_quantile(self.particles, self.weights, q)
+
+
+@dataclass(frozen=True)
+class ParticleFilterResult:
+    """Output of ``ParticleFilter.filter`` over ``T`` measurements.
+
+    Per step ``k`` (summaries of the weighted particle set after the update of step ``k`` and
+    before any resampling): ``mean`` (T, n_x), ``cov`` (T, n_x, n_x), ``quantiles``
+    (T, n_q, n_x) at ``quantile_levels`` (None when not requested), ``ess`` (T,),
+    ``resampled`` (T,) (resampling happened at the end of step k), ``skipped`` (T,) (NaN
+    measurement, no update), ``reset`` (T,) (degenerate weights reset to equal),
+    ``loglik_increments`` (T,) and their sum ``loglik``. ``particles`` (N, n_x), ``weights``
+    (N,) and ``log_weights`` are the final state (after any final resampling), ready to hand to a
+    prognosis; ``particle_history`` (T, N, n_x) and ``weight_history`` (T, N) hold the weighted
+    sets behind the summaries when ``keep_particles=True`` (else None).
+    """
+
+    mean: FloatArray
+    cov: FloatArray
+    quantiles: FloatArray | None
+    quantile_levels: FloatArray | None
+    ess: FloatArray
+    resampled: NDArray[np.bool_]
+    skipped: NDArray[np.bool_]
+    reset: NDArray[np.bool_]
+    loglik_increments: FloatArray
+    particles: FloatArray
+    weights: FloatArray
+    log_weights: FloatArray
+    particle_history: FloatArray | None = None
+    weight_history: FloatArray | None = None
+
+    @property
+    def loglik(self) -> float:
+        """Log marginal likelihood estimate ``sum_k loglik_increments[k]``."""
+        return float(self.loglik_increments.sum())
+
+    @property
+    def n_steps(self) -> int:
+        return self.mean.shape[0]
+
+    @property
+    def n_resampled(self) -> int:
+        return int(self.resampled.sum())
+
+
+# ---------------------------------------------------------------------------------------------
+# The filter
+# ---------------------------------------------------------------------------------------------
+
+
+def _check_particles(particles: FloatArray, name: str = "particles0") -> FloatArray:
+    x = np.asarray(particles, dtype=np.float64)
+    if x.ndim != 2:
+        hint = " (use x.reshape(-1, 1) for a scalar state)" if x.ndim == 1 else ""
+        raise ValueError(f"{name}: expected shape (N, n_x), got {x.shape}{hint}")
+    if x.shape[0] == 0 or x.shape[1] == 0:
+        raise ValueError(f"{name}: need at least one particle and one state, got {x.shape}")
+    finite = np.isfinite(x)
+    if not finite.all():
+        i, j = np.argwhere(~finite)[0]
+        raise ValueError(f"{name}: non-finite value {x[i, j]} at particle {i}, state {j}")
+    return x
+
+
+class ParticleFilter:
+    """SIR particle filter with log-weights, ESS-triggered resampling and plug-in points.
+
+    Parameters
+    ----------
+    transition
+        ``transition(x (N, n_x), k, rng) -> x_next (N, n_x)``: propagation including process
+        noise. Applied before every measurement, including the first.
+    log_likelihood
+        ``log_likelihood(x (N, n_x), y, k) -> (N,)``: ``log p(y_k | x_k^i)`` up to a constant
+        common to all particles (the constant shifts ``loglik`` only).
+    resampler
+        scheme name (see ``rulkit.estimation.resampling.RESAMPLERS``) or a callable
+        ``(weights, rng) -> indices (N,)``. Default ``"systematic"``.
+    ess_threshold
+        fraction of N in [0, 1]: resample when ``ESS < ess_threshold * N`` (seed 000 eq. 16;
+        ``N_th = N/2`` by default). 0 never resamples; 1 resamples after every update.
+    trigger
+        ``trigger(state) -> bool`` evaluated after each update; replaces the ESS rule.
+    weight_update
+        ``weight_update(logw (N,), loglik (N,), state) -> new logw (N,)`` (unnormalised is
+        fine); default ``logw + loglik`` (seed 000 eq. 15). Adaptive variants (seed 000 eq. 28,
+        likelihood tempering) plug in here; ``state.rng`` is available for randomised rules.
+    recovery
+        ``"raise"``: ``DegenerateWeightsError`` naming the step; ``"reset"``: equal weights,
+        particles kept, ``reset[k]`` flagged and the log-likelihood increment is the (-inf or
+        NaN) value actually observed.
+    missing
+        what to do with a measurement containing NaN: ``"skip"`` (default; no update, flagged),
+        ``"raise"`` or ``"pass"`` (give it to ``log_likelihood`` unchanged).
+    """
+
+    def __init__(
+        self,
+        transition: Transition,
+        log_likelihood: LogLikelihood,
+        *,
+        resampler: str | Resampler = "systematic",
+        ess_threshold: float = 0.5,
+        trigger: Trigger | None = None,
+        weight_update: WeightUpdate | None = None,
+        recovery: Literal["raise", "reset"] = "raise",
+        missing: Literal["skip", "raise", "pass"] = "skip",
+    ) -> None:
+        if not callable(transition):
+            raise TypeError("transition must be callable(x, k, rng) -> x_next")
+        if not callable(log_likelihood):
+            raise TypeError("log_likelihood must be callable(x, y, k) -> (N,) log-likelihoods")
+        thr = float(ess_threshold)
+        if not (0.0 <= thr <= 1.0):
+            raise ValueError(
+                f"ess_threshold: must be a fraction of N in [0, 1], got {ess_threshold}"
+            )
+        if trigger is not None and not callable(trigger):
+            raise TypeError("trigger must be callable(state) -> bool or None")
+        if weight_update is not None and not callable(weight_update):
+            raise TypeError("weight_update must be callable(logw, loglik, state) -> logw or None")
+        if recovery not in ("raise", "reset"):
+            raise ValueError(f"recovery: expected 'raise' or 'reset', got {recovery!r}")
+        if missing not in ("skip", "raise", "pass"):
+            raise ValueError(f"missing: expected 'skip', 'raise' or 'pass', got {missing!r}")
+        self.transition = transition
+        self.log_likelihood = log_likelihood
+        self.resampler = get_resampler(resampler)
+        # validated weights come from log_normalise: use the non-validating kernel when known
+        self._resample_kernel = (
+            _KERNELS[resampler] if isinstance(resampler, str) else self.resampler
+        )
+        self.ess_threshold = thr
+        self.trigger = trigger
+        self.weight_update = weight_update
+        self.recovery = recovery
+        self.missing = missing
+
+    # -- per-step API -------------------------------------------------------------------------
+
+    def initialise(
+        self,
+        particles: FloatArray,
+        rng: np.random.Generator,
+        *,
+        log_weights: FloatArray | None = None,
+    ) -> ParticleState:
+        """Start a filter run from ``particles`` (N, n_x) (equal weights unless ``log_weights``).
+
+        The particles are copied; the returned state is then advanced with ``step``/``update``.
+        """
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        x = _check_particles(particles).copy()
+        n = x.shape[0]
+        if log_weights is None:
+            w = np.full(n, 1.0 / n)
+            logw = np.full(n, -math.log(n))
+        else:
+            lw = np.asarray(log_weights, dtype=np.float64)
+            if lw.shape != (n,):
+                raise ValueError(f"log_weights: expected shape ({n},), got {lw.shape}")
+            w, lse = log_normalise(lw)
+            logw = lw - lse
+        return ParticleState(
+            particles=x, logw=logw, weights=w, rng=rng, ess=effective_sample_size(w)
+        )
+
+    def update(self, state: ParticleState, y: Any, *, missing: bool | None = None) -> ParticleState:
+        """Propagate and weight one step (no resampling); mutates and returns ``state``.
+
+        ``missing`` (internal fast path) says whether ``y`` holds NaN; computed when None.
+        """
+        k = state.k + 1
+        x = self.transition(state.particles, k, state.rng)
+        n = state.logw.shape[0]
+        if getattr(x, "shape", None) != state.particles.shape:
+            raise ValueError(
+                f"transition at step {k}: returned shape {np.shape(x)}, "
+                f"expected {state.particles.shape}"
+            )
+        if missing is None:
+            missing = self._is_missing(y, k)
+        prev = (state.particles, state.k, state.y)
+        state.particles = x
+        state.k = k
+        state.y = y
+        try:
+            self._weight(state, x, y, k, n, missing)
+        except BaseException:
+            # leave the state as it was before this step (no half-applied update)
+            state.particles, state.k, state.y = prev
+            raise
+        return state
+
+    def _weight(
+        self, state: ParticleState, x: FloatArray, y: Any, k: int, n: int, missing: bool
+    ) -> None:
+        if missing:
+            state.resampled = False
+            state.reset = False
+            state.skipped = True
+            state.loglik_increment = 0.0
+            return
+        ll = self.log_likelihood(x, y, k)
+        if getattr(ll, "shape", None) != (n,):
+            raise ValueError(
+                f"log_likelihood at step {k}: returned shape {np.shape(ll)}, expected ({n},)"
+            )
+        if self.weight_update is None:
+            new = state.logw + ll
+        else:
+            new = np.asarray(self.weight_update(state.logw, ll, state), dtype=np.float64)
+            if new.shape != (n,):
+                raise ValueError(
+                    f"weight_update at step {k}: returned shape {new.shape}, expected ({n},)"
+                )
+        m = new.max()
+        if not math.isfinite(m):
+            self._degenerate(state, new, ll, k)
+            return
+        w = np.exp(new - m)
+        s = w.sum()
+        w /= s
+        lse = m + math.log(s)
+        if self.weight_update is None:
+            inc = lse  # logsumexp(logw_{k-1} + ll), logw_{k-1} normalised
+        else:
+            inc = _logsumexp(state.logw + ll)
+        state.logw = new - lse
+        state.weights = w
+        state.ess = 1.0 / float(np.dot(w, w))
+        state.loglik_increment = inc
+        state.loglik += inc
+        state.resampled = False
+        state.reset = False
+        state.skipped = False
+
+    def resample_if_needed(self, state: ParticleState) -> ParticleState:
+        """Apply the trigger (or the ESS rule) and resample in place when it fires."""
+        if self.trigger is not None:
+            fire = bool(self.trigger(state))
+        else:
+            n = state.logw.shape[0]
+            fire = self.ess_threshold >= 1.0 or state.ess < self.ess_threshold * n
+        if fire:
+            self.resample(state)
+        return state
+
+    def resample(self, state: ParticleState) -> ParticleState:
+        """Resample ``state`` now with the configured scheme; weights become 1/N."""
+        n = state.logw.shape[0]
+        idx = self._resample_kernel(state.weights, state.rng)
+        if getattr(idx, "shape", None) != (n,):
+            raise ValueError(f"resampler returned shape {np.shape(idx)}, expected ({n},)")
+        state.particles = state.particles[idx]
+        state.logw = np.full(n, -math.log(n))
+        state.weights = np.full(n, 1.0 / n)
+        state.ess = float(n)
+        state.resampled = True
+        return state
+
+    def step(self, state: ParticleState, y: Any) -> ParticleState:
+        """One full filter step: ``update`` then ``resample_if_needed``; mutates ``state``."""
+        self.update(state, y)
+        return self.resample_if_needed(state)
+
+    # -- whole-sequence API -------------------------------------------------------------------
+
+    def filter(
+        self,
+        ys: Any,
+        particles0: FloatArray,
+        rng: np.random.Generator,
+        *,
+        quantiles: tuple[float, ...] | FloatArray | None = DEFAULT_QUANTILES,
+        keep_particles: bool = False,
+        log_weights0: FloatArray | None = None,
+    ) -> ParticleFilterResult:
+        """Run the filter over ``ys`` (T, ...) from ``particles0`` (N, n_x).
+
+        ``ys[k]`` is assimilated after the k-th transition. ``quantiles=None`` skips the
+        per-step sort. Same ``rng`` seed -> identical result.
+        """
+        y_arr = np.asarray(ys, dtype=np.float64)
+        if y_arr.ndim == 0 or y_arr.shape[0] == 0:
+            raise ValueError(f"ys: expected a non-empty array of shape (T, ...), got {y_arr.shape}")
+        t_len = y_arr.shape[0]
+        flat = y_arr.reshape(t_len, -1)
+        inf_rows = np.isinf(flat).any(axis=1)
+        if inf_rows.any():
+            raise ValueError(f"ys: infinite value in row {int(np.flatnonzero(inf_rows)[0])}")
+        nan_rows = np.isnan(flat).any(axis=1)
+        if self.missing == "raise" and nan_rows.any():
+            raise ValueError(
+                f"ys: NaN in row {int(np.flatnonzero(nan_rows)[0])} (missing='raise'; use "
+                f"missing='skip' to skip the update for missing measurements)"
+            )
+        if self.missing == "pass":
+            nan_rows[:] = False
+        q_levels = None
+        if quantiles is not None:
+            q_levels = np.atleast_1d(np.asarray(quantiles, dtype=np.float64))
+            if q_levels.ndim != 1 or np.any(~((q_levels >= 0) & (q_levels <= 1))):
+                raise ValueError(f"quantiles: expected levels in [0, 1], got {quantiles!r}")
+
+        state = self.initialise(particles0, rng, log_weights=log_weights0)
+        n, n_x = state.particles.shape
+        mean = np.empty((t_len, n_x))
+        cov = np.empty((t_len, n_x, n_x))
+        qs = None if q_levels is None else np.empty((t_len, q_levels.size, n_x))
+        ess = np.empty(t_len)
+        resampled = np.zeros(t_len, dtype=bool)
+        skipped = np.zeros(t_len, dtype=bool)
+        reset = np.zeros(t_len, dtype=bool)
+        incs = np.empty(t_len)
+        p_hist = np.empty((t_len, n, n_x)) if keep_particles else None
+        w_hist = np.empty((t_len, n)) if keep_particles else None
+
+        missing_list = nan_rows.tolist()
+        for k in range(t_len):
+            self.update(state, y_arr[k], missing=missing_list[k])
+            x = state.particles
+            w = state.weights
+            m = w @ x
+            mean[k] = m
+            xc = x - m
+            cov[k] = (xc.T * w) @ xc
+            if qs is not None:
+                qs[k] = _weighted_quantile(x, w, q_levels)
+            if p_hist is not None:
+                p_hist[k] = x
+                w_hist[k] = w
+            ess[k] = state.ess
+            skipped[k] = state.skipped
+            reset[k] = state.reset
+            incs[k] = state.loglik_increment
+            self.resample_if_needed(state)
+            resampled[k] = state.resampled
+
+        return ParticleFilterResult(
+            mean=mean,
+            cov=cov,
+            quantiles=qs,
+            quantile_levels=q_levels,
+            ess=ess,
+            resampled=resampled,
+            skipped=skipped,
+            reset=reset,
+            loglik_increments=incs,
+            particles=state.particles,
+            weights=state.weights,
+            log_weights=state.logw,
+            particle_history=p_hist,
+            weight_history=w_hist,
+        )
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _is_missing(self, y: Any, k: int) -> bool:
+        if self.missing == "pass":
+            return False
+        ya = np.asarray(y, dtype=np.float64)
+        if np.isinf(ya).any():
+            raise ValueError(f"measurement at step {k}: infinite value")
+        if np.isnan(ya).any():
+            if self.missing == "raise":
+                raise ValueError(f"measurement at step {k}: NaN (missing='raise')")
+            return True
+        return False
+
+    def _degenerate(self, state: ParticleState, new: FloatArray, ll: FloatArray, k: int) -> None:
+        what = _describe_degenerate(new)
+        if self.recovery == "raise":
+            raise DegenerateWeightsError(
+                f"degenerate weight update at step {k}: {what}; the likelihood gives no "
+                f"particle a positive weight (check the model, the measurement or the noise "
+                f"levels, or pass recovery='reset')",
+                step=k,
+            )
+        n = new.shape[0]
+        inc = _logsumexp(state.logw + ll)
+        state.resampled = False
+        state.skipped = False
+        state.logw = np.full(n, -math.log(n))
+        state.weights = np.full(n, 1.0 / n)
+        state.ess = float(n)
+        state.reset = True
+        state.loglik_increment = inc
+        state.loglik += inc
+
+
+def _logsumexp(a: FloatArray) -> float:
+    m = a.max()
+    if not math.isfinite(m):  # -inf (all zero), +inf or NaN: the value itself
+        return float(m)
+    return float(m + math.log(np.exp(a - m).sum()))
