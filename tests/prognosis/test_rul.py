@@ -1,0 +1,296 @@
+"""Tests of rulkit.prognosis.rul against closed forms (linear growth, Brownian first passage)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
+
+
+def linear_step(x, t, dt, rng):
+    """Deterministic damage growth: damage += rate * dt."""
+    out = x.copy()
+    out[:, 0] += x[:, 1] * dt
+    return out
+
+
+def damage(x):
+    return x[:, 0]
+
+
+# ------------------------------------------------------------------ propagate_to_threshold
+def test_linear_growth_exact_crossing_times():
+    d0 = np.array([0.0, 0.25, 0.5, 0.9, 0.33])
+    rate = np.array([0.01, 0.03, 0.07, 0.013, 0.011])
+    x0 = np.column_stack([d0, rate])
+    # dt does not divide the crossing times: the interpolation must still be exact
+    dist = propagate_to_threshold(
+        x0, linear_step, damage, 1.0, t0=5.0, dt=0.7, horizon=200.0,
+        rng=np.random.default_rng(0),
+    )
+    expected = (1.0 - d0) / rate
+    np.testing.assert_allclose(dist.samples, expected, rtol=1e-12, atol=1e-12)
+    assert dist.n_censored == 0
+    assert dist.horizon == 200.0
+
+
+def test_last_step_is_shortened_to_the_horizon():
+    # horizon 10 with dt 3: steps at 3, 6, 9, then a 1-long step to 10
+    x0 = np.array([[0.0, 0.1], [0.0, 0.1 / 0.95], [0.0, 0.05]])
+    dist = propagate_to_threshold(
+        x0, linear_step, damage, 1.0, dt=3.0, horizon=10.0, rng=np.random.default_rng(0)
+    )
+    # 10.0 exactly at the horizon (crossing at the end of the short step), 9.5 inside it
+    np.testing.assert_allclose(dist.samples[:2], [10.0, 9.5], rtol=1e-12)
+    assert dist.censored.tolist() == [False, False, True]
+    assert dist.samples[2] == 10.0
+
+
+def test_censoring_count_and_failed_at_t0():
+    d0 = np.array([1.2, 1.0, 0.0, 0.0, 0.0, 0.5])
+    rate = np.array([0.1, 0.1, 0.2, 0.01, 0.0, 0.001])
+    dist = propagate_to_threshold(
+        np.column_stack([d0, rate]), linear_step, damage, 1.0, dt=0.5, horizon=10.0,
+        rng=np.random.default_rng(1),
+    )
+    # samples 0, 1 already failed (>= threshold) -> RUL 0; sample 2 at t = 5;
+    # samples 3 (needs 100), 4 (never), 5 (needs 500) censored at the horizon
+    np.testing.assert_allclose(dist.samples, [0, 0, 5, 10, 10, 10], atol=1e-12)
+    assert dist.censored.tolist() == [False, False, False, True, True, True]
+    assert dist.n_censored == 3
+    assert dist.fraction_censored == pytest.approx(0.5)
+    # mean is the restricted mean of min(RUL, horizon)
+    assert dist.mean == pytest.approx((0 + 0 + 5 + 30) / 6)
+    assert dist.mean_uncensored == pytest.approx(5 / 3)
+    assert dist.median == pytest.approx(5.0)  # F(5) = 0.5 exactly
+    assert dist.quantile(0.51) == math.inf
+
+
+def test_threshold_never_reached_all_censored():
+    x0 = np.column_stack([np.zeros(4), np.zeros(4)])
+    dist = propagate_to_threshold(
+        x0, linear_step, damage, 1.0, dt=1.0, horizon=7.5, rng=np.random.default_rng(0)
+    )
+    assert dist.n_censored == 4 and dist.fraction_censored == 1.0
+    assert np.all(dist.samples == 7.5)
+    assert dist.median == math.inf
+    assert dist.interval(0.9) == (math.inf, math.inf)
+    assert dist.mean == 7.5  # restricted mean = horizon (lower bound)
+    assert math.isnan(dist.mean_uncensored)
+    with pytest.raises(ValueError, match="distinct uncensored"):
+        dist.pdf(np.linspace(0, 10, 5))
+
+
+def test_direction_down():
+    # health decreasing from 1 at rate r: crosses 0.2 at (1 - 0.2) / r
+    r = np.array([0.1, 0.04])
+    x0 = np.column_stack([np.ones(2), r])
+
+    def step(x, t, dt, rng):
+        out = x.copy()
+        out[:, 0] -= x[:, 1] * dt
+        return out
+
+    dist = propagate_to_threshold(
+        x0, step, damage, 0.2, dt=0.3, horizon=100.0, rng=np.random.default_rng(0),
+        direction="down",
+    )
+    np.testing.assert_allclose(dist.samples, 0.8 / r, rtol=1e-12)
+
+
+def test_brownian_drift_first_passage_matches_inverse_gaussian():
+    # X_t = mu t + sigma W_t from 0; first passage of a > 0 is IG(mean a/mu, shape a^2/sigma^2)
+    mu, sigma, a, dt, n = 1.0, 0.3, 1.0, 1e-3, 8000
+    sq = sigma * math.sqrt(dt)
+
+    def step(x, t, h, rng):
+        return x + mu * h + math.sqrt(h / dt) * sq * rng.standard_normal(x.shape)
+
+    dist = propagate_to_threshold(
+        np.zeros((n, 1)), step, lambda x: x[:, 0], a, dt=dt, horizon=4.0,
+        rng=np.random.default_rng(42),
+    )
+    assert dist.n_censored == 0
+    mean_exact = a / mu
+    sd_exact = math.sqrt(a * sigma**2 / mu**3)
+    se = sd_exact / math.sqrt(n)
+    # discrete monitoring overshoots the barrier by ~0.5826 sigma sqrt(dt) (Siegmund); the
+    # interpolated time is late by at most that over mu
+    bias_bound = 0.5826 * sigma * math.sqrt(dt) / mu
+    assert abs(dist.mean - mean_exact) < 4 * se + bias_bound
+    assert dist.std == pytest.approx(sd_exact, rel=0.06)
+    ig = stats.invgauss(mu=(mean_exact / (a**2 / sigma**2)), scale=a**2 / sigma**2)
+    assert ig.mean() == pytest.approx(mean_exact)
+    for q in (0.1, 0.5, 0.9):
+        assert abs(dist.quantile(q) - ig.ppf(q)) < 0.02
+
+
+def test_reproducible_from_seed_and_weights_attached():
+    def step(x, t, dt, rng):
+        out = x.copy()
+        out[:, 0] += x[:, 1] * dt + 0.01 * rng.standard_normal(x.shape[0])
+        return out
+
+    x0 = np.column_stack([np.zeros(50), np.full(50, 0.1)])
+    w = np.arange(1.0, 51.0)
+    a = propagate_to_threshold(x0, step, damage, 1.0, dt=0.5, horizon=30.0,
+                               rng=np.random.default_rng(3), weights=w)
+    b = propagate_to_threshold(x0, step, damage, 1.0, dt=0.5, horizon=30.0,
+                               rng=np.random.default_rng(3), weights=w)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    np.testing.assert_allclose(a.weights, w / w.sum())
+
+
+def test_propagate_input_errors():
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="empty batch"):
+        propagate_to_threshold(np.zeros((0, 2)), linear_step, damage, 1.0, dt=1.0,
+                               horizon=10.0, rng=rng)
+    with pytest.raises(ValueError, match="x0: non-finite value at row 1"):
+        propagate_to_threshold(np.array([[0, 1.0], [np.nan, 1.0]]), linear_step, damage, 1.0,
+                               dt=1.0, horizon=10.0, rng=rng)
+    with pytest.raises(ValueError, match="dt"):
+        propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=0.0,
+                               horizon=10.0, rng=rng)
+    with pytest.raises(ValueError, match="horizon"):
+        propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
+                               horizon=np.inf, rng=rng)
+    with pytest.raises(ValueError, match="direction"):
+        propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
+                               horizon=5.0, rng=rng, direction="sideways")
+
+    def diverging(x, t, dt, rng):
+        out = x.copy()
+        out[1, 0] = np.nan
+        return out
+
+    with pytest.raises(ValueError, match=r"step 1 .* sample 1"):
+        propagate_to_threshold(np.zeros((3, 2)), diverging, damage, 1.0, dt=1.0,
+                               horizon=5.0, rng=rng)
+    with pytest.raises(ValueError, match="indicator: expected shape"):
+        propagate_to_threshold(np.zeros((3, 2)), linear_step, lambda x: x, 1.0, dt=1.0,
+                               horizon=5.0, rng=rng)
+
+
+# ------------------------------------------------------------------ RULDistribution
+def test_quantile_matches_numpy_inverted_cdf_for_equal_weights():
+    s = np.random.default_rng(5).gamma(2.0, 3.0, size=101)
+    d = RULDistribution(s)
+    q = np.linspace(0, 1, 37)
+    np.testing.assert_array_equal(d.quantile(q), np.quantile(s, q, method="inverted_cdf"))
+    assert d.mean == pytest.approx(s.mean())
+    assert d.std == pytest.approx(s.std())
+
+
+def test_weighted_quantile_hand_computed_and_equal_to_repeats():
+    d = RULDistribution([3.0, 1.0, 2.0], weights=[0.3, 0.2, 0.5])
+    assert d.quantile(0.2) == 1.0
+    assert d.quantile(0.21) == 2.0
+    assert d.quantile(0.7) == 2.0
+    assert d.quantile(0.71) == 3.0
+    assert d.quantile(0.0) == 1.0 and d.quantile(1.0) == 3.0
+    assert d.mean == pytest.approx(0.3 * 3 + 0.2 + 1.0)
+    # integer weights == repeated samples
+    rep = RULDistribution(np.repeat([3.0, 1.0, 2.0], [3, 2, 5]))
+    q = np.linspace(0, 1, 23)
+    np.testing.assert_array_equal(d.quantile(q), rep.quantile(q))
+    assert d.std == pytest.approx(rep.std)
+    assert d.effective_sample_size == pytest.approx(1 / (0.09 + 0.04 + 0.25))
+
+
+def test_interval_and_cdf():
+    d = RULDistribution(np.arange(1.0, 101.0))
+    assert d.interval(0.9) == (5.0, 95.0)
+    assert d.cdf(10.0) == pytest.approx(0.1)
+    assert d.cdf(0.5) == 0.0
+    np.testing.assert_allclose(d.cdf([10.0, 50.5]), [0.1, 0.5])
+    with pytest.raises(ValueError, match="level"):
+        d.interval(1.5)
+    with pytest.raises(ValueError, match="q"):
+        d.quantile(1.1)
+
+
+def test_pdf_integrates_to_uncensored_mass_and_matches_normal():
+    rng = np.random.default_rng(7)
+    s = rng.normal(50.0, 5.0, size=4000)
+    d = RULDistribution(s)
+    grid = np.linspace(20, 80, 601)
+    f = d.pdf(grid)
+    assert np.trapezoid(f, grid) == pytest.approx(1.0, abs=2e-3)
+    assert np.max(np.abs(f - stats.norm(50, 5).pdf(grid))) < 0.006  # peak is 0.0798
+    # a quarter censored at horizon 60: the density covers the other 3/4
+    s2 = np.concatenate([rng.uniform(0, 40, 300), np.full(100, 60.0)])
+    c = np.r_[np.zeros(300, bool), np.ones(100, bool)]
+    d2 = RULDistribution(s2, censored=c, horizon=60.0)
+    g2 = np.linspace(-40, 80, 2401)
+    assert np.trapezoid(d2.pdf(g2), g2) == pytest.approx(0.75, abs=2e-3)
+
+
+@pytest.mark.parametrize("horizon", [60.0, math.inf])
+def test_json_and_csv_round_trip_exactly(tmp_path, horizon):
+    rng = np.random.default_rng(11)
+    s = rng.uniform(0, 50, 40)
+    c = rng.random(40) < 0.2
+    s[c] = 55.0
+    w = rng.random(40)
+    d = RULDistribution(s, weights=w, censored=c, horizon=horizon)
+    p = d.to_json(tmp_path / "rul.json")
+    text = p.read_text()
+    assert "Infinity" not in text and "NaN" not in text
+    json.loads(text)  # strict JSON
+    for back in (RULDistribution.from_json(p),
+                 RULDistribution.from_csv(d.to_csv(tmp_path / "rul.csv"))):
+        np.testing.assert_array_equal(back.samples, d.samples)
+        np.testing.assert_array_equal(back.weights, d.weights)
+        np.testing.assert_array_equal(back.censored, d.censored)
+        assert back.horizon == d.horizon
+        assert back.median == d.median and back.mean == d.mean
+
+
+def test_validation_errors(tmp_path):
+    with pytest.raises(ValueError, match="empty"):
+        RULDistribution(np.array([]))
+    with pytest.raises(ValueError, match="non-finite value nan at index 1"):
+        RULDistribution([1.0, np.nan])
+    with pytest.raises(ValueError, match="negative RUL"):
+        RULDistribution([1.0, -2.0])
+    with pytest.raises(ValueError, match="1-D"):
+        RULDistribution(np.ones((2, 2)))
+    with pytest.raises(ValueError, match=r"weights: expected shape \(2,\)"):
+        RULDistribution([1.0, 2.0], weights=[1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="negative weight"):
+        RULDistribution([1.0, 2.0], weights=[1.0, -0.5])
+    with pytest.raises(ValueError, match="weights: non-finite"):
+        RULDistribution([1.0, 2.0], weights=[1.0, np.nan])
+    with pytest.raises(ValueError, match="all zero"):
+        RULDistribution([1.0, 2.0], weights=[0.0, 0.0])
+    with pytest.raises(ValueError, match=r"censored: expected shape \(2,\)"):
+        RULDistribution([1.0, 2.0], censored=[True])
+    with pytest.raises(ValueError, match="exceeds the horizon"):
+        RULDistribution([1.0, 20.0], horizon=10.0)
+    with pytest.raises(ValueError, match="horizon"):
+        RULDistribution([1.0], horizon=-1.0)
+    with pytest.raises(ValueError, match="format"):
+        RULDistribution.from_dict({"samples": [1.0]})
+    empty = tmp_path / "empty.json"
+    empty.write_text("")
+    with pytest.raises(ValueError, match="empty file"):
+        RULDistribution.from_json(empty)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# rulkit.RULDistribution v1\n# horizon=inf\nrul,weight,censored\n1.0,x,0\n")
+    with pytest.raises(ValueError, match="line 4"):
+        RULDistribution.from_csv(bad)
+
+
+def test_arrays_are_read_only():
+    s = np.array([1.0, 2.0])
+    d = RULDistribution(s)
+    s[0] = 100.0  # the caller's array is copied
+    assert d.samples[0] == 1.0
+    with pytest.raises(ValueError):
+        d.samples[0] = 5.0

@@ -1,0 +1,161 @@
+"""Tests of rulkit.metrics against hand-computed cases and closed forms."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from rulkit.metrics import (
+    alpha_lambda,
+    convergence,
+    crps_normal,
+    crps_samples,
+    cumulative_relative_accuracy,
+    interval_coverage,
+    prognostic_horizon,
+    relative_accuracy,
+    rmspe,
+    rul_percentage_error,
+)
+from rulkit.prognosis.rul import RULDistribution
+
+
+def test_rul_percentage_error_and_rmspe_hand_computed():
+    np.testing.assert_allclose(rul_percentage_error([90.0, 110.0], [100.0, 100.0]), [10, -10])
+    assert rmspe([110.0, 90.0, 100.0], [100.0] * 3) == pytest.approx(100 * math.sqrt(0.02 / 3))
+    np.testing.assert_allclose(
+        rmspe([[110.0, 90.0], [50.0, 50.0]], [[100.0, 100.0], [40.0, 50.0]], axis=1),
+        [10.0, 100 * math.sqrt(0.0625 / 2)],
+    )
+    with pytest.raises(ValueError, match="zero at index"):
+        rmspe([1.0], [0.0])
+    with pytest.raises(ValueError, match="shapes differ"):
+        rul_percentage_error([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match="non-finite"):
+        rmspe([np.nan], [1.0])
+
+
+def test_relative_accuracy_and_cra():
+    assert relative_accuracy(80.0, 100.0) == pytest.approx(0.8)
+    np.testing.assert_allclose(relative_accuracy([80.0, 130.0], [100.0, 100.0]), [0.8, 0.7])
+    assert cumulative_relative_accuracy([80.0, 130.0], [100.0, 100.0]) == pytest.approx(0.75)
+    assert cumulative_relative_accuracy([80.0, 130.0], [100.0, 100.0], weights=[1, 3]) == (
+        pytest.approx(0.8 * 0.25 + 0.7 * 0.75)
+    )
+
+
+def test_alpha_lambda_points_and_distributions():
+    times = np.array([0.0, 10.0, 20.0, 30.0, 40.0])
+    # t_lambda = 0 + 0.5 * 100 = 50 -> latest prediction at 40, r* = 60, bounds [48, 72]
+    res = alpha_lambda(times, [99, 88, 77, 66, 70.0], 100.0, alpha=0.2, lam=0.5)
+    assert res.t_lambda == 50.0 and res.t_pred == 40.0
+    assert (res.lower, res.upper) == pytest.approx((48.0, 72.0))
+    assert res.passed
+    assert not alpha_lambda(times, [99, 88, 77, 66, 73.0], 100.0, alpha=0.2, lam=0.5).passed
+    # lam = 0.3 -> t_lambda = 30 exactly, prediction 66 vs r* = 70, bounds [56, 84]
+    assert alpha_lambda(times, [0, 0, 0, 66, 0.0], 100.0, alpha=0.2, lam=0.3).passed
+    # distributions: 60 % of the mass inside [48, 72] passes with beta = 0.5, not with 0.7
+    inside = [50.0, 55.0, 60.0, 65.0, 70.0, 71.0]
+    outside = [10.0, 20.0, 80.0, 90.0]
+    d = RULDistribution(inside + outside)
+    dists = [d] * 5
+    r = alpha_lambda(times, dists, 100.0, alpha=0.2, lam=0.5, beta=0.5)
+    assert r.prob_mass == pytest.approx(0.6) and r.passed
+    assert not alpha_lambda(times, dists, 100.0, alpha=0.2, lam=0.5, beta=0.7).passed
+    with pytest.raises(ValueError, match="not strictly increasing"):
+        alpha_lambda([0.0, 0.0], [1.0, 1.0], 10.0)
+
+
+def test_prognostic_horizon_hand_computed():
+    times = np.array([0.0, 20.0, 40.0, 60.0, 80.0])
+    # r* = [100, 80, 60, 40, 20]; absolute bounds r* +- 0.1 * 100
+    res = prognostic_horizon(times, [130.0, 60.0, 65.0, 35.0, 21.0], 100.0, alpha=0.1)
+    assert res.inside.tolist() == [False, False, True, True, True]
+    assert res.horizon == 60.0 and res.index == 2
+    # enters at 20, leaves at 40, re-enters at 60: first-entry PH 80, "stay" PH 40
+    preds = [130.0, 85.0, 45.0, 42.0, 21.0]
+    assert prognostic_horizon(times, preds, 100.0, alpha=0.1).horizon == 80.0
+    assert prognostic_horizon(times, preds, 100.0, alpha=0.1, stay=True).horizon == 40.0
+    # relative bounds (1 -+ 0.1) r*: 85 vs [72, 88] in, 42 vs [36, 44] in, 21 vs [18, 22] in
+    rel = prognostic_horizon(times, preds, 100.0, alpha=0.1, bounds="relative")
+    assert rel.inside.tolist() == [False, True, False, True, True]
+    none = prognostic_horizon(times, [0.0] * 5, 100.0, alpha=0.01)
+    assert math.isnan(none.horizon) and none.index == -1
+
+
+def test_convergence_hand_computed():
+    # M = [2, 1] on [0,1), [1,2): area 3, x_c = (1*2 + 3*1)/6, y_c = (4 + 1)/6
+    c = convergence([0.0, 1.0, 2.0], [2.0, 1.0, 123.0])
+    assert c == pytest.approx(math.hypot(5 / 6, 5 / 6))
+    # constant M = c on [t_P, T] -> centroid (mid, c/2)
+    assert convergence(np.linspace(10, 30, 11), np.full(11, 4.0)) == pytest.approx(
+        math.hypot(10.0, 2.0)
+    )
+    # faster-shrinking error converges better
+    t = np.linspace(0, 10, 21)
+    assert convergence(t, np.exp(-t)) < convergence(t, np.exp(-0.1 * t))
+
+
+def test_interval_coverage():
+    assert interval_coverage([0, 0, 0, 0], [1, 1, 1, np.inf], [0.5, 1.0, 2.0, 1e9]) == 0.75
+    with pytest.raises(ValueError, match="lower > upper at index 1"):
+        interval_coverage([0, 2], [1, 1], [0, 0])
+
+
+def test_crps_samples_hand_cases_and_bruteforce():
+    # F = 1/2 delta_0 + 1/2 delta_1, y = 0: int_0^1 (1/2 - 1)^2 = 1/4
+    assert crps_samples([0.0, 1.0], 0.0) == pytest.approx(0.25)
+    # point mass: |x - y|
+    assert crps_samples([3.0], 1.0) == pytest.approx(2.0)
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=30)
+    w = rng.random(30)
+    y = 0.4
+    wn = w / w.sum()
+    brute = np.sum(wn * np.abs(x - y)) - 0.5 * np.sum(
+        wn[:, None] * wn[None, :] * np.abs(x[:, None] - x[None, :])
+    )
+    assert crps_samples(x, y, weights=w) == pytest.approx(brute, rel=1e-12)
+    # the integral definition int (F(z) - 1{z >= y})^2 dz, integrated piecewise exactly
+    pts = np.sort(np.r_[x, y])
+    order = np.argsort(x)
+    total = 0.0
+    for a, b in itertools.pairwise(pts):
+        mid = 0.5 * (a + b)
+        f = np.sum(wn[order][x[order] <= mid])
+        total += (f - (1.0 if mid >= y else 0.0)) ** 2 * (b - a)
+    assert crps_samples(x, y, weights=w) == pytest.approx(total, rel=1e-10)
+    # integer weights == repeated samples; batched call == loop
+    assert crps_samples([1.0, 2.0], 1.5, weights=[1, 3]) == pytest.approx(
+        crps_samples([1.0, 2.0, 2.0, 2.0], 1.5)
+    )
+    xb = rng.normal(size=(4, 25))
+    yb = rng.normal(size=4)
+    np.testing.assert_allclose(crps_samples(xb, yb), [crps_samples(xb[i], yb[i]) for i in
+                                                      range(4)])
+    with pytest.raises(ValueError, match="do not match"):
+        crps_samples(xb, 0.0)
+
+
+def test_crps_samples_converges_to_normal_closed_form():
+    rng = np.random.default_rng(9)
+    mu, sigma = 2.0, 1.5
+    x = rng.normal(mu, sigma, size=200_000)
+    for y in (-1.0, 2.0, 5.5):
+        # empirical CRPS error is O(sigma / sqrt(N)) ~ 0.003 here
+        assert crps_samples(x, y) == pytest.approx(crps_normal(mu, sigma, y), abs=0.015)
+
+
+@pytest.mark.parametrize(("mu", "sigma", "y"), [(0.0, 1.0, 0.0), (2.0, 0.5, 3.1),
+                                                (-1.0, 3.0, -7.0)])
+def test_crps_normal_vs_numerical_integration(mu, sigma, y):
+    F = stats.norm(mu, sigma).cdf
+    left, _ = integrate.quad(lambda z: F(z) ** 2, -np.inf, y)
+    right, _ = integrate.quad(lambda z: (1 - F(z)) ** 2, y, np.inf)
+    assert crps_normal(mu, sigma, y) == pytest.approx(left + right, rel=1e-8)
+    with pytest.raises(ValueError, match="sigma"):
+        crps_normal(0.0, 0.0, 1.0)
