@@ -1,0 +1,854 @@
+"""Kalman filter family batched over B units: KF, EKF, UKF (engine-api.md, estimation.kalman).
+
+Conventions (all arrays float64; a single unit is B = 1):
+
+* States ``x`` have shape (B, n), covariances ``P`` (B, n, n), measurements ``y`` (B, m).
+* Model matrices ``F``, ``Q``, ``H``, ``R`` are shared ``(n, n)`` / ``(m, n)`` / ``(m, m)`` or
+  per unit ``(B, n, n)`` / ``(B, m, n)`` / ``(B, m, m)``. In the filter classes they may also
+  be callables of the step index ``k`` returning such an array (time-varying models). Stacked
+  ``(T, ...)`` arrays are *not* accepted because ``(T, n, n)`` and ``(B, n, n)`` would be
+  ambiguous; wrap them as ``lambda k: F_seq[k]``.
+* Step order (same as the particle filter): ``x0, P0`` describe the state one step *before*
+  ``ys[0]``; step ``k`` predicts (applies the transition) and then assimilates ``ys[k]``.
+  The results hold the filtered (posterior) moments after each ``ys[k]``, and the predicted
+  ones in ``x_pred``/``P_pred``.
+* Update (Bar-Shalom et al. 2001, eqs 5.2.3-12..17): innovation ``nu = y - h(x)``,
+  ``S = H P H^T + R``, gain from a linear solve ``K^T = S^{-1} H P`` (no explicit inverse),
+  covariance in Joseph form ``P+ = (I - K H) P (I - K H)^T + K R K^T``.
+  ``nis = nu^T S^{-1} nu`` (normalised innovation squared; chi-square with m degrees of
+  freedom when the filter is consistent) and ``loglik = log N(nu; 0, S)`` (log|S| from a
+  Cholesky factor, which also rejects an S that is not positive definite).
+* Missing data: a measurement row of unit b containing any NaN skips the update of that unit at
+  that step (its state and covariance stay at the prediction); its ``nu`` and ``nis`` are NaN,
+  its ``loglik`` increment is 0 and ``skipped`` is True. Infinite measurements are an error.
+  (Partially observed rows are treated as missing as a whole: simple and never biased.)
+* Bad input raises ``ValueError`` naming the argument (and the unit, where relevant): wrong
+  shapes, non-finite values, non-symmetric or not positive semi-definite covariances.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+from rulkit.integrate import rk4_step
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+MatrixLike = np.ndarray | Callable[[int], np.ndarray]
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+
+__all__ = [
+    "ExtendedKalmanFilter",
+    "Innovation",
+    "KalmanFilter",
+    "KalmanResult",
+    "UnscentedKalmanFilter",
+    "discretise",
+    "kf_predict",
+    "kf_update",
+    "numerical_jacobian",
+]
+
+
+# ----------------------------------------------------------------------------------------------
+# result types
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Innovation:
+    """Innovation of one update for B units.
+
+    ``nu`` (B, m) innovation, ``S`` (B, m, m) its covariance, ``nis`` (B,) normalised innovation
+    squared ``nu^T S^-1 nu``, ``loglik`` (B,) ``log N(nu; 0, S)``, ``skipped`` (B,) True where the
+    measurement was missing (NaN): then ``nu``/``nis`` are NaN and ``loglik`` is 0.
+    """
+
+    nu: FloatArray
+    S: FloatArray
+    nis: FloatArray
+    loglik: FloatArray
+    skipped: BoolArray
+
+
+@dataclass(frozen=True)
+class KalmanResult:
+    """Output of ``filter``: per step k (T steps) and unit b (B units).
+
+    ``x`` (T, B, n) / ``P`` (T, B, n, n) filtered moments after ``ys[k]``; ``x_pred`` /
+    ``P_pred`` the predicted ones before it; ``innovations`` (T, B, m), ``S`` (T, B, m, m),
+    ``nis`` (T, B), ``loglik_increments`` (T, B), ``skipped`` (T, B) and ``loglik`` (B,), the
+    sum of the increments (the log marginal likelihood of the observed data).
+    """
+
+    x: FloatArray
+    P: FloatArray
+    x_pred: FloatArray
+    P_pred: FloatArray
+    innovations: FloatArray
+    S: FloatArray
+    nis: FloatArray
+    loglik_increments: FloatArray
+    skipped: BoolArray
+    loglik: FloatArray
+
+
+# ----------------------------------------------------------------------------------------------
+# validation helpers
+# ----------------------------------------------------------------------------------------------
+def _T(a: np.ndarray) -> np.ndarray:
+    return np.swapaxes(a, -1, -2)
+
+
+def _sym(a: np.ndarray) -> np.ndarray:
+    return 0.5 * (a + _T(a))
+
+
+def _check_finite(a: np.ndarray, name: str) -> None:
+    if not np.all(np.isfinite(a)):
+        idx = np.argwhere(~np.isfinite(a))[0]
+        raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in idx)}")
+
+
+def _as_state(x: Any, name: str = "x") -> FloatArray:
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] == 0:
+        raise ValueError(f"{name}: expected shape (B, n), got {arr.shape}")
+    _check_finite(arr, name)
+    return arr
+
+
+def _as_matrix(a: Any, rows: int, cols: int, batch: int | None, name: str) -> FloatArray:
+    """A shared (rows, cols) or per-unit (B, rows, cols) matrix, finite."""
+    arr = np.asarray(a, dtype=np.float64)
+    if rows == 1 and cols == 1 and arr.ndim == 0:
+        arr = arr.reshape(1, 1)
+    ok = arr.shape == (rows, cols) or (
+        arr.ndim == 3 and arr.shape[1:] == (rows, cols) and (batch is None or arr.shape[0] == batch)
+    )
+    if not ok:
+        b = "B" if batch is None else str(batch)
+        raise ValueError(
+            f"{name}: expected shape ({rows}, {cols}) or ({b}, {rows}, {cols}), got {arr.shape}"
+        )
+    _check_finite(arr, name)
+    return arr
+
+
+def _check_psd(c: FloatArray, name: str, definite: bool = False) -> None:
+    """Symmetric and positive semi-definite (or definite) for (n, n) or (B, n, n)."""
+    scale = max(1.0, float(np.abs(c).max(initial=0.0)))
+    if not np.allclose(c, _T(c), rtol=1e-10, atol=1e-13 * scale):
+        unit = ""
+        if c.ndim == 3:
+            unit = f" (unit {_first_bad(~np.isclose(c, _T(c)).all(axis=(-1, -2)))})"
+        raise ValueError(f"{name}: not symmetric{unit}")
+    eig = np.linalg.eigvalsh(_sym(c))
+    lo = eig[..., 0]
+    hi = np.abs(eig).max(axis=-1)
+    tol = 1e-10 * np.maximum(hi, np.finfo(np.float64).tiny)
+    bad = lo <= 0.0 if definite else lo < -tol
+    if np.any(bad):
+        what = "positive definite" if definite else "positive semi-definite"
+        if c.ndim == 2:
+            raise ValueError(f"{name}: not {what} (smallest eigenvalue {float(lo):.3g})")
+        b = _first_bad(bad)
+        raise ValueError(f"{name}: not {what} for unit {b} (smallest eigenvalue {lo[b]:.3g})")
+
+
+def _first_bad(mask: np.ndarray) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def _as_cov(c: Any, n: int, batch: int | None, name: str, definite: bool = False) -> FloatArray:
+    arr = _as_matrix(c, n, n, batch, name)
+    _check_psd(arr, name, definite)
+    return arr
+
+
+def _as_measurements(y: Any, batch: int, m: int, name: str = "y") -> FloatArray:
+    arr = np.asarray(y, dtype=np.float64)
+    if arr.shape != (batch, m):
+        raise ValueError(f"{name}: expected shape ({batch}, {m}), got {arr.shape}")
+    if np.any(np.isinf(arr)):
+        idx = np.argwhere(np.isinf(arr))[0]
+        raise ValueError(
+            f"{name}: infinite value at unit {idx[0]}, component {idx[1]} (use NaN for missing)"
+        )
+    return arr
+
+
+def _matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """M (r, c) or (B, r, c) times x (B, c) -> (B, r)."""
+    if M.ndim == 2:
+        return x @ M.T
+    return np.einsum("bij,bj->bi", M, x)
+
+
+# ----------------------------------------------------------------------------------------------
+# core (unchecked) predict / update
+# ----------------------------------------------------------------------------------------------
+def _predict(
+    x: FloatArray, P: FloatArray, F: FloatArray, Q: FloatArray, Bu: FloatArray | None
+) -> tuple[FloatArray, FloatArray]:
+    xn = _matvec(F, x)
+    if Bu is not None:
+        xn = xn + Bu
+    Pn = _sym(F @ P @ _T(F) + Q)
+    return xn, Pn
+
+
+def _chol_S(S: FloatArray) -> FloatArray:
+    try:
+        return np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        lo = np.linalg.eigvalsh(S)[..., 0]
+        b = _first_bad(lo <= 0)
+        raise ValueError(
+            f"innovation covariance S = H P H^T + R is not positive definite for unit {b} "
+            f"(smallest eigenvalue {lo[b]:.3g}); check R and P"
+        ) from None
+
+
+def _finish_innovation(
+    nu: FloatArray, S: FloatArray, Sinv_nu: FloatArray, L: FloatArray, skipped: BoolArray
+) -> Innovation:
+    m = nu.shape[1]
+    nis = np.einsum("bi,bi->b", nu, Sinv_nu)
+    logdet = 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(axis=-1)
+    loglik = -0.5 * (nis + logdet + m * _LOG_2PI)
+    if skipped.any():
+        nu = nu.copy()
+        nu[skipped] = np.nan
+        nis = np.where(skipped, np.nan, nis)
+        loglik = np.where(skipped, 0.0, loglik)
+    return Innovation(nu=nu, S=S, nis=nis, loglik=loglik, skipped=skipped)
+
+
+def _update(
+    x: FloatArray,
+    P: FloatArray,
+    y: FloatArray,
+    H: FloatArray,
+    R: FloatArray,
+    yhat: FloatArray | None,
+) -> tuple[FloatArray, FloatArray, Innovation]:
+    B, n = x.shape
+    skipped = np.isnan(y).any(axis=1)
+    if yhat is None:
+        yhat = _matvec(H, x)
+    nu = y - yhat
+    nu0 = np.where(skipped[:, None], 0.0, nu) if skipped.any() else nu
+    HP = H @ P  # (B, m, n)
+    S = _sym(HP @ _T(H) + R)
+    if S.ndim == 2:  # P shared (n, n) and H shared: give every unit its own copy
+        S = np.broadcast_to(S, (B, *S.shape)).copy()
+    L = _chol_S(S)
+    rhs = np.concatenate([nu0[:, :, None], np.broadcast_to(HP, (B, *HP.shape[-2:]))], axis=2)
+    sol = np.linalg.solve(S, rhs)  # S^-1 [nu, H P]
+    Sinv_nu = sol[:, :, 0]
+    K = _T(sol[:, :, 1:])  # (B, n, m) = P H^T S^-1
+    xn = x + np.einsum("bij,bj->bi", K, nu0)
+    IKH = np.eye(n) - K @ H
+    Pn = _sym(IKH @ P @ _T(IKH) + K @ R @ _T(K))
+    if skipped.any():
+        Pn = np.where(skipped[:, None, None], np.broadcast_to(P, Pn.shape), Pn)
+    return xn, Pn, _finish_innovation(nu, S, Sinv_nu, L, skipped)
+
+
+# ----------------------------------------------------------------------------------------------
+# public functional core
+# ----------------------------------------------------------------------------------------------
+def kf_predict(
+    x: np.ndarray,
+    P: np.ndarray,
+    F: np.ndarray,
+    Q: np.ndarray,
+    Bu: np.ndarray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Kalman prediction ``x <- F x + Bu``, ``P <- F P F^T + Q`` for B units.
+
+    ``x`` (B, n), ``P`` (B, n, n) (or shared (n, n)), ``F`` and ``Q`` (n, n) or (B, n, n), ``Bu``
+    an optional control contribution (n,) or (B, n). Validates shapes, finiteness and that
+    ``P`` and ``Q`` are symmetric positive semi-definite (errors name the argument).
+    """
+    x = _as_state(x)
+    B, n = x.shape
+    P = _as_cov(P, n, B, "P")
+    F = _as_matrix(F, n, n, B, "F")
+    Q = _as_cov(Q, n, B, "Q")
+    bu = None
+    if Bu is not None:
+        bu = np.asarray(Bu, dtype=np.float64)
+        if bu.shape not in ((n,), (B, n)):
+            raise ValueError(f"Bu: expected shape ({n},) or ({B}, {n}), got {bu.shape}")
+        _check_finite(bu, "Bu")
+    xn, Pn = _predict(x, P, F, Q, bu)
+    if Pn.ndim == 2:
+        Pn = np.broadcast_to(Pn, (B, n, n)).copy()
+    return xn, Pn
+
+
+def kf_update(
+    x: np.ndarray,
+    P: np.ndarray,
+    y: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    h_of_x: np.ndarray | Callable[[FloatArray], np.ndarray] | None = None,
+) -> tuple[FloatArray, FloatArray, Innovation]:
+    """Kalman measurement update for B units (Joseph form, linear solves).
+
+    ``y`` (B, m) with NaN rows meaning "missing" (the update of that unit is skipped);
+    ``H`` (m, n) or (B, m, n); ``R`` (m, m) or (B, m, m). ``h_of_x``: predicted measurement
+    (B, m) (or a callable of ``x``) replacing ``H x`` (EKF use, with ``H`` the Jacobian).
+    Returns ``(x, P, Innovation)``.
+    """
+    x = _as_state(x)
+    B, n = x.shape
+    P = _as_cov(P, n, B, "P")
+    Rm = np.asarray(R, dtype=np.float64)
+    m = 1 if Rm.ndim == 0 else Rm.shape[-1]
+    y = _as_measurements(y, B, m)
+    H = _as_matrix(H, m, n, B, "H")
+    R = _as_cov(R, m, B, "R")
+    yhat = None
+    if h_of_x is not None:
+        yhat = np.asarray(h_of_x(x) if callable(h_of_x) else h_of_x, dtype=np.float64)
+        if yhat.shape != (B, m):
+            raise ValueError(f"h_of_x: expected shape ({B}, {m}), got {yhat.shape}")
+        _check_finite(yhat, "h_of_x")
+    if P.ndim == 2:
+        P = np.broadcast_to(P, (B, n, n))
+    return _update(x, P, y, H, R, yhat)
+
+
+def numerical_jacobian(
+    fun: Callable[..., np.ndarray], x: np.ndarray, *args: Any, eps: float | None = None
+) -> FloatArray:
+    """Central-difference Jacobian of a batched function, ``(B, m, n)``.
+
+    ``fun(x (B, n), *args) -> (B, m)`` (or (B,), taken as m = 1). Column j uses the step
+    ``h_bj = eps * max(1, |x_bj|)`` (``eps`` defaults to cbrt(machine epsilon) ~ 6e-6, the
+    optimum for central differences), rounded so that ``x + h`` is exact. Truncation error
+    O(h^2); 2 n calls of ``fun``, each vectorised over B.
+    """
+    x = _as_state(x)
+    B, n = x.shape
+    rel = float(np.cbrt(np.finfo(np.float64).eps)) if eps is None else float(eps)
+    if not (np.isfinite(rel) and rel > 0):
+        raise ValueError(f"eps: expected a positive finite step, got {eps!r}")
+    h = rel * np.maximum(1.0, np.abs(x))
+    h = (x + h) - x  # representable steps
+    cols = []
+    for j in range(n):
+        xp = x.copy()
+        xm = x.copy()
+        xp[:, j] += h[:, j]
+        xm[:, j] -= h[:, j]
+        fp = np.asarray(fun(xp, *args), dtype=np.float64)
+        fm = np.asarray(fun(xm, *args), dtype=np.float64)
+        if fp.ndim == 1:
+            fp, fm = fp[:, None], fm[:, None]
+        if fp.ndim != 2 or fp.shape[0] != B:
+            raise ValueError(f"fun: expected an output of shape ({B}, m), got {fp.shape}")
+        cols.append((fp - fm) / (h[:, j, None] + h[:, j, None]))
+    return np.stack(cols, axis=-1)
+
+
+def discretise(A: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[FloatArray, FloatArray]:
+    """Discretise ``dx = A x dt + dw`` (spectral density ``Qc``) over ``dt`` by Van Loan (1978).
+
+    ``Phi = expm(A dt)``, ``Qd = int_0^dt expm(A s) Qc expm(A s)^T ds``, both from one matrix
+    exponential of ``M = [[-A, Qc], [0, A^T]] dt``: ``expm(M) = [[., Phi^-1 Qd], [0, Phi^T]]``.
+    ``A``, ``Qc``: (n, n) or (B, n, n) (broadcast together).
+    """
+    A = np.asarray(A, dtype=np.float64)
+    if A.ndim not in (2, 3) or A.shape[-1] != A.shape[-2]:
+        raise ValueError(f"A: expected shape (n, n) or (B, n, n), got {A.shape}")
+    _check_finite(A, "A")
+    n = A.shape[-1]
+    Qc = _as_cov(Qc, n, A.shape[0] if A.ndim == 3 else None, "Qc")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: expected a positive finite step, got {dt!r}")
+    lead = np.broadcast_shapes(A.shape[:-2], Qc.shape[:-2])
+    M = np.zeros((*lead, 2 * n, 2 * n))
+    M[..., :n, :n] = -A * dt
+    M[..., :n, n:] = Qc * dt
+    M[..., n:, n:] = _T(A) * dt
+    E = scipy.linalg.expm(M)
+    Phi = _T(E[..., n:, n:])
+    Qd = _sym(Phi @ E[..., :n, n:])
+    return np.ascontiguousarray(Phi), Qd
+
+
+# ----------------------------------------------------------------------------------------------
+# filter classes
+# ----------------------------------------------------------------------------------------------
+def _check_x0_P0(x0: Any, P0: Any) -> tuple[FloatArray, FloatArray]:
+    x0 = _as_state(x0, "x0")
+    B, n = x0.shape
+    P0 = _as_cov(P0, n, B, "P0")
+    if P0.ndim == 2:
+        P0 = np.broadcast_to(P0, (B, n, n)).copy()
+    return x0, P0
+
+
+def _check_ys(ys: Any, B: int, m: int) -> FloatArray:
+    arr = np.asarray(ys, dtype=np.float64)
+    if arr.ndim != 3 or arr.shape[1:] != (B, m):
+        raise ValueError(f"ys: expected shape (T, {B}, {m}), got {arr.shape}")
+    if np.any(np.isinf(arr)):
+        idx = np.argwhere(np.isinf(arr))[0]
+        raise ValueError(
+            f"ys: infinite value at step {idx[0]}, unit {idx[1]}, component {idx[2]} "
+            "(use NaN for missing)"
+        )
+    return arr
+
+
+def _input_at(us: Any, k: int, T: int) -> Any:
+    """Input of step k: ``us`` may be None, a (T, ...) array or a callable of k."""
+    if us is None:
+        return None
+    if callable(us):
+        return us(k)
+    return us[k]
+
+
+class _Stacker:
+    """Preallocated (T, B, ...) result buffers."""
+
+    def __init__(self, T: int, B: int, n: int, m: int) -> None:
+        self.x = np.empty((T, B, n))
+        self.P = np.empty((T, B, n, n))
+        self.xp = np.empty((T, B, n))
+        self.Pp = np.empty((T, B, n, n))
+        self.nu = np.empty((T, B, m))
+        self.S = np.empty((T, B, m, m))
+        self.nis = np.empty((T, B))
+        self.ll = np.empty((T, B))
+        self.sk = np.empty((T, B), dtype=bool)
+
+    def put(
+        self, k: int, xp: FloatArray, Pp: FloatArray, x: FloatArray, P: FloatArray, inn: Innovation
+    ) -> None:
+        self.xp[k], self.Pp[k], self.x[k], self.P[k] = xp, Pp, x, P
+        self.nu[k], self.S[k], self.nis[k] = inn.nu, inn.S, inn.nis
+        self.ll[k], self.sk[k] = inn.loglik, inn.skipped
+
+    def result(self) -> KalmanResult:
+        return KalmanResult(
+            x=self.x,
+            P=self.P,
+            x_pred=self.xp,
+            P_pred=self.Pp,
+            innovations=self.nu,
+            S=self.S,
+            nis=self.nis,
+            loglik_increments=self.ll,
+            skipped=self.sk,
+            loglik=self.ll.sum(axis=0),
+        )
+
+
+class _MatrixSource:
+    """A constant matrix (validated once) or a callable of k (shape-checked each step)."""
+
+    def __init__(
+        self, a: MatrixLike, rows: int | None, cols: int | None, name: str, cov: bool
+    ) -> None:
+        self.name, self.cov, self.fn = name, cov, None
+        if callable(a):
+            self.fn = a
+            self.rows, self.cols, self.value = rows, cols, None
+        else:
+            arr = np.asarray(a, dtype=np.float64)
+            if arr.ndim == 0:
+                arr = arr.reshape(1, 1)
+            if arr.ndim not in (2, 3):
+                raise ValueError(f"{name}: expected a 2-D or 3-D array, got shape {arr.shape}")
+            self.rows, self.cols = arr.shape[-2], arr.shape[-1]
+            self.value = arr
+
+    def validate(self, B: int, rows: int, cols: int) -> None:
+        if self.value is not None:
+            self.value = _as_matrix(self.value, rows, cols, B, self.name)
+            if self.cov:
+                _check_psd(self.value, self.name)
+        self.rows, self.cols = rows, cols
+
+    def at(self, k: int, B: int) -> FloatArray:
+        if self.fn is None:
+            assert self.value is not None
+            return self.value
+        val = _as_matrix(self.fn(k), self.rows, self.cols, B, f"{self.name}({k})")  # type: ignore[arg-type]
+        return val
+
+
+class KalmanFilter:
+    """Linear Kalman filter ``x_k = F x_{k-1} + G u_k + w``, ``y_k = H x_k + v`` for B units.
+
+    ``F``, ``H``, ``Q``, ``R`` (and the optional control matrix ``G`` (n, n_u)) are shared arrays,
+    per-unit (B, ...) arrays or callables of the step index k. Constant ``Q``/``R`` are checked
+    symmetric PSD once; time-varying ones are shape- and finiteness-checked per step.
+    """
+
+    def __init__(
+        self,
+        F: MatrixLike,
+        H: MatrixLike,
+        Q: MatrixLike,
+        R: MatrixLike,
+        G: MatrixLike | None = None,
+    ) -> None:
+        self.F = _MatrixSource(F, None, None, "F", cov=False)
+        self.H = _MatrixSource(H, None, None, "H", cov=False)
+        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
+        self.R = _MatrixSource(R, None, None, "R", cov=True)
+        self.G = None if G is None else _MatrixSource(G, None, None, "G", cov=False)
+
+    def filter(
+        self,
+        ys: np.ndarray,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        us: np.ndarray | Callable[[int], np.ndarray] | None = None,
+    ) -> KalmanResult:
+        """Run the filter over ``ys`` (T, B, m) from the prior ``x0`` (B, n), ``P0`` (n, n) or
+        (B, n, n) one step before ``ys[0]``. ``us``: inputs (T, n_u) / (T, B, n_u) or callable."""
+        x, P = _check_x0_P0(x0, P0)
+        B, n = x.shape
+        m = self.R.rows if self.R.value is not None else self.H.rows
+        if m is None:  # both callables: ask R for its size
+            m = np.atleast_2d(np.asarray(self.R.fn(0))).shape[-1]  # type: ignore[misc]
+        self.F.validate(B, n, n)
+        self.Q.validate(B, n, n)
+        self.H.validate(B, m, n)
+        self.R.validate(B, m, m)
+        if self.G is not None:
+            if self.G.value is None:
+                raise ValueError("G: a callable control matrix is not supported; pass an array")
+            n_u = self.G.value.shape[-1]
+            self.G.validate(B, n, n_u)
+        ys = _check_ys(ys, B, m)
+        if us is None and self.G is not None:
+            raise ValueError("us: the filter has a control matrix G but no inputs were given")
+        T = ys.shape[0]
+        out = _Stacker(T, B, n, m)
+        for k in range(T):
+            bu = None
+            if self.G is not None:
+                u = np.asarray(_input_at(us, k, T), dtype=np.float64)
+                _check_finite(u, f"us[{k}]")
+                bu = _matvec(self.G.value, np.broadcast_to(u, (B, u.shape[-1])))
+            xp, Pp = _predict(x, P, self.F.at(k, B), self.Q.at(k, B), bu)
+            x, P, inn = _update(xp, Pp, ys[k], self.H.at(k, B), self.R.at(k, B), None)
+            out.put(k, xp, Pp, x, P, inn)
+        return out.result()
+
+
+def _apply(
+    fun: Callable[..., np.ndarray], x: FloatArray, u: Any, k: Any, rows: int, name: str
+) -> FloatArray:
+    val = np.asarray(fun(x, u, k), dtype=np.float64)
+    if val.ndim == 1 and rows == x.shape[0]:
+        val = val[:, None]
+    if val.ndim != 2 or val.shape[0] != rows:
+        raise ValueError(f"{name}: expected an output of shape ({rows}, ...), got {val.shape}")
+    return val
+
+
+class _SigmaOrJacobianFilter:
+    """Shared ``filter`` loop of the EKF and UKF (both define ``Q``, ``R``, ``predict``,
+    ``update``)."""
+
+    Q: _MatrixSource
+    R: _MatrixSource
+
+    def predict(
+        self, x: FloatArray, P: FloatArray, k: int, u: Any = None
+    ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def update(
+        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any = None
+    ) -> tuple[FloatArray, FloatArray, Innovation]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def filter(
+        self,
+        ys: np.ndarray,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        us: np.ndarray | Callable[[int], Any] | None = None,
+    ) -> KalmanResult:
+        """Run over ``ys`` (T, B, m) from ``x0``, ``P0`` one step before ``ys[0]``;
+        ``us[k]`` (or ``us(k)``) is passed as ``u`` to ``f`` and ``h`` at step k."""
+        x, P = _check_x0_P0(x0, P0)
+        B, n = x.shape
+        self.Q.validate(B, n, n)
+        ys_arr = np.asarray(ys, dtype=np.float64)
+        if ys_arr.ndim != 3:
+            raise ValueError(f"ys: expected shape (T, {B}, m), got {ys_arr.shape}")
+        m = ys_arr.shape[2]
+        self.R.validate(B, m, m)
+        ys_arr = _check_ys(ys_arr, B, m)
+        T = ys_arr.shape[0]
+        out = _Stacker(T, B, n, m)
+        for k in range(T):
+            u = _input_at(us, k, T)
+            xp, Pp = self.predict(x, P, k, u)
+            x, P, inn = self.update(xp, Pp, ys_arr[k], k, u)
+            out.put(k, xp, Pp, x, P, inn)
+        return out.result()
+
+
+class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
+    """Extended Kalman filter for B units (first-order linearisation at the current estimate).
+
+    Discrete model (default): ``x_k = f(x_{k-1}, u_k, k) + w``, ``Q`` the per-step covariance.
+    Continuous model (``continuous=True``, ``dt`` required): ``dx/dt = f(x, u, t) + w(t)`` with
+    ``Q`` the spectral density of ``w``; the mean is advanced by RK4 (``substeps`` steps of
+    ``dt/substeps``) and the covariance with ``Phi = expm(J dt)``, ``Qd`` by Van Loan
+    (:func:`discretise`), ``J`` the Jacobian at the prior mean. Measurement
+    ``y_k = h(x_k, u_k, k) + v`` (for continuous models the third argument is the time
+    ``t0 + (k + 1) dt`` of ``ys[k]``, and ``f`` gets the start time ``t0 + k dt`` of the step).
+
+    Jacobians: ``jac_f(x, u, k) -> (B, n, n)``, ``jac_h(x, u, k) -> (B, m, n)``; central finite
+    differences (:func:`numerical_jacobian`) when not given. ``Q``, ``R`` may be shared, per
+    unit or callables of k.
+    """
+
+    def __init__(
+        self,
+        f: Callable[..., np.ndarray],
+        h: Callable[..., np.ndarray],
+        Q: MatrixLike,
+        R: MatrixLike,
+        *,
+        jac_f: Callable[..., np.ndarray] | None = None,
+        jac_h: Callable[..., np.ndarray] | None = None,
+        continuous: bool = False,
+        dt: float | None = None,
+        t0: float = 0.0,
+        substeps: int = 1,
+    ) -> None:
+        self.f, self.h, self.jac_f, self.jac_h = f, h, jac_f, jac_h
+        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
+        self.R = _MatrixSource(R, None, None, "R", cov=True)
+        self.continuous = bool(continuous)
+        if self.continuous:
+            if dt is None or not (np.isfinite(dt) and dt > 0):
+                raise ValueError(f"dt: a continuous model needs a positive finite dt, got {dt!r}")
+            if int(substeps) != substeps or substeps < 1:
+                raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
+        self.dt = None if dt is None else float(dt)
+        self.t0 = float(t0)
+        self.substeps = int(substeps)
+
+    # -- time arguments -------------------------------------------------------------------
+    def _tf(self, k: int) -> float | int:
+        return self.t0 + k * self.dt if self.continuous else k  # type: ignore[operator]
+
+    def _th(self, k: int) -> float | int:
+        return self.t0 + (k + 1) * self.dt if self.continuous else k  # type: ignore[operator]
+
+    def _jacobian(
+        self,
+        fun: Callable[..., np.ndarray],
+        jac: Callable[..., np.ndarray] | None,
+        x: FloatArray,
+        u: Any,
+        targ: Any,
+        rows: int,
+        name: str,
+    ) -> FloatArray:
+        B, n = x.shape
+        if jac is None:
+            J = numerical_jacobian(lambda xx: fun(xx, u, targ), x)
+        else:
+            J = np.asarray(jac(x, u, targ), dtype=np.float64)
+            if J.ndim == 2 and J.shape == (rows, n):
+                J = np.broadcast_to(J, (B, rows, n))
+        if J.shape != (B, rows, n):
+            raise ValueError(
+                f"{name}: expected a Jacobian of shape ({B}, {rows}, {n}), got {J.shape}"
+            )
+        _check_finite(J, name)
+        return J
+
+    def predict(
+        self, x: FloatArray, P: FloatArray, k: int, u: Any = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """Predict step k (from ``ys[k-1]`` to ``ys[k]``); returns ``(x_pred, P_pred)``."""
+        B, n = x.shape
+        targ = self._tf(k)
+        if self.continuous:
+            dt = self.dt
+            assert dt is not None
+            J = self._jacobian(self.f, self.jac_f, x, u, targ, n, "jac_f")
+            h = dt / self.substeps
+            xn = x
+            for i in range(self.substeps):
+                xn = rk4_step(lambda xx, tt, uu: self.f(xx, uu, tt), xn, targ + i * h, h, u)
+            Phi, Qd = discretise(J, self.Q.at(k, B), dt)
+            Pn = _sym(Phi @ P @ _T(Phi) + Qd)
+        else:
+            xn = _apply(self.f, x, u, targ, B, "f")
+            J = self._jacobian(self.f, self.jac_f, x, u, targ, n, "jac_f")
+            Pn = _sym(J @ P @ _T(J) + self.Q.at(k, B))
+        if xn.shape != (B, n):
+            raise ValueError(f"f: expected an output of shape ({B}, {n}), got {xn.shape}")
+        _check_finite(xn, f"f (predicted state at step {k})")
+        return xn, Pn
+
+    def update(
+        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any = None
+    ) -> tuple[FloatArray, FloatArray, Innovation]:
+        """Assimilate ``y`` (B, m) (= ``ys[k]``); returns ``(x, P, Innovation)``."""
+        B = x.shape[0]
+        targ = self._th(k)
+        yhat = _apply(self.h, x, u, targ, B, "h")
+        m = yhat.shape[1]
+        H = self._jacobian(self.h, self.jac_h, x, u, targ, m, "jac_h")
+        return _update(x, P, y, H, self.R.at(k, B), yhat)
+
+
+class UnscentedKalmanFilter(_SigmaOrJacobianFilter):
+    """Unscented Kalman filter for B units, additive noise (Wan & van der Merwe 2000).
+
+    Model ``x_k = f(x_{k-1}, u_k, k) + w`` (``Q`` per step), ``y_k = h(x_k, u_k, k) + v``.
+    Scaled sigma points ``x, x +/- sqrt(n + lam) L_i`` (``L L^T = P``, ``lam = alpha^2 (n +
+    kappa) - n``), mean weights ``Wm0 = lam / (n + lam)``, ``Wc0 = Wm0 + 1 - alpha^2 + beta``,
+    ``Wi = 1 / (2 (n + lam))``. ``f``/``h`` are called once per step on all B (2n + 1) sigma
+    points stacked as (B (2n+1), n); a per-unit input ``u`` of shape (B, n_u) is repeated
+    to match (a 1-D input is shared and passed unchanged). Means are accumulated as deviations
+    from the central sigma point, which keeps the large negative ``Wm0`` of a small ``alpha``
+    from cancelling catastrophically.
+    Covariance update ``P - K S K^T`` (the UKF has no explicit H for the Joseph form).
+    Same ``predict`` / ``update`` / ``filter`` interface as :class:`ExtendedKalmanFilter`
+    (discrete models only).
+    """
+
+    def __init__(
+        self,
+        f: Callable[..., np.ndarray],
+        h: Callable[..., np.ndarray],
+        Q: MatrixLike,
+        R: MatrixLike,
+        alpha: float = 1e-3,
+        beta: float = 2.0,
+        kappa: float = 0.0,
+    ) -> None:
+        if not (np.isfinite(alpha) and alpha > 0):
+            raise ValueError(f"alpha: expected a positive finite value, got {alpha!r}")
+        if not np.isfinite(beta) or not np.isfinite(kappa):
+            raise ValueError("beta, kappa: expected finite values")
+        self.f, self.h = f, h
+        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
+        self.R = _MatrixSource(R, None, None, "R", cov=True)
+        self.alpha, self.beta, self.kappa = float(alpha), float(beta), float(kappa)
+
+    def _weights(self, n: int) -> tuple[float, float, float, float]:
+        lam = self.alpha**2 * (n + self.kappa) - n
+        if n + lam <= 0:
+            raise ValueError(f"alpha, kappa: n + lambda = {n + lam:.3g} must be positive")
+        wm0 = lam / (n + lam)
+        wc0 = wm0 + 1.0 - self.alpha**2 + self.beta
+        wi = 0.5 / (n + lam)
+        return float(np.sqrt(n + lam)), wm0, wc0, wi
+
+    @staticmethod
+    def _sqrt(P: FloatArray) -> FloatArray:
+        try:
+            return np.linalg.cholesky(P)
+        except np.linalg.LinAlgError:  # semi-definite P: symmetric square root
+            w, V = np.linalg.eigh(P)
+            if np.any(w[..., 0] < -1e-9 * np.maximum(1.0, np.abs(w[..., -1]))):
+                b = _first_bad(w[..., 0] < -1e-9 * np.maximum(1.0, np.abs(w[..., -1])))
+                raise ValueError(f"P: not positive semi-definite for unit {b}") from None
+            return V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
+
+    def _sigma(self, x: FloatArray, P: FloatArray, c: float) -> FloatArray:
+        B, n = x.shape
+        L = self._sqrt(P)
+        d = c * _T(L)  # rows are the columns of L
+        sig = np.empty((B, 2 * n + 1, n))
+        sig[:, 0] = x
+        sig[:, 1 : n + 1] = x[:, None, :] + d
+        sig[:, n + 1 :] = x[:, None, :] - d
+        return sig
+
+    @staticmethod
+    def _eval(
+        fun: Callable[..., np.ndarray], sig: FloatArray, u: Any, k: Any, name: str
+    ) -> FloatArray:
+        B, p, n = sig.shape
+        uu = u
+        if u is not None:
+            ua = np.asarray(u)
+            if ua.ndim >= 2 and ua.shape[0] == B:  # per-unit input: one row per sigma point
+                uu = np.repeat(ua, p, axis=0)
+        val = np.asarray(fun(sig.reshape(B * p, n), uu, k), dtype=np.float64)
+        if val.ndim == 1:
+            val = val[:, None]
+        if val.ndim != 2 or val.shape[0] != B * p:
+            raise ValueError(f"{name}: expected an output of shape ({B * p}, ...), got {val.shape}")
+        _check_finite(val, f"{name} (at the sigma points of step {k})")
+        return val.reshape(B, p, val.shape[1])
+
+    def _moments(
+        self, Y: FloatArray, wm0: float, wc0: float, wi: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        mean = Y[:, 0] + wi * (Y[:, 1:] - Y[:, :1]).sum(axis=1)
+        D = Y - mean[:, None, :]
+        cov = wc0 * np.einsum("bi,bj->bij", D[:, 0], D[:, 0]) + wi * np.einsum(
+            "bpi,bpj->bij", D[:, 1:], D[:, 1:]
+        )
+        return mean, _sym(cov), D
+
+    def predict(
+        self, x: FloatArray, P: FloatArray, k: int, u: Any = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """Unscented transform of ``N(x, P)`` through ``f``, plus ``Q``."""
+        B, n = x.shape
+        c, wm0, wc0, wi = self._weights(n)
+        Y = self._eval(self.f, self._sigma(x, P, c), u, k, "f")
+        if Y.shape[2] != n:
+            raise ValueError(f"f: expected {n} output columns, got {Y.shape[2]}")
+        xn, Pn, _ = self._moments(Y, wm0, wc0, wi)
+        return xn, _sym(Pn + self.Q.at(k, B))
+
+    def update(
+        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any = None
+    ) -> tuple[FloatArray, FloatArray, Innovation]:
+        """Assimilate ``y`` (B, m) with sigma points redrawn from ``N(x, P)``."""
+        B, n = x.shape
+        c, wm0, wc0, wi = self._weights(n)
+        sig = self._sigma(x, P, c)
+        Z = self._eval(self.h, sig, u, k, "h")
+        zhat, Pzz, Dz = self._moments(Z, wm0, wc0, wi)
+        m = zhat.shape[1]
+        R = self.R.at(k, B)
+        Dx = sig[:, 1:] - x[:, None, :]
+        Pxz = wi * np.einsum("bpi,bpj->bij", Dx, Dz[:, 1:])  # central point has Dx = 0
+        S = _sym(Pzz + R)
+        y = _as_measurements(y, B, m)
+        skipped = np.isnan(y).any(axis=1)
+        nu = y - zhat
+        nu0 = np.where(skipped[:, None], 0.0, nu) if skipped.any() else nu
+        L = _chol_S(S)
+        sol = np.linalg.solve(S, np.concatenate([nu0[:, :, None], _T(Pxz)], axis=2))
+        Sinv_nu = sol[:, :, 0]
+        K = _T(sol[:, :, 1:])
+        xn = x + np.einsum("bij,bj->bi", K, nu0)
+        Pn = _sym(P - K @ S @ _T(K))
+        if skipped.any():
+            Pn = np.where(skipped[:, None, None], P, Pn)
+        return xn, Pn, _finish_innovation(nu, S, Sinv_nu, L, skipped)
