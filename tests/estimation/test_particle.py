@@ -544,3 +544,14 @@ def test_weighted_quantile_matches_numpy_inverted_cdf(seed):
     assert weighted_quantile(x, w, 0.5).shape == (2,)
     with pytest.raises(ValueError, match="q must be"):
         weighted_quantile(x, w, 1.5)
+
+
+def test_per_step_accepts_non_numeric_measurement():
+    # system code may pass e.g. (measurement, input) pairs through the per-step API
+    def ll(x, y, k):
+        return -0.5 * (y["z"] - x[:, 0]) ** 2
+
+    pf = ParticleFilter(_rw, ll)
+    s = pf.initialise(np.zeros((10, 1)), np.random.default_rng(0))
+    pf.step(s, {"z": 0.3})
+    assert s.k == 0 and not s.skipped and np.isfinite(s.loglik)

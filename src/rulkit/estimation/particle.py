@@ -160,20 +160,22 @@ def weighted_quantile(values: FloatArray, w: FloatArray, q: float | FloatArray) 
 def _weighted_quantile(v: FloatArray, w: FloatArray, qa: FloatArray) -> FloatArray:
     one_d = v.ndim == 1
     v2 = v[:, None] if one_d else v
-    order = np.argsort(v2, axis=0)
-    vs = np.take_along_axis(v2, order, axis=0)
-    cw = np.cumsum(w[order], axis=0)  # (N, n)
+    n, n_col = v2.shape
+    order = np.argsort(v2, axis=0)  # one sort per component
+    cw = np.cumsum(w[order], axis=0)  # (N, n) cumulative weights in sorted order
     q1 = np.atleast_1d(qa)
-    n_q, n_col = q1.size, v2.shape[1]
-    idx = np.empty((n_q, n_col), dtype=np.intp)
-    pos = q1 > 0
+    thr = q1[:, None] * cw[-1]  # (n_q, n)
+    zero_q = q1 == 0
+    idx = np.empty((q1.size, n_col), dtype=np.intp)
     for j in range(n_col):  # loop over state components (n_x), never over particles
-        c = cw[:, j]
-        # first index with cumulative weight >= q * total (> 0 for q = 0: skip zero weights)
-        idx[pos, j] = np.searchsorted(c, q1[pos] * c[-1], side="left")
-        idx[~pos, j] = np.searchsorted(c, 0.0, side="right")
-    np.minimum(idx, v2.shape[0] - 1, out=idx)
-    out = np.take_along_axis(vs, idx, axis=0)  # (n_q, n)
+        # first index with cumulative weight >= q * total ...
+        idx[:, j] = np.searchsorted(cw[:, j], thr[:, j], side="left")
+    if zero_q.any():  # ... and > 0 for q = 0, so a zero-weight particle is never returned
+        for j in range(n_col):
+            idx[zero_q, j] = np.searchsorted(cw[:, j], 0.0, side="right")
+    np.minimum(idx, n - 1, out=idx)
+    cols = np.arange(n_col)
+    out = v2[order[idx, cols], cols]  # (n_q, n)
     if one_d:
         out = out[:, 0]
     return out[0] if qa.ndim == 0 else out
@@ -403,6 +405,8 @@ class ParticleFilter:
     def update(self, state: ParticleState, y: Any, *, missing: bool | None = None) -> ParticleState:
         """Propagate and weight one step (no resampling); mutates and returns ``state``.
 
+        ``y`` may be any object ``log_likelihood`` understands; when it converts to a float
+        array, NaN/inf are handled per ``missing`` (a non-numeric ``y`` is never "missing").
         ``missing`` (internal fast path) says whether ``y`` holds NaN; computed when None.
         """
         k = state.k + 1
@@ -594,7 +598,10 @@ class ParticleFilter:
     def _is_missing(self, y: Any, k: int) -> bool:
         if self.missing == "pass":
             return False
-        ya = np.asarray(y, dtype=np.float64)
+        try:
+            ya = np.asarray(y, dtype=np.float64)
+        except (TypeError, ValueError):
+            return False  # a non-numeric measurement object: left to log_likelihood
         if np.isinf(ya).any():
             raise ValueError(f"measurement at step {k}: infinite value")
         if np.isnan(ya).any():
