@@ -1,0 +1,727 @@
+"""Health index from condition indicators, and the embedded RUL tracker chain.
+
+Implements embedded-rul.md (seed 004, Bechhoefer & Schlanbusch, "Calculating Remaining Useful
+Life in an embedded system"):
+
+* section 1 (seed section 3, eqs 1-6 and section 3.1): :class:`HealthIndexModel` maps n
+  condition indicators (CIs) to a health index (HI): offset, whitening by the Cholesky factor of
+  the inverse covariance, the Nakagami critical value for a probability of false alarm (PFA) and
+  the scaling HI = 0.5 ||Y|| / T;
+* section 2 (seed section 4): :func:`tracker_update`, the per-component chain alpha-beta on HI,
+  RUL from the Paris-law relation, alpha-beta-gamma on RUL, for any number of components in one
+  vectorised call, with the component state held as a struct of arrays
+  (:class:`TrackerState`);
+* section 3 (seed sections 4.1 and 6): the validity rule, the warning and alarm levels and the
+  confidence limits (:func:`rul_confidence_limits`, derivation in its docstring).
+
+The alpha-beta / alpha-beta-gamma gains and updates come from
+:mod:`rulkit.estimation.trackers`; this module knows no physics beyond the seed's Paris-law
+relation between HI and RUL.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+RAYLEIGH_UNIT_VARIANCE_BETA = 1.0 / math.sqrt(2.0 - math.pi / 2.0)
+"""Rayleigh parameter of a unit-variance Rayleigh CI, 1/sqrt(2 - pi/2) = 1.5264 (seed eq 6)."""
+
+LEVEL_NONE, LEVEL_WARNING, LEVEL_ALARM = 0, 1, 2
+LEVEL_NAMES = {LEVEL_NONE: "ok", LEVEL_WARNING: "warning", LEVEL_ALARM: "alarm"}
+
+
+# --------------------------------------------------------------------------------------------
+# 1. Condition indicators -> health index
+# --------------------------------------------------------------------------------------------
+
+
+def nakagami_critical_value(n: int, pfa: float) -> float:
+    """Critical value T of the norm of n IID unit-variance Rayleigh CIs at false-alarm ``pfa``.
+
+    The squared norm of n IID Rayleigh(beta) variables is Gamma(n, 2 beta^2), so the norm is
+    Nakagami with shape m = n and spread Omega = 2 n beta^2 = 2n / (2 - pi/2) (seed section 3,
+    Bechhoefer & Bernhard 2007). T = Nakagami inverse CDF at 1 - PFA, computed as the inverse
+    survival function (accurate for PFA = 1e-6). scipy's ``nakagami(nu, scale)`` has
+    E[X^2] = scale^2, so scale = sqrt(Omega).
+    """
+    from scipy import stats
+
+    if int(n) != n or n < 1:
+        raise ValueError(f"n: expected a positive integer number of CIs, got {n!r}")
+    if not 0.0 < pfa < 1.0:
+        raise ValueError(f"pfa: expected a probability in (0, 1), got {pfa!r}")
+    omega = 2.0 * n / (2.0 - math.pi / 2.0)
+    return float(stats.nakagami.isf(pfa, n, scale=math.sqrt(omega)))
+
+
+def empirical_offset(ci: np.ndarray, quantile: float = 0.05) -> FloatArray:
+    """Offset per CI: the value at the ``quantile`` point of its empirical CDF (seed section 3.1).
+
+    The seed sorts the N baseline values and takes the one at index round(0.05 N) (with N = 50
+    acquisitions x number of aircraft); that value is shifted to 0 ("left shift" that makes
+    RMS-biased bearing and gear CIs more Rayleigh-like).
+    """
+    x = _as_ci_matrix(ci, None, "ci")
+    idx = min(round(quantile * x.shape[0]), x.shape[0] - 1)
+    return np.sort(x, axis=0)[idx].copy()
+
+
+def _as_ci_matrix(ci: np.ndarray, n: int | None, name: str) -> FloatArray:
+    x = np.asarray(ci, dtype=np.float64)
+    if x.ndim == 1 and n is not None:
+        x = x[None, :] if x.shape[0] == n else x[:, None]
+    if x.ndim != 2 or (n is not None and x.shape[1] != n):
+        want = f"(N, {n})" if n is not None else "(N, n)"
+        raise ValueError(f"{name}: expected shape {want}, got {np.shape(ci)}")
+    if not np.all(np.isfinite(x)):
+        row, col = np.argwhere(~np.isfinite(x))[0]
+        raise ValueError(f"{name}: non-finite value at row {row}, column {col}")
+    return x
+
+
+@dataclass(frozen=True)
+class HealthIndexModel:
+    """A priori HI configuration of one component type (seed section 3.1).
+
+    ``HI = || (CI - offset) @ scale ||`` with ``scale = L * 0.5 / T``, where L is the lower
+    Cholesky factor of inv(Sigma) (``L L^T = Sigma^-1``). For row vectors x = CI - offset the
+    whitened vector is ``Y = L^T x`` (``Y_rows = X @ L``), whose covariance is
+    ``L^T Sigma L = I``; then HI = 0.5 ||Y|| / T, so HI = 0.5 exactly at the false-alarm
+    critical value T, 0.75 is the warning and 1.0 the alarm level (embedded-rul.md section 1).
+
+    The seed stores ``S = L (0.5/T)^2``; squaring 0.5/T only makes sense for the squared norm,
+    so we store ``S = L 0.5/T`` and take the plain norm (same HI).
+
+    Why the norm is exactly Nakagami after whitening: if the healthy CIs are
+    ``CI = offset + M R`` with R IID unit-variance Rayleigh and ``M M^T = Sigma``, then
+    ``Q = L^T M`` satisfies ``Q Q^T = L^T Sigma L = I`` (orthogonal), and ``||Q R|| = ||R||``.
+    """
+
+    names: tuple[str, ...]
+    offset: FloatArray
+    mean: FloatArray
+    cov: FloatArray
+    whitening: FloatArray
+    critical_value: float
+    pfa: float
+    whitened: bool = True
+
+    @property
+    def n(self) -> int:
+        """Number of CIs."""
+        return len(self.names)
+
+    @property
+    def scale(self) -> FloatArray:
+        """Upper-level scale matrix S (n, n): HI = ||(CI - offset) @ S||."""
+        return self.whitening * (0.5 / self.critical_value)
+
+    @classmethod
+    def fit(
+        cls,
+        baseline: np.ndarray,
+        *,
+        pfa: float = 1e-6,
+        offset: Literal["cdf05", "none"] | np.ndarray = "cdf05",
+        names: tuple[str, ...] | list[str] | None = None,
+        whiten: bool = True,
+    ) -> HealthIndexModel:
+        """Fit from healthy baseline CIs ``baseline (N, n)``.
+
+        ``offset``: ``"cdf05"`` (bearings and gears: the 5 % point of each CI's empirical CDF is
+        shifted to 0, :func:`empirical_offset`), ``"none"`` (shafts: offset 0) or an explicit
+        ``(n,)`` array. ``whiten=False`` replaces the Cholesky whitening by a per-CI division by
+        the standard deviation (the correlation is ignored): only for demonstrating the
+        inflated false-alarm rate of correlated CIs (seed section 3, embedded-rul.md section 1).
+        The design PFA is exact when ``CI - offset`` follows the healthy Rayleigh model; the
+        cdf05 offset of a Rayleigh CI removes its own 5 % point too and so lowers the actual
+        false-alarm rate below the design (conservative).
+        """
+        x = _as_ci_matrix(baseline, None, "baseline")
+        n_obs, n = x.shape
+        if n_obs < n + 1:
+            raise ValueError(
+                f"baseline: need more than {n} rows to estimate a covariance, got {n_obs}"
+            )
+        names_t = tuple(names) if names is not None else tuple(f"ci{i + 1}" for i in range(n))
+        if len(names_t) != n:
+            raise ValueError(f"names: expected {n} CI names, got {len(names_t)}")
+        if isinstance(offset, str):
+            if offset == "cdf05":
+                off = empirical_offset(x, 0.05)
+            elif offset == "none":
+                off = np.zeros(n)
+            else:
+                raise ValueError(f"offset: expected 'cdf05', 'none' or an array, got {offset!r}")
+        else:
+            off = np.asarray(offset, dtype=np.float64).reshape(-1)
+            if off.shape != (n,) or not np.all(np.isfinite(off)):
+                raise ValueError(f"offset: expected {n} finite values, got {offset!r}")
+        mean = x.mean(axis=0)
+        cov = np.atleast_2d(np.cov(x, rowvar=False))
+        if whiten:
+            try:
+                w = np.linalg.cholesky(np.linalg.inv(cov))
+            except np.linalg.LinAlgError as err:
+                raise ValueError(
+                    "baseline: the CI covariance is singular or not positive definite; "
+                    "drop linearly dependent CIs"
+                ) from err
+        else:
+            sd = np.sqrt(np.diag(cov))
+            if np.any(sd <= 0):
+                raise ValueError(f"baseline: CI {names_t[int(np.argmin(sd))]!r} is constant")
+            w = np.diag(1.0 / sd)
+        return cls(
+            names=names_t,
+            offset=off,
+            mean=mean,
+            cov=cov,
+            whitening=w,
+            critical_value=nakagami_critical_value(n, pfa),
+            pfa=float(pfa),
+            whitened=bool(whiten),
+        )
+
+    def whiten(self, ci: np.ndarray) -> FloatArray:
+        """Whitened CIs ``Y (N, n)`` (identity covariance on the baseline)."""
+        x = _as_ci_matrix(ci, self.n, "ci")
+        return (x - self.offset) @ self.whitening
+
+    def health_index(self, ci: np.ndarray) -> FloatArray:
+        """HI (N,) of CIs (N, n) (or one acquisition (n,)): ``0.5 ||Y|| / T``."""
+        x = _as_ci_matrix(ci, self.n, "ci")
+        y = (x - self.offset) @ self.scale
+        return np.sqrt(np.einsum("ij,ij->i", y, y))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dict (arrays as lists)."""
+        return {
+            "names": list(self.names),
+            "offset": self.offset.tolist(),
+            "mean": self.mean.tolist(),
+            "cov": self.cov.tolist(),
+            "whitening": self.whitening.tolist(),
+            "critical_value": self.critical_value,
+            "pfa": self.pfa,
+            "whitened": self.whitened,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> HealthIndexModel:
+        """Inverse of :meth:`to_dict`."""
+        return cls(
+            names=tuple(d["names"]),
+            offset=np.asarray(d["offset"], dtype=np.float64),
+            mean=np.asarray(d["mean"], dtype=np.float64),
+            cov=np.atleast_2d(np.asarray(d["cov"], dtype=np.float64)),
+            whitening=np.atleast_2d(np.asarray(d["whitening"], dtype=np.float64)),
+            critical_value=float(d["critical_value"]),
+            pfa=float(d["pfa"]),
+            whitened=bool(d.get("whitened", True)),
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# 2. The tracker chain
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Configuration of the per-component tracker chain (embedded-rul.md sections 2-3).
+
+    Gains: the alpha-beta tracker on HI uses tracking index ``lambda_hi`` and the
+    alpha-beta-gamma tracker on RUL ``lambda_rul`` (lambda = sigma_w dt^2 / sigma_v, see
+    :meth:`from_noise`), both at the nominal acquisition interval ``dt``; the gains are computed
+    once (the seed: "initialized at startup and persisted"). An update whose actual interval
+    differs from ``dt`` uses the actual interval in the prediction and in the derivative
+    corrections but keeps the steady-state gains (documented approximation).
+
+    ``design_life``: dHI is floored at 1 / design_life (components do not heal).
+    ``hi_floor``: the Paris-law RUL is evaluated at max(fHI, hi_floor) so that fHI <= 0 gives a
+    finite RUL. ``hi_sigma``: one standard deviation of the measured HI, used by the confidence
+    limits (default: none given -> 0). ``load_factor`` (0.10) and ``load_exponent`` (2, the
+    Paris exponent of the RUL formula) shape the confidence limits
+    (:func:`rul_confidence_limits`).
+    Validity (seed section 6): ``valid_drul = (-2, 0)`` open interval for dRUL/dt and
+    ``|d2RUL/dt2| < valid_d2rul``. Warning: fHI >= ``warn_hi`` and valid and fRUL < ``warn_rul``;
+    alarm: fHI >= ``alarm_hi``. ``hi_max`` bounds an accepted HI measurement (ingestion checks).
+    Times are in the user's unit (hours in the seed, kcycles for the crack data); ``warn_rul``
+    and ``valid_d2rul`` are in that unit.
+    """
+
+    dt: float = 1.0
+    lambda_hi: float = 0.01
+    lambda_rul: float = 0.01
+    design_life: float = 1.0e5
+    hi_floor: float = 1.0e-3
+    hi_sigma: float = 0.0
+    load_factor: float = 0.10
+    load_exponent: float = 2.0
+    valid_drul: tuple[float, float] = (-2.0, 0.0)
+    valid_d2rul: float = 0.01
+    warn_hi: float = 0.75
+    warn_rul: float = 100.0
+    alarm_hi: float = 1.0
+    hi_max: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("dt", "lambda_hi", "lambda_rul", "design_life", "hi_floor", "hi_max"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
+        for name in ("hi_sigma", "load_factor", "valid_d2rul", "warn_rul"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"TrackerConfig.{name}: expected a number >= 0, got {v!r}")
+        if self.load_factor >= 1:
+            raise ValueError(f"TrackerConfig.load_factor: expected < 1, got {self.load_factor}")
+        lo, hi = self.valid_drul
+        if not lo < hi:
+            raise ValueError(
+                f"TrackerConfig.valid_drul: expected (low, high), low < high, got {self.valid_drul}"
+            )
+        object.__setattr__(self, "valid_drul", (float(lo), float(hi)))
+
+    @classmethod
+    def from_noise(
+        cls, *, sigma_w_hi: float, sigma_v_hi: float, sigma_w_rul: float, sigma_v_rul: float,
+        dt: float, **kwargs: Any,
+    ) -> TrackerConfig:
+        """Config from process / measurement noise standard deviations (seed eqs 12 and 16).
+
+        ``hi_sigma`` defaults to ``sigma_v_hi`` (the HI measurement noise).
+        """
+        from rulkit.estimation.trackers import tracking_index
+
+        kwargs.setdefault("hi_sigma", sigma_v_hi)
+        return cls(
+            dt=dt,
+            lambda_hi=float(tracking_index(sigma_w_hi, sigma_v_hi, dt)),
+            lambda_rul=float(tracking_index(sigma_w_rul, sigma_v_rul, dt)),
+            **kwargs,
+        )
+
+    def gains(self) -> TrackerGains:
+        """The five steady-state gains (rulkit.estimation.trackers, embedded-rul.md section 2)."""
+        from rulkit.estimation.trackers import alpha_beta_gains, alpha_beta_gamma_gains
+
+        a1, b1 = alpha_beta_gains(self.lambda_hi)
+        a2, b2, g2 = alpha_beta_gamma_gains(self.lambda_rul)
+        return TrackerGains(float(a1), float(b1), float(a2), float(b2), float(g2))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dict."""
+        d = asdict(self)
+        d["valid_drul"] = list(self.valid_drul)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrackerConfig:
+        """Inverse of :meth:`to_dict` (unknown keys are an error)."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"TrackerConfig: unknown keys {sorted(unknown)}")
+        d = dict(d)
+        if "valid_drul" in d:
+            d["valid_drul"] = tuple(d["valid_drul"])
+        return cls(**d)
+
+
+@dataclass(frozen=True)
+class TrackerGains:
+    """alpha1, beta1 (alpha-beta on HI) and alpha2, beta2, gamma2 (alpha-beta-gamma on RUL)."""
+
+    alpha1: float
+    beta1: float
+    alpha2: float
+    beta2: float
+    gamma2: float
+
+
+STATE_COLUMNS = ("t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul")
+
+
+@dataclass
+class TrackerState:
+    """State of B components as a struct of arrays (seed section 4, the component state file).
+
+    ``ab (B, 2)`` = [fHI, dHI] and ``abg (B, 3)`` = [fRUL, dRUL, d2RUL] are the tracker states in
+    the layout of :mod:`rulkit.estimation.trackers` (so they are passed without copies);
+    ``hi (B,)`` the last measured HI and ``rul (B,)`` the last raw (Paris-law) RUL: these are the
+    seed's 7 numbers per component. Book-keeping: ``t (B,)`` the time of the last acquisition
+    (NaN before the first) and ``n (B,)`` the number of acquisitions assimilated.
+    """
+
+    t: FloatArray
+    n: IntArray
+    hi: FloatArray
+    ab: FloatArray
+    rul: FloatArray
+    abg: FloatArray
+
+    @classmethod
+    def empty(cls, size: int) -> TrackerState:
+        """B fresh components (no acquisition yet; numeric fields NaN, n = 0)."""
+        nan = np.full(size, np.nan)
+        return cls(
+            t=nan.copy(), n=np.zeros(size, dtype=np.int64), hi=nan.copy(),
+            ab=np.full((size, 2), np.nan), rul=nan.copy(), abg=np.full((size, 3), np.nan),
+        )
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def fhi(self) -> FloatArray:
+        return self.ab[:, 0]
+
+    @property
+    def dhi(self) -> FloatArray:
+        return self.ab[:, 1]
+
+    @property
+    def frul(self) -> FloatArray:
+        return self.abg[:, 0]
+
+    @property
+    def drul(self) -> FloatArray:
+        return self.abg[:, 1]
+
+    @property
+    def d2rul(self) -> FloatArray:
+        return self.abg[:, 2]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held per all components (7 tracker numbers + t + n = 72 bytes each)."""
+        return sum(a.nbytes for a in (self.t, self.n, self.hi, self.ab, self.rul, self.abg))
+
+    def take(self, idx: np.ndarray) -> TrackerState:
+        """The components at ``idx`` (copies)."""
+        return TrackerState(
+            t=self.t[idx], n=self.n[idx], hi=self.hi[idx], ab=self.ab[idx], rul=self.rul[idx],
+            abg=self.abg[idx],
+        )
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The state as named 1-D columns (``STATE_COLUMNS``), e.g. for storage."""
+        return {
+            "t": self.t, "n": self.n, "hi": self.hi, "fhi": self.fhi, "dhi": self.dhi,
+            "rul": self.rul, "frul": self.frul, "drul": self.drul, "d2rul": self.d2rul,
+        }
+
+    @classmethod
+    def from_columns(cls, cols: dict[str, Any]) -> TrackerState:
+        """Inverse of :meth:`columns` (None in a column reads as NaN)."""
+        def f(name: str) -> FloatArray:
+            return np.array(cols[name], dtype=np.float64)
+        return cls(
+            t=f("t"), n=np.asarray(cols["n"], dtype=np.int64), hi=f("hi"),
+            ab=np.column_stack([f("fhi"), f("dhi")]), rul=f("rul"),
+            abg=np.column_stack([f("frul"), f("drul"), f("d2rul")]),
+        )
+
+
+@dataclass(frozen=True)
+class TrackerOutput:
+    """Per-component outputs of one update (B,): validity, alert level, confidence limits.
+
+    ``updated`` marks the components that assimilated an acquisition in this call.
+    """
+
+    updated: NDArray[np.bool_]
+    valid: NDArray[np.bool_]
+    level: NDArray[np.int8]
+    rul_low: FloatArray
+    rul_high: FloatArray
+
+
+def paris_rul(fhi: np.ndarray, dhi: np.ndarray, hi_floor: float = 1e-3) -> FloatArray:
+    """RUL to HI = 1 under the Paris law with exponent 2 (seed section 4, its pseudo-code).
+
+    da/dN = D (2 sigma alpha sqrt(pi a))^2 = k a with HI proportional to a gives
+    dHI/dt = k HI, HI(t) = HI_0 exp(k t), so HI = 1 at t = -ln(HI_0)/k; the tracker estimates
+    k = dHI / fHI, hence ``RUL = -fHI ln(fHI) / dHI`` (seed eq 11 prints the product with dHI
+    instead of the division; its pseudo-code is right).
+
+    Defined behaviour at the edges: fHI >= 1 gives RUL = 0 (at or past the alarm level);
+    fHI < hi_floor is evaluated at hi_floor (finite RUL, no log(0)); dHI must be > 0 (the
+    tracker floors it at 1/design life). Never NaN for finite inputs.
+    """
+    h = np.clip(fhi, hi_floor, 1.0)
+    return -h * np.log(h) / dhi
+
+
+def rul_confidence_limits(
+    fhi: np.ndarray, dhi: np.ndarray, config: TrackerConfig
+) -> tuple[FloatArray, FloatArray]:
+    """Low and high RUL under HI +- one standard deviation and load +- 10 % (spec section 3).
+
+    Derivation (the seed's eqs 27-29 are garbled in print; same Paris-law model as
+    :func:`paris_rul`). With exponent m = 2 the growth rate is k = 4 pi D alpha^2 sigma^2 per
+    cycle, so HI(t) = HI_0 exp(k t) and, given the current estimates, k = dHI / fHI (eq 27:
+    dHI/dt = -ln(HI) / RUL . HI, i.e. k = -ln(HI)/RUL). The future HI is
+    HI_t = exp(k t + ln HI_0) (eq 28). A load (gross stress sigma) scaled by (1 + delta) scales k
+    by (1 + delta)^m, and an HI one standard deviation s higher starts the growth from HI_0 + s
+    (eq 29). Solving HI_t = 1 for t:
+
+        RUL_low  = -ln(min(fHI + s, 1))         / (k (1 + delta)^p)     (pessimistic)
+        RUL_high = -ln(max(fHI - s, hi_floor))  / (k (1 - delta)^p)     (optimistic)
+
+    with p = ``config.load_exponent``. p = 2 is the Paris exponent the RUL formula assumes
+    (default); the seed's eq 29 multiplies the rate by 1.10 for a 10 % higher load, i.e. p = 1
+    (set ``load_exponent=1`` to reproduce it). s = ``config.hi_sigma``, delta =
+    ``config.load_factor``. RUL_low <= RUL <= RUL_high by construction; both are >= 0 and finite.
+    """
+    h = np.clip(fhi, config.hi_floor, 1.0)
+    k = dhi / h
+    s, d, p = config.hi_sigma, config.load_factor, config.load_exponent
+    h_lo = np.clip(h + s, config.hi_floor, 1.0)
+    h_hi = np.clip(h - s, config.hi_floor, 1.0)
+    rul_low = -np.log(h_lo) / (k * (1.0 + d) ** p)
+    rul_high = -np.log(h_hi) / (k * (1.0 - d) ** p)
+    return rul_low, rul_high
+
+
+def rul_validity(drul: np.ndarray, d2rul: np.ndarray, config: TrackerConfig) -> NDArray[np.bool_]:
+    """Seed section 6: RUL valid when lo < dRUL/dt < hi (-2, 0) and |d2RUL/dt2| < 0.01."""
+    lo, hi = config.valid_drul
+    return (drul > lo) & (drul < hi) & (np.abs(d2rul) < config.valid_d2rul)
+
+
+def alert_level(
+    fhi: np.ndarray, frul: np.ndarray, valid: np.ndarray, config: TrackerConfig
+) -> NDArray[np.int8]:
+    """0 ok, 1 warning (fHI >= 0.75 and RUL valid and fRUL < warn_rul), 2 alarm (fHI >= 1).
+
+    The levels are applied to the filtered HI (one noisy acquisition above 1 does not raise an
+    alarm by itself; the HI threshold itself already carries the designed PFA per acquisition).
+    NaN (never-updated components) gives level 0.
+    """
+    level = np.where(fhi >= config.alarm_hi, LEVEL_ALARM, LEVEL_NONE)
+    warn = (fhi >= config.warn_hi) & valid & (frul < config.warn_rul) & (level == LEVEL_NONE)
+    return np.where(warn, LEVEL_WARNING, level).astype(np.int8)
+
+
+def tracker_update(
+    state: TrackerState,
+    t: np.ndarray,
+    hi: np.ndarray,
+    config: TrackerConfig,
+    gains: TrackerGains | None = None,
+    *,
+    outputs: bool = True,
+) -> tuple[TrackerState, TrackerOutput | None]:
+    """Assimilate one acquisition per component, for all B components in one vectorised call.
+
+    ``t (B,)`` acquisition times and ``hi (B,)`` measured HI, aligned with ``state``. A
+    component whose ``hi`` (or ``t``) is NaN has no acquisition in this call and keeps its state.
+    The chain per component (seed section 4 pseudo-code; embedded-rul.md section 2):
+
+    1. alpha-beta on HI: predict fHI += dHI dt, r = HI - fHI, fHI += alpha1 r, dHI += beta1 r/dt
+       (``alpha_beta_update``), then dHI = max(dHI, 1/design_life) (no healing);
+    2. RUL = -fHI ln(fHI) / dHI (:func:`paris_rul`);
+    3. alpha-beta-gamma on RUL: fRUL += dRUL dt + d2RUL dt^2/2, r = RUL - fRUL,
+       fRUL += alpha2 r, dRUL += beta2 r/dt, d2RUL += gamma2 r/dt^2 (``alpha_beta_gamma_update``,
+       Kalman-consistent; the seed's pseudo-code divides by 2 dt^2, half the steady-state
+       Kalman gain, see embedded-rul.md section 2).
+
+    First acquisition of a component (n = 0; the seed initialises everything to zero, which
+    would put log(0) into step 2): fHI = HI, dHI = 1/design_life, fRUL = RUL, dRUL = d2RUL = 0,
+    so a new component is not valid until its RUL tracker has learnt dRUL ~ -1.
+    dt = t - t_last must be > 0 for every updated component (``ValueError`` naming the first
+    offending index otherwise; nothing is modified since the function is pure).
+
+    Returns the new state (new arrays; the input is not modified) and, when ``outputs``, the
+    :class:`TrackerOutput` (validity, level, confidence limits) for every component.
+    """
+    from rulkit.estimation.trackers import alpha_beta_gamma_update, alpha_beta_update
+
+    if gains is None:
+        gains = config.gains()
+    t = np.asarray(t, dtype=np.float64)
+    z = np.asarray(hi, dtype=np.float64)
+    b = len(state)
+    if t.shape != (b,) or z.shape != (b,):
+        raise ValueError(f"t and hi: expected shape ({b},), got {t.shape} and {z.shape}")
+    have = np.isfinite(z) & np.isfinite(t)
+    fresh = state.n == 0
+    all_have = bool(have.all())
+    any_fresh = bool(fresh.any())
+    dt = t - state.t
+    if any_fresh:
+        dt = np.where(fresh, config.dt, dt)  # placeholder; fresh rows are overwritten below
+    bad = have & ~(dt > 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"component index {i}: time {float(t[i])!r} is not after its last acquisition "
+            f"{float(state.t[i])!r} (dt must be > 0)"
+        )
+    if not all_have:
+        dt = np.where(have, dt, config.dt)
+        zz = np.where(have, z, 0.0)
+    else:
+        zz = z
+    dhi_min = 1.0 / config.design_life
+
+    ab = alpha_beta_update(state.ab, zz, dt, gains.alpha1, gains.beta1)
+    np.maximum(ab[:, 1], dhi_min, out=ab[:, 1])
+    if any_fresh:
+        ab[:, 0] = np.where(fresh, zz, ab[:, 0])
+        ab[:, 1] = np.where(fresh, dhi_min, ab[:, 1])
+    rul = paris_rul(ab[:, 0], ab[:, 1], config.hi_floor)
+    abg = alpha_beta_gamma_update(state.abg, rul, dt, gains.alpha2, gains.beta2, gains.gamma2)
+    if any_fresh:
+        init = np.column_stack([rul, np.zeros(b), np.zeros(b)])
+        abg = np.where(fresh[:, None], init, abg)
+    n = state.n + 1
+    new_t = t
+    new_hi = z
+    if not all_have:
+        ab = np.where(have[:, None], ab, state.ab)
+        abg = np.where(have[:, None], abg, state.abg)
+        rul = np.where(have, rul, state.rul)
+        n = np.where(have, n, state.n)
+        new_t = np.where(have, t, state.t)
+        new_hi = np.where(have, z, state.hi)
+    new = TrackerState(t=new_t, n=n, hi=new_hi, ab=ab, rul=rul, abg=abg)
+    if not outputs:
+        return new, None
+    return new, tracker_outputs(new, config, updated=have)
+
+
+def tracker_outputs(
+    state: TrackerState, config: TrackerConfig, updated: np.ndarray | None = None
+) -> TrackerOutput:
+    """Validity, alert level and confidence limits of a state (spec section 3)."""
+    fhi, dhi = state.fhi, state.dhi
+    valid = rul_validity(state.drul, state.d2rul, config) & (state.n > 0)
+    level = alert_level(fhi, state.frul, valid, config)
+    with np.errstate(invalid="ignore"):
+        lo, hi = rul_confidence_limits(fhi, dhi, config)
+    if updated is None:
+        updated = np.zeros(len(state), dtype=bool)
+    return TrackerOutput(updated=np.asarray(updated, dtype=bool), valid=valid, level=level,
+                         rul_low=lo, rul_high=hi)
+
+
+def track_series(
+    t: np.ndarray, hi: np.ndarray, config: TrackerConfig
+) -> dict[str, np.ndarray]:
+    """Run the chain over a (T, B) panel of acquisitions (NaN = none); history as (T, B) arrays.
+
+    One vectorised :func:`tracker_update` per time step across all B components. Returns a dict
+    with the history of every :data:`STATE_COLUMNS` field plus ``valid``, ``level``,
+    ``rul_low``, ``rul_high`` and ``updated``, each of shape (T, B).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    hi = np.atleast_2d(np.asarray(hi, dtype=np.float64))
+    if hi.ndim != 2 or (t.ndim == 1 and t.shape[0] != hi.shape[0]):
+        raise ValueError(f"t (T,) or (T, B) and hi (T, B) expected, got {t.shape} and {hi.shape}")
+    n_t, b = hi.shape
+    tt = np.broadcast_to(t[:, None] if t.ndim == 1 else t, (n_t, b))
+    gains = config.gains()
+    state = TrackerState.empty(b)
+    keys = [*STATE_COLUMNS, "valid", "level", "rul_low", "rul_high", "updated"]
+    hist: dict[str, np.ndarray] = {k: np.empty((n_t, b)) for k in keys}
+    for k in range(n_t):
+        state, out = tracker_update(state, tt[k], hi[k], config, gains)
+        assert out is not None
+        for name, col in state.columns().items():
+            hist[name][k] = col
+        hist["valid"][k] = out.valid
+        hist["level"][k] = out.level
+        hist["rul_low"][k] = out.rul_low
+        hist["rul_high"][k] = out.rul_high
+        hist["updated"][k] = out.updated
+    for name in ("valid", "updated"):
+        hist[name] = hist[name].astype(bool)
+    hist["level"] = hist["level"].astype(np.int8)
+    hist["n"] = hist["n"].astype(np.int64)
+    return hist
+
+
+def tracker_update_loop(
+    state: TrackerState, t: np.ndarray, hi: np.ndarray, config: TrackerConfig,
+    gains: TrackerGains | None = None,
+) -> TrackerState:
+    """Per-component plain-Python reference of :func:`tracker_update` (state only).
+
+    The seed's pseudo-code transcribed line by line with ``math`` scalars (Kalman-consistent
+    gamma convention, same initialisation and edge rules). It is the naive baseline of the
+    benchmark and the independent reference of the vectorised path in the tests; never use it
+    on a fleet.
+    """
+    if gains is None:
+        gains = config.gains()
+    a1, b1, a2, b2, g2 = gains.alpha1, gains.beta1, gains.alpha2, gains.beta2, gains.gamma2
+    dhi_min = 1.0 / config.design_life
+    out = state.take(np.arange(len(state)))
+    for i in range(len(state)):
+        z, ti = float(hi[i]), float(t[i])
+        if not (math.isfinite(z) and math.isfinite(ti)):
+            continue
+        if out.n[i] == 0:
+            fhi, dhi = z, dhi_min
+            h = min(max(fhi, config.hi_floor), 1.0)
+            rul = -h * math.log(h) / dhi
+            frul, drul, d2rul = rul, 0.0, 0.0
+        else:
+            dt = ti - out.t[i]
+            if not dt > 0:
+                raise ValueError(f"component index {i}: dt must be > 0")
+            fhi, dhi = out.ab[i]
+            fhi = fhi + dhi * dt
+            r = z - fhi
+            fhi = fhi + a1 * r
+            dhi = max(dhi + b1 * r / dt, dhi_min)
+            h = min(max(fhi, config.hi_floor), 1.0)
+            rul = -h * math.log(h) / dhi
+            frul, drul, d2rul = out.abg[i]
+            frul = frul + drul * dt + d2rul * dt * dt / 2.0
+            drul = drul + d2rul * dt  # constant-acceleration prediction of the rate
+            r = rul - frul
+            frul = frul + a2 * r
+            drul = drul + b2 * r / dt
+            d2rul = d2rul + g2 * r / (dt * dt)
+        out.t[i], out.n[i], out.hi[i], out.rul[i] = ti, out.n[i] + 1, z, rul
+        out.ab[i] = (fhi, dhi)
+        out.abg[i] = (frul, drul, d2rul)
+    return out
+
+
+__all__ = [
+    "LEVEL_ALARM",
+    "LEVEL_NAMES",
+    "LEVEL_NONE",
+    "LEVEL_WARNING",
+    "RAYLEIGH_UNIT_VARIANCE_BETA",
+    "STATE_COLUMNS",
+    "HealthIndexModel",
+    "TrackerConfig",
+    "TrackerGains",
+    "TrackerOutput",
+    "TrackerState",
+    "alert_level",
+    "empirical_offset",
+    "nakagami_critical_value",
+    "paris_rul",
+    "rul_confidence_limits",
+    "rul_validity",
+    "track_series",
+    "tracker_outputs",
+    "tracker_update",
+    "tracker_update_loop",
+]
