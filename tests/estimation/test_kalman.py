@@ -39,17 +39,17 @@ def simulate(rng, F, H, Q, R, x0, P0, T):
     return ys
 
 
-def brute_force(Fs, Hs, Qs, Rs, m0, P0, ys, upto):
+def brute_force(Fs, Hs, Qs, Rs, m0, P0, ys, upto, bus=None):
     """Posterior of x_upto given the observed y_1..y_upto (one unit) by conditioning the joint
     Gaussian of (x_1..x_T, y_1..y_T) directly; NaN measurements are dropped. Also returns the
     log marginal likelihood of the observed measurements up to ``upto``.
-    Time-varying lists Fs[k], Hs[k], Qs[k], Rs[k] (k = 0..T-1)."""
+    Time-varying lists Fs[k], Hs[k], Qs[k], Rs[k] (k = 0..T-1); bus[k] known input terms."""
     T = upto
     n = m0.shape[0]
     mus, Sig = [], []
     mu, S = m0, P0
     for k in range(T):
-        mu = Fs[k] @ mu
+        mu = Fs[k] @ mu + (0.0 if bus is None else bus[k])
         S = Fs[k] @ S @ Fs[k].T + Qs[k]
         mus.append(mu)
         Sig.append(S)
@@ -440,3 +440,79 @@ def test_inputs_not_modified_and_shared_P_accepted():
     assert Pu.shape == (3, 2, 2) and inn.skipped.tolist() == [False, True, False]
     np.testing.assert_array_equal(xu[1], [0.0, 0.0])
     np.testing.assert_array_equal(Pu[1], np.eye(2))
+
+
+def test_control_input_against_brute_force():
+    rng = np.random.default_rng(13)
+    T, B = 8, 2
+    G = np.array([[0.5 * DT**2], [DT]])
+    us = rng.normal(size=(T, B, 1))
+    x0 = np.zeros((B, 2))
+    P0 = np.eye(2)
+    ys = rng.normal(size=(T, B, 2))
+    res = KalmanFilter(F_CV, H_2, Q_CV, R_2, G=G).filter(ys, x0, P0, us=us)
+    for b in range(B):
+        bus = [G @ us[k, b] for k in range(T)]
+        mean, cov, ll = brute_force(
+            [F_CV] * T, [H_2] * T, [Q_CV] * T, [R_2] * T, x0[b], P0, ys[:, b], T, bus
+        )
+        np.testing.assert_allclose(res.x[-1, b], mean, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(res.P[-1, b], cov, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(res.loglik[b], ll, rtol=1e-10)
+    # a shared (T, n_u) input sequence is broadcast to every unit
+    shared = KalmanFilter(F_CV, H_2, Q_CV, R_2, G=G).filter(ys, x0, P0, us=us[:, 0])
+    one = KalmanFilter(F_CV, H_2, Q_CV, R_2, G=G).filter(ys[:, :1], x0[:1], P0, us=us[:, :1])
+    np.testing.assert_allclose(shared.x[:, 0], one.x[:, 0], rtol=1e-13, atol=1e-14)
+    with pytest.raises(ValueError, match="us"):
+        KalmanFilter(F_CV, H_2, Q_CV, R_2, G=G).filter(ys, x0, P0)
+
+
+def test_time_varying_callable_with_wrong_shape_names_step():
+    kf = KalmanFilter(lambda k: F_CV if k < 2 else np.eye(3), H_2, Q_CV, R_2)
+    with pytest.raises(ValueError, match=r"F\(2\): expected shape"):
+        kf.filter(np.zeros((4, 1, 2)), np.zeros((1, 2)), np.eye(2))
+
+
+def test_continuous_ekf_nonlinear_predict_against_solve_ivp_and_expm():
+    # pendulum with damping: the mean follows the ODE (RK4 substeps vs solve_ivp), and the
+    # covariance is expm(J dt) P expm(J dt)^T + int expm(J s) Qc expm(J s)^T ds (quadrature)
+    from scipy.integrate import solve_ivp
+
+    def f(x, u, t):
+        return np.column_stack([x[:, 1], -9.81 * np.sin(x[:, 0]) - 0.3 * x[:, 1]])
+
+    def jac(x):
+        J = np.zeros((x.shape[0], 2, 2))
+        J[:, 0, 1] = 1.0
+        J[:, 1, 0] = -9.81 * np.cos(x[:, 0])
+        J[:, 1, 1] = -0.3
+        return J
+
+    dt = 0.2
+    Qc = np.diag([0.0, 0.5])
+    x = np.array([[0.4, 0.0], [1.2, -0.5]])
+    P = np.stack([np.eye(2) * 0.1, np.array([[0.2, 0.05], [0.05, 0.3]])])
+    ekf = ExtendedKalmanFilter(
+        f, lambda x, u, t: x[:, :1], Qc, [[0.01]], continuous=True, dt=dt, t0=1.0, substeps=40
+    )
+    xp, Pp = ekf.predict(x, P, k=0)
+    for b in range(2):
+        ref = solve_ivp(
+            lambda t, y: f(y[None], None, t)[0],
+            (1.0, 1.0 + dt),
+            x[b],
+            method="DOP853",
+            rtol=1e-12,
+            atol=1e-12,
+        )
+        np.testing.assert_allclose(xp[b], ref.y[:, -1], rtol=0, atol=1e-9)
+        J = jac(x[b : b + 1])[0]
+        Phi = scipy.linalg.expm(J * dt)
+        Qd, _ = quad_vec(
+            lambda s, J=J: scipy.linalg.expm(J * s) @ Qc @ scipy.linalg.expm(J * s).T,
+            0,
+            dt,
+            epsabs=1e-14,
+        )
+        # the Jacobian is taken by finite differences here: agreement to ~1e-8
+        np.testing.assert_allclose(Pp[b], Phi @ P[b] @ Phi.T + Qd, rtol=1e-7, atol=1e-9)

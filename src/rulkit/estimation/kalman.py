@@ -376,6 +376,12 @@ def discretise(A: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[FloatArray, Fl
     Qc = _as_cov(Qc, n, A.shape[0] if A.ndim == 3 else None, "Qc")
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: expected a positive finite step, got {dt!r}")
+    return _van_loan(A, Qc, float(dt))
+
+
+def _van_loan(A: FloatArray, Qc: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
+    """Unchecked core of :func:`discretise`."""
+    n = A.shape[-1]
     lead = np.broadcast_shapes(A.shape[:-2], Qc.shape[:-2])
     M = np.zeros((*lead, 2 * n, 2 * n))
     M[..., :n, :n] = -A * dt
@@ -474,6 +480,9 @@ class _MatrixSource:
             if arr.ndim not in (2, 3):
                 raise ValueError(f"{name}: expected a 2-D or 3-D array, got shape {arr.shape}")
             self.rows, self.cols = arr.shape[-2], arr.shape[-1]
+            _check_finite(arr, name)
+            if cov:
+                _check_psd(arr, name)
             self.value = arr
 
     def validate(self, B: int, rows: int, cols: int) -> None:
@@ -697,7 +706,7 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
             xn = x
             for i in range(self.substeps):
                 xn = rk4_step(lambda xx, tt, uu: self.f(xx, uu, tt), xn, targ + i * h, h, u)
-            Phi, Qd = discretise(J, self.Q.at(k, B), dt)
+            Phi, Qd = _van_loan(J, self.Q.at(k, B), dt)
             Pn = _sym(Phi @ P @ _T(Phi) + Qd)
         else:
             xn = _apply(self.f, x, u, targ, B, "f")
