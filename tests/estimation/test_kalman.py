@@ -516,3 +516,17 @@ def test_continuous_ekf_nonlinear_predict_against_solve_ivp_and_expm():
         )
         # the Jacobian is taken by finite differences here: agreement to ~1e-8
         np.testing.assert_allclose(Pp[b], Phi @ P[b] @ Phi.T + Qd, rtol=1e-7, atol=1e-9)
+
+
+def test_check_false_gives_identical_numbers_and_still_checks_shapes():
+    rng = np.random.default_rng(14)
+    x = rng.normal(size=(4, 2))
+    P = np.stack([np.eye(2) * (1 + b) for b in range(4)])
+    y = rng.normal(size=(4, 2))
+    a = kf_update(*kf_predict(x, P, F_CV, Q_CV), y, H_2, R_2)
+    b = kf_update(*kf_predict(x, P, F_CV, Q_CV, check=False), y, H_2, R_2, check=False)
+    for u, v in zip(a[:2], b[:2], strict=True):
+        np.testing.assert_array_equal(u, v)
+    np.testing.assert_array_equal(a[2].loglik, b[2].loglik)
+    with pytest.raises(ValueError, match="Q: expected shape"):
+        kf_predict(x, P, F_CV, np.eye(3), check=False)

@@ -270,18 +270,21 @@ def kf_predict(
     F: np.ndarray,
     Q: np.ndarray,
     Bu: np.ndarray | None = None,
+    *,
+    check: bool = True,
 ) -> tuple[FloatArray, FloatArray]:
     """Kalman prediction ``x <- F x + Bu``, ``P <- F P F^T + Q`` for B units.
 
     ``x`` (B, n), ``P`` (B, n, n) (or shared (n, n)), ``F`` and ``Q`` (n, n) or (B, n, n), ``Bu``
-    an optional control contribution (n,) or (B, n). Validates shapes, finiteness and that
-    ``P`` and ``Q`` are symmetric positive semi-definite (errors name the argument).
+    an optional control contribution (n,) or (B, n). Validates shapes, finiteness and (unless
+    ``check=False``, for tight loops with already validated matrices) that ``P`` and ``Q`` are
+    symmetric positive semi-definite; errors name the argument.
     """
     x = _as_state(x)
     B, n = x.shape
-    P = _as_cov(P, n, B, "P")
+    P = _as_cov(P, n, B, "P") if check else _as_matrix(P, n, n, B, "P")
     F = _as_matrix(F, n, n, B, "F")
-    Q = _as_cov(Q, n, B, "Q")
+    Q = _as_cov(Q, n, B, "Q") if check else _as_matrix(Q, n, n, B, "Q")
     bu = None
     if Bu is not None:
         bu = np.asarray(Bu, dtype=np.float64)
@@ -301,22 +304,26 @@ def kf_update(
     H: np.ndarray,
     R: np.ndarray,
     h_of_x: np.ndarray | Callable[[FloatArray], np.ndarray] | None = None,
+    *,
+    check: bool = True,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
     """Kalman measurement update for B units (Joseph form, linear solves).
 
     ``y`` (B, m) with NaN rows meaning "missing" (the update of that unit is skipped);
     ``H`` (m, n) or (B, m, n); ``R`` (m, m) or (B, m, m). ``h_of_x``: predicted measurement
     (B, m) (or a callable of ``x``) replacing ``H x`` (EKF use, with ``H`` the Jacobian).
+    ``check=False`` skips the symmetry / semi-definiteness checks of ``P`` and ``R`` (shapes and
+    finiteness are always checked; an S that is not positive definite still raises).
     Returns ``(x, P, Innovation)``.
     """
     x = _as_state(x)
     B, n = x.shape
-    P = _as_cov(P, n, B, "P")
+    P = _as_cov(P, n, B, "P") if check else _as_matrix(P, n, n, B, "P")
     Rm = np.asarray(R, dtype=np.float64)
     m = 1 if Rm.ndim == 0 else Rm.shape[-1]
     y = _as_measurements(y, B, m)
     H = _as_matrix(H, m, n, B, "H")
-    R = _as_cov(R, m, B, "R")
+    R = _as_cov(R, m, B, "R") if check else _as_matrix(R, m, m, B, "R")
     yhat = None
     if h_of_x is not None:
         yhat = np.asarray(h_of_x(x) if callable(h_of_x) else h_of_x, dtype=np.float64)
