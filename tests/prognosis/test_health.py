@@ -266,3 +266,21 @@ def test_config_validation_and_round_trip():
     assert TrackerConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ValueError, match="unknown keys"):
         TrackerConfig.from_dict({"dt": 1.0, "bogus": 2})
+
+
+def test_two_point_initiation():
+    cfg = TrackerConfig(dt=2.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e3)
+    t = np.array([0.0, 2.0, 4.0, 6.0])
+    z = np.array([0.30, 0.34, 0.37, 0.41])
+    h = track_series(t, z[:, None], cfg)
+    # 1st: slope unknown -> floor 1/design_life; RUL tracker starts at the raw RUL
+    assert h["fhi"][0, 0] == 0.30 and h["dhi"][0, 0] == 1e-3
+    # 2nd: two-point slope, RUL tracker restarts
+    assert h["fhi"][1, 0] == 0.34 and h["dhi"][1, 0] == pytest.approx(0.02)
+    rul1 = -0.34 * math.log(0.34) / 0.02
+    assert h["rul"][1, 0] == pytest.approx(rul1) and h["frul"][1, 0] == pytest.approx(rul1)
+    assert h["drul"][1, 0] == 0.0
+    # 3rd: RUL two-point slope from the two RULs that rest on measured slopes
+    assert h["drul"][2, 0] == pytest.approx((h["rul"][2, 0] - rul1) / 2.0)
+    assert h["frul"][2, 0] == h["rul"][2, 0] and h["d2rul"][2, 0] == 0.0
+    assert not h["valid"][:3, 0].any()

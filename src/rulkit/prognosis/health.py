@@ -532,14 +532,24 @@ def tracker_update(
     1. alpha-beta on HI: predict fHI += dHI dt, r = HI - fHI, fHI += alpha1 r, dHI += beta1 r/dt
        (``alpha_beta_update``), then dHI = max(dHI, 1/design_life) (no healing);
     2. RUL = -fHI ln(fHI) / dHI (:func:`paris_rul`);
-    3. alpha-beta-gamma on RUL: fRUL += dRUL dt + d2RUL dt^2/2, r = RUL - fRUL,
-       fRUL += alpha2 r, dRUL += beta2 r/dt, d2RUL += gamma2 r/dt^2 (``alpha_beta_gamma_update``,
-       Kalman-consistent; the seed's pseudo-code divides by 2 dt^2, half the steady-state
-       Kalman gain, see embedded-rul.md section 2).
+    3. alpha-beta-gamma on RUL: fRUL += dRUL dt + d2RUL dt^2/2, dRUL += d2RUL dt,
+       r = RUL - fRUL, fRUL += alpha2 r, dRUL += beta2 r/dt, d2RUL += gamma2 r/dt^2
+       (``alpha_beta_gamma_update``: the steady-state Kalman update of the constant-acceleration
+       model; the seed's pseudo-code omits the rate prediction and divides by 2 dt^2, half the
+       Kalman gain, see embedded-rul.md section 2 and rulkit.estimation.trackers).
 
-    First acquisition of a component (n = 0; the seed initialises everything to zero, which
-    would put log(0) into step 2): fHI = HI, dHI = 1/design_life, fRUL = RUL, dRUL = d2RUL = 0,
-    so a new component is not valid until its RUL tracker has learnt dRUL ~ -1.
+    Track initiation (the seed initialises everything to zero, which would put log(0) into
+    step 2 and start dHI, hence the RUL, from an arbitrary value): two-point differencing, the
+    standard initiation of alpha-beta trackers (Bar-Shalom), applied to both trackers:
+
+    * 1st acquisition (n = 0): fHI = HI, dHI = 1/design_life; fRUL = RUL, dRUL = d2RUL = 0;
+    * 2nd (n = 1): fHI = HI, dHI = max((HI - HI_1) / dt, 1/design_life); the RUL tracker
+      restarts at fRUL = RUL, dRUL = d2RUL = 0 (the first RUL that rests on a measured slope);
+    * 3rd (n = 2): the alpha-beta update as usual; fRUL = RUL, dRUL = (RUL - RUL_2) / dt,
+      d2RUL = 0;
+    * from the 4th on the steady-state updates 1-3 above.
+
+    A component is therefore not valid before its RUL tracker has estimated dRUL and d2RUL.
     dt = t - t_last must be > 0 for every updated component (``ValueError`` naming the first
     offending index otherwise; nothing is modified since the function is pure).
 
@@ -556,11 +566,12 @@ def tracker_update(
     if t.shape != (b,) or z.shape != (b,):
         raise ValueError(f"t and hi: expected shape ({b},), got {t.shape} and {z.shape}")
     have = np.isfinite(z) & np.isfinite(t)
-    fresh = state.n == 0
+    n_prev = state.n
+    initiating = bool((n_prev < 3).any())
     all_have = bool(have.all())
-    any_fresh = bool(fresh.any())
     dt = t - state.t
-    if any_fresh:
+    if initiating:
+        fresh = n_prev == 0
         dt = np.where(fresh, config.dt, dt)  # placeholder; fresh rows are overwritten below
     bad = have & ~(dt > 0)
     if bad.any():
@@ -578,14 +589,20 @@ def tracker_update(
 
     ab = alpha_beta_update(state.ab, zz, dt, gains.alpha1, gains.beta1)
     np.maximum(ab[:, 1], dhi_min, out=ab[:, 1])
-    if any_fresh:
-        ab[:, 0] = np.where(fresh, zz, ab[:, 0])
-        ab[:, 1] = np.where(fresh, dhi_min, ab[:, 1])
+    if initiating:  # two-point initiation of the HI tracker
+        first, second = n_prev == 0, n_prev == 1
+        slope = np.maximum((zz - state.hi) / dt, dhi_min)
+        ab[:, 0] = np.where(first | second, zz, ab[:, 0])
+        ab[:, 1] = np.where(first, dhi_min, np.where(second, slope, ab[:, 1]))
     rul = paris_rul(ab[:, 0], ab[:, 1], config.hi_floor)
     abg = alpha_beta_gamma_update(state.abg, rul, dt, gains.alpha2, gains.beta2, gains.gamma2)
-    if any_fresh:
-        init = np.column_stack([rul, np.zeros(b), np.zeros(b)])
-        abg = np.where(fresh[:, None], init, abg)
+    if initiating:  # (re)start of the RUL tracker, then its two-point slope
+        zero = np.zeros(b)
+        third = n_prev == 2
+        with np.errstate(invalid="ignore"):
+            rate = np.where(third, (rul - state.rul) / dt, 0.0)
+        init = np.column_stack([rul, rate, zero])
+        abg = np.where((n_prev < 3)[:, None], init, abg)
     n = state.n + 1
     new_t = t
     new_hi = z
@@ -673,23 +690,28 @@ def tracker_update_loop(
         z, ti = float(hi[i]), float(t[i])
         if not (math.isfinite(z) and math.isfinite(ti)):
             continue
-        if out.n[i] == 0:
+        n_i = int(out.n[i])
+        dt = ti - out.t[i] if n_i > 0 else config.dt
+        if not dt > 0:
+            raise ValueError(f"component index {i}: dt must be > 0")
+        fhi, dhi = out.ab[i]
+        if n_i == 0:
             fhi, dhi = z, dhi_min
-            h = min(max(fhi, config.hi_floor), 1.0)
-            rul = -h * math.log(h) / dhi
-            frul, drul, d2rul = rul, 0.0, 0.0
+        elif n_i == 1:
+            fhi, dhi = z, max((z - out.hi[i]) / dt, dhi_min)
         else:
-            dt = ti - out.t[i]
-            if not dt > 0:
-                raise ValueError(f"component index {i}: dt must be > 0")
-            fhi, dhi = out.ab[i]
             fhi = fhi + dhi * dt
             r = z - fhi
             fhi = fhi + a1 * r
             dhi = max(dhi + b1 * r / dt, dhi_min)
-            h = min(max(fhi, config.hi_floor), 1.0)
-            rul = -h * math.log(h) / dhi
-            frul, drul, d2rul = out.abg[i]
+        h = min(max(fhi, config.hi_floor), 1.0)
+        rul = -h * math.log(h) / dhi
+        frul, drul, d2rul = out.abg[i]
+        if n_i < 2:
+            frul, drul, d2rul = rul, 0.0, 0.0
+        elif n_i == 2:
+            frul, drul, d2rul = rul, (rul - out.rul[i]) / dt, 0.0
+        else:
             frul = frul + drul * dt + d2rul * dt * dt / 2.0
             drul = drul + d2rul * dt  # constant-acceleration prediction of the rate
             r = rul - frul
