@@ -1,0 +1,281 @@
+"""Ithaco type-A reaction wheel after Bialke (spec rw-lubrication.md section 1; seed 000/001
+eqs 1-6, Table 2), vectorised over a batch of states, and the Table 3 validation path (spec
+section 2).
+
+States ``x = [I_m (A), w (rad/s)]`` (plus the wheel angle ``theta (rad)`` when the motor ripple is
+kept as unmodelled dynamics). Inputs ``u = [V_comm (V), T_lub (deg C)]``, held over a step.
+Outputs ``y = [w, I_m]`` plus white noise (:data:`NOISE_LEVELS`, spec section 1 "Noise").
+
+    I_bus = (R_B I^2 + 0.04 |I| V_bus + P_q + K_e w I) / V_bus                       (eq. 1)
+    V_h   = K_f [V_bus - 6 - (1 + R_in I_bus) 1{I_bus > 0} - K_e |w|]                 (eq. 5)
+    f3    = min(V_h, 0)                                   EMF torque limiting         (eqs 5-6)
+    f5    = sign(w) K_s (|w| - w_s) 1{|w| >= w_s}          speed limiter              (eqs 5-6)
+    dI/dt = w_d [G_d (V_comm + f3 - f5) - I]               driver low-pass            (eq. 4)
+    dw/dt = [K_t I (1 + B sin 3N theta) + C sin(N theta / 2) - b_v(T) w - tau_c sign(w)
+             + J theta_a w_a^2 sin(w_a t)] / J                                          (eqs 2-4)
+    b_v(T) = 1e-3 [0.049 - 0.0002 (T + 30)]  N m s/rad                                  [R]
+
+The seed's printed viscous law ``0.0049 - 0.0002 (T + 30)`` is negative above -5.5 C; it is kept
+as ``friction_law="seed_literal"`` only to show the runaway it causes (tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+
+from rulkit.integrate import rk4_step
+from rulkit.models.base import FloatArray, GaussianNoise, StateSpaceModel, as_batch
+
+FrictionLaw = Literal["spec", "seed_literal"]
+
+#: Measurement noise standard deviations of seed Table 5 (sigma_w rad/s, sigma_I A).
+NOISE_LEVELS: dict[str, tuple[float, float]] = {
+    "low": (3e-3, 3e-2),
+    "high": (3e-3, 1.3e-1),
+}
+
+
+@dataclass(frozen=True)
+class IthacoParams:
+    """Parameters of the Ithaco type-A wheel (seed Table 2; ``[R]`` = spec resolution)."""
+
+    G_d: float = 0.19  # drive gain, A/V
+    w_d: float = 9.0  # driver bandwidth, rad/s
+    K_t: float = 0.029  # torque constant, N m/A
+    K_e: float = 0.029  # back-EMF constant, V s/rad
+    K_s: float = 95.0  # speed-limiter gain, V s/rad
+    w_s: float = 690.0  # overspeed threshold, rad/s
+    tau_c: float = 0.002  # Coulomb friction, N m
+    J: float = 0.0077  # flywheel inertia, kg m^2
+    N_poles: int = 36  # number of motor poles
+    R_in: float = 2.0  # input resistance, ohm
+    K_f: float = 0.5  # voltage feedback gain, V/V
+    theta_a: float = 0.05  # torque-noise angle deviation, rad
+    w_a: float = 0.2  # torque-noise frequency, rad/s
+    B: float = 0.0  # torque ripple factor (Table 2: 0.22); 0 by default [R]
+    C: float = 0.0  # cogging amplitude (Table 2: 0)
+    V_bus: float = 28.0  # bus voltage, V [R]
+    R_B: float = 2.0  # bus resistance, ohm [R]
+    P_q: float = 3.0  # quiescent power, W [R]
+    friction_law: FrictionLaw = "spec"
+
+    def __post_init__(self) -> None:
+        if self.friction_law not in ("spec", "seed_literal"):
+            raise ValueError(
+                f"friction_law: expected 'spec' or 'seed_literal', got {self.friction_law!r}"
+            )
+        if self.J <= 0 or self.V_bus <= 0:
+            raise ValueError("J and V_bus must be positive")
+
+
+def viscous_coefficient(T: FloatArray | float, law: FrictionLaw = "spec") -> FloatArray:
+    """Viscous friction coefficient b_v(T) in N m s/rad (spec section 1, seed eq. 2).
+
+    ``"spec"``: 1e-3 [0.049 - 0.0002 (T + 30)], positive from -30 to 215 C [R].
+    ``"seed_literal"``: 0.0049 - 0.0002 (T + 30) as printed (negative above -5.5 C).
+    """
+    T = np.asarray(T, dtype=np.float64)
+    if law == "spec":
+        return 1e-3 * (0.049 - 0.0002 * (T + 30.0))
+    if law == "seed_literal":
+        return 0.0049 - 0.0002 * (T + 30.0)
+    raise ValueError(f"friction_law: expected 'spec' or 'seed_literal', got {law!r}")
+
+
+def wheel_derivatives(
+    x: FloatArray, V_comm: FloatArray | float, T: FloatArray | float, t: float, p: IthacoParams
+) -> FloatArray:
+    """Time derivative of a batch of wheel states ``x`` (N, 2) or (N, 3) (spec section 1).
+
+    ``V_comm`` and ``T`` are scalars or (N,) arrays. The Heaviside functions of seed eq. 6 are
+    exact comparisons (spec: MATLAB's round(0.5) differs from numpy's).
+    """
+    I = x[:, 0]
+    w = x[:, 1]
+    aI = np.abs(I)
+    aw = np.abs(w)
+    I_bus = (p.R_B * I * I + 0.04 * aI * p.V_bus + p.P_q + p.K_e * w * I) / p.V_bus
+    V_h = p.K_f * (p.V_bus - 6.0 - (1.0 + p.R_in * I_bus) * (I_bus > 0.0) - p.K_e * aw)
+    f3 = np.minimum(V_h, 0.0)
+    f5 = np.sign(w) * p.K_s * (aw - p.w_s) * (aw >= p.w_s)
+    dI = p.w_d * (p.G_d * (V_comm + f3 - f5) - I)
+    torque = p.K_t * I
+    if x.shape[1] == 3:
+        theta = x[:, 2]
+        torque = p.K_t * I * (1.0 + p.B * np.sin(3 * p.N_poles * theta)) + p.C * np.sin(
+            p.N_poles * theta / 2.0
+        )
+    tau_noise = p.J * p.theta_a * p.w_a**2 * np.sin(p.w_a * t)
+    b = viscous_coefficient(T, p.friction_law)
+    dw = (torque - b * w - p.tau_c * np.sign(w) + tau_noise) / p.J
+    if x.shape[1] == 3:
+        return np.stack([dI, dw, w], axis=1)
+    return np.stack([dI, dw], axis=1)
+
+
+def rk4_wheel_step(
+    x: FloatArray, V_comm: FloatArray | float, T: FloatArray | float, t: float, dt: float,
+    p: IthacoParams,
+) -> FloatArray:
+    """One classical RK4 step of :func:`wheel_derivatives`, inputs held over the step."""
+    def f(xx: FloatArray, tt: float, u: object) -> FloatArray:
+        return wheel_derivatives(xx, V_comm, T, tt, p)
+
+    return rk4_step(f, x, t, dt)
+
+
+class ReactionWheel(StateSpaceModel):
+    """Ithaco type-A reaction wheel as a :class:`StateSpaceModel` (spec section 1).
+
+    ``u`` is ``[V_comm, T_lub]`` (shape (2,) or (N, 2)). ``noise`` is the Table 5 level
+    ``"low"`` or ``"high"`` (or explicit ``(sigma_w, sigma_I)``). ``ripple=True`` keeps the
+    motor ripple (B = 0.22, Table 2) with the wheel angle as a third state; the spec uses it in
+    the truth model only, as unmodelled dynamics. There is no process noise (Q = 0): the
+    wheel is deterministic given V_comm and T_lub.
+    """
+
+    input_names = ("V_comm", "T_lub")
+    output_names = ("w", "I_m")
+
+    def __init__(
+        self,
+        params: IthacoParams | None = None,
+        noise: str | tuple[float, float] = "low",
+        ripple: bool = False,
+    ) -> None:
+        p = params if params is not None else IthacoParams()
+        if ripple and p.B == 0.0:
+            p = replace(p, B=0.22)
+        self.params = p
+        self.ripple = ripple
+        self.state_names = ("I_m", "w", "theta") if ripple else ("I_m", "w")
+        if isinstance(noise, str):
+            if noise not in NOISE_LEVELS:
+                raise ValueError(f"noise: expected one of {sorted(NOISE_LEVELS)}, got {noise!r}")
+            sw, sI = NOISE_LEVELS[noise]
+        else:
+            sw, sI = (float(v) for v in noise)
+        if not (sw > 0 and sI > 0):
+            raise ValueError("noise standard deviations must be positive")
+        self.sigma_w, self.sigma_I = sw, sI
+        self._noise = GaussianNoise(np.zeros((self.n_x, self.n_x)), np.diag([sw**2, sI**2]))
+
+    @property
+    def noise(self) -> GaussianNoise:
+        return self._noise
+
+    def _split_u(self, u: FloatArray | None, n: int) -> tuple[FloatArray, FloatArray]:
+        if u is None:
+            raise ValueError("u: the wheel needs [V_comm, T_lub]")
+        uu = np.asarray(u, dtype=np.float64)
+        if uu.ndim == 1:
+            uu = np.broadcast_to(uu, (n, uu.shape[0]))
+        if uu.shape != (n, 2):
+            raise ValueError(f"u: expected shape (2,) or ({n}, 2), got {np.shape(u)}")
+        if not np.all(np.isfinite(uu)):
+            raise ValueError("u: non-finite V_comm or T_lub")
+        return uu[:, 0], uu[:, 1]
+
+    def step(
+        self,
+        x: FloatArray,
+        u: FloatArray | None,
+        t: float,
+        dt: float,
+        rng: np.random.Generator | None = None,
+    ) -> FloatArray:
+        """RK4 step of length ``dt`` with ``u = [V_comm, T_lub]`` held (no process noise)."""
+        xb = as_batch(x, self.n_x)
+        V, T = self._split_u(u, xb.shape[0])
+        return rk4_wheel_step(xb, V, T, t, dt, self.params)
+
+    def output(self, x: FloatArray, u: FloatArray | None = None) -> FloatArray:
+        """Noise-free measurement ``[w, I_m]``, shape (N, 2)."""
+        xb = as_batch(x, self.n_x)
+        return np.stack([xb[:, 1], xb[:, 0]], axis=1)
+
+    def steady_state(self, V_comm: float, T: float) -> FloatArray:
+        """Equilibrium ``[I, w]`` for constant V_comm and T, ignoring the (zero-mean,
+        0.2 rad/s) torque noise: I = G_d V, K_t I = b_v(T) w + tau_c (below w_s, limiter off)."""
+        p = self.params
+        I = p.G_d * V_comm
+        w = (p.K_t * I - p.tau_c * np.sign(p.K_t * I)) / viscous_coefficient(T, p.friction_law)
+        return np.array([I, float(w)])
+
+
+# --------------------------------------------------------------------------------------------
+# Table 3 validation path (spec section 2)
+
+
+def table3_temperature(t: FloatArray | float) -> FloatArray:
+    """Lubricant temperature of the Table 3 path read as a continuous rate (spec section 2).
+
+    23 C for t < 50 s; 31 exp(3e-4 (t - 50)) for 50 <= t <= 300 s (33.41 C at 300 s);
+    33.41.. exp(-3e-4 (t - 300)) after (31.47 C at 500 s).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    T300 = 31.0 * np.exp(3e-4 * 250.0)
+    return np.where(
+        t < 50.0,
+        23.0,
+        np.where(t <= 300.0, 31.0 * np.exp(3e-4 * (t - 50.0)), T300 * np.exp(-3e-4 * (t - 300.0))),
+    )
+
+
+def table3_voltage(t: FloatArray | float) -> FloatArray:
+    """Commanded voltage of the Table 3 path: 1 V before 250 s, 3 V after (spec section 2)."""
+    t = np.asarray(t, dtype=np.float64)
+    return np.where(t < 250.0, 1.0, 3.0)
+
+
+@dataclass(frozen=True)
+class WheelRun:
+    """A simulated wheel run on a fixed grid ``t`` (K,): inputs held over ``[t_k, t_{k+1})``.
+
+    ``x`` (K, n_x) true states, ``y`` (K, 2) noisy ``[w, I_m]``, ``V`` and ``T`` (K,) inputs.
+    """
+
+    t: FloatArray
+    V: FloatArray
+    T: FloatArray
+    x: FloatArray
+    y: FloatArray
+    sigma_w: float
+    sigma_I: float
+    dt: float
+
+
+def simulate_table3(
+    rng: np.random.Generator,
+    noise: str | tuple[float, float] = "low",
+    *,
+    dt: float = 0.05,
+    t_end: float = 500.0,
+    initial: Literal["rest", "equilibrium"] = "rest",
+    ripple: bool = False,
+    params: IthacoParams | None = None,
+) -> WheelRun:
+    """Simulate the Table 3 validation path (spec section 2) with RK4 at ``dt``.
+
+    Step k -> k+1 holds V(t_k) and T(t_k). ``initial="rest"`` starts at I = w = 0 [R];
+    ``"equilibrium"`` at the 1 V, 23 C steady state. Measurement noise ``[w, I_m]`` is drawn
+    from ``rng`` in one call after the (deterministic) trajectory.
+    """
+    model = ReactionWheel(params, noise=noise, ripple=ripple)
+    n = round(t_end / dt) + 1
+    t = np.arange(n) * dt
+    V = table3_voltage(t)
+    T = table3_temperature(t)
+    x = np.zeros((n, model.n_x))
+    if initial == "equilibrium":
+        x[0, :2] = model.steady_state(1.0, 23.0)
+    elif initial != "rest":
+        raise ValueError(f"initial: expected 'rest' or 'equilibrium', got {initial!r}")
+    p = model.params
+    for k in range(n - 1):
+        x[k + 1] = rk4_wheel_step(x[k : k + 1], V[k], T[k], t[k], dt, p)[0]
+    y = model.output(x) + model.noise.sample_measurement(n, rng)
+    return WheelRun(t, V, T, x, y, model.sigma_w, model.sigma_I, dt)
