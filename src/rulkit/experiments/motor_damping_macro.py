@@ -56,6 +56,9 @@ class MacroSettings:
     """Tuning of the macro EKF.
 
     ``q_a``: spectral density of the slope's random walk per cycle (0: seed's linear law).
+    ``q_a_grid``: when given, ``q_a`` is chosen after every cycle and for every unit by maximum
+    marginal likelihood (sum of the innovations' log-likelihoods of cycles 1..n) over these
+    values (type-II maximum likelihood; no look-ahead).
     ``c_prior_sd``, ``a_prior_sd``: zero-mean prior at cycle 0 (diffuse: 1e-3 is ~7x c_fail,
     1e-5 per cycle ~5x the synthetic slope). Scatter variance at cycle n:
     ``s^2 = max((nu0 s0^2 + RSS_n) / (nu0 + n - 2) - mean(r), 0)`` with a weak prior
@@ -65,6 +68,7 @@ class MacroSettings:
     """
 
     q_a: float = 0.0
+    q_a_grid: tuple[float, ...] | None = None
     c_prior_sd: float = 1.0e-3
     a_prior_sd: float = 1.0e-5
     scatter_prior_sd: float = 5.0e-6
@@ -75,6 +79,10 @@ class MacroSettings:
     def __post_init__(self) -> None:
         if not self.q_a >= 0:
             raise ValueError(f"q_a: expected >= 0, got {self.q_a}")
+        if self.q_a_grid is not None and (
+            len(self.q_a_grid) == 0 or not all(q >= 0 for q in self.q_a_grid)
+        ):
+            raise ValueError(f"q_a_grid: expected non-negative values, got {self.q_a_grid}")
         for name in ("c_prior_sd", "a_prior_sd"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected > 0, got {getattr(self, name)}")
@@ -124,10 +132,12 @@ def macro_filter(
     z: np.ndarray,
     meas_var: np.ndarray,
     settings: MacroSettings,
-) -> tuple[FloatArray, FloatArray]:
+    q_a: float | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Filter the damping estimates ``z`` (B, n) of cycles (n,) with measurement variances
-    ``meas_var`` (B, n); returns the final ``x`` (B, 2) and ``P`` (B, 2, 2) (seed eqs. 5-7) using
-    the engine's :func:`kf_predict` / :func:`kf_update`."""
+    ``meas_var`` (B, n); returns the final ``x`` (B, 2), ``P`` (B, 2, 2) (seed eqs. 5-7) and the
+    log marginal likelihood (B,), using the engine's :func:`kf_predict` / :func:`kf_update`.
+    ``q_a`` overrides ``settings.q_a``."""
     from rulkit.estimation.kalman import kf_predict, kf_update
 
     z = np.atleast_2d(np.asarray(z, dtype=np.float64))
@@ -137,51 +147,99 @@ def macro_filter(
     x = np.zeros((b, 2))
     P = np.broadcast_to(np.diag([settings.c_prior_sd**2, settings.a_prior_sd**2]), (b, 2, 2))
     H = np.array([[1.0, 0.0]])
+    qa = settings.q_a if q_a is None else float(q_a)
+    loglik = np.zeros(b)
     prev = 0.0
     for i in range(n):
         gap = cyc[i] - prev
         if gap > 0:
-            F, Q = _transition(gap, settings.q_a)
+            F, Q = _transition(gap, qa)
             x, P = kf_predict(x, P, F, Q)
         prev = cyc[i]
-        x, P, _ = kf_update(x, P, z[:, i : i + 1], H, rv[:, i, None, None])
-    return x, P
+        x, P, inn = kf_update(x, P, z[:, i : i + 1], H, rv[:, i, None, None])
+        loglik += inn.loglik
+    return x, P, loglik
 
 
 @dataclass(frozen=True)
 class MacroTrack:
     """Macro posterior after every cycle: ``cycles`` (n,), ``x`` (n, B, 2), ``P`` (n, B, 2, 2),
-    ``scatter_var`` (n, B) (the ``s^2`` used at that cycle)."""
+    ``scatter_var`` (n, B) (the ``s^2`` used at that cycle), ``q_a`` (n, B) (the slope noise
+    used at that cycle)."""
 
     cycles: FloatArray
     x: FloatArray
     P: FloatArray
     scatter_var: FloatArray
+    q_a: FloatArray
 
 
 def macro_track(
     cycles: np.ndarray, z: np.ndarray, r: np.ndarray, settings: MacroSettings
 ) -> MacroTrack:
-    """Re-run the macro filter after each cycle n on cycles 1..n (scatter from 1..n only)."""
+    """The macro posterior after each cycle n, from cycles 1..n only (scatter, and ``q_a`` when
+    ``settings.q_a_grid`` is given, estimated from cycles 1..n: no look-ahead).
+
+    Vectorised: every (prefix n, unit, q_a candidate) is one unit of a single batched filter
+    over all cycles; a prefix's measurements after its cycle n are NaN (skipped by
+    :func:`kf_update`) and its posterior is read right after cycle n's update. Equivalent to
+    re-running :func:`macro_filter` on every prefix (tested).
+    """
+    from rulkit.estimation.kalman import kf_predict, kf_update
+
     z = np.atleast_2d(np.asarray(z, dtype=np.float64))
     r = np.atleast_2d(np.asarray(r, dtype=np.float64))
     cyc = np.asarray(cycles, dtype=np.float64)
     b, n = z.shape
-    xs = np.empty((n, b, 2))
-    Ps = np.empty((n, b, 2, 2))
-    s2s = np.empty((n, b))
+    grid = np.asarray((settings.q_a,) if settings.q_a_grid is None else settings.q_a_grid)
+    g = grid.size
+    s2 = np.empty((n, b))
     for k in range(n):
-        s2 = estimate_scatter_var(cyc[: k + 1], z[:, : k + 1], r[:, : k + 1], settings)
-        x, P = macro_filter(cyc[: k + 1], z[:, : k + 1], r[:, : k + 1] + s2[:, None], settings)
-        xs[k], Ps[k], s2s[k] = x, P, s2
-    return MacroTrack(cycles=cyc, x=xs, P=Ps, scatter_var=s2s)
+        s2[k] = estimate_scatter_var(cyc[: k + 1], z[:, : k + 1], r[:, : k + 1], settings)
+    # units ordered (g, k, b)
+    u = g * n * b
+    qa_u = np.repeat(grid, n * b)
+    x = np.zeros((u, 2))
+    P = np.broadcast_to(np.diag([settings.c_prior_sd**2, settings.a_prior_sd**2]), (u, 2, 2))
+    H = np.array([[1.0, 0.0]])
+    loglik = np.zeros(u)
+    xs = np.empty((g, n, b, 2))
+    Ps = np.empty((g, n, b, 2, 2))
+    lls = np.empty((g, n, b))
+    kk = np.arange(n)
+    prev = 0.0
+    for i in range(n):
+        gap = cyc[i] - prev
+        if gap > 0:
+            F, _ = _transition(gap, 0.0)
+            Qu = qa_u[:, None, None] * _transition(gap, 1.0)[1]
+            x, P = kf_predict(x, P, F, Qu)
+        prev = cyc[i]
+        y = np.where(kk[:, None] >= i, z[None, :, i], np.nan)  # (n, b): prefix k sees cycle i<=k
+        y = np.broadcast_to(y, (g, n, b)).reshape(u, 1)
+        rv = np.broadcast_to(r[None, None, :, i] + s2[None], (g, n, b)).reshape(u, 1, 1)
+        x, P, inn = kf_update(x, P, y, H, rv)
+        loglik += inn.loglik
+        xs[:, i] = x.reshape(g, n, b, 2)[:, i]
+        Ps[:, i] = P.reshape(g, n, b, 2, 2)[:, i]
+        lls[:, i] = loglik.reshape(g, n, b)[:, i]
+    best = np.argmax(lls, axis=0)  # (n, b): first maximum, i.e. the smallest q_a on ties
+    x_best = np.take_along_axis(xs, best[None, :, :, None], axis=0)[0]
+    P_best = np.take_along_axis(Ps, best[None, :, :, None, None], axis=0)[0]
+    return MacroTrack(cycles=cyc, x=x_best, P=P_best, scatter_var=s2, q_a=grid[best])
 
 
 def predicted_damping(
-    x: FloatArray, P: FloatArray, m: np.ndarray, q_a: float, extra_var: np.ndarray | float = 0.0
+    x: FloatArray,
+    P: FloatArray,
+    m: np.ndarray,
+    q_a: np.ndarray | float,
+    extra_var: np.ndarray | float = 0.0,
 ) -> tuple[FloatArray, FloatArray]:
-    """Mean and variance of the damping ``m`` cycles ahead: (B, M) each (module docstring)."""
+    """Mean and variance of the damping ``m`` cycles ahead: (B, M) each (module docstring);
+    ``q_a`` and ``extra_var`` scalars or (B,)."""
     m = np.asarray(m, dtype=np.float64)
+    q_a = np.asarray(q_a, dtype=np.float64).reshape(-1, 1)
     mu = x[:, 0, None] + x[:, 1, None] * m
     v = (
         P[:, 0, 0, None]
@@ -199,7 +257,7 @@ def rul_covariance_quantiles(
     c_fail: float,
     levels: np.ndarray,
     *,
-    q_a: float = 0.0,
+    q_a: np.ndarray | float = 0.0,
     extra_var: np.ndarray | float = 0.0,
     horizon: float = 300.0,
     step: float = 0.1,
@@ -233,7 +291,7 @@ def rul_monte_carlo(
     rng: np.random.Generator,
     *,
     n_samples: int = 400,
-    q_a: float = 0.0,
+    q_a: np.ndarray | float = 0.0,
     scatter_var: np.ndarray | None = None,
     horizon: float = 300.0,
     t0: float = 0.0,
@@ -268,15 +326,18 @@ def rul_monte_carlo(
         s_sd = np.repeat(np.sqrt(np.asarray(scatter_var, dtype=np.float64)), s)
         x0[:, 2] = x0[:, 0]  # the current cycle's damping is not "future": no crossing at t0
 
+    qa = np.repeat(np.broadcast_to(np.asarray(q_a, dtype=np.float64), (b,)), s)
+    noisy = bool(np.any(qa > 0))
+
     def step(xk: FloatArray, t: float, dt: float, rng_: np.random.Generator) -> FloatArray:
         out = np.empty_like(xk)
         out[:, 0] = xk[:, 0] + xk[:, 1] * dt
         out[:, 1] = xk[:, 1]
-        if q_a > 0:
+        if noisy:
             # exact integrated-random-walk noise over dt: Q = q_a [[dt^3/3, dt^2/2], [., dt]]
             e1 = rng_.standard_normal(xk.shape[0])
             e2 = rng_.standard_normal(xk.shape[0])
-            sa = np.sqrt(q_a * dt)
+            sa = np.sqrt(qa * dt)
             out[:, 1] += sa * e1
             out[:, 0] += sa * dt * (0.5 * e1 + np.sqrt(1.0 / 12.0) * e2)
         if s_sd is not None:
