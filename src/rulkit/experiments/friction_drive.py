@@ -660,6 +660,8 @@ def run_study(
     """
     if n_runs < 1:
         raise ValueError(f"n_runs: expected >= 1, got {n_runs}")
+    if not duration >= 3.0:
+        raise ValueError(f"duration: expected >= 3 s (a 2 s observability window), got {duration}")
     rng = np.random.default_rng(seed)
     configs = seed_configs(dt)
     for c, s in pairs:
@@ -669,7 +671,7 @@ def run_study(
     truths = {}
     for s in scen_names:
         sc = SCENARIOS[s]
-        sc = Scenario(**{**sc.__dict__, "duration": max(duration, 2.5)})
+        sc = Scenario(**{**sc.__dict__, "duration": duration})
         truths[s] = simulate_truth(sc, dt, truth_substeps)
     T = truths[scen_names[0]].currents.shape[0]
     units = [(c, s, r) for (c, s) in pairs for r in range(n_runs)]
@@ -728,8 +730,8 @@ def run_study(
                 nees=res.nees[:, b : b + 1], seconds=res.seconds,
             )
     obs = [
-        observability(truths["jump"], duration - 2.0 if duration >= 4 else 0.5, 2.0),
-        observability(truths["constant-current"], duration - 2.0 if duration >= 4 else 0.5, 2.0),
+        observability(truths["jump"], duration - 2.0 - dt, 2.0),
+        observability(truths["constant-current"], duration - 2.0 - dt, 2.0),
     ]
     rul = {}
     for c in rul_configs:

@@ -365,7 +365,7 @@ def quasi_steady_alpha(
     z = np.minimum(np.log(a_s), target)
     for _ in range(n_newton):
         a = np.exp(z)
-        g = _phi(a, c) - target
+        g = z + 2.0 * c * a + 0.5 * c * c * a * a - target  # phi in terms of z = ln a
         dg = 1.0 + 2.0 * c * a + c * c * a * a  # d phi / d ln a
         step = g / dg
         z = z - step

@@ -1,0 +1,307 @@
+"""Tables, figures and report.md of the friction-drive study (seed 003; spec friction-drive.md).
+
+:func:`tables` turns a :class:`~rulkit.experiments.friction_drive.StudyResult` into pandas
+DataFrames; :func:`figures` draws figures like the seed's Figs. 3, 5, 7 and 8 (matplotlib, Agg);
+:func:`write_report` writes the CSV tables, the figures and ``report.md`` with the seed's values
+beside ours.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rulkit.estimation.consistency import (
+    chebyshev_ellipsoid_bound,
+    ellipsoid_probability,
+    erf_statement,
+)
+from rulkit.experiments.friction_drive import SEED_VALUES, StudyResult, deterioration_bundle
+
+
+def tables(res: StudyResult) -> dict:
+    """The study's tables as pandas DataFrames: consistency, ellipsoid, observability, rul."""
+    import pandas as pd
+
+    rows = []
+    for s in res.summaries:
+        i, e = s.innovations, s.state_errors
+        rows.append({
+            "config": s.config, "scenario": s.scenario, "run": s.run,
+            "mean_NIS": i.mean_nis, "NIS_lo": i.nis_interval[0], "NIS_hi": i.nis_interval[1],
+            "frac_NIS_outside_95": i.frac_nis_outside,
+            "innov_cov_w1": i.innovation_coverage[0], "innov_cov_w2": i.innovation_coverage[1],
+            "LjungBox_p_w1": i.ljung_box_p[0], "LjungBox_p_w2": i.ljung_box_p[1],
+            "NIS_ok": i.nis_ok, "white": i.white, "consistent": i.consistent,
+            "mean_NEES": e.mean_nees, "NEES_ok": e.nees_ok,
+            "ellipsoid_frac_c3": e.ellipsoid_fraction,
+            "cov_alpha_c3": e.state_coverage[2], "cov_m_c3": e.state_coverage[3],
+            "alpha_hat": s.alpha_hat, "alpha_true": s.alpha_true, "sigma_alpha": s.sigma_alpha,
+            "m_hat": s.m_hat, "m_true": s.m_true, "sigma_m": s.sigma_m,
+            "m_rel_err": s.m_rel_error, "jump_tracking_s": s.jump_tracking_s,
+        })
+    consistency = pd.DataFrame(rows)
+    verdicts = (
+        consistency.groupby(["config", "scenario"], sort=False)
+        .agg(runs=("run", "size"), frac_NIS_ok=("NIS_ok", "mean"), frac_white=("white", "mean"),
+             frac_consistent=("consistent", "mean"), mean_NIS=("mean_NIS", "mean"),
+             median_m_rel_err=("m_rel_err", "median"), median_sigma_m=("sigma_m", "median"))
+        .reset_index()
+    )
+    n = 4
+    c = 3.0
+    tuned = [s for s in res.summaries if s.config == "tuned" and s.scenario == "constant"]
+    meas = float(np.mean([s.state_errors.ellipsoid_fraction for s in tuned])) if tuned else np.nan
+    ellipsoid = pd.DataFrame([
+        {"statement": "Chebyshev 1 - n/c^2 (seed eq. 22), n=4, c=3", "seed": 0.555,
+         "ours": chebyshev_ellipsoid_bound(c, n)},
+        {"statement": "erf(c/sqrt2) as ellipsoid probability (seed eq. 23)", "seed": 0.997,
+         "ours": erf_statement(c)},
+        {"statement": "Gaussian ellipsoid P(chi2_4 <= 9) (correct)", "seed": np.nan,
+         "ours": ellipsoid_probability(c, n)},
+        {"statement": "measured: NEES <= 9, tuned filter, constant m", "seed": np.nan,
+         "ours": meas},
+    ])
+    obs = pd.DataFrame([
+        {"input": o.input_kind, "window_s": f"[{o.t_start:g}, {o.t_start + o.window:g}]",
+         "sigma_w1": o.sigma[0], "sigma_w2": o.sigma[1], "sigma_alpha": o.sigma[2],
+         "sigma_m": o.sigma[3], "pointwise_rank": o.pointwise_rank}
+        for o in res.observability
+    ])
+    rul_rows = []
+    for name, r in res.rul.items():
+        q05, q50, q95 = (float(v) for v in r.rul.quantile([0.05, 0.5, 0.95]))
+        rul_rows.append({
+            "config": name, "t_pred_s": r.t_pred, "N": r.rul.n,
+            "fit_mean_h": r.normal_fit[0], "fit_std_h": r.normal_fit[1],
+            "median_h": q50, "q05_h": q05, "q95_h": q95,
+            "frac_censored": r.rul.fraction_censored, "frac_m_le_0": r.fraction_never,
+            "nominal_h": r.nominal_h, "optimistic_h": r.optimistic_h,
+            "pessimistic_h": r.pessimistic_h,
+            "alpha_hat": r.x_hat[2], "sigma_alpha": float(np.sqrt(r.P[2, 2])),
+            "m_hat": r.x_hat[3], "sigma_m": float(np.sqrt(r.P[3, 3])),
+            "lsoda_check_max_abs_h": r.validation_max_abs_h, "lsoda_check_n": r.validation_n,
+            "mc_seconds": r.seconds,
+        })
+    rul = pd.DataFrame(rul_rows)
+    return {"consistency": consistency, "verdicts": verdicts, "ellipsoid": ellipsoid,
+            "observability": obs, "rul": rul}
+
+
+def figures(res: StudyResult, out: Path) -> list[Path]:
+    """Figures like the seed's Figs. 3, 5, 7, 8 (plus the running NIS); returns the paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    # Fig. 3: input, alpha_hat and m_hat with +-3 sigma bounds (jump scenario).
+    cfgs = [c for c in ("tuned", "seed-f44", "seed") if (c, "jump") in res.runs]
+    fig, ax = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    tr = res.truths["jump"]
+    ax[0].step(tr.t[:-1], tr.currents, where="post", color="k")
+    ax[0].set_ylabel("I [A]")
+    ax[1].plot(tr.t, tr.X[:, 2], "k--", label="true")
+    ax[2].plot(tr.t, tr.X[:, 3], "k--", label="true")
+    for c in cfgs:
+        run = res.runs[(c, "jump")]
+        for j, a in ((2, ax[1]), (3, ax[2])):
+            mu, sd = run.x[:, 0, j], np.sqrt(run.Pdiag[:, 0, j])
+            (line,) = a.plot(run.t, mu, lw=1, label=f"{c}: estimate")
+            a.fill_between(run.t, mu - 3 * sd, mu + 3 * sd, color=line.get_color(), alpha=0.2)
+    ax[1].set_ylabel("alpha")
+    ax[2].set_ylabel("m")
+    ax[2].set_ylim(-0.02, 0.06)
+    ax[2].set_xlabel("t [s]")
+    ax[1].legend(fontsize=7)
+    ax[2].legend(fontsize=7)
+    fig.suptitle("Fig. 3 analogue: estimates with +-3 sigma bounds, abrupt m change at 10 s")
+    p = out / "fig3_estimates.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    # Fig. 5: D_hat over time (drift and jump scenarios, tuned filter).
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for s in ("drift", "jump", "constant"):
+        if ("tuned", s) not in res.runs:
+            continue
+        run = res.runs[("tuned", s)]
+        tr = res.truths[s]
+        D = 1 - run.x[:, 0, 2] / tr.scenario.alpha0
+        sd = np.sqrt(run.Pdiag[:, 0, 2]) / tr.scenario.alpha0
+        (line,) = ax.plot(run.t, D, label=f"D_hat, {s}")
+        ax.fill_between(run.t, D - 3 * sd, D + 3 * sd, color=line.get_color(), alpha=0.2)
+        ax.plot(tr.t, 1 - tr.X[:, 2] / tr.scenario.alpha0, "k:", lw=0.8)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("D = 1 - alpha/alpha0")
+    ax.legend()
+    ax.set_title("Fig. 5 analogue: estimated deterioration (dotted: truth)")
+    p = out / "fig5_deterioration.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    # Fig. 7 and 8: bundle of D trajectories and RUL histogram, per RUL config.
+    for name, r in res.rul.items():
+        finite = r.rul.samples[~r.rul.censored]
+        t_end = 1.3 * (np.quantile(finite, 0.99) if finite.size else r.nominal_h)
+        if not np.isfinite(t_end):
+            t_end = 300.0
+        grid = np.linspace(0.0, t_end, 400)
+        n_show = min(100, r.samples.shape[0])
+        Db = deterioration_bundle(r.samples[:n_show], grid)
+        ext = np.repeat(r.x_hat[None, :], 3, axis=0)
+        sa, sm = np.sqrt(r.P[2, 2]), np.sqrt(r.P[3, 3])
+        ext[1, 2] += 3 * sa
+        ext[1, 3] -= 3 * sm
+        ext[2, 2] -= 3 * sa
+        ext[2, 3] += 3 * sm
+        ext[:, 3] = np.maximum(ext[:, 3], 0.0)
+        De = deterioration_bundle(ext, grid)
+        fig, ax = plt.subplots(figsize=(8, 4))
+        ax.plot(grid, Db.T, color="0.7", lw=0.5)
+        ax.plot(grid, De[0], "k-", lw=2, label="nominal (x_hat)")
+        ax.plot(grid, De[1], "g--", label="optimistic (alpha+3s, m-3s)")
+        ax.plot(grid, De[2], "r--", label="pessimistic (alpha-3s, m+3s)")
+        ax.axhline(0.99, color="b", lw=0.8, label="D_f = 0.99")
+        ax.set_xlabel(f"hours after t = {r.t_pred:g} s")
+        ax.set_ylabel("D")
+        ax.legend(fontsize=8)
+        ax.set_title(f"Fig. 7 analogue ({name}): {n_show} trajectories from N(x_hat, P)")
+        p = out / f"fig7_bundle_{name}.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+        fig, ax = plt.subplots(figsize=(6, 4))
+        if finite.size:
+            ax.hist(finite, bins=30, density=True, alpha=0.6, label="MC RUL (uncensored)")
+            mu, sd = r.normal_fit
+            if np.isfinite(sd) and sd > 0:
+                g = np.linspace(finite.min(), finite.max(), 200)
+                ax.plot(g, np.exp(-0.5 * ((g - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)),
+                        "r", label=f"normal fit {mu:.2f} h, sd {sd:.2f} h")
+        ax.set_xlabel("RUL [h]")
+        ax.set_title(f"Fig. 8 analogue ({name}); censored {r.rul.fraction_censored:.0%}")
+        ax.legend(fontsize=8)
+        p = out / f"fig8_rul_{name}.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+    # Running NIS.
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for (c, s), run in res.runs.items():
+        nis = np.einsum("ti,ti->t", run.nu[:, 0],
+                        np.linalg.solve(run.S[:, 0], run.nu[:, 0][..., None])[..., 0])
+        ax.plot(run.t[1:], np.cumsum(nis) / np.arange(1, nis.size + 1), lw=1, label=f"{c}/{s}")
+    ax.axhline(2.0, color="k", lw=0.8)
+    ax.set_ylim(1.5, 2.5)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("running mean NIS (dof 2)")
+    ax.legend(fontsize=7)
+    p = out / "nis_running_mean.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def _md(df) -> str:  # type: ignore[no-untyped-def]
+    """A small markdown table without the optional 'tabulate' dependency."""
+    cols = list(df.columns)
+
+    def fmt(v: object) -> str:
+        if isinstance(v, (float, np.floating)):
+            if not np.isfinite(v):
+                return str(v)
+            return f"{v:.4g}"
+        return str(v)
+
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, row in df.iterrows():
+        lines.append("| " + " | ".join(fmt(row[c]) for c in cols) + " |")
+    return "\n".join(lines)
+
+
+def write_report(res: StudyResult, out: Path, command: str = "") -> Path:
+    """Write tables (CSV), figures (PNG) and ``report.md`` into ``out``; returns report path."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tabs = tables(res)
+    for name, df in tabs.items():
+        df.to_csv(out / f"{name}.csv", index=False)
+    figs = figures(res, out)
+    cons = tabs["consistency"]
+    rul = tabs["rul"]
+    short = cons[["config", "scenario", "run", "mean_NIS", "NIS_lo", "NIS_hi", "LjungBox_p_w1",
+                  "LjungBox_p_w2", "NIS_ok", "white", "consistent", "mean_NEES", "m_hat",
+                  "m_true", "sigma_m", "jump_tracking_s"]]
+    lines = [
+        "# Friction drive (seed 003): deterioration estimation and RUL",
+        "",
+        f"Command: `{command}`" if command else "",
+        f"Runs per (filter, scenario): {res.n_runs}; seed {res.seed}; filter step {res.dt} s; "
+        f"settings {res.settings}. Filter wall time {res.filter_seconds:.1f} s.",
+        "",
+        "## RUL at t = {:g} s (seed section 6, Figs. 7-8)".format(
+            next(iter(res.rul.values())).t_pred if res.rul else float("nan")),
+        "",
+        f"Seed: mean {SEED_VALUES['rul_mean_h']} h, std {SEED_VALUES['rul_std_h']} h "
+        "(normal fit to 100 trajectories). True RUL of the simulated truth from its state at "
+        f"t_pred (LSODA, m = 0.02, 20 A): **{res.rul_truth_h:.2f} h**.",
+        "",
+        _md(rul[["config", "N", "fit_mean_h", "fit_std_h", "median_h", "q05_h", "q95_h",
+                 "frac_censored", "nominal_h", "optimistic_h", "pessimistic_h",
+                 "lsoda_check_max_abs_h", "lsoda_check_n"]]),
+        "",
+        "Differences explained:",
+        "- The seed does not give its estimate at t_pred; our truth (alpha(0) = 10, m = 0.01 "
+        "jumping to 0.02 at 10 s, 0/20 A square wave) fails "
+        f"{res.rul_truth_h:.2f} h after 20 s, so a filter that knows m to ~1 % must give "
+        "a mean near that, about 0.8 h below the seed's 106.09 h.",
+        "- The spread is set by sigma_m: the tuned filter (q_m = 3e-7/s) knows m to ~1 %, so "
+        "its RUL sd is ~1 h, not 3.36 h. With the seed's Q as printed, sigma_m is of the order "
+        "of m itself: many samples have m <= 0 (never fail, censored at the horizon) and the "
+        "normal fit is meaningless; quantiles are reported instead. The seed's 3.36 h implies "
+        "sigma_m ~ 3 % of m, which none of the printed tunings gives.",
+        "- RUL uses D_f = 0.99 (D = 1 is never reached, spec); fast propagation = 10 s of full "
+        "model (RK4, 1 ms) then the quasi-steady closed form, checked against LSODA over the "
+        "full horizon (column lsoda_check_max_abs_h).",
+        "",
+        "## Consistency (seed 4.3-4.4)",
+        "",
+        "Verdict per run: `NIS_ok` (time-averaged NIS inside its 95 % chi-square interval), "
+        "`white` (Ljung-Box, 20 lags, on whitened innovations, p > 0.005 per component), "
+        "`consistent` = both. Summary over runs:",
+        "",
+        _md(tabs["verdicts"]),
+        "",
+        "Per run:",
+        "",
+        _md(short),
+        "",
+        "Seed's ellipsoid statements beside the correct ones (c = 3, n = 4):",
+        "",
+        _md(tabs["ellipsoid"]),
+        "",
+        "The seed's eq. (23) erf(c/sqrt2) = 99.73 % is the probability of *one* +-3 sigma "
+        "interval; the 4-D ellipsoid holds P(chi2_4 <= 9) = 93.9 %. Chebyshev's 1 - n/c^2 = "
+        "55.6 % (printed as 55.5 %) is a distribution-free lower bound.",
+        "",
+        "## Observability (windowed Cramer-Rao bound, 2 s of measurements, seed R)",
+        "",
+        _md(tabs["observability"]),
+        "",
+        "The pointwise rank test is full (4) under both inputs and cannot tell them apart; the "
+        "windowed bound shows m observable under the square wave and practically "
+        "unobservable at constant current in steady state.",
+        "",
+        "## Figures",
+        "",
+        *[f"![{p.stem}]({p.name})" for p in figs],
+        "",
+    ]
+    rep = out / "report.md"
+    rep.write_text("\n".join(lines))
+    return rep
