@@ -284,3 +284,38 @@ def test_two_point_initiation():
     assert h["drul"][2, 0] == pytest.approx((h["rul"][2, 0] - rul1) / 2.0)
     assert h["frul"][2, 0] == h["rul"][2, 0] and h["d2rul"][2, 0] == 0.0
     assert not h["valid"][:3, 0].any()
+
+
+@pytest.mark.parametrize("m", [2.0, 2.8, 4.0])
+def test_paris_rul_and_limits_general_exponent_against_ode(m):
+    p = m / 2
+    h0, c = 0.6, 0.003
+    dhi = c * h0**p  # current slope of dHI/dt = c HI^p
+
+    def time_to_one(h_start, rate):
+        ev = lambda t, y: y[0] - 1.0  # noqa: E731
+        ev.terminal = True
+        sol = integrate.solve_ivp(lambda t, y: rate * y**p, (0, 1e6), [h_start], events=ev,
+                                  rtol=1e-11, atol=1e-13)
+        return sol.t_events[0][0]
+
+    rul = paris_rul(np.array([h0]), np.array([dhi]), exponent=m)[0]
+    assert rul == pytest.approx(time_to_one(h0, c), rel=1e-6)
+    cfg = TrackerConfig(hi_sigma=0.02, load_factor=0.1, load_exponent=m, paris_exponent=m)
+    lo, hi = rul_confidence_limits(np.array([h0]), np.array([dhi]), cfg)
+    assert lo[0] == pytest.approx(time_to_one(h0 + 0.02, c * 1.1**m), rel=1e-6)
+    assert hi[0] == pytest.approx(time_to_one(h0 - 0.02, c * 0.9**m), rel=1e-6)
+
+
+def test_vectorised_chain_equals_loop_with_general_exponent():
+    rng = np.random.default_rng(11)
+    b = 20
+    cfg = TrackerConfig(dt=1.0, lambda_hi=0.4, lambda_rul=0.2, paris_exponent=3.0)
+    t = np.arange(1.0, 16.0)
+    hi = exponential_hi(t[:, None], rng.uniform(0.2, 0.5, b), 0.03) + rng.normal(0, 0.01, (15, b))
+    vec, ref = TrackerState.empty(b), TrackerState.empty(b)
+    for k in range(t.size):
+        vec, _ = tracker_update(vec, np.full(b, t[k]), hi[k], cfg)
+        ref = tracker_update_loop(ref, np.full(b, t[k]), hi[k], cfg)
+    for name, col in vec.columns().items():
+        np.testing.assert_allclose(col, ref.columns()[name], rtol=1e-12, atol=1e-12)

@@ -35,6 +35,10 @@ RAYLEIGH_UNIT_VARIANCE_BETA = 1.0 / math.sqrt(2.0 - math.pi / 2.0)
 """Rayleigh parameter of a unit-variance Rayleigh CI, 1/sqrt(2 - pi/2) = 1.5264 (seed eq 6)."""
 
 LEVEL_NONE, LEVEL_WARNING, LEVEL_ALARM = 0, 1, 2
+MIN_UPDATES_VALID = 4
+"""Acquisitions before a RUL can be valid: the 4th is the first steady-state update of the
+alpha-beta-gamma tracker after its two-point initiation (before it d2RUL is 0 by
+construction, not estimated, and would pass |d2RUL| < 0.01 trivially)."""
 LEVEL_NAMES = {LEVEL_NONE: "ok", LEVEL_WARNING: "warning", LEVEL_ALARM: "alarm"}
 
 
@@ -251,7 +255,8 @@ class TrackerConfig:
     finite RUL. ``hi_sigma``: one standard deviation of the measured HI, used by the confidence
     limits (default: none given -> 0). ``load_factor`` (0.10) and ``load_exponent`` (2, the
     Paris exponent of the RUL formula) shape the confidence limits
-    (:func:`rul_confidence_limits`).
+    (:func:`rul_confidence_limits`). ``paris_exponent`` m: the crack-growth exponent of the
+    RUL relation (2 = the seed's formula; see :func:`paris_rul`).
     Validity (seed section 6): ``valid_drul = (-2, 0)`` open interval for dRUL/dt and
     ``|d2RUL/dt2| < valid_d2rul``. Warning: fHI >= ``warn_hi`` and valid and fRUL < ``warn_rul``;
     alarm: fHI >= ``alarm_hi``. ``hi_max`` bounds an accepted HI measurement (ingestion checks).
@@ -267,6 +272,7 @@ class TrackerConfig:
     hi_sigma: float = 0.0
     load_factor: float = 0.10
     load_exponent: float = 2.0
+    paris_exponent: float = 2.0
     valid_drul: tuple[float, float] = (-2.0, 0.0)
     valid_d2rul: float = 0.01
     warn_hi: float = 0.75
@@ -275,7 +281,8 @@ class TrackerConfig:
     hi_max: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("dt", "lambda_hi", "lambda_rul", "design_life", "hi_floor", "hi_max"):
+        for name in ("dt", "lambda_hi", "lambda_rul", "design_life", "hi_floor", "hi_max",
+                     "paris_exponent"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
@@ -447,20 +454,34 @@ class TrackerOutput:
     rul_high: FloatArray
 
 
-def paris_rul(fhi: np.ndarray, dhi: np.ndarray, hi_floor: float = 1e-3) -> FloatArray:
-    """RUL to HI = 1 under the Paris law with exponent 2 (seed section 4, its pseudo-code).
+def paris_rul(
+    fhi: np.ndarray, dhi: np.ndarray, hi_floor: float = 1e-3, exponent: float = 2.0
+) -> FloatArray:
+    """RUL to HI = 1 under the Paris law (seed section 4, its pseudo-code for exponent 2).
 
-    da/dN = D (2 sigma alpha sqrt(pi a))^2 = k a with HI proportional to a gives
-    dHI/dt = k HI, HI(t) = HI_0 exp(k t), so HI = 1 at t = -ln(HI_0)/k; the tracker estimates
-    k = dHI / fHI, hence ``RUL = -fHI ln(fHI) / dHI`` (seed eq 11 prints the product with dHI
-    instead of the division; its pseudo-code is right).
+    da/dN = D (2 sigma alpha sqrt(pi a))^m with HI proportional to the crack length a gives
+    dHI/dt = c HI^p with p = m/2. For m = 2: HI(t) = HI_0 exp(c t), HI = 1 at t = -ln(HI_0)/c,
+    and the tracker's c = dHI / fHI gives ``RUL = -fHI ln(fHI) / dHI`` (seed eq 11 prints the
+    product with dHI instead of the division; its pseudo-code is right). For m != 2:
+    t = (1 - HI_0^(1-p)) / (c (1-p)) with c = dHI / fHI^p, i.e.
+    ``RUL = (fHI^p - fHI) / ((1 - p) dHI)`` (tends to the m = 2 form as p -> 1).
 
     Defined behaviour at the edges: fHI >= 1 gives RUL = 0 (at or past the alarm level);
     fHI < hi_floor is evaluated at hi_floor (finite RUL, no log(0)); dHI must be > 0 (the
     tracker floors it at 1/design life). Never NaN for finite inputs.
     """
     h = np.clip(fhi, hi_floor, 1.0)
-    return -h * np.log(h) / dhi
+    if exponent == 2.0:
+        return -h * np.log(h) / dhi
+    p = 0.5 * exponent
+    return (h**p - h) / ((1.0 - p) * dhi)
+
+
+def _time_to_one(h0: np.ndarray, c: np.ndarray, p: float) -> FloatArray:
+    """Time for dHI/dt = c HI^p to go from h0 (<= 1) to 1."""
+    if p == 1.0:
+        return -np.log(h0) / c
+    return (1.0 - h0 ** (1.0 - p)) / (c * (1.0 - p))
 
 
 def rul_confidence_limits(
@@ -485,17 +506,21 @@ def rul_confidence_limits(
     ``config.load_factor``. RUL_low <= RUL <= RUL_high by construction; both are >= 0 and finite.
     """
     h = np.clip(fhi, config.hi_floor, 1.0)
-    k = dhi / h
-    s, d, p = config.hi_sigma, config.load_factor, config.load_exponent
+    p = 0.5 * config.paris_exponent
+    c = dhi / h**p
+    s, d, q = config.hi_sigma, config.load_factor, config.load_exponent
     h_lo = np.clip(h + s, config.hi_floor, 1.0)
     h_hi = np.clip(h - s, config.hi_floor, 1.0)
-    rul_low = -np.log(h_lo) / (k * (1.0 + d) ** p)
-    rul_high = -np.log(h_hi) / (k * (1.0 - d) ** p)
+    rul_low = _time_to_one(h_lo, c * (1.0 + d) ** q, p)
+    rul_high = _time_to_one(h_hi, c * (1.0 - d) ** q, p)
     return rul_low, rul_high
 
 
 def rul_validity(drul: np.ndarray, d2rul: np.ndarray, config: TrackerConfig) -> NDArray[np.bool_]:
-    """Seed section 6: RUL valid when lo < dRUL/dt < hi (-2, 0) and |d2RUL/dt2| < 0.01."""
+    """Seed section 6: RUL valid when lo < dRUL/dt < hi (-2, 0) and |d2RUL/dt2| < 0.01.
+
+    :func:`tracker_outputs` also requires ``n >= MIN_UPDATES_VALID`` acquisitions.
+    """
     lo, hi = config.valid_drul
     return (drul > lo) & (drul < hi) & (np.abs(d2rul) < config.valid_d2rul)
 
@@ -594,7 +619,7 @@ def tracker_update(
         slope = np.maximum((zz - state.hi) / dt, dhi_min)
         ab[:, 0] = np.where(first | second, zz, ab[:, 0])
         ab[:, 1] = np.where(first, dhi_min, np.where(second, slope, ab[:, 1]))
-    rul = paris_rul(ab[:, 0], ab[:, 1], config.hi_floor)
+    rul = paris_rul(ab[:, 0], ab[:, 1], config.hi_floor, config.paris_exponent)
     abg = alpha_beta_gamma_update(state.abg, rul, dt, gains.alpha2, gains.beta2, gains.gamma2)
     if initiating:  # (re)start of the RUL tracker, then its two-point slope
         zero = np.zeros(b)
@@ -624,7 +649,7 @@ def tracker_outputs(
 ) -> TrackerOutput:
     """Validity, alert level and confidence limits of a state (spec section 3)."""
     fhi, dhi = state.fhi, state.dhi
-    valid = rul_validity(state.drul, state.d2rul, config) & (state.n > 0)
+    valid = rul_validity(state.drul, state.d2rul, config) & (state.n >= MIN_UPDATES_VALID)
     level = alert_level(fhi, state.frul, valid, config)
     with np.errstate(invalid="ignore"):
         lo, hi = rul_confidence_limits(fhi, dhi, config)
@@ -685,6 +710,8 @@ def tracker_update_loop(
         gains = config.gains()
     a1, b1, a2, b2, g2 = gains.alpha1, gains.beta1, gains.alpha2, gains.beta2, gains.gamma2
     dhi_min = 1.0 / config.design_life
+    m_paris = config.paris_exponent
+    p_half = 0.5 * m_paris
     out = state.take(np.arange(len(state)))
     for i in range(len(state)):
         z, ti = float(hi[i]), float(t[i])
@@ -705,7 +732,10 @@ def tracker_update_loop(
             fhi = fhi + a1 * r
             dhi = max(dhi + b1 * r / dt, dhi_min)
         h = min(max(fhi, config.hi_floor), 1.0)
-        rul = -h * math.log(h) / dhi
+        if m_paris == 2.0:
+            rul = -h * math.log(h) / dhi
+        else:
+            rul = (h**p_half - h) / ((1.0 - p_half) * dhi)
         frul, drul, d2rul = out.abg[i]
         if n_i < 2:
             frul, drul, d2rul = rul, 0.0, 0.0
@@ -729,6 +759,7 @@ __all__ = [
     "LEVEL_NAMES",
     "LEVEL_NONE",
     "LEVEL_WARNING",
+    "MIN_UPDATES_VALID",
     "RAYLEIGH_UNIT_VARIANCE_BETA",
     "STATE_COLUMNS",
     "HealthIndexModel",
