@@ -91,14 +91,28 @@ class ToyDegradation(StateSpaceModel):
         dt: float,
         rng: np.random.Generator | None = None,
     ) -> FloatArray:
-        """Advance a batch (N, 2) by ``dt``; add N(0, process_cov(dt)) noise when ``rng`` given."""
-        xb = as_batch(x, 2)
-        out = np.empty_like(xb)
-        out[:, 0] = xb[:, 0] + xb[:, 1] * dt
-        out[:, 1] = xb[:, 1]
-        if rng is not None:
-            sd = np.array([self.sigma_d, self.sigma_r]) * math.sqrt(dt)
-            out += rng.standard_normal(xb.shape) * sd
+        """Advance a batch (N, 2) by ``dt``; add N(0, process_cov(dt)) noise when ``rng`` given.
+
+        Hot path (called once per filter/propagation step): a float64 (N, 2) array is used
+        as is, without the finiteness scan of :func:`as_batch`; NaN propagates to the caller,
+        whose checks (log-weights, threshold indicator) report it with the step.
+        """
+        if isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 2:
+            if x.shape[1] != 2:
+                raise ValueError(f"x: expected shape (N, 2) or (2,), got {x.shape}")
+            xb = x
+        else:
+            xb = as_batch(x, 2)
+        if rng is None:
+            out = np.empty_like(xb)
+            out[:, 0] = xb[:, 0] + xb[:, 1] * dt
+            out[:, 1] = xb[:, 1]
+            return out
+        out = rng.standard_normal(xb.shape)
+        s = math.sqrt(dt)
+        out *= (self.sigma_d * s, self.sigma_r * s)
+        out += xb
+        out[:, 0] += xb[:, 1] * dt
         return out
 
     def output(self, x: FloatArray, u: FloatArray | None = None) -> FloatArray:
