@@ -300,8 +300,9 @@ def output_sensitivities_jacobian(
     X: FloatArray, dt: float, params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
 ) -> FloatArray:
     """dy_k / dx_0 along a trajectory ``X`` (K+1, 4) by the product of ``expm(F_k dt)``
-    (F the analytic Jacobian at the start of each step); returns (K, 2, 4) for y_1..y_K."""
-    J = fd.jacobian(X[:-1], None, params) * dt
+    (F the analytic Jacobian at the midpoint of each step, second order in dt); returns
+    (K, 2, 4) for y_1..y_K."""
+    J = fd.jacobian(0.5 * (X[:-1] + X[1:]), None, params) * dt
     Phi = expm(J)  # (K, 4, 4), batched
     K = X.shape[0] - 1
     out = np.empty((K, 2, 4))

@@ -1,0 +1,141 @@
+"""Tests of the friction-drive experiment (seed 003; spec friction-drive.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rulkit.experiments import friction_drive as E
+from rulkit.experiments.friction_drive_blas import blas_threads
+from rulkit.models import friction_drive as fd
+
+HOUR = 3600.0
+REST = np.array([[0.0, 0.0, 10.0, 0.01]])
+
+
+@pytest.mark.parametrize(("d_f", "spec_h"), [(0.9, 296.85), (0.99, 300.00), (0.999, 300.07)])
+def test_time_to_failure_from_rest_matches_lsoda_over_the_full_horizon_and_spec(d_f, spec_h):
+    params = fd.FrictionDriveParams(failure_level=d_f)
+    fast, never = E.time_to_failure(REST, 20.0, params=params)
+    ref = E.time_to_failure_reference(REST, 20.0, params=params)
+    assert not never[0]
+    # Full-horizon check against LSODA. The quasi-steady tail lags the true slip, so the fast
+    # path is early by 3 s, 27 s, 80 s for D_f = 0.9, 0.99, 0.999 (measured): < 0.03 h.
+    assert 0.0 <= (ref[0] - fast[0]) / HOUR < 0.03
+    assert ref[0] / HOUR == pytest.approx(spec_h, abs=0.005)  # spec "Failure threshold"
+    assert fast[0] / HOUR == pytest.approx(spec_h, abs=0.03)
+
+
+def test_closed_form_alone_overestimates_by_the_spin_up_loss():
+    alone = fd.quasi_steady_time(np.array([10.0]), 0.1, 0.01, 20.0)[0] / HOUR
+    fast = E.time_to_failure(REST, 20.0)[0][0] / HOUR
+    assert 2.5 < alone - fast < 4.5  # spec: "alone it overestimates by ~3 h"
+
+
+def test_time_to_failure_off_equilibrium_states_and_edge_cases():
+    X = np.array([
+        [120.0, 12.0, 8.4, 0.02],  # square-wave state after the jump
+        [0.0, 0.0, 8.4, 0.02],  # at rest
+        [150.0, 3.0, 0.102, 0.05],  # crosses inside the transient
+        [150.0, 3.0, 5.0, -0.001],  # m < 0: never fails
+        [150.0, 3.0, 0.05, 0.01],  # already failed
+    ])
+    fast, never = E.time_to_failure(X, 20.0)
+    ref = E.time_to_failure_reference(X[:3], 20.0)
+    np.testing.assert_allclose(fast[:3], ref, atol=0.01 * HOUR)
+    assert fast[2] < 10.0  # inside the 10 s transient, located on the stored path
+    assert np.isinf(fast[3]) and never[3] and not never[:3].any()
+    assert fast[4] == 0.0
+    capped, _ = E.time_to_failure(X[:1], 20.0, horizon=10 * HOUR)
+    assert np.isinf(capped[0])
+
+
+def test_truth_scenarios():
+    tr = E.simulate_truth(E.SCENARIOS["constant"])
+    assert tr.X[-1, 2] == pytest.approx(8.97, abs=0.01)  # spec: alpha 10 -> 8.97 in 20 s
+    jump = E.simulate_truth(E.Scenario("j", m_kind="jump", duration=11.0))
+    k = round(10.0 / 1e-3)
+    assert jump.X[k - 1, 3] == 0.01 and jump.X[k, 3] == 0.02
+    drift = E.simulate_truth(E.Scenario("d", m_kind="drift", duration=4.0))
+    assert drift.X[-1, 3] == pytest.approx(0.01 + 5e-4 * 4.0)
+    with pytest.raises(ValueError, match="m_kind"):
+        E.Scenario("x", m_kind="sine")
+
+
+def test_observability_sensitivities_and_cramer_rao():
+    tr = E.simulate_truth(E.Scenario("s", m_kind="constant", duration=6.0))
+    k0, k1 = 3000, 3500
+    sj = E.output_sensitivities_jacobian(tr.X[k0 : k1 + 1], tr.dt)
+    sf = E.output_sensitivities_fd(tr.X[k0], tr.currents[k0:k1], tr.dt, n_sub=10)
+    scale = np.abs(sf).max(axis=0) + 1e-300
+    assert np.max(np.abs(sj - sf) / scale) < 2e-3
+    sq = E.observability(tr, 3.9, 2.0)
+    cc = E.observability(
+        E.simulate_truth(E.Scenario("c", m_kind="constant", current="constant", duration=6.0)),
+        3.9, 2.0,
+    )
+    assert sq.pointwise_rank == 4 and cc.pointwise_rank == 4
+    assert sq.sigma[3] < 1e-5  # spec: ~5e-7 under the square wave
+    assert cc.sigma[3] > 1e-2  # spec: ~0.6 at constant current in steady state
+
+
+def test_short_ekf_study_is_accurate_and_consistent_under_the_square_wave():
+    with blas_threads(1):
+        res = E.run_study(n_runs=2, duration=3.0, pairs=(("tuned", "constant"),),
+                          rul_configs=(), seed=3)
+    for s in res.summaries:
+        assert abs(s.alpha_hat - s.alpha_true) < 3 * s.sigma_alpha
+        assert abs(s.m_hat - s.m_true) < 3 * s.sigma_m
+        assert s.sigma_m < 0.1 * s.m_true
+        assert 1.85 < s.innovations.mean_nis < 2.15
+
+
+def test_analytic_and_finite_difference_jacobians_give_the_same_filter():
+    tr = E.simulate_truth(E.Scenario("s", m_kind="constant", duration=3.0))
+    rng = np.random.default_rng(0)
+    T = 300
+    ys = (tr.X[1 : T + 1, :2] + rng.standard_normal((T, 2)) * np.sqrt(np.diag(E.SEED_R)))[:, None]
+    cur = tr.currents[:T, None]
+    ekf = E.make_ekf(np.array([3e-7]), np.array([0.0]), E.SEED_R[None], 1e-3)
+    a = E.run_filter(ekf, ys, cur, tr.X[:1], E.SEED_P0)
+    ekf.jac_f = None  # the engine falls back to central differences of f
+    b = E.run_filter(ekf, ys, cur, tr.X[:1], E.SEED_P0)
+    np.testing.assert_allclose(a.x[-1], b.x[-1], rtol=1e-6)
+    np.testing.assert_allclose(a.Pdiag[-1], b.Pdiag[-1], rtol=1e-4)
+
+
+def test_predict_rul_is_repeatable_and_handles_m_le_zero():
+    x_hat = np.array([120.0, 12.0, 8.43, 0.02])
+    P = np.diag([1e-8, 1e-10, 4e-10, 6e-8])  # sigma_m = 2.4e-4 (tuned-filter size)
+    a = E.predict_rul(x_hat, P, np.random.default_rng(1), n_samples=200, n_validate=2)
+    b = E.predict_rul(x_hat, P, np.random.default_rng(1), n_samples=200, n_validate=2)
+    np.testing.assert_array_equal(a.rul.samples, b.rul.samples)
+    assert a.rul.fraction_censored == 0.0
+    assert a.normal_fit[0] == pytest.approx(a.nominal_h, rel=0.01)
+    # sd of RUL ~ RUL * sigma_m / m (RUL proportional to 1/m)
+    assert a.normal_fit[1] == pytest.approx(a.nominal_h * np.sqrt(P[3, 3]) / 0.02, rel=0.2)
+    assert a.pessimistic_h < a.nominal_h < a.optimistic_h
+    assert a.validation_max_abs_h < 0.02
+    wide = E.predict_rul(x_hat, np.diag([1e-8, 1e-10, 4e-10, 0.03**2]),
+                         np.random.default_rng(2), n_samples=400, n_validate=0)
+    frac_neg = np.mean(wide.samples[:, 3] <= 0)
+    assert frac_neg > 0.1
+    assert wide.rul.fraction_censored >= frac_neg
+    assert np.isinf(wide.optimistic_h)
+
+
+def test_deterioration_bundle_reaches_the_failure_level_at_the_rul():
+    x = np.array([[120.0, 12.0, 8.43, 0.02], [0.0, 0.0, 9.0, 0.015]])
+    tf, _ = E.time_to_failure(x, 20.0)
+    for i in range(2):
+        D = E.deterioration_bundle(x[i : i + 1], np.array([tf[i] / HOUR]))
+        assert D[0, 0] == pytest.approx(0.99, abs=1e-9)
+
+
+def test_study_rejects_bad_settings():
+    with pytest.raises(ValueError, match="n_runs"):
+        E.run_study(n_runs=0)
+    with pytest.raises(ValueError, match="duration"):
+        E.run_study(duration=1.0)
+    with pytest.raises(ValueError, match="unknown"):
+        E.run_study(duration=3.0, pairs=(("nope", "jump"),))
