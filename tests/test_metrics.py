@@ -68,6 +68,8 @@ def test_alpha_lambda_points_and_distributions():
     assert not alpha_lambda(times, dists, 100.0, alpha=0.2, lam=0.5, beta=0.7).passed
     with pytest.raises(ValueError, match="not strictly increasing"):
         alpha_lambda([0.0, 0.0], [1.0, 1.0], 10.0)
+    with pytest.raises(ValueError, match="rul_pred: non-finite value at index"):
+        alpha_lambda([0.0, 1.0], [1.0, np.nan], 10.0)
 
 
 def test_prognostic_horizon_hand_computed():

@@ -119,7 +119,7 @@ def _point(pred: ArrayLike | Sequence[RULDistribution]) -> tuple[FloatArray, lis
         if not all(isinstance(d, RULDistribution) for d in dists):
             raise ValueError("rul_pred: mix of RULDistribution and numbers")
         return np.array([d.median for d in dists], dtype=np.float64), dists
-    return np.asarray(pred, dtype=np.float64), None
+    return _arr(pred, "rul_pred"), None
 
 
 def _mass_in(dist: RULDistribution, lo: float, hi: float) -> float:

@@ -201,6 +201,9 @@ def test_weighted_quantile_hand_computed_and_equal_to_repeats():
     np.testing.assert_array_equal(d.quantile(q), rep.quantile(q))
     assert d.std == pytest.approx(rep.std)
     assert d.effective_sample_size == pytest.approx(1 / (0.09 + 0.04 + 0.25))
+    # zero-weight samples are never returned
+    z = RULDistribution([1.0, 2.0, 3.0, 4.0], weights=[0.0, 0.5, 0.0, 0.5])
+    assert z.quantile(0.0) == 2.0 and z.quantile(0.5) == 2.0 and z.quantile(0.51) == 4.0
 
 
 def test_interval_and_cdf():

@@ -214,7 +214,9 @@ class RULDistribution:
         # a small tolerance so that q exactly at a jump of F selects that sample despite
         # round-off in the cumulative sum
         idx = np.searchsorted(self._sorted_cumw, qa - 1e-12, side="left")
-        idx = np.clip(idx, 0, self.n - 1)
+        # never return a leading zero-weight sample (q = 0 gives the smallest weighted sample)
+        first = np.searchsorted(self._sorted_cumw, 0.0, side="right")
+        idx = np.clip(np.maximum(idx, first), 0, self.n - 1)
         out = self._sorted_values[idx]
         if qa.ndim == 0:
             return float(out)
