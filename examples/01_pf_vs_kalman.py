@@ -66,8 +66,9 @@ def main(argv: list[str] | None = None) -> None:
               f"{z[:, 1].max():.3f} (rate); Monte Carlo scale 1/sqrt(min ESS) = "
               f"{1 / np.sqrt(res.ess.min()):.3f}")
         print(f"[{resampler:11s}] PF std / KF std at last step: "
-              f"damage {pf_std[-1, 0] / kf_std[-1, 0]:.3f}, rate {pf_std[-1, 1] / kf_std[-1, 1]:.3f}"
-              f"; resampled {res.resampled.sum()}/{args.steps} steps, "
+              f"damage {pf_std[-1, 0] / kf_std[-1, 0]:.3f}, "
+              f"rate {pf_std[-1, 1] / kf_std[-1, 1]:.3f}; "
+              f"resampled {res.resampled.sum()}/{args.steps} steps, "
               f"min ESS {res.ess.min():.0f}")
         print(f"[{resampler:11s}] log-likelihood: PF {res.loglik:.3f}, exact KF "
               f"{kr.loglik[0]:.3f} (difference {res.loglik - kr.loglik[0]:+.3f})")
