@@ -119,7 +119,8 @@ def _run_processes(
 ) -> list[R]:
     n = len(tasks)
     results: list[Any] = [None] * n
-    with ProcessPoolExecutor(max_workers=min(workers, n)) as pool:
+    pool = ProcessPoolExecutor(max_workers=min(workers, n))
+    try:
         futs = {pool.submit(_call, fn, t, s): i for i, (t, s) in enumerate(zip(tasks, seeds,
                                                                                 strict=True))}
         pending = set(futs)
@@ -127,10 +128,14 @@ def _run_processes(
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in done:
-                results[futs[f]] = f.result()
+                results[futs[f]] = f.result()  # re-raises a run's exception here
                 done_count += 1
                 if report:
                     report(done_count, n)
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)  # do not run the remaining tasks
+        raise
+    pool.shutdown(wait=True)
     return results
 
 

@@ -32,7 +32,9 @@ built on the engine (:func:`run_step1_numpy`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -43,6 +45,7 @@ from rulkit.models.reaction_wheel import (
     IthacoParams,
     ReactionWheel,
     rk4_wheel_step,
+    simulate_table3,
 )
 
 FloatArray = np.ndarray
@@ -400,3 +403,371 @@ def _temper_gamma_np(lw: FloatArray, ll: FloatArray, cfg: Step1Config, N: int) -
         else:
             hi = mid
     return math.exp(lo)
+
+
+# --------------------------------------------------------------------------------------------
+# reference estimator that is not a particle filter (spec section 3)
+
+
+@dataclass(frozen=True)
+class EKFResult:
+    """EKF estimates of T for B units: ``T_mean``/``T_std`` (K, B); row 0 is the prior."""
+
+    t: FloatArray
+    T_mean: FloatArray
+    T_std: FloatArray
+
+
+def run_ekf(
+    ys: FloatArray,
+    V: FloatArray,
+    *,
+    sigma: tuple[float, float] = NOISE_LEVELS["low"],
+    dt: float = 0.05,
+    t0: float = 0.0,
+    q_T: float = 0.02,
+    q_Iw: tuple[float, float] = (1e-6, 1e-6),
+    T_prior: tuple[float, float] = (15.0, 45.0),
+    params: IthacoParams | None = None,
+) -> EKFResult:
+    """Extended Kalman filter on [I, w, T] (spec section 3 reference), batched over B units.
+
+    ``ys`` (K, 2) or (K, B, 2) = [w, I_m] sharing the voltage ``V`` (K,). Discrete model: one
+    RK4 step of the wheel with T held, T a random walk of step ``q_T``; tiny process noise
+    ``q_Iw`` on [I, w] keeps P well conditioned. Prior: [I, w] = y_0 with covariance R, T with
+    the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.kalman.ExtendedKalmanFilter`
+    (finite-difference Jacobians).
+    """
+    from rulkit.estimation.kalman import ExtendedKalmanFilter
+
+    p = params or IthacoParams()
+    Y = np.asarray(ys, dtype=np.float64)
+    if Y.ndim == 2:
+        Y = Y[:, None, :]
+    if Y.ndim != 3 or Y.shape[2] != 2 or Y.shape[0] < 2:
+        raise ValueError(f"ys: expected shape (K, 2) or (K, B, 2), got {np.shape(ys)}")
+    V = np.asarray(V, dtype=np.float64)
+    K, B = Y.shape[:2]
+    if V.shape != (K,):
+        raise ValueError(f"V: expected shape ({K},), got {V.shape}")
+
+    def f(x: FloatArray, u: float, j: int) -> FloatArray:
+        X = rk4_wheel_step(x[:, :2], u, x[:, 2], t0 + j * dt, dt, p)
+        return np.column_stack([X, x[:, 2]])
+
+    def h(x: FloatArray, u: float, j: int) -> FloatArray:
+        return np.column_stack([x[:, 1], x[:, 0]])
+
+    sw, sI = sigma
+    Q = np.diag([q_Iw[0] ** 2, q_Iw[1] ** 2, q_T**2])
+    R = np.diag([sw**2, sI**2])
+    ekf = ExtendedKalmanFilter(f, h, Q, R)
+    lo, hi = T_prior
+    x0 = np.column_stack([Y[0, :, 1], Y[0, :, 0], np.full(B, 0.5 * (lo + hi))])
+    P0 = np.broadcast_to(np.diag([sI**2, sw**2, (hi - lo) ** 2 / 12.0]), (B, 3, 3)).copy()
+    res = ekf.filter(Y[1:], x0, P0, us=V[:-1])
+    T_mean = np.vstack([x0[None, :, 2], res.x[:, :, 2]])
+    T_std = np.vstack([np.sqrt(P0[None, :, 2, 2]), np.sqrt(res.P[:, :, 2, 2])])
+    return EKFResult(t0 + dt * np.arange(K), T_mean, T_std)
+
+
+# --------------------------------------------------------------------------------------------
+# Table 5 experiment (spec section 6)
+
+_NOISES = ("low", "high")
+
+
+def _data_rng(seed: int, noise: str, run: int) -> np.random.Generator:
+    """Generator of the measurement noise of run ``run`` at ``noise``: shared by every method
+    and particle count (common random numbers), independent of the filter's own generator."""
+    return np.random.default_rng(np.random.SeedSequence([seed, _NOISES.index(noise), run]))
+
+
+def _table5_pf_task(task: tuple[Any, ...], rng: np.random.Generator) -> dict[str, Any]:
+    """One filter run of the Table 5 grid (module level: picklable for the runner)."""
+    variant, design, noise, n, run, seed, t_burn, overrides = task
+    data = simulate_table3(_data_rng(seed, noise, run), noise)
+    cfg = replace(Step1Config(design=design, variant=variant, n_particles=n), **dict(overrides))
+    res = run_step1(data.y, data.V, rng, cfg, sigma=(data.sigma_w, data.sigma_I),
+                    dt=data.dt, quantiles=False)
+    return _scores(res.T_mean, data.T, data.t, t_burn) | {
+        "n_spread": int(np.sum(res.action == 2)), "n_resampled": int(np.sum(res.action == 1)),
+        "n_reset": int(np.sum(res.action == 3)), "clipped_frac": float(res.n_clipped.sum())
+        / (n * (res.t.size - 1)),
+    }
+
+
+def _table5_ekf_task(task: tuple[Any, ...], rng: np.random.Generator) -> list[dict[str, Any]]:
+    noise, runs, seed, t_burn = task
+    datas = [simulate_table3(_data_rng(seed, noise, r), noise) for r in range(runs)]
+    d0 = datas[0]
+    res = run_ekf(np.stack([d.y for d in datas], axis=1), d0.V, sigma=(d0.sigma_w, d0.sigma_I),
+                  dt=d0.dt)
+    return [_scores(res.T_mean[:, b], d0.T, d0.t, t_burn) for b in range(runs)]
+
+
+def _scores(T_hat: FloatArray, T: FloatArray, t: FloatArray, t_burn: float) -> dict[str, float]:
+    """RMSPE of T over all estimates of a run (samples 1..K-1; row 0 is the prior) and over
+    t >= t_burn (spec section 6)."""
+    from rulkit.metrics import rmspe
+
+    late = t >= t_burn
+    return {"rmspe": rmspe(T_hat[1:], T[1:]), "rmspe_late": rmspe(T_hat[late], T[late])}
+
+
+def run_table5(
+    runs: int = 20,
+    seed: int = 0,
+    quick: bool = False,
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: Any = None,
+    *,
+    methods: Sequence[tuple[str, str]] | None = None,
+    n_particles: Sequence[int] | None = None,
+    extra: bool = False,
+    ekf: bool = True,
+    t_burn: float = 100.0,
+    overrides: dict[str, Any] | None = None,
+) -> Any:
+    """Seed 001 Table 5: RMSPE of T (%) over the Table 3 path (500 s at dt = 0.05 s) for
+    N = 50..350, low and high noise, ``runs`` seeded runs each (spec sections 2, 3, 6).
+
+    ``methods``: (variant, design) pairs; default the paper's two methods, PF + adaptive
+    resampling and APF (eq. 28), each in the seed-faithful design F1 and in F2. ``extra`` adds
+    plain PF and tempered APF in both designs. ``ekf`` adds the EKF reference (independent of
+    N; reported with N = 0). ``quick``: 3 runs, N in (50, 200, 350).
+
+    Run r at a noise level sees the same measurements for every method and N (data seed
+    ``SeedSequence([seed, noise, r])``); each filter run gets its own generator from the runner
+    (``SeedSequence(seed).spawn``), so results are identical serially, with ``workers`` or on a
+    Dask ``scheduler``. Returns a long ``pandas.DataFrame``: method, design, noise, N, runs,
+    seed, rmspe_mean / rmspe_sd / rmspe_min / rmspe_max over runs, rmspe_late_mean (t >= t_burn),
+    mean counts of adaptive spreads and resamplings, APF clipped fraction, paper (Table 5 value
+    or NaN).
+    """
+    import pandas as pd
+
+    from rulkit.experiments.runner import run_independent
+
+    if quick:
+        runs = min(runs, 3)
+        n_list = tuple(n_particles) if n_particles else (50, 200, 350)
+    else:
+        n_list = tuple(n_particles) if n_particles else TABLE5_N
+    if methods is None:
+        methods = [(v, d) for d in ("F1", "F2") for v in ("adaptive", "apf_eq28")]
+        if extra:
+            methods += [(v, d) for d in ("F1", "F2") for v in ("pf", "apf_tempered")]
+    ov = tuple(sorted((overrides or {}).items()))
+    # largest N first so the slowest tasks start early on the workers
+    tasks: list[tuple[Any, ...]] = [
+        (v, d, noise, n, r, seed, t_burn, ov)
+        for n in sorted(n_list, reverse=True) for (v, d) in methods for noise in _NOISES
+        for r in range(runs)
+    ]
+    ekf_tasks = [("ekf", noise, runs, seed, t_burn) for noise in _NOISES] if ekf else []
+    all_tasks = ekf_tasks + tasks
+    outs = run_independent(_table5_dispatch, all_tasks, seed=seed, workers=workers,
+                           scheduler=scheduler, progress=progress, description="Table 5 runs")
+    rows: list[dict[str, Any]] = []
+    for task, out in zip(all_tasks, outs, strict=True):
+        if task[0] == "ekf":
+            for r, sc in enumerate(out):
+                rows.append({"method": "ekf", "design": "-", "noise": task[1], "N": 0,
+                             "run": r, **sc})
+        else:
+            v, d, noise, n, r = task[:5]
+            rows.append({"method": v, "design": d, "noise": noise, "N": n, "run": r, **out})
+    df = pd.DataFrame(rows)
+    agg = df.groupby(["method", "design", "noise", "N"], sort=False).agg(
+        runs=("rmspe", "size"), rmspe_mean=("rmspe", "mean"), rmspe_sd=("rmspe", "std"),
+        rmspe_min=("rmspe", "min"), rmspe_max=("rmspe", "max"),
+        rmspe_late_mean=("rmspe_late", "mean"),
+        **({"spreads_mean": ("n_spread", "mean"), "resamplings_mean": ("n_resampled", "mean"),
+            "clipped_frac_mean": ("clipped_frac", "mean")} if tasks else {}),
+    ).reset_index()
+    agg["seed"] = seed
+
+    def paper(row: Any) -> float:
+        vals = PAPER_TABLE5.get((row["method"], row["noise"]))
+        if vals is None or row["N"] not in TABLE5_N:
+            return float("nan")
+        return vals[TABLE5_N.index(row["N"])]
+
+    agg["paper"] = agg.apply(paper, axis=1)
+    order = {m: i for i, m in enumerate(["adaptive", "apf_eq28", "pf", "apf_tempered", "ekf"])}
+    agg = agg.sort_values(["noise", "method", "design", "N"],
+                          key=lambda s: s.map(order) if s.name == "method" else s)
+    return agg.reset_index(drop=True)
+
+
+def _table5_dispatch(task: tuple[Any, ...], rng: np.random.Generator) -> Any:
+    if task[0] == "ekf":
+        return _table5_ekf_task(task[1:], rng)
+    return _table5_pf_task(task, rng)
+
+
+def format_table5(df: Any) -> str:
+    """Wide text table: one row per (noise, method, design), columns N, each cell
+    ``ours (paper)`` in % (mean over runs); EKF reference in its own row."""
+    lines = []
+    ns = sorted(n for n in df["N"].unique() if n > 0)
+    head = f"{'noise':5} {'method':13} {'design':6} " + " ".join(f"{'N=' + str(n):>15}" for n in ns)
+    lines.append(head)
+    for (noise, method, design), g in df.groupby(["noise", "method", "design"], sort=False):
+        cells = []
+        for n in ns:
+            r = g[g["N"] == n]
+            if r.empty:
+                r = g[g["N"] == 0]
+            if r.empty:
+                cells.append(f"{'':>15}")
+                continue
+            ours = r["rmspe_mean"].iloc[0]
+            pap = r["paper"].iloc[0]
+            cells.append(
+                f"{ours:7.3f} ({pap:5.3f})" if np.isfinite(pap) else f"{ours:7.3f}        "
+            )
+        lines.append(f"{noise:5} {method:13} {design:6} " + " ".join(f"{c:>15}" for c in cells))
+    runs = sorted(df["runs"].unique())
+    lines.append(f"RMSPE of T in % over 0-500 s, mean of {runs} runs per cell, seed "
+                 f"{df['seed'].iloc[0]}; (paper) = seed 001 Table 5.")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
+# user telemetry
+
+
+def table3_telemetry(
+    rng: np.random.Generator, noise: str = "low", *, t_end: float = 500.0
+) -> Any:
+    """A simulated telemetry frame of the Table 3 path in the :mod:`rulkit.data.telemetry`
+    format (columns time_s, v_comm_V, speed_rad_s, current_A) plus the true ``T_lub_C``."""
+    import pandas as pd
+
+    from rulkit.data.telemetry import COLUMNS
+
+    d = simulate_table3(rng, noise, t_end=t_end)
+    return pd.DataFrame(dict(zip(COLUMNS, (d.t, d.V, d.y[:, 0], d.y[:, 1]), strict=True))
+                        | {"T_lub_C": d.T})
+
+
+def estimate_temperature(
+    df: Any,
+    method: str = "adaptive",
+    n_particles: int = 350,
+    rng: np.random.Generator | None = None,
+    *,
+    design: Design = "F2",
+    noise: str | tuple[float, float] = "low",
+    config: Step1Config | None = None,
+    level: float = 0.95,
+) -> Any:
+    """Estimate the lubricant temperature from wheel telemetry (spec section 3).
+
+    ``df``: a frame with columns time_s, v_comm_V, speed_rad_s, current_A (validated with
+    :func:`rulkit.data.telemetry.validate_wheel_telemetry`; regular sampling, its step is dt).
+    ``method``: ``"pf"``, ``"adaptive"``, ``"apf_eq28"``, ``"apf_tempered"`` (particle filters,
+    need ``rng``) or ``"ekf"`` (deterministic). ``noise``: the measurement-noise level assumed
+    ("low", "high" of seed Table 5, or ``(sigma_w, sigma_I)``). ``config`` overrides every PF
+    setting. Returns a DataFrame (time_s, T_mean, T_lo, T_hi) with the ``level`` interval
+    (weighted particle quantiles; for the EKF mean +- z sd).
+    """
+    import pandas as pd
+    from scipy.stats import norm
+
+    from rulkit.data.telemetry import CURRENT, SPEED, TIME, VOLT, validate_wheel_telemetry
+
+    clean = validate_wheel_telemetry(df, source="telemetry")
+    dt = float(clean.attrs["dt"])
+    t = clean[TIME].to_numpy()
+    y = np.column_stack([clean[SPEED].to_numpy(), clean[CURRENT].to_numpy()])
+    V = clean[VOLT].to_numpy()
+    sigma = NOISE_LEVELS[noise] if isinstance(noise, str) else tuple(float(s) for s in noise)
+    if isinstance(noise, str) and noise not in NOISE_LEVELS:
+        raise ValueError(f"noise: expected one of {sorted(NOISE_LEVELS)} or (sigma_w, sigma_I)")
+    if not 0 < level < 1:
+        raise ValueError(f"level: expected 0 < level < 1, got {level}")
+    if method == "ekf":
+        r = run_ekf(y, V, sigma=sigma, dt=dt, t0=float(t[0]))
+        z = float(norm.ppf(0.5 + level / 2))
+        m, s = r.T_mean[:, 0], r.T_std[:, 0]
+        return pd.DataFrame(
+            {"time_s": t, "T_mean": m, "T_lo": m - z * s, "T_hi": m + z * s}
+        )
+    if method not in kern.VARIANTS:
+        raise ValueError(f"method: expected 'ekf' or one of {sorted(kern.VARIANTS)}, got {method!r}")
+    if rng is None:
+        raise ValueError("a particle-filter method needs rng (a numpy.random.Generator)")
+    q = (0.5 - level / 2, 0.5 + level / 2)
+    cfg = config or Step1Config(design=design, variant=method, n_particles=n_particles,
+                                quantiles=q)
+    res = run_step1(y, V, rng, cfg, sigma=sigma, dt=dt, t0=float(t[0]))
+    return pd.DataFrame({"time_s": t, "T_mean": res.T_mean, "T_lo": res.T_lo, "T_hi": res.T_hi})
+
+
+# --------------------------------------------------------------------------------------------
+# figures like seed 001 Figs 9-11
+
+
+_TITLES = {"pf": "PF", "adaptive": "PF + adaptive resampling", "apf_eq28": "APF (eq. 28)",
+           "apf_tempered": "APF (tempering)"}
+
+
+def plot_temperature_estimates(
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    n_particles: int = 350,
+    design: Design = "F1",
+    variants: Sequence[str] = ("pf", "adaptive", "apf_eq28"),
+    with_ekf: bool = True,
+    fmt: str = "png",
+) -> list[Path]:
+    """One figure per estimator (like seed 001 Figs 9, 10, 11): (a) low and (b) high noise,
+    estimate, 95 % interval (weighted particle quantiles), truth on the Table 3 path, and the
+    EKF reference (dashed). Returns the written paths. Run r = 0 of :func:`run_table5`'s data
+    seed; the filter generator is ``default_rng(SeedSequence([seed, 99, i]))``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    datas = {nz: simulate_table3(_data_rng(seed, nz, 0), nz) for nz in _NOISES}
+    ekfs = {}
+    if with_ekf:
+        for nz, d in datas.items():
+            ekfs[nz] = run_ekf(d.y, d.V, sigma=(d.sigma_w, d.sigma_I), dt=d.dt).T_mean[:, 0]
+    paths = []
+    for i, v in enumerate(variants):
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+        for ax, nz, lab in zip(axes, _NOISES, ("(a) low noise", "(b) high noise"), strict=True):
+            d = datas[nz]
+            cfg = Step1Config(design=design, variant=v, n_particles=n_particles)  # type: ignore[arg-type]
+            rng = np.random.default_rng(np.random.SeedSequence([seed, 99, i]))
+            r = run_step1(d.y, d.V, rng, cfg, sigma=(d.sigma_w, d.sigma_I), dt=d.dt)
+            ax.fill_between(r.t, r.T_lo, r.T_hi, color="C0", alpha=0.25, lw=0,
+                            label="95 % interval")
+            ax.plot(r.t, r.T_mean, color="C0", lw=1, label="estimate")
+            ax.plot(d.t, d.T, color="k", lw=1.5, label="true $T_{lub}$")
+            if with_ekf:
+                ax.plot(d.t, ekfs[nz], color="C3", lw=1, ls="--", label="EKF reference")
+            from rulkit.metrics import rmspe
+
+            ax.set_title(f"{lab}: RMSPE {rmspe(r.T_mean[1:], d.T[1:]):.2f} %")
+            ax.set_xlabel("time (s)")
+            ax.set_ylim(10, 45)
+            ax.grid(alpha=0.3)
+        axes[0].set_ylabel("lubricant temperature (C)")
+        axes[0].legend(loc="lower right", fontsize=8)
+        fig.suptitle(f"{_TITLES.get(v, v)}, design {design}, N = {n_particles}, seed {seed}")
+        fig.tight_layout()
+        path = out / f"rw_step1_{v}_{design}.{fmt}"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+    return paths

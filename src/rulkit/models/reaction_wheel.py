@@ -21,6 +21,7 @@ as ``friction_law="seed_literal"`` only to show the runaway it causes (tests).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -248,6 +249,39 @@ class WheelRun:
     dt: float
 
 
+@functools.lru_cache(maxsize=8)
+def table3_trajectory(
+    dt: float = 0.05,
+    t_end: float = 500.0,
+    initial: Literal["rest", "equilibrium"] = "rest",
+    ripple: bool = False,
+    params: IthacoParams | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Noise-free Table 3 run ``(t, V, T, x)`` by RK4 (cached; arrays are read-only).
+
+    Step k -> k+1 holds V(t_k) and T(t_k); ``initial`` "rest" (I = w = 0) [R] or
+    "equilibrium" (1 V, 23 C steady state).
+    """
+    model = ReactionWheel(params, ripple=ripple)
+    if not (dt > 0 and t_end > dt):
+        raise ValueError(f"need 0 < dt < t_end, got dt={dt}, t_end={t_end}")
+    n = round(t_end / dt) + 1
+    t = np.arange(n) * dt
+    V = table3_voltage(t)
+    T = table3_temperature(t)
+    x = np.zeros((n, model.n_x))
+    if initial == "equilibrium":
+        x[0, :2] = model.steady_state(1.0, 23.0)
+    elif initial != "rest":
+        raise ValueError(f"initial: expected 'rest' or 'equilibrium', got {initial!r}")
+    p = model.params
+    for k in range(n - 1):
+        x[k + 1] = rk4_wheel_step(x[k : k + 1], V[k], T[k], t[k], dt, p)[0]
+    for a in (t, V, T, x):
+        a.setflags(write=False)
+    return t, V, T, x
+
+
 def simulate_table3(
     rng: np.random.Generator,
     noise: str | tuple[float, float] = "low",
@@ -265,17 +299,6 @@ def simulate_table3(
     from ``rng`` in one call after the (deterministic) trajectory.
     """
     model = ReactionWheel(params, noise=noise, ripple=ripple)
-    n = round(t_end / dt) + 1
-    t = np.arange(n) * dt
-    V = table3_voltage(t)
-    T = table3_temperature(t)
-    x = np.zeros((n, model.n_x))
-    if initial == "equilibrium":
-        x[0, :2] = model.steady_state(1.0, 23.0)
-    elif initial != "rest":
-        raise ValueError(f"initial: expected 'rest' or 'equilibrium', got {initial!r}")
-    p = model.params
-    for k in range(n - 1):
-        x[k + 1] = rk4_wheel_step(x[k : k + 1], V[k], T[k], t[k], dt, p)[0]
-    y = model.output(x) + model.noise.sample_measurement(n, rng)
+    t, V, T, x = table3_trajectory(dt, t_end, initial, ripple, model.params)
+    y = model.output(x) + model.noise.sample_measurement(t.size, rng)
     return WheelRun(t, V, T, x, y, model.sigma_w, model.sigma_I, dt)
