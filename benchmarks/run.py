@@ -31,6 +31,7 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import gc  # noqa: E402
 import importlib.util  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
@@ -58,15 +59,28 @@ T_STEPS = 50
 HORIZON = 400.0
 
 
-def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
-    """Median wall time of ``repeats`` calls (and the last call's result)."""
-    times = []
-    out = None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
+def timed(jobs: dict[str, tuple[Callable[[], object], int]]) -> dict[str, tuple[float, object]]:
+    """Median wall time (and last result) of each job, ``{name: (fn, repeats)}``.
+
+    Jobs run round-robin (one call of each per round, until each has its repeats) so that
+    ours and the peer see the same machine load; the garbage collector is paused during each
+    call, as in :mod:`timeit`.
+    """
+    times: dict[str, list[float]] = {k: [] for k in jobs}
+    last: dict[str, object] = {}
+    for r in range(max(n for _, n in jobs.values())):
+        for name, (fn, n) in jobs.items():
+            if r >= n:
+                continue
+            gc.collect()
+            gc.disable()
+            try:
+                t0 = time.perf_counter()
+                last[name] = fn()
+                times[name].append(time.perf_counter() - t0)
+            finally:
+                gc.enable()
+    return {k: (statistics.median(v), last[k]) for k, v in times.items()}
 
 
 def fmt_t(s: float) -> str:
@@ -196,10 +210,14 @@ def bench_pf(n: int, model: ToyDegradation, ys: np.ndarray, seed: int, reps: int
                 return pp.run_filter(filt, ys, 1.0)
             return go
 
-        t_ours, r_ours = median_time(run_always, reps)
-        t_def, r_def = median_time(run_default, reps)
-        t_pp, post_pp = median_time(peer(None), reps_peer)
-        t_pps, post_pps = median_time(peer(systematic_resample), reps_peer)
+        res = timed({"always": (run_always, reps), "default": (run_default, reps),
+                     "peer": (peer(None), reps_peer),
+                     "peer_sys": (peer(systematic_resample), reps_peer),
+                     "naive": (naive, reps_peer)})
+        t_ours, r_ours = res["always"]
+        t_def, r_def = res["default"]
+        t_pp, post_pp = res["peer"]
+        t_pps, post_pps = res["peer_sys"]
         rp = f"medians of {reps} / {reps_peer}"
         line(f"{what} ours (systematic, resample every step) vs ProgPy 1.9.0 ParticleFilter "
              "(default residual_resample)", t_ours, t_pp, "ProgPy", rp)
@@ -210,11 +228,15 @@ def bench_pf(n: int, model: ToyDegradation, ys: np.ndarray, seed: int, reps: int
         posts["ProgPy default"] = post_pp  # type: ignore[assignment]
         posts["ProgPy systematic"] = post_pps  # type: ignore[assignment]
     else:
-        t_ours, r_ours = median_time(run_always, reps)
-        _, r_def = median_time(run_default, 1)
-    t_nv, post_nv = median_time(naive, max(1, reps_peer))
+        res = timed({"always": (run_always, reps), "default": (run_default, reps),
+                     "naive": (naive, reps_peer)})
+        t_ours, r_ours = res["always"]
+        t_def, r_def = res["default"]
+        line(f"{what} ours (rulkit default: resample when ESS < N/2) vs ours (resample every "
+             "step)", t_def, t_ours, "every step", f"medians of {reps}")
+    t_nv, post_nv = res["naive"]
     line(f"{what} ours (resample every step) vs naive per-particle Python loop", t_ours, t_nv,
-         "naive", f"medians of {reps} / {max(1, reps_peer)}")
+         "naive", f"medians of {reps} / {reps_peer}")
     posts["ours (every step)"] = (r_ours.mean[-1], np.sqrt(np.diag(r_ours.cov[-1])))
     posts["ours (ESS<N/2)"] = (r_def.mean[-1], np.sqrt(np.diag(r_def.cov[-1])))
     posts["naive loop"] = post_nv  # type: ignore[assignment]
@@ -246,18 +268,23 @@ def bench_mc(samples: np.ndarray, dt: float, model: ToyDegradation, seed: int, r
 
     ours()  # warm-up
     what = f"MC to threshold N={n} dt={dt:g}"
-    t_ours, dist = median_time(ours, reps)
-    m_o = dist.mean  # type: ignore[attr-defined]
-    s_o = dist.std  # type: ignore[attr-defined]
-    # ProgPy's convention: the end of the step in which the threshold is met
-    snapped = np.ceil(dist.samples / dt - 1e-9) * dt  # type: ignore[attr-defined]
+    jobs: dict[str, tuple[Callable[[], object], int]] = {"ours": (ours, reps),
+                                                         "naive": (naive, reps_peer)}
     if pp is not None:
         def peer() -> object:
             np.random.seed(seed + 5)  # noqa: NPY002 - ProgPy draws from the global RNG
             return pp.monte_carlo_rul(pp.make_model(SIGMA_D, SIGMA_R, SIGMA_Y, dt), samples,
                                       dt, HORIZON)
 
-        t_pp, toe = median_time(peer, reps_peer)
+        jobs["peer"] = (peer, reps_peer)
+    res = timed(jobs)
+    t_ours, dist = res["ours"]
+    m_o = dist.mean  # type: ignore[attr-defined]
+    s_o = dist.std  # type: ignore[attr-defined]
+    # ProgPy's convention: the end of the step in which the threshold is met
+    snapped = np.ceil(dist.samples / dt - 1e-9) * dt  # type: ignore[attr-defined]
+    if pp is not None:
+        t_pp, toe = res["peer"]
         line(f"{what} ours (propagate_to_threshold) vs ProgPy 1.9.0 MonteCarlo", t_ours, t_pp,
              "ProgPy", f"medians of {reps} / {reps_peer}")
         toe = np.asarray(toe)
@@ -270,9 +297,9 @@ def bench_mc(samples: np.ndarray, dt: float, model: ToyDegradation, seed: int, r
               f"{n_cens} censored); snapped - ProgPy = {snapped.mean() - tv.mean():+.3f} "
               f"= {z:+.2f} Monte Carlo SE -> "
               f"{'agree' if abs(z) < 3 else 'DISAGREE'} within 3 SE")
-    t_nv, nv = median_time(naive, max(1, reps_peer))
+    t_nv, nv = res["naive"]
     line(f"{what} ours vs naive per-sample Python loop", t_ours, t_nv, "naive",
-         f"medians of {reps} / {max(1, reps_peer)}")
+         f"medians of {reps} / {reps_peer}")
     nv = np.asarray(nv)
     se = math.sqrt(dist.samples.var() / n + np.nanvar(nv) / n)  # type: ignore[attr-defined]
     print(f"  RUL mean: ours {m_o:.3f}, naive loop {np.nanmean(nv):.3f} "
@@ -283,10 +310,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats (< 3 minutes)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-progpy", action="store_true",
+                    help="skip ProgPy even if installed (ours vs naive only)")
     args = ap.parse_args(argv)
     reps, reps_peer = (11, 3) if args.quick else (21, 5)
 
-    have_progpy = importlib.util.find_spec("progpy") is not None
+    have_progpy = not args.no_progpy and importlib.util.find_spec("progpy") is not None
     pp = None
     if have_progpy:
         import progpy
@@ -305,7 +334,8 @@ def main(argv: list[str] | None = None) -> int:
         if peer_version != "1.9.0":
             print("# WARNING: the comparison is specified against progpy 1.9.0")
     else:
-        print("# ProgPy is not installed (pip install progpy==1.9.0, or the 'bench' extra): "
+        why = "skipped (--no-progpy)" if args.no_progpy else "not installed"
+        print(f"# ProgPy is {why} (pip install progpy==1.9.0, or the 'bench' extra): "
               "printing ours vs the naive loops only")
 
     model, ys = make_data(args.seed)
