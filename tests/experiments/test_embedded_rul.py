@@ -11,6 +11,7 @@ from rulkit.data.crack_growth import FatigueData, load_fatigue
 from rulkit.experiments.embedded_rul import (
     T_P,
     crack_tracker_config,
+    false_alarm_study,
     growth_exponent,
     plot_unit,
     run,
@@ -98,3 +99,13 @@ def test_report_and_figure(result, tmp_path):
     assert (tmp_path / "units.csv").exists()
     png = plot_unit(result, 0, tmp_path / "unit_01.png")
     assert png.stat().st_size > 10_000
+
+
+def test_false_alarm_study_small():
+    far = false_alarm_study(np.random.default_rng(1), rhos=(0.0, 0.9), pfa=1e-2,
+                            n_fit=200_000, n_test=200_000)
+    # 2000 expected exceedances: binomial sd 2.2 %; the covariance fitted on 2e5 rows has a
+    # scale error ~0.3 %, which moves the tail rate by ~13x that (~4 %): 15 % is ~3 sd
+    assert far["ratio_whitened"].between(0.85, 1.15).all()
+    assert far.loc[1, "ratio_not_whitened"] > 2.0
+    assert far.loc[0, "ratio_not_whitened"] == pytest.approx(1.0, abs=0.15)

@@ -78,16 +78,17 @@ def test_offset_is_the_five_percent_point_of_the_empirical_cdf():
 
 def test_false_alarm_rate_matches_design_with_whitening_and_inflates_without():
     rng = np.random.default_rng(2024)
-    n, pfa = 3, 1e-3
+    n, pfa = 3, 2e-3
     mix = equicorrelated_mix(n, 0.9)
     offset = np.array([3.0, 1.0, 2.0])
     baseline = correlated_rayleigh(rng, 200_000, mix, offset)
-    fresh = correlated_rayleigh(rng, 2_000_000, mix, offset)
+    fresh = correlated_rayleigh(rng, 1_000_000, mix, offset)
     expected = pfa * fresh.shape[0]  # 2000 exceedances
     white = HealthIndexModel.fit(baseline, pfa=pfa, offset=offset)
     far_white = np.count_nonzero(white.health_index(fresh) > 0.5)
-    # binomial sd = sqrt(2000) ~ 45; covariance estimation adds a few %: allow 10 %
-    assert abs(far_white - expected) < 0.10 * expected, far_white
+    # binomial sd = sqrt(2000) ~ 2.2 %; the covariance fitted on 2e5 rows has a ~0.3 % scale
+    # error, which the steep tail (d ln PFA / d ln T ~ 16) turns into ~5 %: allow 15 %
+    assert abs(far_white - expected) < 0.15 * expected, far_white
     plain = HealthIndexModel.fit(baseline, pfa=pfa, offset=offset, whiten=False)
     far_plain = np.count_nonzero(plain.health_index(fresh) > 0.5)
     # rho = 0.9: the unwhitened norm is dominated by one common factor -> heavier tail
@@ -101,10 +102,10 @@ def test_independent_cis_whitening_not_needed():
     rng = np.random.default_rng(5)
     n, pfa = 2, 1e-3
     base = correlated_rayleigh(rng, 200_000, np.eye(n), np.zeros(n))
-    fresh = correlated_rayleigh(rng, 1_000_000, np.eye(n), np.zeros(n))
+    fresh = correlated_rayleigh(rng, 500_000, np.eye(n), np.zeros(n))
     plain = HealthIndexModel.fit(base, pfa=pfa, offset="none", whiten=False)
     far = np.count_nonzero(plain.health_index(fresh) > 0.5)
-    assert abs(far - 1000) < 150
+    assert abs(far - 500) < 0.2 * 500  # binomial sd 4.5 % + fit error
 
 
 def test_hi_model_bad_input():

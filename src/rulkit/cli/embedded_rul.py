@@ -172,13 +172,23 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         ] = Path("out/embedded-rul"),
         figures: bool = typer.Option(True, "--figures/--no-figures",
                                      help="Write one figure per unit."),
+        seed: int = typer.Option(0, "--seed", help="Seed of the false-alarm study."),
+        false_alarms: bool = typer.Option(True, "--false-alarms/--no-false-alarms",
+                                          help="Run the HI false-alarm study (~5 s)."),
     ) -> None:
         """Trackers on the 21 Lu & Meeker crack-growth units: RUL accuracy, validity, report."""
-        from rulkit.experiments.embedded_rul import run, write_report
+        import numpy as np
 
-        cmd = "rulkit reproduce embedded-rul" + ("" if figures else " --no-figures")
+        from rulkit.experiments.embedded_rul import false_alarm_study, run, write_report
+
+        cmd = ("rulkit reproduce embedded-rul" + ("" if figures else " --no-figures")
+               + (f" --seed {seed}" if false_alarms else " --no-false-alarms"))
         res = run()
-        rep = write_report(res, out, figures=figures, command=cmd)
+        far = false_alarm_study(np.random.default_rng(seed)) if false_alarms else None
+        rep = write_report(res, out, figures=figures, command=cmd, false_alarms=far,
+                           far_seed=seed)
         typer.echo(f"Paris exponent from the data: m = {res.m_all:.3f}")
         typer.echo(res.summary.to_string())
+        if far is not None:
+            typer.echo(far.to_string(index=False))
         typer.echo(f"report: {rep}")

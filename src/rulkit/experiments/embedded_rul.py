@@ -264,6 +264,43 @@ def run(config: TrackerConfig | None = None, *, sensitivity: bool = True) -> Emb
     )
 
 
+def false_alarm_study(
+    rng: np.random.Generator,
+    *,
+    n_ci: int = 3,
+    rhos: tuple[float, ...] = (0.0, 0.5, 0.9),
+    pfa: float = 1e-3,
+    n_fit: int = 200_000,
+    n_test: int = 2_000_000,
+) -> pd.DataFrame:
+    """Empirical false-alarm rate of HI > 0.5 on data drawn from the healthy model.
+
+    Healthy CIs (embedded-rul.md section 1): ``CI = offset + M R`` with R IID unit-variance
+    Rayleigh and M M^T an equicorrelation matrix (correlation rho). The HI model is fitted on
+    ``n_fit`` baseline rows (known offset) with and without whitening and evaluated on
+    ``n_test`` fresh rows; the design rate is ``pfa``.
+    """
+    from rulkit.prognosis.health import RAYLEIGH_UNIT_VARIANCE_BETA, HealthIndexModel
+
+    rows = []
+    offset = np.arange(1.0, n_ci + 1.0)
+    for rho in rhos:
+        mix = np.linalg.cholesky(np.full((n_ci, n_ci), rho) + (1 - rho) * np.eye(n_ci))
+
+        def draw(n: int, mix: np.ndarray = mix) -> np.ndarray:
+            return offset + rng.rayleigh(RAYLEIGH_UNIT_VARIANCE_BETA, (n, n_ci)) @ mix.T
+
+        base, test = draw(n_fit), draw(n_test)
+        row: dict[str, float] = {"rho": rho, "design_pfa": pfa}
+        for name, whiten in (("whitened", True), ("not_whitened", False)):
+            model = HealthIndexModel.fit(base, pfa=pfa, offset=offset, whiten=whiten)
+            k = int(np.count_nonzero(model.health_index(test) > 0.5))
+            row[f"far_{name}"] = k / n_test
+            row[f"ratio_{name}"] = k / n_test / pfa
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def plot_unit(res: EmbeddedRULResult, u: int, path: Path) -> Path:
     """Figure of unit index ``u``: HI and fHI; RUL, fRUL, confidence band, truth; dRUL, d2RUL."""
     import matplotlib
@@ -333,7 +370,8 @@ def _fmt_table(df: pd.DataFrame) -> str:
 
 
 def write_report(res: EmbeddedRULResult, out: Path, *, figures: bool = True,
-                 command: str = "rulkit reproduce embedded-rul") -> Path:
+                 command: str = "rulkit reproduce embedded-rul",
+                 false_alarms: pd.DataFrame | None = None, far_seed: int | None = None) -> Path:
     """Write report.md, units.csv, sensitivity.csv and one figure per unit into ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -416,6 +454,18 @@ lambda = 0.5 out of 12; warned = units warned before their crossing; censored_wa
 units that got a warning).
 
 {_fmt_table(res.sensitivity)}
+"""
+    if false_alarms is not None:
+        text += f"""
+## False-alarm rate of the CI -> HI map (section 1)
+3 Rayleigh-like CIs with equicorrelation rho, HI model fitted on 2e5 healthy rows, HI > 0.5
+counted on 2e6 fresh healthy rows (seed {far_seed}); design PFA 1e-3. Whitening keeps the
+rate at the design up to sampling error: the counts have a binomial sd of 2.2 %, and the
+covariance fitted on 2e5 rows has a scale error of ~0.3 %, which the steep tail turns into
+~5 % on the rate (d ln PFA / d ln T ~ 18 here). Without whitening, correlated CIs raise the
+rate (the seed's Gaussian-sum example with rho = 1 gives ~390x at PFA 1e-6).
+
+{_fmt_table(false_alarms)}
 """
     text += """
 ## Reading the results
