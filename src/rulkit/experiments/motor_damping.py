@@ -252,9 +252,16 @@ def _rul_predictions(
 
 
 def _metrics(
-    pred_cycles: FloatArray, q: FloatArray, rul_true: FloatArray, eol: FloatArray
+    pred_cycles: FloatArray,
+    q: FloatArray,
+    rul_true: FloatArray,
+    eol: FloatArray,
+    horizon: float,
 ) -> dict[str, FloatArray]:
-    """Per-run prognostic metrics of the median prediction (rulkit.metrics, Saxena et al.)."""
+    """Per-run prognostic metrics of the median prediction (rulkit.metrics, Saxena et al.).
+
+    A median beyond the prediction horizon (more than half the mass censored) enters the point
+    metrics as the horizon itself (its lower bound); intervals keep their infinite bounds."""
     from rulkit.metrics import (
         alpha_lambda,
         interval_coverage,
@@ -270,14 +277,13 @@ def _metrics(
     for i in range(n_runs):
         ok = np.isfinite(rul_true[i]) & (rul_true[i] > 0)
         t = pred_cycles[ok]
-        med = q[i, ok, 1]
+        med = np.minimum(q[i, ok, 1], horizon)
         for lam in (0.25, 0.5, 0.75):
             res = alpha_lambda(t, med, float(eol[i]), alpha=0.2, lam=lam)
             out[f"alpha_lambda_{lam}"].append(float(res.passed))
             if lam == 0.5:
                 out["ra_0.5"].append(
                     float(relative_accuracy(np.array([res.rul_pred]), np.array([res.rul_true]))[0])
-                    if np.isfinite(res.rul_pred) else -np.inf
                 )
         # Saxena et al. 2010: PH = EOL - first time the prediction is within +- alpha EOL
         ph = prognostic_horizon(t, med, float(eol[i]), alpha=0.05, bounds="absolute")
@@ -313,9 +319,9 @@ def _scenario(
     eol = first if first_crossing else np.array([t.eol for t in tests])
     rul_true = eol[:, None] - pc[None, :]
     rul_true = np.where(rul_true > 0, rul_true, np.nan)
-    metrics = {"covariance": _metrics(pc, cov_q, rul_true, eol)}
+    metrics = {"covariance": _metrics(pc, cov_q, rul_true, eol, cfg.horizon)}
     if monte_carlo:
-        metrics["monte-carlo"] = _metrics(pc, mc_q, rul_true, eol)
+        metrics["monte-carlo"] = _metrics(pc, mc_q, rul_true, eol, cfg.horizon)
     return ScenarioResult(
         name=name, cycles=cycles, z=z, r=r,
         damping=np.stack([t.damping for t in tests]), trend=tests[0].trend, track=track,

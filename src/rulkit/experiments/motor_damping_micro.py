@@ -12,8 +12,11 @@ Two discretisations (motor-damping.md, "Micro EKF"):
   the acceleration predicted from the previous state (:func:`measurement_seed_lagged`).
 
 The prediction step uses the model's analytic Jacobian (``P <- F P F^T + Q``); the update is the
-engine's Joseph-form :func:`rulkit.estimation.kalman.kf_update` with ``h_of_x`` the nonlinear
-predicted measurement.
+Joseph form with the nonlinear predicted measurement. By default it is :func:`_joseph_update`, a
+lean batched copy without per-call validation (the engine's :func:`kf_update` validates shapes,
+symmetry and definiteness on every call, which is half the cost at 700 steps per cycle);
+``reference=True`` uses the engine's :func:`rulkit.estimation.kalman.kf_update` instead, and the
+tests check that both give the same numbers.
 """
 
 from __future__ import annotations
@@ -34,6 +37,27 @@ from rulkit.models.dc_motor import (
 FloatArray = NDArray[np.float64]
 
 __all__ = ["MicroEKFResult", "MicroEKFSettings", "micro_ekf"]
+
+
+def _joseph_update(
+    x: FloatArray, P: FloatArray, nu: FloatArray, H: FloatArray, R: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Joseph-form update for B units with innovation ``nu`` (B, m), Jacobian ``H`` (B, m, n),
+    noise ``R`` (m, m): ``K = P H^T S^-1`` by a linear solve, ``P = (I-KH) P (I-KH)^T + K R K^T``.
+    Returns ``(x, P, nis)``; no validation (inputs come from :func:`micro_ekf`)."""
+    n = x.shape[1]
+    HP = H @ P
+    S = HP @ H.transpose(0, 2, 1) + R
+    S = 0.5 * (S + S.transpose(0, 2, 1))
+    rhs = np.concatenate([nu[:, :, None], HP], axis=2)
+    sol = np.linalg.solve(S, rhs)
+    K = sol[:, :, 1:].transpose(0, 2, 1)
+    x_new = x + np.einsum("bij,bj->bi", K, nu)
+    IKH = np.eye(n) - K @ H
+    P_new = IKH @ P @ IKH.transpose(0, 2, 1) + K @ R @ K.transpose(0, 2, 1)
+    P_new = 0.5 * (P_new + P_new.transpose(0, 2, 1))
+    nis = np.einsum("bi,bi->b", nu, sol[:, :, 0])
+    return x_new, P_new, nis
 
 
 @dataclass(frozen=True)
@@ -92,12 +116,14 @@ def micro_ekf(
     settings: MicroEKFSettings | None = None,
     *,
     keep_history: bool = False,
+    reference: bool = False,
 ) -> MicroEKFResult:
     """Run the micro EKF over a batch of cycles (seed eqs. 2-3; motor-damping.md "Micro EKF").
 
     ``time`` (T,) shared or (B, T); ``current``, ``speed``, ``acceleration`` (B, T). NaN-padded
     tails (time NaN) mark cycles shorter than T. ``acceleration=None`` (or
-    ``settings.use_acceleration=False``) uses the speed channel only.
+    ``settings.use_acceleration=False``) uses the speed channel only. ``reference=True``: the
+    engine's :func:`kf_update` for the update (same numbers, slower).
     """
     from rulkit.estimation.kalman import kf_update
 
@@ -147,10 +173,14 @@ def micro_ekf(
         if use_acc:
             y[:, 1] = acc[:, k]
         y = np.where(ok[:, None], y, zp[:, :m])  # padded samples: no innovation
-        xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m])
+        if reference:
+            xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m])
+            nis = inn.nis
+        else:
+            xu, Pu, nis = _joseph_update(xp, Pp, y - zp[:, :m], H[:, :m, :], R)
         x = np.where(ok[:, None], xu, x)
         P = np.where(ok[:, None, None], Pu, P)
-        nis_sum += np.where(ok, inn.nis, 0.0)
+        nis_sum += np.where(ok, nis, 0.0)
         n_upd += ok
         if keep_history:
             x_hist[k] = x

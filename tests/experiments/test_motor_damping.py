@@ -1,0 +1,246 @@
+"""Multi-scale EKF of seed 002: micro EKF consistency, macro EKF vs least squares, RUL."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rulkit.estimation.kalman import discretise, kf_predict
+from rulkit.experiments.motor_damping_macro import (
+    MacroSettings,
+    estimate_scatter_var,
+    macro_filter,
+    macro_track,
+    predicted_damping,
+    rul_covariance_quantiles,
+    rul_monte_carlo,
+)
+from rulkit.experiments.motor_damping_micro import MicroEKFSettings, micro_ekf
+from rulkit.models.dc_motor import LifeTestConfig, simulate_life_test
+
+
+@pytest.fixture(scope="module")
+def life():
+    # 120 cycles spanning c = 1.2e-5 .. 2.5e-4: one batch of 120 units
+    cfg = LifeTestConfig(n_cycles=120)
+    return simulate_life_test(cfg, np.random.default_rng(11))
+
+
+def test_micro_ekf_recovers_damping_within_stated_uncertainty(life) -> None:
+    res = micro_ekf(life.time, life.current, life.speed, life.acceleration,
+                    life.config.consts, MicroEKFSettings())
+    e = res.c - life.damping
+    nees = e**2 / res.c_var
+    # NEES of a consistent filter is chi2(1) per cycle: mean 1 +- sqrt(2/120) = 0.13
+    assert 0.65 < nees.mean() < 1.4
+    assert np.mean(np.abs(e) <= 1.96 * np.sqrt(res.c_var)) >= 0.88
+    # and the error is tiny against one cycle's increase of the damping (2e-6)
+    assert np.sqrt(np.mean(e**2)) < 0.01 * life.config.slope
+    # innovations consistent: mean NIS ~ m = 2 measurements
+    assert 1.8 < res.mean_nis.mean() < 2.2
+
+
+def test_seed_lagged_euler_form_is_biased(life) -> None:
+    sub = slice(0, 40)
+    ok = micro_ekf(life.time, life.current[sub], life.speed[sub], life.acceleration[sub],
+                   life.config.consts, MicroEKFSettings())
+    seed = micro_ekf(life.time, life.current[sub], life.speed[sub], life.acceleration[sub],
+                     life.config.consts, MicroEKFSettings(scheme="seed-euler"))
+    bias_ok = np.mean(ok.c - life.damping[sub])
+    bias_seed = np.mean(seed.c - life.damping[sub])
+    sd = np.sqrt(seed.c_var).mean()
+    assert abs(bias_seed) > 10 * sd  # far outside its own stated uncertainty
+    assert abs(bias_seed) > 20 * abs(bias_ok)
+
+
+def test_micro_ekf_padded_short_cycle_equals_running_it_alone(life) -> None:
+    n_short = 300
+    t = np.tile(life.time, (2, 1))
+    cur = life.current[:2].copy()
+    sp = life.speed[:2].copy()
+    acc = life.acceleration[:2].copy()
+    t[1, n_short:] = np.nan
+    cur[1, n_short:] = sp[1, n_short:] = acc[1, n_short:] = np.nan
+    both = micro_ekf(t, cur, sp, acc, life.config.consts)
+    alone = micro_ekf(life.time[:n_short], life.current[1:2, :n_short],
+                      life.speed[1:2, :n_short], life.acceleration[1:2, :n_short],
+                      life.config.consts)
+    full = micro_ekf(life.time, life.current[:1], life.speed[:1], life.acceleration[:1],
+                     life.config.consts)
+    np.testing.assert_allclose(both.c[1], alone.c[0], rtol=1e-12)
+    np.testing.assert_allclose(both.c_var[1], alone.c_var[0], rtol=1e-10)
+    np.testing.assert_allclose(both.c[0], full.c[0], rtol=1e-12)
+
+
+@pytest.mark.parametrize("scheme", ["rk4", "seed-euler"])
+def test_micro_ekf_fast_update_equals_engine_kf_update(life, scheme) -> None:
+    sl = slice(50, 56)
+    args = (life.time, life.current[sl], life.speed[sl], life.acceleration[sl],
+            life.config.consts, MicroEKFSettings(scheme=scheme))
+    fast = micro_ekf(*args, keep_history=True)
+    ref = micro_ekf(*args, keep_history=True, reference=True)
+    np.testing.assert_allclose(fast.x_hist, ref.x_hist, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(fast.p_hist[:, :, 1, 1], ref.p_hist[:, :, 1, 1], rtol=1e-7)
+    np.testing.assert_allclose(fast.mean_nis, ref.mean_nis, rtol=1e-7)
+
+
+def test_micro_ekf_speed_only_channel(life) -> None:
+    res = micro_ekf(life.time, life.current[:30], life.speed[:30], None, life.config.consts)
+    e = res.c - life.damping[:30]
+    assert np.mean(e**2 / res.c_var) < 2.0
+    assert 0.8 < res.mean_nis.mean() < 1.2  # one measurement
+    with pytest.raises(ValueError, match="scheme"):
+        MicroEKFSettings(scheme="euler")
+
+
+def _linear_data(rng, b: int, n: int, c0=1e-5, a=2e-6, s=2e-6, r=4e-18):
+    cyc = np.arange(1.0, n + 1)
+    z = c0 + a * cyc + np.sqrt(s * s + r) * rng.standard_normal((b, n))
+    return cyc, z, np.full((b, n), r)
+
+
+def test_macro_filter_equals_weighted_least_squares() -> None:
+    rng = np.random.default_rng(0)
+    cyc, z, _ = _linear_data(rng, 3, 25)
+    rv = rng.uniform(1e-12, 9e-12, (3, 25))
+    st = MacroSettings(c_prior_sd=1.0, a_prior_sd=1.0)  # diffuse prior
+    x, P, _ = macro_filter(cyc, z, rv, st)
+    for u in range(3):
+        # state at the last cycle: c_n = beta0 + beta1 n, a = beta1
+        X = np.column_stack([np.ones(25), cyc - cyc[-1]])
+        W = 1.0 / rv[u]
+        cov = np.linalg.inv(X.T @ (W[:, None] * X))
+        beta = cov @ X.T @ (W * z[u])
+        np.testing.assert_allclose(x[u], beta, rtol=1e-6)
+        np.testing.assert_allclose(P[u], cov, rtol=1e-5)
+
+
+def test_macro_track_equals_rerunning_every_prefix() -> None:
+    rng = np.random.default_rng(1)
+    cyc, z, r = _linear_data(rng, 4, 20)
+    for st in (MacroSettings(), MacroSettings(q_a_grid=(0.0, 1e-14, 1e-13))):
+        tr = macro_track(cyc, z, r, st)
+        for k in (2, 9, 19):
+            s2 = estimate_scatter_var(cyc[: k + 1], z[:, : k + 1], r[:, : k + 1], st)
+            lls = []
+            xs = []
+            for qa in st.q_a_grid or (st.q_a,):
+                x, P, ll = macro_filter(cyc[: k + 1], z[:, : k + 1], r[:, : k + 1] + s2[:, None],
+                                        st, q_a=qa)
+                lls.append(ll)
+                xs.append((x, P))
+            best = np.argmax(np.stack(lls), axis=0)
+            for u in range(4):
+                np.testing.assert_allclose(tr.x[k, u], xs[best[u]][0][u], rtol=1e-10)
+                np.testing.assert_allclose(tr.P[k, u], xs[best[u]][1][u], rtol=1e-10)
+
+
+def test_macro_slope_recovery_and_coverage() -> None:
+    rng = np.random.default_rng(2)
+    cyc, z, r = _linear_data(rng, 200, 58)
+    tr = macro_track(cyc, z, r, MacroSettings())
+    a = tr.x[-1, :, 1]
+    sd = np.sqrt(tr.P[-1, :, 1, 1])
+    se_true = 2e-6 / np.sqrt(np.sum((cyc - cyc.mean()) ** 2))
+    assert abs(a.mean() - 2e-6) < 4 * se_true / np.sqrt(200)
+    assert sd.mean() == pytest.approx(se_true, rel=0.1)
+    assert 0.91 <= np.mean(np.abs(a - 2e-6) <= 1.96 * sd) <= 0.985
+    # scatter estimate: unbiased for the variance
+    assert np.sqrt(tr.scatter_var[-1].mean()) == pytest.approx(2e-6, rel=0.05)
+
+
+def test_predicted_variance_matches_iterated_kalman_prediction() -> None:
+    x = np.array([[5e-5, 2e-6], [6e-5, 1e-6]])
+    P = np.array([[[4e-12, -1e-13], [-1e-13, 1e-14]], [[1e-12, 0.0], [0.0, 4e-14]]])
+    q_a = 1e-14
+    A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    F, Q = discretise(A, np.diag([0.0, q_a]), 1.0)  # Van Loan oracle for the model's Q
+    np.testing.assert_allclose(Q, q_a * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]), rtol=1e-12)
+    xm, Pm = x, P
+    for m in range(1, 11):
+        xm, Pm = kf_predict(xm, Pm, F, Q)
+        mu, v = predicted_damping(x, P, np.array([float(m)]), q_a)
+        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
+        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+
+
+def test_rul_quantiles_covariance_vs_exact_crossing_and_monte_carlo() -> None:
+    rng = np.random.default_rng(3)
+    x = np.array([[6e-5, 2e-6]])
+    P = np.array([[[2e-12, -3e-14], [-3e-14, 4e-15]]])
+    c_fail = 1.47e-4
+    levels = np.array([0.05, 0.5, 0.95])
+    q_cov = rul_covariance_quantiles(x, P, c_fail, levels, step=0.01)[0]
+    # exact for q_a = 0: T = (c_fail - c)/a with (c, a) ~ N(x, P)
+    d = rng.multivariate_normal(x[0], P[0], 400_000)
+    t = (c_fail - d[:, 0]) / d[:, 1]
+    t = np.where(d[:, 1] > 0, t, np.inf)
+    np.testing.assert_allclose(q_cov, np.quantile(t, levels), rtol=5e-3)
+    smp, cen = rul_monte_carlo(x, P, c_fail, rng, n_samples=20_000, horizon=500.0)
+    q_mc = np.quantile(np.where(cen[0], np.inf, smp[0]), levels)
+    np.testing.assert_allclose(q_mc, q_cov, rtol=0.02)
+    # median by hand: (c_fail - c)/a at the mean is the median of the crossing for q_a = 0
+    # when mu(m) = c_fail (z_0.5 = 0)
+    assert q_cov[1] == pytest.approx((c_fail - 6e-5) / 2e-6, abs=0.02)
+
+
+def test_rul_interval_coverage_over_units_and_first_crossing() -> None:
+    # data from the macro model itself; truth = trend crossing
+    rng = np.random.default_rng(4)
+    cyc, z, r = _linear_data(rng, 400, 30)
+    tr = macro_track(cyc, z, r, MacroSettings())
+    c_fail = 1.47e-4
+    q = rul_covariance_quantiles(tr.x[-1], tr.P[-1], c_fail, np.array([0.05, 0.95]))
+    truth = 68.5 - 30
+    cover = np.mean((q[:, 0] <= truth) & (truth <= q[:, 1]))
+    assert 0.86 <= cover <= 0.94  # 90 % nominal, binomial sd 1.5 %
+    smp, cen = rul_monte_carlo(tr.x[-1, :5], tr.P[-1, :5], c_fail, rng, n_samples=50,
+                               scatter_var=tr.scatter_var[-1, :5], t0=30.0)
+    assert np.all(smp[~cen] == np.round(smp[~cen]))  # whole cycles for the first crossing
+
+
+def test_rul_with_slope_noise_is_wider() -> None:
+    x = np.array([[6e-5, 2e-6]])
+    P = np.array([[[2e-12, 0.0], [0.0, 4e-15]]])
+    lv = np.array([0.05, 0.95])
+    q0 = rul_covariance_quantiles(x, P, 1.47e-4, lv)[0]
+    q1 = rul_covariance_quantiles(x, P, 1.47e-4, lv, q_a=(2e-7) ** 2)[0]
+    assert q1[0] < q0[0] and q1[1] > q0[1]
+    with pytest.raises(ValueError, match="q_a"):
+        MacroSettings(q_a=-1.0)
+
+
+def test_tiny_experiment_end_to_end(tmp_path) -> None:
+    from rulkit.experiments.motor_damping import ExperimentConfig, run_experiment, write_outputs
+
+    life = LifeTestConfig(n_cycles=30, duration=15.0)
+    cfg = ExperimentConfig(
+        runs=2, life=life, mc_samples=40, variant_runs=1, qa_sweep_sd=(0.0,),
+        q_a_grid=(0.0, 1e-14), prediction_cycles=(10, 20, 30),
+    )
+    cfg = replace(cfg, micro=MicroEKFSettings())
+    res = run_experiment(cfg)
+    assert set(res.tables) >= {"micro_main", "micro_variants", "slope", "rul_metrics",
+                               "qa_sweep", "threshold"}
+    assert res.c_fail == pytest.approx(1.47e-4)
+    met = res.tables["rul_metrics"]
+    assert set(met["scenario"]) >= {"linear", "accelerating", "accelerating-qa-ml"}
+    paths = write_outputs(res, tmp_path, "test")
+    names = {p.name for p in paths}
+    assert "report.md" in names and "fig17_rul.png" in names
+    text = (tmp_path / "report.md").read_text()
+    assert "2.67e-6" in text and "0.000147" in text
+
+
+def test_runs_reproducible_from_seed_and_independent_of_chunking() -> None:
+    from rulkit.experiments.motor_damping import _simulate_and_estimate
+
+    life = LifeTestConfig(n_cycles=4, duration=5.0)
+    a = _simulate_and_estimate(life, 3, 5, MicroEKFSettings(), chunk=3)
+    b = _simulate_and_estimate(life, 3, 5, MicroEKFSettings(), chunk=1)
+    c = _simulate_and_estimate(life, 3, 6, MicroEKFSettings(), chunk=3)
+    np.testing.assert_allclose(a[1], b[1], rtol=1e-12)
+    np.testing.assert_array_equal(a[3], b[3])
+    assert not np.allclose(a[1], c[1], rtol=1e-6)
