@@ -98,27 +98,37 @@ def figures(res: StudyResult, out: Path) -> list[Path]:
 
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    # Fig. 3: input, alpha_hat and m_hat with +-3 sigma bounds (jump scenario).
+    # Fig. 3: input, alpha error and m_hat with +-3 sigma bounds (jump scenario).
     cfgs = [c for c in ("tuned", "seed-f44", "seed") if (c, "jump") in res.runs]
-    fig, ax = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    fig, ax = plt.subplots(4, 1, figsize=(8, 10), sharex=True)
     tr = res.truths["jump"]
     ax[0].step(tr.t[:-1], tr.currents, where="post", color="k")
     ax[0].set_ylabel("I [A]")
-    ax[1].plot(tr.t, tr.X[:, 2], "k--", label="true")
-    ax[2].plot(tr.t, tr.X[:, 3], "k--", label="true")
+    ax[2].plot(tr.t, tr.X[:, 3], "k--", label="true m")
+    ax[3].plot(tr.t, tr.X[:, 3], "k--", label="true m")
     for c in cfgs:
         run = res.runs[(c, "jump")]
-        for j, a in ((2, ax[1]), (3, ax[2])):
-            mu, sd = run.x[:, 0, j], np.sqrt(run.Pdiag[:, 0, j])
-            (line,) = a.plot(run.t, mu, lw=1, label=f"{c}: estimate")
-            a.fill_between(run.t, mu - 3 * sd, mu + 3 * sd, color=line.get_color(), alpha=0.2)
-    ax[1].set_ylabel("alpha")
-    ax[2].set_ylabel("m")
-    ax[2].set_ylim(-0.02, 0.06)
-    ax[2].set_xlabel("t [s]")
-    ax[1].legend(fontsize=7)
-    ax[2].legend(fontsize=7)
+        if c == "tuned":
+            err = run.x[:, 0, 2] - tr.X[:, 2]
+            sd = np.sqrt(run.Pdiag[:, 0, 2])
+            ax[1].plot(run.t, err, lw=0.5, color="C0", label="tuned: alpha_hat - alpha")
+            ax[1].plot(run.t, 3 * sd, color="k", lw=0.8, ls="--", label="+-3 sigma")
+            ax[1].plot(run.t, -3 * sd, color="k", lw=0.8, ls="--")
+        a = ax[2] if c == "tuned" else ax[3]
+        mu, sdm = run.x[:, 0, 3], np.sqrt(run.Pdiag[:, 0, 3])
+        (line,) = a.plot(run.t, mu, lw=0.6, label=f"{c}: m_hat")
+        a.fill_between(run.t, mu - 3 * sdm, mu + 3 * sdm, color=line.get_color(), alpha=0.2)
+    ax[1].set_ylabel("alpha error (tuned)")
+    ax[1].set_ylim(-2e-4, 2e-4)
+    ax[2].set_ylabel("m (tuned)")
+    ax[2].set_ylim(0.0, 0.03)
+    ax[3].set_ylabel("m (seed Q)")
+    ax[3].set_ylim(-0.06, 0.1)
+    ax[3].set_xlabel("t [s]")
+    for a in ax[1:]:
+        a.legend(fontsize=7, loc="upper left")
     fig.suptitle("Fig. 3 analogue: estimates with +-3 sigma bounds, abrupt m change at 10 s")
+    fig.tight_layout()
     p = out / "fig3_estimates.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
