@@ -551,7 +551,9 @@ def tracker_update(
     """Assimilate one acquisition per component, for all B components in one vectorised call.
 
     ``t (B,)`` acquisition times and ``hi (B,)`` measured HI, aligned with ``state``. A
-    component whose ``hi`` (or ``t``) is NaN has no acquisition in this call and keeps its state.
+    component whose ``hi`` or ``t`` is NaN or infinite has no acquisition in this call and keeps
+    its state (``TrackerOutput.updated`` is False for it); ingestion (component_store) rejects
+    such rows with an error instead.
     The chain per component (seed section 4 pseudo-code; embedded-rul.md section 2):
 
     1. alpha-beta on HI: predict fHI += dHI dt, r = HI - fHI, fHI += alpha1 r, dHI += beta1 r/dt
