@@ -66,7 +66,7 @@ def run_example(out: Path, seed: int, n_particles: int = 2000) -> dict[str, Any]
     for r in rows:
         table.add_row(
             f"{r['t_pred']:g}", f"{r['rul_true']:.2f}", f"{r['rul_mean']:.2f}",
-            f"{r['rul_median']:.2f}", f"[{r['lower']:.2f}, {r['upper']:.2f}]",
+            f"{r['rul_median']:.2f}", f"[{r['lower']:.1f}, {r['upper']:.1f}]",
             f"{r['fraction_censored']:.1%}", f"{r['relative_accuracy']:.3f}", f"{r['crps']:.3f}",
         )
     console.print(table)
