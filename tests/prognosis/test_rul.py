@@ -160,6 +160,9 @@ def test_propagate_input_errors():
     with pytest.raises(ValueError, match="horizon"):
         propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
                                horizon=np.inf, rng=rng)
+    with pytest.raises(ValueError, match=r"weights: expected shape \(2,\)"):
+        propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
+                               horizon=5.0, rng=rng, weights=[1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="direction"):
         propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
                                horizon=5.0, rng=rng, direction="sideways")

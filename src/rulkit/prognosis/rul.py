@@ -425,6 +425,7 @@ def propagate_to_threshold(
     minus ``t0``. Samples failed already at ``t0`` have RUL 0. Samples that never cross are
     censored at ``horizon`` (counted, never dropped; see the module docstring).
 
+    ``x0`` is (N, n); a 1-D ``x0`` is read as N samples of a scalar state, (N, 1).
     Samples keep being stepped after they cross (the batch is not compacted), so ``step`` may
     close over per-sample arrays of length N. ``weights`` (e.g. particle-filter weights) are
     attached to the returned distribution. Raises ``ValueError`` for an empty batch, bad
@@ -450,6 +451,10 @@ def propagate_to_threshold(
         raise ValueError(f"threshold: expected a finite number, got {threshold!r}")
     if direction not in ("up", "down"):
         raise ValueError(f"direction: expected 'up' or 'down', got {direction!r}")
+    if not np.isfinite(t0):
+        raise ValueError(f"t0: expected a finite time, got {t0!r}")
+    if weights is not None and np.shape(weights) != (n,):
+        raise ValueError(f"weights: expected shape ({n},) like x0, got {np.shape(weights)}")
     up = direction == "up"
 
     def health(xk: FloatArray, k: int) -> FloatArray:
