@@ -202,6 +202,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     ) -> None:
         """Per-cycle damping (micro EKF), trend (macro EKF) and RUL of a pull-up test file."""
         from rich.console import Console
+        from rich.markup import escape
 
         from rulkit.data.pullup import PullupDataError
 
@@ -213,5 +214,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 min_samples=min_samples,
             )
         except (PullupDataError, ValueError) as err:
-            Console(stderr=True).print(f"[red]error:[/red] {err}", highlight=False)
+            Console(stderr=True, soft_wrap=True).print(
+                f"[red]error:[/red] {escape(str(err))}", highlight=False
+            )
             raise typer.Exit(code=2) from None

@@ -1,0 +1,102 @@
+"""`rulkit motor damping FILE` and `rulkit reproduce motor-damping` (typer CliRunner)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from rulkit.cli import app
+from rulkit.models.dc_motor import LifeTestConfig, simulate_life_test
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def pullup_csv(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    cfg = LifeTestConfig(n_cycles=6, duration=20.0, c0=6e-5, slope=1e-5, scatter_sd=1e-6)
+    lt = simulate_life_test(cfg, np.random.default_rng(0))
+    n, t = lt.speed.shape
+    df = pd.DataFrame({
+        "cycle": np.repeat(lt.cycle.astype(int), t), "time": np.tile(lt.time, n),
+        "current": lt.current.ravel(), "speed": lt.speed.ravel(),
+        "acceleration": lt.acceleration.ravel(),
+    })
+    p = tmp_path_factory.mktemp("pullup") / "test.csv"
+    df.to_csv(p, index=False)
+    return p, lt.damping
+
+
+def test_motor_damping_on_a_file(pullup_csv, tmp_path: Path) -> None:
+    path, truth = pullup_csv
+    res = runner.invoke(app, ["motor", "damping", str(path), "--out", str(tmp_path),
+                              "--mc-samples", "200"])
+    assert res.exit_code == 0, res.output
+    assert "6 cycles" in res.output and "measured (column 'acceleration')" in res.output
+    assert "c_fail = 0.000147" in res.output
+    table = pd.read_csv(tmp_path / "damping_per_cycle.csv")
+    assert list(table["cycle"]) == [1, 2, 3, 4, 5, 6]
+    np.testing.assert_allclose(table["damping"], truth, atol=5 * table["damping_sd"].max())
+    assert np.isnan(table["rul_median"].iloc[1]) and np.isfinite(table["rul_median"].iloc[-1])
+    # trend 6e-5 + 1e-5 n crosses 1.47e-4 at n = 8.7: about 2.7 cycles after cycle 6
+    assert 1.0 < table["rul_median"].iloc[-1] < 5.0
+    assert (tmp_path / "rul_last_cycle.json").exists()
+
+
+def test_motor_damping_without_acceleration_says_how(pullup_csv, tmp_path: Path) -> None:
+    path, _ = pullup_csv
+    df = pd.read_csv(path).drop(columns=["acceleration"])
+    p = tmp_path / "noacc.parquet"
+    df.to_parquet(p)
+    res = runner.invoke(app, ["motor", "damping", str(p), "--mc-samples", "100"])
+    assert res.exit_code == 0, res.output
+    assert "derived from speed by second-order central differences" in " ".join(res.output.split())
+    assert "acceleration channel not used" in res.output
+
+
+def test_motor_damping_bad_file_gives_specific_error(pullup_csv, tmp_path: Path) -> None:
+    path, _ = pullup_csv
+    df = pd.read_csv(path)
+    df.loc[10, "speed"] = np.nan
+    p = tmp_path / "bad.csv"
+    df.to_csv(p, index=False)
+    res = runner.invoke(app, ["motor", "damping", str(p)])
+    assert res.exit_code == 2
+    assert "column 'speed', row 11" in " ".join(res.output.split())
+    res = runner.invoke(app, ["motor", "damping", str(tmp_path / "missing.csv")])
+    assert res.exit_code == 2 and "file not found" in res.output
+
+
+def test_reproduce_motor_damping_help_lists_options() -> None:
+    res = runner.invoke(app, ["reproduce", "motor-damping", "--help"])
+    assert res.exit_code == 0
+    for opt in ("--quick", "--runs", "--seed", "--out"):
+        assert opt in res.output
+
+
+def test_reproduce_motor_damping_quick_small(tmp_path: Path, monkeypatch) -> None:
+    # the real command with a reduced quick configuration (fewer cycles, shorter cycles)
+    from rulkit.experiments import motor_damping as md
+
+    small = md.ExperimentConfig.quick
+
+    def tiny(**kw):
+        cfg = small(**kw)
+        return md.replace(cfg, life=LifeTestConfig(n_cycles=30, duration=15.0), mc_samples=30,
+                          variant_runs=1, qa_sweep_sd=(0.0,), q_a_grid=(0.0, 1e-14),
+                          prediction_cycles=(10, 20, 30))
+
+    monkeypatch.setattr(md.ExperimentConfig, "quick", staticmethod(tiny))
+    res = runner.invoke(app, ["reproduce", "motor-damping", "--quick", "--runs", "2",
+                              "--seed", "3", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    report = (tmp_path / "report.md").read_text()
+    assert "rulkit reproduce motor-damping --quick --runs 2 --seed 3" in report
+    assert "| failure damping c_fail [N m s] | 0.000147 | 0.000147 (algebra" in report
+    assert (tmp_path / "rul_metrics.csv").exists()
+    assert (tmp_path / "fig10_characteristic_curves.png").exists()
+    res = runner.invoke(app, ["reproduce", "motor-damping", "--runs", "0"])
+    assert res.exit_code != 0
