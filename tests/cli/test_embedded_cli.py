@@ -51,6 +51,8 @@ def test_track_then_status_worst_first(tmp_path):
              if ln.startswith("│") and ln.split("│")[1].strip()]
     assert order == ["gearA", "brg", "gearB"]
     assert "alarm" in r.output and "warning" in r.output
+    r = runner.invoke(app, ["status", "--db", str(db), "--limit", "1"])
+    assert "gearA" in r.output and "brg" not in r.output and "the worst 1 shown" in r.output
 
 
 @pytest.mark.parametrize(

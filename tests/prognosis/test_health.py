@@ -137,10 +137,12 @@ def test_paris_rul_closed_form_and_edges():
     assert np.all(np.isfinite(r)) and r[2] == r[3] == pytest.approx(-1e-3 * math.log(1e-3) / 0.01)
 
 
-def test_vectorised_chain_equals_per_component_pseudocode():
+@pytest.mark.parametrize("initiation", ["floor", "two-point"])
+def test_vectorised_chain_equals_per_component_pseudocode(initiation):
     rng = np.random.default_rng(7)
     b, steps = 50, 30
-    cfg = TrackerConfig(dt=1.0, lambda_hi=0.3, lambda_rul=0.5, design_life=1e4, hi_sigma=0.02)
+    cfg = TrackerConfig(dt=1.0, lambda_hi=0.3, lambda_rul=0.5, design_life=1e4, hi_sigma=0.02,
+                        initiation=initiation)
     t = np.cumsum(rng.uniform(0.5, 1.5, size=(steps, b)), axis=0)  # irregular, per component
     hi = exponential_hi(t, rng.uniform(0.05, 0.4, b), rng.uniform(0.005, 0.03, b))
     hi += rng.normal(0, 0.01, size=hi.shape)
@@ -263,6 +265,8 @@ def test_config_validation_and_round_trip():
         TrackerConfig(dt=0.0)
     with pytest.raises(ValueError, match="valid_drul"):
         TrackerConfig(valid_drul=(0.0, -2.0))
+    with pytest.raises(ValueError, match="initiation"):
+        TrackerConfig(initiation="zeros")
     cfg = TrackerConfig(dt=10.0, lambda_hi=3.0, warn_rul=30.0)
     assert TrackerConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ValueError, match="unknown keys"):
@@ -270,7 +274,8 @@ def test_config_validation_and_round_trip():
 
 
 def test_two_point_initiation():
-    cfg = TrackerConfig(dt=2.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e3)
+    cfg = TrackerConfig(dt=2.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e3,
+                        initiation="two-point")
     t = np.array([0.0, 2.0, 4.0, 6.0])
     z = np.array([0.30, 0.34, 0.37, 0.41])
     h = track_series(t, z[:, None], cfg)
@@ -311,7 +316,8 @@ def test_paris_rul_and_limits_general_exponent_against_ode(m):
 def test_vectorised_chain_equals_loop_with_general_exponent():
     rng = np.random.default_rng(11)
     b = 20
-    cfg = TrackerConfig(dt=1.0, lambda_hi=0.4, lambda_rul=0.2, paris_exponent=3.0)
+    cfg = TrackerConfig(dt=1.0, lambda_hi=0.4, lambda_rul=0.2, paris_exponent=3.0,
+                        initiation="two-point")
     t = np.arange(1.0, 16.0)
     hi = exponential_hi(t[:, None], rng.uniform(0.2, 0.5, b), 0.03) + rng.normal(0, 0.01, (15, b))
     vec, ref = TrackerState.empty(b), TrackerState.empty(b)
@@ -320,3 +326,18 @@ def test_vectorised_chain_equals_loop_with_general_exponent():
         ref = tracker_update_loop(ref, np.full(b, t[k]), hi[k], cfg)
     for name, col in vec.columns().items():
         np.testing.assert_allclose(col, ref.columns()[name], rtol=1e-12, atol=1e-12)
+
+
+def test_floor_initiation_is_quiet_on_noisy_healthy_components():
+    # i.i.d. noisy HI around 0.3 (healthy): no slope exists, so no alert may appear
+    rng = np.random.default_rng(12)
+    b, steps = 2000, 40
+    hi = rng.uniform(0.1, 0.5, size=(steps, b))
+    t = np.arange(float(steps))
+    floor = track_series(t, hi, TrackerConfig(lambda_hi=0.01, lambda_rul=0.01))
+    assert floor["level"].max() == 0
+    assert np.all(floor["fhi"] < 0.75)
+    # the two-point start takes its slope from two noisy acquisitions: spurious alerts
+    two = track_series(t, hi, TrackerConfig(lambda_hi=0.01, lambda_rul=0.01,
+                                            initiation="two-point"))
+    assert two["level"].max() == 2

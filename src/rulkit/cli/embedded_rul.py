@@ -12,16 +12,13 @@ from typing import Annotated
 
 import typer
 
-_CONFIG_OPTIONS = ("dt", "lambda_hi", "lambda_rul", "design_life", "warn_rul", "hi_sigma",
-                   "valid_d2rul", "paris_exponent")
-
 
 def _fail(msg: str) -> None:
     typer.echo(f"error: {msg}", err=True)
     raise typer.Exit(code=1)
 
 
-def _open_store(db: Path, given: dict[str, float], baseline: Path | None, pfa: float,
+def _open_store(db: Path, given: dict[str, float | str], baseline: Path | None, pfa: float,
                 offset: str):
     """Open or create the database; options only set a new database's configuration."""
     from rulkit.data.component_store import ComponentStore, IngestError, read_acquisitions
@@ -99,6 +96,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                                                  help="Validity limit of |d2RUL/dt2|."),
         paris_exponent: float | None = typer.Option(None, "--paris-exponent",
                                                     help="Paris exponent m of the RUL."),
+        initiation: str | None = typer.Option(None, "--initiation",
+                                              help="Track start: floor or two-point."),
     ) -> None:
         """Ingest acquisitions (one transaction) and print new warnings and alarms."""
         from rich.console import Console
@@ -108,7 +107,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         given = {k: v for k, v in {
             "dt": dt, "lambda_hi": lambda_hi, "lambda_rul": lambda_rul,
             "design_life": design_life, "warn_rul": warn_rul, "hi_sigma": hi_sigma,
-            "valid_d2rul": valid_d2rul, "paris_exponent": paris_exponent}.items()
+            "valid_d2rul": valid_d2rul, "paris_exponent": paris_exponent,
+            "initiation": initiation}.items()
             if v is not None}
         if offset not in ("cdf05", "none"):
             _fail(f"--offset: expected cdf05 or none, got {offset!r}")
@@ -135,6 +135,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     @app.command("status")
     def status(
         db: Annotated[Path, typer.Option("--db", help="SQLite component database.")],
+        limit: int = typer.Option(0, "--limit", min=0, help="Show the worst N (0 = all)."),
     ) -> None:
         """Table of components with HI, RUL, validity and alert level, worst first."""
         from rich.console import Console
@@ -151,7 +152,11 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             df = store.status()
         finally:
             store.close()
-        table = Table(title=f"{db}: {len(df)} components, worst first")
+        n_all = len(df)
+        if limit:
+            df = df.head(limit)
+        shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
+        table = Table(title=f"{db}: {n_all} components, worst first{shown}")
         for col in ("component", "level", "HI", "fHI", "RUL", "RUL low", "RUL high", "valid",
                     "dRUL/dt", "d2RUL/dt2", "n", "last t"):
             table.add_column(col, justify="left" if col in ("component", "level") else "right")

@@ -16,6 +16,8 @@ to the RUL errors:
   lambda_HI = sigma_w dt^2 / sigma_v = 0.64 at dt = 10 kcycles;
 * RUL tracker: sigma_v = 10 kcycles (the scatter of the raw Paris RUL about a straight line),
   sigma_w = 0.01 per kcycle^2 (the d2RUL drift the validity rule tolerates), lambda_RUL = 0.1;
+* two-point track initiation (10-13 clean acquisitions per unit: the floor start's transient
+  would take most of a trajectory);
 * the seed's validity rule verbatim (-2 < dRUL/dt < 0, |d2RUL/dt2| < 0.01 per kcycle), warning
   at fHI >= 0.75 with a valid RUL below 30 kcycles (3 acquisitions), alarm at fHI >= 1;
   design life 10^4 kcycles (dHI floor 1e-4 per kcycle); confidence limits with HI +- 0.00625
@@ -64,7 +66,7 @@ def crack_tracker_config(
     base = TrackerConfig.from_noise(
         sigma_w_hi=4e-5, sigma_v_hi=HI_SIGMA, sigma_w_rul=0.01, sigma_v_rul=10.0, dt=10.0,
         design_life=1e4, warn_rul=warn_rul, valid_d2rul=valid_d2rul, load_factor=0.10,
-        load_exponent=2.0,
+        load_exponent=2.0, initiation="two-point",
     )
     d = base.to_dict()
     if lambda_hi is not None:

@@ -37,8 +37,8 @@ RAYLEIGH_UNIT_VARIANCE_BETA = 1.0 / math.sqrt(2.0 - math.pi / 2.0)
 LEVEL_NONE, LEVEL_WARNING, LEVEL_ALARM = 0, 1, 2
 MIN_UPDATES_VALID = 4
 """Acquisitions before a RUL can be valid: the 4th is the first steady-state update of the
-alpha-beta-gamma tracker after its two-point initiation (before it d2RUL is 0 by
-construction, not estimated, and would pass |d2RUL| < 0.01 trivially)."""
+alpha-beta-gamma tracker after a two-point initiation (before it d2RUL is 0 by construction,
+not estimated, and would pass |d2RUL| < 0.01 trivially); the same rule for both initiations."""
 LEVEL_NAMES = {LEVEL_NONE: "ok", LEVEL_WARNING: "warning", LEVEL_ALARM: "alarm"}
 
 
@@ -256,7 +256,8 @@ class TrackerConfig:
     limits (default: none given -> 0). ``load_factor`` (0.10) and ``load_exponent`` (2, the
     Paris exponent of the RUL formula) shape the confidence limits
     (:func:`rul_confidence_limits`). ``paris_exponent`` m: the crack-growth exponent of the
-    RUL relation (2 = the seed's formula; see :func:`paris_rul`).
+    RUL relation (2 = the seed's formula; see :func:`paris_rul`). ``initiation``: how a new
+    component's trackers start, ``"floor"`` or ``"two-point"`` (see :func:`tracker_update`).
     Validity (seed section 6): ``valid_drul = (-2, 0)`` open interval for dRUL/dt and
     ``|d2RUL/dt2| < valid_d2rul``. Warning: fHI >= ``warn_hi`` and valid and fRUL < ``warn_rul``;
     alarm: fHI >= ``alarm_hi``. ``hi_max`` bounds an accepted HI measurement (ingestion checks).
@@ -273,6 +274,7 @@ class TrackerConfig:
     load_factor: float = 0.10
     load_exponent: float = 2.0
     paris_exponent: float = 2.0
+    initiation: str = "floor"
     valid_drul: tuple[float, float] = (-2.0, 0.0)
     valid_d2rul: float = 0.01
     warn_hi: float = 0.75
@@ -298,6 +300,11 @@ class TrackerConfig:
                 f"TrackerConfig.valid_drul: expected (low, high), low < high, got {self.valid_drul}"
             )
         object.__setattr__(self, "valid_drul", (float(lo), float(hi)))
+        if self.initiation not in ("floor", "two-point"):
+            raise ValueError(
+                f"TrackerConfig.initiation: expected 'floor' or 'two-point', got "
+                f"{self.initiation!r}"
+            )
 
     @classmethod
     def from_noise(
@@ -565,9 +572,18 @@ def tracker_update(
        model; the seed's pseudo-code omits the rate prediction and divides by 2 dt^2, half the
        Kalman gain, see embedded-rul.md section 2 and rulkit.estimation.trackers).
 
-    Track initiation (the seed initialises everything to zero, which would put log(0) into
-    step 2 and start dHI, hence the RUL, from an arbitrary value): two-point differencing, the
-    standard initiation of alpha-beta trackers (Bar-Shalom), applied to both trackers:
+    Track initiation (``config.initiation``; the seed initialises everything to zero, which
+    would put log(0) into step 2):
+
+    ``"floor"`` (default): 1st acquisition (n = 0): fHI = HI, dHI = 1/design_life (no
+    degradation assumed until the tracker measures one), fRUL = RUL, dRUL = d2RUL = 0; then the
+    steady-state updates 1-3 above. Safe on noisy HI: no slope is taken from two noisy points.
+
+    ``"two-point"``: two-point differencing, the standard initiation of alpha-beta trackers
+    (Bar-Shalom), applied to both trackers; for short, clean series (few acquisitions per
+    fault), where the floor start's transient would dominate. On noisy HI the differenced slope
+    is noise that persists for ~1/beta1 steps under a small tracking index (and can raise
+    spurious warnings or alarms on healthy components):
 
     * 1st acquisition (n = 0): fHI = HI, dHI = 1/design_life; fRUL = RUL, dRUL = d2RUL = 0;
     * 2nd (n = 1): fHI = HI, dHI = max((HI - HI_1) / dt, 1/design_life); the RUL tracker
@@ -594,7 +610,8 @@ def tracker_update(
         raise ValueError(f"t and hi: expected shape ({b},), got {t.shape} and {z.shape}")
     have = np.isfinite(z) & np.isfinite(t)
     n_prev = state.n
-    initiating = bool((n_prev < 3).any())
+    two_point = config.initiation == "two-point"
+    initiating = bool((n_prev < (3 if two_point else 1)).any())
     all_have = bool(have.all())
     dt = t - state.t
     if initiating:
@@ -616,8 +633,9 @@ def tracker_update(
 
     ab = alpha_beta_update(state.ab, zz, dt, gains.alpha1, gains.beta1)
     np.maximum(ab[:, 1], dhi_min, out=ab[:, 1])
-    if initiating:  # two-point initiation of the HI tracker
-        first, second = n_prev == 0, n_prev == 1
+    if initiating:  # floor start; two-point initiation of the HI tracker
+        first = n_prev == 0
+        second = (n_prev == 1) if two_point else np.zeros(b, dtype=bool)
         slope = np.maximum((zz - state.hi) / dt, dhi_min)
         ab[:, 0] = np.where(first | second, zz, ab[:, 0])
         ab[:, 1] = np.where(first, dhi_min, np.where(second, slope, ab[:, 1]))
@@ -625,11 +643,11 @@ def tracker_update(
     abg = alpha_beta_gamma_update(state.abg, rul, dt, gains.alpha2, gains.beta2, gains.gamma2)
     if initiating:  # (re)start of the RUL tracker, then its two-point slope
         zero = np.zeros(b)
-        third = n_prev == 2
+        third = (n_prev == 2) if two_point else np.zeros(b, dtype=bool)
         with np.errstate(invalid="ignore"):
             rate = np.where(third, (rul - state.rul) / dt, 0.0)
         init = np.column_stack([rul, rate, zero])
-        abg = np.where((n_prev < 3)[:, None], init, abg)
+        abg = np.where((n_prev < (3 if two_point else 1))[:, None], init, abg)
     n = state.n + 1
     new_t = t
     new_hi = z
@@ -713,6 +731,7 @@ def tracker_update_loop(
     a1, b1, a2, b2, g2 = gains.alpha1, gains.beta1, gains.alpha2, gains.beta2, gains.gamma2
     dhi_min = 1.0 / config.design_life
     m_paris = config.paris_exponent
+    two_point = config.initiation == "two-point"
     p_half = 0.5 * m_paris
     out = state.take(np.arange(len(state)))
     for i in range(len(state)):
@@ -726,7 +745,7 @@ def tracker_update_loop(
         fhi, dhi = out.ab[i]
         if n_i == 0:
             fhi, dhi = z, dhi_min
-        elif n_i == 1:
+        elif n_i == 1 and two_point:
             fhi, dhi = z, max((z - out.hi[i]) / dt, dhi_min)
         else:
             fhi = fhi + dhi * dt
@@ -739,9 +758,9 @@ def tracker_update_loop(
         else:
             rul = (h**p_half - h) / ((1.0 - p_half) * dhi)
         frul, drul, d2rul = out.abg[i]
-        if n_i < 2:
+        if n_i == 0 or (n_i == 1 and two_point):
             frul, drul, d2rul = rul, 0.0, 0.0
-        elif n_i == 2:
+        elif n_i == 2 and two_point:
             frul, drul, d2rul = rul, (rul - out.rul[i]) / dt, 0.0
         else:
             frul = frul + drul * dt + d2rul * dt * dt / 2.0
