@@ -244,3 +244,28 @@ def test_runs_reproducible_from_seed_and_independent_of_chunking() -> None:
     np.testing.assert_allclose(a[1], b[1], rtol=1e-12)
     np.testing.assert_array_equal(a[3], b[3])
     assert not np.allclose(a[1], c[1], rtol=1e-6)
+
+
+def test_micro_ekf_matches_engine_extended_kalman_filter(life) -> None:
+    """Oracle: the engine's EKF class with finite-difference Jacobians on the same model."""
+    from rulkit.estimation.kalman import ExtendedKalmanFilter
+    from rulkit.models.dc_motor import measurement, rk4_step_with_jacobian
+
+    consts = life.config.consts
+    s = MicroEKFSettings()
+    sl = slice(60, 63)
+    cur, sp, acc = life.current[sl], life.speed[sl], life.acceleration[sl]
+    dt = life.config.dt
+    ekf = ExtendedKalmanFilter(
+        lambda x, u, k: rk4_step_with_jacobian(x, u[:, 0], u[:, 1], dt, consts)[0],
+        lambda x, u, k: measurement(x, u[:, 1], consts)[0],
+        np.diag([s.q_w, s.q_c]), np.diag([s.sigma_w**2, s.sigma_dw**2]),
+    )
+    ys = np.stack([sp[:, 1:], acc[:, 1:]], axis=2).transpose(1, 0, 2)  # (T-1, B, 2)
+    us = np.stack([cur[:, :-1], cur[:, 1:]], axis=2).transpose(1, 0, 2)
+    x0 = np.column_stack([sp[:, 0], np.full(3, s.c_prior)])
+    P0 = np.diag([s.sigma_w**2, s.c_prior_sd**2])
+    ref = ekf.filter(ys, x0, np.broadcast_to(P0, (3, 2, 2)), us=us)
+    ours = micro_ekf(life.time, cur, sp, acc, consts, s)
+    np.testing.assert_allclose(ours.c, ref.x[-1, :, 1], rtol=1e-6)
+    np.testing.assert_allclose(ours.c_var, ref.P[-1, :, 1, 1], rtol=1e-3)

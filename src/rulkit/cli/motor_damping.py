@@ -65,8 +65,8 @@ def reproduce_motor_damping(
     met = res.tables["rul_metrics"]
     for _, row in met.iterrows():
         console.print(
-            f"  {row['scenario']:<22} {row['method']:<11} 90 % coverage "
-            f"{row['coverage_90']:.3f}  alpha-lambda(0.5) pass {row['alpha_lambda_pass_0.5']:.2f}"
+            f"  {row['scenario']:<22} {row['method']:<11} cover90 {row['coverage_90']:.3f} "
+            f"a-l(0.5) {row['alpha_lambda_pass_0.5']:.2f}"
         )
     report = next(p for p in paths if p.name == "report.md")
     console.print(f"wrote {len(paths)} files into {out} ({time.perf_counter() - t0:.1f} s)")
