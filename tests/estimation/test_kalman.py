@@ -530,3 +530,11 @@ def test_check_false_gives_identical_numbers_and_still_checks_shapes():
     np.testing.assert_array_equal(a[2].loglik, b[2].loglik)
     with pytest.raises(ValueError, match="Q: expected shape"):
         kf_predict(x, P, F_CV, np.eye(3), check=False)
+
+
+def test_ekf_error_names_f_when_prediction_is_nan():
+    ekf = ExtendedKalmanFilter(
+        lambda x, u, k: x * np.nan, lambda x, u, k: x[:, :1], np.eye(2) * 1e-3, np.eye(1)
+    )
+    with pytest.raises(ValueError, match=r"^f \(predicted state"):
+        ekf.filter(np.zeros((5, 1, 1)), np.zeros((1, 2)), np.eye(2))

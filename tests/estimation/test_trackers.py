@@ -220,3 +220,18 @@ def test_missing_and_bad_measurements():
         alpha_beta_update(s[:, :2], np.array([1.0]), 1.0, 0.5, 0.2)
     with pytest.raises(ValueError, match=r"state: expected shape \(B, 3\)"):
         alpha_beta_gamma_update(s[:, :2], z, 1.0, 0.5, 0.2, 0.1)
+
+
+@pytest.mark.parametrize("dt", [0.0, -1.0, np.nan, np.inf])
+def test_bad_dt_is_refused(dt):
+    with pytest.raises(ValueError, match="dt"):
+        alpha_beta_update(np.zeros((3, 2)), np.zeros(3), dt, 0.5, 0.1)
+    with pytest.raises(ValueError, match="dt"):
+        alpha_beta_gamma_update(np.zeros((3, 3)), np.zeros(3), dt, 0.5, 0.1, 0.01)
+
+
+def test_bad_gains_are_refused():
+    with pytest.raises(ValueError, match="alpha"):
+        alpha_beta_update(np.zeros((3, 2)), np.zeros(3), 1.0, np.nan, 0.1)
+    with pytest.raises(ValueError, match="gamma"):
+        alpha_beta_gamma_update(np.zeros((3, 3)), np.zeros(3), 1.0, 0.5, 0.1, np.ones(2))

@@ -717,12 +717,18 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
             Pn = _sym(Phi @ P @ _T(Phi) + Qd)
         else:
             xn = _apply(self.f, x, u, targ, B, "f")
+            self._check_prediction(xn, B, n, k)
             J = self._jacobian(self.f, self.jac_f, x, u, targ, n, "jac_f")
             Pn = _sym(J @ P @ _T(J) + self.Q.at(k, B))
+        self._check_prediction(xn, B, n, k)
+        return xn, Pn
+
+    @staticmethod
+    def _check_prediction(xn: FloatArray, B: int, n: int, k: int) -> None:
+        """The predicted state must be (B, n) and finite (checked before its Jacobian is used)."""
         if xn.shape != (B, n):
             raise ValueError(f"f: expected an output of shape ({B}, {n}), got {xn.shape}")
         _check_finite(xn, f"f (predicted state at step {k})")
-        return xn, Pn
 
     def update(
         self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any = None

@@ -164,6 +164,18 @@ def _check_z(z: ArrayLike, B: int) -> tuple[FloatArray, FloatArray | None]:
     return zz, ~fin
 
 
+def _check_step_and_gains(dt: ArrayLike, B: int, **gains: ArrayLike) -> None:
+    """``dt`` must be finite and > 0 and the gains finite, each a scalar or (B,)."""
+    for name, val in (("dt", dt), *gains.items()):
+        arr = np.asarray(val, dtype=np.float64)
+        if arr.ndim > 1 or (arr.ndim == 1 and arr.shape != (B,)):
+            raise ValueError(f"{name}: expected a scalar or shape ({B},), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name}: must be finite")
+    if not np.all(np.asarray(dt) > 0.0):
+        raise ValueError("dt: must be > 0 (time must advance between acquisitions)")
+
+
 def alpha_beta_update(
     state: np.ndarray, z: ArrayLike, dt: ArrayLike, alpha: ArrayLike, beta: ArrayLike
 ) -> FloatArray:
@@ -175,6 +187,7 @@ def alpha_beta_update(
     """
     s = _check_state(state, 2)
     zz, missing = _check_z(z, s.shape[0])
+    _check_step_and_gains(dt, s.shape[0], alpha=alpha, beta=beta)
     x = s[:, 0]
     v = s[:, 1]
     xp = x + v * dt
@@ -205,6 +218,7 @@ def alpha_beta_gamma_update(
     """
     s = _check_state(state, 3)
     zz, missing = _check_z(z, s.shape[0])
+    _check_step_and_gains(dt, s.shape[0], alpha=alpha, beta=beta, gamma=gamma)
     x = s[:, 0]
     v = s[:, 1]
     a = s[:, 2]
