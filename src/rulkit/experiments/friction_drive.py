@@ -593,6 +593,56 @@ def deterioration_bundle(
 
 
 # ------------------------------------------------------------------------------------------
+# Convergence from wrong initial estimates (spec "Augmented EKF", last line)
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ConvergenceRow:
+    """Settling times of one run started from (alpha_hat0, m_hat0); nan when never settled."""
+
+    alpha_hat0: float
+    m_hat0: float
+    alpha_settle_s: float
+    m_settle_s: float
+    alpha_final_err: float
+    m_final_rel_err: float
+
+
+def convergence_study(
+    truth: Truth,
+    rng: np.random.Generator,
+    *,
+    alpha0s: tuple[float, ...] = (5.0, 8.0, 11.0),
+    m0s: tuple[float, ...] = (0.0, 0.02),
+    q_m: float = TUNED_Q_RATE,
+    duration: float = 3.0,
+    alpha_tol: float = 0.01,
+    m_tol: float = 0.1,
+) -> list[ConvergenceRow]:
+    """Tuned EKF from wrong initial alpha/m (w at rest), P0 as in the seed; time after which
+    |alpha_hat - alpha| <= alpha_tol * alpha and |m_hat - m| <= m_tol * m hold for good."""
+    K = round(duration / truth.dt)
+    combos = [(a, m) for a in alpha0s for m in m0s]
+    B = len(combos)
+    ys = truth.X[1 : K + 1, None, :2] + rng.standard_normal((K, B, 2)) * np.sqrt(np.diag(SEED_R))
+    cur = np.repeat(truth.currents[:K, None], B, axis=1)
+    x0 = np.array([[0.0, 0.0, a, m] for a, m in combos])
+    ekf = make_ekf(np.full(B, q_m), np.zeros(B), np.broadcast_to(SEED_R, (B, 2, 2)), truth.dt)
+    run = run_filter(ekf, ys, cur, x0, SEED_P0)
+    t = run.t
+    tx = truth.X[: K + 1]
+    out = []
+    for b, (a, m) in enumerate(combos):
+        out.append(ConvergenceRow(
+            alpha_hat0=a, m_hat0=m,
+            alpha_settle_s=_time_within(t, run.x[:, b, 2], tx[:, 2], alpha_tol * tx[:, 2], 0.0),
+            m_settle_s=_time_within(t, run.x[:, b, 3], tx[:, 3], m_tol * tx[:, 3], 0.0),
+            alpha_final_err=float(run.x[-1, b, 2] - tx[-1, 2]),
+            m_final_rel_err=float((run.x[-1, b, 3] - tx[-1, 3]) / tx[-1, 3]),
+        ))
+    return out
+
+
+# ------------------------------------------------------------------------------------------
 # The whole study
 # ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
@@ -628,6 +678,7 @@ class StudyResult:
     summaries: list[UnitSummary]
     observability: list[Observability]
     rul: dict[str, RULResult]
+    convergence: list[ConvergenceRow]
     rul_truth_h: float
     filter_seconds: float
     settings: dict
@@ -656,7 +707,7 @@ def run_study(
     rul_configs: tuple[str, ...] = ("tuned", "seed", "seed-f44"),
     n_validate: int = 5,
     truth_substeps: int = 10,
-    progress: bool = False,
+    converge: bool = True,
 ) -> StudyResult:
     """Run the whole seed-003 study (spec friction-drive.md "What must be shown").
 
@@ -749,9 +800,10 @@ def run_study(
         rul[c] = predict_rul(res.x[-1, b], res.P_final[b], rng, t_pred=duration,
                              n_samples=n_rul, n_validate=n_validate)
     rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:])[0] / HOUR)
+    conv = convergence_study(truths["jump"], rng, duration=min(3.0, duration)) if converge else []
     return StudyResult(
         dt=dt, n_runs=n_runs, seed=seed, pairs=tuple(pairs), truths=truths, runs=runs,
-        summaries=summaries, observability=obs, rul=rul, rul_truth_h=rul_truth,
+        summaries=summaries, observability=obs, rul=rul, convergence=conv, rul_truth_h=rul_truth,
         filter_seconds=res.seconds,
         settings={"dt": dt, "duration": duration, "n_rul": n_rul, "truth_substeps": truth_substeps,
                   "n_validate": n_validate, "B": B},
