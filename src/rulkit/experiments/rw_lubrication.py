@@ -49,6 +49,8 @@ class ReproductionConfig:
     step2: Step2Settings = field(default_factory=Step2Settings)
     step3: Step3Settings = field(default_factory=Step3Settings)
     table5: bool = True
+    table5_particles: tuple[int, ...] | None = None  # None: the step-1 module's default list
+    table5_ekf: bool = True
     step1_error_runs: int = 10
     step1_particles: int = 200
     validation_hours: float = 3.0
@@ -62,11 +64,12 @@ class ReproductionConfig:
     def quick_config(cls, seed: int = 0, n_runs: int | None = None, **kw: Any
                      ) -> ReproductionConfig:
         """The ``--quick`` size: 5 runs, 10-day horizon, 150 particles, predictions at days
-        2, 5 and 10, Table 5 quick, no shortcut validation, small sensitivity study."""
-        return cls(quick=True, n_runs=n_runs or 5, seed=seed,
-                   step2=Step2Settings(n_particles=150, horizon_days=10.0),
-                   step3=Step3Settings(prediction_days=(2.0, 5.0, 10.0)),
-                   step1_error_runs=3, validation_hours=0.0, sensitivity_runs=0, **kw)
+        2, 5 and 10, Table 5 quick at N = 200 only, no shortcut validation, no sensitivity."""
+        kw.setdefault("step2", Step2Settings(n_particles=150, horizon_days=10.0))
+        kw.setdefault("step3", Step3Settings(prediction_days=(2.0, 5.0, 10.0)))
+        kw.setdefault("table5_particles", (200,))
+        return cls(quick=True, n_runs=n_runs or 5, seed=seed, step1_error_runs=3,
+                   validation_hours=0.0, sensitivity_runs=0, **kw)
 
 
 @dataclass
@@ -104,7 +107,8 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
 
         log("step 1: Table 5 (temperature estimation)")
         table5 = run_table5(runs=min(cfg.n_runs, 20), seed=cfg.seed, quick=cfg.quick,
-                            workers=cfg.workers, scheduler=cfg.scheduler)
+                            workers=cfg.workers, scheduler=cfg.scheduler,
+                            n_particles=cfg.table5_particles, ekf=cfg.table5_ekf)
         table5.to_csv(out / "table5.csv", index=False)
         files.append(out / "table5.csv")
         try:
