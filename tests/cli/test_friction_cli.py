@@ -28,7 +28,7 @@ def test_reproduce_friction_drive_small(tmp_path):
     assert set(rul["config"]) == {"tuned", "seed", "seed-f44"}
     assert (rul["N"] == 20).all()
     cons = pd.read_csv(out / "consistency.csv")
-    assert len(cons) == 7  # seven (filter, scenario) pairs, one run each
+    assert len(cons) == 9  # nine (filter, scenario) pairs, one run each
 
 
 def test_reproduce_friction_drive_rejects_bad_options(tmp_path):

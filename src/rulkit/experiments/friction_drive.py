@@ -128,6 +128,8 @@ def seed_configs(dt: float = 1e-3) -> dict[str, FilterConfig]:
       q_m = 3.3333e-5 / t_s per second, F44 = 0;
     - ``seed-f44``: the same with the seed's F44 = -100 heuristic (Jacobian only);
     - ``tuned``: q_m = 3e-7 / s (spec "Tuned run");
+    - ``tuned-low-q``: q_m = 3e-8 / s (less process noise than ``tuned``: whiter innovations
+      when m is constant, slower tracking of a change);
     - ``tuned-realistic``: the tuned filter with 100 x the seed's speed-noise sigmas.
     """
     return {
@@ -136,6 +138,8 @@ def seed_configs(dt: float = 1e-3) -> dict[str, FilterConfig]:
             "seed-f44", SEED_SIGMA_M2 / dt, -100.0, label="seed Q, F44 = -100"
         ),
         "tuned": FilterConfig("tuned", TUNED_Q_RATE, 0.0, label="q_m = 3e-7 /s"),
+        "tuned-low-q": FilterConfig("tuned-low-q", 0.1 * TUNED_Q_RATE, 0.0,
+                                    label="q_m = 3e-8 /s"),
         "tuned-realistic": FilterConfig(
             "tuned-realistic",
             TUNED_Q_RATE,
@@ -155,6 +159,8 @@ DEFAULT_PAIRS = (
     ("tuned", "jump"),
     ("tuned-realistic", "jump"),
     ("tuned", "constant"),
+    ("tuned-low-q", "constant"),
+    ("tuned-low-q", "jump"),
     ("tuned", "drift"),
     ("tuned", "constant-current"),
 )
