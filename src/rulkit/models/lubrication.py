@@ -473,9 +473,9 @@ class EstimateErrorProcess:
         rho = float(np.exp(-self.hold_s / self.tau_s)) if self.tau_s > 0 else 0.0
         innov = self.std_c * np.sqrt(1.0 - rho * rho)
         R = len(rngs)
-        eta = np.stack([g.standard_normal(n_blocks) for g in rngs])
-        if state is None:
+        if state is None:  # drawn before the innovations: chunking does not change the stream
             state = self.std_c * np.stack([g.standard_normal() for g in rngs])
+        eta = np.stack([g.standard_normal(n_blocks) for g in rngs])
         d = _ar1(eta * innov, rho, np.asarray(state, dtype=np.float64))
         t_block = (k0 * WINDOW_SAMPLES
                    + (np.arange(n_blocks) + 0.5) * self.hold_samples) * SAMPLE_DT
