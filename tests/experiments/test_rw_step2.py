@@ -195,6 +195,7 @@ def test_run_case_independent_of_grouping_and_table6() -> None:
 def test_truth_per_window_and_bad_inputs() -> None:
     b, beta0 = truth_parameters(1, 45)
     assert b[38] == 37.0 and b[39] == 25.0  # window 39 ends at 160 min > 159 min
+    assert beta0[39] == 8.054e-6  # window 39 ends at 160 min > 159 min
     st, setup, y, q = _problem(2, 0.1)
     with pytest.raises(ValueError, match="generators"):
         rbpf(y, q, setup.sigma_y, st, _rngs(0, 1), beta_ref=BETA_REF)
