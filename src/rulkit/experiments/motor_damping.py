@@ -517,6 +517,7 @@ def run_experiment(
         "seed": SEED_VALUES["c_fail"],
         "ours_algebra": failure_damping(consts),
         "ours_from_curves_run0": c_fail_curves,
+        "relative_difference": c_fail_curves / failure_damping(consts) - 1.0,
     }])
     tables = {
         "micro_main": micro_main, "micro_variants": micro_tab, "slope": slope_tab,
@@ -602,8 +603,9 @@ def _report(res: MotorDampingResult, command: str) -> str:
          f"{a58.mean():.4g} +- {a58.std(ddof=1) if a58.size > 1 else float('nan'):.2g} "
          f"(mean +- sd over {cfg.runs} runs; true {cfg.life.slope:.3g})"),
         ("failure damping c_fail [N m s]", "0.000147",
-         f"{res.c_fail:.4g} (algebra at 300 rad/s, 16 mN m); "
-         f"{res.c_fail_from_curves:.4g} (from run 0's characteristic curves)"),
+         f"{res.c_fail:.6g} (algebra at 300 rad/s, 16 mN m); "
+         f"{res.c_fail_from_curves:.6g} (from run 0's characteristic curves: measured "
+         f"J dw/dt vs w, t >= 5 s, against the micro-EKF damping)"),
         ("slope of the characteristic curve at failure", "0.1428 (units not stated)",
          f"-{res.c_fail * 1e3:.4g} mN m s/rad (= -c_fail; run-0 curve slopes vs the micro-EKF "
          f"damping: see fig11_12)"),
