@@ -498,7 +498,7 @@ def run_experiment(
     # threshold from the characteristic curves of run 0 (seed section 4.2)
     lt0 = tests[0]
     consts = cfg.life.consts
-    steady = lt0.time >= 5.0 * consts.tau_I
+    steady = lt0.time >= 10.0 * consts.tau_I  # current spike decayed to 1.95 e^-10 A
     torque = consts.J * lt0.acceleration
     c_fail_curves = failure_damping_from_curves(lt0.speed, torque, z[0], mask=steady)
     slopes = characteristic_curve_slope(lt0.speed, torque, steady)
@@ -605,7 +605,7 @@ def _report(res: MotorDampingResult, command: str) -> str:
         ("failure damping c_fail [N m s]", "0.000147",
          f"{res.c_fail:.6g} (algebra at 300 rad/s, 16 mN m); "
          f"{res.c_fail_from_curves:.6g} (from run 0's characteristic curves: measured "
-         f"J dw/dt vs w, t >= 5 s, against the micro-EKF damping)"),
+         f"J dw/dt vs w, t >= 10 s, against the micro-EKF damping)"),
         ("slope of the characteristic curve at failure", "0.1428 (units not stated)",
          f"-{res.c_fail * 1e3:.4g} mN m s/rad (= -c_fail; run-0 curve slopes vs the micro-EKF "
          f"damping: see fig11_12)"),

@@ -101,7 +101,7 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     ax[0].set_xlabel("cycle")
     ax[0].set_ylabel("slope dT_out/dw [mN m s/rad]")
     ax[0].legend()
-    ax[0].set_title("Curve slope (steady part, t >= 5 s) (Fig. 11)")
+    ax[0].set_title("Curve slope (steady part, t >= 10 s) (Fig. 11)")
     ax[1].plot(lin.z[0], -res.curve_slopes_run0, "o", ms=3, label="run 0 cycles")
     lim = np.array([0, 1.6e-4])
     ax[1].plot(lim, lim, "k--", lw=1, label="identity")
