@@ -137,3 +137,19 @@ def test_check_state_errors_reports_seed_and_correct_statements():
     assert r.seed_erf_statement == pytest.approx(0.9973, abs=1e-4)
     assert r.nees_ok
     np.testing.assert_allclose(r.state_coverage, 0.9973, atol=0.002)
+
+
+def test_check_innovations_drops_skipped_steps_and_rejects_partial_nan():
+    rng = np.random.default_rng(8)
+    T = 3000
+    S = np.broadcast_to(np.eye(2), (T, 2, 2)).copy()
+    nu = rng.standard_normal((T, 2))
+    full = C.check_innovations(nu, S)
+    gappy = nu.copy()
+    gappy[::10] = np.nan
+    r = C.check_innovations(gappy, S)
+    assert r.n_steps == T - T // 10 and full.n_steps == T
+    assert r.mean_nis == pytest.approx(np.mean(np.sum(nu[np.arange(T) % 10 != 0] ** 2, axis=1)))
+    gappy[5, 0] = np.nan  # partially missing row
+    with pytest.raises(ValueError, match="non-finite"):
+        C.check_innovations(gappy, S)

@@ -130,6 +130,18 @@ def test_predict_rul_is_repeatable_and_handles_m_le_zero():
     assert np.isinf(wide.optimistic_h)
 
 
+def test_predict_rul_rejects_bad_estimates():
+    x_hat = np.array([120.0, 12.0, 8.43, 0.02])
+    with pytest.raises(ValueError, match="x_hat"):
+        E.predict_rul(x_hat[:3], np.eye(4), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="x_hat"):
+        E.predict_rul(np.array([np.nan, 0, 8, 0.02]), np.eye(4), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="P: not positive semi-definite"):
+        E.predict_rul(x_hat, np.diag([1.0, 1.0, -1.0, 1.0]), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="P: expected shape"):
+        E.predict_rul(x_hat, np.eye(3), np.random.default_rng(0))
+
+
 def test_deterioration_bundle_reaches_the_failure_level_at_the_rul():
     x = np.array([[120.0, 12.0, 8.43, 0.02], [0.0, 0.0, 9.0, 0.015]])
     tf, _ = E.time_to_failure(x, 20.0)

@@ -245,12 +245,21 @@ def check_innovations(
     - Whiteness: autocorrelation of each whitened component over lags 1..max_lag against
       +- z/sqrt(T) (``level``), and the Ljung-Box test. The sequence is declared white when every
       component's Ljung-Box p-value exceeds ``whiteness_alpha`` divided by m (Bonferroni).
+
+    Missing steps: rows of ``nu`` that are entirely NaN (skipped updates, as the Kalman filters
+    of :mod:`rulkit.estimation.kalman` mark them) are dropped before the tests, and
+    ``n_steps`` counts the rows used; the whiteness test then runs on the remaining sequence
+    with the gaps closed (approximate when gaps are frequent). Partially NaN rows and infinite
+    values are errors.
     """
     nu = np.asarray(nu, dtype=np.float64)
     S = np.asarray(S, dtype=np.float64)
     if nu.ndim != 2 or S.shape != (*nu.shape, nu.shape[1]):
         raise ValueError(f"check_innovations: nu must be (T, m) and S (T, m, m); got {nu.shape}, "
                          f"{S.shape}")
+    missing = np.all(np.isnan(nu), axis=1)
+    if missing.any():
+        nu, S = nu[~missing], S[~missing]
     T, m = nu.shape
     if T <= max_lag + 1:
         raise ValueError(f"check_innovations: need more than {max_lag + 1} steps, got {T}")

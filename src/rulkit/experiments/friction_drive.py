@@ -27,7 +27,7 @@ from rulkit.estimation.consistency import (
 )
 from rulkit.estimation.kalman import ExtendedKalmanFilter
 from rulkit.models import friction_drive as fd
-from rulkit.models.base import FloatArray
+from rulkit.models.base import FloatArray, check_covariance
 from rulkit.prognosis.rul import RULDistribution
 
 HOUR = 3600.0
@@ -536,8 +536,12 @@ def predict_rul(
     ``n_samples`` initial states from N(x_hat, P), future current held at ``current``, m
     constant; RUL = t_f - t_pred where D reaches D_f. Samples with m <= 0 never fail (censored
     at the horizon). ``n_validate`` samples are re-run with LSODA over the full horizon."""
-    x_hat = np.asarray(x_hat, dtype=np.float64).reshape(4)
-    P = np.asarray(P, dtype=np.float64)
+    x_hat = np.asarray(x_hat, dtype=np.float64)
+    if x_hat.shape != (4,) or not np.all(np.isfinite(x_hat)):
+        raise ValueError(f"x_hat: expected 4 finite values [w1, w2, alpha, m], got {x_hat!r}")
+    P = check_covariance(P, 4, "P")
+    if n_samples < 1:
+        raise ValueError(f"n_samples: expected >= 1, got {n_samples}")
     t0 = time.perf_counter()
     X0 = sample_states(x_hat, P, n_samples, rng)
     horizon = horizon_h * HOUR
