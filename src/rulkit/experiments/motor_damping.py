@@ -100,7 +100,7 @@ class ExperimentConfig:
 
     @classmethod
     def quick(cls, **kw: Any) -> ExperimentConfig:
-        base = {"runs": 20, "mc_samples": 200, "variant_runs": 3}
+        base = {"runs": 20, "mc_samples": 100, "variant_runs": 2}
         base.update(kw)
         return cls(**base)
 
