@@ -179,12 +179,14 @@ def figures(res: StudyResult, out: Path) -> list[Path]:
         ext[1, 3] -= 3 * sm
         ext[2, 2] -= 3 * sa
         ext[2, 3] += 3 * sm
+        never = ext[1, 3] <= 0
         ext[:, 3] = np.maximum(ext[:, 3], 0.0)
         De = deterioration_bundle(ext, grid)
         fig, ax = plt.subplots(figsize=(8, 4))
         ax.plot(grid, Db.T, color="0.7", lw=0.5)
         ax.plot(grid, De[0], "k-", lw=2, label="nominal (x_hat)")
-        ax.plot(grid, De[1], "g--", label="optimistic (alpha+3s, m-3s)")
+        ax.plot(grid, De[1], "g--", label="optimistic (alpha+3s, m-3s)"
+                + (": m <= 0, never fails" if never else ""))
         ax.plot(grid, De[2], "r--", label="pessimistic (alpha-3s, m+3s)")
         ax.axhline(0.99, color="b", lw=0.8, label="D_f = 0.99")
         ax.set_xlabel(f"hours after t = {r.t_pred:g} s")
