@@ -33,6 +33,16 @@ def test_time_to_failure_from_rest_matches_lsoda_over_the_full_horizon_and_spec(
     assert fast[0] / HOUR == pytest.approx(spec_h, abs=0.03)
 
 
+@pytest.mark.parametrize("m", [0.2, 0.8, 1.0, 1.3])
+def test_time_to_failure_stays_accurate_for_fast_failures(m):
+    # RUL from ~8 h down to ~1 s: closed form, full-model tail below 1 h, or inside the transient
+    x = np.array([[10.32143, 1.55458, 8.43256, m]])
+    fast = E.time_to_failure(x)[0][0]
+    ref = E.time_to_failure_reference(x)[0]
+    assert abs(fast - ref) <= max(30.0, 0.01 * ref)
+    assert abs(fast - ref) / ref < 0.01
+
+
 def test_closed_form_alone_overestimates_by_the_spin_up_loss():
     alone = fd.quasi_steady_time(np.array([10.0]), 0.1, 0.01, 20.0)[0] / HOUR
     fast = E.time_to_failure(REST, 20.0)[0][0] / HOUR

@@ -171,3 +171,15 @@ def test_bad_inputs_raise_specific_errors():
         fd.drift(np.zeros((3, 4)), np.ones(2))
     with pytest.raises(ValueError, match="dt"):
         fd.integrate_path(np.zeros(4), np.ones(3), 0.0)
+
+
+def test_time_to_alpha_matches_the_stored_path():
+    x0 = np.array([[0.0, 0.0, 10.0, 0.5], [0.0, 0.0, 10.0, 0.0], [0.0, 0.0, 0.05, 0.01]])
+    t, xe = fd.time_to_alpha(x0, 20.0, 9.0, 1e-3, 3.0)
+    path = fd.integrate_path(x0, np.full(3000, 20.0), 1e-3)[:, :, 2]
+    k = int(np.flatnonzero(path[:, 0] <= 9.0)[0])
+    lin = (k - 1 + (path[k - 1, 0] - 9.0) / (path[k - 1, 0] - path[k, 0])) * 1e-3
+    assert t[0] == pytest.approx(lin, rel=1e-12)
+    assert xe[0, 2] == pytest.approx(path[k, 0], rel=1e-12)
+    assert np.isinf(t[1]) and xe[1, 2] == 10.0  # m = 0: never
+    assert t[2] == 0.0

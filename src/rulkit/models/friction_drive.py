@@ -286,6 +286,62 @@ def integrate_path(
     return out if store else out[0]
 
 
+@numba.njit(cache=True)
+def _time_to_alpha_kernel(x0, current, dt, alpha_level, max_steps, pr):  # pragma: no cover
+    N = x0.shape[0]
+    out = np.full(N, np.inf)
+    xend = np.empty((N, 4))
+    for i in range(N):
+        w1, w2, a, m = x0[i, 0], x0[i, 1], x0[i, 2], x0[i, 3]
+        if a <= alpha_level:
+            out[i] = 0.0
+        else:
+            for k in range(max_steps):
+                a1, b1, c1 = _f_scalar(w1, w2, a, m, current, pr)
+                a2, b2, c2 = _f_scalar(
+                    w1 + 0.5 * dt * a1, w2 + 0.5 * dt * b1, a + 0.5 * dt * c1, m, current, pr
+                )
+                a3, b3, c3 = _f_scalar(
+                    w1 + 0.5 * dt * a2, w2 + 0.5 * dt * b2, a + 0.5 * dt * c2, m, current, pr
+                )
+                a4, b4, c4 = _f_scalar(w1 + dt * a3, w2 + dt * b3, a + dt * c3, m, current, pr)
+                a_new = a + (dt / 6.0) * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
+                w1 = w1 + (dt / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+                w2 = w2 + (dt / 6.0) * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                if a_new <= alpha_level:
+                    out[i] = (k + (a - alpha_level) / (a - a_new)) * dt
+                    a = a_new
+                    break
+                a = a_new
+        xend[i, 0] = w1
+        xend[i, 1] = w2
+        xend[i, 2] = a
+        xend[i, 3] = m
+    return out, xend
+
+
+def time_to_alpha(
+    x0: FloatArray,
+    current: float,
+    alpha_level: float,
+    dt: float,
+    t_max: float,
+    params: FrictionDriveParams = DEFAULT_PARAMS,
+) -> tuple[FloatArray, FloatArray]:
+    """Full-model (RK4, fixed ``dt``, constant current, numba) time for alpha to fall to
+    ``alpha_level``, each sample stopping at its own crossing (linear interpolation within the
+    step); ``inf`` when not reached within ``t_max``. Returns ``(t_cross (N,), x_end (N, 4))``
+    with ``x_end`` the state at the crossing step or at ``t_max``."""
+    x0 = as_batch(x0, 4, "x0")
+    if not (np.isfinite(dt) and dt > 0 and np.isfinite(t_max) and t_max >= 0):
+        raise ValueError(f"dt, t_max: expected finite dt > 0 and t_max >= 0, got {dt}, {t_max}")
+    n = round(t_max / dt)
+    return _time_to_alpha_kernel(
+        np.ascontiguousarray(x0), float(current), float(dt), float(alpha_level), int(n),
+        params.as_array(),
+    )
+
+
 # --------------------------------------------------------------------------------------------
 # Quasi-steady deterioration at constant current (spec "RUL": closed-form time to failure).
 # --------------------------------------------------------------------------------------------
