@@ -186,3 +186,23 @@ def test_study_rejects_bad_settings():
         E.run_study(duration=1.0)
     with pytest.raises(ValueError, match="unknown"):
         E.run_study(duration=3.0, pairs=(("nope", "jump"),))
+
+
+@pytest.mark.slow
+def test_full_study_reproduces_the_spec_measurements():
+    """The 20 s study, one run: the spec's measured statements (friction-drive.md)."""
+    res = E.run_study(n_runs=1, seed=0, n_rul=100, n_validate=3)
+    by = {(s.config, s.scenario): s for s in res.summaries}
+    seed = by[("seed", "jump")]
+    assert 0.01 < seed.sigma_m < 0.06  # "sigma_m ~ 0.03, three times m"
+    assert seed.innovations.mean_nis < seed.innovations.nis_interval[0]  # NIS below its bounds
+    assert not seed.innovations.white
+    tuned = by[("tuned", "jump")]
+    assert abs(tuned.m_rel_error) < 0.02  # "m within ~1 %"
+    assert tuned.jump_tracking_s < 0.3  # "the jump tracked within ~0.2 s"
+    sq, cc = res.observability
+    assert sq.sigma[3] < 2e-6 and 0.1 < cc.sigma[3] < 3.0  # "~5e-7" and "~0.6"
+    r = res.rul["tuned"]
+    assert abs(r.normal_fit[0] - res.rul_truth_h) < 3 * r.normal_fit[1]
+    assert r.rul.fraction_censored == 0.0
+    assert res.rul["seed"].fraction_never > 0.0  # m <= 0 samples under the seed's Q
