@@ -23,7 +23,12 @@ from scipy.linalg import expm
 from rulkit.estimation.consistency import (
     InnovationCheck,
     StateErrorCheck,
+    bounds_coverage,
+    chebyshev_ellipsoid_bound,
     check_innovations,
+    chi2_interval,
+    ellipsoid_probability,
+    erf_statement,
 )
 from rulkit.estimation.kalman import ExtendedKalmanFilter
 from rulkit.models import friction_drive as fd
@@ -826,14 +831,6 @@ def run_study(
 def _state_check_from_run(err: FloatArray, Pdiag: FloatArray, nees: FloatArray,
                           c: float = 3.0, level: float = 0.95) -> StateErrorCheck:
     """:class:`StateErrorCheck` from a per-step NEES series and the diagonal of P."""
-    from rulkit.estimation.consistency import (
-        bounds_coverage,
-        chebyshev_ellipsoid_bound,
-        chi2_interval,
-        ellipsoid_probability,
-        erf_statement,
-    )
-
     n = err.shape[1]
     lo, hi = chi2_interval(n, err.shape[0], level)
     mean_nees = float(np.nanmean(nees))
