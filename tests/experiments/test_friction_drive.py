@@ -6,17 +6,10 @@ import numpy as np
 import pytest
 
 from rulkit.experiments import friction_drive as E
-from rulkit.experiments.friction_drive_blas import blas_threads
 from rulkit.models import friction_drive as fd
 
 HOUR = 3600.0
 
-
-@pytest.fixture(autouse=True)
-def _one_blas_thread():
-    """Small batched expm calls are ~10x slower with OpenBLAS threads on a shared machine."""
-    with blas_threads(1):
-        yield
 REST = np.array([[0.0, 0.0, 10.0, 0.01]])
 
 

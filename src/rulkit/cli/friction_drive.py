@@ -33,7 +33,6 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     ) -> None:
         """Augmented EKF on the roller-on-tire drive, consistency, observability, MC RUL."""
         from rulkit.experiments.friction_drive import run_study
-        from rulkit.experiments.friction_drive_blas import blas_threads
         from rulkit.experiments.friction_drive_report import tables, write_report
 
         n_runs = runs if runs is not None else (1 if quick else 5)
@@ -43,12 +42,11 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             + f" --runs {n_runs} --seed {seed} --n-rul {n_rul} --duration {duration:g}"
         )
         typer.echo(f"friction-drive: {n_runs} run(s) per filter/scenario, seed {seed} ...")
-        with blas_threads(1):
-            res = run_study(
-                n_runs=n_runs, seed=seed, n_rul=n_rul, duration=duration,
-                n_validate=3 if quick else 10,
-            )
-            rep = write_report(res, out, command=cmd)
+        res = run_study(
+            n_runs=n_runs, seed=seed, n_rul=n_rul, duration=duration,
+            n_validate=3 if quick else 10,
+        )
+        rep = write_report(res, out, command=cmd)
         tabs = tables(res)
         cols = ["config", "N", "fit_mean_h", "fit_std_h", "median_h", "frac_censored",
                 "lsoda_check_max_abs_h"]

@@ -44,7 +44,9 @@ def check_covariance(cov: np.ndarray, n: int, name: str) -> FloatArray:
         raise ValueError(f"{name}: not symmetric")
     eig = np.linalg.eigvalsh(c)
     if eig.min() < -1e-12 * max(1.0, abs(eig.max())):
-        raise ValueError(f"{name}: not positive semi-definite (smallest eigenvalue {eig.min():.3g})")
+        raise ValueError(
+            f"{name}: not positive semi-definite (smallest eigenvalue {eig.min():.3g})"
+        )
     return c
 
 
@@ -85,7 +87,7 @@ def _psd_sqrt(c: FloatArray) -> FloatArray:
 
 
 class StateSpaceModel(ABC):
-    """Vectorised state-space model: ``x_{k+1} = step(x_k, u_k, t_k, dt, rng)``, ``y = output(x, u)``.
+    """Vectorised state-space model: ``x_{k+1} = step(x_k, u_k, t_k, dt, rng)``, ``y = output(x)``.
 
     Subclasses set ``state_names``, ``input_names`` and ``output_names`` and implement
     :meth:`step` (which adds process noise when ``rng`` is given and is deterministic when
