@@ -81,16 +81,16 @@ class Step2Settings:
     synthetic T^ error.
     """
 
-    n_particles: int = 250
+    n_particles: int = 150
     q_b: float = 0.2
     q_beta0_rel: float = 0.002
     b_prior: tuple[float, float] = (10.0, 80.0)
     beta0_prior_rel: tuple[float, float] = (0.5, 2.0)
     noise_rel: float = 0.01
     ess_threshold: float = 0.5
-    n_nodes: int = 5
+    n_nodes: int = 4
     horizon_days: float = 90.0
-    hold_samples: int = 20
+    hold_samples: int = 40
 
     @property
     def n_windows(self) -> int:
@@ -257,7 +257,7 @@ def _k_normalise(r, logw, w):  # pragma: no cover - compiled
         if logw[r, p] > mx:
             mx = logw[r, p]
     if not np.isfinite(mx):
-        raise FloatingPointError("degenerate weights (all -inf or NaN)")
+        return -1.0  # degenerate: all -inf or NaN (the caller raises, naming the unit)
     acc = 0.0
     for p in range(N):
         acc += np.exp(logw[r, p] - mx)
@@ -311,15 +311,15 @@ def _k_est(x, r, w):  # pragma: no cover - compiled
     return m, np.sqrt(max(v, 0.0))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_beta, thr,
                 b, beta, logw, eps, unif, bm, bsd, em, esd, nres):  # pragma: no cover
     U, N = b.shape
-    w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-    idx = np.empty(N, np.int64)
-    for k in range(k0, k1):
-        i = k - koff
-        for r in range(U):
+    for r in numba.prange(U):
+        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
+        idx = np.empty(N, np.int64)
+        for k in range(k0, k1):
+            i = k - koff
             for p in range(N):
                 bb = b[r, p] + q_b * eps[r, i, p, 0]
                 b[r, p] = bb
@@ -329,6 +329,9 @@ def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_bet
                 z = (y[r, k] - mu) / sigma_y
                 logw[r, p] -= 0.5 * z * z
             ess = _k_normalise(r, logw, w)
+            if ess < 0:
+                nres[r] = -1
+                break
             bm[r, k], bsd[r, k] = _k_est(b, r, w)
             em[r, k], esd[r, k] = _k_est(beta, r, w)
             if ess < thr * N:
@@ -336,15 +339,15 @@ def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_bet
                 nres[r] += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _k_pf1(k0, k1, koff, dlny, sd, ok, qc, qs, qn, qw, lcount, q_b, thr, b, logw, eps, unif,
            bm, bsd, nres):  # pragma: no cover
     U, N = b.shape
-    w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-    idx = np.empty(N, np.int64)
-    for k in range(k0, k1):
-        i = k - koff
-        for r in range(U):
+    for r in numba.prange(U):
+        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
+        idx = np.empty(N, np.int64)
+        for k in range(k0, k1):
+            i = k - koff
             for p in range(N):
                 bb = b[r, p] + q_b * eps[r, i, p, 0]
                 b[r, p] = bb
@@ -355,42 +358,48 @@ def _k_pf1(k0, k1, koff, dlny, sd, ok, qc, qs, qn, qw, lcount, q_b, thr, b, logw
                     z = (dlny[r, k] - pred) / sd[r, k]
                     logw[r, p] -= 0.5 * z * z
             ess = _k_normalise(r, logw, w)
+            if ess < 0:
+                nres[r] = -1
+                break
             bm[r, k], bsd[r, k] = _k_est(b, r, w)
             if ess < thr * N:
                 _k_resample(r, logw, w, unif[r, i], b, b, b, 1, c, idx, tmp)
                 nres[r] += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _k_pf2(k0, k1, koff, y, H, sigma_y, q_beta, thr, beta, logw, eps, unif, em, esd, nres
            ):  # pragma: no cover
     U, N = beta.shape
-    w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-    idx = np.empty(N, np.int64)
-    for k in range(k0, k1):
-        i = k - koff
-        for r in range(U):
+    for r in numba.prange(U):
+        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
+        idx = np.empty(N, np.int64)
+        for k in range(k0, k1):
+            i = k - koff
             for p in range(N):
                 be = abs(beta[r, p] + q_beta * eps[r, i, p, 0])
                 beta[r, p] = be
                 z = (y[r, k] - be * H[r, k]) / sigma_y
                 logw[r, p] -= 0.5 * z * z
             ess = _k_normalise(r, logw, w)
+            if ess < 0:
+                nres[r] = -1
+                break
             em[r, k], esd[r, k] = _k_est(beta, r, w)
             if ess < thr * N:
                 _k_resample(r, logw, w, unif[r, i], beta, beta, beta, 1, c, idx, tmp)
                 nres[r] += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, P, logw, eps,
             unif, bm, bsd, em, esd, nres):  # pragma: no cover
     U, N = b.shape
-    w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-    idx = np.empty(N, np.int64)
-    for k in range(k0, k1):
-        i = k - koff
-        for r in range(U):
+    for r in numba.prange(U):
+        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
+        idx = np.empty(N, np.int64)
+        for k in range(k0, k1):
+            i = k - koff
             for p in range(N):
                 bb = b[r, p] + q_b * eps[r, i, p, 0]
                 b[r, p] = bb
@@ -403,6 +412,9 @@ def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, 
                 m[r, p] += K * nu
                 P[r, p] = (1.0 - K * H) * Pp
             ess = _k_normalise(r, logw, w)
+            if ess < 0:
+                nres[r] = -1
+                break
             bm[r, k], bsd[r, k] = _k_est(b, r, w)
             mm = 0.0
             for p in range(N):
@@ -415,6 +427,12 @@ def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, 
             if ess < thr * N:
                 _k_resample(r, logw, w, unif[r, i], b, m, P, 3, c, idx, tmp)
                 nres[r] += 1
+
+
+def _check_degenerate(nres: NDArray[np.int64], label: str) -> None:
+    bad = np.flatnonzero(nres < 0)
+    if bad.size:
+        raise FloatingPointError(f"{label}: degenerate weights in unit {int(bad[0])}")
 
 
 def _quad_arrays(quad: WindowQuadrature) -> tuple[FloatArray, ...]:
@@ -477,6 +495,7 @@ def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
             _k_one_step(a, e, koff, y, *qa, lcount, SAMPLE_DT, sigma_y, qb, qbeta, thr, b, beta,
                         logw, eps, unif, out.b_mean, out.b_std, out.beta0_mean, out.beta0_std,
                         nres)
+            _check_degenerate(nres, "one-step PF")
         else:
             for k in range(a, e):
                 ek = eps[:, k - koff]
@@ -538,6 +557,7 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
         if backend == "numba":
             _k_pf1(a, e, koff, dlny, sd, ok, *qa, lcount, settings.q_b, thr, b, logw, eps, unif,
                    out.b_mean, out.b_std, nres)
+            _check_degenerate(nres, "two-step PF1")
         else:
             for k in range(a, e):
                 b += settings.q_b * eps[:, k - koff, :, 0]
@@ -567,6 +587,7 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
         if backend == "numba":
             _k_pf2(a, e, koff, y, H, sigma_y, qbeta, thr, beta, logw, eps, unif,
                    out.beta0_mean, out.beta0_std, nres)
+            _check_degenerate(nres, "two-step PF2")
         else:
             for k in range(a, e):
                 beta[:] = np.abs(beta + qbeta * eps[:, k - koff, :, 0])
@@ -626,6 +647,7 @@ def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Step2S
         if backend == "numba":
             _k_rbpf(a, e, koff, y, *qa, lcount, SAMPLE_DT, R, settings.q_b, q2, thr, b, m, P,
                     logw, eps, unif, out.b_mean, out.b_std, out.beta0_mean, out.beta0_std, nres)
+            _check_degenerate(nres, "RB-PF")
         else:
             for k in range(a, e):
                 b += settings.q_b * eps[:, k - koff, :, 0]
@@ -907,7 +929,7 @@ STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive"}
 
 def measure_step1_errors(source: str, n_runs: int, seed: int, *, n_particles: int = 200,
                          noise: str = "low", burn_in_s: float = 100.0,
-                         hold_samples: int = 20) -> EstimateErrorProcess:
+                         hold_samples: int = 40) -> EstimateErrorProcess:
     """Fit the T^ error process to real step-1 runs on the Table 3 path (spec §2, §4).
 
     Runs the step-1 estimator (``rulkit.experiments.rw_step1.run_step1``, variant
@@ -1045,7 +1067,7 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
 SENSITIVITY: tuple[tuple[str, str, tuple[float, ...]], ...] = (
     ("measurement noise (fraction of window loss)", "noise_rel", (0.003, 0.01, 0.03)),
     ("random-walk step of b per window (C)", "q_b", (0.05, 0.2, 0.5)),
-    ("particles", "n_particles", (100, 250, 500)),
+    ("particles", "n_particles", (75, 150, 300)),
     ("T^ error std (x measured)", "error.std_scale", (0.0, 0.5, 1.0, 2.0)),
     ("T^ error correlation time (x measured)", "error.tau_scale", (0.25, 1.0, 4.0)),
 )

@@ -440,7 +440,7 @@ class EstimateErrorProcess:
 
     ``e_i = bias + d_i``, ``d_i = rho d_{i-1} + std sqrt(1 - rho^2) eta_i`` with
     ``rho = exp(-hold_s / tau_s)``; the value is held for ``hold_samples`` 0.05 s samples (a
-    step-1 estimate changes little within 1 s; the sample-to-sample jitter only adds a
+    step-1 estimate changes little within 2 s; the sample-to-sample jitter only adds a
     negligible convexity bias to window sums and is reported as ``white_std``, not simulated).
     The statistics come from measured step-1 runs (:func:`fit_error_process`); ``source`` says
     where they came from.
@@ -449,7 +449,7 @@ class EstimateErrorProcess:
     bias_c: float = 0.0
     std_c: float = 0.5
     tau_s: float = 60.0
-    hold_samples: int = 20
+    hold_samples: int = 40
     white_std_c: float = 0.0
     source: str = "placeholder [R] (not measured)"
 
@@ -484,18 +484,24 @@ class EstimateErrorProcess:
 
 
 def _ar1(innovations: FloatArray, rho: float, d0: FloatArray) -> FloatArray:
-    """``d_i = rho d_{i-1} + innovations_i`` along the last axis, starting from ``d_{-1} = d0``.
+    """``d_i = rho d_{i-1} + innovations_i`` along the last axis, starting from ``d_{-1} = d0``."""
+    return _ar1_kernel(np.ascontiguousarray(innovations), float(rho),
+                       np.ascontiguousarray(d0, dtype=np.float64))
 
-    scipy.signal.lfilter (a compiled IIR filter) with the initial condition ``rho d0``.
-    """
-    from scipy.signal import lfilter
 
-    zi = (rho * d0)[:, None]
-    out, _ = lfilter([1.0], [1.0, -rho], innovations, axis=-1, zi=zi)
+@numba.njit(cache=True)
+def _ar1_kernel(innov: FloatArray, rho: float, d0: FloatArray) -> FloatArray:  # pragma: no cover
+    R, n = innov.shape
+    out = np.empty((R, n))
+    for r in range(R):
+        d = d0[r]
+        for i in range(n):
+            d = rho * d + innov[r, i]
+            out[r, i] = d
     return out
 
 
-def fit_error_process(errors: FloatArray, *, hold_samples: int = 20, dt: float = SAMPLE_DT,
+def fit_error_process(errors: FloatArray, *, hold_samples: int = 40, dt: float = SAMPLE_DT,
                       source: str = "measured") -> EstimateErrorProcess:
     """Fit :class:`EstimateErrorProcess` to step-1 errors ``T^ - T``, shape (R, n) at ``dt``.
 
