@@ -31,6 +31,12 @@ def run_seeds(seed: int, n_runs: int) -> list[np.random.SeedSequence]:
     return np.random.SeedSequence(seed).spawn(n_runs)
 
 
+def sample_task(task: Any, rng: np.random.Generator) -> Any:
+    """A tiny picklable run function (``task`` = number of normals to draw): for smoke tests
+    of the execution paths and for checking a cluster (``rng.standard_normal(task)``)."""
+    return rng.standard_normal(int(task))
+
+
 def _call(fn: Callable[[Any, np.random.Generator], R], task: Any, ss: np.random.SeedSequence) -> R:
     return fn(task, np.random.default_rng(ss))
 

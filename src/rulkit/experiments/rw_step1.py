@@ -291,11 +291,9 @@ def run_step1_numpy(
 
     def apf_eq28(logw: FloatArray, ll: FloatArray, state: Any) -> FloatArray:
         """Seed 001 eq. 28 with clipping of negative weights (spec section 3)."""
-        c = cfg.apf_c0 / (cfg.apf_c0 - V[state.k])  # V[k-1], k = state.k + 1
-        beta = 1.0 / N - state.weights * np.exp(ll)
-        wt = 1.0 - np.exp(c * (beta - cfg.apf_c1 * np.sign(beta)))
-        state.info["n_clipped"] = int(np.count_nonzero(wt < 0))
-        wt = np.maximum(wt, 0.0)
+        # V[k-1] with k = state.k + 1
+        wt, state.info["n_clipped"] = apf_eq28_weights(state.weights, np.exp(ll), V[state.k],
+                                                       cfg.apf_c0, cfg.apf_c1)
         if not wt.sum() > 0:
             return logw + ll
         with np.errstate(divide="ignore"):
@@ -364,6 +362,22 @@ def run_step1_numpy(
     tt = t0 + dt * np.arange(K)
     return Step1Result(tt, out["mean"], out["std"], out["qlo"], out["qhi"], out["ess"], act,
                        clip, gam, lls, config=cfg)
+
+
+def apf_eq28_weights(
+    w_prev: FloatArray, p: FloatArray, V_comm: float, c0: float = 10.0, c1: float = 0.6
+) -> tuple[FloatArray, int]:
+    """Seed 001 eq. 28 as printed, made usable (spec section 3): returns the clipped,
+    unnormalised weights ``max(0, 1 - exp(c (beta - c1 sign beta)))`` with ``c = c0 / (c0 -
+    V_comm)``, ``beta = 1/N - w_prev p`` (``p`` the likelihood pdf values), and the number of
+    clipped (negative) weights. The printed rule maps weights into (1 - e^{c(1/N - c1)}, 1):
+    it compresses rather than amplifies, and is negative for -c1 < beta < 0."""
+    n = w_prev.size
+    c = c0 / (c0 - V_comm)
+    beta = 1.0 / n - w_prev * p
+    wt = 1.0 - np.exp(c * (beta - c1 * np.sign(beta)))
+    clipped = int(np.count_nonzero(wt < 0))
+    return np.maximum(wt, 0.0), clipped
 
 
 def _logsumexp_np(a: FloatArray) -> float:
@@ -698,7 +712,9 @@ def estimate_temperature(
             {"time_s": t, "T_mean": m, "T_lo": m - z * s, "T_hi": m + z * s}
         )
     if method not in kern.VARIANTS:
-        raise ValueError(f"method: expected 'ekf' or one of {sorted(kern.VARIANTS)}, got {method!r}")
+        raise ValueError(
+            f"method: expected 'ekf' or one of {sorted(kern.VARIANTS)}, got {method!r}"
+        )
     if rng is None:
         raise ValueError("a particle-filter method needs rng (a numpy.random.Generator)")
     q = (0.5 - level / 2, 0.5 + level / 2)
@@ -725,6 +741,7 @@ def plot_temperature_estimates(
     variants: Sequence[str] = ("pf", "adaptive", "apf_eq28"),
     with_ekf: bool = True,
     fmt: str = "png",
+    t_end: float = 500.0,
 ) -> list[Path]:
     """One figure per estimator (like seed 001 Figs 9, 10, 11): (a) low and (b) high noise,
     estimate, 95 % interval (weighted particle quantiles), truth on the Table 3 path, and the
@@ -737,7 +754,7 @@ def plot_temperature_estimates(
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    datas = {nz: simulate_table3(_data_rng(seed, nz, 0), nz) for nz in _NOISES}
+    datas = {nz: simulate_table3(_data_rng(seed, nz, 0), nz, t_end=t_end) for nz in _NOISES}
     ekfs = {}
     if with_ekf:
         for nz, d in datas.items():
