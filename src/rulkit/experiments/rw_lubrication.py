@@ -10,6 +10,7 @@ beside the paper's and listing every choice made where the seeds are silent.
 from __future__ import annotations
 
 import json
+import pickle
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -184,10 +185,11 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
 
     rep = Reproduction(cfg, table5, errors, t6, s3.table, s3, validation, sens, files, timings,
                        notes)
+    files += [out / "report.md", out / "settings.json", out / "reproduction.pkl"]
     (out / "report.md").write_text(render_report(rep))
-    files.append(out / "report.md")
     (out / "settings.json").write_text(json.dumps(_jsonable(cfg), indent=2))
-    files.append(out / "settings.json")
+    with open(out / "reproduction.pkl", "wb") as fh:  # re-render report.md without re-running
+        pickle.dump(rep, fh)
     return rep
 
 
