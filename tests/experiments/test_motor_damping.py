@@ -246,15 +246,21 @@ def test_runs_reproducible_from_seed_and_independent_of_chunking() -> None:
     assert not np.allclose(a[1], c[1], rtol=1e-6)
 
 
-def test_micro_ekf_matches_engine_extended_kalman_filter(life) -> None:
-    """Oracle: the engine's EKF class with finite-difference Jacobians on the same model."""
+@pytest.mark.parametrize("missing", [False, True])
+def test_micro_ekf_matches_engine_extended_kalman_filter(life, missing) -> None:
+    """Oracle: the engine's EKF class with finite-difference Jacobians on the same model; with
+    ``missing``, NaN measurements inside a cycle are skipped by both (not NaN-poisoned)."""
     from rulkit.estimation.kalman import ExtendedKalmanFilter
     from rulkit.models.dc_motor import measurement, rk4_step_with_jacobian
 
     consts = life.config.consts
     s = MicroEKFSettings()
     sl = slice(60, 63)
-    cur, sp, acc = life.current[sl], life.speed[sl], life.acceleration[sl]
+    cur, sp, acc = life.current[sl], life.speed[sl].copy(), life.acceleration[sl].copy()
+    if missing:
+        sp[0, 100] = np.nan
+        acc[1, 200:205] = np.nan
+        sp[2, -1] = np.nan
     dt = life.config.dt
     ekf = ExtendedKalmanFilter(
         lambda x, u, k: rk4_step_with_jacobian(x, u[:, 0], u[:, 1], dt, consts)[0],
@@ -269,3 +275,35 @@ def test_micro_ekf_matches_engine_extended_kalman_filter(life) -> None:
     ours = micro_ekf(life.time, cur, sp, acc, consts, s)
     np.testing.assert_allclose(ours.c, ref.x[-1, :, 1], rtol=1e-6)
     np.testing.assert_allclose(ours.c_var, ref.P[-1, :, 1, 1], rtol=1e-3)
+    np.testing.assert_allclose(ours.mean_nis, np.nanmean(ref.nis, axis=0), rtol=1e-4)
+    assert ref.skipped.sum() == (7 if missing else 0)
+
+
+def test_micro_ekf_refuses_input_that_would_poison_the_state(life) -> None:
+    consts = life.config.consts
+    t = np.tile(life.time, (2, 1))
+    cur, sp, acc = life.current[:2].copy(), life.speed[:2].copy(), life.acceleration[:2].copy()
+
+    def run(t_=t, cur_=cur, sp_=sp, acc_=acc):
+        return micro_ekf(t_, cur_, sp_, acc_, consts)
+
+    bad_t = t.copy()
+    bad_t[1, 50] = bad_t[1, 49]
+    with pytest.raises(ValueError, match=r"unit 1 does not increase at sample 50"):
+        run(t_=bad_t)
+    gap = t.copy()
+    gap[0, 10] = np.nan
+    with pytest.raises(ValueError, match=r"unit 0 is valid again at sample 11"):
+        run(t_=gap)
+    bad_i = cur.copy()
+    bad_i[1, 7] = np.nan
+    with pytest.raises(ValueError, match=r"current of unit 1 is nan at sample 7"):
+        run(cur_=bad_i)
+    inf_a = acc.copy()
+    inf_a[0, 3] = np.inf
+    with pytest.raises(ValueError, match=r"acceleration of unit 0 is infinite at sample 3"):
+        run(acc_=inf_a)
+    nan0 = sp.copy()
+    nan0[1, 0] = np.nan
+    with pytest.raises(ValueError, match=r"speed of unit 1 is nan at sample 0"):
+        run(sp_=nan0)

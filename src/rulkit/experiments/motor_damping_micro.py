@@ -12,11 +12,16 @@ Two discretisations (motor-damping.md, "Micro EKF"):
   the acceleration predicted from the previous state (:func:`measurement_seed_lagged`).
 
 The prediction step uses the model's analytic Jacobian (``P <- F P F^T + Q``); the update is the
-Joseph form with the nonlinear predicted measurement. By default it is :func:`_joseph_update`, a
-lean batched copy without per-call validation (the engine's :func:`kf_update` validates shapes,
-symmetry and definiteness on every call, which is half the cost at 700 steps per cycle);
-``reference=True`` uses the engine's :func:`rulkit.estimation.kalman.kf_update` instead, and the
-tests check that both give the same numbers.
+Joseph form with the nonlinear predicted measurement: the engine's unchecked update core
+(``rulkit.estimation.kalman._update``, the body of :func:`~rulkit.estimation.kalman.kf_update`
+without its per-call validation of shapes, symmetry and definiteness, which is half the cost at
+700 steps per cycle; the inputs are validated once here). ``reference=True`` calls the
+validating :func:`~rulkit.estimation.kalman.kf_update` instead.
+
+Bad input: non-finite current at a sample of a cycle, infinite speed or acceleration, NaN
+padding that is not a tail, or a time that does not increase raise ``ValueError`` naming the
+unit (row) and sample. A NaN speed or acceleration at a valid sample is a missing measurement:
+that unit's update is skipped at that sample (prediction only), as in the engine's filters.
 """
 
 from __future__ import annotations
@@ -37,27 +42,6 @@ from rulkit.models.dc_motor import (
 FloatArray = NDArray[np.float64]
 
 __all__ = ["MicroEKFResult", "MicroEKFSettings", "micro_ekf"]
-
-
-def _joseph_update(
-    x: FloatArray, P: FloatArray, nu: FloatArray, H: FloatArray, R: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Joseph-form update for B units with innovation ``nu`` (B, m), Jacobian ``H`` (B, m, n),
-    noise ``R`` (m, m): ``K = P H^T S^-1`` by a linear solve, ``P = (I-KH) P (I-KH)^T + K R K^T``.
-    Returns ``(x, P, nis)``; no validation (inputs come from :func:`micro_ekf`)."""
-    n = x.shape[1]
-    HP = H @ P
-    S = HP @ H.transpose(0, 2, 1) + R
-    S = 0.5 * (S + S.transpose(0, 2, 1))
-    rhs = np.concatenate([nu[:, :, None], HP], axis=2)
-    sol = np.linalg.solve(S, rhs)
-    K = sol[:, :, 1:].transpose(0, 2, 1)
-    x_new = x + np.einsum("bij,bj->bi", K, nu)
-    IKH = np.eye(n) - K @ H
-    P_new = IKH @ P @ IKH.transpose(0, 2, 1) + K @ R @ K.transpose(0, 2, 1)
-    P_new = 0.5 * (P_new + P_new.transpose(0, 2, 1))
-    nis = np.einsum("bi,bi->b", nu, sol[:, :, 0])
-    return x_new, P_new, nis
 
 
 @dataclass(frozen=True)
@@ -107,6 +91,50 @@ class MicroEKFResult:
     p_hist: FloatArray | None = None
 
 
+def _check_inputs(
+    t: FloatArray, valid: NDArray[np.bool_], current: FloatArray, speed: FloatArray,
+    acc: FloatArray | None,
+) -> None:
+    """Refuse inputs that would silently turn the filter's state into NaN (module docstring)."""
+    if not valid[:, 0].all():
+        u = int(np.flatnonzero(~valid[:, 0])[0])
+        raise ValueError(f"micro_ekf: time of unit {u} is NaN at sample 0 (empty cycle)")
+    gap = ~valid[:, :-1] & valid[:, 1:]
+    if gap.any():
+        u, k = np.argwhere(gap)[0]
+        raise ValueError(
+            f"micro_ekf: time of unit {u} is valid again at sample {k + 1} after NaN; NaN "
+            f"padding must be a tail (samples after the cycle's last one)"
+        )
+    with np.errstate(invalid="ignore"):
+        back = valid[:, 1:] & ~(np.diff(t, axis=1) > 0)
+    if back.any():
+        u, k = np.argwhere(back)[0]
+        raise ValueError(
+            f"micro_ekf: time of unit {u} does not increase at sample {k + 1} "
+            f"({float(t[u, k])!r} -> {float(t[u, k + 1])!r})"
+        )
+    bad_i = valid & ~np.isfinite(current)
+    if bad_i.any():
+        u, k = np.argwhere(bad_i)[0]
+        raise ValueError(
+            f"micro_ekf: current of unit {u} is {float(current[u, k])!r} at sample {k} (the "
+            f"prediction needs a finite current at every sample)"
+        )
+    if not np.isfinite(speed[:, 0]).all():
+        u = int(np.flatnonzero(~np.isfinite(speed[:, 0]))[0])
+        raise ValueError(
+            f"micro_ekf: speed of unit {u} is {float(speed[u, 0])!r} at sample 0 (the filter starts "
+            f"from the first measured speed)"
+        )
+    for name, a in (("speed", speed), ("acceleration", acc)):
+        if a is not None and np.isinf(a).any():
+            u, k = np.argwhere(np.isinf(a))[0]
+            raise ValueError(
+                f"micro_ekf: {name} of unit {u} is infinite at sample {k} (NaN = missing)"
+            )
+
+
 def micro_ekf(
     time: np.ndarray,
     current: np.ndarray,
@@ -121,11 +149,13 @@ def micro_ekf(
     """Run the micro EKF over a batch of cycles (seed eqs. 2-3; motor-damping.md "Micro EKF").
 
     ``time`` (T,) shared or (B, T); ``current``, ``speed``, ``acceleration`` (B, T). NaN-padded
-    tails (time NaN) mark cycles shorter than T. ``acceleration=None`` (or
+    tails (time NaN) mark cycles shorter than T; a NaN speed/acceleration inside a cycle is a
+    missing measurement (skipped); other bad input raises ``ValueError`` (module docstring).
+    ``acceleration=None`` (or
     ``settings.use_acceleration=False``) uses the speed channel only. ``reference=True``: the
     engine's :func:`kf_update` for the update (same numbers, slower).
     """
-    from rulkit.estimation.kalman import kf_update
+    from rulkit.estimation.kalman import _update, kf_update
 
     s = settings or MicroEKFSettings()
     speed = np.atleast_2d(np.asarray(speed, dtype=np.float64))
@@ -139,6 +169,7 @@ def micro_ekf(
     if current.shape != (b, n_t) or t.shape != (b, n_t) or bad_acc:
         raise ValueError("micro_ekf: time/current/speed/acceleration must share shape (B, T)")
     valid = np.isfinite(t)
+    _check_inputs(t, valid, current, speed, acc)
 
     x = np.empty((b, 2))
     x[:, 0] = speed[:, 0]
@@ -175,13 +206,13 @@ def micro_ekf(
         y = np.where(ok[:, None], y, zp[:, :m])  # padded samples: no innovation
         if reference:
             xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m])
-            nis = inn.nis
         else:
-            xu, Pu, nis = _joseph_update(xp, Pp, y - zp[:, :m], H[:, :m, :], R)
+            xu, Pu, inn = _update(xp, Pp, y, H[:, :m, :], R, zp[:, :m])
         x = np.where(ok[:, None], xu, x)
         P = np.where(ok[:, None, None], Pu, P)
-        nis_sum += np.where(ok, nis, 0.0)
-        n_upd += ok
+        upd = ok & ~inn.skipped  # a NaN measurement is skipped (prediction only)
+        nis_sum += np.where(upd, inn.nis, 0.0)
+        n_upd += upd
         if keep_history:
             x_hist[k] = x
             p_hist[k] = P
