@@ -209,3 +209,16 @@ def test_truth_per_window_and_bad_inputs() -> None:
         run_case(CaseTask(1, "APF", (0,), 0, replace(st, horizon_days=0.05),
                           EstimateErrorProcess(), methods=("kalman",)))
     assert unit_rng(1, "rbpf", 1, 0, 2).random() == unit_rng(1, "rbpf", 1, 0, 2).random()
+
+
+def test_validate_shortcut_runs_the_real_step1_estimator() -> None:
+    from rulkit.experiments.rw_step2 import validate_shortcut
+
+    err = EstimateErrorProcess(bias_c=-1.0, std_c=0.5, tau_s=100.0)
+    v = validate_shortcut(err, "PF", hours=0.14, n_runs=1, seed=0,
+                          settings=Step2Settings(n_particles=30), n_particles_step1=30)
+    assert v.n_runs == 1 and v.rmspe_b_real["rbpf"].shape == (1,)
+    assert np.isfinite(v.window_error_std_real) and v.window_error_std_real > 0
+    assert np.isfinite(v.fitted_on_path.std_c) and "step-2 path" in v.fitted_on_path.source
+    for d in (v.rmspe_b_real, v.rmspe_b_synth):
+        assert set(d) == {"two_step", "rbpf"} and all(np.isfinite(x).all() for x in d.values())

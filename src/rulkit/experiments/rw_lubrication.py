@@ -350,6 +350,7 @@ def render_report(rep: Reproduction) -> str:
                  "varied at a time from the defaults below.\n")
         L.append(_md(rep.sensitivity[["setting", "value", "method", "rmspe_b", "rmspe_beta0"]])
                  + "\n")
+    L += _findings(rep)
     L.append("## Step 3: RUL (Table 7)\n")
     thr = rep.step3.thresholds
     L.append(f"Thresholds [R] set so the expected truth fails on day {st3.failure_day:g}: "
@@ -395,6 +396,48 @@ def render_report(rep: Reproduction) -> str:
     L.append("\n## Files\n")
     L += [f"- {p.name}" for p in rep.files]
     return "\n".join(L) + "\n"
+
+
+def _findings(rep: Reproduction) -> list[str]:
+    """Computed statements comparing our Table 6 with the paper's claims (no fixed prose)."""
+    L = ["### Reading Table 6\n"]
+    t6 = rep.table6.table.set_index("method")
+
+    def get(row: str, col: str) -> float:
+        try:
+            return float(t6.loc[row, col])
+        except KeyError:
+            return float("nan")
+
+    for s in (1, 2):
+        two = get("APF + two-step PF", f"S{s} b ours")
+        one = get("APF + one-step PF", f"S{s} b ours")
+        rb = get("APF + RB-PF (ours)", f"S{s} b ours")
+        p2, p1 = get("APF + two-step PF", f"S{s} b paper"), get("APF + one-step PF",
+                                                              f"S{s} b paper")
+        L.append(f"- Scenario {s}, RMSPE of b with the APF T^: two-step {two:.1f} %, one-step "
+                 f"{one:.1f} %, RB-PF {rb:.1f} % (paper: two-step {p2:.1f} %, one-step "
+                 f"{p1:.1f} %).")
+    for src, e in rep.errors.items():
+        L.append(f"- The measured {src} T^ error (bias {e.bias_c:+.2f} C, std {e.std_c:.2f} C, "
+                 f"correlation time {e.tau_s:.0f} s) is an error in the regressor 1/T of step 2: "
+                 "b is identified only through the change of 1/T between windows (spec section "
+                 "4), so a slow T^ error biases b (errors-in-variables attenuation) and a T^ bias "
+                 "rescales it by about (T^/T)^2.")
+    if rep.sensitivity is not None:
+        sv = rep.sensitivity
+        sel = sv[sv["setting"].str.startswith("T^ error std")]
+        for meth in sel["method"].unique():
+            r = sel[sel["method"] == meth].sort_values("value")
+            pairs = ", ".join(f"x{v:g}: {b:.1f} %" for v, b in zip(r["value"], r["rmspe_b"],
+                                                                    strict=True))
+            L.append(f"- Sensitivity, {meth}: RMSPE of b against the T^ error std scale "
+                     f"({pairs}).")
+    L.append("- The spec notes that an unoptimised attempt gave 10-25 % RMSPE of b for both "
+             "methods while the seeds claim about 4 % (two-step) vs 137 % (one-step); the "
+             "numbers above are what this implementation measures under the settings listed "
+             "below, not tuned towards either.\n")
+    return L
 
 
 def with_overrides(cfg: ReproductionConfig, **kw: Any) -> ReproductionConfig:
