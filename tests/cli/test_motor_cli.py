@@ -70,6 +70,42 @@ def test_motor_damping_bad_file_gives_specific_error(pullup_csv, tmp_path: Path)
     assert res.exit_code == 2 and "file not found" in res.output
 
 
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--mc-samples", "0"], "--mc-samples: expected >= 1, got 0"),
+        (["--sigma-w", "0"], "--sigma-w: expected a positive finite number, got 0.0"),
+        (["--j", "-3e-3"], "--j: expected a positive finite number, got -0.003"),
+        (["--q-a", "-1"], "--q-a: expected a finite number >= 0, got -1.0"),
+        (["--min-samples", "2"], "--min-samples: expected >= 3, got 2"),
+    ],
+)
+def test_motor_damping_bad_options_named_by_flag(pullup_csv, options, message) -> None:
+    path, _ = pullup_csv
+    res = runner.invoke(app, ["motor", "damping", str(path), *options])
+    assert res.exit_code == 2
+    assert message in " ".join(res.output.split())
+
+
+def test_motor_damping_help_shows_units() -> None:
+    # units in square brackets were swallowed as rich markup ("Inertia J ." in the help)
+    res = runner.invoke(app, ["motor", "damping", "--help"])
+    text = " ".join(res.output.split())
+    for unit in ("(kg m^2)", "(rad/s)", "(N m/A)", "(rad/s^2;"):
+        assert unit in text, unit
+
+
+def test_analyse_pullup_refuses_non_positive_noise(pullup_csv) -> None:
+    from rulkit.data.pullup import read_pullup
+    from rulkit.experiments.motor_damping_analysis import analyse_pullup
+
+    data = read_pullup(pullup_csv[0])
+    with pytest.raises(ValueError, match="sigma_w: expected a positive finite value"):
+        analyse_pullup(data, sigma_w=0.0, mc_samples=10)
+    with pytest.raises(ValueError, match="mc_samples: expected a positive integer"):
+        analyse_pullup(data, mc_samples=0)
+
+
 def test_reproduce_motor_damping_help_lists_options() -> None:
     res = runner.invoke(app, ["reproduce", "motor-damping", "--help"])
     assert res.exit_code == 0

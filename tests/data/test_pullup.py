@@ -159,3 +159,12 @@ def test_noise_sd_estimate() -> None:
     assert estimate_noise_sd(x) == pytest.approx(0.05, rel=0.05)
     with pytest.raises(ValueError, match="fewer than 3"):
         estimate_noise_sd(np.array([1.0, 2.0]))
+
+
+def test_min_samples_below_three_refused(tmp_path: Path) -> None:
+    from rulkit.data import pullup
+
+    # np.gradient(edge_order=2) needs 3 samples: refused up front with the option named
+    with pytest.raises(ValueError, match="min_samples: expected an integer >= 3"):
+        pullup.from_frame(pd.DataFrame({"cycle": [1], "time": [0.0], "current": [1.0],
+                                 "speed": [0.0]}), min_samples=2)

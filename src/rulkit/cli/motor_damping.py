@@ -185,17 +185,21 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     def _damping(
         file: Annotated[Path, typer.Argument(help="CSV or Parquet: cycle, time, current, "
                                              "speed[, acceleration].")],
-        out: Annotated[Path | None, typer.Option(help="Write the per-cycle CSV here.")] = None,
-        k: Annotated[float | None, typer.Option("--k", help="Torque constant K [N m/A].")] = None,
-        j: Annotated[float | None, typer.Option("--j", help="Inertia J [kg m^2].")] = None,
-        tl: Annotated[float | None, typer.Option("--tl", help="Load torque T_L [N m].")] = None,
-        design_speed: Annotated[float, typer.Option(help="Design point speed [rad/s].")] = 300.0,
-        design_torque: Annotated[float, typer.Option(help="Design point torque [N m].")] = 16e-3,
-        c_fail: Annotated[float | None, typer.Option(help="Failure damping (overrides the "
-                                                         "design point).")] = None,
-        sigma_w: Annotated[float | None, typer.Option(help="Speed noise sd [rad/s].")] = None,
-        sigma_dw: Annotated[float | None, typer.Option(help="Acceleration noise sd.")] = None,
-        q_a: Annotated[float, typer.Option(help="Slope random-walk density (0: linear).")] = 0.0,
+        out: Annotated[Path | None, typer.Option(
+            help="Directory for damping_per_cycle.csv and rul_last_cycle.json.")] = None,
+        k: Annotated[float | None, typer.Option("--k", help="Torque constant K (N m/A).")] = None,
+        j: Annotated[float | None, typer.Option("--j", help="Inertia J (kg m^2).")] = None,
+        tl: Annotated[float | None, typer.Option("--tl", help="Load torque T_L (N m).")] = None,
+        design_speed: Annotated[float, typer.Option(help="Design point speed (rad/s).")] = 300.0,
+        design_torque: Annotated[float, typer.Option(help="Design point torque (N m).")] = 16e-3,
+        c_fail: Annotated[float | None, typer.Option(help="Failure damping (N m s; overrides "
+                                                         "the design point).")] = None,
+        sigma_w: Annotated[float | None, typer.Option(
+            help="Speed noise sd (rad/s; default: estimated).")] = None,
+        sigma_dw: Annotated[float | None, typer.Option(
+            help="Acceleration noise sd (rad/s^2; default: estimated).")] = None,
+        q_a: Annotated[float, typer.Option(
+            help="Slope random-walk density (N^2 m^2 s^2 per cycle^3; 0: linear law).")] = 0.0,
         mc_samples: Annotated[int, typer.Option(help="Monte Carlo RUL samples.")] = 2000,
         seed: Annotated[int, typer.Option(help="Seed of the Monte Carlo RUL.")] = 0,
         min_samples: Annotated[int, typer.Option(help="Fewest samples per cycle.")] = 20,
@@ -206,6 +210,22 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
 
         from rulkit.data.pullup import PullupDataError
 
+        err_console = Console(stderr=True, soft_wrap=True)
+        problems = [
+            f"{flag}: expected a positive finite number, got {v!r}"
+            for flag, v in (("--k", k), ("--j", j), ("--c-fail", c_fail), ("--sigma-w", sigma_w),
+                            ("--sigma-dw", sigma_dw), ("--design-speed", design_speed))
+            if v is not None and not (math.isfinite(v) and v > 0)
+        ]
+        if not (math.isfinite(q_a) and q_a >= 0):
+            problems.append(f"--q-a: expected a finite number >= 0, got {q_a!r}")
+        if mc_samples < 1:
+            problems.append(f"--mc-samples: expected >= 1, got {mc_samples}")
+        if min_samples < 3:
+            problems.append(f"--min-samples: expected >= 3, got {min_samples}")
+        if problems:
+            err_console.print(f"[red]error:[/red] {escape('; '.join(problems))}", highlight=False)
+            raise typer.Exit(code=2)
         try:
             analyse_file(
                 file, out, K=k, J=j, T_L=tl, design_speed=design_speed,
@@ -214,7 +234,5 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 min_samples=min_samples,
             )
         except (PullupDataError, ValueError) as err:
-            Console(stderr=True, soft_wrap=True).print(
-                f"[red]error:[/red] {escape(str(err))}", highlight=False
-            )
+            err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
             raise typer.Exit(code=2) from None

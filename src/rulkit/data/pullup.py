@@ -110,6 +110,11 @@ def from_frame(df, *, source: str = "", min_samples: int = 20) -> PullupData:
     import pandas as pd
 
     where = f"{source}: " if source else ""
+    if isinstance(min_samples, bool) or int(min_samples) != min_samples or min_samples < 3:
+        raise ValueError(
+            f"min_samples: expected an integer >= 3 (the derived acceleration needs 3 samples "
+            f"per cycle), got {min_samples!r}"
+        )
     cols = {str(c).strip().lower(): c for c in df.columns}
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:

@@ -75,10 +75,23 @@ def analyse_pullup(
     Motor constants default to :class:`MotorConstants` (the synthetic motor: pass your own).
     ``c_fail`` defaults to the design-point algebra with the steady current measured in the
     file. Noise sds default to robust estimates from the data (second differences,
-    :func:`estimate_noise_sd`). ``q_a``: slope random-walk density (0: the seed's linear law).
+    :func:`estimate_noise_sd`; an estimate of 0, from a noise-free channel, is raised to 1e-6 to
+    keep the filter well posed); given values must be positive (``ValueError`` otherwise, as for
+    ``mc_samples`` < 1). ``q_a``: slope random-walk density (0: the seed's linear law).
     """
     import pandas as pd
 
+    for name, v in (("sigma_w", sigma_w), ("sigma_dw", sigma_dw), ("c_fail", c_fail),
+                    ("i_steady", i_steady)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name}: expected a positive finite value, got {v!r}")
+    if isinstance(mc_samples, bool) or int(mc_samples) != mc_samples or mc_samples < 1:
+        raise ValueError(f"mc_samples: expected a positive integer, got {mc_samples!r}")
+    if not (np.isfinite(horizon) and horizon > 0):
+        raise ValueError(f"horizon: expected a positive number of cycles, got {horizon!r}")
+    if int(n_min) != n_min or n_min < 3:
+        raise ValueError(f"n_min: expected an integer >= 3 (the scatter needs a residual), "
+                         f"got {n_min!r}")
     consts = consts or MotorConstants()
     rng = rng or np.random.default_rng(0)
     i_s = steady_current(data) if i_steady is None else float(i_steady)
