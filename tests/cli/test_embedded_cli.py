@@ -139,3 +139,27 @@ def test_reproduce_embedded_rul(tmp_path):
     text = (out / "report.md").read_text()
     assert "rulkit reproduce embedded-rul --no-figures --no-false-alarms" in text
     assert (out / "sensitivity.csv").exists()
+
+
+def test_component_names_with_brackets_shown_verbatim(tmp_path):
+    # rich markup swallowed "[left]" / "[bold]" in alerts and in the status table
+    db = tmp_path / "b.db"
+    csv = fleet_csv(tmp_path / "b.csv", 0, 120,
+                    comps=(("gear[left]", 0.3), ("brg[bold]", 0.5)))
+    r = runner.invoke(app, ["track", "--db", str(db), str(csv), "--warn-rul", "1000"])
+    assert r.exit_code == 0, r.output
+    assert "gear[left]" in r.output and "brg[bold]" in r.output  # alert lines
+    r = runner.invoke(app, ["status", "--db", str(db)])
+    assert r.exit_code == 0, r.output
+    assert "gear[left]" in r.output and "brg[bold]" in r.output
+
+
+def test_file_errors_name_the_file_once(tmp_path):
+    db = tmp_path / "c.db"
+    for name, content in (("empty.csv", ""), ("absent.csv", None)):
+        path = tmp_path / name
+        if content is not None:
+            path.write_text(content)
+        r = runner.invoke(app, ["track", "--db", str(db), str(path)])
+        assert r.exit_code == 1
+        assert " ".join(r.output.split()).count(name) == 1, r.output

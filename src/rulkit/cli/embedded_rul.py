@@ -116,9 +116,13 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         try:
             res = store.ingest_file(acquisitions)
         except IngestError as err:
-            _fail(f"{acquisitions}: {err} (nothing was written to {db})")
+            msg = str(err)  # file-level errors already start with the path
+            where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "
+            _fail(f"{where}{msg} (nothing was written to {db})")
         finally:
             store.close()
+        from rich.markup import escape
+
         console = Console(highlight=False)
         console.print(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
                       f"({res.n_new_components} new) into {db}")
@@ -127,9 +131,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         for a in res.alerts:
             style = "bold red" if a.name == "alarm" else "yellow"
             console.print(
-                f"[{style}]{a.name.upper():7s}[/{style}] {a.component}  t={a.t:g}  "
+                f"[{style}]{a.name.upper():7s}[/{style}] {escape(str(a.component))}  t={a.t:g}  "
                 f"HI={a.hi:.3f}  fHI={a.fhi:.3f}  RUL={_fmt(a.frul)} "
-                f"[{_fmt(a.rul_low)}, {_fmt(a.rul_high)}]  valid={'yes' if a.valid else 'no'}"
+                f"{escape(f'[{_fmt(a.rul_low)}, {_fmt(a.rul_high)}]')}  "
+                f"valid={'yes' if a.valid else 'no'}"
             )
 
     @app.command("status")
@@ -139,6 +144,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     ) -> None:
         """Table of components with HI, RUL, validity and alert level, worst first."""
         from rich.console import Console
+        from rich.markup import escape
         from rich.table import Table
 
         from rulkit.data.component_store import ComponentStore
@@ -156,14 +162,14 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if limit:
             df = df.head(limit)
         shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
-        table = Table(title=f"{db}: {n_all} components, worst first{shown}")
+        table = Table(title=escape(f"{db}: {n_all} components, worst first{shown}"))
         for col in ("component", "level", "HI", "fHI", "RUL", "RUL low", "RUL high", "valid",
                     "dRUL/dt", "d2RUL/dt2", "n", "last t"):
             table.add_column(col, justify="left" if col in ("component", "level") else "right")
         styles = {2: "bold red", 1: "yellow", 0: ""}
         for r in df.itertuples(index=False):
             table.add_row(
-                str(r.component), LEVEL_NAMES[int(r.level)], f"{r.hi:.3f}", f"{r.fhi:.3f}",
+                escape(str(r.component)), LEVEL_NAMES[int(r.level)], f"{r.hi:.3f}", f"{r.fhi:.3f}",
                 _fmt(r.frul), _fmt(r.rul_low), _fmt(r.rul_high), "yes" if r.valid else "no",
                 _fmt(r.drul), _fmt(r.d2rul), str(int(r.n)), f"{r.t:g}",
                 style=styles[int(r.level)],
