@@ -4,8 +4,9 @@ Problem (issue #2): the 2-state degradation model ``x = [damage, rate]``, ``dama
 noisy damage measured, failure at ``damage >= 1`` (rulkit.models.toy_degradation), written
 once for each library (benchmarks/progpy_toy.py for ProgPy) with the same per-step noise.
 
-Comparisons (each prints one line ending in ``ratio=<other time / our time>``, medians of
-several repeats, all timed in this one run, interleaved):
+Comparisons (each prints one line ending in ``ratio=<other time / our time>``: medians of
+several repeats of the process CPU time, all timed in this one run, interleaved; the
+wall-clock ratio is printed beside it):
 
 - particle filter, N = 1,000 and 10,000 particles, T = 50 measurements, same data, same
   initial particles: ours vs ProgPy's ``ParticleFilter`` (its default resampler, filterpy's
@@ -39,6 +40,7 @@ import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
 from datetime import UTC, datetime  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -59,14 +61,25 @@ T_STEPS = 50
 HORIZON = 400.0
 
 
-def timed(jobs: dict[str, tuple[Callable[[], object], int]]) -> dict[str, tuple[float, object]]:
-    """Median wall time (and last result) of each job, ``{name: (fn, repeats)}``.
+@dataclass(frozen=True)
+class Timing:
+    """Median CPU time of this process and median wall time of one job, in seconds."""
+
+    cpu: float
+    wall: float
+
+
+def timed(jobs: dict[str, tuple[Callable[[], object], int]]) -> dict[str, tuple[Timing, object]]:
+    """Median CPU and wall times (and the last result) of each job, ``{name: (fn, repeats)}``.
 
     Jobs run round-robin (one call of each per round, until each has its repeats) so that
     ours and the peer see the same machine load; the garbage collector is paused during each
-    call, as in :mod:`timeit`.
+    call, as in :mod:`timeit`. CPU time (``time.process_time``; single-threaded BLAS) does not
+    count the time the process waits for a core, which on a shared machine dominates the
+    noise of short calls; the wall-clock ratio is printed beside it.
     """
-    times: dict[str, list[float]] = {k: [] for k in jobs}
+    cpu: dict[str, list[float]] = {k: [] for k in jobs}
+    wall: dict[str, list[float]] = {k: [] for k in jobs}
     last: dict[str, object] = {}
     for r in range(max(n for _, n in jobs.values())):
         for name, (fn, n) in jobs.items():
@@ -75,21 +88,25 @@ def timed(jobs: dict[str, tuple[Callable[[], object], int]]) -> dict[str, tuple[
             gc.collect()
             gc.disable()
             try:
-                t0 = time.perf_counter()
+                c0, w0 = time.process_time(), time.perf_counter()
                 last[name] = fn()
-                times[name].append(time.perf_counter() - t0)
+                w1, c1 = time.perf_counter(), time.process_time()
             finally:
                 gc.enable()
-    return {k: (statistics.median(v), last[k]) for k, v in times.items()}
+            cpu[name].append(c1 - c0)
+            wall[name].append(w1 - w0)
+    return {k: (Timing(statistics.median(cpu[k]), statistics.median(wall[k])), last[k])
+            for k in jobs}
 
 
 def fmt_t(s: float) -> str:
     return f"{s * 1e3:.1f} ms" if s < 1 else f"{s:.2f} s"
 
 
-def line(what: str, ours: float, other: float, other_name: str, reps: str) -> None:
-    print(f"{what}: ours {fmt_t(ours)}, {other_name} {fmt_t(other)} ({reps}) "
-          f"ratio={other / ours:.1f}", flush=True)
+def line(what: str, ours: Timing, other: Timing, other_name: str, reps: str) -> None:
+    print(f"{what}: ours {fmt_t(ours.cpu)}, {other_name} {fmt_t(other.cpu)} CPU time ({reps}; "
+          f"wall-clock ratio {other.wall / ours.wall:.1f}) ratio={other.cpu / ours.cpu:.1f}",
+          flush=True)
 
 
 # ----------------------------------------------------------------------------- naive references
