@@ -311,11 +311,11 @@ def _k_est(x, r, w):  # pragma: no cover - compiled
     return m, np.sqrt(max(v, 0.0))
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_beta, thr,
                 b, beta, logw, eps, unif, bm, bsd, em, esd, nres):  # pragma: no cover
     U, N = b.shape
-    for r in numba.prange(U):
+    for r in range(U):
         w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
         idx = np.empty(N, np.int64)
         for k in range(k0, k1):
@@ -339,11 +339,11 @@ def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_bet
                 nres[r] += 1
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _k_pf1(k0, k1, koff, dlny, sd, ok, qc, qs, qn, qw, lcount, q_b, thr, b, logw, eps, unif,
            bm, bsd, nres):  # pragma: no cover
     U, N = b.shape
-    for r in numba.prange(U):
+    for r in range(U):
         w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
         idx = np.empty(N, np.int64)
         for k in range(k0, k1):
@@ -367,11 +367,11 @@ def _k_pf1(k0, k1, koff, dlny, sd, ok, qc, qs, qn, qw, lcount, q_b, thr, b, logw
                 nres[r] += 1
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _k_pf2(k0, k1, koff, y, H, sigma_y, q_beta, thr, beta, logw, eps, unif, em, esd, nres
            ):  # pragma: no cover
     U, N = beta.shape
-    for r in numba.prange(U):
+    for r in range(U):
         w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
         idx = np.empty(N, np.int64)
         for k in range(k0, k1):
@@ -391,11 +391,11 @@ def _k_pf2(k0, k1, koff, y, H, sigma_y, q_beta, thr, beta, logw, eps, unif, em, 
                 nres[r] += 1
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, P, logw, eps,
             unif, bm, bsd, em, esd, nres):  # pragma: no cover
     U, N = b.shape
-    for r in numba.prange(U):
+    for r in range(U):
         w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
         idx = np.empty(N, np.int64)
         for k in range(k0, k1):
