@@ -37,7 +37,7 @@ def check_covariance(cov: np.ndarray, n: int, name: str) -> FloatArray:
     """Validate a covariance matrix: shape (n, n), finite, symmetric, positive semi-definite."""
     c = np.atleast_2d(np.asarray(cov, dtype=np.float64))
     if c.shape != (n, n):
-        raise ValueError(f"{name}: expected shape ({n}, {n}), got {c.shape}")
+        raise ValueError(f"{name}: expected shape ({n}, {n}), got {np.shape(cov)}")
     if not np.all(np.isfinite(c)):
         raise ValueError(f"{name}: contains NaN or infinite entries")
     if not np.allclose(c, c.T, rtol=1e-10, atol=1e-14 * max(1.0, np.abs(c).max())):
@@ -64,6 +64,11 @@ class GaussianNoise:
     _chol_R: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        for name in ("Q", "R"):
+            shape = np.shape(getattr(self, name))
+            if len(shape) > 2 or (len(shape) == 2 and shape[0] != shape[1]) or len(shape) == 1:
+                raise ValueError(f"{name}: expected a square (n, n) matrix or a scalar, got "
+                                 f"shape {shape}")
         Q = check_covariance(self.Q, np.atleast_2d(self.Q).shape[0], "Q")
         R = check_covariance(self.R, np.atleast_2d(self.R).shape[0], "R")
         object.__setattr__(self, "Q", Q)
@@ -81,9 +86,15 @@ class GaussianNoise:
 
 
 def _psd_sqrt(c: FloatArray) -> FloatArray:
-    """A square root L with L L^T = c, valid for semi-definite c (eigen-decomposition)."""
+    """A square root L with L L^T = c, valid for semi-definite c (eigen-decomposition).
+
+    Eigenvalues below ``n eps max|lambda|`` are round-off of a zero eigenvalue and are set to 0,
+    so a singular c is sampled in its range only (no noise of relative size sqrt(eps) in the
+    directions c says are noise-free).
+    """
     w, v = np.linalg.eigh(c)
-    return v * np.sqrt(np.clip(w, 0.0, None))
+    tol = c.shape[0] * np.finfo(np.float64).eps * max(float(np.abs(w).max(initial=0.0)), 0.0)
+    return v * np.sqrt(np.where(w > tol, w, 0.0))
 
 
 class StateSpaceModel(ABC):
