@@ -403,6 +403,26 @@ def test_failed_step_leaves_state_unchanged():
     assert (state.k, state.loglik) == before[2:]
 
 
+def test_non_finite_transition_named_and_state_unchanged():
+    def blow_up(x, k, rng):
+        out = x + rng.standard_normal(x.shape)
+        if k == 2:
+            out[7, 0] = np.nan
+        return out
+
+    pf = ParticleFilter(blow_up, _ll_dead_at(-1))
+    state = pf.initialise(np.zeros((20, 1)), np.random.default_rng(0))
+    pf.step(state, 0.0)
+    pf.step(state, 0.0)
+    before = (state.particles.copy(), state.weights.copy(), state.k, state.loglik)
+    with pytest.raises(ValueError, match=r"transition at step 2: non-finite value nan at "
+                                         r"particle 7, state 0"):
+        pf.step(state, 0.0)
+    np.testing.assert_array_equal(state.particles, before[0])
+    np.testing.assert_array_equal(state.weights, before[1])
+    assert (state.k, state.loglik) == before[2:]
+
+
 def test_missing_measurement_policies():
     ys = np.array([0.0, np.nan, 0.1])
     x0 = np.zeros((30, 1))

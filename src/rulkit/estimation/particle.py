@@ -305,7 +305,9 @@ class ParticleFilter:
     ----------
     transition
         ``transition(x (N, n_x), k, rng) -> x_next (N, n_x)``: propagation including process
-        noise. Applied before every measurement, including the first.
+        noise. Applied before every measurement, including the first. A non-finite propagated
+        particle raises ``ValueError`` naming the step and particle (it would otherwise turn
+        the weighted mean into NaN, or surface later as an unrelated degenerate-weights error).
     log_likelihood
         ``log_likelihood(x (N, n_x), y, k) -> (N,)``: ``log p(y_k | x_k^i)`` up to a constant
         common to all particles (the constant shifts ``loglik`` only).
@@ -416,6 +418,12 @@ class ParticleFilter:
             raise ValueError(
                 f"transition at step {k}: returned shape {np.shape(x)}, "
                 f"expected {state.particles.shape}"
+            )
+        if not np.isfinite(x).all():
+            i, j = np.argwhere(~np.isfinite(x))[0]
+            raise ValueError(
+                f"transition at step {k}: non-finite value {x[i, j]} at particle {i}, state {j} "
+                f"(the filter state is left at step {state.k})"
             )
         if missing is None:
             missing = self._is_missing(y, k)
