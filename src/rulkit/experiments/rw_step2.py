@@ -1067,6 +1067,8 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
 SENSITIVITY: tuple[tuple[str, str, tuple[float, ...]], ...] = (
     ("measurement noise (fraction of window loss)", "noise_rel", (0.003, 0.01, 0.03)),
     ("random-walk step of b per window (C)", "q_b", (0.05, 0.2, 0.5)),
+    ("random-walk step of beta0 per window (x healthy beta0)", "q_beta0_rel",
+     (0.0005, 0.002, 0.01)),
     ("particles", "n_particles", (75, 150, 300)),
     ("T^ error std (x measured)", "error.std_scale", (0.0, 0.5, 1.0, 2.0)),
     ("T^ error correlation time (x measured)", "error.tau_scale", (0.25, 1.0, 4.0)),
