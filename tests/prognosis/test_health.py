@@ -267,8 +267,12 @@ def test_config_validation_and_round_trip():
         TrackerConfig(valid_drul=(0.0, -2.0))
     with pytest.raises(ValueError, match="initiation"):
         TrackerConfig(initiation="zeros")
+    with pytest.raises(ValueError, match="load_exponent"):
+        TrackerConfig(load_exponent=float("nan"))
     cfg = TrackerConfig(dt=10.0, lambda_hi=3.0, warn_rul=30.0)
     assert TrackerConfig.from_dict(cfg.to_dict()) == cfg
+    cfg2 = TrackerConfig(load_exponent=1.0, paris_exponent=3.0)
+    assert TrackerConfig.from_dict(cfg2.to_dict()) == cfg2
     with pytest.raises(ValueError, match="unknown keys"):
         TrackerConfig.from_dict({"dt": 1.0, "bogus": 2})
 
@@ -307,10 +311,13 @@ def test_paris_rul_and_limits_general_exponent_against_ode(m):
 
     rul = paris_rul(np.array([h0]), np.array([dhi]), exponent=m)[0]
     assert rul == pytest.approx(time_to_one(h0, c), rel=1e-6)
-    cfg = TrackerConfig(hi_sigma=0.02, load_factor=0.1, load_exponent=m, paris_exponent=m)
-    lo, hi = rul_confidence_limits(np.array([h0]), np.array([dhi]), cfg)
-    assert lo[0] == pytest.approx(time_to_one(h0 + 0.02, c * 1.1**m), rel=1e-6)
-    assert hi[0] == pytest.approx(time_to_one(h0 - 0.02, c * 0.9**m), rel=1e-6)
+    # the load exponent defaults to the Paris exponent (the rate goes with stress^m), so
+    # setting m alone (as `rulkit track --paris-exponent` does) keeps the limits consistent
+    for cfg in (TrackerConfig(hi_sigma=0.02, load_factor=0.1, load_exponent=m, paris_exponent=m),
+                TrackerConfig(hi_sigma=0.02, load_factor=0.1, paris_exponent=m)):
+        lo, hi = rul_confidence_limits(np.array([h0]), np.array([dhi]), cfg)
+        assert lo[0] == pytest.approx(time_to_one(h0 + 0.02, c * 1.1**m), rel=1e-6)
+        assert hi[0] == pytest.approx(time_to_one(h0 - 0.02, c * 0.9**m), rel=1e-6)
 
 
 def test_vectorised_chain_equals_loop_with_general_exponent():

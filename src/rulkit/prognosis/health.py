@@ -253,11 +253,13 @@ class TrackerConfig:
     ``design_life``: dHI is floored at 1 / design_life (components do not heal).
     ``hi_floor``: the Paris-law RUL is evaluated at max(fHI, hi_floor) so that fHI <= 0 gives a
     finite RUL. ``hi_sigma``: one standard deviation of the measured HI, used by the confidence
-    limits (default: none given -> 0). ``load_factor`` (0.10) and ``load_exponent`` (2, the
-    Paris exponent of the RUL formula) shape the confidence limits
-    (:func:`rul_confidence_limits`). ``paris_exponent`` m: the crack-growth exponent of the
-    RUL relation (2 = the seed's formula; see :func:`paris_rul`). ``initiation``: how a new
-    component's trackers start, ``"floor"`` or ``"two-point"`` (see :func:`tracker_update`).
+    limits (default: none given -> 0). ``load_factor`` (0.10) and ``load_exponent`` shape the
+    confidence limits (:func:`rul_confidence_limits`): the growth rate scales with the load to
+    the power ``load_exponent``, by default (None) the Paris exponent ``paris_exponent``, so
+    setting m alone keeps the limits consistent with the RUL formula. ``paris_exponent`` m:
+    the crack-growth exponent of the RUL relation (2 = the seed's formula; see
+    :func:`paris_rul`). ``initiation``: how a new component's trackers start, ``"floor"`` or
+    ``"two-point"`` (see :func:`tracker_update`).
     Validity (seed section 6): ``valid_drul = (-2, 0)`` open interval for dRUL/dt and
     ``|d2RUL/dt2| < valid_d2rul``. Warning: fHI >= ``warn_hi`` and valid and fRUL < ``warn_rul``;
     alarm: fHI >= ``alarm_hi``. ``hi_max`` bounds an accepted HI measurement (ingestion checks).
@@ -272,7 +274,7 @@ class TrackerConfig:
     hi_floor: float = 1.0e-3
     hi_sigma: float = 0.0
     load_factor: float = 0.10
-    load_exponent: float = 2.0
+    load_exponent: float | None = None
     paris_exponent: float = 2.0
     initiation: str = "floor"
     valid_drul: tuple[float, float] = (-2.0, 0.0)
@@ -292,6 +294,13 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a number >= 0, got {v!r}")
+        if self.load_exponent is not None and not (
+            math.isfinite(self.load_exponent) and self.load_exponent >= 0
+        ):
+            raise ValueError(
+                f"TrackerConfig.load_exponent: expected a number >= 0 or None (= the Paris "
+                f"exponent), got {self.load_exponent!r}"
+            )
         if self.load_factor >= 1:
             raise ValueError(f"TrackerConfig.load_factor: expected < 1, got {self.load_factor}")
         lo, hi = self.valid_drul
@@ -507,15 +516,18 @@ def rul_confidence_limits(
         RUL_low  = -ln(min(fHI + s, 1))         / (k (1 + delta)^p)     (pessimistic)
         RUL_high = -ln(max(fHI - s, hi_floor))  / (k (1 - delta)^p)     (optimistic)
 
-    with p = ``config.load_exponent``. p = 2 is the Paris exponent the RUL formula assumes
-    (default); the seed's eq 29 multiplies the rate by 1.10 for a 10 % higher load, i.e. p = 1
-    (set ``load_exponent=1`` to reproduce it). s = ``config.hi_sigma``, delta =
+    with p = ``config.load_exponent``, by default the Paris exponent m of the RUL formula
+    (``config.paris_exponent``, 2 for the seed's formula: da/dN is proportional to the stress
+    to the power m); the seed's eq 29 multiplies the rate by 1.10 for a 10 % higher load, i.e.
+    p = 1 (set ``load_exponent=1`` to reproduce it). For m != 2 the times to HI = 1 are those of
+    dHI/dt = k HI^(m/2) (see :func:`paris_rul`). s = ``config.hi_sigma``, delta =
     ``config.load_factor``. RUL_low <= RUL <= RUL_high by construction; both are >= 0 and finite.
     """
     h = np.clip(fhi, config.hi_floor, 1.0)
     p = 0.5 * config.paris_exponent
     c = dhi / h**p
-    s, d, q = config.hi_sigma, config.load_factor, config.load_exponent
+    s, d = config.hi_sigma, config.load_factor
+    q = config.paris_exponent if config.load_exponent is None else config.load_exponent
     h_lo = np.clip(h + s, config.hi_floor, 1.0)
     h_hi = np.clip(h - s, config.hi_floor, 1.0)
     rul_low = _time_to_one(h_lo, c * (1.0 + d) ** q, p)
