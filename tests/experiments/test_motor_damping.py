@@ -307,3 +307,21 @@ def test_micro_ekf_refuses_input_that_would_poison_the_state(life) -> None:
     nan0[1, 0] = np.nan
     with pytest.raises(ValueError, match=r"speed of unit 1 is nan at sample 0"):
         run(sp_=nan0)
+
+
+def test_macro_refuses_unsorted_or_repeated_cycles_and_bad_estimates() -> None:
+    cyc, z, r = _linear_data(np.random.default_rng(0), 2, 6)
+    s = MacroSettings()
+    for bad in (cyc[[0, 2, 1, 3, 4, 5]], np.r_[cyc[:3], cyc[2:5]], cyc - 2.0):
+        with pytest.raises(ValueError, match="strictly increasing"):
+            macro_track(bad, z, r, s)
+        with pytest.raises(ValueError, match="strictly increasing"):
+            macro_filter(bad, z, r, s)
+    z_nan = z.copy()
+    z_nan[1, 3] = np.nan
+    with pytest.raises(ValueError, match="z: non-finite value at unit 1, cycle 4"):
+        macro_track(cyc, z_nan, r, s)
+    r_neg = r.copy()
+    r_neg[0, 2] = -1e-18
+    with pytest.raises(ValueError, match=r"negative variance .* at unit 0, cycle 3"):
+        macro_filter(cyc, z, r_neg, s)

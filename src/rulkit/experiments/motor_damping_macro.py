@@ -127,6 +127,32 @@ def estimate_scatter_var(
     return np.maximum(total - np.mean(np.atleast_2d(r), axis=1), 0.0)
 
 
+def _check_cycles(cycles: np.ndarray, z: FloatArray, r: FloatArray) -> FloatArray:
+    """Cycles (n,) finite, >= 0 and strictly increasing; ``z``/``r`` (B, n) finite, r >= 0.
+
+    The prior sits at cycle 0 and every gap must be positive: an unsorted or repeated cycle
+    would silently skip a prediction (wrong slope and covariance), so it is refused.
+    """
+    cyc = np.asarray(cycles, dtype=np.float64)
+    if cyc.ndim != 1 or cyc.size == 0 or cyc.shape[0] != z.shape[1] or r.shape != z.shape:
+        raise ValueError(
+            f"cycles (n,), z and meas_var (B, n): got {cyc.shape}, {z.shape} and {r.shape}"
+        )
+    if not np.isfinite(cyc).all() or cyc[0] < 0 or np.any(np.diff(cyc) <= 0):
+        raise ValueError(
+            f"cycles: expected finite cycle numbers >= 0 in strictly increasing order, got "
+            f"{cyc.tolist()}"
+        )
+    for name, a in (("z", z), ("meas_var", r)):
+        if not np.isfinite(a).all():
+            b, i = np.argwhere(~np.isfinite(a))[0]
+            raise ValueError(f"{name}: non-finite value at unit {b}, cycle {cyc[i]:g}")
+    if np.any(r < 0):
+        b, i = np.argwhere(r < 0)[0]
+        raise ValueError(f"meas_var: negative variance {r[b, i]!r} at unit {b}, cycle {cyc[i]:g}")
+    return cyc
+
+
 def macro_filter(
     cycles: np.ndarray,
     z: np.ndarray,
@@ -137,13 +163,14 @@ def macro_filter(
     """Filter the damping estimates ``z`` (B, n) of cycles (n,) with measurement variances
     ``meas_var`` (B, n); returns the final ``x`` (B, 2), ``P`` (B, 2, 2) (seed eqs. 5-7) and the
     log marginal likelihood (B,), using the engine's :func:`kf_predict` / :func:`kf_update`.
-    ``q_a`` overrides ``settings.q_a``."""
+    ``q_a`` overrides ``settings.q_a``. Cycles must be strictly increasing and >= 0, ``z`` and
+    ``meas_var`` finite (``ValueError`` otherwise)."""
     from rulkit.estimation.kalman import kf_predict, kf_update
 
     z = np.atleast_2d(np.asarray(z, dtype=np.float64))
     rv = np.atleast_2d(np.asarray(meas_var, dtype=np.float64))
     b, n = z.shape
-    cyc = np.asarray(cycles, dtype=np.float64)
+    cyc = _check_cycles(cycles, z, rv)
     x = np.zeros((b, 2))
     P = np.broadcast_to(np.diag([settings.c_prior_sd**2, settings.a_prior_sd**2]), (b, 2, 2))
     H = np.array([[1.0, 0.0]])
@@ -189,7 +216,7 @@ def macro_track(
 
     z = np.atleast_2d(np.asarray(z, dtype=np.float64))
     r = np.atleast_2d(np.asarray(r, dtype=np.float64))
-    cyc = np.asarray(cycles, dtype=np.float64)
+    cyc = _check_cycles(cycles, z, r)
     b, n = z.shape
     grid = np.asarray((settings.q_a,) if settings.q_a_grid is None else settings.q_a_grid)
     g = grid.size
