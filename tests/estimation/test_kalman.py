@@ -465,6 +465,8 @@ def test_control_input_against_brute_force():
     np.testing.assert_allclose(shared.x[:, 0], one.x[:, 0], rtol=1e-13, atol=1e-14)
     with pytest.raises(ValueError, match="us"):
         KalmanFilter(F_CV, H_2, Q_CV, R_2, G=G).filter(ys, x0, P0)
+    with pytest.raises(ValueError, match="us: inputs were given but the filter has no control"):
+        KalmanFilter(F_CV, H_2, Q_CV, R_2).filter(ys, x0, P0, us=us)
 
 
 def test_time_varying_callable_with_wrong_shape_names_step():

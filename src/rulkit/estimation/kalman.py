@@ -555,6 +555,9 @@ class KalmanFilter:
         ys = _check_ys(ys, B, m)
         if us is None and self.G is not None:
             raise ValueError("us: the filter has a control matrix G but no inputs were given")
+        if us is not None and self.G is None:
+            raise ValueError("us: inputs were given but the filter has no control matrix G "
+                             "(pass G=... to KalmanFilter); they would be ignored")
         T = ys.shape[0]
         out = _Stacker(T, B, n, m)
         for k in range(T):
@@ -717,9 +720,10 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
             Pn = _sym(Phi @ P @ _T(Phi) + Qd)
         else:
             xn = _apply(self.f, x, u, targ, B, "f")
-            self._check_prediction(xn, B, n, k)
+            self._check_prediction(xn, B, n, k)  # before the Jacobian, so the error names f
             J = self._jacobian(self.f, self.jac_f, x, u, targ, n, "jac_f")
             Pn = _sym(J @ P @ _T(J) + self.Q.at(k, B))
+            return xn, Pn
         self._check_prediction(xn, B, n, k)
         return xn, Pn
 
