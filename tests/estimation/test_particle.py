@@ -564,6 +564,13 @@ def test_weighted_quantile_matches_numpy_inverted_cdf(seed):
     assert weighted_quantile(x, w, 0.5).shape == (2,)
     with pytest.raises(ValueError, match="q must be"):
         weighted_quantile(x, w, 1.5)
+    bad_w = w.copy()
+    bad_w[5] = -bad_w[5]
+    for ww in (bad_w, np.zeros_like(w), np.where(np.arange(w.size) == 0, np.nan, w)):
+        with pytest.raises(ValueError, match="weights must be finite, non-negative"):
+            weighted_quantile(x, ww, 0.5)
+    with pytest.raises(ValueError, match="values contain NaN"):
+        weighted_quantile(np.where(np.arange(x.shape[0])[:, None] == 2, np.nan, x), w, 0.5)
 
 
 def test_per_step_accepts_non_numeric_measurement():

@@ -154,6 +154,13 @@ def weighted_quantile(values: FloatArray, w: FloatArray, q: float | FloatArray) 
         )
     if qa.ndim > 1 or np.any((qa < 0) | (qa > 1)) or np.any(np.isnan(qa)):
         raise ValueError(f"weighted_quantile: q must be scalar or 1-D in [0, 1], got {q!r}")
+    if v.shape[0] == 0 or not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
+        raise ValueError(
+            "weighted_quantile: weights must be finite, non-negative and not all zero "
+            f"(N = {w.shape[0]})"
+        )
+    if np.isnan(v).any():
+        raise ValueError("weighted_quantile: values contain NaN (no order is defined)")
     return _weighted_quantile(v, w, qa)
 
 
