@@ -581,9 +581,9 @@ def run_table5(
     rows are added, and results are identical serially, with ``workers`` or on a Dask
     ``scheduler`` (the runner only distributes). ``initial``: "rest" (spec [R]) or
     "equilibrium" start of the truth; ``overrides``: Step1Config fields for every PF run.
-    Returns a long ``pandas.DataFrame``: method, design, noise, N, runs, seed, rmspe_mean / rmspe_sd / rmspe_min / rmspe_max over runs, rmspe_late_mean (t >= t_burn),
-    mean counts of adaptive spreads and resamplings, APF clipped fraction, paper (Table 5 value
-    or NaN).
+    Returns a long ``pandas.DataFrame``: method, design, noise, N, runs, seed, rmspe_mean /
+    rmspe_sd / rmspe_min / rmspe_max over runs, rmspe_late_mean (t >= t_burn), mean counts of
+    adaptive spreads and resamplings, APF clipped fraction, paper (Table 5 value or NaN).
     """
     import pandas as pd
 
