@@ -422,6 +422,14 @@ def test_kf_predict_update_functions_match_hand_computation():
             "dt",
         ),
         (lambda: discretise(np.eye(2), np.eye(2), -1.0), "dt"),
+        (  # tiny covariance (damping-like 1e-12 scale), asymmetric above the tolerance but
+            # below numpy's default isclose one: used to die with IndexError, not naming the unit
+            lambda: kf_predict(np.zeros((2, 2)),
+                               np.stack([1e-12 * np.eye(2),
+                                         np.array([[1e-12, 1e-12], [1.5e-12, 1e-11]])]),
+                               np.eye(2), np.zeros((2, 2))),
+            r"P: not symmetric \(unit 1\)",
+        ),
     ],
 )
 def test_bad_input_errors_name_the_argument(call, match):
