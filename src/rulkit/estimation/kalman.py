@@ -209,7 +209,7 @@ def _chol_S(S: FloatArray) -> FloatArray:
         return np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
         lo = np.linalg.eigvalsh(S)[..., 0]
-        b = _first_bad(lo <= 0)
+        b = int(np.argmin(lo))  # Cholesky may fail on a tiny positive eigenvalue too
         raise ValueError(
             f"innovation covariance S = H P H^T + R is not positive definite for unit {b} "
             f"(smallest eigenvalue {lo[b]:.3g}); check R and P"
