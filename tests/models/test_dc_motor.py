@@ -164,6 +164,16 @@ def test_failure_damping_from_a_family_of_curves() -> None:
     np.testing.assert_allclose(slopes, -c, rtol=2e-3)
     c_fail = failure_damping_from_curves(w, torque, c, mask=steady)
     assert c_fail == pytest.approx(failure_damping(M), rel=2e-3)
+    # a mask that selects one sample of curve 3, or a NaN sample: named, not a NaN slope
+    one = np.broadcast_to(steady, w.shape).copy()
+    one[3] = False
+    one[3, 300] = True
+    with pytest.raises(ValueError, match="curve 3: 1 selected sample"):
+        characteristic_curve_slope(w, torque, one)
+    w_nan = w.copy()
+    w_nan[5, 400] = np.nan
+    with pytest.raises(ValueError, match="curve 5: non-finite speed or torque at selected sample"):
+        characteristic_curve_slope(w_nan, torque, steady)
 
 
 def test_failure_cycle_by_hand() -> None:

@@ -408,16 +408,33 @@ def characteristic_curve_slope(
     speed: np.ndarray, torque: np.ndarray, mask: np.ndarray | None = None
 ) -> FloatArray:
     """Least-squares slope ``dT_out/dw`` of each curve (rows of ``speed``/``torque``, (B, T)),
-    over the samples selected by ``mask`` (e.g. the steady-current part). Seed Fig. 11."""
+    over the samples selected by ``mask`` (e.g. the steady-current part). Seed Fig. 11.
+
+    ``ValueError`` (naming the curve) for non-finite selected samples or fewer than two
+    distinct selected speeds (the slope would be NaN)."""
     w = np.atleast_2d(np.asarray(speed, dtype=np.float64))
     tq = np.atleast_2d(np.asarray(torque, dtype=np.float64))
+    if w.shape != tq.shape or w.ndim != 2:
+        raise ValueError(f"speed and torque: expected equal (B, T) shapes, got {w.shape}, "
+                         f"{tq.shape}")
     m = np.ones_like(w, dtype=bool) if mask is None else np.broadcast_to(mask, w.shape)
+    bad = m & ~(np.isfinite(w) & np.isfinite(tq))
+    if bad.any():
+        b, k = np.argwhere(bad)[0]
+        raise ValueError(f"curve {b}: non-finite speed or torque at selected sample {k}")
     n = m.sum(axis=1)
-    wm = np.where(m, w, 0.0).sum(axis=1) / n
-    tm = np.where(m, tq, 0.0).sum(axis=1) / n
+    wm = np.where(m, w, 0.0).sum(axis=1) / np.maximum(n, 1)
+    tm = np.where(m, tq, 0.0).sum(axis=1) / np.maximum(n, 1)
     dw = np.where(m, w - wm[:, None], 0.0)
     dtq = np.where(m, tq - tm[:, None], 0.0)
-    return (dw * dtq).sum(axis=1) / (dw * dw).sum(axis=1)
+    sxx = (dw * dw).sum(axis=1)
+    if np.any(sxx <= 0):
+        b = int(np.flatnonzero(sxx <= 0)[0])
+        raise ValueError(
+            f"curve {b}: {int(n[b])} selected sample(s) with no spread in speed; a slope needs "
+            f"at least two distinct speeds"
+        )
+    return (dw * dtq).sum(axis=1) / sxx
 
 
 def failure_damping_from_curves(
