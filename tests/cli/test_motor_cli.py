@@ -87,6 +87,16 @@ def test_motor_damping_bad_options_named_by_flag(pullup_csv, options, message) -
     assert message in " ".join(res.output.split())
 
 
+def test_motor_damping_two_cycles_says_why_there_is_no_rul(pullup_csv, tmp_path: Path) -> None:
+    path, _ = pullup_csv
+    df = pd.read_csv(path)
+    p = tmp_path / "two.csv"
+    df[df["cycle"] <= 2].to_csv(p, index=False)
+    res = runner.invoke(app, ["motor", "damping", str(p), "--mc-samples", "50"])
+    assert res.exit_code == 0, res.output
+    assert "no RUL: the first prediction needs 3 cycles" in " ".join(res.output.split())
+
+
 def test_motor_damping_help_shows_units() -> None:
     # units in square brackets were swallowed as rich markup ("Inertia J ." in the help)
     res = runner.invoke(app, ["motor", "damping", "--help"])

@@ -145,6 +145,13 @@ def analyse_file(
             f"[{_fmt(r['rul_mc_p05'], '.1f')}, {_fmt(r['rul_mc_p95'], '.1f')}]",
         )
     console.print(tab)
+    n_rul = int(np.isfinite(res.table["rul_median"]).sum())
+    if n_rul == 0:
+        console.print(
+            f"no RUL: the first prediction needs 3 cycles (the damping's scatter about its "
+            f"trend is estimated from the residuals of a line); this file has "
+            f"{data.n_cycles} cycle(s)"
+        )
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
