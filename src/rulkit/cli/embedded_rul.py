@@ -162,7 +162,12 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if limit:
             df = df.head(limit)
         shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
-        table = Table(title=escape(f"{db}: {n_all} components, worst first{shown}"))
+        table = Table(
+            title=escape(f"{db}: {n_all} components, worst first{shown}"),
+            caption="RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
+                    "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
+                    "load +- load_factor",
+        )
         for col in ("component", "level", "HI", "fHI", "RUL", "RUL low", "RUL high", "valid",
                     "dRUL/dt", "d2RUL/dt2", "n", "last t"):
             table.add_column(col, justify="left" if col in ("component", "level") else "right")
