@@ -139,7 +139,12 @@ class ScenarioResult:
 
 @dataclass
 class MotorDampingResult:
-    """Everything the report needs: tables (pandas DataFrames), scenarios, run-0 life test."""
+    """Everything the report needs: tables (pandas DataFrames), scenarios, run-0 life test.
+
+    ``seeds`` holds the run indices r, not seeds: run r's generator is
+    ``default_rng(SeedSequence(config.seed).spawn(runs)[r])`` (``config.seed + 1`` for the
+    accelerating scenarios).
+    """
 
     config: ExperimentConfig
     tables: dict[str, Any]
