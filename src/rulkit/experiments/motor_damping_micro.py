@@ -124,8 +124,8 @@ def _check_inputs(
     if not np.isfinite(speed[:, 0]).all():
         u = int(np.flatnonzero(~np.isfinite(speed[:, 0]))[0])
         raise ValueError(
-            f"micro_ekf: speed of unit {u} is {float(speed[u, 0])!r} at sample 0 (the filter starts "
-            f"from the first measured speed)"
+            f"micro_ekf: speed of unit {u} is {float(speed[u, 0])!r} at sample 0 (the filter "
+            f"starts from the first measured speed)"
         )
     for name, a in (("speed", speed), ("acceleration", acc)):
         if a is not None and np.isinf(a).any():
