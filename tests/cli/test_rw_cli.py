@@ -100,6 +100,7 @@ def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeyp
         step3=Step3Settings(failure_day=20.0, prediction_days=(0.5, 1.0), table7_day=1.0,
                             forecast_horizon_days=40.0),
         table5_particles=(20,), table5_ekf=False, step1_error_runs=1, step1_particles=30,
+        error_hours=0.1, table6_alt=False,
         validation_hours=0.0, sensitivity_runs=0)
     monkeypatch.setattr(ReproductionConfig, "quick_config",
                         classmethod(lambda cls, seed=0, n_runs=None, **kw: tiny))

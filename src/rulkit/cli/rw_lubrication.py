@@ -79,7 +79,7 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     cfg = with_overrides(cfg, workers=workers, scheduler=scheduler)
     console = Console()
     t0 = time.perf_counter()
-    stages = 5 + 2 * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0)
+    stages = 5 + 2 * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0) + cfg.table6_alt
     if not show_progress:
         return reproduce(out, cfg, log=lambda m: None)
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/"

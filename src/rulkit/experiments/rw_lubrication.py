@@ -52,8 +52,11 @@ class ReproductionConfig:
     table5: bool = True
     table5_particles: tuple[int, ...] | None = None  # None: the step-1 module's default list
     table5_ekf: bool = True
-    step1_error_runs: int = 10
+    step1_error_runs: int = 5
     step1_particles: int = 200
+    error_on: str = "path"  # [R] where the T^ error statistics are measured ("path"/"table3")
+    error_hours: float = 2.0
+    table6_alt: bool = True  # also Table 6 with the error statistics of the Table 3 path
     validation_hours: float = 3.0
     validation_runs: int = 3
     sensitivity_runs: int = 5
@@ -65,12 +68,14 @@ class ReproductionConfig:
     def quick_config(cls, seed: int = 0, n_runs: int | None = None, **kw: Any
                      ) -> ReproductionConfig:
         """The ``--quick`` size: 5 runs, 10-day horizon, 150 particles, predictions at days
-        2, 5 and 10, Table 5 quick at N = 200 only, no shortcut validation, no sensitivity."""
+        2, 5 and 10, Table 5 quick at N = 200 only, T^ error statistics from 2 one-hour
+        step-1 runs, no shortcut validation, no sensitivity, no second Table 6."""
         kw.setdefault("step2", Step2Settings(n_particles=150, horizon_days=10.0))
         kw.setdefault("step3", Step3Settings(prediction_days=(2.0, 5.0, 10.0)))
         kw.setdefault("table5_particles", (200,))
-        return cls(quick=True, n_runs=n_runs or 5, seed=seed, step1_error_runs=3,
-                   validation_hours=0.0, sensitivity_runs=0, **kw)
+        kw.setdefault("error_hours", 1.0)
+        return cls(quick=True, n_runs=n_runs or 5, seed=seed, step1_error_runs=2,
+                   validation_hours=0.0, sensitivity_runs=0, table6_alt=False, **kw)
 
 
 @dataclass
@@ -88,6 +93,8 @@ class Reproduction:
     files: list[Path]
     timings: dict[str, float]
     notes: list[str]
+    errors_alt: dict[str, EstimateErrorProcess] = field(default_factory=dict)
+    table6_alt: Any = None
 
 
 def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | None = None,
@@ -125,12 +132,18 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
 
     # ---- error statistics of the real step-1 estimators -----------------------------------
     t = time.perf_counter()
-    errors = {}
+    errors: dict[str, EstimateErrorProcess] = {}
+    errors_alt: dict[str, EstimateErrorProcess] = {}
+    alt_on = "table3" if cfg.error_on == "path" else "path"
     for src in SOURCES:
         log(f"step 1 -> 2: error statistics of {src} ({STEP1_VARIANTS[src]})")
+        kw = dict(n_particles=cfg.step1_particles, hold_samples=cfg.step2.hold_samples,
+                  hours=cfg.error_hours)
         errors[src] = measure_step1_errors(src, cfg.step1_error_runs, cfg.seed,
-                                           n_particles=cfg.step1_particles,
-                                           hold_samples=cfg.step2.hold_samples)
+                                           on=cfg.error_on, **kw)
+        if cfg.table6_alt:
+            errors_alt[src] = measure_step1_errors(src, cfg.step1_error_runs, cfg.seed,
+                                                   on=alt_on, **kw)
     timings["step-1 error statistics"] = time.perf_counter() - t
 
     # ---- step 2: Table 6 ------------------------------------------------------------------
@@ -145,6 +158,15 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
     files.append(out / "table6.csv")
     timings["step 2 (Table 6)"] = time.perf_counter() - t
     files += _plot_tracking(t6, out)
+    t6_alt = None
+    if cfg.table6_alt:
+        t = time.perf_counter()
+        log(f"step 2: Table 6 again with the T^ error statistics of the {alt_on} runs")
+        t6_alt = run_table6(cfg.n_runs, cfg.seed, cfg.step2, errors_alt, workers=cfg.workers,
+                            scheduler=cfg.scheduler)
+        t6_alt.table.to_csv(out / f"table6_errors_{alt_on}.csv", index=False)
+        files.append(out / f"table6_errors_{alt_on}.csv")
+        timings[f"step 2 (Table 6, {alt_on} error statistics)"] = time.perf_counter() - t
 
     # ---- step 3: Table 7 ------------------------------------------------------------------
     t = time.perf_counter()
@@ -184,7 +206,7 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
         timings["sensitivity"] = time.perf_counter() - t
 
     rep = Reproduction(cfg, table5, errors, t6, s3.table, s3, validation, sens, files, timings,
-                       notes)
+                       notes, errors_alt, t6_alt)
     files += [out / "report.md", out / "settings.json", out / "reproduction.pkl"]
     (out / "report.md").write_text(render_report(rep))
     (out / "settings.json").write_text(json.dumps(_jsonable(cfg), indent=2))
@@ -314,13 +336,16 @@ def render_report(rep: Reproduction) -> str:
     L.append("| source | step-1 variant | bias (C) | std (C) | tau (s) | within-block jitter (C) "
              "| measured on |")
     L.append("| --- | --- | --- | --- | --- | --- | --- |")
-    for src, e in rep.errors.items():
+    for src, e in list(rep.errors.items()) + list(rep.errors_alt.items()):
         L.append(f"| {src} | {STEP1_VARIANTS[src]} | {e.bias_c:.3f} | {e.std_c:.3f} | "
                  f"{e.tau_s:.1f} | {e.white_std_c:.4f} | {e.source} |")
     L.append("")
+    L.append(f"Table 6 below uses the statistics measured on the {cfg.error_on} runs (first "
+             "rows)" + (", and is repeated with the others." if rep.errors_alt else ".") + "\n")
     if rep.validation:
         L.append("**Validation of the shortcut** against the real step-1 estimator on the "
-                 "scenario-1 path (wheel at constant 2 V [R], low noise):\n")
+                 "scenario-1 path (wheel at constant 2 V [R], low noise; other noise seeds than "
+                 "the fit), synthetic T^ from the statistics used for Table 6:\n")
         L.append("| source | hours | runs | window-mean T^ error std, real (C) | same, synthetic "
                  "(C) | b RMSPE two-step real / synth (%) | b RMSPE RB-PF real / synth (%) | "
                  "error process fitted on this path |")
@@ -344,6 +369,11 @@ def render_report(rep: Reproduction) -> str:
              "paper).\n")
     L.append(_md(rep.table6.table) + "\n")
     L.append(f"Step-2 wall time: {rep.table6.seconds:.1f} s.\n")
+    if rep.table6_alt is not None:
+        alt = "table3" if cfg.error_on == "path" else "path"
+        L.append(f"**Table 6 with the T^ error statistics of the {alt} runs** (same runs, "
+                 "seeds and settings otherwise):\n")
+        L.append(_md(rep.table6_alt.table) + "\n")
     if rep.sensitivity is not None:
         L.append("### Sensitivity to the unstated settings (scenario 1, APF T^)\n")
         L.append(f"{cfg.sensitivity_runs} runs, {cfg.sensitivity_days:g}-day horizon, one setting "

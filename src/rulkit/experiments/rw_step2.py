@@ -929,32 +929,55 @@ STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive"}
 
 def measure_step1_errors(source: str, n_runs: int, seed: int, *, n_particles: int = 200,
                          noise: str = "low", burn_in_s: float = 100.0,
-                         hold_samples: int = 40) -> EstimateErrorProcess:
-    """Fit the T^ error process to real step-1 runs on the Table 3 path (spec §2, §4).
+                         hold_samples: int = 40, on: str = "path",
+                         hours: float = 2.0) -> EstimateErrorProcess:
+    """Fit the T^ error process to real step-1 runs (spec §4).
 
     Runs the step-1 estimator (``rulkit.experiments.rw_step1.run_step1``, variant
     :data:`STEP1_VARIANTS` [source], F2 design, its default settings) on ``n_runs`` simulated
-    Table 3 runs and fits :func:`fit_error_process` to ``T^ - T`` after ``burn_in_s`` [R].
+    wheel runs and fits :func:`fit_error_process` to ``T^ - T`` after ``burn_in_s`` [R].
+    ``on="path"`` [R, default]: the wheel at constant 2 V along the scenario-1 step-2 path for
+    ``hours`` (the conditions of step 2); ``on="table3"``: the 500 s Table 3 validation path of
+    step 1 (a temperature step and a voltage step: transients that the months-long path lacks).
     """
     from rulkit.experiments.rw_step1 import Step1Config, run_step1
     from rulkit.models.lubrication import fit_error_process
-    from rulkit.models.reaction_wheel import simulate_table3
+    from rulkit.models.reaction_wheel import NOISE_LEVELS, ReactionWheel, simulate_table3
 
     cfg = Step1Config(variant=STEP1_VARIANTS[source], n_particles=n_particles)
     errs = []
+    si = SOURCES.index(source)
+    if on == "path":
+        t, V, T, x = _wheel_on_path_cached(1, hours)
+        model = ReactionWheel(noise=noise)
+    elif on != "table3":
+        raise ValueError(f"on: expected 'path' or 'table3', got {on!r}")
     for r in range(n_runs):
-        g = unit_rng(seed, "estimate", 0, SOURCES.index(source), 1000 + r)
-        run = simulate_table3(g, noise)
-        res = run_step1(run.y, run.V, g, cfg, sigma=(run.sigma_w, run.sigma_I), dt=run.dt,
-                        quantiles=False)
-        keep = res.t >= burn_in_s
-        n = min(keep.sum(), run.T.size)
-        errs.append((res.T_mean[keep] - np.interp(res.t[keep], run.t, run.T))[:n])
-    m = min(e.size for e in errs)
-    return fit_error_process(np.stack([e[:m] for e in errs]), hold_samples=hold_samples,
+        g = unit_rng(seed, "estimate", 0 if on == "table3" else 10, si, 1000 + r)
+        if on == "table3":
+            run = simulate_table3(g, noise)
+            t, V, T, y = run.t, run.V, run.T, run.y
+        else:
+            y = model.output(x) + model.noise.sample_measurement(t.size, g)
+        res = run_step1(y, V, g, cfg, sigma=NOISE_LEVELS[noise], dt=SAMPLE_DT, quantiles=False)
+        est = res.T_mean[-t.size:]
+        keep = t >= burn_in_s
+        errs.append(est[keep] - T[keep])
+    where = (f"Table 3 path after {burn_in_s:g} s" if on == "table3" else
+             f"scenario-1 step-2 path, wheel at 2 V, {hours:g} h after {burn_in_s:g} s")
+    return fit_error_process(np.stack(errs), hold_samples=hold_samples,
                              source=f"measured: {n_runs} step-1 runs ({cfg.variant}, F2, "
-                                    f"N={n_particles}, {noise} noise, Table 3 path after "
-                                    f"{burn_in_s:g} s)")
+                                    f"N={n_particles}, {noise} noise, {where})")
+
+
+_WHEEL_CACHE: dict[tuple[int, float], tuple[FloatArray, ...]] = {}
+
+
+def _wheel_on_path_cached(scenario_id: int, hours: float) -> tuple[FloatArray, ...]:
+    key = (scenario_id, float(hours))
+    if key not in _WHEEL_CACHE:
+        _WHEEL_CACHE[key] = simulate_wheel_on_path(PATHS[scenario_id], hours)
+    return _WHEEL_CACHE[key]
 
 
 @dataclass
@@ -998,11 +1021,12 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
                       n_particles_step1: int = 200) -> ShortcutValidation:
     """Compare step 2 on the real step-1 T^ with step 2 on the synthetic T^ (spec §4).
 
-    Scenario 1 path over ``hours``; the wheel at constant 2 V [R]; low noise. For each run the
-    real estimator's T^ (0.05 s) gives a 4800-sample quadrature per window; the synthetic T^
-    uses ``error_table3`` (statistics measured on the Table 3 path). Reports the window-mean
-    error std of both and the b RMSPE of the two-step PF and the RB-PF on each. Also fits the
-    error process to the real errors on this path (``fitted_on_path``).
+    Scenario 1 path over ``hours``; the wheel at constant 2 V [R]; low noise; noise seeds
+    different from those the error statistics were fitted on. For each run the real
+    estimator's T^ (0.05 s) gives a 4800-sample quadrature per window; the synthetic T^ uses
+    ``error_table3`` (the error process used for Table 6, whatever runs it was fitted on).
+    Reports the window-mean error std of both and the b RMSPE of the two-step PF and the RB-PF
+    on each; also fits the error process to the real errors of these runs (``fitted_on_path``).
     """
     from rulkit.experiments.rw_step1 import Step1Config, run_step1
     from rulkit.models.lubrication import WINDOW_SAMPLES, fit_error_process, window_quadrature
@@ -1013,7 +1037,7 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     W = st.n_windows
     sid, si = 1, SOURCES.index(source)
     path = PATHS[sid]
-    t, V, T, x = simulate_wheel_on_path(path, W * WINDOW_S / 3600.0 + 1e-9)
+    t, V, T, x = _wheel_on_path_cached(sid, W * WINDOW_S / 3600.0 + 1e-9)
     model = ReactionWheel(noise="low")
     cfg = Step1Config(variant=STEP1_VARIANTS[source], n_particles=n_particles_step1)
     T_hat = np.empty((n_runs, W * WINDOW_SAMPLES))

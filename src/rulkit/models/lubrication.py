@@ -507,8 +507,8 @@ def fit_error_process(errors: FloatArray, *, hold_samples: int = 40, dt: float =
 
     bias = mean error; the error is averaged over hold blocks; std = std of the block means;
     ``tau = -hold_s / ln(rho_1)`` from the pooled lag-1 autocorrelation of the block means (a
-    lag-1 autocorrelation <= 0 gives tau = 0, i.e. independent blocks); ``white_std`` = std of the
-    residual within blocks.
+    lag-1 autocorrelation <= 0 gives tau = 0, i.e. independent blocks; tau is capped at the
+    record length); ``white_std`` = std of the residual within blocks.
     """
     e = np.atleast_2d(np.asarray(errors, dtype=np.float64))
     if not np.all(np.isfinite(e)):
@@ -525,7 +525,15 @@ def fit_error_process(errors: FloatArray, *, hold_samples: int = 40, dt: float =
     num = float((d[:, 1:] * d[:, :-1]).mean())
     rho = num / max(float((d * d).mean()), 1e-300)
     hold_s = hold_samples * dt
-    tau = float(-hold_s / np.log(rho)) if 0.0 < rho < 1.0 else 0.0
+    # rho <= 0: independent blocks (tau = 0); rho >= 1 (a trend-like error over the record,
+    # end effects can push the estimate past 1): capped at the record length
+    record_s = n_blocks * hold_s
+    if rho <= 0.0:
+        tau = 0.0
+    elif rho >= 1.0:
+        tau = record_s
+    else:
+        tau = min(float(-hold_s / np.log(rho)), record_s)
     return EstimateErrorProcess(bias_c=bias, std_c=std, tau_s=tau, hold_samples=hold_samples,
                                 white_std_c=white, source=source)
 
@@ -548,6 +556,9 @@ def synthetic_estimate_quadrature(path: TemperaturePath, error: EstimateErrorPro
     for k0 in range(0, n_windows, chunk_windows):
         k1 = min(n_windows, k0 + chunk_windows)
         T_hat, state = error.estimate_blocks(path, k0, k1 - k0, rngs, state)
+        # a synthetic estimate below 5 C (possible only for huge error statistics) is clipped
+        # there [R]: the loss law is singular at 0 C and step-1 priors start at 15 C
+        np.maximum(T_hat, T_MIN_C, out=T_hat)
         _check_temperature(T_hat, "synthetic T^")
         q = window_quadrature(1.0 / T_hat, n_nodes, count=WINDOW_SAMPLES)
         center[:, k0:k1], scale[:, k0:k1] = q.center, q.scale
