@@ -153,3 +153,19 @@ def test_state_space_model_contract() -> None:
         ReactionWheel(noise="medium")
     ripple = ReactionWheel(ripple=True)
     assert ripple.n_x == 3 and ripple.params.B == 0.22
+
+
+def test_rk4_step_jacobian_matches_finite_differences() -> None:
+    """Tangent-linear RK4 Jacobian of [I, w, T] vs the engine's central differences, including
+    the speed limiter (w > w_s) and the EMF limiter (V_bus = 8 V)."""
+    from rulkit.estimation.kalman import numerical_jacobian
+    from rulkit.models.reaction_wheel import rk4_wheel_step_jacobian
+
+    x = np.array([[0.19, 91.4, 23.0], [0.57, 300.0, 33.0], [0.05, 2.0, 40.0], [0.1, 700.0, 30.0]])
+    for p in (IthacoParams(), IthacoParams(V_bus=8.0)):
+        def step(xx: np.ndarray, p: IthacoParams = p) -> np.ndarray:
+            X = rk4_wheel_step(xx[:, :2], 1.0, xx[:, 2], 3.0, 0.05, p)
+            return np.column_stack([X, xx[:, 2]])
+
+        J = rk4_wheel_step_jacobian(x, 1.0, x[:, 2], 3.0, 0.05, p)
+        np.testing.assert_allclose(J, numerical_jacobian(step, x), rtol=1e-6, atol=1e-7)

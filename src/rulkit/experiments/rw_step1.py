@@ -45,6 +45,7 @@ from rulkit.models.reaction_wheel import (
     IthacoParams,
     ReactionWheel,
     rk4_wheel_step,
+    rk4_wheel_step_jacobian,
     simulate_table3,
 )
 
@@ -443,6 +444,7 @@ def run_ekf(
     q_Iw: tuple[float, float] = (1e-6, 1e-6),
     T_prior: tuple[float, float] = (15.0, 45.0),
     params: IthacoParams | None = None,
+    analytic_jacobian: bool = True,
 ) -> EKFResult:
     """Extended Kalman filter on [I, w, T] (spec section 3 reference), batched over B units.
 
@@ -451,7 +453,8 @@ def run_ekf(
     RK4 step of the wheel with T held, T a random walk of step ``q_T``; tiny process noise
     ``q_Iw`` on [I, w] keeps P well conditioned. Prior: [I, w] = y_0 with covariance R, T with
     the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.kalman.ExtendedKalmanFilter`
-    (finite-difference Jacobians).
+    with the tangent-linear RK4 Jacobian (:func:`rk4_wheel_step_jacobian`; finite differences
+    when ``analytic_jacobian=False``).
     """
     from rulkit.estimation.kalman import ExtendedKalmanFilter
 
@@ -470,8 +473,13 @@ def run_ekf(
         X = rk4_wheel_step(x[:, :2], u, x[:, 2], t0 + j * dt, dt, p)
         return np.column_stack([X, x[:, 2]])
 
+    def jac_f(x: FloatArray, u: float, j: int) -> FloatArray:
+        return rk4_wheel_step_jacobian(x, u, x[:, 2], t0 + j * dt, dt, p)
+
     def h(x: FloatArray, u: float, j: int) -> FloatArray:
         return np.column_stack([x[:, 1], x[:, 0]])
+
+    H = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
 
     sg = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (B, 2))  # per unit [sw, sI]
     if not np.all(sg > 0):
@@ -480,7 +488,8 @@ def run_ekf(
     Q = np.diag([q_Iw[0] ** 2, q_Iw[1] ** 2, q_T**2])
     R = np.zeros((B, 2, 2))
     R[:, 0, 0], R[:, 1, 1] = sw**2, sI**2
-    ekf = ExtendedKalmanFilter(f, h, Q, R)
+    ekf = ExtendedKalmanFilter(f, h, Q, R, jac_f=jac_f if analytic_jacobian else None,
+                               jac_h=lambda x, u, j: H)
     lo, hi = T_prior
     x0 = np.column_stack([Y[0, :, 1], Y[0, :, 0], np.full(B, 0.5 * (lo + hi))])
     P0 = np.zeros((B, 3, 3))

@@ -128,6 +128,63 @@ def rk4_wheel_step(
     return rk4_step(f, x, t, dt)
 
 
+def wheel_jacobian(
+    x: FloatArray, V_comm: FloatArray | float, T: FloatArray | float, t: float, p: IthacoParams
+) -> FloatArray:
+    """Jacobian of :func:`wheel_derivatives` w.r.t. the augmented state [I, w, T], (N, 3, 3)
+    (last row zero: T is held). Valid away from the kinks (|w| = w_s, V_h = 0, I_bus = 0,
+    w = 0), where the one-sided derivative of the active branch is used; ripple not modelled.
+    """
+    I = x[:, 0]
+    w = x[:, 1]
+    n = I.shape[0]
+    sI = np.sign(I)
+    sw = np.sign(w)
+    I_bus = (p.R_B * I * I + 0.04 * np.abs(I) * p.V_bus + p.P_q + p.K_e * w * I) / p.V_bus
+    on = (I_bus > 0.0).astype(np.float64)
+    dIbus_dI = (2 * p.R_B * I + 0.04 * sI * p.V_bus + p.K_e * w) / p.V_bus
+    dIbus_dw = p.K_e * I / p.V_bus
+    V_h = p.K_f * (p.V_bus - 6.0 - (1.0 + p.R_in * I_bus) * on - p.K_e * np.abs(w))
+    neg = (V_h < 0.0).astype(np.float64)
+    df3_dI = neg * (-p.K_f * p.R_in * dIbus_dI * on)
+    df3_dw = neg * p.K_f * (-p.R_in * dIbus_dw * on - p.K_e * sw)
+    df5_dw = p.K_s * (np.abs(w) >= p.w_s)
+    b = viscous_coefficient(T, p.friction_law)
+    db = -1e-3 * 0.0002 if p.friction_law == "spec" else -0.0002
+    Jm = np.zeros((n, 3, 3))
+    Jm[:, 0, 0] = p.w_d * (p.G_d * df3_dI - 1.0)
+    Jm[:, 0, 1] = p.w_d * p.G_d * (df3_dw - df5_dw)
+    Jm[:, 1, 0] = p.K_t / p.J
+    Jm[:, 1, 1] = -b / p.J
+    Jm[:, 1, 2] = -db * w / p.J
+    return Jm
+
+
+def rk4_wheel_step_jacobian(
+    x: FloatArray, V_comm: float, T: FloatArray, t: float, dt: float, p: IthacoParams
+) -> FloatArray:
+    """Jacobian (N, 3, 3) of one RK4 step of the augmented state [I, w, T] (T held) w.r.t. its
+    start, by propagating the tangent-linear RK4 stages with :func:`wheel_jacobian`."""
+    h = 0.5 * dt
+    X = np.asarray(x, dtype=np.float64)[:, :2]
+    T = np.broadcast_to(np.asarray(T, dtype=np.float64), (X.shape[0],))
+    eye = np.broadcast_to(np.eye(3), (X.shape[0], 3, 3))
+    k1 = wheel_derivatives(X, V_comm, T, t, p)
+    A1 = wheel_jacobian(X, V_comm, T, t, p)
+    X2 = X + h * k1
+    k2 = wheel_derivatives(X2, V_comm, T, t + h, p)
+    D2 = eye + h * A1
+    A2 = wheel_jacobian(X2, V_comm, T, t + h, p) @ D2
+    X3 = X + h * k2
+    k3 = wheel_derivatives(X3, V_comm, T, t + h, p)
+    D3 = eye + h * A2
+    A3 = wheel_jacobian(X3, V_comm, T, t + h, p) @ D3
+    X4 = X + dt * k3
+    D4 = eye + dt * A3
+    A4 = wheel_jacobian(X4, V_comm, T, t + dt, p) @ D4
+    return eye + dt / 6.0 * (A1 + 2.0 * (A2 + A3) + A4)
+
+
 class ReactionWheel(StateSpaceModel):
     """Ithaco type-A reaction wheel as a :class:`StateSpaceModel` (spec section 1).
 
