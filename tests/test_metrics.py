@@ -161,3 +161,43 @@ def test_crps_normal_vs_numerical_integration(mu, sigma, y):
     assert crps_normal(mu, sigma, y) == pytest.approx(left + right, rel=1e-8)
     with pytest.raises(ValueError, match="sigma"):
         crps_normal(0.0, 0.0, 1.0)
+
+
+def test_prognostic_horizon_with_distributions_and_censored_mass():
+    times = np.array([0.0, 50.0])
+    # absolute bounds r* +- 0.1 * 100: [90, 110] at t = 0, [40, 60] at t = 50
+    early = RULDistribution([10.0, 20.0, 95.0, 100.0])  # mass 0.5 in [90, 110]
+    # censored sample bounded below by 45: may lie above 60, counts as outside
+    late = RULDistribution([45.0, 50.0, 55.0, 200.0], censored=[True, False, False, False],
+                           horizon=200.0)
+    res = prognostic_horizon(times, [early, late], 100.0, alpha=0.1, beta=0.5)
+    assert res.inside.tolist() == [True, True] and res.horizon == 100.0
+    res = prognostic_horizon(times, [early, late], 100.0, alpha=0.1, beta=0.6)
+    assert res.inside.tolist() == [False, False] and math.isnan(res.horizon)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"t_eol": math.nan}, "t_eol"),
+        ({"t_eol": math.inf}, "t_eol"),
+        ({"alpha": math.nan}, "alpha"),
+        ({"alpha": 0.0}, "alpha"),
+        ({"beta": math.nan}, "beta"),
+        ({"beta": 0.0}, "beta"),
+        ({"beta": 1.5}, "beta"),
+    ],
+)
+def test_alpha_lambda_and_horizon_reject_bad_parameters(kwargs, match):
+    # a NaN t_eol or alpha made every bound comparison False: "no horizon" / "failed", silently
+    args = {"t_eol": 100.0, "alpha": 0.1, "beta": 0.5, **kwargs}
+    t_eol = args.pop("t_eol")
+    with pytest.raises(ValueError, match=match):
+        prognostic_horizon([0.0, 10.0], [100.0, 90.0], t_eol, **args)
+    with pytest.raises(ValueError, match=match):
+        alpha_lambda([0.0, 10.0], [100.0, 90.0], t_eol, **args)
+
+
+def test_convergence_rejects_non_finite_t_p():
+    with pytest.raises(ValueError, match="t_p"):
+        convergence([0.0, 1.0, 2.0], [1.0, 1.0, 1.0], t_p=math.nan)

@@ -122,6 +122,35 @@ def _point(pred: ArrayLike | Sequence[RULDistribution]) -> tuple[FloatArray, lis
     return _arr(pred, "rul_pred"), None
 
 
+def _prediction_series(
+    times: ArrayLike,
+    rul_pred: ArrayLike | Sequence[RULDistribution],
+    t_eol: float,
+    alpha: float,
+    beta: float,
+) -> tuple[FloatArray, FloatArray, list | None]:
+    """Validated (times, point predictions, distributions or None) of alpha-lambda and PH.
+
+    Checks equal 1-D shapes, strictly increasing finite times, a finite ``t_eol``,
+    ``alpha > 0`` and ``0 < beta <= 1`` (a NaN in any of them would make every comparison
+    False and the metric fail or pass silently).
+    """
+    t = _arr(times, "times")
+    r, dists = _point(rul_pred)
+    if t.ndim != 1 or r.shape != t.shape:
+        raise ValueError(f"times and rul_pred: expected equal 1-D shapes, got {t.shape}, {r.shape}")
+    if np.any(np.diff(t) <= 0):
+        i = int(np.flatnonzero(np.diff(t) <= 0)[0])
+        raise ValueError(f"times: not strictly increasing at index {i + 1}")
+    if not math.isfinite(t_eol):
+        raise ValueError(f"t_eol: expected a finite end-of-life time, got {t_eol!r}")
+    if not alpha > 0 or not math.isfinite(alpha):
+        raise ValueError(f"alpha: expected a finite positive value, got {alpha!r}")
+    if not 0 < beta <= 1:
+        raise ValueError(f"beta: expected a probability in (0, 1], got {beta!r}")
+    return t, r, dists
+
+
 def _mass_in(dist: RULDistribution, lo: float, hi: float) -> float:
     """Probability mass of ``dist`` in [lo, hi].
 
@@ -168,18 +197,12 @@ def alpha_lambda(
     :class:`RULDistribution` it passes when the probability mass inside those bounds is
     ``>= beta`` (censored mass counts as outside unless the upper bound is infinite).
     """
-    t = _arr(times, "times")
-    r, dists = _point(rul_pred)
-    if t.ndim != 1 or r.shape != t.shape:
-        raise ValueError(f"times and rul_pred: expected equal 1-D shapes, got {t.shape}, {r.shape}")
-    if np.any(np.diff(t) <= 0):
-        i = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise ValueError(f"times: not strictly increasing at index {i + 1}")
+    t, r, dists = _prediction_series(times, rul_pred, t_eol, alpha, beta)
     if not 0 <= lam <= 1:
         raise ValueError(f"lam: expected a value in [0, 1], got {lam!r}")
-    if not alpha > 0:
-        raise ValueError(f"alpha: expected a positive value, got {alpha!r}")
     tp = float(t[0]) if t_p is None else float(t_p)
+    if not math.isfinite(tp):
+        raise ValueError(f"t_p: expected a finite time, got {t_p!r}")
     if not t_eol > tp:
         raise ValueError(f"t_eol: must exceed t_p ({tp!r}), got {t_eol!r}")
     t_lam = tp + lam * (t_eol - tp)
@@ -229,13 +252,7 @@ def prognostic_horizon(
     later literature). Only prediction times before ``t_eol`` are considered.
     Returns ``horizon = nan`` and ``index = -1`` when no time qualifies.
     """
-    t = _arr(times, "times")
-    r, dists = _point(rul_pred)
-    if t.ndim != 1 or r.shape != t.shape:
-        raise ValueError(f"times and rul_pred: expected equal 1-D shapes, got {t.shape}, {r.shape}")
-    if np.any(np.diff(t) <= 0):
-        i = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise ValueError(f"times: not strictly increasing at index {i + 1}")
+    t, r, dists = _prediction_series(times, rul_pred, t_eol, alpha, beta)
     if bounds not in ("absolute", "relative"):
         raise ValueError(f"bounds: expected 'absolute' or 'relative', got {bounds!r}")
     rt = t_eol - t
@@ -293,6 +310,8 @@ def convergence(times: ArrayLike, metric: ArrayLike, t_p: float | None = None) -
     xc = float(np.sum((t[1:] ** 2 - t[:-1] ** 2) * mi)) / (2 * area)
     yc = float(np.sum(dtv * mi**2)) / (2 * area)
     tp = float(t[0]) if t_p is None else float(t_p)
+    if not math.isfinite(tp):
+        raise ValueError(f"t_p: expected a finite time, got {t_p!r}")
     return math.hypot(xc - tp, yc)
 
 
