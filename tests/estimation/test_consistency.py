@@ -153,3 +153,42 @@ def test_check_innovations_drops_skipped_steps_and_rejects_partial_nan():
     gappy[5, 0] = np.nan  # partially missing row
     with pytest.raises(ValueError, match="non-finite"):
         C.check_innovations(gappy, S)
+
+
+def test_state_error_check_leaves_out_undefined_nees_steps():
+    rng = np.random.default_rng(9)
+    T, n = 400, 3
+    P = np.broadcast_to(np.diag([1.0, 2.0, 0.5]), (T, n, n))
+    err = rng.standard_normal((T, n)) * np.sqrt(np.diag(P[0]))
+    nees = C.normalised_squared(err, P)
+    gappy = nees.copy()
+    gappy[::4] = np.nan  # steps where the NEES could not be computed
+    r = C.state_error_check(gappy, err, np.diagonal(P, axis1=1, axis2=2))
+    keep = np.arange(T) % 4 != 0
+    assert r.n_steps == keep.sum()
+    assert r.mean_nees == pytest.approx(nees[keep].mean(), rel=1e-12)
+    # chi-square interval of the mean of 300 chi2_3 variables: 900 degrees of freedom
+    lo, hi = stats.chi2.ppf([0.025, 0.975], 3 * keep.sum()) / keep.sum()
+    assert r.nees_interval == pytest.approx((lo, hi), rel=1e-12)
+    # NaN steps are not counted as outside the ellipsoid
+    assert r.ellipsoid_fraction == pytest.approx(np.mean(nees[keep] <= 9.0), rel=1e-12)
+    # the full-P entry point gives the same numbers on the finite steps
+    full = C.check_state_errors(err[keep], P[keep])
+    assert full.mean_nees == pytest.approx(r.mean_nees) and full.nees_interval == r.nees_interval
+    with pytest.raises(ValueError, match="no finite step"):
+        C.state_error_check(np.full(T, np.nan), err, np.diagonal(P, axis1=1, axis2=2))
+    with pytest.raises(ValueError, match="step 2"):
+        C.state_error_check(np.r_[1.0, 1.0, np.inf, np.ones(T - 3)], err,
+                            np.diagonal(P, axis1=1, axis2=2))
+
+
+def test_whiten_and_check_innovations_reject_bad_input():
+    S = np.stack([np.eye(2), np.diag([1.0, -1.0])])
+    with pytest.raises(ValueError, match=r"S: not positive definite at index \(1,\)"):
+        C.whiten(np.ones((2, 2)), S)
+    nu = np.random.default_rng(0).standard_normal((100, 2))
+    S = np.broadcast_to(np.eye(2), (100, 2, 2))
+    with pytest.raises(ValueError, match="whiteness_alpha"):
+        C.check_innovations(nu, S, whiteness_alpha=0.0)
+    with pytest.raises(ValueError, match="c must be"):
+        C.bounds_coverage(nu, np.ones_like(nu), c=np.nan)

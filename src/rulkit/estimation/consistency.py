@@ -124,6 +124,8 @@ def bounds_coverage(err: np.ndarray, var: np.ndarray, c: float = 3.0) -> FloatAr
     _check_finite(v, "var")
     if np.any(v < 0):
         raise ValueError("var: negative variance")
+    if not (np.isfinite(c) and c > 0):
+        raise ValueError(f"bounds_coverage: c must be finite and > 0, got {c}")
     return np.mean(np.abs(e) <= c * np.sqrt(v), axis=0)
 
 
@@ -180,9 +182,17 @@ def whiten(nu: np.ndarray, S: np.ndarray) -> FloatArray:
     """
     nu = np.asarray(nu, dtype=np.float64)
     S = np.asarray(S, dtype=np.float64)
-    if S.shape != (*nu.shape, nu.shape[-1]):
+    if nu.ndim < 1 or S.shape != (*nu.shape, nu.shape[-1]):
         raise ValueError(f"whiten: nu {nu.shape} and S {S.shape} disagree")
-    L = np.linalg.cholesky(S)
+    _check_finite(nu, "nu")
+    _check_finite(S, "S")
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        eig = np.linalg.eigvalsh(S).min(axis=-1)
+        bad = np.argwhere(eig <= 0)
+        where = tuple(int(i) for i in bad[0]) if bad.size else ()
+        raise ValueError(f"S: not positive definite at index {where}") from None
     return np.linalg.solve(L, nu[..., None])[..., 0]
 
 
@@ -261,6 +271,9 @@ def check_innovations(
     if missing.any():
         nu, S = nu[~missing], S[~missing]
     T, m = nu.shape
+    if not 0.0 < whiteness_alpha < 1.0:
+        raise ValueError(f"check_innovations: whiteness_alpha must be in (0, 1), got "
+                         f"{whiteness_alpha}")
     if T <= max_lag + 1:
         raise ValueError(f"check_innovations: need more than {max_lag + 1} steps, got {T}")
     nis = normalised_squared(nu, S)
@@ -332,18 +345,44 @@ def check_state_errors(
     if err.ndim != 2 or P.shape != (*err.shape, err.shape[1]):
         raise ValueError(f"check_state_errors: err must be (T, n) and P (T, n, n); got "
                          f"{err.shape}, {P.shape}")
-    T, n = err.shape
     nees = normalised_squared(err, P)
-    lo, hi = chi2_interval(n, T, level)
-    cov = bounds_coverage(err, np.diagonal(P, axis1=1, axis2=2), c)
-    mean_nees = float(nees.mean())
+    return state_error_check(nees, err, np.diagonal(P, axis1=1, axis2=2), c=c, level=level)
+
+
+def state_error_check(
+    nees: np.ndarray, err: np.ndarray, var: np.ndarray, *, c: float = 3.0, level: float = 0.95
+) -> StateErrorCheck:
+    """:class:`StateErrorCheck` from a per-step NEES series ``nees`` (T,), the errors ``err``
+    (T, n) and the variances ``var`` (T, n) (diag P): for filters that keep only diag P.
+
+    NaN entries of ``nees`` mark steps where the NEES is undefined (a numerically singular P):
+    they are left out of the mean, of the ellipsoid fraction and of the chi-square interval,
+    whose degrees of freedom are n times the number of finite steps (``n_steps``).
+    Infinite NEES values are errors.
+    """
+    nees = np.asarray(nees, dtype=np.float64)
+    e = np.asarray(err, dtype=np.float64)
+    if nees.ndim != 1 or e.ndim != 2 or e.shape[0] != nees.shape[0]:
+        raise ValueError(f"state_error_check: nees must be (T,) and err (T, n); got "
+                         f"{nees.shape}, {e.shape}")
+    if np.any(np.isinf(nees)) or np.any(nees < 0):
+        i = int(np.flatnonzero(np.isinf(nees) | (nees < 0))[0])
+        raise ValueError(f"nees: infinite or negative value at step {i}")
+    ok = ~np.isnan(nees)
+    T_used = int(ok.sum())
+    if T_used == 0:
+        raise ValueError("nees: no finite step")
+    n = e.shape[1]
+    lo, hi = chi2_interval(n, T_used, level)
+    mean_nees = float(nees[ok].mean())
+    cov = bounds_coverage(e, var, c)
     return StateErrorCheck(
-        n_steps=T,
+        n_steps=T_used,
         dim=n,
         c=c,
         mean_nees=mean_nees,
         nees_interval=(lo, hi),
-        ellipsoid_fraction=float(np.mean(nees <= c * c)),
+        ellipsoid_fraction=float(np.mean(nees[ok] <= c * c)),
         ellipsoid_nominal=ellipsoid_probability(c, n),
         chebyshev_bound=chebyshev_ellipsoid_bound(c, n),
         seed_erf_statement=erf_statement(c),

@@ -23,12 +23,8 @@ from scipy.linalg import expm
 from rulkit.estimation.consistency import (
     InnovationCheck,
     StateErrorCheck,
-    bounds_coverage,
-    chebyshev_ellipsoid_bound,
     check_innovations,
-    chi2_interval,
-    ellipsoid_probability,
-    erf_statement,
+    state_error_check,
 )
 from rulkit.estimation.kalman import ExtendedKalmanFilter
 from rulkit.models import friction_drive as fd
@@ -781,7 +777,7 @@ def run_study(
         err = truth_b[:, b] - res.x[:, b]
         # NEES needs the full P; we keep diag only, so the state check uses the per-step NEES
         # computed in the loop and the diagonal for the coverage.
-        se = _state_check_from_run(err[1:], res.Pdiag[1:, b], res.nees[:, b])
+        se = state_error_check(res.nees[:, b], err[1:], res.Pdiag[1:, b])
         xb = res.x[-1, b]
         Pd = res.Pdiag[-1, b]
         m_true = truths[s].X[-1, 3]
@@ -825,22 +821,4 @@ def run_study(
         filter_seconds=res.seconds,
         settings={"dt": dt, "duration": duration, "n_rul": n_rul, "truth_substeps": truth_substeps,
                   "n_validate": n_validate, "B": B},
-    )
-
-
-def _state_check_from_run(err: FloatArray, Pdiag: FloatArray, nees: FloatArray,
-                          c: float = 3.0, level: float = 0.95) -> StateErrorCheck:
-    """:class:`StateErrorCheck` from a per-step NEES series and the diagonal of P."""
-    n = err.shape[1]
-    lo, hi = chi2_interval(n, err.shape[0], level)
-    mean_nees = float(np.nanmean(nees))
-    return StateErrorCheck(
-        n_steps=err.shape[0], dim=n, c=c, mean_nees=mean_nees, nees_interval=(lo, hi),
-        ellipsoid_fraction=float(np.mean(nees <= c * c)),
-        ellipsoid_nominal=ellipsoid_probability(c, n),
-        chebyshev_bound=chebyshev_ellipsoid_bound(c, n),
-        seed_erf_statement=erf_statement(c),
-        state_coverage=tuple(float(v) for v in bounds_coverage(err, Pdiag, c)),
-        state_coverage_nominal=erf_statement(c),
-        nees_ok=bool(lo <= mean_nees <= hi),
     )
