@@ -183,3 +183,25 @@ def test_time_to_alpha_matches_the_stored_path():
     assert xe[0, 2] == pytest.approx(path[k, 0], rel=1e-12)
     assert np.isinf(t[1]) and xe[1, 2] == 10.0  # m = 0: never
     assert t[2] == 0.0
+
+
+def test_nan_inputs_are_refused_not_read_as_never_failing():
+    # m = NaN failed the "m > 0" test and came back as +inf ("never fails") before
+    with pytest.raises(ValueError, match="m: non-finite"):
+        fd.quasi_steady_time(np.array([5.0, 5.0]), 0.1, np.array([0.01, np.nan]), 20.0)
+    with pytest.raises(ValueError, match="alpha_start"):
+        fd.quasi_steady_time(np.array([-1.0]), 0.1, 0.01, 20.0)
+    with pytest.raises(ValueError, match="alpha_end"):
+        fd.quasi_steady_time(np.array([5.0]), np.nan, 0.01, 20.0)
+    with pytest.raises(ValueError, match="current"):
+        fd.quasi_steady_alpha(5.0, 0.01, np.nan, 10.0)
+    with pytest.raises(ValueError, match="t: expected"):
+        fd.quasi_steady_alpha(5.0, 0.01, 20.0, -1.0)
+    with pytest.raises(ValueError, match="alpha_level"):
+        fd.time_to_alpha(np.array([[0.0, 0.0, 10.0, 0.01]]), 20.0, np.nan, 1e-3, 1.0)
+    with pytest.raises(ValueError, match="current"):
+        fd.time_to_alpha(np.array([[0.0, 0.0, 10.0, 0.01]]), np.nan, 9.0, 1e-3, 1.0)
+    with pytest.raises(ValueError, match="n_sub"):
+        fd.FrictionDriveModel(n_sub=0)
+    with pytest.raises(ValueError, match="dt"):
+        fd.FrictionDriveModel(dt=np.nan)

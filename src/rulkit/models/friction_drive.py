@@ -211,6 +211,20 @@ def _f_scalar(w1, w2, a, m, cur, pr):  # pragma: no cover - compiled
     return d1, d2, d3
 
 
+@numba.njit(cache=True, inline="always")
+def _rk4_scalar(w1, w2, a, m, cur, h, pr):  # pragma: no cover - compiled
+    """One classical RK4 step of (w1, w2, alpha) over ``h`` (m and the current held)."""
+    a1, b1, c1 = _f_scalar(w1, w2, a, m, cur, pr)
+    a2, b2, c2 = _f_scalar(w1 + 0.5 * h * a1, w2 + 0.5 * h * b1, a + 0.5 * h * c1, m, cur, pr)
+    a3, b3, c3 = _f_scalar(w1 + 0.5 * h * a2, w2 + 0.5 * h * b2, a + 0.5 * h * c2, m, cur, pr)
+    a4, b4, c4 = _f_scalar(w1 + h * a3, w2 + h * b3, a + h * c3, m, cur, pr)
+    return (
+        w1 + (h / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
+        w2 + (h / 6.0) * (b1 + 2.0 * b2 + 2.0 * b3 + b4),
+        a + (h / 6.0) * (c1 + 2.0 * c2 + 2.0 * c3 + c4),
+    )
+
+
 @numba.njit(cache=True)
 def _integrate_path_kernel(x0, currents, dt, n_sub, m_path, use_m, pr, store):  # pragma: no cover
     N = x0.shape[0]
@@ -230,17 +244,7 @@ def _integrate_path_kernel(x0, currents, dt, n_sub, m_path, use_m, pr, store):  
                 m = m_path[k]
             cur = currents[k]
             for _ in range(n_sub):
-                a1, b1, c1 = _f_scalar(w1, w2, a, m, cur, pr)
-                a2, b2, c2 = _f_scalar(
-                    w1 + 0.5 * h * a1, w2 + 0.5 * h * b1, a + 0.5 * h * c1, m, cur, pr
-                )
-                a3, b3, c3 = _f_scalar(
-                    w1 + 0.5 * h * a2, w2 + 0.5 * h * b2, a + 0.5 * h * c2, m, cur, pr
-                )
-                a4, b4, c4 = _f_scalar(w1 + h * a3, w2 + h * b3, a + h * c3, m, cur, pr)
-                w1 = w1 + (h / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-                w2 = w2 + (h / 6.0) * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-                a = a + (h / 6.0) * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
+                w1, w2, a = _rk4_scalar(w1, w2, a, m, cur, h, pr)
             if store:
                 out[k + 1, i, 0] = w1
                 out[k + 1, i, 1] = w2
@@ -297,17 +301,7 @@ def _time_to_alpha_kernel(x0, current, dt, alpha_level, max_steps, pr):  # pragm
             out[i] = 0.0
         else:
             for k in range(max_steps):
-                a1, b1, c1 = _f_scalar(w1, w2, a, m, current, pr)
-                a2, b2, c2 = _f_scalar(
-                    w1 + 0.5 * dt * a1, w2 + 0.5 * dt * b1, a + 0.5 * dt * c1, m, current, pr
-                )
-                a3, b3, c3 = _f_scalar(
-                    w1 + 0.5 * dt * a2, w2 + 0.5 * dt * b2, a + 0.5 * dt * c2, m, current, pr
-                )
-                a4, b4, c4 = _f_scalar(w1 + dt * a3, w2 + dt * b3, a + dt * c3, m, current, pr)
-                a_new = a + (dt / 6.0) * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
-                w1 = w1 + (dt / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-                w2 = w2 + (dt / 6.0) * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                w1, w2, a_new = _rk4_scalar(w1, w2, a, m, current, dt, pr)
                 if a_new <= alpha_level:
                     out[i] = (k + (a - alpha_level) / (a - a_new)) * dt
                     a = a_new
@@ -335,6 +329,10 @@ def time_to_alpha(
     x0 = as_batch(x0, 4, "x0")
     if not (np.isfinite(dt) and dt > 0 and np.isfinite(t_max) and t_max >= 0):
         raise ValueError(f"dt, t_max: expected finite dt > 0 and t_max >= 0, got {dt}, {t_max}")
+    if not (np.isfinite(current) and np.isfinite(alpha_level)):
+        # a NaN level or current made every crossing test False: 'never fails', silently
+        raise ValueError(f"current, alpha_level: expected finite values, got {current}, "
+                         f"{alpha_level}")
     n = round(t_max / dt)
     return _time_to_alpha_kernel(
         np.ascontiguousarray(x0), float(current), float(dt), float(alpha_level), int(n),
@@ -365,6 +363,18 @@ def quasi_steady_slip(
     return params.gain(current) / (1.0 + params.c * np.asarray(alpha, dtype=np.float64))
 
 
+def _check_quasi_steady_args(a_s: FloatArray, m: FloatArray, current: float, name: str) -> None:
+    """Finite alpha > 0, finite m and a finite current (a NaN m read as 'never fails')."""
+    bad = np.flatnonzero(np.ravel(~(np.isfinite(a_s) & (a_s > 0))))
+    if bad.size:
+        raise ValueError(f"{name}: expected finite values > 0, bad at flat index {bad[0]}")
+    bad = np.flatnonzero(np.ravel(~np.isfinite(m)))
+    if bad.size:
+        raise ValueError(f"m: non-finite value at flat index {bad[0]}")
+    if not np.isfinite(current):
+        raise ValueError(f"current: expected a finite value, got {current}")
+
+
 def _phi(alpha: FloatArray, c: float) -> FloatArray:
     """Antiderivative of (1 + c a)^2 / a: ln a + 2 c a + c^2 a^2 / 2."""
     return np.log(alpha) + 2.0 * c * alpha + 0.5 * c * c * alpha * alpha
@@ -386,6 +396,9 @@ def quasi_steady_time(
     a_s = np.asarray(alpha_start, dtype=np.float64)
     a_e = np.broadcast_to(np.asarray(alpha_end, dtype=np.float64), a_s.shape)
     m = np.broadcast_to(np.asarray(m, dtype=np.float64), a_s.shape)
+    _check_quasi_steady_args(a_s, m, current, "alpha_start")
+    if not np.all(np.isfinite(a_e) & (a_e > 0)):
+        raise ValueError("alpha_end: expected finite values > 0")
     G2 = float(params.gain(current)) ** 2
     c = params.c
     out = np.full(a_s.shape, np.inf)
@@ -414,6 +427,9 @@ def quasi_steady_alpha(
         np.asarray(m, dtype=np.float64),
         np.asarray(t, dtype=np.float64),
     )
+    _check_quasi_steady_args(a_s, m, current, "alpha_start")
+    if not np.all(np.isfinite(t) & (t >= 0)):
+        raise ValueError("t: expected finite times >= 0")
     c = params.c
     G2 = float(params.gain(current)) ** 2
     target = _phi(a_s, c) - np.maximum(m, 0.0) * G2 * t
@@ -468,6 +484,10 @@ class FrictionDriveModel(StateSpaceModel):
         n_sub: int = 1,
         dt: float = 1e-3,
     ) -> None:
+        if int(n_sub) != n_sub or n_sub < 1:
+            raise ValueError(f"n_sub: expected an integer >= 1, got {n_sub}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: expected a finite value > 0, got {dt}")
         self.params = params
         self.n_sub = int(n_sub)
         self.dt = float(dt)
