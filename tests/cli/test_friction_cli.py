@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 from typer.testing import CliRunner
 
@@ -29,6 +30,18 @@ def test_reproduce_friction_drive_small(tmp_path):
     assert (rul["N"] == 20).all()
     cons = pd.read_csv(out / "consistency.csv")
     assert len(cons) == 9  # nine (filter, scenario) pairs, one run each
+    # the report's text describes this run, not the 20 s default: at t_pred = 3 s the jump of
+    # m (at 10 s) has not happened, so the truth's RUL is computed with m = 0.01
+    assert "(LSODA, m = 0.01, alpha = " in rep
+    truth_h = float(res.output.split("from the truth state at 3 s: ")[1].split(" h")[0])
+    assert f"**{truth_h:.2f} h**" in rep
+    np.testing.assert_allclose(rul["true_rul_h"], truth_h, atol=0.005)
+    assert truth_h > 250  # m = 0.01 from alpha ~ 9.7: ~290 h, not the ~105 h of m = 0.02
+    n_steps = 3000
+    assert f"{n_steps} steps make them sensitive" in rep
+    # the LSODA check sentence quotes the measured maximum, in seconds
+    worst_s = rul["lsoda_check_max_abs_h"].max() * 3600.0
+    assert f"max |fast - LSODA| {worst_s:.1f} s over {rul['lsoda_check_n'].sum()} samples" in rep
 
 
 def test_reproduce_friction_drive_rejects_bad_options(tmp_path):
