@@ -236,8 +236,9 @@ def bench_pf(n: int, model: ToyDegradation, ys: np.ndarray, seed: int, reps: int
         t_pp, post_pp = res["peer"]
         t_pps, post_pps = res["peer_sys"]
         rp = f"medians of {reps} / {reps_peer}"
-        line(f"{what} ours (systematic, resample every step) vs ProgPy 1.9.0 ParticleFilter "
-             "(default residual_resample)", t_ours, t_pp, "ProgPy", rp)
+        line(f"{what} ours (systematic, resample every step; per-step weighted mean + cov, no "
+             "quantiles) vs ProgPy 1.9.0 ParticleFilter (default residual_resample; no per-step "
+             "summaries)", t_ours, t_pp, "ProgPy", rp)
         line(f"{what} ours (rulkit default: resample when ESS < N/2) vs ProgPy 1.9.0 "
              "ParticleFilter (default)", t_def, t_pp, "ProgPy", rp)
         line(f"{what} ours (resample every step) vs ProgPy 1.9.0 ParticleFilter "
@@ -302,7 +303,9 @@ def bench_mc(samples: np.ndarray, dt: float, model: ToyDegradation, seed: int, r
     snapped = np.ceil(dist.samples / dt - 1e-9) * dt  # type: ignore[attr-defined]
     if pp is not None:
         t_pp, toe = res["peer"]
-        line(f"{what} ours (propagate_to_threshold) vs ProgPy 1.9.0 MonteCarlo", t_ours, t_pp,
+        line(f"{what} ours (propagate_to_threshold; all samples stepped until the last one "
+             "crosses) vs ProgPy 1.9.0 MonteCarlo (each sample simulated to its own event)",
+             t_ours, t_pp,
              "ProgPy", f"medians of {reps} / {reps_peer}")
         toe = np.asarray(toe)
         n_cens = int(np.isnan(toe).sum())

@@ -582,3 +582,47 @@ def test_per_step_accepts_non_numeric_measurement():
     s = pf.initialise(np.zeros((10, 1)), np.random.default_rng(0))
     pf.step(s, {"z": 0.3})
     assert s.k == 0 and not s.skipped and np.isfinite(s.loglik)
+
+
+def test_per_step_covariance_matches_numpy_weighted_cov():
+    """The filter's per-step covariance (computed on the transpose) against numpy's weighted
+    covariance of the kept weighted particle sets, for a 2-state model."""
+    f = np.array([[1.0, 1.0], [0.0, 1.0]])
+
+    def tr(x, k, rng):
+        return x @ f.T + rng.standard_normal(x.shape) * [0.1, 0.01]
+
+    def ll(x, y, k):
+        return -0.5 * ((y[0] - x[:, 0]) / 0.5) ** 2
+
+    ys = np.cumsum(np.full(8, 0.3))[:, None] + np.random.default_rng(0).normal(0, 0.5, (8, 1))
+    x0 = np.random.default_rng(1).normal([0.0, 0.3], [1.0, 0.1], (500, 2))
+    r = ParticleFilter(tr, ll).filter(ys, x0, np.random.default_rng(2), keep_particles=True)
+    for k in range(8):
+        x, w = r.particle_history[k], r.weight_history[k]
+        np.testing.assert_allclose(r.cov[k], np.cov(x.T, aweights=w, bias=True),
+                                   rtol=1e-10, atol=1e-15)
+        np.testing.assert_allclose(r.cov[k], weighted_cov(x, w), rtol=1e-12, atol=1e-17)
+
+
+def test_weight_update_plugin_array_is_not_modified():
+    """A weight_update that returns an array it keeps (here: the log-likelihood itself) must
+    not see it changed by the filter's normalisation."""
+    kept = []
+
+    def wu(logw, ll, state):
+        kept.append((ll, ll.copy()))
+        return ll
+
+    def tr(x, k, rng):
+        return x + rng.standard_normal(x.shape)
+
+    def ll(x, y, k):
+        return -0.5 * (y[0] - x[:, 0]) ** 2
+
+    ParticleFilter(tr, ll, weight_update=wu).filter(
+        np.zeros((3, 1)), np.zeros((50, 1)), np.random.default_rng(0)
+    )
+    assert len(kept) == 3
+    for arr, copy in kept:
+        np.testing.assert_array_equal(arr, copy)

@@ -229,3 +229,61 @@ def test_get_resampler():
         get_resampler("bogus")
     with pytest.raises(TypeError, match="resampler must be"):
         get_resampler(3)  # type: ignore[arg-type]
+
+
+# ------------------------------------------- compiled systematic kernel vs the numpy reference
+class _FixedUniform:
+    """Stand-in generator whose single ``random()`` draw is ``u`` (to probe boundary cases)."""
+
+    def __init__(self, u: float) -> None:
+        self.u = u
+
+    def random(self) -> float:
+        return self.u
+
+
+def _weight_cases(rng: np.random.Generator):
+    yield W_MIXED
+    for n in (1, 2, 3, 7, 49, 1000, 10_007):
+        yield np.full(n, 1.0 / n)  # every position on or next to a cumulative-sum boundary
+    for n in (5, 60, 999, 4097):
+        yield rng.dirichlet(np.ones(n))
+        w = rng.random(n) * (rng.random(n) < 0.2)  # many zeros, including trailing ones
+        w[0] += 1.0
+        w[-(n // 4 or 1):] = 0.0
+        yield w / w.sum()
+        w = rng.integers(0, 4, n).astype(float)  # ties and exact multiples of 1/sum
+        w[n // 2] += 1.0
+        yield w / w.sum()
+        yield (w := rng.exponential(size=n) ** 8) / w.sum()  # a few dominant weights
+    w = np.full(10, 0.1)
+    w[-1] = 0.1 - 1e-9  # sum just below 1 (within the tolerance) with positive last weight
+    yield w
+
+
+@pytest.mark.parametrize("u", [0.0, 1.0 / 3.0, 0.5, float(np.nextafter(1.0, 0.0)), None])
+def test_systematic_kernel_equals_searchsorted_reference(u):
+    """The compiled merge pass returns exactly the indices of the numpy binary-search path,
+    including uniforms at 0 and just below 1 and weights whose cumulative sums meet the
+    positions exactly (equal weights, integer ratios)."""
+    rng = np.random.default_rng(11)
+    for w in _weight_cases(rng):
+        uu = rng.random() if u is None else u
+        ref = rs._systematic_reference(w, _FixedUniform(uu))
+        got = rs._systematic(w, _FixedUniform(uu))
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, ref)
+        # and the uncompiled body of the kernel (plain Python) agrees as well
+        if w.size <= 1000:
+            np.testing.assert_array_equal(rs._systematic_loop(w, uu), ref)
+
+
+def test_systematic_kernel_equals_reference_with_a_generator():
+    """Same generator state -> same indices as the reference, over many random weight sets."""
+    wr = np.random.default_rng(12)
+    for _ in range(200):
+        n = int(wr.integers(1, 3000))
+        w = wr.dirichlet(np.full(n, float(wr.choice([0.05, 1.0, 20.0]))))
+        a = rs._systematic(w, np.random.default_rng(n))
+        b = rs._systematic_reference(w, np.random.default_rng(n))
+        np.testing.assert_array_equal(a, b)

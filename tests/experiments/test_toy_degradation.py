@@ -134,3 +134,17 @@ def test_rul_intervals_are_calibrated_over_seeds():
         lo, hi = r.ruls[0].interval(0.9)
         hits.append(lo <= r.rul_true[0] <= hi)
     assert 0.85 <= np.mean(hits) <= 0.95
+
+
+@pytest.mark.parametrize("dt", [1.0, 0.1, 0.37])
+def test_model_step_is_f_x_plus_scaled_standard_normals(dt):
+    """The column-wise step equals ``F x + diag(sigma sqrt(dt)) z`` with the same N(0, 1)
+    draws ``z`` (N x 2, row-major) as an independent matrix form (noise law unchanged)."""
+    m = ToyDegradation(sigma_d=2e-3, sigma_r=3e-4)
+    x = np.random.default_rng(5).normal([0.4, 0.01], [0.1, 0.002], (300, 2))
+    x_before = x.copy()
+    got = m.step(x, None, 0.0, dt, np.random.default_rng(6))
+    z = np.random.default_rng(6).standard_normal((300, 2))
+    want = x @ m.transition_matrix(dt).T + z * np.sqrt(np.diag(m.process_cov(dt)))
+    np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-17)
+    np.testing.assert_array_equal(x, x_before)  # the input batch is not modified

@@ -130,9 +130,19 @@ def weighted_cov(x: FloatArray, w: FloatArray, mean: FloatArray | None = None) -
     w = np.asarray(w, dtype=np.float64)
     if x.ndim == 1:
         x = x[:, None]
-    m = w @ x if mean is None else mean
-    xc = x - m
-    return (xc.T * w) @ xc
+    return _cov(x, w, w @ x if mean is None else np.asarray(mean, dtype=np.float64))
+
+
+def _cov(x: FloatArray, w: FloatArray, m: FloatArray) -> FloatArray:
+    """``sum_i w_i (x_i - m)(x_i - m)^T`` for particles (N, n_x), computed on the transpose.
+
+    ``x - m`` on an (N, n_x) array with small ``n_x`` runs numpy's inner loop over ``n_x``
+    elements N times; on the (n_x, N) transpose the inner loops run over N (several times
+    faster at n_x = 2). Same products and BLAS reduction as ``((x - m).T * w) @ (x - m)``.
+    """
+    xc = x.T.copy()  # (n_x, N), C-contiguous
+    xc -= m[:, None]
+    return (xc * w) @ xc.T
 
 
 def weighted_quantile(values: FloatArray, w: FloatArray, q: float | FloatArray) -> FloatArray:
@@ -472,15 +482,18 @@ class ParticleFilter:
         if not math.isfinite(m):
             self._degenerate(state, new, ll, k)
             return
-        w = np.exp(new - m)
+        w = np.subtract(new, m)
+        np.exp(w, out=w)
         s = w.sum()
         w /= s
         lse = m + math.log(s)
         if self.weight_update is None:
             inc = lse  # logsumexp(logw_{k-1} + ll), logw_{k-1} normalised
+            new -= lse  # our own temporary
         else:
             inc = _logsumexp(state.logw + ll)
-        state.logw = new - lse
+            new = new - lse  # the plug-in's array may be referenced elsewhere: not in place
+        state.logw = new
         state.weights = w
         state.ess = 1.0 / float(np.dot(w, w))
         state.loglik_increment = inc
@@ -506,7 +519,7 @@ class ParticleFilter:
         idx = self._resample_kernel(state.weights, state.rng)
         if getattr(idx, "shape", None) != (n,):
             raise ValueError(f"resampler returned shape {np.shape(idx)}, expected ({n},)")
-        state.particles = state.particles[idx]
+        state.particles = state.particles.take(idx, axis=0)  # = [idx], without fancy indexing
         state.logw = np.full(n, -math.log(n))
         state.weights = np.full(n, 1.0 / n)
         state.ess = float(n)
@@ -577,8 +590,7 @@ class ParticleFilter:
             w = state.weights
             m = w @ x
             mean[k] = m
-            xc = x - m
-            cov[k] = (xc.T * w) @ xc
+            cov[k] = _cov(x, w, m)
             if qs is not None:
                 qs[k] = _weighted_quantile(x, w, q_levels)
             if p_hist is not None:
