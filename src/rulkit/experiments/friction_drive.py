@@ -597,12 +597,29 @@ def deterioration_bundle(
     params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
 ) -> FloatArray:
     """D(t) of each sample on ``t_grid_h`` (hours after t_pred; seed Fig. 7): full model over the
-    transient, then the quasi-steady inverse. Returns (N, len(t_grid_h))."""
+    transient (grid times inside it read off the stored RK4 path, linear between steps), then
+    the quasi-steady inverse of :func:`rulkit.models.friction_drive.quasi_steady_time`.
+    Returns (N, len(t_grid_h)); grid times must be finite and >= 0."""
+    t = np.asarray(t_grid_h, dtype=np.float64).reshape(-1) * HOUR
+    if not np.all(np.isfinite(t) & (t >= 0)):
+        raise ValueError("t_grid_h: expected finite times >= 0 (hours after t_pred)")
     n_tr = max(1, round(transient / dt))
-    xT = fd.integrate_path(samples, np.full(n_tr, float(current)), dt, params=params, store=False)
+    t_tr = n_tr * dt
+    inside = t < t_tr
+    cur = np.full(n_tr, float(current))
+    if inside.any():  # the path is stored only when a grid time falls inside the transient
+        full = fd.integrate_path(samples, cur, dt, params=params)  # (n_tr + 1, N, 4)
+        path, xT = full[:, :, 2], full[-1].copy()
+    else:
+        xT = fd.integrate_path(samples, cur, dt, params=params, store=False)
     xT[:, 2] = np.maximum(xT[:, 2], 1e-300)  # failed inside the transient: D = 1 on the plot
-    tt = np.maximum(np.asarray(t_grid_h) * HOUR - transient, 0.0)
-    a = fd.quasi_steady_alpha(xT[:, 2:3], xT[:, 3:4], current, tt[None, :], params)
+    a = fd.quasi_steady_alpha(xT[:, 2:3], xT[:, 3:4], current,
+                              np.maximum(t - t_tr, 0.0)[None, :], params)
+    if inside.any():
+        pos = t[inside] / dt
+        k = np.floor(pos).astype(np.int64)
+        f = (pos - k)[:, None]
+        a[:, inside] = ((1.0 - f) * path[k] + f * path[np.minimum(k + 1, n_tr)]).T
     return 1.0 - a / params.alpha0
 
 
