@@ -130,7 +130,9 @@ def weighted_cov(x: FloatArray, w: FloatArray, mean: FloatArray | None = None) -
     w = np.asarray(w, dtype=np.float64)
     if x.ndim == 1:
         x = x[:, None]
-    return _cov(x, w, w @ x if mean is None else np.asarray(mean, dtype=np.float64))
+    if mean is None:
+        return _mean_cov(x, w)[1]
+    return _cov(x, w, np.asarray(mean, dtype=np.float64))
 
 
 def _cov(x: FloatArray, w: FloatArray, m: FloatArray) -> FloatArray:
@@ -172,6 +174,16 @@ def weighted_quantile(values: FloatArray, w: FloatArray, q: float | FloatArray) 
     if np.isnan(v).any():
         raise ValueError("weighted_quantile: values contain NaN (no order is defined)")
     return _weighted_quantile(v, w, qa)
+
+
+def _mean_cov(x: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Weighted mean (n_x,) and covariance (n_x, n_x) of particles (N, n_x), as
+    :func:`weighted_mean` and :func:`weighted_cov`, from one transposed copy of ``x`` (see
+    :func:`_cov`)."""
+    xc = x.T.copy()  # (n_x, N), C-contiguous
+    m = xc @ w
+    xc -= m[:, None]
+    return m, (xc * w) @ xc.T
 
 
 def _weighted_quantile(v: FloatArray, w: FloatArray, qa: FloatArray) -> FloatArray:
@@ -240,12 +252,12 @@ class ParticleState:
         return self.particles.shape[0]
 
     def mean(self) -> FloatArray:
-        """Weighted mean of the particles (n_x,)."""
-        return self.weights @ self.particles
+        """Weighted mean of the particles (n_x,) (bit-identical to ``filter``'s summary)."""
+        return self.particles.T.copy() @ self.weights
 
     def cov(self) -> FloatArray:
-        """Weighted covariance of the particles (n_x, n_x)."""
-        return weighted_cov(self.particles, self.weights)
+        """Weighted covariance of the particles (n_x, n_x) (as ``filter``'s summary)."""
+        return _mean_cov(self.particles, self.weights)[1]
 
     def quantile(self, q: float | FloatArray) -> FloatArray:
         """Weighted marginal quantiles per state component, shape ``q.shape + (n_x,)``."""
@@ -436,7 +448,8 @@ class ParticleFilter:
                 f"transition at step {k}: returned shape {np.shape(x)}, "
                 f"expected {state.particles.shape}"
             )
-        if not np.isfinite(x).all():
+        # one reduction; a non-finite sum (NaN/inf, or overflow of finite values) is examined
+        if not math.isfinite(x.sum()) and not np.isfinite(x).all():
             i, j = np.argwhere(~np.isfinite(x))[0]
             raise ValueError(
                 f"transition at step {k}: non-finite value {x[i, j]} at particle {i}, state {j} "
@@ -588,9 +601,7 @@ class ParticleFilter:
             self.update(state, y_arr[k], missing=missing_list[k])
             x = state.particles
             w = state.weights
-            m = w @ x
-            mean[k] = m
-            cov[k] = _cov(x, w, m)
+            mean[k], cov[k] = _mean_cov(x, w)
             if qs is not None:
                 qs[k] = _weighted_quantile(x, w, q_levels)
             if p_hist is not None:
