@@ -23,6 +23,12 @@ from rulkit.estimation.particle import ParticleFilter
 from rulkit.models.toy_degradation import ToyDegradation
 
 
+def check(ok: bool, what: str) -> None:
+    """Exit with status 1 when a printed check fails (tests/test_examples.py runs this script)."""
+    if not ok:
+        raise SystemExit(f"CHECK FAILED: {what}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -72,6 +78,11 @@ def main(argv: list[str] | None = None) -> None:
               f"min ESS {res.ess.min():.0f}")
         print(f"[{resampler:11s}] log-likelihood: PF {res.loglik:.3f}, exact KF "
               f"{kr.loglik[0]:.3f} (difference {res.loglik - kr.loglik[0]:+.3f})")
+        mc = 1 / np.sqrt(res.ess.min())
+        check(z.max() < 10 * mc, f"{resampler}: PF mean within 10 Monte Carlo scales of the KF")
+        check(bool(np.all(np.abs(pf_std[-1] / kf_std[-1] - 1) < 0.2)),
+              f"{resampler}: PF std within 20 % of the exact std")
+        check(abs(res.loglik - kr.loglik[0]) < 2.0, f"{resampler}: log-likelihood within 2")
     print(f"true final state {xs[-1, 0]}, KF mean {kf_mean[-1]}, "
           f"KF std {kf_std[-1]}")
 

@@ -73,6 +73,12 @@ def simulate(B: int, T: int, x0: np.ndarray, P0: np.ndarray, rng: np.random.Gene
     return xs, ys
 
 
+def check(ok: bool, what: str) -> None:
+    """Exit with status 1 when a printed check fails (tests/test_examples.py runs this script)."""
+    if not ok:
+        raise SystemExit(f"CHECK FAILED: {what}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -89,6 +95,7 @@ def main(argv: list[str] | None = None) -> None:
     err_h = np.abs(numerical_jacobian(lambda x: h(x, None, 0), xr) - jac_h(xr, None, 0)).max()
     print(f"numerical_jacobian vs analytic at 1000 random states: max |error| "
           f"f {err_f:.1e}, h {err_h:.1e}")
+    check(max(err_f, err_h) < 1e-7, "finite-difference Jacobians agree with the analytic ones")
 
     # 2. same filter with analytic and with finite-difference Jacobians (B units at once)
     x0 = np.array([0.5, 0.0])
@@ -102,6 +109,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"EKF analytic vs finite-difference Jacobians, B={B} units x T={T} steps: "
           f"max |x diff| {np.abs(ra.x - rn.x).max():.1e}, "
           f"max |P diff| {np.abs(ra.P - rn.P).max():.1e}")
+    check(np.abs(ra.x - rn.x).max() < 1e-7 and np.abs(ra.P - rn.P).max() < 1e-7,
+          "EKF with analytic and with finite-difference Jacobians agree")
 
     # 3. consistency: NIS (innovations vs S) and NEES (true error vs P), chi-square oracles
     m, n = 1, 2
@@ -114,6 +123,10 @@ def main(argv: list[str] | None = None) -> None:
           f"mean NEES {nees.mean():.3f} (expectation {n})")
     print(f"unit-averaged NIS inside its 95% chi-square interval [{lo:.3f}, {hi:.3f}] "
           f"at {100 * inside:.0f}% of the {T} steps (expected about 95%)")
+    # s.e. of the mean of B T chi2_m values: sqrt(2 m / (B T)) (0.007 for NIS, 0.01 for NEES)
+    check(abs(nis.mean() - m) < 5 * np.sqrt(2 * m / nis.size), "mean NIS near m")
+    check(abs(nees.mean() - n) < 0.1 * n, "mean NEES within 10 % of n (EKF linearisation)")
+    check(inside >= 0.85, "unit-averaged NIS inside its 95 % interval at >= 85 % of steps")
     rmse = np.sqrt(np.mean(err[-1] ** 2, axis=0))
     print(f"RMSE at the last step over the {B} units: angle {rmse[0]:.4f} rad, "
           f"rate {rmse[1]:.4f} rad/s; filter std "

@@ -34,6 +34,12 @@ ex02 = importlib.util.module_from_spec(_spec)  # type: ignore[arg-type]
 _spec.loader.exec_module(ex02)  # type: ignore[union-attr]
 
 
+def check(ok: bool, what: str) -> None:
+    """Exit with status 1 when a printed check fails (tests/test_examples.py runs this script)."""
+    if not ok:
+        raise SystemExit(f"CHECK FAILED: {what}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -58,6 +64,7 @@ def main(argv: list[str] | None = None) -> None:
           f"var {exact_v.tolist()}; EKF mean {em[:, 0].tolist()} var {eP[:, 0, 0].tolist()}")
     rel = max(np.abs(ym[:, 0] / exact_m - 1).max(), np.abs(yP[:, 0, 0] / exact_v - 1).max())
     print(f"UKF vs closed form: max relative error {rel:.1e}")
+    check(rel < 1e-8, "UKF mean and variance of x^2 equal the closed form")
 
     # 2. linear model: UKF == exact KF
     model = ToyDegradation()
@@ -75,6 +82,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"linear model, {B} units x 60 steps: max |UKF x - KF x| / min KF std = "
           f"{dx.max():.1e}; max |UKF P - KF P| / max |KF P| = {dP:.1e}; "
           f"loglik difference {np.abs(ur.loglik - kr.loglik).max():.1e}")
+    check(dx.max() < 1e-5 and dP < 1e-8 and np.abs(ur.loglik - kr.loglik).max() < 1e-5,
+          "UKF equals the exact Kalman filter on a linear model")
 
     # 3. nonlinear pendulum with a wide prior: UKF vs EKF against the truth
     Bn, T = args.units, args.steps
@@ -96,6 +105,8 @@ def main(argv: list[str] | None = None) -> None:
               f"rate {rmse[1]:.4f}; median NEES {np.median(nees):.2f} (chi-square median "
               f"{stats.chi2.median(df=2):.2f}); NEES beyond its 99% quantile in "
               f"{100 * out99:.1f}% of unit-steps (expected 1%)")
+        if name == "UKF":
+            check(out99 < 0.05, "UKF NEES beyond its 99 % quantile in < 5 % of unit-steps")
 
 
 if __name__ == "__main__":

@@ -34,6 +34,12 @@ from rulkit.models.toy_degradation import ToyDegradation
 from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
 
 
+def check(ok: bool, what: str) -> None:
+    """Exit with status 1 when a printed check fails (tests/test_examples.py runs this script)."""
+    if not ok:
+        raise SystemExit(f"CHECK FAILED: {what}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -58,15 +64,20 @@ def main(argv: list[str] | None = None) -> None:
     print(f"[closed form] N={N}: max |RUL - (1-d0)/r| over uncensored samples "
           f"{np.abs(dist.samples[unc] - exact[unc]).max():.1e}; censored exactly where "
           f"(1-d0)/r > horizon: {np.array_equal(dist.censored, exact > horizon)}")
+    check(np.abs(dist.samples[unc] - exact[unc]).max() < 1e-9
+          and np.array_equal(dist.censored, exact > horizon), "RUL equals (1 - d0) / r")
     p_cens = stats.norm.cdf(((1 - d0) / horizon - r_mu) / r_sd)
     se = np.sqrt(p_cens * (1 - p_cens) / N)
     print(f"[closed form] censored fraction {dist.fraction_censored:.4f} vs "
           f"Phi(...) = {p_cens:.4f} (binomial s.e. {se:.4f})")
+    check(abs(dist.fraction_censored - p_cens) < 5 * se, "censored fraction within 5 s.e.")
     qs = np.array([0.1, 0.5, 0.7])
     q_exact = (1 - d0) / stats.norm.ppf(1 - qs, r_mu, r_sd)
     print(f"[closed form] quantiles {qs.tolist()}: sample {np.round(dist.quantile(qs), 2).tolist()}"
           f" vs exact {np.round(q_exact, 2).tolist()}; quantile(0.9) = {dist.quantile(0.9)} "
           f"(inside the censored mass)")
+    check(bool(np.all(np.abs(dist.quantile(qs) / q_exact - 1) < 0.03))
+          and dist.quantile(0.9) == np.inf, "quantiles within 3 % of the exact ones")
 
     # 2. summary, density, JSON round trip
     s = dist.summary(level=0.9)
@@ -81,11 +92,14 @@ def main(argv: list[str] | None = None) -> None:
             and np.array_equal(back.weights, dist.weights)
             and np.array_equal(back.censored, dist.censored) and back.horizon == dist.horizon)
     print(f"[json] round trip exact: {same}")
+    check(same, "JSON round trip is exact")
 
     # 3a. CRPS of samples vs the closed form for a normal forecast
     z = rng.standard_normal(200_000)
     print(f"[crps] N(3, 2^2) at y=4: samples {crps_samples(3 + 2 * z, 4.0):.4f}, "
           f"closed form {crps_normal(3.0, 2.0, 4.0):.4f}")
+    check(abs(crps_samples(3 + 2 * z, 4.0) - crps_normal(3.0, 2.0, 4.0)) < 0.01,
+          "sample CRPS within 0.01 of the closed form")
 
     # 3b. a prognosis scored against the truth
     model = ToyDegradation()  # with process noise

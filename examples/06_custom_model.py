@@ -93,6 +93,12 @@ def particle_filter_for(model: StateSpaceModel, dt: float) -> ParticleFilter:
     return ParticleFilter(transition, log_likelihood)
 
 
+def check(ok: bool, what: str) -> None:
+    """Exit with status 1 when a printed check fails (tests/test_examples.py runs this script)."""
+    if not ok:
+        raise SystemExit(f"CHECK FAILED: {what}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -129,6 +135,9 @@ def main(argv: list[str] | None = None) -> None:
           f"max_k |error| / KF std: log A {np.max(np.abs(pf_z - kz) / sz):.3f}, "
           f"rate {np.max(np.abs(pf_g - kg) / sg):.3f} (Monte Carlo scale "
           f"1/sqrt(min ESS) = {1 / math.sqrt(res.ess.min()):.3f})")
+    mc = 1 / math.sqrt(res.ess.min())
+    check(max(np.max(np.abs(pf_z - kz) / sz), np.max(np.abs(pf_g - kg) / sg)) < 10 * mc,
+          "PF within 10 Monte Carlo scales of the exact KF")
     print(f"final posterior: amplitude mean {weighted_mean(res.particles[:, 0], res.weights):.4f}"
           f", rate {pf_g[-1]:.5f} +- {math.sqrt(res.cov[-1, 1, 1]):.5f} "
           f"(KF {kg[-1]:.5f} +- {sg[-1]:.5f}); true {x[0].round(5).tolist()}")
@@ -152,6 +161,8 @@ def main(argv: list[str] | None = None) -> None:
           f"{dist.mean:.3f} vs inverse Gaussian {ig.mean():.3f}; difference "
           f"{dist.mean - ig.mean():+.3f} (discrete-monitoring delay ~ {bias:.3f}, "
           f"Monte Carlo s.e. {se:.3f})")
+    check(abs(dist.mean - ig.mean() - bias) < 5 * se + 0.02,
+          "first-passage mean = inverse Gaussian mean + discrete-monitoring delay")
     qs = [0.1, 0.5, 0.9]
     print(f"quantiles {qs}: Monte Carlo {np.round(dist.quantile(qs), 2).tolist()} vs "
           f"inverse Gaussian {np.round(ig.ppf(qs), 2).tolist()}")

@@ -1,8 +1,9 @@
 """Every example script runs and every ```python block of docs/guide.md executes.
 
-The examples print their own checks against independent oracles; here they must exit 0 (an
-exception, e.g. a failed shape check, fails the test). Each guide block runs in a fresh
-namespace and carries its own assertions, so the guide cannot drift from the engine.
+The examples print their own checks against independent oracles and exit with status 1 when
+one fails (``check`` in each script, with Monte Carlo tolerances); here they must exit 0.
+Each guide block runs in a fresh namespace and carries its own assertions, so the guide cannot
+drift from the engine.
 """
 
 from __future__ import annotations
@@ -66,3 +67,12 @@ def test_guide_block_executes(line: int, code: str, tmp_path: Path,
     monkeypatch.chdir(tmp_path)
     namespace: dict[str, object] = {"__name__": f"guide_block_{line}"}
     exec(compile(code, f"{GUIDE}:{line}", "exec"), namespace)
+
+
+def test_example_checks_can_fail(tmp_path: Path) -> None:
+    # 10 particles cannot match the exact Kalman posterior: the script's own check must stop it
+    script = ROOT / "examples" / "01_pf_vs_kalman.py"
+    env = dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(script), "--particles", "10"], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and "CHECK FAILED" in proc.stderr, proc.stderr
