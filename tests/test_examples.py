@@ -76,3 +76,16 @@ def test_example_checks_can_fail(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, str(script), "--particles", "10"], cwd=tmp_path,
                           env=env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 1 and "CHECK FAILED" in proc.stderr, proc.stderr
+
+
+def test_guide_names_only_installed_reproductions() -> None:
+    from typer.testing import CliRunner
+
+    from rulkit.cli import app
+
+    text = GUIDE.read_text()
+    listed = re.search(r"lists them\): (.*?), one per seed paper", text, flags=re.S)
+    assert listed, "the guide's list of reproductions moved; update this test"
+    names = re.findall(r"`([a-z-]+)`", listed.group(1))
+    out = CliRunner().invoke(app, ["reproduce", "--help"], env={"COLUMNS": "200"}).output
+    assert names and all(n in out for n in names), (names, out)
