@@ -48,6 +48,8 @@ def run_example(out: Path, seed: int, n_particles: int = 2000) -> dict[str, Any]
 
     if n_particles < 2:
         raise typer.BadParameter(f"n_particles: need at least 2, got {n_particles}")
+    if seed < 0:  # numpy's SeedSequence would fail deep inside with "expected non-negative"
+        raise typer.BadParameter(f"seed: expected a non-negative integer, got {seed}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cfg = ToyConfig(seed=seed, n_particles=n_particles)
@@ -115,8 +117,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         out: Annotated[Path, typer.Option(help="Directory for the JSON and PNG.")] = Path(
             "example-out"
         ),
-        seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
-        particles: Annotated[int, typer.Option(help="Number of particles.")] = 2000,
+        seed: Annotated[int, typer.Option(min=0, help="Seed of the run.")] = 0,
+        particles: Annotated[int, typer.Option(min=2, help="Number of particles.")] = 2000,
     ) -> None:
         """Engine end-to-end example: 2-state degradation, particle filter, Monte Carlo RUL."""
         run_example(out=out, seed=seed, n_particles=particles)
