@@ -51,3 +51,6 @@ def test_reproduce_friction_drive_rejects_bad_options(tmp_path):
     res = CliRunner().invoke(app, ["reproduce", "friction-drive", "--duration", "1",
                                    "--out", str(tmp_path)])
     assert res.exit_code != 0
+    res = CliRunner().invoke(app, ["reproduce", "friction-drive", "--seed", "-1",
+                                   "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "seed" in res.output.lower()

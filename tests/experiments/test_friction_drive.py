@@ -183,6 +183,8 @@ def test_convergence_from_wrong_initial_estimates():
 def test_study_rejects_bad_settings():
     with pytest.raises(ValueError, match="n_runs"):
         E.run_study(n_runs=0)
+    with pytest.raises(ValueError, match="seed"):
+        E.run_study(seed=-1)
     with pytest.raises(ValueError, match="duration"):
         E.run_study(duration=1.0)
     with pytest.raises(ValueError, match="unknown"):

@@ -22,7 +22,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         runs: int | None = typer.Option(
             None, "--runs", min=1, help="Runs per (filter, scenario); default 1 quick, 5 full."
         ),
-        seed: int = typer.Option(0, "--seed", help="Seed of the run (all draws)."),
+        seed: int = typer.Option(0, "--seed", min=0, help="Seed of the run (all draws)."),
         out: Annotated[
             Path, typer.Option("--out", help="Directory for tables, figures, report.")
         ] = DEFAULT_OUT,

@@ -751,6 +751,8 @@ def run_study(
     """
     if n_runs < 1:
         raise ValueError(f"n_runs: expected >= 1, got {n_runs}")
+    if int(seed) != seed or seed < 0:
+        raise ValueError(f"seed: expected a non-negative integer, got {seed!r}")
     if not duration >= 3.0:
         raise ValueError(f"duration: expected >= 3 s (a 2 s observability window), got {duration}")
     rng = np.random.default_rng(seed)
