@@ -37,6 +37,18 @@ def _check_finite(a: np.ndarray, name: str) -> None:
         raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in bad)}")
 
 
+def _cholesky(C: np.ndarray, name: str) -> FloatArray:
+    """Batched lower Cholesky factor of ``C`` (..., n, n); a ``ValueError`` names the first
+    index whose matrix is not positive definite."""
+    try:
+        return np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        eig = np.linalg.eigvalsh(C).min(axis=-1)
+        bad = np.argwhere(eig <= 0)
+        where = tuple(int(i) for i in bad[0]) if bad.size else ()
+        raise ValueError(f"{name}: not positive definite at index {where}") from None
+
+
 def normalised_squared(err: np.ndarray, cov: np.ndarray) -> FloatArray:
     """e^T C^{-1} e for every leading index: ``err`` (..., n), ``cov`` (..., n, n) -> (...).
 
@@ -53,13 +65,7 @@ def normalised_squared(err: np.ndarray, cov: np.ndarray) -> FloatArray:
         )
     _check_finite(e, "err")
     _check_finite(C, "cov")
-    try:
-        L = np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:
-        eig = np.linalg.eigvalsh(C).min(axis=-1)
-        bad = np.argwhere(eig <= 0)
-        where = tuple(int(i) for i in bad[0]) if bad.size else ()
-        raise ValueError(f"cov: not positive definite at index {where}") from None
+    L = _cholesky(C, "cov")
     z = np.linalg.solve(L, e[..., None])[..., 0]
     return np.sum(z * z, axis=-1)
 
@@ -186,13 +192,7 @@ def whiten(nu: np.ndarray, S: np.ndarray) -> FloatArray:
         raise ValueError(f"whiten: nu {nu.shape} and S {S.shape} disagree")
     _check_finite(nu, "nu")
     _check_finite(S, "S")
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        eig = np.linalg.eigvalsh(S).min(axis=-1)
-        bad = np.argwhere(eig <= 0)
-        where = tuple(int(i) for i in bad[0]) if bad.size else ()
-        raise ValueError(f"S: not positive definite at index {where}") from None
+    L = _cholesky(S, "S")
     return np.linalg.solve(L, nu[..., None])[..., 0]
 
 
