@@ -352,13 +352,18 @@ def output_sensitivities_fd(
     return sens
 
 
+def fisher_information(sens: FloatArray, R: FloatArray) -> FloatArray:
+    """Fisher information sum_k S_k^T R^-1 S_k of the window's initial state (the
+    observability Gramian weighted by R^-1), (4, 4); ``sens`` (K, 2, 4)."""
+    return np.einsum("kij,jl,klm->im", np.swapaxes(sens, 1, 2), np.linalg.inv(R), sens)
+
+
 def cramer_rao(sens: FloatArray, R: FloatArray) -> FloatArray:
     """Cramer-Rao bound inv(sum_k S_k^T R^-1 S_k) of the window's initial state, (4, 4).
 
     The Fisher matrix (the observability Gramian weighted by R^-1) is inverted after a
     diagonal scaling (it spans many decades)."""
-    Rinv = np.linalg.inv(R)
-    fisher = np.einsum("kij,jl,klm->im", np.swapaxes(sens, 1, 2), Rinv, sens)
+    fisher = fisher_information(sens, R)
     d = np.sqrt(np.clip(np.diag(fisher), 1e-300, None))
     scaled = fisher / np.outer(d, d)
     return np.linalg.pinv(scaled, rcond=1e-15) / np.outer(d, d)
@@ -389,8 +394,7 @@ def observability(
                          f"truth ({truth.t[-1]} s)")
     sens = output_sensitivities_jacobian(truth.X[k0 : k1 + 1], truth.dt)
     crb = cramer_rao(sens, R)
-    Rinv = np.linalg.inv(R)
-    fisher = np.einsum("kij,jl,klm->im", np.swapaxes(sens, 1, 2), Rinv, sens)
+    fisher = fisher_information(sens, R)
     F = fd.jacobian(truth.X[k0 : k0 + 1])[0]
     H = np.eye(4)[:2]
     O = np.vstack([H, H @ F, H @ F @ F, H @ F @ F @ F])
