@@ -7,7 +7,11 @@ time, since the machine may be shared) for
 1. the fused numba kernel (whole time loop compiled: T random walk, RK4 per particle per step,
    Gaussian likelihood, log-sum-exp weights, ESS, systematic resampling, mean/std),
 2. the numpy reference path (the engine's ParticleFilter with numpy plug-ins; same numbers),
-3. optionally ProgPy 1.9.0's ParticleFilter on the same wheel written as a vectorised ProgPy
+3. the Rao-Blackwellised PF (:mod:`rulkit.experiments.rw_step1_rbpf`, beyond the seeds; a
+   Kalman filter on [I, w] per particle): its fused kernel and its numpy reference, and the
+   wall time of one Table-5-sized grid of it (7 N x 2 noise levels x ``--rbpf-runs`` runs)
+   extrapolated from the measured rate,
+4. optionally ProgPy 1.9.0's ParticleFilter on the same wheel written as a vectorised ProgPy
    model (``--progpy``; needs ``pip install progpy==1.9.0``),
 
 the ratios, and the fraction of the hardware limit: flops per particle-step (counted below)
@@ -29,11 +33,13 @@ import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from dataclasses import replace  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from rulkit.experiments.rw_step1 import Step1Config, run_step1  # noqa: E402
+from rulkit.experiments.rw_step1 import TABLE5_N, Step1Config, run_step1  # noqa: E402
+from rulkit.experiments.rw_step1_rbpf import RBPF_DESIGNS, run_rbpf  # noqa: E402
 from rulkit.models.reaction_wheel import IthacoParams, simulate_table3  # noqa: E402
 
 # Flops per particle-step of the F2 filter, counted from the kernel source (an add, multiply,
@@ -129,6 +135,7 @@ def main() -> None:
     ap.add_argument("--numpy-steps", type=int, default=1000)
     ap.add_argument("--progpy", action="store_true", help="also time ProgPy 1.9.0")
     ap.add_argument("--progpy-steps", type=int, default=200)
+    ap.add_argument("--rbpf-runs", type=int, default=20)
     args = ap.parse_args()
     N = args.n
     data = simulate_table3(np.random.default_rng(0), "low")
@@ -157,6 +164,22 @@ def main() -> None:
     b = run_step1(data.y[:Kn], data.V[:Kn], np.random.default_rng(7), cfg, sigma=sig,
                   backend="numpy")
     diff = float(np.max(np.abs(a.T_mean - b.T_mean)))
+    rcfg = replace(RBPF_DESIGNS["RB05"], n_particles=N)
+    run_rbpf(data.y[:50], data.V[:50], np.random.default_rng(0), rcfg, sigma=sig)  # compile
+    w, c = _time(lambda: run_rbpf(data.y, data.V, np.random.default_rng(1), rcfg, sigma=sig,
+                                  quantiles=False), args.repeats)
+    results["numba RBPF (RB05)"] = (N * (K - 1) / w, N * (K - 1) / c)
+    w, c = _time(lambda: run_rbpf(data.y, data.V, np.random.default_rng(1), rcfg, sigma=sig,
+                                  quantiles=True), max(1, args.repeats // 2))
+    results["numba RBPF + per-step quantiles"] = (N * (K - 1) / w, N * (K - 1) / c)
+    w, c = _time(lambda: run_rbpf(data.y[:Kn], data.V[:Kn], np.random.default_rng(1), rcfg,
+                                  sigma=sig, backend="numpy", quantiles=False),
+                 max(1, args.repeats // 2))
+    results["numpy reference RBPF"] = (N * (Kn - 1) / w, N * (Kn - 1) / c)
+    ra = run_rbpf(data.y[:Kn], data.V[:Kn], np.random.default_rng(7), rcfg, sigma=sig)
+    rb = run_rbpf(data.y[:Kn], data.V[:Kn], np.random.default_rng(7), rcfg, sigma=sig,
+                  backend="numpy")
+    rdiff = float(np.max(np.abs(ra.T_mean - rb.T_mean)))
     if args.progpy:
         import progpy
 
@@ -170,6 +193,16 @@ def main() -> None:
     nb_w, nb_c = results["numba F2"]
     print(f"ratio numba F2 / numpy reference: {nb_w / ref_w:.1f}x (wall), {nb_c / ref_c:.1f}x "
           f"(CPU); max |T_mean difference| over {Kn - 1} steps = {diff:.2e} C")
+    rb_w, rb_c = results["numba RBPF (RB05)"]
+    rr_w, rr_c = results["numpy reference RBPF"]
+    print(f"ratio numba RBPF / numpy reference RBPF: {rb_w / rr_w:.1f}x (wall), "
+          f"{rb_c / rr_c:.1f}x (CPU); max |T_mean difference| = {rdiff:.2e} C")
+    print(f"ratio RBPF / F2 PF per particle-step (numba): {rb_c / nb_c:.2f} (CPU)")
+    grid = sum(TABLE5_N) * 2 * args.rbpf_runs * (K - 1)
+    print(f"Table-5-sized RBPF grid (N = {TABLE5_N}, 2 noise levels, {args.rbpf_runs} runs): "
+          f"{grid:.3g} particle-steps, ~{grid / rb_c:.0f} s of one core at the measured rate "
+          f"(with per-step quantiles for coverage: ~"
+          f"{grid / results['numba RBPF + per-step quantiles'][1]:.0f} s)")
     for name, (rw, rc) in results.items():
         if name.startswith("ProgPy"):
             print(f"ratio numba F2 / {name}: {nb_w / rw:.0f}x (wall), {nb_c / rc:.0f}x (CPU)")

@@ -521,41 +521,87 @@ def _cell_seed(seed: int, variant: str, design: str, noise: str, n: int, run: in
 
 def _table5_pf_task(task: tuple[Any, ...], rng: np.random.Generator) -> dict[str, Any]:
     """One filter run of the Table 5 grid (module level: picklable for the runner). The filter
-    generator comes from :func:`_cell_seed` (the runner's ``rng`` is not used)."""
-    variant, design, noise, n, run, seed, t_burn, overrides, initial = task
+    generator comes from :func:`_cell_seed` (the runner's ``rng`` is not used). With
+    ``coverage`` the 90 % interval (weighted 5 % / 95 % quantiles) is computed too; the
+    quantiles draw no random numbers, so the estimates are the same either way."""
+    variant, design, noise, n, run, seed, t_burn, overrides, initial, *rest = task
+    coverage = bool(rest[0]) if rest else False
     data = simulate_table3(_data_rng(seed, noise, run), noise, initial=initial)
     cfg = replace(Step1Config(design=design, variant=variant, n_particles=n), **dict(overrides))
+    if coverage:
+        cfg = replace(cfg, quantiles=COVERAGE_QUANTILES)
     frng = np.random.default_rng(np.random.SeedSequence(_cell_seed(seed, variant, design, noise,
                                                                    n, run)))
     res = run_step1(data.y, data.V, frng, cfg, sigma=(data.sigma_w, data.sigma_I),
-                    dt=data.dt, quantiles=False)
-    return _scores(res.T_mean, data.T, data.t, t_burn) | {
+                    dt=data.dt, quantiles=coverage)
+    band = (res.T_lo, res.T_hi) if coverage else None
+    return _scores(res.T_mean, data.T, data.t, t_burn, band) | {
         "n_spread": int(np.sum(res.action == 2)), "n_resampled": int(np.sum(res.action == 1)),
         "n_reset": int(np.sum(res.action == 3)), "clipped_frac": float(res.n_clipped.sum())
         / (n * (res.t.size - 1)),
     }
 
 
+def _table5_rbpf_task(task: tuple[Any, ...], rng: np.random.Generator) -> dict[str, Any]:
+    """One Rao-Blackwellised PF run (design ``RBPF_DESIGNS[design]``, beyond the seeds) of the
+    Table 5 grid; its generator is ``SeedSequence([seed, 2, design index, noise, N, run])``."""
+    from rulkit.experiments.rw_step1_rbpf import RBPF_DESIGNS, run_rbpf
+
+    _, design, noise, n, run, seed, t_burn, _overrides, initial, *rest = task
+    coverage = bool(rest[0]) if rest else False
+    data = simulate_table3(_data_rng(seed, noise, run), noise, initial=initial)
+    cfg = replace(RBPF_DESIGNS[design], n_particles=n, quantiles=COVERAGE_QUANTILES)
+    frng = np.random.default_rng(np.random.SeedSequence(
+        [seed, 2, list(RBPF_DESIGNS).index(design), _NOISES.index(noise), n, run]))
+    res = run_rbpf(data.y, data.V, frng, cfg, sigma=(data.sigma_w, data.sigma_I), dt=data.dt,
+                   quantiles=coverage)
+    band = (res.T_lo, res.T_hi) if coverage else None
+    return _scores(res.T_mean, data.T, data.t, t_burn, band) | {
+        "n_spread": 0, "n_resampled": int(np.sum(res.action == 1)), "n_reset": 0,
+        "clipped_frac": 0.0,
+    }
+
+
 def _table5_ekf_task(task: tuple[Any, ...], rng: np.random.Generator) -> list[dict[str, Any]]:
     """EKF reference for every run at both noise levels in one batched filter (B = 2 runs);
-    deterministic given the data."""
-    runs, seed, t_burn, initial = task
+    deterministic given the data. Its 90 % interval (``coverage``) is mean +- 1.645 sd."""
+    runs, seed, t_burn, initial, *rest = task
+    coverage = bool(rest[0]) if rest else False
     datas = [simulate_table3(_data_rng(seed, nz, r), nz, initial=initial)
              for nz in _NOISES for r in range(runs)]
     d0 = datas[0]
     ys = np.stack([d.y for d in datas], axis=1)
     sig = np.array([(d.sigma_w, d.sigma_I) for d in datas])
     res = run_ekf(ys, d0.V, sigma=sig, dt=d0.dt)
-    return [_scores(res.T_mean[:, b], d0.T, d0.t, t_burn) for b in range(len(datas))]
+    from scipy.stats import norm
+
+    z = float(norm.ppf(COVERAGE_QUANTILES[1]))
+    out = []
+    for b in range(len(datas)):
+        m, s = res.T_mean[:, b], res.T_std[:, b]
+        out.append(_scores(m, d0.T, d0.t, t_burn, (m - z * s, m + z * s) if coverage else None))
+    return out
 
 
-def _scores(T_hat: FloatArray, T: FloatArray, t: FloatArray, t_burn: float) -> dict[str, float]:
+#: Interval whose coverage of the true T Table 5 reports with ``coverage=True`` (90 %).
+COVERAGE_QUANTILES: tuple[float, float] = (0.05, 0.95)
+
+
+def _scores(
+    T_hat: FloatArray, T: FloatArray, t: FloatArray, t_burn: float,
+    band: tuple[FloatArray, FloatArray] | None = None,
+) -> dict[str, float]:
     """RMSPE of T over all estimates of a run (samples 1..K-1; row 0 is the prior) and over
-    t >= t_burn (spec section 6)."""
+    t >= t_burn (spec section 6); with ``band = (lo, hi)`` also the fraction of those samples
+    whose true T lies in [lo, hi] (interval coverage; ~0.90 for a calibrated 90 % interval)."""
     from rulkit.metrics import rmspe
 
     late = t >= t_burn
-    return {"rmspe": rmspe(T_hat[1:], T[1:]), "rmspe_late": rmspe(T_hat[late], T[late])}
+    out = {"rmspe": rmspe(T_hat[1:], T[1:]), "rmspe_late": rmspe(T_hat[late], T[late])}
+    if band is not None:
+        inside = (band[0] <= T) & (T <= band[1])
+        out |= {"cover": float(inside[1:].mean()), "cover_late": float(inside[late].mean())}
+    return out
 
 
 def run_table5(
@@ -574,6 +620,7 @@ def run_table5(
     t_burn: float = 100.0,
     overrides: dict[str, Any] | None = None,
     initial: str = "rest",
+    coverage: bool = False,
 ) -> Any:
     """Seed 001 Table 5: RMSPE of T (%) over the Table 3 path (500 s at dt = 0.05 s) for
     N = 50..350, low and high noise, ``runs`` seeded runs each (spec sections 2, 3, 6).
@@ -589,7 +636,14 @@ def run_table5(
     ``SeedSequence([seed, 1, variant, design, noise, N, r])``, so a cell does not change when
     rows are added, and results are identical serially, with ``workers`` or on a Dask
     ``scheduler`` (the runner only distributes). ``initial``: "rest" (spec [R]) or
-    "equilibrium" start of the truth; ``overrides``: Step1Config fields for every PF run.
+    "equilibrium" start of the truth; ``overrides``: Step1Config fields for every seed-PF run.
+    Beyond the seeds: a design named in
+    :data:`rulkit.experiments.rw_step1_rbpf.RBPF_DESIGNS` (e.g. "RB", "RBJ") adds the
+    Rao-Blackwellised PF (method "rbpf") in that design (e.g. ``designs=("F1", "RBJ")``);
+    its generator is ``SeedSequence([seed, 2, design index, noise, N, r])``. ``coverage``:
+    also compute each run's 90 % interval and report the fraction of samples in which it
+    covers the true T (cover_mean over 0-500 s, cover_late_mean for t >= t_burn); costs a
+    sort per step for the particle filters and leaves every estimate unchanged.
     Returns a long ``pandas.DataFrame``: method, design, noise, N, runs, seed, rmspe_mean /
     rmspe_sd / rmspe_min / rmspe_max over runs, rmspe_late_mean (t >= t_burn), mean counts of
     adaptive spreads and resamplings, APF clipped fraction, paper (Table 5 value or NaN).
@@ -603,17 +657,26 @@ def run_table5(
         n_list = tuple(n_particles) if n_particles else (50, 200, 350)
     else:
         n_list = tuple(n_particles) if n_particles else TABLE5_N
+    from rulkit.experiments.rw_step1_rbpf import RBPF_DESIGNS
+
     if methods is None:
         variants = ["adaptive", "apf_eq28"] + (["pf", "apf_tempered"] if extra else [])
-        methods = [(v, d) for d in designs for v in variants]
+        methods = [(v, d) for d in designs
+                   for v in (["rbpf"] if d in RBPF_DESIGNS else variants)]
+    for v, d in methods:
+        ok = d in RBPF_DESIGNS if v == "rbpf" else (v in kern.VARIANTS and d in kern.DESIGNS)
+        if not ok:
+            raise ValueError(f"methods: ({v!r}, {d!r}) is not a known (variant, design) pair; "
+                             f"designs {sorted(kern.DESIGNS)} take {sorted(kern.VARIANTS)}, "
+                             f"{sorted(RBPF_DESIGNS)} take 'rbpf'")
     ov = tuple(sorted((overrides or {}).items()))
     # largest N first so the slowest tasks start early on the workers
     tasks: list[tuple[Any, ...]] = [
-        (v, d, noise, n, r, seed, t_burn, ov, initial)
+        (v, d, noise, n, r, seed, t_burn, ov, initial, coverage)
         for n in sorted(n_list, reverse=True) for (v, d) in methods for noise in _NOISES
         for r in range(runs)
     ]
-    ekf_tasks = [("ekf", runs, seed, t_burn, initial)] if ekf else []
+    ekf_tasks = [("ekf", runs, seed, t_burn, initial, coverage)] if ekf else []
     all_tasks = ekf_tasks + tasks
     outs = run_independent(_table5_dispatch, all_tasks, seed=seed, workers=workers,
                            scheduler=scheduler, progress=progress, description="Table 5 runs")
@@ -631,6 +694,8 @@ def run_table5(
         runs=("rmspe", "size"), rmspe_mean=("rmspe", "mean"), rmspe_sd=("rmspe", "std"),
         rmspe_min=("rmspe", "min"), rmspe_max=("rmspe", "max"),
         rmspe_late_mean=("rmspe_late", "mean"),
+        **({"cover_mean": ("cover", "mean"), "cover_late_mean": ("cover_late", "mean")}
+           if coverage else {}),
         **({"spreads_mean": ("n_spread", "mean"), "resamplings_mean": ("n_resampled", "mean"),
             "clipped_frac_mean": ("clipped_frac", "mean")} if tasks else {}),
     ).reset_index()
@@ -643,7 +708,8 @@ def run_table5(
         return vals[TABLE5_N.index(row["N"])]
 
     agg["paper"] = agg.apply(paper, axis=1)
-    order = {m: i for i, m in enumerate(["adaptive", "apf_eq28", "pf", "apf_tempered", "ekf"])}
+    order = {m: i for i, m in enumerate(["adaptive", "apf_eq28", "pf", "apf_tempered",
+                                                    "rbpf", "ekf"])}
     agg = agg.sort_values(["noise", "method", "design", "N"],
                           key=lambda s: s.map(order) if s.name == "method" else s)
     return agg.reset_index(drop=True)
@@ -652,6 +718,8 @@ def run_table5(
 def _table5_dispatch(task: tuple[Any, ...], rng: np.random.Generator) -> Any:
     if task[0] == "ekf":
         return _table5_ekf_task(task[1:], rng)
+    if task[0] == "rbpf":
+        return _table5_rbpf_task(task, rng)
 
     return _table5_pf_task(task, rng)
 
@@ -675,13 +743,17 @@ def format_table5(df: Any, column: str = "rmspe_mean") -> str:
                 continue
             ours = r[column].iloc[0]
             pap = r["paper"].iloc[0] if column == "rmspe_mean" else float("nan")
+            if column.startswith("cover"):
+                ours = 100.0 * ours
             cells.append(
                 f"{ours:7.3f} ({pap:5.3f})" if np.isfinite(pap) else f"{ours:7.3f}        "
             )
         lines.append(f"{noise:5} {method:13} {design:6} " + " ".join(f"{c:>15}" for c in cells))
     runs = ", ".join(str(int(r)) for r in sorted(df["runs"].unique()))
-    span = "0-500 s" if column == "rmspe_mean" else "t >= 100 s (t_burn)"
-    lines.append(f"RMSPE of T in % over {span}, mean of {runs} runs per cell, seed "
+    span = "t >= 100 s (t_burn)" if column.endswith("late_mean") else "0-500 s"
+    what = ("coverage of the true T by the 90 % interval, in % of samples," if
+            column.startswith("cover") else "RMSPE of T in %")
+    lines.append(f"{what} over {span}, mean of {runs} runs per cell, seed "
                  f"{int(df['seed'].iloc[0])}" + ("; (paper) = seed 001 Table 5."
                                                  if column == "rmspe_mean" else "."))
     return "\n".join(lines)
@@ -711,9 +783,9 @@ def estimate_temperature(
     n_particles: int = 350,
     rng: np.random.Generator | None = None,
     *,
-    design: Design = "F2",
+    design: str = "F2",
     noise: str | tuple[float, float] = "low",
-    config: Step1Config | None = None,
+    config: Any = None,
     level: float = 0.95,
 ) -> Any:
     """Estimate the lubricant temperature from wheel telemetry (spec section 3).
@@ -721,7 +793,10 @@ def estimate_temperature(
     ``df``: a frame with columns time_s, v_comm_V, speed_rad_s, current_A (validated with
     :func:`rulkit.data.telemetry.validate_wheel_telemetry`; regular sampling, its step is dt).
     ``method``: ``"pf"``, ``"adaptive"``, ``"apf_eq28"``, ``"apf_tempered"`` (particle filters,
-    need ``rng``) or ``"ekf"`` (deterministic). ``noise``: the measurement-noise level assumed
+    need ``rng``), ``"rbpf"`` (Rao-Blackwellised PF, beyond the seeds: ``design`` one of
+    :data:`rulkit.experiments.rw_step1_rbpf.RBPF_DESIGNS`, "RB05" when ``design`` is left at
+    "F2"; ``config`` may be an :class:`RBPFConfig`) or ``"ekf"`` (deterministic).
+    ``noise``: the measurement-noise level assumed
     ("low", "high" of seed Table 5, or ``(sigma_w, sigma_I)``). ``config`` overrides every PF
     setting. Returns a DataFrame (time_s, T_mean, T_lo, T_hi) with the ``level`` interval
     (weighted particle quantiles; for the EKF mean +- z sd).
@@ -753,15 +828,31 @@ def estimate_temperature(
         return pd.DataFrame(
             {"time_s": t, "T_mean": m, "T_lo": m - z * s, "T_hi": m + z * s}
         )
-    if method not in kern.VARIANTS:
+    if method not in kern.VARIANTS and method != "rbpf":
         raise ValueError(
-            f"method: expected 'ekf' or one of {sorted(kern.VARIANTS)}, got {method!r}"
+            f"method: expected 'ekf', 'rbpf' or one of {sorted(kern.VARIANTS)}, got {method!r}"
         )
     if rng is None:
         raise ValueError("a particle-filter method needs rng (a numpy.random.Generator)")
     q = (0.5 - level / 2, 0.5 + level / 2)
-    cfg = config or Step1Config(design=design, variant=method, n_particles=n_particles,
-                                quantiles=q)
+    if method == "rbpf":
+        from rulkit.experiments.rw_step1_rbpf import RBPF_DESIGNS, RBPFConfig, run_rbpf
+
+        if config is None:
+            name = "RB05" if design == "F2" else design
+            if name not in RBPF_DESIGNS:
+                raise ValueError(f"design: method 'rbpf' takes one of {sorted(RBPF_DESIGNS)}, "
+                                 f"got {design!r}")
+            config = replace(RBPF_DESIGNS[name], n_particles=n_particles, quantiles=q)
+        elif not isinstance(config, RBPFConfig):
+            raise ValueError("config: method 'rbpf' needs an RBPFConfig")
+        rb = run_rbpf(y, V, rng, config, sigma=sigma, dt=dt, t0=float(t[0]))
+        return pd.DataFrame({"time_s": t, "T_mean": rb.T_mean, "T_lo": rb.T_lo,
+                             "T_hi": rb.T_hi})
+    if design not in kern.DESIGNS:
+        raise ValueError(f"design: expected one of {sorted(kern.DESIGNS)}, got {design!r}")
+    cfg = config or Step1Config(design=design, variant=method,  # type: ignore[arg-type]
+                                n_particles=n_particles, quantiles=q)
     res = run_step1(y, V, rng, cfg, sigma=sigma, dt=dt, t0=float(t[0]))
     return pd.DataFrame({"time_s": t, "T_mean": res.T_mean, "T_lo": res.T_lo, "T_hi": res.T_hi})
 
