@@ -91,7 +91,8 @@ def tables(res: StudyResult) -> dict:
         truth = res.rul_truth_h
         rul_rows.append({
             "config": name, "t_pred_s": r.t_pred, "N": r.rul.n,
-            "fit_mean_h": r.normal_fit[0], "fit_std_h": r.normal_fit[1],
+            "fit_mean_h": r.normal_fit[0], "seed_mean_h": SEED_VALUES["rul_mean_h"],
+            "fit_std_h": r.normal_fit[1], "seed_std_h": SEED_VALUES["rul_std_h"],
             "median_h": q50, "q05_h": q05, "q95_h": q95,
             "frac_censored": r.rul.fraction_censored, "frac_m_le_0": r.fraction_never,
             # spec: with samples that never fail, read the quantiles, not the normal fit
@@ -105,7 +106,7 @@ def tables(res: StudyResult) -> dict:
             "RA_median": float(relative_accuracy(q50, truth)) if np.isfinite(q50) else np.nan,
             "truth_in_90pct": bool(q05 <= truth <= q95),
             # censored samples enter at the horizon (a lower bound): CRPS is then approximate
-            "CRPS_h": float(crps_samples(r.rul.samples, truth)),
+            "CRPS_h": float(crps_samples(r.rul.samples, truth, r.rul.weights)),
             "mc_seconds": r.seconds,
         })
     rul = pd.DataFrame(rul_rows)
@@ -378,7 +379,8 @@ def write_report(res: StudyResult, out: Path, command: str = "") -> Path:
         f"t_pred (LSODA, m = {jump.X[-1, 3]:g}, alpha = {jump.X[-1, 2]:.4f}, "
         f"{jump.scenario.amplitude:g} A held): **{res.rul_truth_h:.2f} h**.",
         "",
-        _md(rul[["config", "N", "summary", "fit_mean_h", "fit_std_h", "median_h", "q05_h",
+        _md(rul[["config", "N", "summary", "fit_mean_h", "seed_mean_h", "fit_std_h",
+                 "seed_std_h", "median_h", "q05_h",
                  "q95_h", "frac_m_le_0", "frac_censored", "nominal_h", "optimistic_h",
                  "pessimistic_h", "lsoda_check_max_abs_h", "lsoda_check_n"]]),
         "",
