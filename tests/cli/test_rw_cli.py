@@ -125,3 +125,13 @@ def test_reproduce_rejects_bad_options(tmp_path: Path) -> None:
     res = runner.invoke(app, ["reproduce", "rw-lubrication", "--workers", "2", "--scheduler",
                               "tcp://x:1", "--out", str(tmp_path)])
     assert res.exit_code == 2
+
+
+@pytest.mark.parametrize("method", ["ekf", "rbpf"])
+def test_estimate_temperature_other_methods(telemetry: Path, tmp_path: Path, method: str) -> None:
+    out = tmp_path / f"{method}.csv"
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(telemetry), "--out", str(out),
+                              "--method", method, "--particles", "30"])
+    assert res.exit_code == 0, _err(res)
+    est = pd.read_csv(out)
+    assert len(est) == 601 and (est["T_lo"] <= est["T_hi"]).all()

@@ -17,7 +17,7 @@ from typing import Annotated, Any
 
 import typer
 
-METHODS = ("adaptive", "apf_eq28", "apf_tempered", "pf", "ekf")
+METHODS = ("adaptive", "apf_eq28", "apf_tempered", "pf", "rbpf", "ekf")
 
 
 def _print_tables(rep: Any, console: Any) -> None:
