@@ -171,6 +171,14 @@ def test_bad_inputs_raise_specific_errors():
         fd.drift(np.zeros((3, 4)), np.ones(2))
     with pytest.raises(ValueError, match="dt"):
         fd.integrate_path(np.zeros(4), np.ones(3), 0.0)
+    # the numpy reference path refuses the same input (it raised IndexError or ran on NaN)
+    for integrate in (fd.integrate_path, fd.integrate_path_numpy):
+        with pytest.raises(ValueError, match="m_path: expected shape"):
+            integrate(np.zeros(4), np.ones(3), 1e-3, m_path=np.ones(2))
+        with pytest.raises(ValueError, match="m_path: contains NaN"):
+            integrate(np.zeros(4), np.ones(3), 1e-3, m_path=np.array([0.01, np.nan, 0.01]))
+        with pytest.raises(ValueError, match="currents"):
+            integrate(np.zeros(4), np.array([1.0, np.inf]), 1e-3)
 
 
 def test_time_to_alpha_matches_the_stored_path():

@@ -172,6 +172,29 @@ def rk4_step(
 # --------------------------------------------------------------------------------------------
 
 
+def _path_args(
+    x0: FloatArray, currents: FloatArray, dt: float, n_sub: int, m_path: FloatArray | None
+) -> tuple[FloatArray, FloatArray, int, FloatArray | None]:
+    """Validated (x0 (N, 4), currents (K,), n_sub, m_path (K,) or None) of the path integrators
+    (both the numpy reference and the numba kernel refuse the same bad input)."""
+    x0 = as_batch(x0, 4, "x0")
+    cur = np.ascontiguousarray(np.asarray(currents, dtype=np.float64).reshape(-1))
+    if not np.all(np.isfinite(cur)):
+        raise ValueError("currents: contains NaN or infinite values")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: expected a finite value > 0, got {dt}")
+    if int(n_sub) != n_sub or n_sub < 1:
+        raise ValueError(f"n_sub: expected an integer >= 1, got {n_sub}")
+    mp = None
+    if m_path is not None:
+        mp = np.ascontiguousarray(np.asarray(m_path, dtype=np.float64).reshape(-1))
+        if mp.shape[0] != cur.shape[0]:
+            raise ValueError(f"m_path: expected shape ({cur.shape[0]},), got {mp.shape}")
+        if not np.all(np.isfinite(mp)):
+            raise ValueError("m_path: contains NaN or infinite values")
+    return x0, cur, int(n_sub), mp
+
+
 def integrate_path_numpy(
     x0: FloatArray,
     currents: FloatArray,
@@ -187,7 +210,8 @@ def integrate_path_numpy(
     given, overrides the state m at the start of each step (an exogenous m schedule: the
     scenarios of seed eq. 28). Returns (K+1, N, 4) when ``store`` else the final (N, 4).
     """
-    x = np.array(x0, dtype=np.float64, copy=True)
+    x, currents, n_sub, m_path = _path_args(x0, currents, dt, n_sub, m_path)
+    x = x.copy()
     K = currents.shape[0]
     out = np.empty((K + 1, *x.shape)) if store else None
     if out is not None:
@@ -268,24 +292,11 @@ def integrate_path(
     store: bool = True,
 ) -> FloatArray:
     """Compiled (numba) version of :func:`integrate_path_numpy`; same arguments, same numbers."""
-    x0 = as_batch(x0, 4, "x0")
-    cur = np.ascontiguousarray(np.asarray(currents, dtype=np.float64).reshape(-1))
-    if not np.all(np.isfinite(cur)):
-        raise ValueError("currents: contains NaN or infinite values")
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: expected a finite value > 0, got {dt}")
-    if int(n_sub) < 1:
-        raise ValueError(f"n_sub: expected an integer >= 1, got {n_sub}")
-    use_m = m_path is not None
-    mp = (
-        np.ascontiguousarray(np.asarray(m_path, dtype=np.float64).reshape(-1))
-        if use_m
-        else np.zeros(1)
-    )
-    if use_m and mp.shape[0] != cur.shape[0]:
-        raise ValueError(f"m_path: expected shape ({cur.shape[0]},), got {mp.shape}")
+    x0, cur, n_sub, mp = _path_args(x0, currents, dt, n_sub, m_path)
+    use_m = mp is not None
     out = _integrate_path_kernel(
-        np.ascontiguousarray(x0), cur, float(dt), int(n_sub), mp, use_m, params.as_array(), store
+        np.ascontiguousarray(x0), cur, float(dt), n_sub, mp if use_m else np.zeros(1), use_m,
+        params.as_array(), store,
     )
     return out if store else out[0]
 
