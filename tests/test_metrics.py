@@ -46,6 +46,11 @@ def test_relative_accuracy_and_cra():
     assert cumulative_relative_accuracy([80.0, 130.0], [100.0, 100.0], weights=[1, 3]) == (
         pytest.approx(0.8 * 0.25 + 0.7 * 0.75)
     )
+    # after end of life r* < 0: 1 - |(-10) - (-12)| / (-10) = 1.2 would read "better than perfect"
+    with pytest.raises(ValueError, match="rul_true: negative at index"):
+        relative_accuracy(-12.0, -10.0)
+    with pytest.raises(ValueError, match="negative"):
+        cumulative_relative_accuracy([5.0, -12.0], [5.0, -10.0])
 
 
 def test_alpha_lambda_points_and_distributions():

@@ -80,12 +80,18 @@ def rmspe(estimate: ArrayLike, truth: ArrayLike, axis: int | None = None) -> flo
 def relative_accuracy(rul_pred: ArrayLike, rul_true: ArrayLike) -> float | FloatArray:
     """Relative accuracy ``RA = 1 - |r* - r| / r*`` ([S2010], RA at a time t_lambda).
 
-    Elementwise; 1 is perfect, it can be negative for errors larger than r*.
+    Elementwise; 1 is perfect, it can be negative for errors larger than r*. Defined before
+    end of life only: ``r* <= 0`` raises ``ValueError`` (a negative r* gave RA > 1, i.e. "better
+    than perfect", silently).
     """
     r = _arr(rul_pred, "rul_pred")
     rt = _arr(rul_true, "rul_true")
     _same_shape(r, rt, "rul_pred", "rul_true")
     _nonzero_truth(rt, "rul_true")
+    neg = np.argwhere(rt < 0)
+    if neg.size:
+        raise ValueError(f"rul_true: negative at index {tuple(int(i) for i in neg[0])} (a "
+                         "prediction after end of life); RA is defined for r* > 0")
     out = 1.0 - np.abs(rt - r) / rt
     return float(out) if np.ndim(out) == 0 else out
 
