@@ -206,3 +206,17 @@ def test_alpha_lambda_and_horizon_reject_bad_parameters(kwargs, match):
 def test_convergence_rejects_non_finite_t_p():
     with pytest.raises(ValueError, match="t_p"):
         convergence([0.0, 1.0, 2.0], [1.0, 1.0, 1.0], t_p=math.nan)
+
+
+def test_scalar_nan_and_zero_truth_are_refused():
+    # np.argwhere of a 0-d array is empty: scalar NaN and r* = 0 used to pass unnoticed
+    with pytest.raises(ValueError, match="rul_pred: non-finite"):
+        relative_accuracy(np.nan, 5.0)
+    with pytest.raises(ValueError, match="rul_true: zero at index"):
+        relative_accuracy(1.0, 0.0)  # was -inf
+    with pytest.raises(ValueError, match="mu: non-finite"):
+        crps_normal(np.nan, 1.0, 0.0)
+    with pytest.raises(ValueError, match="y: non-finite"):
+        crps_samples([1.0, 2.0], np.inf)
+    with pytest.raises(ValueError, match="zero"):
+        rmspe(1.0, 0.0)

@@ -25,13 +25,24 @@ from rulkit.prognosis.rul import RULDistribution
 FloatArray = NDArray[np.float64]
 
 
+def _first(mask: np.ndarray) -> tuple[int, ...] | None:
+    """Index of the first True entry of ``mask`` (``()`` for a true 0-d mask), else None.
+
+    ``np.argwhere`` of a 0-d array has no columns, so a scalar NaN or zero went unnoticed.
+    """
+    if mask.ndim == 0:
+        return () if bool(mask) else None
+    hit = np.argwhere(mask)
+    return tuple(int(i) for i in hit[0]) if hit.size else None
+
+
 def _arr(x: ArrayLike, name: str) -> FloatArray:
     a = np.asarray(x, dtype=np.float64)
     if a.size == 0:
         raise ValueError(f"{name}: empty")
-    bad = np.argwhere(~np.isfinite(a))
-    if bad.size:
-        raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in bad[0])}")
+    bad = _first(~np.isfinite(a))
+    if bad is not None:
+        raise ValueError(f"{name}: non-finite value at index {bad}")
     return a
 
 
@@ -41,10 +52,10 @@ def _same_shape(a: FloatArray, b: FloatArray, na: str, nb: str) -> None:
 
 
 def _nonzero_truth(truth: FloatArray, name: str) -> None:
-    z = np.argwhere(truth == 0)
-    if z.size:
+    z = _first(truth == 0)
+    if z is not None:
         raise ValueError(
-            f"{name}: zero at index {tuple(int(i) for i in z[0])}; a relative error is "
+            f"{name}: zero at index {z}; a relative error is "
             "undefined there (drop the end-of-life point)"
         )
 
@@ -88,10 +99,10 @@ def relative_accuracy(rul_pred: ArrayLike, rul_true: ArrayLike) -> float | Float
     rt = _arr(rul_true, "rul_true")
     _same_shape(r, rt, "rul_pred", "rul_true")
     _nonzero_truth(rt, "rul_true")
-    neg = np.argwhere(rt < 0)
-    if neg.size:
-        raise ValueError(f"rul_true: negative at index {tuple(int(i) for i in neg[0])} (a "
-                         "prediction after end of life); RA is defined for r* > 0")
+    neg = _first(rt < 0)
+    if neg is not None:
+        raise ValueError(f"rul_true: negative at index {neg} (a prediction after end of "
+                         "life); RA is defined for r* > 0")
     out = 1.0 - np.abs(rt - r) / rt
     return float(out) if np.ndim(out) == 0 else out
 
