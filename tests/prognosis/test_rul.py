@@ -300,3 +300,26 @@ def test_arrays_are_read_only():
     assert d.samples[0] == 1.0
     with pytest.raises(ValueError):
         d.samples[0] = 5.0
+
+
+@pytest.mark.parametrize("blowup", [np.inf, -np.inf, np.nan])
+@pytest.mark.parametrize("direction", ["up", "down"])
+def test_crossed_sample_diverging_later_keeps_its_crossing_time(blowup, direction):
+    """Samples are stepped after they cross (no compaction): an indicator that becomes
+    +-inf or NaN afterwards must neither raise nor overwrite the recorded crossing time, while
+    the samples still running are unaffected (exact linear crossing times)."""
+    sign = 1.0 if direction == "up" else -1.0
+    d0 = np.array([0.9, 0.0, 0.5, 0.2])
+    rate = np.array([0.2, 0.01, 0.04, 0.05])
+
+    def step(x, t, dt, rng):
+        out = linear_step(x, t, dt, rng)
+        out[x[:, 0] >= 1.0, 0] = blowup  # crossed at the previous step: diverges now
+        return out
+
+    dist = propagate_to_threshold(
+        np.column_stack([d0, rate]), step, lambda x: sign * x[:, 0], sign * 1.0, dt=0.3,
+        horizon=150.0, rng=np.random.default_rng(0), direction=direction,
+    )
+    np.testing.assert_allclose(dist.samples, (1.0 - d0) / rate, rtol=1e-12)
+    assert dist.n_censored == 0

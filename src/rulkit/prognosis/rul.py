@@ -476,7 +476,13 @@ def propagate_to_threshold(
     rul[failed0] = 0.0
 
     # The loop body is a handful of numpy calls on (N,) arrays: at small N their per-call
-    # overhead, not arithmetic, is the cost (benchmarks/run.py measures it).
+    # overhead, not arithmetic, is the cost (benchmarks/run.py measures it). Each sample is
+    # compared with its own threshold, NaN once it has crossed (every comparison with NaN is
+    # False, even for an indicator that later diverges to +-inf), so one comparison finds the
+    # new crossings among the running samples; until the first crossing one reduction
+    # (max / min) shows that no sample has crossed.
+    thr = np.where(active, float(threshold), np.nan)
+    n_run0 = n_active
     n_steps = max(1, math.ceil(horizon / dt - 1e-9))
     for k in range(n_steps):
         if n_active == 0:
@@ -488,7 +494,12 @@ def propagate_to_threshold(
             raise ValueError(
                 f"step: expected an array of shape ({n}, n), got {np.shape(x)} at step {k}"
             )
-        g_new = health(x, k + 1)
+        g_new = indicator(x)
+        if not (isinstance(g_new, np.ndarray) and g_new.dtype == np.float64):
+            g_new = np.asarray(g_new, dtype=np.float64)
+        if g_new.shape != (n,):
+            raise ValueError(f"indicator: expected shape ({n},), got {g_new.shape} at step "
+                             f"{k + 1}")
         if not math.isfinite(g_new.sum()):  # one cheap test; details only when it fails
             badk = np.flatnonzero(active & ~np.isfinite(g_new))
             if badk.size:
@@ -496,9 +507,13 @@ def propagate_to_threshold(
                     f"indicator: non-finite value at step {k + 1} (t = {t0 + tau + h!r}) for "
                     f"sample {badk[0]} ({badk.size} samples); the model diverged"
                 )
-        new = g_new >= threshold if up else g_new <= threshold
-        new &= active
-        idx = np.flatnonzero(new)
+        if n_active == n_run0 and (
+            g_new.max() < threshold if up else g_new.min() > threshold
+        ):  # (a NaN of a crossed sample makes this False: the full test below handles it)
+            g_old = g_new
+            continue
+        new = g_new >= thr if up else g_new <= thr
+        idx = new.nonzero()[0]
         if idx.size:
             ga, gb = g_old[idx], g_new[idx]
             # linear interpolation of the crossing: ga < thr <= gb (up) or ga > thr >= gb
@@ -506,6 +521,7 @@ def propagate_to_threshold(
             frac = (threshold - ga) / (gb - ga)
             rul[idx] = tau + frac * h
             active[idx] = False
+            thr[idx] = np.nan
             n_active -= idx.size
         g_old = g_new
 
