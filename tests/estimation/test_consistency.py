@@ -172,6 +172,8 @@ def test_state_error_check_leaves_out_undefined_nees_steps():
     assert r.nees_interval == pytest.approx((lo, hi), rel=1e-12)
     # NaN steps are not counted as outside the ellipsoid
     assert r.ellipsoid_fraction == pytest.approx(np.mean(nees[keep] <= 9.0), rel=1e-12)
+    assert r.median_nees == pytest.approx(np.median(nees[keep]))
+    assert r.max_nees == pytest.approx(nees[keep].max())
     # the full-P entry point gives the same numbers on the finite steps
     full = C.check_state_errors(err[keep], P[keep])
     assert full.mean_nees == pytest.approx(r.mean_nees) and full.nees_interval == r.nees_interval

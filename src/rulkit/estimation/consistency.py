@@ -325,6 +325,8 @@ class StateErrorCheck:
     state_coverage: tuple[float, ...]
     state_coverage_nominal: float
     nees_ok: bool
+    median_nees: float = float("nan")  # robust beside the mean (chi2_n median under consistency)
+    max_nees: float = float("nan")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -389,4 +391,6 @@ def state_error_check(
         state_coverage=tuple(float(v) for v in cov),
         state_coverage_nominal=erf_statement(c),
         nees_ok=bool(lo <= mean_nees <= hi),
+        median_nees=float(np.median(nees[ok])),
+        max_nees=float(nees[ok].max()),
     )
