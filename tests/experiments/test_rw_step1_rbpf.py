@@ -159,3 +159,11 @@ def test_table5_rows_and_telemetry_entry_point() -> None:
     with pytest.raises(ValueError, match="design"):
         estimate_temperature(tel, "rbpf", rng=np.random.default_rng(2), design="F1")
     assert set(RBPF_DESIGNS) >= {"RB", "RB05", "RBJ"}
+
+
+def test_plot_includes_rbpf_variant(tmp_path) -> None:
+    from rulkit.experiments.rw_step1 import plot_temperature_estimates
+
+    paths = plot_temperature_estimates(tmp_path, n_particles=30, variants=("rbpf",),
+                                       with_ekf=False, t_end=5.0)
+    assert paths[0].name == "rw_step1_rbpf_RB05.png" and paths[0].stat().st_size > 10_000
