@@ -10,7 +10,6 @@ beside the paper's and listing every choice made where the seeds are silent.
 from __future__ import annotations
 
 import json
-import pickle
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -207,11 +206,9 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
 
     rep = Reproduction(cfg, table5, errors, t6, s3.table, s3, validation, sens, files, timings,
                        notes, errors_alt, t6_alt)
-    files += [out / "report.md", out / "settings.json", out / "reproduction.pkl"]
+    files += [out / "report.md", out / "settings.json"]
     (out / "report.md").write_text(render_report(rep))
     (out / "settings.json").write_text(json.dumps(_jsonable(cfg), indent=2))
-    with open(out / "reproduction.pkl", "wb") as fh:  # re-render report.md without re-running
-        pickle.dump(rep, fh)
     return rep
 
 
