@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 
-.PHONY: demo test bench lint clean venv
+.PHONY: demo test test-slow bench bench-all reproduce lint clean venv
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -28,8 +28,28 @@ bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'
 	$(BIN)/python benchmarks/run.py --quick
 
+# Long experiments stay out of the default test run.
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -m slow
+
+bench-all: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[bench]'
+	$(BIN)/python benchmarks/run.py --quick
+	$(BIN)/python benchmarks/bench_engine.py --quick
+	$(BIN)/python benchmarks/bench_rw_step1.py --progpy
+	$(BIN)/python benchmarks/bench_rw_step2.py --workers 2
+	$(BIN)/python benchmarks/bench_friction_rul.py
+	$(BIN)/python benchmarks/bench_trackers.py
+
+# The four full reproductions (tens of minutes on 2 cores), each into out/<system>/.
+reproduce: $(STAMP)
+	$(BIN)/rulkit reproduce rw-lubrication --workers 2 --out out/rw-lubrication
+	$(BIN)/rulkit reproduce motor-damping --out out/motor-damping
+	$(BIN)/rulkit reproduce friction-drive --out out/friction-drive
+	$(BIN)/rulkit reproduce embedded-rul --out out/embedded-rul
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
 clean:
-	rm -rf $(VENV) demo-out build *.egg-info src/*.egg-info
+	rm -rf $(VENV) demo-out out build *.egg-info src/*.egg-info
