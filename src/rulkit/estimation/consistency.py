@@ -33,7 +33,7 @@ FloatArray = NDArray[np.float64]
 
 def _check_finite(a: np.ndarray, name: str) -> None:
     if not np.all(np.isfinite(a)):
-        bad = np.argwhere(~np.isfinite(a))[0]
+        bad = np.argwhere(~np.isfinite(np.atleast_1d(a)))[0]  # atleast_1d: 0-d has no rows
         raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in bad)}")
 
 
