@@ -383,8 +383,21 @@ def bench_mc(samples: np.ndarray, dt: float, model: ToyDegradation, seed: int, r
             g.standard_normal((n, 2))
         draws.append(time.process_time() - c0)
     t_draw = statistics.median(draws)
+    # timed() collects garbage before every call, which leaves the caches cold (for ours and
+    # the peer alike); the same call repeated back to back shows how much of a short call that is
+    warm: list[float] = []
+    gc.disable()
+    try:
+        for _ in range(reps):
+            c0 = time.process_time()
+            ours()
+            warm.append(time.process_time() - c0)
+    finally:
+        gc.enable()
+    t_warm = statistics.median(warm)
     print(f"  ours: {n_taken} steps; their 2N standard normals alone take {fmt_t(t_draw)} CPU "
-          f"(median of 5), {t_draw / t_ours.cpu:.0%} of our time")
+          f"(median of 5), {t_draw / t_ours.cpu:.0%} of our time; the same call repeated back "
+          f"to back (no gc.collect() before it, caches warm) {fmt_t(t_warm)} (median of {reps})")
     t_nv, nv = res["naive"]
     line(f"{what} ours vs naive per-sample Python loop", t_ours, t_nv, "naive",
          f"medians of {reps} / {reps_peer}")
