@@ -28,11 +28,12 @@ def short_run():
     return simulate_table3(np.random.default_rng(21), "low", t_end=20.0)
 
 
-@pytest.mark.parametrize("p_jump", [0.0, 0.02])
-def test_kernel_equals_numpy_reference(short_run, p_jump: float) -> None:
+@pytest.mark.parametrize(("p_jump", "propose"), [(0.0, 0.0), (0.02, 0.0), (1e-3, 0.05)])
+def test_kernel_equals_numpy_reference(short_run, p_jump: float, propose: float) -> None:
     """Same seed -> same numbers from the numba kernel and the numpy path (which uses the
-    model's rk4_wheel_step / rk4_wheel_step_jacobian and the engine's systematic resampler)."""
-    cfg = RBPFConfig(n_particles=40, p_jump=p_jump, jump_sd=2.0)
+    model's rk4_wheel_step / rk4_wheel_step_jacobian and the engine's systematic resampler),
+    also with the reweighted jump proposal."""
+    cfg = RBPFConfig(n_particles=40, p_jump=p_jump, jump_sd=2.0, jump_propose=propose)
     y, V = short_run.y[:300], short_run.V[:300]
     a = run_rbpf(y, V, np.random.default_rng(5), cfg)
     b = run_rbpf(y, V, np.random.default_rng(5), cfg, backend="numpy")
@@ -167,3 +168,27 @@ def test_plot_includes_rbpf_variant(tmp_path) -> None:
     paths = plot_temperature_estimates(tmp_path, n_particles=30, variants=("rbpf",),
                                        with_ekf=False, t_end=5.0)
     assert paths[0].name == "rw_step1_rbpf_RB05.png" and paths[0].stat().st_size > 10_000
+
+
+def test_jump_proposal_reweighting_targets_the_prior_model(short_run) -> None:
+    """Proposing jumps 20x more often than the prior and reweighting gives the same posterior
+    as proposing from the prior (N = 2000, within Monte-Carlo error); without the reweighting
+    (a prior with that jump rate) the posterior is visibly wider: the check has power."""
+    from rulkit.experiments.rw_step1_rbpf import _log_mix
+
+    d = np.linspace(-12, 12, 101)
+    from scipy.stats import norm
+
+    ref = np.log(0.01 * norm.pdf(d, scale=5.0) + 0.99 * norm.pdf(d, scale=0.02))
+    np.testing.assert_allclose(_log_mix(d, 0.01, 5.0, 0.02), ref, rtol=1e-12)
+    y, V = short_run.y[:300], short_run.V[:300]
+    base = {"n_particles": 2000, "q_T": 0.02, "jump_sd": 2.0}
+    a = run_rbpf(y, V, np.random.default_rng(1), RBPFConfig(p_jump=0.01, **base))
+    b = run_rbpf(y, V, np.random.default_rng(2),
+                 RBPFConfig(p_jump=0.01, jump_propose=0.2, **base))
+    c = run_rbpf(y, V, np.random.default_rng(3), RBPFConfig(p_jump=0.2, **base))
+    tail = slice(200, 300)
+    sa, sb, sc = (float(np.mean(r.T_std[tail])) for r in (a, b, c))
+    assert np.max(np.abs(a.T_mean[tail] - b.T_mean[tail])) < 0.25 * sa
+    assert 0.8 < sb / sa < 1.25, (sa, sb)
+    assert sc / sa > 1.5, (sa, sc)
