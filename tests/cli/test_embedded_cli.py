@@ -65,7 +65,7 @@ def test_track_then_status_worst_first(tmp_path):
         (lambda d: d.assign(time=d.time.where(d.index != 3, 0.5)),
          "row 4 (component 'gearA'): time 0.5 goes backwards"),
         (lambda d: d.assign(hi=d.hi.where(d.index != 2, np.nan)),
-         "row 3 (component 'gearA'): column 'hi' must be a finite number"),
+         "column 'hi', row 3 (component 'gearA'): NaN (an empty or NaN cell) is not allowed"),
         (lambda d: d.assign(hi=d.hi.where(d.index != 5, 11.0)),
          "row 6 (component 'gearA'): hi = 11.0 is outside [0, 10.0]"),
         (lambda d: d.assign(hi=d.hi.where(d.index != 5, -1.0)), "hi = -1.0 is outside"),

@@ -110,7 +110,8 @@ def test_hi_from_ci_columns(tmp_path):
         (lambda d: d.assign(extra=1.0), r"unknown column\(s\) \['extra'\]"),
         (lambda d: d.drop(columns="time"), r"missing required column\(s\) \['time'\]"),
         (lambda d: d.assign(hi=d.hi.where(d.index != 4, np.nan)),
-         r"row 5 \(component 'a'\): column 'hi' must be a finite number, got nan"),
+         r"column 'hi', row 5 \(component 'a'\): NaN \(an empty or NaN cell\) is not allowed: "
+         r"every value must be a finite number, no NaN/inf \(1 non-finite value\(s\)"),
         (lambda d: d.assign(hi=d.hi.where(d.index != 3, 12.0)),
          r"row 4 \(component 'a'\): hi = 12.0 is outside \[0, 10.0\]"),
         (lambda d: d.assign(hi=d.hi.where(d.index != 2, -0.1)), r"row 3 .* outside"),
@@ -124,7 +125,7 @@ def test_hi_from_ci_columns(tmp_path):
          r"acquisition at 4.0"),
         (lambda d: d.iloc[:0], r"no acquisitions \(0 rows\)"),
         (lambda d: d.assign(time=d.time.astype(object).where(d.index != 1, "soon")),
-         r"row 2 .* 'time' must be a finite number, got 'soon'"),
+         r"column 'time', row 2 \(component 'a'\): 'soon' is not a number \(1 non-numeric"),
     ],
 )
 def test_bad_batches_are_rejected_and_leave_db_unchanged(tmp_path, mutate, message):

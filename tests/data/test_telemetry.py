@@ -58,7 +58,8 @@ def test_nan_inf_name_column_and_row(tmp_path, value: float, word: str) -> None:
 def test_non_numeric_value(tmp_path) -> None:
     df = _frame().astype({"v_comm_V": object})
     df.loc[3, "v_comm_V"] = "1,0"
-    with pytest.raises(TelemetryError, match=r"'v_comm_V', row 3: not a number \('1,0'\)"):
+    with pytest.raises(TelemetryError,
+                       match=r"'v_comm_V', row 3: '1,0' is not a number \(1 non-numeric"):
         validate_wheel_telemetry(df)
 
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rulkit.data.tables import numeric_columns, read_table
 from rulkit.prognosis.health import (
     LEVEL_NAMES,
     HealthIndexModel,
@@ -119,25 +120,12 @@ class IngestResult:
 
 # --------------------------------------------------------------------------- validation
 def read_acquisitions(path: str | Path) -> pd.DataFrame:
-    """Read a CSV (``.csv``, ``.csv.gz``) or Parquet (``.parquet``, ``.pq``) acquisition file."""
-    p = Path(path)
-    if not p.exists():
-        raise IngestError(f"{p}: no such file")
-    name = p.name.lower()
-    try:
-        if name.endswith((".parquet", ".pq")):
-            df = pd.read_parquet(p)
-        elif name.endswith((".csv", ".csv.gz", ".txt")):
-            df = pd.read_csv(p, dtype={"component": str})
-        else:
-            raise IngestError(f"{p}: unknown file type; expected .csv or .parquet")
-    except pd.errors.EmptyDataError as err:
-        raise IngestError(f"{p}: the file is empty") from err
-    except (ValueError, OSError) as err:
-        if isinstance(err, IngestError):
-            raise
-        raise IngestError(f"{p}: cannot be read: {err}") from err
-    return df
+    """Read a CSV (``.csv``, ``.csv.gz``, ``.txt``) or Parquet (``.parquet``, ``.pq``)
+    acquisition file (``component`` kept as text); file-level problems raise
+    :class:`IngestError` (see :func:`rulkit.data.tables.read_table`)."""
+    return read_table(path, error=IngestError, csv_suffixes=(".csv", ".csv.gz", ".txt"),
+                      expected_columns=("component", "time", "hi"),
+                      csv_dtype={"component": str})
 
 
 def _fmt(v: object) -> str:
@@ -148,16 +136,10 @@ def _fmt(v: object) -> str:
 
 
 def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
-    raw = df[col]
-    vals = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
-    bad = ~np.isfinite(vals)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise IngestError(
-            f"row {i + 1} (component {df['component'].iloc[i]!r}): column {col!r} must be a "
-            f"finite number, got {_fmt(raw.iloc[i])}"
-        )
-    return vals
+    """``df[col]`` as finite float64; the error names row (1-based), component and column."""
+    return numeric_columns(
+        df, [col], error=IngestError,
+        row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")[col]
 
 
 def validate_acquisitions(

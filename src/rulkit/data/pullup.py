@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.data.tables import did_you_mean, numeric_columns, read_table
+
 FloatArray = NDArray[np.float64]
 
 __all__ = [
@@ -77,38 +79,13 @@ class PullupData:
 
 def read_pullup(path: str | Path, *, min_samples: int = 20) -> PullupData:
     """Read and validate a CSV (``.csv``, ``.txt``) or Parquet (``.parquet``, ``.pq``) file."""
-    import pandas as pd
-
-    p = Path(path)
-    if not p.exists():
-        raise PullupDataError(f"{p}: file not found")
-    if p.is_dir():
-        raise PullupDataError(f"{p}: is a directory, expected a CSV or Parquet file")
-    suffix = p.suffix.lower()
-    if p.stat().st_size == 0:
-        raise PullupDataError(f"{p}: empty file (no header, no rows)")
-    try:
-        if suffix in (".csv", ".txt"):
-            df = pd.read_csv(p)
-        elif suffix in (".parquet", ".pq"):
-            df = pd.read_parquet(p)
-        else:
-            raise PullupDataError(
-                f"{p}: unknown file type {suffix!r}; expected .csv or .parquet"
-            )
-    except PullupDataError:
-        raise
-    except pd.errors.EmptyDataError:
-        raise PullupDataError(f"{p}: empty file (no header, no rows)") from None
-    except Exception as err:  # parser errors of pandas/pyarrow
-        raise PullupDataError(f"{p}: cannot be read as {suffix[1:]}: {err}") from err
-    return from_frame(df, source=str(p), min_samples=min_samples)
+    df = read_table(path, error=PullupDataError, csv_suffixes=(".csv", ".txt"),
+                    expected_columns=REQUIRED_COLUMNS)
+    return from_frame(df, source=str(path), min_samples=min_samples)
 
 
 def from_frame(df, *, source: str = "", min_samples: int = 20) -> PullupData:
     """Validate a pandas DataFrame with the file's columns and build :class:`PullupData`."""
-    import pandas as pd
-
     where = f"{source}: " if source else ""
     if isinstance(min_samples, bool) or int(min_samples) != min_samples or min_samples < 3:
         raise ValueError(
@@ -119,34 +96,17 @@ def from_frame(df, *, source: str = "", min_samples: int = 20) -> PullupData:
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:
         raise PullupDataError(
-            f"{where}missing column(s) {', '.join(missing)}; expected columns "
-            f"{', '.join(REQUIRED_COLUMNS)} and optionally acceleration; found "
-            f"{', '.join(map(str, df.columns)) or 'none'}"
+            f"{where}missing column(s) {', '.join(missing)}"
+            + "".join(did_you_mean(m, df.columns) for m in missing)
+            + f"; expected columns {', '.join(REQUIRED_COLUMNS)} and optionally acceleration; "
+            f"found {', '.join(map(str, df.columns)) or 'none'}"
         )
     if len(df) == 0:
         raise PullupDataError(f"{where}no data rows (header only)")
     has_acc = "acceleration" in cols
     names = list(REQUIRED_COLUMNS) + (["acceleration"] if has_acc else [])
-    arrays: dict[str, FloatArray] = {}
-    for name in names:
-        col = df[cols[name]]
-        num = pd.to_numeric(col, errors="coerce")
-        bad = num.isna() & col.notna()
-        if bad.any():
-            i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise PullupDataError(
-                f"{where}column {name!r}, row {i + 1}: {col.iloc[i]!r} is not a number"
-            )
-        a = num.to_numpy(dtype=np.float64)
-        nonfinite = ~np.isfinite(a)
-        if nonfinite.any():
-            i = int(np.flatnonzero(nonfinite)[0])
-            what = "NaN (empty)" if np.isnan(a[i]) else f"{a[i]}"
-            raise PullupDataError(
-                f"{where}column {name!r}, row {i + 1}: {what}; every value must be finite "
-                f"({int(nonfinite.sum())} non-finite value(s) in this column)"
-            )
-        arrays[name] = a
+    arrays = numeric_columns(df, {name: cols[name] for name in names}, error=PullupDataError,
+                             source=source)
     cyc = arrays["cycle"]
     if np.any(cyc != np.round(cyc)):
         i = int(np.flatnonzero(cyc != np.round(cyc))[0])

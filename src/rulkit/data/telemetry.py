@@ -20,11 +20,12 @@ row + 2, the header being line 1); both are given in CSV messages.
 
 from __future__ import annotations
 
-import difflib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from rulkit.data.tables import did_you_mean, numeric_columns, read_table
 
 TIME, VOLT, SPEED, CURRENT = "time_s", "v_comm_V", "speed_rad_s", "current_A"
 COLUMNS: tuple[str, ...] = (TIME, VOLT, SPEED, CURRENT)
@@ -56,43 +57,9 @@ def read_wheel_telemetry(path: str | Path, *, dt_tolerance: float = 0.01) -> Any
     Returns a ``pandas.DataFrame`` with exactly the columns :data:`COLUMNS` (float64) and
     ``df.attrs["dt"]`` the sampling step. See :func:`validate_wheel_telemetry`.
     """
-    import pandas as pd
-
-    p = Path(path)
-    if not p.exists():
-        raise TelemetryError(f"{p}: no such file")
-    if p.is_dir():
-        raise TelemetryError(f"{p}: is a directory, expected a CSV or Parquet file")
-    suffix = p.suffix.lower()
-    if p.stat().st_size == 0:
-        raise TelemetryError(f"{p}: empty file (expected a header with columns {list(COLUMNS)})")
-    try:
-        if suffix == ".csv":
-            df = pd.read_csv(p)
-        elif suffix in (".parquet", ".pq"):
-            df = pd.read_parquet(p)
-        else:
-            raise TelemetryError(
-                f"{p}: unknown file type {suffix!r}; expected .csv, .parquet or .pq"
-            )
-    except TelemetryError:
-        raise
-    except pd.errors.EmptyDataError as e:
-        raise TelemetryError(f"{p}: empty file (no header)") from e
-    except Exception as e:  # parser errors of pandas / pyarrow
-        raise TelemetryError(f"{p}: cannot be read as {suffix[1:]}: {e}") from e
-    return validate_wheel_telemetry(df, source=str(p), dt_tolerance=dt_tolerance,
-                                    csv=suffix == ".csv")
-
-
-def _suggest(missing: str, present: list[str]) -> str:
-    low = {c.lower().strip(): c for c in present}
-    hits = [low[a] for a in _ALIASES[missing] if a in low]
-    hits += [c for c in difflib.get_close_matches(missing, present, n=3, cutoff=0.5)
-             if c not in hits]
-    if not hits:
-        return ""
-    return f"; did you mean {' or '.join(repr(h) for h in hits)}? (rename it to {missing!r})"
+    df = read_table(path, error=TelemetryError, expected_columns=COLUMNS)
+    return validate_wheel_telemetry(df, source=str(path), dt_tolerance=dt_tolerance,
+                                    csv=df.attrs["format"] == "csv")
 
 
 def validate_wheel_telemetry(
@@ -113,31 +80,15 @@ def validate_wheel_telemetry(
     present = [str(c) for c in df.columns]
     missing = [c for c in COLUMNS if c not in present]
     if missing:
-        msgs = [f"missing column {m!r}{_suggest(m, present)}" for m in missing]
+        msgs = [f"missing column {m!r}{did_you_mean(m, present, _ALIASES[m])}" for m in missing]
         raise TelemetryError(f"{source}: " + "; ".join(msgs) + f" (columns found: {present})")
     if len(df) == 0:
         raise TelemetryError(f"{source}: no data rows (header only)")
     if len(df) < 2:
         raise TelemetryError(f"{source}: need at least 2 rows, got {len(df)}")
-    out = pd.DataFrame(index=pd.RangeIndex(len(df)))
-    for c in COLUMNS:
-        col = df[c].reset_index(drop=True)
-        num = pd.to_numeric(col, errors="coerce")
-        bad = num.isna() & col.notna()
-        if bad.any():
-            r = int(np.flatnonzero(bad.to_numpy())[0])
-            raise TelemetryError(
-                f"{source}: column {c!r}, {_where(r, csv)}: not a number ({col.iloc[r]!r})"
-            )
-        vals = num.to_numpy(dtype=np.float64)
-        nonfin = ~np.isfinite(vals)
-        if nonfin.any():
-            r = int(np.flatnonzero(nonfin)[0])
-            raise TelemetryError(
-                f"{source}: column {c!r}, {_where(r, csv)}: {vals[r]} (NaN/inf not allowed; "
-                f"{int(nonfin.sum())} such values in this column)"
-            )
-        out[c] = vals
+    cols = numeric_columns(df, COLUMNS, error=TelemetryError, source=source,
+                           row_label=lambda r: _where(r, csv))
+    out = pd.DataFrame(cols, index=pd.RangeIndex(len(df)))
     t = out[TIME].to_numpy()
     d = np.diff(t)
     if (d == 0).any():
