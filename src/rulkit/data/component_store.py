@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rulkit.data.tables import cell_repr as _fmt
 from rulkit.data.tables import numeric_columns, read_table
 from rulkit.prognosis.health import (
     LEVEL_NAMES,
@@ -126,13 +127,6 @@ def read_acquisitions(path: str | Path) -> pd.DataFrame:
     return read_table(path, error=IngestError, csv_suffixes=(".csv", ".csv.gz", ".txt"),
                       expected_columns=("component", "time", "hi"),
                       csv_dtype={"component": str})
-
-
-def _fmt(v: object) -> str:
-    """repr of a cell value without numpy type wrappers."""
-    if isinstance(v, np.generic):
-        v = v.item()
-    return repr(v)
 
 
 def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:

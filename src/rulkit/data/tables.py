@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 __all__ = [
     "CSV_SUFFIXES",
     "PARQUET_SUFFIXES",
+    "cell_repr",
     "did_you_mean",
     "numeric_columns",
     "read_table",
@@ -127,8 +128,9 @@ def read_table(
     return df
 
 
-def _cell(v: object) -> str:
-    """repr of a cell value without numpy type wrappers (``'1,0'``, ``12.0``)."""
+def cell_repr(v: object) -> str:
+    """repr of a cell value without numpy type wrappers (``'1,0'``, ``12.0``, not
+    ``np.float64(12.0)``), for messages."""
     if isinstance(v, np.generic):
         v = v.item()
     return repr(v)
@@ -173,8 +175,8 @@ def numeric_columns(
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise error(
-                f"{prefix}column {name!r}, {row_label(i)}: {_cell(col.iloc[i])} is not a number "
-                f"({int(bad.sum())} non-numeric value(s) in this column)"
+                f"{prefix}column {name!r}, {row_label(i)}: {cell_repr(col.iloc[i])} is not a "
+                f"number ({int(bad.sum())} non-numeric value(s) in this column)"
             )
         a = np.array(num.to_numpy(dtype=np.float64), dtype=np.float64, copy=True)
         nonfinite = ~np.isfinite(a)
