@@ -167,7 +167,7 @@ def test_plot_includes_rbpf_variant(tmp_path) -> None:
 
     paths = plot_temperature_estimates(tmp_path, n_particles=30, variants=("rbpf",),
                                        with_ekf=False, t_end=5.0)
-    assert paths[0].name == "rw_step1_rbpf_RB05.png" and paths[0].stat().st_size > 10_000
+    assert paths[0].name == "rw_step1_rbpf_RBJ.png" and paths[0].stat().st_size > 10_000
 
 
 def test_jump_proposal_reweighting_targets_the_prior_model(short_run) -> None:
