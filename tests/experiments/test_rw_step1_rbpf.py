@@ -159,7 +159,7 @@ def test_table5_rows_and_telemetry_entry_point() -> None:
     assert np.all(out["T_lo"] <= out["T_hi"])
     with pytest.raises(ValueError, match="design"):
         estimate_temperature(tel, "rbpf", rng=np.random.default_rng(2), design="F1")
-    assert set(RBPF_DESIGNS) >= {"RB", "RB05", "RBJ"}
+    assert set(RBPF_DESIGNS) >= {"RB", "RB05", "RBJ", "RBJ0"}
 
 
 def test_plot_includes_rbpf_variant(tmp_path) -> None:

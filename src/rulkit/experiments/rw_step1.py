@@ -642,7 +642,7 @@ def run_table5(
     ``scheduler`` (the runner only distributes). ``initial``: "rest" (spec [R]) or
     "equilibrium" start of the truth; ``overrides``: Step1Config fields for every seed-PF run.
     Beyond the seeds: a design named in
-    :data:`rulkit.experiments.rw_step1_rbpf.RBPF_DESIGNS` (e.g. "RB", "RBJ") adds the
+    :data:`rulkit.experiments.rw_step1_rbpf.RBPF_DESIGNS` ("RB", "RB05", "RBJ", "RBJ0") adds the
     Rao-Blackwellised PF (method "rbpf") in that design (e.g. ``designs=("F1", "RBJ")``);
     its generator is ``SeedSequence([seed, 2, design index, noise, N, r])``. ``coverage``:
     also compute each run's 90 % interval and report the fraction of samples in which it

@@ -107,13 +107,13 @@ class RBPFConfig:
 #: component (prior 3e-4 per sample, sd 5 C) [R], proposed with probability 0.02 and reweighted
 #: (jump_propose): a small steady-state random walk that still follows steps. Its three
 #: settings were chosen on runs 0-2 of the Table 5 data (seed 0) and checked on seed 1.
-#: Proposing jumps from the prior alone (jump_propose = 0) works at N = 350 but fails with few
-#: particles (none jumps to the new level): measured with ``replace(RBPF_DESIGNS["RBJ"],
-#: jump_propose=0.0)``.
+#: "RBJ0": the same model with jumps proposed from the prior (jump_propose = 0), kept to show
+#: why RBJ reweights: with few particles none jumps to the new level and it fails.
 RBPF_DESIGNS: dict[str, RBPFConfig] = {
     "RB": RBPFConfig(),
     "RB05": RBPFConfig(q_T=0.05),
     "RBJ": RBPFConfig(q_T=0.01, p_jump=3e-4, jump_sd=5.0, jump_propose=0.02),
+    "RBJ0": RBPFConfig(q_T=0.01, p_jump=3e-4, jump_sd=5.0),
 }
 
 
