@@ -63,6 +63,11 @@ def test_missing_directory_unknown_type_unreadable(tmp_path: Path) -> None:
     with pytest.raises(MyError, match=r"'.txt'; expected .csv or .parquet"):
         table_format("a.txt", error=MyError, parquet_suffixes=(".parquet",))
     assert table_format("A.CSV") == "csv" and table_format("b.PQ") == "parquet"
+    with pytest.raises(MyError, match=r"'\.xlsx'"):  # not '.v2.xlsx'
+        table_format("run.v2.xlsx", error=MyError)
+    with pytest.raises(MyError, match=r"'\.tsv\.gz'; expected \.csv\.gz or \.parquet"):
+        table_format("a.tsv.gz", error=MyError, csv_suffixes=(".csv.gz",),
+                     parquet_suffixes=(".parquet",))
     bad = tmp_path / "bad.parquet"
     bad.write_text("not parquet")
     with pytest.raises(MyError, match=r"bad\.parquet: cannot be read as Parquet"):

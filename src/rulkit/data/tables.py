@@ -45,6 +45,7 @@ CSV_SUFFIXES: tuple[str, ...] = (".csv",)
 PARQUET_SUFFIXES: tuple[str, ...] = (".parquet", ".pq")
 
 ErrorType = type[Exception]
+_COMPRESSION = (".gz", ".bz2", ".xz", ".zip", ".zst")  # shown with the ending before them
 
 
 def _accepted(suffixes: Sequence[str]) -> str:
@@ -69,7 +70,8 @@ def table_format(
         return "parquet"
     if name.endswith(tuple(s.lower() for s in csv_suffixes)):
         return "csv"
-    found = "".join(p.suffixes[-2:]) if len(p.suffixes) > 1 else p.suffix
+    compressed = len(p.suffixes) > 1 and p.suffix.lower() in _COMPRESSION
+    found = "".join(p.suffixes[-2:]) if compressed else p.suffix
     raise error(
         f"{p}: unknown file type {found.lower()!r}; expected "
         f"{_accepted([*csv_suffixes, *parquet_suffixes])}"
