@@ -163,3 +163,16 @@ def test_file_errors_name_the_file_once(tmp_path):
         r = runner.invoke(app, ["track", "--db", str(db), str(path)])
         assert r.exit_code == 1
         assert " ".join(r.output.split()).count(name) == 1, r.output
+
+
+def test_baseline_with_a_non_numeric_cell_names_column_and_row(tmp_path):
+    base = pd.DataFrame({"so1": [1.0, 1.2, 0.9, 1.1], "so2": ["1.0", "0.8", "abc", "1.1"]})
+    base.to_csv(tmp_path / "healthy.csv", index=False)
+    pd.DataFrame({"component": ["a"], "time": [0.0], "so1": [1.0], "so2": [1.0]}).to_csv(
+        tmp_path / "ci.csv", index=False)
+    db = tmp_path / "ci.db"
+    r = runner.invoke(app, ["track", "--db", str(db), str(tmp_path / "ci.csv"),
+                            "--baseline", str(tmp_path / "healthy.csv")])
+    assert r.exit_code == 1
+    assert "column 'so2', row 3: 'abc' is not a number" in r.output
+    assert not db.exists()

@@ -21,7 +21,10 @@ def _fail(msg: str) -> None:
 def _open_store(db: Path, given: dict[str, float | str], baseline: Path | None, pfa: float,
                 offset: str):
     """Open or create the database; options only set a new database's configuration."""
+    import numpy as np
+
     from rulkit.data.component_store import ComponentStore, IngestError, read_acquisitions
+    from rulkit.data.tables import numeric_columns
     from rulkit.prognosis.health import HealthIndexModel, TrackerConfig
 
     hi_model = None
@@ -33,9 +36,14 @@ def _open_store(db: Path, given: dict[str, float | str], baseline: Path | None, 
         if base.shape[1] < 1 or len(base) < 2:
             _fail(f"baseline {baseline}: expected rows of healthy CIs, one column per CI")
         try:
+            cols = numeric_columns(base, [str(c) for c in base.columns], error=ValueError,
+                                   source=f"baseline {baseline}")
+        except ValueError as err:
+            _fail(str(err))
+        try:
             hi_model = HealthIndexModel.fit(
-                base.to_numpy(dtype=float), pfa=pfa, offset=offset,  # type: ignore[arg-type]
-                names=[str(c) for c in base.columns])
+                np.column_stack(list(cols.values())), pfa=pfa, offset=offset,  # type: ignore[arg-type]
+                names=list(cols))
         except ValueError as err:
             _fail(f"baseline {baseline}: {err}")
     try:
