@@ -113,8 +113,15 @@ def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeyp
         assert (out / name).exists(), name
     t6 = pd.read_csv(out / "table6.csv")
     assert t6["runs"].iloc[0] == 2 and "S1 b paper" in t6
+    new = ["RBPF + two-step PF (ours)", "RBPF + RB-PF (ours)"]  # RBPF step-1 source rows
+    t7 = pd.read_csv(out / "table7.csv")
+    for tab, cols in ((t6, [f"S{s} {p} ours" for s in (1, 2) for p in ("b", "beta")]),
+                      (t7, [f"S{s} {k} ours" for s in (1, 2) for k in ("LB", "UB", "mean")])):
+        rows = tab.set_index("method").loc[new, cols].to_numpy()
+        assert np.isfinite(rows).all(), tab
     report = (out / "report.md").read_text()
     assert "Table 6" in report and "[R]" in report and "not validated" in report
+    assert "| RBPF | rbpf RBJ |" in report and "RBPF step-1 source (ours)" in report
     assert "Table 6: RMSPE" in res.output  # the tables are printed
 
 

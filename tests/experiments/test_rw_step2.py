@@ -190,6 +190,22 @@ def test_run_case_independent_of_grouping_and_table6() -> None:
                                       "APF + one-step PF"]
     assert tab.loc[0, "S2 b paper"] == 1.920 and tab.loc[2, "S2 beta paper"] == 24.303
     assert tab.loc[1, "S2 b ours"] == pytest.approx(res.case(2, "PF").rmspe_b["two_step"].mean())
+    # the RBPF step-1 source (ours) adds two rows and leaves the APF/PF rows unchanged
+    res3 = run_table6(2, 3, st, {"APF": err, "PF": err, "RBPF": err}, scenarios=(2,))
+    t3 = res3.table
+    assert list(t3["method"]) == [*tab["method"], "RBPF + two-step PF (ours)",
+                                  "RBPF + RB-PF (ours)"]
+    import pandas as pd
+
+    pd.testing.assert_frame_equal(t3.iloc[:len(tab)], tab)
+    new = t3.iloc[len(tab):]
+    assert np.isfinite(new[["S2 b ours", "S2 beta ours"]].to_numpy()).all()
+    assert new["S2 b paper"].isna().all()  # not in the paper
+    assert t3.iloc[-1]["S2 b ours"] == pytest.approx(res3.case(2, "RBPF").rmspe_b["rbpf"].mean())
+    # the same error process under another source gives other T^ draws (own streams)
+    assert res3.case(2, "RBPF").rmspe_b["rbpf"][0] != res3.case(2, "PF").rmspe_b["rbpf"][0]
+    with pytest.raises(ValueError, match="unknown T\\^ source"):
+        run_table6(1, 3, st, {"EKF": err}, scenarios=(2,))
 
 
 def test_truth_per_window_and_bad_inputs() -> None:
@@ -211,14 +227,52 @@ def test_truth_per_window_and_bad_inputs() -> None:
     assert unit_rng(1, "rbpf", 1, 0, 2).random() == unit_rng(1, "rbpf", 1, 0, 2).random()
 
 
-def test_validate_shortcut_runs_the_real_step1_estimator() -> None:
+@pytest.mark.parametrize("source", ["PF", "RBPF"])
+def test_validate_shortcut_runs_the_real_step1_estimator(source: str) -> None:
     from rulkit.experiments.rw_step2 import validate_shortcut
 
     err = EstimateErrorProcess(bias_c=-1.0, std_c=0.5, tau_s=100.0)
-    v = validate_shortcut(err, "PF", hours=0.14, n_runs=1, seed=0,
+    v = validate_shortcut(err, source, hours=0.14, n_runs=1, seed=0,
                           settings=Step2Settings(n_particles=30), n_particles_step1=30)
     assert v.n_runs == 1 and v.rmspe_b_real["rbpf"].shape == (1,)
     assert np.isfinite(v.window_error_std_real) and v.window_error_std_real > 0
     assert np.isfinite(v.fitted_on_path.std_c) and "step-2 path" in v.fitted_on_path.source
     for d in (v.rmspe_b_real, v.rmspe_b_synth):
         assert set(d) == {"two_step", "rbpf"} and all(np.isfinite(x).all() for x in d.values())
+
+
+def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> None:
+    """The RBPF source's T^ error process is fitted to real step-1 runs of the RBJ RBPF: equal
+    to a fit of errors of run_rbpf called directly on the same simulated data, and it follows
+    the estimator's output (a shifted estimator shifts the measured bias)."""
+    from rulkit.experiments import rw_step1_rbpf
+    from rulkit.experiments.rw_step2 import RBPF_STEP1_DESIGN, SOURCES, measure_step1_errors
+    from rulkit.models.lubrication import fit_error_process
+    from rulkit.models.reaction_wheel import NOISE_LEVELS, simulate_table3
+
+    seed, N = 4, 30
+    e = measure_step1_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
+    assert "rbpf RBJ" in e.source and "2 step-1 runs" in e.source
+    errs = []  # independent reconstruction: the RBJ design called directly
+    for r in range(2):
+        g = unit_rng(seed, "estimate", 0, SOURCES.index("RBPF"), 1000 + r)
+        run = simulate_table3(g, "low")
+        cfg = replace(rw_step1_rbpf.RBPF_DESIGNS[RBPF_STEP1_DESIGN], n_particles=N)
+        T_hat = rw_step1_rbpf.run_rbpf(run.y, run.V, g, cfg, sigma=NOISE_LEVELS["low"],
+                                       quantiles=False).T_mean
+        keep = run.t >= 100.0
+        errs.append(T_hat[keep] - run.T[keep])
+    ref = fit_error_process(np.stack(errs), hold_samples=40)
+    assert (e.bias_c, e.std_c, e.tau_s) == pytest.approx((ref.bias_c, ref.std_c, ref.tau_s))
+    assert e.std_c > 0 and abs(e.bias_c) < 1.0
+    assert measure_step1_errors("RBPF", 2, seed + 1, n_particles=N, on="table3").std_c != e.std_c
+
+    real = rw_step1_rbpf.run_rbpf
+
+    def shifted(*a, **k):
+        out = real(*a, **k)
+        return replace(out, T_mean=out.T_mean + 3.0)
+
+    monkeypatch.setattr(rw_step1_rbpf, "run_rbpf", shifted)
+    e3 = measure_step1_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
+    assert e3.bias_c == pytest.approx(e.bias_c + 3.0)

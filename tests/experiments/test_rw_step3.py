@@ -87,11 +87,15 @@ def test_engine_propagation_equals_vectorised_forecast() -> None:
 def test_table7_from_a_small_step2_run(tmp_path) -> None:
     st2 = Step2Settings(horizon_days=2.0, n_particles=40)
     err = EstimateErrorProcess(std_c=0.2, tau_s=20.0)
-    t6 = run_table6(2, 0, st2, {"APF": err, "PF": err},
+    t6 = run_table6(2, 0, st2, {"APF": err, "PF": err, "RBPF": err},
                     snapshot_windows=ST3.prediction_windows(st2.n_windows))
     res = run_table7(t6, ST3)
     tab = res.table
     assert set(tab["method"]) >= {"APF + two-step PF", "APF + one-step PF", "APF + RB-PF (ours)"}
+    new = tab[tab["method"].isin(["RBPF + two-step PF (ours)", "RBPF + RB-PF (ours)"])]
+    assert len(new) == 2  # the RBPF step-1 source's rows (ours): finite, not in the paper
+    ours = [f"S{s} {k} ours" for s in (1, 2) for k in ("LB", "UB", "mean")]
+    assert np.isfinite(new[ours].to_numpy()).all() and new["S1 LB paper"].isna().all()
     row = tab[tab["method"] == "APF + two-step PF"].iloc[0]
     assert row["S1 LB paper"] == 0.137 and row["S2 mean paper"] == 2.343
     assert row["S1 LB ours"] <= row["S1 mean ours"] <= row["S1 UB ours"]

@@ -67,6 +67,7 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from rulkit.experiments.rw_lubrication import ReproductionConfig, reproduce, with_overrides
+    from rulkit.experiments.rw_step2 import SOURCES
 
     if runs is not None and runs < 1:
         raise typer.BadParameter(f"--runs: expected >= 1, got {runs}")
@@ -79,7 +80,10 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     cfg = with_overrides(cfg, workers=workers, scheduler=scheduler)
     console = Console()
     t0 = time.perf_counter()
-    stages = 5 + 2 * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0) + cfg.table6_alt
+    # one log line per stage: step 1, one per T^ source (APF, PF, RBPF), steps 2 and 3, ...
+    n_src = len(SOURCES)
+    stages = (3 + n_src + n_src * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0)
+              + cfg.table6_alt)
     if not show_progress:
         return reproduce(out, cfg, log=lambda m: None)
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/"

@@ -65,7 +65,10 @@ PAPER_TABLE6: dict[str, tuple[float, float, float, float]] = {
 }
 
 #: Step-1 estimators whose error statistics feed the shortcut, and their Table 5 labels.
-SOURCES = ("APF", "PF")
+#: "APF" and "PF" are the seed's; "RBPF" (ours, beyond the seeds) is the Rao-Blackwellised PF
+#: of :mod:`rulkit.experiments.rw_step1_rbpf`, design :data:`RBPF_STEP1_DESIGN`. A source's
+#: index here keys its random streams, so adding a source leaves the others' numbers unchanged.
+SOURCES = ("APF", "PF", "RBPF")
 
 
 @dataclass(frozen=True)
@@ -730,13 +733,16 @@ def rbpf_engine(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
 
 #: Trackers run on the T^ of each step-1 estimator; the seed's three rows plus our RBPF.
 METHODS: dict[str, tuple[str, ...]] = {"APF": ("two_step", "one_step", "rbpf"),
-                                       "PF": ("two_step", "rbpf")}
+                                       "PF": ("two_step", "rbpf"),
+                                       "RBPF": ("two_step", "rbpf")}
 ROW_LABELS: dict[tuple[str, str], str] = {
     ("APF", "two_step"): "APF + two-step PF",
     ("PF", "two_step"): "PF + two-step PF",
     ("APF", "one_step"): "APF + one-step PF",
     ("APF", "rbpf"): "APF + RB-PF (ours)",
     ("PF", "rbpf"): "PF + RB-PF (ours)",
+    ("RBPF", "two_step"): "RBPF + two-step PF (ours)",
+    ("RBPF", "rbpf"): "RBPF + RB-PF (ours)",
 }
 
 
@@ -885,6 +891,8 @@ def run_table6(n_runs: int, seed: int, settings: Step2Settings,
 
     Tasks are (scenario, T^ source) pairs sent to :func:`rulkit.experiments.runner.run_independent`
     (serial, ``workers`` processes, or a Dask ``scheduler``); results are identical either way.
+    The T^ sources are those of :data:`SOURCES` present in ``errors`` (rows of absent sources
+    are left out); a source's numbers do not depend on which other sources run.
     """
     import pandas as pd
 
@@ -892,14 +900,22 @@ def run_table6(n_runs: int, seed: int, settings: Step2Settings,
 
     if n_runs < 1:
         raise ValueError(f"n_runs: expected >= 1, got {n_runs}")
+    unknown = sorted(set(errors) - set(SOURCES))
+    if unknown:
+        raise ValueError(f"errors: unknown T^ source(s) {unknown}; expected some of {SOURCES}")
+    sources = [s for s in SOURCES if s in errors]
+    if not sources:
+        raise ValueError(f"errors: expected error processes for some of {SOURCES}, got none")
     t0 = time.perf_counter()
     tasks = [CaseTask(sid, src, tuple(range(n_runs)), seed, settings, errors[src],
                       tuple(sorted(snapshot_windows)), backend=backend)
-             for sid in scenarios for src in SOURCES]
+             for sid in scenarios for src in sources]
     cases = run_independent(run_case, tasks, seed=seed, workers=workers, scheduler=scheduler,
                             progress=progress, description="step 2 (Table 6)")
     rows = []
     for (src, meth), label in ROW_LABELS.items():
+        if src not in sources:
+            continue
         row: dict[str, Any] = {"method": label}
         for sid in scenarios:
             c = next(c for c in cases if c.scenario_id == sid and c.source == src)
@@ -923,8 +939,36 @@ def run_table6(n_runs: int, seed: int, settings: Step2Settings,
 # Error statistics of the real step-1 estimator, and validation of the shortcut
 # ---------------------------------------------------------------------------------------------
 
-#: Step-1 variants behind the T^ sources (names of rulkit.experiments.rw_step1.Step1Config).
-STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive"}
+#: Step-1 variants behind the T^ sources: names of rulkit.experiments.rw_step1.Step1Config
+#: variants, and for "RBPF" the design name in rulkit.experiments.rw_step1_rbpf.RBPF_DESIGNS.
+RBPF_STEP1_DESIGN = "RBJ"
+STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive", "RBPF": f"rbpf {RBPF_STEP1_DESIGN}"}
+
+
+def step1_temperature(source: str, y: FloatArray, V: FloatArray, rng: np.random.Generator, *,
+                      n_particles: int, sigma: tuple[float, float], dt: float = SAMPLE_DT
+                      ) -> FloatArray:
+    """T^ (K,) of the real step-1 estimator behind ``source`` on telemetry ``y`` (K, 2), ``V``.
+
+    "APF", "PF": ``rulkit.experiments.rw_step1.run_step1`` (variant :data:`STEP1_VARIANTS`,
+    F2 design, its default settings); "RBPF": ``rulkit.experiments.rw_step1_rbpf.run_rbpf``
+    with design :data:`RBPF_STEP1_DESIGN` (its settings, ``n_particles`` particles).
+    """
+    if source == "RBPF":
+        from rulkit.experiments.rw_step1_rbpf import RBPF_DESIGNS, run_rbpf
+
+        rcfg = replace(RBPF_DESIGNS[RBPF_STEP1_DESIGN], n_particles=n_particles)
+        return run_rbpf(y, V, rng, rcfg, sigma=sigma, dt=dt, quantiles=False).T_mean
+    if source not in STEP1_VARIANTS:
+        raise ValueError(f"source: expected one of {SOURCES}, got {source!r}")
+    from rulkit.experiments.rw_step1 import Step1Config, run_step1
+
+    cfg = Step1Config(variant=STEP1_VARIANTS[source], n_particles=n_particles)
+    return run_step1(y, V, rng, cfg, sigma=sigma, dt=dt, quantiles=False).T_mean
+
+
+def _step1_name(source: str) -> str:
+    return STEP1_VARIANTS[source] + ("" if source == "RBPF" else ", F2")
 
 
 def measure_step1_errors(source: str, n_runs: int, seed: int, *, n_particles: int = 200,
@@ -933,18 +977,16 @@ def measure_step1_errors(source: str, n_runs: int, seed: int, *, n_particles: in
                          hours: float = 2.0) -> EstimateErrorProcess:
     """Fit the T^ error process to real step-1 runs (spec §4).
 
-    Runs the step-1 estimator (``rulkit.experiments.rw_step1.run_step1``, variant
-    :data:`STEP1_VARIANTS` [source], F2 design, its default settings) on ``n_runs`` simulated
+    Runs the real step-1 estimator of ``source`` (:func:`step1_temperature`: the seed PFs'
+    variant :data:`STEP1_VARIANTS` [source], F2 design, or the RBJ RBPF) on ``n_runs`` simulated
     wheel runs and fits :func:`fit_error_process` to ``T^ - T`` after ``burn_in_s`` [R].
     ``on="path"`` [R, default]: the wheel at constant 2 V along the scenario-1 step-2 path for
     ``hours`` (the conditions of step 2); ``on="table3"``: the 500 s Table 3 validation path of
     step 1 (a temperature step and a voltage step: transients that the months-long path lacks).
     """
-    from rulkit.experiments.rw_step1 import Step1Config, run_step1
     from rulkit.models.lubrication import fit_error_process
     from rulkit.models.reaction_wheel import NOISE_LEVELS, ReactionWheel, simulate_table3
 
-    cfg = Step1Config(variant=STEP1_VARIANTS[source], n_particles=n_particles)
     errs = []
     si = SOURCES.index(source)
     if on == "path":
@@ -959,14 +1001,14 @@ def measure_step1_errors(source: str, n_runs: int, seed: int, *, n_particles: in
             t, V, T, y = run.t, run.V, run.T, run.y
         else:
             y = model.output(x) + model.noise.sample_measurement(t.size, g)
-        res = run_step1(y, V, g, cfg, sigma=NOISE_LEVELS[noise], dt=SAMPLE_DT, quantiles=False)
-        est = res.T_mean[-t.size:]
+        est = step1_temperature(source, y, V, g, n_particles=n_particles,
+                                sigma=NOISE_LEVELS[noise])[-t.size:]
         keep = t >= burn_in_s
         errs.append(est[keep] - T[keep])
     where = (f"Table 3 path after {burn_in_s:g} s" if on == "table3" else
              f"scenario-1 step-2 path, wheel at 2 V, {hours:g} h after {burn_in_s:g} s")
     return fit_error_process(np.stack(errs), hold_samples=hold_samples,
-                             source=f"measured: {n_runs} step-1 runs ({cfg.variant}, F2, "
+                             source=f"measured: {n_runs} step-1 runs ({_step1_name(source)}, "
                                     f"N={n_particles}, {noise} noise, {where})")
 
 
@@ -1028,7 +1070,6 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     Reports the window-mean error std of both and the b RMSPE of the two-step PF and the RB-PF
     on each; also fits the error process to the real errors of these runs (``fitted_on_path``).
     """
-    from rulkit.experiments.rw_step1 import Step1Config, run_step1
     from rulkit.models.lubrication import WINDOW_SAMPLES, fit_error_process, window_quadrature
     from rulkit.models.reaction_wheel import ReactionWheel
 
@@ -1039,17 +1080,16 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     path = PATHS[sid]
     t, V, T, x = _wheel_on_path_cached(sid, W * WINDOW_S / 3600.0 + 1e-9)
     model = ReactionWheel(noise="low")
-    cfg = Step1Config(variant=STEP1_VARIANTS[source], n_particles=n_particles_step1)
     T_hat = np.empty((n_runs, W * WINDOW_SAMPLES))
     for r in range(n_runs):
         g = unit_rng(seed, "estimate", 9, si, r)
         y1 = model.output(x) + model.noise.sample_measurement(t.size, g)
-        res = run_step1(y1, V, g, cfg, sigma=(model.sigma_w, model.sigma_I), quantiles=False)
-        T_hat[r] = res.T_mean[-W * WINDOW_SAMPLES:]
+        T_hat[r] = step1_temperature(source, y1, V, g, n_particles=n_particles_step1,
+                                     sigma=(model.sigma_w, model.sigma_I))[-W * WINDOW_SAMPLES:]
     T_true = T[-W * WINDOW_SAMPLES:]
     err = T_hat - T_true
     fitted = fit_error_process(err[:, 2000:], hold_samples=st.hold_samples,
-                               source=f"real step-1 ({cfg.variant}) on the step-2 path")
+                               source=f"real step-1 ({_step1_name(source)}) on the step-2 path")
     q_real = window_quadrature(1.0 / np.clip(T_hat, 5.0, None).reshape(n_runs, W, WINDOW_SAMPLES),
                                st.n_nodes)
     rngs = [unit_rng(seed, "estimate", 8, si, r) for r in range(n_runs)]
