@@ -119,7 +119,7 @@ def test_analyse_pullup_refuses_non_positive_noise(pullup_csv) -> None:
 def test_reproduce_motor_damping_help_lists_options() -> None:
     res = runner.invoke(app, ["reproduce", "motor-damping", "--help"])
     assert res.exit_code == 0
-    for opt in ("--quick", "--runs", "--seed", "--out"):
+    for opt in ("--quick", "--runs", "--seed", "--out", "--macro-model"):
         assert opt in res.output
 
 
@@ -146,3 +146,39 @@ def test_reproduce_motor_damping_quick_small(tmp_path: Path, monkeypatch) -> Non
     assert (tmp_path / "fig10_characteristic_curves.png").exists()
     res = runner.invoke(app, ["reproduce", "motor-damping", "--runs", "0"])
     assert res.exit_code != 0
+
+
+def test_motor_damping_quadratic_macro_model(pullup_csv, tmp_path: Path) -> None:
+    path, _ = pullup_csv
+    res = runner.invoke(app, ["motor", "damping", str(path), "--macro-model", "quadratic",
+                              "--mc-samples", "100", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "quadratic" in res.output and "curv./cycle^2" in res.output
+    table = pd.read_csv(tmp_path / "damping_per_cycle.csv")
+    assert table["curvature_per_cycle2"].notna().all()
+    # the analytic crossing of the last posterior-mean trend c + a m + j m^2/2 = c_fail
+    last = table.iloc[-1]
+    c, a, j = last["trend_damping"], last["slope_per_cycle"], last["curvature_per_cycle2"]
+    m = last["trend_crossing"]
+    c_at_m = c + a * m + 0.5 * j * m * m
+    # c_fail from the design point with the file's measured steady current (~1.47e-4)
+    assert c_at_m == pytest.approx(1.47e-4, rel=1e-4)
+    res = runner.invoke(app, ["motor", "damping", str(path), "--mc-samples", "100",
+                              "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    lin = pd.read_csv(tmp_path / "damping_per_cycle.csv")
+    assert lin["curvature_per_cycle2"].isna().all()
+    # the linear law's crossing reaches the same c_fail
+    last = lin.iloc[-1]
+    assert last["trend_damping"] + last["slope_per_cycle"] * last["trend_crossing"] == (
+        pytest.approx(c_at_m, rel=1e-9))
+
+
+def test_macro_model_bad_value_named_by_flag(pullup_csv) -> None:
+    path, _ = pullup_csv
+    res = runner.invoke(app, ["motor", "damping", str(path), "--macro-model", "cubic"])
+    assert res.exit_code == 2
+    assert "--macro-model" in res.output and "cubic" in res.output
+    res = runner.invoke(app, ["reproduce", "motor-damping", "--macro-model", "cubic"])
+    assert res.exit_code != 0
+    assert "cubic" in res.output

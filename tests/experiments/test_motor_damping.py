@@ -120,7 +120,8 @@ def test_macro_filter_equals_weighted_least_squares() -> None:
 def test_macro_track_equals_rerunning_every_prefix() -> None:
     rng = np.random.default_rng(1)
     cyc, z, r = _linear_data(rng, 4, 20)
-    for st in (MacroSettings(), MacroSettings(q_a_grid=(0.0, 1e-14, 1e-13))):
+    for st in (MacroSettings(), MacroSettings(q_a_grid=(0.0, 1e-14, 1e-13)),
+               MacroSettings(model="quadratic", q_a_grid=(0.0, 1e-18))):
         tr = macro_track(cyc, z, r, st)
         for k in (2, 9, 19):
             s2 = estimate_scatter_var(cyc[: k + 1], z[:, : k + 1], r[:, : k + 1], st)
@@ -227,9 +228,23 @@ def test_tiny_experiment_end_to_end(tmp_path) -> None:
     assert res.c_fail == pytest.approx(1.47e-4)
     met = res.tables["rul_metrics"]
     assert set(met["scenario"]) >= {"linear", "accelerating", "accelerating-qa-ml"}
+    # the macro-law comparison: both laws on both truths; the linear law's rows are the
+    # scenarios above (reused, same numbers), the quadratic law's are extra scenarios
+    mm = res.tables["macro_models"]
+    assert len(mm) == 8
+    assert set(zip(mm["truth"], mm["macro_model"], strict=True)) == {
+        (t, m) for t in ("linear", "accelerating") for m in ("linear", "quadratic")}
+    for truth in ("linear", "accelerating"):
+        row = mm[(mm["truth"] == truth) & (mm["macro_model"] == "linear")
+                 & (mm["method"] == "covariance")].iloc[0]
+        ref = met[(met["scenario"] == truth) & (met["method"] == "covariance")].iloc[0]
+        assert row["coverage_90"] == ref["coverage_90"]
+        assert res.scenarios[f"{truth}-quadratic-macro"].track.x.shape[-1] == 3
+    assert (mm["median_width"] > 0).all()
     paths = write_outputs(res, tmp_path, "test")
     names = {p.name for p in paths}
     assert "report.md" in names and "fig17_rul.png" in names
+    assert "fig_macro_models_rul.png" in names
     text = (tmp_path / "report.md").read_text()
     assert "2.67e-6" in text and "0.000147" in text
 
@@ -325,3 +340,149 @@ def test_macro_refuses_unsorted_or_repeated_cycles_and_bad_estimates() -> None:
     r_neg[0, 2] = -1e-18
     with pytest.raises(ValueError, match=r"negative variance .* at unit 0, cycle 3"):
         macro_filter(cyc, z, r_neg, s)
+
+
+# ---------------------------------------------------------------------------------------------
+# quadratic (constant-acceleration) macro law
+# ---------------------------------------------------------------------------------------------
+
+
+def _accel_data(rng, b: int, n: int, c0=1e-5, a=2e-6, bq=2e-8, s=0.0, r=1e-20):
+    # c(n) = c0 + a n + bq n^2: curvature j = dc^2/dn^2 = 2 bq
+    cyc = np.arange(1.0, n + 1)
+    z = c0 + a * cyc + bq * cyc**2 + np.sqrt(s * s + r) * rng.standard_normal((b, n))
+    return cyc, z, np.full((b, n), r)
+
+
+def test_quadratic_macro_filter_equals_weighted_least_squares_quadratic_fit() -> None:
+    rng = np.random.default_rng(20)
+    cyc, z, _ = _accel_data(rng, 3, 30, s=1e-9)
+    rv = rng.uniform(0.5e-18, 2e-18, (3, 30))
+    # diffuse against the data: the prior's information is < 1e-6 of the data's
+    st = MacroSettings(model="quadratic", c_prior_sd=1e-3, a_prior_sd=1e-4, j_prior_sd=1e-5)
+    x, P, _ = macro_filter(cyc, z, rv, st)
+    assert x.shape == (3, 3) and P.shape == (3, 3, 3)
+    for u in range(3):
+        # oracle: WLS fit c_N + a_N (n - N) + j (n - N)^2 / 2 -> state at the last cycle N
+        d = cyc - cyc[-1]
+        X = np.column_stack([np.ones(30), d, 0.5 * d * d])
+        W = 1.0 / rv[u]
+        cov = np.linalg.inv(X.T @ (W[:, None] * X))
+        beta = cov @ X.T @ (W * z[u])
+        np.testing.assert_allclose(x[u], beta, rtol=1e-5)
+        np.testing.assert_allclose(P[u], cov, rtol=1e-3)
+        # and the fit recovers the true curvature 2 bq = 4e-8 and the slope at cycle 30
+        assert x[u, 2] == pytest.approx(4e-8, abs=5 * np.sqrt(cov[2, 2]))
+        assert x[u, 1] == pytest.approx(2e-6 + 4e-8 * 30, abs=5 * np.sqrt(cov[1, 1]))
+    # noise-free data: exact to rounding with the default (informative) priors as well
+    cyc, z, r = _accel_data(rng, 2, 40)
+    tr = macro_track(cyc, z, r, MacroSettings(model="quadratic"))
+    np.testing.assert_allclose(tr.x[-1, :, 2], 4e-8, rtol=1e-4)
+    np.testing.assert_allclose(tr.x[-1, :, 0], 1e-5 + 2e-6 * 40 + 2e-8 * 1600, rtol=1e-6)
+    assert np.all(tr.scatter_var[-1] < 1e-18)  # quadratic residuals vanish
+    # the linear law on the same data: slope biased, scatter inflated by the curvature
+    tl = macro_track(cyc, z, r, MacroSettings())
+    assert np.all(np.sqrt(tl.scatter_var[-1]) > 1e-6)
+
+
+def test_quadratic_with_zero_curvature_prior_is_the_linear_filter() -> None:
+    rng = np.random.default_rng(21)
+    cyc, z, r = _linear_data(rng, 4, 25)
+    rv = r + 4e-12
+    lin = macro_filter(cyc, z, rv, MacroSettings())
+    quad = macro_filter(cyc, z, rv, MacroSettings(model="quadratic", j_prior_sd=0.0))
+    np.testing.assert_allclose(quad[0][:, :2], lin[0], rtol=1e-9)
+    np.testing.assert_allclose(quad[1][:, :2, :2], lin[1], rtol=1e-9, atol=1e-30)
+    np.testing.assert_allclose(quad[0][:, 2], 0.0, atol=1e-30)
+    np.testing.assert_allclose(quad[2], lin[2], rtol=1e-12)
+    # predictions and RUL quantiles agree as well
+    lv = np.array([0.05, 0.5, 0.95])
+    np.testing.assert_allclose(
+        rul_covariance_quantiles(quad[0], quad[1], 1.47e-4, lv),
+        rul_covariance_quantiles(lin[0], lin[1], 1.47e-4, lv), rtol=1e-9,
+    )
+    with pytest.raises(ValueError, match="model"):
+        MacroSettings(model="cubic")
+    with pytest.raises(ValueError, match="j_prior_sd"):
+        MacroSettings(model="quadratic", j_prior_sd=-1.0)
+
+
+def test_quadratic_predicted_variance_matches_iterated_kalman_prediction() -> None:
+    x = np.array([[5e-5, 2e-6, 4e-8], [6e-5, 1e-6, -1e-8]])
+    P = np.array([
+        [[4e-12, -1e-13, 1e-15], [-1e-13, 1e-14, -2e-16], [1e-15, -2e-16, 1e-17]],
+        [[1e-12, 0.0, 0.0], [0.0, 4e-14, 0.0], [0.0, 0.0, 4e-18]],
+    ])
+    q = 1e-18
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    F, Q = discretise(A, np.diag([0.0, 0.0, q]), 1.0)  # Van Loan oracle for F and Q
+    from rulkit.experiments.motor_damping_macro import _transition
+
+    F_m, Q_m = _transition(1.0, q, 3)
+    np.testing.assert_allclose(F_m, F, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(Q_m, Q, rtol=1e-10)
+    xm, Pm = x, P
+    for m in range(1, 13):
+        xm, Pm = kf_predict(xm, Pm, F, Q)
+        mu, v = predicted_damping(x, P, np.array([float(m)]), q)
+        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
+        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+
+
+def test_quadratic_crossing_against_hand_computed_roots() -> None:
+    import math
+
+    from rulkit.experiments.motor_damping_macro import quadratic_crossing
+
+    cf = 1.47e-4
+    # 1e-4 + 2e-6 m + 2e-8 m^2 = 1.47e-4  <=>  2 m^2 + 200 m - 4700 = 0 (units of 1e-8)
+    assert quadratic_crossing(1e-4, 2e-6, 4e-8, cf) == pytest.approx(
+        (-200 + math.sqrt(200**2 + 8 * 4700)) / 4, rel=1e-12)  # 19.6419...
+    # decelerating but still crossing: -1 m^2 + 200 m - 4700 = 0, smaller root
+    assert quadratic_crossing(1e-4, 2e-6, -2e-8, cf) == pytest.approx(
+        (200 - math.sqrt(200**2 - 4 * 4700)) / 2, rel=1e-12)  # 27.198...
+    # linear law, already failed, never crossing (maximum below c_fail; falling trend)
+    assert quadratic_crossing(1e-4, 2e-6, 0.0, cf) == pytest.approx(23.5, rel=1e-12)
+    assert quadratic_crossing(1.5e-4, 2e-6, 4e-8, cf) == 0.0
+    assert quadratic_crossing(1e-4, 2e-6, -1e-7, cf) == np.inf  # max 1.2e-4 at m = 20
+    assert quadratic_crossing(1e-4, -1e-6, 0.0, cf) == np.inf
+    # j > 0 rescues a falling trend: 5 m^2 - 100 m - 4700 = 0
+    assert quadratic_crossing(1e-4, -1e-6, 1e-7, cf) == pytest.approx(
+        (100 + math.sqrt(100**2 + 20 * 4700)) / 10, rel=1e-12)
+    # tiny curvature: no cancellation (the textbook form loses all digits here)
+    assert quadratic_crossing(1e-4, 2e-6, 1e-20, cf) == pytest.approx(23.5, rel=1e-9)
+
+
+def test_quadratic_rul_covariance_and_monte_carlo_vs_analytic_crossing() -> None:
+    from rulkit.experiments.motor_damping_macro import quadratic_crossing
+
+    rng = np.random.default_rng(22)
+    x = np.array([[8e-5, 2.5e-6, 4e-8]])
+    P = np.diag([1e-12, 1e-14, 1e-17])[None]
+    cf = 1.47e-4
+    lv = np.array([0.05, 0.5, 0.95])
+    # oracle: crossing of each drawn trend, by the analytic root
+    d = rng.multivariate_normal(x[0], P[0], 200_000)
+    t = quadratic_crossing(d[:, 0], d[:, 1], d[:, 2], cf)
+    exact = np.quantile(t, lv)
+    q_cov = rul_covariance_quantiles(x, P, cf, lv, step=0.01)[0]
+    # the trend is increasing over the range (P(j < 0) ~ 0): the band crossing is exact
+    np.testing.assert_allclose(q_cov, exact, rtol=5e-3)
+    smp, cen = rul_monte_carlo(x, P, cf, rng, n_samples=20_000, horizon=300.0)
+    q_mc = np.quantile(np.where(cen[0], np.inf, smp[0]), lv)
+    # within-cycle linear interpolation of a convex trend: < 0.01 cycle early
+    np.testing.assert_allclose(q_mc, exact, rtol=0.01)
+    # median at the mean trend's crossing
+    assert q_cov[1] == pytest.approx(quadratic_crossing(8e-5, 2.5e-6, 4e-8, cf), abs=0.05)
+    # a (nearly) known state: every Monte Carlo path is the mean trend, crossing at the root
+    # (linear interpolation within the crossing cycle: j / (8 a') ~ 0.002 cycle early)
+    P0 = P * 1e-8
+    smp0, _ = rul_monte_carlo(x, P0, cf, rng, n_samples=200, horizon=300.0)
+    np.testing.assert_allclose(smp0[0], quadratic_crossing(8e-5, 2.5e-6, 4e-8, cf), atol=0.005)
+    # process noise on the curvature alone: Monte Carlo spread = covariance quantiles
+    q_cov_n = rul_covariance_quantiles(x, P0, cf, lv, q_a=1e-17, step=0.01)[0]
+    smp_n, cen_n = rul_monte_carlo(x, P0, cf, rng, n_samples=20_000, q_a=1e-17, horizon=300.0)
+    q_mc_n = np.quantile(np.where(cen_n[0], np.inf, smp_n[0]), lv)
+    np.testing.assert_allclose(q_mc_n, q_cov_n, rtol=0.005)
+    np.testing.assert_allclose(q_mc_n[2] - q_mc_n[0], q_cov_n[2] - q_cov_n[0], rtol=0.03)
+    assert q_cov_n[2] - q_cov_n[0] > 1.5  # cycles: the noise matters at this q

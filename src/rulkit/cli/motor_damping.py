@@ -1,9 +1,12 @@
 """Commands of the reaction-wheel motor damping system (seed 002, issue #4).
 
-- ``rulkit reproduce motor-damping [--quick] [--runs N] [--seed S] [--out DIR]``: the seed
-  reproduction (tables, report.md with the seed's values beside ours, figures).
+- ``rulkit reproduce motor-damping [--quick] [--runs N] [--seed S] [--out DIR]
+  [--macro-model linear|quadratic]``: the seed reproduction (tables, report.md with the seed's
+  values beside ours, figures); the macro law of the main scenarios (the comparison table
+  always has both).
 - ``rulkit motor damping FILE``: multi-scale EKF on a user's pull-up test data (CSV/Parquet:
-  cycle, time, current, speed, optionally acceleration): per-cycle damping, trend, RUL.
+  cycle, time, current, speed, optionally acceleration): per-cycle damping, trend, RUL
+  (``--macro-model quadratic`` for a constant-acceleration trend).
 
 Heavy imports stay inside the command functions (``rulkit --help`` stays fast).
 """
@@ -27,16 +30,28 @@ def _fmt(v: float, spec: str = ".4g") -> str:
     return format(v, spec)
 
 
+def _check_macro_model(value: str) -> str:
+    from rulkit.experiments.motor_damping_macro import MACRO_MODELS
+
+    if value not in MACRO_MODELS:
+        raise typer.BadParameter(
+            f"expected one of {', '.join(MACRO_MODELS)}, got {value!r}", param_hint="--macro-model"
+        )
+    return value
+
+
 def reproduce_motor_damping(
-    out: Path, runs: int | None, seed: int, quick: bool, command: str = ""
+    out: Path, runs: int | None, seed: int, quick: bool, command: str = "",
+    macro_model: str = "linear",
 ) -> Path:
     """Run the reproduction and write its outputs; returns the report path."""
     from rich.console import Console
 
     from rulkit.experiments.motor_damping import ExperimentConfig, run_experiment, write_outputs
+    from rulkit.experiments.motor_damping_macro import MacroSettings
 
     console = Console()
-    kw = {"seed": seed}
+    kw: dict = {"seed": seed, "macro": MacroSettings(model=_check_macro_model(macro_model))}
     if runs is not None:
         if runs < 1:
             raise typer.BadParameter(f"--runs: expected >= 1, got {runs}")
@@ -68,6 +83,16 @@ def reproduce_motor_damping(
             f"  {row['scenario']:<22} {row['method']:<11} cover90 {row['coverage_90']:.3f} "
             f"a-l(0.5) {row['alpha_lambda_pass_0.5']:.2f}"
         )
+    console.print("[bold]Macro law comparison[/bold] (coverage of 90 % intervals, alpha-lambda "
+                  "pass at lambda 0.5, RA, median interval width in cycles):")
+    for _, row in res.tables["macro_models"].iterrows():
+        console.print(
+            f"  truth {row['truth']:<12} model {row['macro_model']:<9} {row['method']:<11} "
+            f"cover90 {row['coverage_90']:.3f} (1st half {row['coverage_90_first_half']:.3f}, "
+            f"2nd {row['coverage_90_second_half']:.3f}) a-l(0.5) "
+            f"{row['alpha_lambda_pass_0.5']:.2f} RA {row['ra_0.5_median']:.3f} width "
+            f"{_fmt(float(row['median_width']), '.3g')}", highlight=False,
+        )
     report = next(p for p in paths if p.name == "report.md")
     console.print(f"wrote {len(paths)} files into {out} ({time.perf_counter() - t0:.1f} s)")
     return report
@@ -89,6 +114,7 @@ def analyse_file(
     mc_samples: int = 2000,
     seed: int = 0,
     min_samples: int = 20,
+    macro_model: str = "linear",
 ) -> object:
     """Read, validate and analyse a pull-up file; print the per-cycle table; write CSV/JSON."""
     import numpy as np
@@ -110,7 +136,7 @@ def analyse_file(
     res = analyse_pullup(
         data, consts, design_speed=design_speed, design_torque=design_torque, c_fail=c_fail,
         sigma_w=sigma_w, sigma_dw=sigma_dw, q_a=q_a, mc_samples=mc_samples,
-        rng=np.random.default_rng(seed),
+        rng=np.random.default_rng(seed), macro_model=macro_model,
     )
     n_s = int(data.n_samples.sum())
     console.print(f"[bold]{file}[/bold]: {data.n_cycles} cycles, {n_s} samples", highlight=False)
@@ -131,14 +157,21 @@ def analyse_file(
         f"({'given' if c_fail is not None else f'design point {design_speed:g} rad/s, '}"
         f"{'' if c_fail is not None else f'{design_torque * 1e3:g} mN m'})"
     )
+    quad = macro_model == "quadratic"
+    console.print(
+        "macro law: " + ("quadratic c + a n + j n^2/2 (state [c, a, j])" if quad
+                         else "linear c + a n (seed eq. 4, state [c, a])")
+    )
     tab = Table(title="Per-cycle damping [N m s], trend and RUL in cycles (90 % interval)")
-    for c in ("cycle", "damping", "+-sd", "trend", "slope/cycle", "RUL median", "RUL 90 %",
-              "MC median", "MC 90 %"):
+    cols = ["cycle", "damping", "+-sd", "trend", "slope/cycle"]
+    cols += ["curv./cycle^2"] if quad else []
+    for c in (*cols, "RUL median", "RUL 90 %", "MC median", "MC 90 %"):
         tab.add_column(c, justify="right")
     for _, r in res.table.iterrows():
+        curv = [_fmt(r["curvature_per_cycle2"], ".3g")] if quad else []
         tab.add_row(
             str(int(r["cycle"])), _fmt(r["damping"]), _fmt(r["damping_sd"], ".2g"),
-            _fmt(r["trend_damping"]), _fmt(r["slope_per_cycle"], ".3g"),
+            _fmt(r["trend_damping"]), _fmt(r["slope_per_cycle"], ".3g"), *curv,
             _fmt(r["rul_median"], ".1f"),
             f"[{_fmt(r['rul_p05'], '.1f')}, {_fmt(r['rul_p95'], '.1f')}]",
             _fmt(r["rul_mc_median"], ".1f"),
@@ -178,6 +211,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         out: Annotated[Path, typer.Option(help="Output directory.")] = Path(
             "out/motor-damping"
         ),
+        macro_model: Annotated[str, typer.Option(
+            help="Macro law of the main scenarios: linear (seed eq. 4, [c, a]) or quadratic "
+                 "([c, a, j], constant acceleration). The macro_models table has both.")
+        ] = "linear",
     ) -> None:
         """Seed 002: multi-scale EKF (micro per cycle, macro across cycles), RUL and metrics."""
         parts = ["rulkit", "reproduce", "motor-damping"]
@@ -186,7 +223,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if runs is not None:
             parts += ["--runs", str(runs)]
         parts += ["--seed", str(seed), "--out", str(out)]
-        reproduce_motor_damping(out, runs, seed, quick, command=shlex.join(parts))
+        if macro_model != "linear":
+            parts += ["--macro-model", macro_model]
+        reproduce_motor_damping(out, runs, seed, quick, command=shlex.join(parts),
+                                macro_model=macro_model)
 
     @motor.command("damping")
     def _damping(
@@ -206,7 +246,11 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         sigma_dw: Annotated[float | None, typer.Option(
             help="Acceleration noise sd (rad/s^2; default: estimated).")] = None,
         q_a: Annotated[float, typer.Option(
-            help="Slope random-walk density (N^2 m^2 s^2 per cycle^3; 0: linear law).")] = 0.0,
+            help="Random-walk density of the highest state (slope for linear, curvature for "
+                 "quadratic; 0: deterministic law).")] = 0.0,
+        macro_model: Annotated[str, typer.Option(
+            help="Macro law: linear (seed eq. 4, [c, a]) or quadratic ([c, a, j], constant "
+                 "acceleration of the damping).")] = "linear",
         mc_samples: Annotated[int, typer.Option(help="Monte Carlo RUL samples.")] = 2000,
         seed: Annotated[int, typer.Option(help="Seed of the Monte Carlo RUL.")] = 0,
         min_samples: Annotated[int, typer.Option(help="Fewest samples per cycle.")] = 20,
@@ -226,6 +270,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         ]
         if not (math.isfinite(q_a) and q_a >= 0):
             problems.append(f"--q-a: expected a finite number >= 0, got {q_a!r}")
+        if macro_model not in ("linear", "quadratic"):
+            problems.append(
+                f"--macro-model: expected linear or quadratic, got {macro_model!r}"
+            )
         if mc_samples < 1:
             problems.append(f"--mc-samples: expected >= 1, got {mc_samples}")
         if min_samples < 3:
@@ -238,7 +286,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 file, out, K=k, J=j, T_L=tl, design_speed=design_speed,
                 design_torque=design_torque, c_fail=c_fail, sigma_w=sigma_w,
                 sigma_dw=sigma_dw, q_a=q_a, mc_samples=mc_samples, seed=seed,
-                min_samples=min_samples,
+                min_samples=min_samples, macro_model=macro_model,
             )
         except (PullupDataError, ValueError) as err:
             err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)

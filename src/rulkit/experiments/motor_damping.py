@@ -19,6 +19,14 @@ Scenarios (each over ``runs`` seeded runs; run r uses ``SeedSequence(seed).spawn
 - ``linear-qa-ml``: the linear data with that same adaptive q_a (what it costs when not needed).
 
 A sweep over fixed q_a values (covariance method) shows the sensitivity (``qa_sweep`` table).
+
+Macro model comparison (``macro_models`` table): the linear law (state [c, a]) against the
+quadratic, constant-acceleration law (state [c, a, j], :mod:`.motor_damping_macro`) on BOTH the
+linear and the accelerating data (same runs as above; the scenario of the configured
+``macro.model`` is reused, the other model is run as ``<truth>-<model>-macro`` with its own Monte
+Carlo generator ``SeedSequence([seed, 3])``, so adding it leaves every other number unchanged):
+coverage of the 90 % intervals, alpha-lambda (alpha = 0.2), relative accuracy and median
+interval width, over all prediction cycles and split into the first and second half of life.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rulkit.experiments.motor_damping_macro import (
+    MACRO_MODELS,
     MacroSettings,
     MacroTrack,
     macro_track,
@@ -335,6 +344,45 @@ def _scenario(
     )
 
 
+def _interval_width(q: FloatArray) -> FloatArray:
+    """Width of the 90 % intervals (R, K); ``inf`` when the upper bound is beyond the horizon
+    (both bounds beyond it give NaN from inf - inf: also ``inf``)."""
+    w = q[..., 2] - q[..., 0]
+    return np.where(np.isnan(w), np.inf, w)
+
+
+def _model_comparison_rows(
+    truth: str, model: str, sres: ScenarioResult, cfg: ExperimentConfig
+) -> list[dict[str, Any]]:
+    """Rows of the ``macro_models`` table: one per RUL method, metrics over all prediction
+    cycles and over the first / second half of life (prediction cycle < or >= EOL / 2)."""
+    rows = []
+    for method, q in (("covariance", sres.cov_q), ("monte-carlo", sres.mc_q)):
+        m = sres.metrics[method]
+        ok = np.isfinite(sres.rul_true)
+        hit = (q[..., 0] <= sres.rul_true) & (sres.rul_true <= q[..., 2])
+        early = ok & (sres.pred_cycles[None, :] < 0.5 * sres.eol[:, None])
+        late = ok & ~early
+        width = _interval_width(q)
+        abs_err = np.abs(np.minimum(q[..., 1], cfg.horizon) - sres.rul_true)
+        rows.append({
+            "truth": truth, "macro_model": model, "method": method, "runs": cfg.runs,
+            "coverage_90": m["coverage_90"].mean(),
+            "coverage_90_first_half": hit[early].mean() if early.any() else np.nan,
+            "coverage_90_second_half": hit[late].mean() if late.any() else np.nan,
+            "alpha_lambda_pass_0.25": m["alpha_lambda_0.25"].mean(),
+            "alpha_lambda_pass_0.5": m["alpha_lambda_0.5"].mean(),
+            "alpha_lambda_pass_0.75": m["alpha_lambda_0.75"].mean(),
+            "ra_0.5_median": float(np.median(m["ra_0.5"])),
+            "median_abs_error_first_half": float(np.median(abs_err[early])),
+            "median_abs_error_second_half": float(np.median(abs_err[late])),
+            "median_width": float(np.median(width[ok])),
+            "median_width_first_half": float(np.median(width[early])),
+            "median_width_second_half": float(np.median(width[late])),
+        })
+    return rows
+
+
 # ---------------------------------------------------------------------------------------------
 # the experiment
 # ---------------------------------------------------------------------------------------------
@@ -427,6 +475,21 @@ def run_experiment(
     )
     scen["linear-qa-ml"] = _scenario("linear-qa-ml", tests, z, r, first, ml, cfg, rng)
 
+    say("macro model comparison: linear vs quadratic law on linear and accelerating truth")
+    cmp_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 3]))
+    model_rows = []
+    for truth_name, data in (
+        ("linear", (tests, z, r, first)), ("accelerating", (a_tests, a_z, a_r, a_first))
+    ):
+        for model in MACRO_MODELS:
+            if model == cfg.macro.model:
+                sres = scen[truth_name]
+            else:
+                name = f"{truth_name}-{model}-macro"
+                sres = _scenario(name, *data, replace(cfg.macro, model=model), cfg, cmp_rng)
+                scen[name] = sres
+            model_rows += _model_comparison_rows(truth_name, model, sres, cfg)
+
     say("q_a sensitivity sweep (covariance method)")
     sweep_rows = []
     for truth_name, (tt, zz, rr, ff) in (
@@ -486,6 +549,7 @@ def run_experiment(
             ph = m["ph"]
             met_rows.append({
                 "scenario": sname, "method": method, "runs": cfg.runs,
+                "macro_model": sres.macro.model,
                 "macro_q_a": "ML grid" if sres.macro.q_a_grid else f"{sres.macro.q_a:g}",
                 "q_a_sd_chosen_median": float(np.median(np.sqrt(sres.track.q_a[-1]))),
                 "eol_mean": float(np.mean(sres.eol)),
@@ -527,6 +591,7 @@ def run_experiment(
     tables = {
         "micro_main": micro_main, "micro_variants": micro_tab, "slope": slope_tab,
         "rul_metrics": met_tab, "qa_sweep": pd.DataFrame(sweep_rows), "threshold": thr_tab,
+        "macro_models": pd.DataFrame(model_rows),
     }
     return MotorDampingResult(
         config=cfg, tables=tables, scenarios=scen, life_run0=lt0, c_fail=c_fail,
@@ -594,6 +659,31 @@ def write_outputs(res: MotorDampingResult, out: Path, command: str = "") -> list
     p.write_text(_report(res, command))
     paths.append(p)
     return paths
+
+
+def _model_summary(df: Any) -> str:
+    """One sentence per truth, from the measured ``macro_models`` table (covariance method)."""
+    out = []
+    for truth in ("linear", "accelerating"):
+        rows = df[(df["truth"] == truth) & (df["method"] == "covariance")].set_index(
+            "macro_model"
+        )
+        if not {"linear", "quadratic"} <= set(rows.index):
+            continue
+        li, qu = rows.loc["linear"], rows.loc["quadratic"]
+        out.append(
+            f"- {truth} truth (covariance method): coverage {li['coverage_90']:.3f} (linear) "
+            f"vs {qu['coverage_90']:.3f} (quadratic); first half of life "
+            f"{li['coverage_90_first_half']:.3f} vs {qu['coverage_90_first_half']:.3f}, "
+            f"second half {li['coverage_90_second_half']:.3f} vs "
+            f"{qu['coverage_90_second_half']:.3f}; alpha-lambda(0.5) "
+            f"{li['alpha_lambda_pass_0.5']:.2f} vs {qu['alpha_lambda_pass_0.5']:.2f}; median "
+            f"width first half {li['median_width_first_half']:.3g} vs "
+            f"{qu['median_width_first_half']:.3g}, second half "
+            f"{li['median_width_second_half']:.3g} vs {qu['median_width_second_half']:.3g} "
+            f"cycles."
+        )
+    return "\n".join(out)
 
 
 def _report(res: MotorDampingResult, command: str) -> str:
@@ -664,10 +754,30 @@ def _report(res: MotorDampingResult, command: str) -> str:
         "",
         _md_table(t["rul_metrics"]),
         "",
+        "macro_model: linear = the seed's law c + a n (state [c, a]); quadratic = "
+        "c + a n + j n^2 / 2 (state [c, a, j]). "
         "q_a_sd_chosen_median: median over runs of the slope noise sd in use after the last "
         "cycle. Sensitivity of the covariance-method intervals to a fixed q_a:",
         "",
         _md_table(t["qa_sweep"]),
+        "",
+        "## Macro model: linear vs quadratic law, on linear and accelerating truth",
+        "",
+        "Not in the seed (an extension): the seed's linear law (state [c, a]) against a "
+        "quadratic, constant-acceleration law (state [c, a, j]; curvature prior sd "
+        f"{cfg.macro.j_prior_sd:g} per cycle^2, q = 0; scatter from quadratic-fit residuals), "
+        f"both on the same {cfg.runs} runs of each truth (linear: c = 1e-5 + 2e-6 n; "
+        f"accelerating: + {cfg.accel_curvature:g} n^2, i.e. j = "
+        f"{2 * cfg.accel_curvature:g}). Truth = trend crossing. Coverage: fraction of "
+        "prediction cycles whose 90 % interval holds the true RUL (first/second half: "
+        "prediction cycle below/above EOL/2, pooled over runs); alpha-lambda pass fraction "
+        "over runs (alpha = 0.2); RA at lambda = 0.5 (median over runs); median absolute "
+        "error of the median RUL; median interval width in cycles (inf: the 95 % bound lies "
+        f"beyond the {cfg.horizon:g}-cycle horizon).",
+        "",
+        _md_table(t["macro_models"]),
+        "",
+        _model_summary(t["macro_models"]),
         "",
         "## Threshold (seed section 4.2)",
         "",
@@ -681,7 +791,7 @@ def _report(res: MotorDampingResult, command: str) -> str:
         "",
         "fig08_micro_cycle.png, fig09_damping_over_cycles.png, fig10_characteristic_curves.png, "
         "fig11_12_curve_slope.png, fig13_15_predictions.png, fig16_slope.png, fig17_rul.png, "
-        "fig_accelerating_rul.png",
+        "fig_accelerating_rul.png, fig_macro_models_rul.png",
         "",
     ]
     return "\n".join(lines)

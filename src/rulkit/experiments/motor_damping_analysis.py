@@ -17,6 +17,7 @@ from rulkit.experiments.motor_damping_macro import (
     MacroSettings,
     MacroTrack,
     macro_track,
+    quadratic_crossing,
     rul_covariance_quantiles,
     rul_monte_carlo,
 )
@@ -64,6 +65,7 @@ def analyse_pullup(
     sigma_w: float | None = None,
     sigma_dw: float | None = None,
     q_a: float = 0.0,
+    macro_model: str = "linear",
     mc_samples: int = 2000,
     horizon: float = 1000.0,
     n_min: int = 3,
@@ -78,6 +80,11 @@ def analyse_pullup(
     :func:`estimate_noise_sd`; an estimate of 0, from a noise-free channel, is raised to 1e-6 to
     keep the filter well posed); given values must be positive (``ValueError`` otherwise, as for
     ``mc_samples`` < 1). ``q_a``: slope random-walk density (0: the seed's linear law).
+    ``macro_model``: ``"linear"`` (seed eq. 4, state [c, a]) or ``"quadratic"`` (state
+    [c, a, j], :mod:`.motor_damping_macro`; ``q_a`` is then the curvature's random-walk
+    density). The table's ``trend_crossing`` is the analytic crossing of the posterior-mean
+    trend with ``c_fail`` (:func:`quadratic_crossing`), ``curvature_per_cycle2`` the curvature
+    j (NaN for the linear law).
     """
     import pandas as pd
 
@@ -119,7 +126,7 @@ def analyse_pullup(
     )
     z = res.c[None, :]
     r = res.c_var[None, :]
-    macro = MacroSettings(q_a=q_a)
+    macro = MacroSettings(q_a=q_a, model=macro_model)
     track = macro_track(data.cycle, z, r, macro)
     n = data.n_cycles
     rows = []
@@ -135,6 +142,11 @@ def analyse_pullup(
             "trend_damping": x[0, 0],
             "slope_per_cycle": x[0, 1],
             "slope_sd": float(np.sqrt(P[0, 1, 1])),
+            "curvature_per_cycle2": x[0, 2] if macro.dim == 3 else np.nan,
+            "curvature_sd": float(np.sqrt(P[0, 2, 2])) if macro.dim == 3 else np.nan,
+            "trend_crossing": float(quadratic_crossing(
+                x[0, 0], x[0, 1], x[0, 2] if macro.dim == 3 else 0.0, cf
+            )),
             "scatter_sd": float(np.sqrt(track.scatter_var[k, 0])),
         }
         if k + 1 >= n_min:

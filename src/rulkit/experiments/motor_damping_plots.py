@@ -177,4 +177,14 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     rul_panel(axs[1], res.scenarios["accelerating-qa-ml"],
               "Accelerating c, random-walk slope (q_a by max. likelihood)")
     save(fig, "fig_accelerating_rul.png")
+
+    # linear vs quadratic macro law on both truths (run 0)
+    fig, axs = plt.subplots(2, 2, figsize=(11, 8.5))
+    for i, truth in enumerate(("linear", "accelerating")):
+        for j, model in enumerate(("linear", "quadratic")):
+            name = truth if cfg.macro.model == model else f"{truth}-{model}-macro"
+            if name in res.scenarios:
+                rul_panel(axs[i, j], res.scenarios[name],
+                          f"{truth.capitalize()} c, {model} macro law (run 0)")
+    save(fig, "fig_macro_models_rul.png")
     return paths
