@@ -133,7 +133,7 @@ def test_reproduce_motor_damping_quick_small(tmp_path: Path, monkeypatch) -> Non
         cfg = small(**kw)
         return md.replace(cfg, life=LifeTestConfig(n_cycles=30, duration=15.0), mc_samples=30,
                           variant_runs=1, qa_sweep_sd=(0.0,), q_a_grid=(0.0, 1e-14),
-                          prediction_cycles=(10, 20, 30))
+                          prediction_cycles=(10, 20, 30), j_prior_sweep_sd=(1e-7,))
 
     monkeypatch.setattr(md.ExperimentConfig, "quick", staticmethod(tiny))
     res = runner.invoke(app, ["reproduce", "motor-damping", "--quick", "--runs", "2",
@@ -144,6 +144,16 @@ def test_reproduce_motor_damping_quick_small(tmp_path: Path, monkeypatch) -> Non
     assert "| failure damping c_fail [N m s] | 0.000147 | 0.000147 (algebra" in report
     assert (tmp_path / "rul_metrics.csv").exists()
     assert (tmp_path / "fig10_characteristic_curves.png").exists()
+    # the quadratic law for the main scenarios: the linear law is then the comparison's extra
+    res = runner.invoke(app, ["reproduce", "motor-damping", "--quick", "--runs", "2",
+                              "--seed", "3", "--out", str(tmp_path / "q"),
+                              "--macro-model", "quadratic"])
+    assert res.exit_code == 0, res.output
+    report = (tmp_path / "q" / "report.md").read_text()
+    assert "--seed 3 --out" in report and "--macro-model quadratic" in report
+    met = pd.read_csv(tmp_path / "q" / "rul_metrics.csv")
+    assert set(met.loc[met["scenario"] == "linear", "macro_model"]) == {"quadratic"}
+    assert set(met.loc[met["scenario"] == "linear-linear-macro", "macro_model"]) == {"linear"}
     res = runner.invoke(app, ["reproduce", "motor-damping", "--runs", "0"])
     assert res.exit_code != 0
 

@@ -219,7 +219,7 @@ def test_tiny_experiment_end_to_end(tmp_path) -> None:
     life = LifeTestConfig(n_cycles=30, duration=15.0)
     cfg = ExperimentConfig(
         runs=2, life=life, mc_samples=40, variant_runs=1, qa_sweep_sd=(0.0,),
-        q_a_grid=(0.0, 1e-14), prediction_cycles=(10, 20, 30),
+        q_a_grid=(0.0, 1e-14), prediction_cycles=(10, 20, 30), j_prior_sweep_sd=(1e-7,),
     )
     cfg = replace(cfg, micro=MicroEKFSettings())
     res = run_experiment(cfg)
@@ -241,6 +241,14 @@ def test_tiny_experiment_end_to_end(tmp_path) -> None:
         assert row["coverage_90"] == ref["coverage_90"]
         assert res.scenarios[f"{truth}-quadratic-macro"].track.x.shape[-1] == 3
     assert (mm["median_width"] > 0).all()
+    # the sweep's row at the default prior is the comparison's quadratic covariance row
+    sw = res.tables["macro_j_prior_sweep"]
+    assert set(sw["truth"]) == {"linear", "accelerating"}
+    for truth in ("linear", "accelerating"):
+        a = sw[sw["truth"] == truth].iloc[0]
+        b = mm[(mm["truth"] == truth) & (mm["macro_model"] == "quadratic")
+               & (mm["method"] == "covariance")].iloc[0]
+        assert a["coverage_90"] == b["coverage_90"]
     paths = write_outputs(res, tmp_path, "test")
     names = {p.name for p in paths}
     assert "report.md" in names and "fig17_rul.png" in names
@@ -486,3 +494,9 @@ def test_quadratic_rul_covariance_and_monte_carlo_vs_analytic_crossing() -> None
     np.testing.assert_allclose(q_mc_n, q_cov_n, rtol=0.005)
     np.testing.assert_allclose(q_mc_n[2] - q_mc_n[0], q_cov_n[2] - q_cov_n[0], rtol=0.03)
     assert q_cov_n[2] - q_cov_n[0] > 1.5  # cycles: the noise matters at this q
+    # first-crossing truth: whole cycles, later than or equal to the trend's crossing on
+    # average minus the scatter's head start (scatter can only bring the first crossing on)
+    smp_f, cen_f = rul_monte_carlo(x, P0, cf, rng, n_samples=2000, horizon=300.0,
+                                   scatter_var=np.array([(2e-6) ** 2]), t0=10.0)
+    assert not cen_f.any() and np.all(smp_f == np.round(smp_f))
+    assert np.median(smp_f) <= np.ceil(q_cov[1]) and np.median(smp_f) >= q_cov[1] - 3
