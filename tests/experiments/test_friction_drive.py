@@ -241,6 +241,17 @@ def test_study_is_repeatable_from_its_seed():
     assert not np.array_equal(a.rul["tuned"].rul.samples, c.rul["tuned"].rul.samples)
 
 
+def test_added_configuration_leaves_the_other_seeded_numbers_unchanged():
+    kw = dict(n_runs=1, duration=3.0, rul_configs=("tuned",), n_rul=20, n_validate=0,
+              converge=False, seed=11)
+    a = E.run_study(pairs=(("tuned", "jump"),), **kw)
+    b = E.run_study(pairs=(("tuned", "jump"), ("tuned-consistent", "jump")), **kw)
+    np.testing.assert_array_equal(a.runs[("tuned", "jump")].x, b.runs[("tuned", "jump")].x)
+    np.testing.assert_array_equal(a.rul["tuned"].rul.samples, b.rul["tuned"].rul.samples)
+    # the added unit does get its own noise (not a copy of the tuned unit's)
+    assert not np.array_equal(b.runs[("tuned", "jump")].nu, b.runs[("tuned-consistent", "jump")].nu)
+
+
 def test_convergence_from_wrong_initial_estimates():
     tr = E.simulate_truth(E.Scenario("s", m_kind="constant", duration=2.0))
     rows = E.convergence_study(tr, np.random.default_rng(0), alpha0s=(5.0, 11.0), m0s=(0.0,),

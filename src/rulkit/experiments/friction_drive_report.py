@@ -329,6 +329,7 @@ def _nees_cause_text(res: StudyResult, cons) -> str:  # type: ignore[no-untyped-
             txt = (
                 f"{name}: largest NEES within 50 steps after a current switch "
                 f"{sel['max_NEES_switch'].max():.3g}, elsewhere {sel['max_NEES_other'].max():.3g}"
+                " (both without the second after a jump of m)"
                 f", time-averaged NEES inside its interval in {int(sel['NEES_ok'].sum())}/"
                 f"{len(sel)} runs (mean NEES {sel['mean_NEES'].min():.2f}-"
                 f"{sel['mean_NEES'].max():.2f})"
