@@ -290,3 +290,9 @@ def test_full_study_reproduces_the_spec_measurements():
     assert abs(r.normal_fit[0] - res.rul_truth_h) < 3 * r.normal_fit[1]
     assert r.rul.fraction_censored == 0.0
     assert res.rul["seed"].fraction_never > 0.0  # m <= 0 samples under the seed's Q
+    # NEES after the current switches: spikes with the seed's start-of-step F and no speed
+    # noise, within chi2_4 range with the tuned-consistent filters (20 s, outside the jump's s)
+    assert by[("tuned", "jump")].max_nees_switch > 100.0
+    for key in (("tuned-consistent", "jump"), ("tuned-consistent", "constant"),
+                ("tuned-consistent-realistic", "jump")):
+        assert by[key].max_nees_switch < 30.0 and by[key].max_nees_other < 30.0
