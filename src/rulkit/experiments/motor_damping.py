@@ -360,6 +360,10 @@ def _model_comparison_rows(
 ) -> list[dict[str, Any]]:
     """Rows of the ``macro_models`` table: one per RUL method, metrics over all prediction
     cycles and over the first / second half of life (prediction cycle < or >= EOL / 2)."""
+    def over(fn: Any, values: FloatArray) -> float:
+        """``fn`` of the selected values; NaN (no prediction in that part of life) if empty."""
+        return float(fn(values)) if values.size else np.nan
+
     rows = []
     for method, q in (("covariance", sres.cov_q), ("monte-carlo", sres.mc_q)):
         if method not in sres.metrics:
@@ -374,19 +378,19 @@ def _model_comparison_rows(
         rows.append({
             "truth": truth, "macro_model": model, "method": method, "runs": cfg.runs,
             "coverage_90": m["coverage_90"].mean(),
-            "coverage_90_first_half": hit[early].mean() if early.any() else np.nan,
-            "coverage_90_second_half": hit[late].mean() if late.any() else np.nan,
+            "coverage_90_first_half": over(np.mean, hit[early]),
+            "coverage_90_second_half": over(np.mean, hit[late]),
             "alpha_lambda_pass_0.25": m["alpha_lambda_0.25"].mean(),
             "alpha_lambda_pass_0.5": m["alpha_lambda_0.5"].mean(),
             "alpha_lambda_pass_0.75": m["alpha_lambda_0.75"].mean(),
             "ra_0.5_median": float(np.median(m["ra_0.5"])),
-            "median_abs_error_first_half": float(np.median(abs_err[early])),
-            "median_abs_error_second_half": float(np.median(abs_err[late])),
-            "median_width": float(np.median(width[ok])),
-            "median_width_first_half": float(np.median(width[early])),
-            "median_width_second_half": float(np.median(width[late])),
-            "unbounded_fraction_first_half": float(np.mean(np.isinf(width[early]))),
-            "unbounded_fraction_second_half": float(np.mean(np.isinf(width[late]))),
+            "median_abs_error_first_half": over(np.median, abs_err[early]),
+            "median_abs_error_second_half": over(np.median, abs_err[late]),
+            "median_width": over(np.median, width[ok]),
+            "median_width_first_half": over(np.median, width[early]),
+            "median_width_second_half": over(np.median, width[late]),
+            "unbounded_fraction_first_half": over(np.mean, np.isinf(width[early])),
+            "unbounded_fraction_second_half": over(np.mean, np.isinf(width[late])),
         })
     return rows
 
