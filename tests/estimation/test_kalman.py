@@ -548,3 +548,83 @@ def test_ekf_error_names_f_when_prediction_is_nan():
     )
     with pytest.raises(ValueError, match=r"^f \(predicted state"):
         ekf.filter(np.zeros((5, 1, 1)), np.zeros((1, 2)), np.eye(2))
+
+
+# -- continuous EKF: where the Jacobian of Phi = expm(J dt) is evaluated -----------------------
+_G, _C = 9.81, 0.3
+
+
+def _pendulum(x, u, t):
+    return np.column_stack([x[:, 1], -_G * np.sin(x[:, 0]) - _C * x[:, 1]])
+
+
+def _pendulum_jac(x, u, t):
+    J = np.zeros((x.shape[0], 2, 2))
+    J[:, 0, 1] = 1.0
+    J[:, 1, 0] = -_G * np.cos(x[:, 0])
+    J[:, 1, 1] = -_C
+    return J
+
+
+def _true_phi(x0, dt):
+    """State-transition matrix over dt from the variational equations (solve_ivp oracle)."""
+    from scipy.integrate import solve_ivp
+
+    def rhs(t, z):
+        x, phi = z[:2], z[2:].reshape(2, 2)
+        J = _pendulum_jac(x[None], None, t)[0]
+        return np.concatenate([_pendulum(x[None], None, t)[0], (J @ phi).ravel()])
+
+    sol = solve_ivp(rhs, (0, dt), np.concatenate([x0, np.eye(2).ravel()]), method="DOP853",
+                    rtol=1e-13, atol=1e-14)
+    return sol.y[2:, -1].reshape(2, 2)
+
+
+def _phi_phiT_error(where, x0, dt):
+    ekf = ExtendedKalmanFilter(_pendulum, lambda x, u, t: x[:, :1], np.zeros((2, 2)),
+                               np.eye(1), jac_f=_pendulum_jac, continuous=True, dt=dt,
+                               jacobian_at=where)
+    _, Pn = ekf.predict(x0[None], np.eye(2)[None], 0)
+    phi = _true_phi(x0, dt)
+    return np.abs(Pn[0] - phi @ phi.T).max()
+
+
+def test_midpoint_jacobian_is_second_order_against_the_variational_equations():
+    x0 = np.array([1.2, -0.8])
+    start = [_phi_phiT_error("start", x0, dt) for dt in (0.02, 0.01)]
+    mid = [_phi_phiT_error("midpoint", x0, dt) for dt in (0.02, 0.01)]
+    # error of Phi Phi^T per step: O(dt^2) at the start of the step, O(dt^3) at the midpoint
+    assert 3.0 < start[0] / start[1] < 5.0
+    assert 6.0 < mid[0] / mid[1] < 10.0
+    assert mid[1] < 0.1 * start[1]
+
+
+def test_jacobian_at_mask_picks_per_unit_and_leaves_the_mean_alone():
+    x = np.array([[1.2, -0.8], [0.3, 2.0], [-0.5, 0.1]])
+    P = np.broadcast_to(np.eye(2), (3, 2, 2)).copy()
+
+    def make(where):
+        return ExtendedKalmanFilter(_pendulum, lambda x, u, t: x[:, :1], 0.01 * np.eye(2),
+                                    np.eye(1), jac_f=_pendulum_jac, continuous=True, dt=0.05,
+                                    jacobian_at=where)
+
+    xs, Ps = make("start").predict(x, P, 0)
+    xm, Pm = make("midpoint").predict(x, P, 0)
+    xk, Pk = make(np.array([True, False, True])).predict(x, P, 0)
+    np.testing.assert_array_equal(xs, xm)
+    np.testing.assert_array_equal(xk, xs)
+    np.testing.assert_allclose(Pk[[0, 2]], Pm[[0, 2]], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(Pk[1], Ps[1], rtol=0, atol=1e-15)
+    assert np.abs(Pm - Ps).max() > 1e-6
+
+
+@pytest.mark.parametrize(("where", "continuous", "match"), [
+    ("end", True, "expected 'start', 'midpoint'"),
+    ("midpoint", False, "continuous models only"),
+    (np.array([1, 0]), True, "boolean"),
+])
+def test_jacobian_at_is_validated(where, continuous, match):
+    with pytest.raises(ValueError, match=match):
+        ExtendedKalmanFilter(_pendulum, lambda x, u, t: x[:, :1], np.eye(2), np.eye(1),
+                             continuous=continuous, dt=0.1 if continuous else None,
+                             jacobian_at=where)

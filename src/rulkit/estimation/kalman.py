@@ -629,6 +629,23 @@ class _SigmaOrJacobianFilter:
         return out.result()
 
 
+def _check_jacobian_at(where: str | np.ndarray, continuous: bool) -> str | np.ndarray:
+    """``"start"``, ``"midpoint"`` or a 1-D boolean mask (continuous models only)."""
+    if isinstance(where, str):
+        if where not in ("start", "midpoint"):
+            raise ValueError(f"jacobian_at: expected 'start', 'midpoint' or a boolean mask, "
+                             f"got {where!r}")
+        if where == "midpoint" and not continuous:
+            raise ValueError("jacobian_at='midpoint' applies to continuous models only")
+        return where
+    mask = np.asarray(where)
+    if mask.dtype != np.bool_ or mask.ndim != 1:
+        raise ValueError("jacobian_at: a mask must be a 1-D boolean array (one entry per unit)")
+    if not continuous and mask.any():
+        raise ValueError("jacobian_at: the midpoint applies to continuous models only")
+    return mask.copy()
+
+
 class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
     """Extended Kalman filter for B units (first-order linearisation at the current estimate).
 
@@ -639,6 +656,11 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
     (:func:`discretise`), ``J`` the Jacobian at the prior mean. Measurement
     ``y_k = h(x_k, u_k, k) + v`` (for continuous models the third argument is the time
     ``t0 + (k + 1) dt`` of ``ys[k]``, and ``f`` gets the start time ``t0 + k dt`` of the step).
+    ``jacobian_at`` (continuous models): where ``J`` of ``Phi = expm(J dt)`` is evaluated:
+    ``"start"`` (the prior mean, as above: ``Phi`` first order in ``dt``), ``"midpoint"`` (the
+    mean after half an RK4 step, at ``t + dt/2``: ``Phi`` second order, which matters when the
+    Jacobian changes within a step, e.g. right after an input switch), or a (B,) boolean mask
+    choosing the midpoint per unit. The mean prediction is the same either way.
 
     Jacobians: ``jac_f(x, u, k) -> (B, n, n)``, ``jac_h(x, u, k) -> (B, m, n)``; central finite
     differences (:func:`numerical_jacobian`) when not given. ``Q``, ``R`` may be shared, per
@@ -658,6 +680,7 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
         dt: float | None = None,
         t0: float = 0.0,
         substeps: int = 1,
+        jacobian_at: str | np.ndarray = "start",
     ) -> None:
         self.f, self.h, self.jac_f, self.jac_h = f, h, jac_f, jac_h
         self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
@@ -671,6 +694,7 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
         self.dt = None if dt is None else float(dt)
         self.t0 = float(t0)
         self.substeps = int(substeps)
+        self.jacobian_at = _check_jacobian_at(jacobian_at, self.continuous)
 
     # -- time arguments -------------------------------------------------------------------
     def _tf(self, k: int) -> float | int:
@@ -712,7 +736,7 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
         if self.continuous:
             dt = self.dt
             assert dt is not None
-            J = self._jacobian(self.f, self.jac_f, x, u, targ, n, "jac_f")
+            J = self._continuous_jacobian(x, u, targ, dt)
             h = dt / self.substeps
             xn = x
             for i in range(self.substeps):
@@ -727,6 +751,25 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
             return xn, Pn
         self._check_prediction(xn, B, n, k)
         return xn, Pn
+
+    def _continuous_jacobian(self, x: FloatArray, u: Any, t: float, dt: float) -> FloatArray:
+        """J for ``Phi = expm(J dt)`` at the prior mean or, per ``jacobian_at``, at the mean
+        after half an RK4 step (time ``t + dt/2``)."""
+        B, n = x.shape
+        where = self.jacobian_at
+        if isinstance(where, str) and where == "start":
+            return self._jacobian(self.f, self.jac_f, x, u, t, n, "jac_f")
+        x_mid = rk4_step(lambda xx, tt, uu: self.f(xx, uu, tt), x, t, 0.5 * dt, u)
+        _check_finite(x_mid, "f (half-step state for the midpoint Jacobian)")
+        J_mid = self._jacobian(self.f, self.jac_f, x_mid, u, t + 0.5 * dt, n, "jac_f")
+        if isinstance(where, str):
+            return J_mid
+        if where.shape != (B,):
+            raise ValueError(f"jacobian_at: a mask needs shape ({B},), got {where.shape}")
+        if where.all():
+            return J_mid
+        J_start = self._jacobian(self.f, self.jac_f, x, u, t, n, "jac_f")
+        return np.where(where[:, None, None], J_mid, J_start)
 
     @staticmethod
     def _check_prediction(xn: FloatArray, B: int, n: int, k: int) -> None:

@@ -306,13 +306,13 @@ def make_ekf(
     (B, 2, 2), ``q_speed`` (B, 2) rates on (w1, w2) (default 0, as in the seed). Inputs are
     passed as ``u`` (B, 1) currents.
 
-    ``midpoint`` (B,) bool (default all False): evaluate the Jacobian of ``Phi = expm(F t_s)`` at
-    the mean after half an RK4 step under the step's current instead of at the prior mean. The
-    engine's start-of-step F makes Phi first-order in t_s; right after a current switch the
-    speeds, and with them the alpha column of F (proportional to the slip), change within the
-    step, Phi then maps the alpha error into the speeds with the wrong gain, and the filter
-    (no process noise on the speeds) is overconfident in a (w1, w2) combination. The midpoint
-    F is second order (the mean prediction is unchanged).
+    ``midpoint`` (B,) bool (default all False): evaluate the Jacobian of ``Phi = expm(F t_s)``
+    at the mean after half an RK4 step under the step's current instead of at the prior mean
+    (the engine EKF's ``jacobian_at`` mask). The start-of-step F makes Phi first order in t_s:
+    right after a current switch the speeds, and with them the alpha column of F (proportional
+    to the slip), change within the step, Phi maps the alpha error into the speeds with the
+    wrong gain, and the filter (no process noise on the speeds) is overconfident in a (w1, w2)
+    combination. The midpoint F is second order (the mean prediction is unchanged).
     """
     q_m = np.asarray(q_m, dtype=np.float64)
     f44 = np.asarray(f44, dtype=np.float64)
@@ -331,9 +331,6 @@ def make_ekf(
         return fd.drift(x, np.asarray(u).reshape(-1), params)
 
     def jac_f(x: FloatArray, u: FloatArray, t: float) -> FloatArray:
-        if mid.any():
-            cur = np.asarray(u, dtype=np.float64).reshape(-1)
-            x = np.where(mid[:, None], fd.rk4_step(x, cur, 0.5 * dt, params), x)
         J = fd.jacobian(x, None, params)
         J[:, 3, 3] = f44
         return J
@@ -347,6 +344,7 @@ def make_ekf(
         jac_h=lambda x, u, t: np.broadcast_to(H, (x.shape[0], 2, 4)),
         continuous=True,
         dt=dt,
+        jacobian_at=mid,
     )
 
 
