@@ -169,3 +169,24 @@ def test_rk4_step_jacobian_matches_finite_differences() -> None:
 
         J = rk4_wheel_step_jacobian(x, 1.0, x[:, 2], 3.0, 0.05, p)
         np.testing.assert_allclose(J, numerical_jacobian(step, x), rtol=1e-6, atol=1e-7)
+
+
+def test_check_measurements_names_the_argument_and_row():
+    from rulkit.models.reaction_wheel import check_measurements
+
+    y = np.zeros((5, 2))
+    V = np.ones(5)
+    y_ok, V_ok, sw, sI = check_measurements(y, V, (3e-3, 3e-2), 0.05)
+    assert y_ok.dtype == np.float64 and (sw, sI) == (3e-3, 3e-2)
+    bad = y.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="row 3"):
+        check_measurements(bad, V, (3e-3, 3e-2), 0.05)
+    with pytest.raises(ValueError, match=r"^V: expected shape \(5,\)"):
+        check_measurements(y, V[:4], (3e-3, 3e-2), 0.05)
+    with pytest.raises(ValueError, match="^y: expected shape"):
+        check_measurements(y[:1], V[:1], (3e-3, 3e-2), 0.05)
+    with pytest.raises(ValueError, match="^sigma"):
+        check_measurements(y, V, (0.0, 3e-2), 0.05)
+    with pytest.raises(ValueError, match="^dt"):
+        check_measurements(y, V, (3e-3, 3e-2), np.inf)

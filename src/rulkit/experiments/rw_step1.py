@@ -48,6 +48,7 @@ from rulkit.models.reaction_wheel import (
     NOISE_LEVELS,
     IthacoParams,
     ReactionWheel,
+    check_measurements,
     rk4_wheel_step,
     rk4_wheel_step_jacobian,
     simulate_table3,
@@ -179,16 +180,7 @@ def _prepare(
     y: FloatArray, V: FloatArray, cfg: Step1Config, sigma: tuple[float, float],
     params: IthacoParams, dt: float,
 ) -> dict[str, Any]:
-    y = np.ascontiguousarray(y, dtype=np.float64)
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    if y.ndim != 2 or y.shape[1] != 2 or y.shape[0] < 2:
-        raise ValueError(f"y: expected shape (K >= 2, 2) holding [w, I_m], got {y.shape}")
-    if V.shape != (y.shape[0],):
-        raise ValueError(f"V: expected shape ({y.shape[0]},), got {V.shape}")
-    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(V))):
-        raise ValueError("y and V must be finite (validate telemetry with rulkit.data.telemetry)")
-    if not dt > 0:
-        raise ValueError(f"dt: must be positive, got {dt}")
+    y, V, _, _ = check_measurements(y, V, sigma, dt)
     S = likelihood_covariance(cfg.design, sigma, params, dt)
     S_inv = np.linalg.inv(S)
     log_norm = math.log(2 * math.pi) + 0.5 * math.log(np.linalg.det(S))

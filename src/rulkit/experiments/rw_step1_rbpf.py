@@ -43,6 +43,7 @@ from rulkit.experiments import rw_step1_kernels as kern
 from rulkit.models.reaction_wheel import (
     NOISE_LEVELS,
     IthacoParams,
+    check_measurements,
     rk4_wheel_step,
     rk4_wheel_step_jacobian,
 )
@@ -135,25 +136,6 @@ class RBPFResult:
     config: RBPFConfig = field(repr=False)
 
 
-def _check(y: FloatArray, V: FloatArray, sigma: tuple[float, float], dt: float
-           ) -> tuple[FloatArray, FloatArray, float, float]:
-    y = np.ascontiguousarray(y, dtype=np.float64)
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    if y.ndim != 2 or y.shape[1] != 2 or y.shape[0] < 2:
-        raise ValueError(f"y: expected shape (K >= 2, 2) holding [w, I_m], got {y.shape}")
-    if V.shape != (y.shape[0],):
-        raise ValueError(f"V: expected shape ({y.shape[0]},), got {V.shape}")
-    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(V))):
-        bad = int(np.flatnonzero(~(np.isfinite(y).all(axis=1) & np.isfinite(V)))[0])
-        raise ValueError(f"y and V must be finite: row {bad} is not")
-    sw, sI = (float(s) for s in sigma)
-    if not (sw > 0 and sI > 0 and np.isfinite(sw) and np.isfinite(sI)):
-        raise ValueError(f"sigma: expected positive finite (sigma_w, sigma_I), got {sigma}")
-    if not (dt > 0 and np.isfinite(dt)):
-        raise ValueError(f"dt: must be positive, got {dt}")
-    return y, V, sw, sI
-
-
 def run_rbpf(
     y: FloatArray,
     V: FloatArray,
@@ -179,7 +161,7 @@ def run_rbpf(
     """
     cfg = config or RBPFConfig()
     p = params or IthacoParams()
-    y, V, sw, sI = _check(y, V, sigma, dt)
+    y, V, sw, sI = check_measurements(y, V, sigma, dt)
     if T_path is not None:
         T_path = np.asarray(T_path, dtype=np.float64)
         if T_path.shape != (y.shape[0],) or not np.all(np.isfinite(T_path)):

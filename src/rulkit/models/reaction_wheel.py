@@ -72,6 +72,34 @@ class IthacoParams:
             raise ValueError("J and V_bus must be positive")
 
 
+def check_measurements(
+    y: FloatArray, V: FloatArray, sigma: tuple[float, float], dt: float
+) -> tuple[FloatArray, FloatArray, float, float]:
+    """Validate step-1 filter inputs (spec section 3): ``y`` (K >= 2, 2) = [w (rad/s), I_m (A)],
+    ``V`` (K,) commanded voltage, ``sigma`` = (sigma_w, sigma_I) > 0, ``dt`` > 0.
+
+    Returns contiguous float64 ``y``, ``V`` and the two noise levels; raises ``ValueError``
+    naming the argument (and the first non-finite row).
+    """
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    if y.ndim != 2 or y.shape[1] != 2 or y.shape[0] < 2:
+        raise ValueError(f"y: expected shape (K >= 2, 2) holding [w, I_m], got {y.shape}")
+    if V.shape != (y.shape[0],):
+        raise ValueError(f"V: expected shape ({y.shape[0]},), got {V.shape}")
+    finite = np.isfinite(y).all(axis=1) & np.isfinite(V)
+    if not finite.all():
+        bad = int(np.flatnonzero(~finite)[0])
+        raise ValueError(f"y and V must be finite: row {bad} is not (validate telemetry with "
+                         "rulkit.data.telemetry)")
+    sw, sI = (float(s) for s in sigma)
+    if not (sw > 0 and sI > 0 and np.isfinite(sw) and np.isfinite(sI)):
+        raise ValueError(f"sigma: expected positive finite (sigma_w, sigma_I), got {sigma}")
+    if not (dt > 0 and np.isfinite(dt)):
+        raise ValueError(f"dt: must be positive, got {dt}")
+    return y, V, sw, sI
+
+
 def viscous_coefficient(T: FloatArray | float, law: FrictionLaw = "spec") -> FloatArray:
     """Viscous friction coefficient b_v(T) in N m s/rad (spec section 1, seed eq. 2).
 
