@@ -177,16 +177,16 @@ def test_check_measurements_names_the_argument_and_row():
     y = np.zeros((5, 2))
     V = np.ones(5)
     y_ok, V_ok, sw, sI = check_measurements(y, V, (3e-3, 3e-2), 0.05)
-    assert y_ok.dtype == np.float64 and (sw, sI) == (3e-3, 3e-2)
+    assert y_ok.dtype == V_ok.dtype == np.float64 and (sw, sI) == (3e-3, 3e-2)
     bad = y.copy()
     bad[3, 1] = np.nan
     with pytest.raises(ValueError, match="row 3"):
         check_measurements(bad, V, (3e-3, 3e-2), 0.05)
     with pytest.raises(ValueError, match=r"^V: expected shape \(5,\)"):
         check_measurements(y, V[:4], (3e-3, 3e-2), 0.05)
-    with pytest.raises(ValueError, match="^y: expected shape"):
+    with pytest.raises(ValueError, match=r"^y: expected shape"):
         check_measurements(y[:1], V[:1], (3e-3, 3e-2), 0.05)
-    with pytest.raises(ValueError, match="^sigma"):
+    with pytest.raises(ValueError, match=r"^sigma"):
         check_measurements(y, V, (0.0, 3e-2), 0.05)
-    with pytest.raises(ValueError, match="^dt"):
+    with pytest.raises(ValueError, match=r"^dt"):
         check_measurements(y, V, (3e-3, 3e-2), np.inf)
