@@ -74,18 +74,6 @@ def test_micro_ekf_padded_short_cycle_equals_running_it_alone(life) -> None:
     np.testing.assert_allclose(both.c[0], full.c[0], rtol=1e-12)
 
 
-@pytest.mark.parametrize("scheme", ["rk4", "seed-euler"])
-def test_micro_ekf_fast_update_equals_engine_kf_update(life, scheme) -> None:
-    sl = slice(50, 56)
-    args = (life.time, life.current[sl], life.speed[sl], life.acceleration[sl],
-            life.config.consts, MicroEKFSettings(scheme=scheme))
-    fast = micro_ekf(*args, keep_history=True)
-    ref = micro_ekf(*args, keep_history=True, reference=True)
-    np.testing.assert_allclose(fast.x_hist, ref.x_hist, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(fast.p_hist[:, :, 1, 1], ref.p_hist[:, :, 1, 1], rtol=1e-7)
-    np.testing.assert_allclose(fast.mean_nis, ref.mean_nis, rtol=1e-7)
-
-
 def test_micro_ekf_speed_only_channel(life) -> None:
     res = micro_ekf(life.time, life.current[:30], life.speed[:30], None, life.config.consts)
     e = res.c - life.damping[:30]

@@ -12,11 +12,10 @@ Two discretisations (motor-damping.md, "Micro EKF"):
   the acceleration predicted from the previous state (:func:`measurement_seed_lagged`).
 
 The prediction step uses the model's analytic Jacobian (``P <- F P F^T + Q``); the update is the
-Joseph form with the nonlinear predicted measurement: the engine's unchecked update core
-(``rulkit.estimation.kalman._update``, the body of :func:`~rulkit.estimation.kalman.kf_update`
-without its per-call validation of shapes, symmetry and definiteness, which is half the cost at
-700 steps per cycle; the inputs are validated once here). ``reference=True`` calls the
-validating :func:`~rulkit.estimation.kalman.kf_update` instead.
+engine's Joseph-form :func:`~rulkit.estimation.kalman.kf_update` with the nonlinear predicted
+measurement, called with ``check=False`` (shapes and finiteness still checked; the symmetry and
+definiteness checks per call were a large share of the cost at 700 steps per cycle, and the
+inputs are validated once here).
 
 Bad input: non-finite current at a sample of a cycle, infinite speed or acceleration, NaN
 padding that is not a tail, or a time that does not increase raise ``ValueError`` naming the
@@ -144,7 +143,6 @@ def micro_ekf(
     settings: MicroEKFSettings | None = None,
     *,
     keep_history: bool = False,
-    reference: bool = False,
 ) -> MicroEKFResult:
     """Run the micro EKF over a batch of cycles (seed eqs. 2-3; motor-damping.md "Micro EKF").
 
@@ -152,10 +150,9 @@ def micro_ekf(
     tails (time NaN) mark cycles shorter than T; a NaN speed/acceleration inside a cycle is a
     missing measurement (skipped); other bad input raises ``ValueError`` (module docstring).
     ``acceleration=None`` (or
-    ``settings.use_acceleration=False``) uses the speed channel only. ``reference=True``: the
-    engine's :func:`kf_update` for the update (same numbers, slower).
+    ``settings.use_acceleration=False``) uses the speed channel only.
     """
-    from rulkit.estimation.kalman import _update, kf_update
+    from rulkit.estimation.kalman import kf_update
 
     s = settings or MicroEKFSettings()
     speed = np.atleast_2d(np.asarray(speed, dtype=np.float64))
@@ -204,10 +201,7 @@ def micro_ekf(
         if use_acc:
             y[:, 1] = acc[:, k]
         y = np.where(ok[:, None], y, zp[:, :m])  # padded samples: no innovation
-        if reference:
-            xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m])
-        else:
-            xu, Pu, inn = _update(xp, Pp, y, H[:, :m, :], R, zp[:, :m])
+        xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m], check=False)
         x = np.where(ok[:, None], xu, x)
         P = np.where(ok[:, None, None], Pu, P)
         upd = ok & ~inn.skipped  # a NaN measurement is skipped (prediction only)
