@@ -47,7 +47,7 @@ from rulkit.estimation.trackers import (  # noqa: E402
     alpha_beta_gamma_update,
     alpha_beta_update,
 )
-from rulkit.models.toy_degradation import ToyDegradation  # noqa: E402
+from rulkit.systems.toy.model import ToyDegradation  # noqa: E402
 
 
 def interleaved(fns: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:

@@ -33,8 +33,8 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from rulkit.experiments import friction_drive as E  # noqa: E402
-from rulkit.models import friction_drive as fd  # noqa: E402
+from rulkit.systems.friction_drive import drive as fd  # noqa: E402
+from rulkit.systems.friction_drive import reproduce as E  # noqa: E402
 
 HOUR = 3600.0
 

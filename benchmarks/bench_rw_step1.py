@@ -7,7 +7,7 @@ time, since the machine may be shared) for
 1. the fused numba kernel (whole time loop compiled: T random walk, RK4 per particle per step,
    Gaussian likelihood, log-sum-exp weights, ESS, systematic resampling, mean/std),
 2. the numpy reference path (the engine's ParticleFilter with numpy plug-ins; same numbers),
-3. the Rao-Blackwellised PF (:mod:`rulkit.experiments.rw_step1_rbpf`, beyond the seeds; a
+3. the Rao-Blackwellised PF (:mod:`rulkit.systems.reaction_wheel.rbpf`, beyond the seeds; a
    Kalman filter on [I, w] per particle): its fused kernel and its numpy reference, and the
    wall time of one Table-5-sized grid of it (7 N x 2 noise levels x ``--rbpf-runs`` runs)
    extrapolated from the measured rate,
@@ -38,9 +38,9 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from rulkit.experiments.rw_step1 import TABLE5_N, Step1Config, run_step1  # noqa: E402
-from rulkit.experiments.rw_step1_rbpf import RBPF_DESIGNS, run_rbpf  # noqa: E402
-from rulkit.models.reaction_wheel import IthacoParams, simulate_table3  # noqa: E402
+from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf  # noqa: E402
+from rulkit.systems.reaction_wheel.temperature import TABLE5_N, Step1Config, run_step1  # noqa: E402
+from rulkit.systems.reaction_wheel.wheel import IthacoParams, simulate_table3  # noqa: E402
 
 # Flops per particle-step of the F2 filter, counted from the kernel source (an add, multiply,
 # compare-select, min or abs each count 1; exp counted as 1):
@@ -77,7 +77,7 @@ def progpy_filter_rate(data: Any, N: int, steps: int, repeats: int) -> tuple[flo
     from progpy.state_estimators import ParticleFilter
     from progpy.uncertain_data import UnweightedSamples
 
-    from rulkit.models.reaction_wheel import wheel_derivatives
+    from rulkit.systems.reaction_wheel.wheel import wheel_derivatives
 
     p = IthacoParams()
     dt = data.dt

@@ -32,7 +32,7 @@ def _median_time(fn, repeats: int) -> float:
 def bench_window_sums(n_particles: int = 150, n_windows: int = 20, n_nodes: int = 4,
                       repeats: int = 5) -> dict[str, float]:
     """Direct vs quadrature window sums on 0.05 s T^ windows (true path + AR(1) error)."""
-    from rulkit.models.lubrication import (
+    from rulkit.systems.reaction_wheel.lubrication import (
         PATH_SCENARIO_1,
         EstimateErrorProcess,
         direct_log_sums,
@@ -67,8 +67,13 @@ def bench_window_sums(n_particles: int = 150, n_windows: int = 20, n_nodes: int 
 def bench_table6(runs: int, days: float, workers: int) -> dict[str, float]:
     from dataclasses import replace
 
-    from rulkit.experiments.runner import run_independent
-    from rulkit.experiments.rw_step2 import CaseTask, Step2Settings, measure_step1_errors, run_case
+    from rulkit.runner import run_independent
+    from rulkit.systems.reaction_wheel.degradation import (
+        CaseTask,
+        Step2Settings,
+        measure_step1_errors,
+        run_case,
+    )
 
     st = Step2Settings(horizon_days=days)
     errors = {s: measure_step1_errors(s, 3, 0) for s in ("APF", "PF")}

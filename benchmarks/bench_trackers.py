@@ -32,7 +32,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from rulkit.prognosis.health import (
+from rulkit.fleet.tracker_chain import (
     TrackerConfig,
     TrackerState,
     tracker_update,

@@ -1,6 +1,6 @@
 """The toy degradation problem written as a NASA ProgPy model (benchmark-only; needs progpy).
 
-Same discrete-time Markov chain as :class:`rulkit.models.toy_degradation.ToyDegradation`:
+Same discrete-time Markov chain as :class:`rulkit.systems.toy.model.ToyDegradation`:
 ``damage += rate dt``, noise on both states, ``z = damage`` with N(0, sigma_y^2) noise, failure
 at ``damage >= 1``. ProgPy adds process noise as ``dt * N(0, process_noise)`` per step (see
 ``PrognosticsModel.apply_process_noise``), i.e. a standard deviation ``process_noise * dt``;

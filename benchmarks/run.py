@@ -1,7 +1,7 @@
 """Ratio benchmarks of rulkit against NASA ProgPy 1.9.0 and naive per-sample Python loops.
 
 Problem (issue #2): the 2-state degradation model ``x = [damage, rate]``, ``damage += rate dt``,
-noisy damage measured, failure at ``damage >= 1`` (rulkit.models.toy_degradation), written
+noisy damage measured, failure at ``damage >= 1`` (rulkit.systems.toy.model), written
 once for each library (benchmarks/progpy_toy.py for ProgPy) with the same per-step noise.
 
 Comparisons (each prints one line ending in ``ratio=<other time / our time>``: medians of
@@ -51,8 +51,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from rulkit.estimation.kalman import KalmanFilter  # noqa: E402
 from rulkit.estimation.particle import ParticleFilter, _mean_cov  # noqa: E402
 from rulkit.estimation.resampling import systematic  # noqa: E402
-from rulkit.models.toy_degradation import ToyDegradation  # noqa: E402
 from rulkit.prognosis.rul import propagate_to_threshold  # noqa: E402
+from rulkit.systems.toy.model import ToyDegradation  # noqa: E402
 
 SIGMA_D, SIGMA_R, SIGMA_Y = 1e-3, 1e-4, 0.02
 X0_TRUE = (0.0, 0.012)

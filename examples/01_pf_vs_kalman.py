@@ -1,7 +1,7 @@
 """Particle filter vs the exact Kalman filter on a linear-Gaussian model.
 
 Shows: the SIR ``ParticleFilter`` (log-weights, ESS-triggered systematic resampling) on the
-2-state toy degradation model ``x = [damage, rate]`` (``rulkit.models.toy_degradation``),
+2-state toy degradation model ``x = [damage, rate]`` (``rulkit.systems.toy.model``),
 checked against ``KalmanFilter`` — the exact posterior for this linear-Gaussian model, an
 independent oracle. Printed: the largest error of the particle mean in units of the exact
 posterior standard deviation, the ratio of particle to exact standard deviations, the
@@ -20,7 +20,7 @@ import numpy as np
 
 from rulkit.estimation.kalman import KalmanFilter
 from rulkit.estimation.particle import ParticleFilter
-from rulkit.models.toy_degradation import ToyDegradation
+from rulkit.systems.toy.model import ToyDegradation
 
 
 def check(ok: bool, what: str) -> None:

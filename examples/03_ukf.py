@@ -25,7 +25,7 @@ import numpy as np
 from scipy import stats
 
 from rulkit.estimation.kalman import ExtendedKalmanFilter, KalmanFilter, UnscentedKalmanFilter
-from rulkit.models.toy_degradation import ToyDegradation
+from rulkit.systems.toy.model import ToyDegradation
 
 # reuse the pendulum model of example 02 (same folder)
 _spec = importlib.util.spec_from_file_location(

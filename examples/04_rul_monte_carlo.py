@@ -30,8 +30,8 @@ from scipy import stats
 
 from rulkit.estimation.kalman import KalmanFilter
 from rulkit.metrics import alpha_lambda, crps_normal, crps_samples, prognostic_horizon
-from rulkit.models.toy_degradation import ToyDegradation
 from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
+from rulkit.systems.toy.model import ToyDegradation
 
 
 def check(ok: bool, what: str) -> None:

@@ -34,7 +34,7 @@ from scipy import stats
 
 from rulkit.estimation.kalman import KalmanFilter
 from rulkit.estimation.particle import ParticleFilter, weighted_mean
-from rulkit.models.base import GaussianNoise, StateSpaceModel, as_batch
+from rulkit.model import GaussianNoise, StateSpaceModel, as_batch
 from rulkit.prognosis.rul import propagate_to_threshold
 
 

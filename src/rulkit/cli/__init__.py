@@ -1,7 +1,7 @@
 """The ``rulkit`` command line (typer + rich).
 
-Each system contributes its commands from its own module in this package, which defines
-``register(app, reproduce)``: ``app`` is the top-level typer app and ``reproduce`` the
+Each system (and the fleet layer) contributes its commands from its own ``cli`` module, which
+defines ``register(app, reproduce)``: ``app`` is the top-level typer app and ``reproduce`` the
 ``rulkit reproduce`` group. Heavy imports stay inside the command functions so that
 ``rulkit --help`` stays fast.
 """
@@ -24,8 +24,14 @@ app = typer.Typer(
 reproduce = typer.Typer(help="Reproduce a seed paper's tables and figures.", no_args_is_help=True)
 app.add_typer(reproduce, name="reproduce")
 
-# Modules of this package that add commands; each defines register(app, reproduce).
-SYSTEM_MODULES = ("rw_lubrication", "motor_damping", "friction_drive", "embedded_rul", "engine")
+# Modules that add commands; each defines register(app, reproduce).
+COMMAND_MODULES = (
+    "rulkit.systems.reaction_wheel.cli",
+    "rulkit.systems.motor_damping.cli",
+    "rulkit.systems.friction_drive.cli",
+    "rulkit.fleet.cli",
+    "rulkit.systems.toy.cli",
+)
 
 
 def _version_callback(value: bool) -> None:
@@ -66,29 +72,13 @@ def demo(
     seed: int = typer.Option(0, help="Seed of the run."),
 ) -> None:
     """Short end-to-end run of the reaction-wheel pipeline (what `make demo` runs)."""
-    try:
-        rw = importlib.import_module("rulkit.cli.rw_lubrication")
-    except ModuleNotFoundError:
-        rw = None
-    if rw is not None and hasattr(rw, "run_quick"):
-        rw.run_quick(out=out, seed=seed)
-        return
-    typer.echo(
-        "The reaction-wheel pipeline is not built yet; running the engine's end-to-end "
-        "example (2-state degradation: particle filter, then Monte Carlo RUL) instead."
-    )
-    eng = importlib.import_module("rulkit.cli.engine")
-    eng.run_example(out=out, seed=seed)
+    from rulkit.systems.reaction_wheel.cli import run_quick
+
+    run_quick(out=out, seed=seed)
 
 
-for _name in SYSTEM_MODULES:
-    try:
-        _mod = importlib.import_module(f"rulkit.cli.{_name}")
-    except ModuleNotFoundError as err:  # that system's commands are not built yet
-        if err.name != f"rulkit.cli.{_name}":
-            raise
-        continue
-    _mod.register(app, reproduce)
+for _name in COMMAND_MODULES:
+    importlib.import_module(_name).register(app, reproduce)
 
 
 def main() -> None:

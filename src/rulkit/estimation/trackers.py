@@ -26,7 +26,7 @@ Update conventions
 Missing data: a NaN measurement skips the correction for that unit (prediction only), like the
 Kalman filters; an infinite measurement raises ``ValueError``. The state itself is not scanned
 (the per-update path stays at the seed's operation count): a NaN state row stays NaN for that
-unit only, which :func:`rulkit.prognosis.health.tracker_update` uses for components without
+unit only, which :func:`rulkit.fleet.tracker_chain.tracker_update` uses for components without
 an acquisition yet (it overwrites those rows at their first one).
 """
 

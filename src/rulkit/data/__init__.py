@@ -1,1 +1,0 @@
-"""Loaders and validators for telemetry files and real datasets."""

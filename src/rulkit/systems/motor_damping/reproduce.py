@@ -1,0 +1,826 @@
+"""Seed 002 reproduction: multi-scale EKF life prediction of a reaction-wheel motor.
+
+Composes :mod:`rulkit.systems.motor_damping.motor` (physics, synthetic life test), the micro EKF
+(:mod:`.micro`, seed eqs. 2-3), the macro EKF and RUL (:mod:`.macro`,
+seed eqs. 4-7) and :mod:`rulkit.metrics` over many seeded runs (motor-damping.md, "What must be
+shown"). :func:`run_experiment` returns the tables as data; :func:`write_outputs` writes CSV
+tables, ``report.md`` (the seed's values beside ours) and figures like the seed's Figs. 8-17.
+
+Scenarios (each over ``runs`` seeded runs; run r uses ``SeedSequence(seed).spawn(runs)[r]``):
+
+- ``linear``: linear damping trend (c0 = 1e-5, a = 2e-6 / cycle, scatter sd 2e-6; EOL 68.5),
+  macro EKF with the seed's linear law (q_a = 0), truth = trend crossing.
+- ``linear-micro-var-only``: the same data, macro measurement variance = micro variance only.
+- ``linear-first-crossing``: truth = first cycle whose noisy damping reaches c_fail; predictive
+  intervals include the future scatter.
+- ``accelerating``: c = c0 + a n + b n^2 (b = 2e-8; EOL 46.7) filtered with the linear law.
+- ``accelerating-qa-ml``: the same data with a random-walk slope whose density q_a is chosen
+  after every cycle by maximum marginal likelihood over a grid (``q_a_grid``).
+- ``linear-qa-ml``: the linear data with that same adaptive q_a (what it costs when not needed).
+
+A sweep over fixed q_a values (covariance method) shows the sensitivity (``qa_sweep`` table).
+
+Macro model comparison (``macro_models`` table): the linear law (state [c, a]) against the
+quadratic, constant-acceleration law (state [c, a, j], :mod:`.macro`) on BOTH the
+linear and the accelerating data (same runs as above; the scenario of the configured
+``macro.model`` is reused, the other model is run as ``<truth>-<model>-macro`` with its own Monte
+Carlo generator ``SeedSequence([seed, 3])``, so adding it leaves every other number unchanged):
+coverage of the 90 % intervals, alpha-lambda (alpha = 0.2), relative accuracy and median
+interval width, over all prediction cycles and split into the first and second half of life.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rulkit.systems.motor_damping.macro import (
+    MACRO_MODELS,
+    MacroSettings,
+    MacroTrack,
+    macro_track,
+    rul_covariance_quantiles,
+    rul_monte_carlo,
+)
+from rulkit.systems.motor_damping.micro import MicroEKFSettings, micro_ekf
+from rulkit.systems.motor_damping.motor import (
+    LifeTest,
+    LifeTestConfig,
+    MotorConstants,
+    characteristic_curve_slope,
+    damping_trend,
+    failure_cycle,
+    failure_damping,
+    failure_damping_from_curves,
+    simulate_life_test,
+)
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "SEED_VALUES",
+    "ExperimentConfig",
+    "MotorDampingResult",
+    "ScenarioResult",
+    "run_experiment",
+    "write_outputs",
+]
+
+# The seed's reported values (002, sections 4.2-4.3).
+SEED_VALUES = {
+    "slope_per_cycle": 2.67e-6,
+    "c_fail": 0.000147,
+    "curve_slope_at_failure": 0.1428,
+    "n_cycles": 58,
+}
+LEVELS = np.array([0.05, 0.5, 0.95])
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """Settings of the reproduction (defaults = the full run; :meth:`quick` for a short one).
+
+    ``q_a_grid``: candidate slope random-walk densities for the ``*-qa-ml`` scenarios (sds
+    0, 3e-8, 1e-7, 3e-7, 1e-6 per cycle; the choice is by marginal likelihood, not by the
+    truth). ``qa_sweep_sd``: fixed sds of the sensitivity sweep. ``n_min``: first cycle with a
+    RUL prediction (the scatter needs >= 1 residual degree of freedom). ``variant_runs``: runs
+    for the micro-EKF variants table. ``chunk_runs``: runs per micro-EKF batch (memory).
+    ``j_prior_sweep_sd``: curvature prior sds of the quadratic law's sensitivity sweep
+    (covariance method; the accelerating truth has j = 2 * accel_curvature = 4e-8).
+    """
+
+    runs: int = 100
+    seed: int = 0
+    life: LifeTestConfig = field(default_factory=LifeTestConfig)
+    accel_curvature: float = 2.0e-8
+    micro: MicroEKFSettings = field(default_factory=MicroEKFSettings)
+    macro: MacroSettings = field(default_factory=MacroSettings)
+    q_a_grid: tuple[float, ...] = (0.0, 3e-8**2, 1e-7**2, 3e-7**2, 1e-6**2)
+    qa_sweep_sd: tuple[float, ...] = (0.0, 5e-8, 1e-7, 2e-7, 4e-7)
+    j_prior_sweep_sd: tuple[float, ...] = (1e-8, 3e-8, 1e-7, 3e-7, 1e-6)
+    n_min: int = 3
+    mc_samples: int = 400
+    horizon: float = 300.0
+    variant_runs: int = 10
+    chunk_runs: int = 20
+    prediction_cycles: tuple[int, ...] = (20, 40, 58)
+
+    @classmethod
+    def quick(cls, **kw: Any) -> ExperimentConfig:
+        base = {"runs": 20, "mc_samples": 100, "variant_runs": 2}
+        base.update(kw)
+        return cls(**base)
+
+    def __post_init__(self) -> None:
+        if self.runs < 1:
+            raise ValueError(f"runs: expected >= 1, got {self.runs}")
+        if self.n_min < 3:
+            raise ValueError(f"n_min: expected >= 3, got {self.n_min}")
+
+
+@dataclass
+class ScenarioResult:
+    """One scenario over all runs: cycles (n,), estimates ``z``/``r`` (R, n), true damping
+    (R, n), the macro track, the RUL predictions at cycles ``pred_cycles`` (K,) -
+    ``cov_q`` / ``mc_q`` (R, K, 3) quantiles (5 %, 50 %, 95 %), ``mc_mean`` (R, K) - the truth
+    ``rul_true`` (R, K) (NaN after failure) and ``eol`` (R,), per-run metrics ``metrics``."""
+
+    name: str
+    cycles: FloatArray
+    z: FloatArray
+    r: FloatArray
+    damping: FloatArray
+    trend: FloatArray
+    track: MacroTrack
+    macro: MacroSettings
+    pred_cycles: FloatArray
+    cov_q: FloatArray
+    mc_q: FloatArray
+    mc_mean: FloatArray
+    rul_true: FloatArray
+    eol: FloatArray
+    c_fail: float
+    mc_run0: list[tuple[FloatArray, NDArray[np.bool_]]]
+    metrics: dict[str, dict[str, FloatArray]]
+
+
+@dataclass
+class MotorDampingResult:
+    """Everything the report needs: tables (pandas DataFrames), scenarios, run-0 life test.
+
+    ``seeds`` holds the run indices r, not seeds: run r's generator is
+    ``default_rng(SeedSequence(config.seed).spawn(runs)[r])`` (``config.seed + 1`` for the
+    accelerating scenarios).
+    """
+
+    config: ExperimentConfig
+    tables: dict[str, Any]
+    scenarios: dict[str, ScenarioResult]
+    life_run0: LifeTest
+    c_fail: float
+    c_fail_from_curves: float
+    curve_slopes_run0: FloatArray
+    seeds: list[int]
+    micro_history_run0: dict[str, Any]
+
+
+# ---------------------------------------------------------------------------------------------
+# simulation + micro EKF over runs
+# ---------------------------------------------------------------------------------------------
+
+
+def _run_rngs(seed: int, runs: int) -> list[np.random.Generator]:
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(runs)]
+
+
+def _simulate_and_estimate(
+    life: LifeTestConfig,
+    runs: int,
+    seed: int,
+    micro: MicroEKFSettings,
+    chunk: int,
+    *,
+    est_consts: MotorConstants | None = None,
+    future_cycles: int = 150,
+) -> tuple[list[LifeTest], FloatArray, FloatArray, FloatArray]:
+    """Simulate ``runs`` life tests and run the micro EKF on all cycles, ``chunk`` runs at a
+    time. Returns the life tests, ``z`` and ``r`` (R, n) and the first-crossing cycle (R,)
+    (future cycles' damping drawn from the run's generator after its signals)."""
+    consts = est_consts or life.consts
+    rngs = _run_rngs(seed, runs)
+    tests: list[LifeTest] = []
+    first = np.empty(runs)
+    for i, rng in enumerate(rngs):
+        lt = simulate_life_test(life, rng)
+        tests.append(lt)
+        n_f = np.arange(life.n_cycles + 1, life.n_cycles + 1 + future_cycles, dtype=np.float64)
+        c_f = damping_trend(n_f, life.c0, life.slope, life.curvature)
+        c_f = c_f + life.scatter_sd * rng.standard_normal(n_f.shape)
+        c_all = np.concatenate([lt.damping, c_f])
+        n_all = np.concatenate([lt.cycle, n_f])
+        hit = np.flatnonzero(c_all >= lt.c_fail)
+        first[i] = n_all[hit[0]] if hit.size else np.inf
+    n = life.n_cycles
+    z = np.empty((runs, n))
+    r = np.empty((runs, n))
+    for s0 in range(0, runs, chunk):
+        part = tests[s0 : s0 + chunk]
+        acc = None if not micro.use_acceleration else np.concatenate([t.acceleration for t in part])
+        res = micro_ekf(
+            part[0].time,
+            np.concatenate([t.current for t in part]),
+            np.concatenate([t.speed for t in part]),
+            acc,
+            consts,
+            micro,
+        )
+        z[s0 : s0 + len(part)] = res.c.reshape(len(part), n)
+        r[s0 : s0 + len(part)] = res.c_var.reshape(len(part), n)
+    return tests, z, r, first
+
+
+# ---------------------------------------------------------------------------------------------
+# RUL over cycles + metrics
+# ---------------------------------------------------------------------------------------------
+
+
+def _rul_predictions(
+    track: MacroTrack,
+    macro: MacroSettings,
+    c_fail: float,
+    n_min: int,
+    rng: np.random.Generator,
+    *,
+    first_crossing: bool,
+    mc_samples: int,
+    horizon: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, list]:
+    """RUL quantiles from the covariance and by Monte Carlo after each cycle >= n_min."""
+    cycles = track.cycles
+    ks = np.flatnonzero(cycles >= n_min)
+    do_mc = mc_samples > 0
+    n_runs = track.x.shape[1]
+    cov_q = np.empty((n_runs, ks.size, 3))
+    mc_q = np.full((n_runs, ks.size, 3), np.nan)
+    mc_mean = np.full((n_runs, ks.size), np.nan)
+    run0: list = []
+    for j, k in enumerate(ks):
+        x, P, s2, qa = track.x[k], track.P[k], track.scatter_var[k], track.q_a[k]
+        extra = s2 if first_crossing else 0.0
+        cov_q[:, j] = rul_covariance_quantiles(
+            x, P, c_fail, LEVELS, q_a=qa, extra_var=extra, horizon=horizon
+        )
+        if not do_mc:
+            continue
+        smp, cen = rul_monte_carlo(
+            x, P, c_fail, rng, n_samples=mc_samples, q_a=qa,
+            scatter_var=s2 if first_crossing else None, horizon=horizon, t0=float(cycles[k]),
+        )
+        keyed = np.where(cen, np.inf, smp)
+        mc_q[:, j] = np.quantile(keyed, LEVELS, axis=1, method="inverted_cdf").T
+        mc_mean[:, j] = smp.mean(axis=1)  # restricted mean (censored at the horizon)
+        run0.append((smp[0].copy(), cen[0].copy()))
+    return cycles[ks], cov_q, mc_q, mc_mean, run0
+
+
+def _metrics(
+    pred_cycles: FloatArray,
+    q: FloatArray,
+    rul_true: FloatArray,
+    eol: FloatArray,
+    horizon: float,
+) -> dict[str, FloatArray]:
+    """Per-run prognostic metrics of the median prediction (rulkit.metrics, Saxena et al.).
+
+    A median beyond the prediction horizon (more than half the mass censored) enters the point
+    metrics as the horizon itself (its lower bound); intervals keep their infinite bounds."""
+    from rulkit.metrics import (
+        alpha_lambda,
+        interval_coverage,
+        prognostic_horizon,
+        relative_accuracy,
+    )
+
+    n_runs = q.shape[0]
+    out: dict[str, list[float]] = {
+        "alpha_lambda_0.25": [], "alpha_lambda_0.5": [], "alpha_lambda_0.75": [],
+        "ph": [], "ra_0.5": [], "coverage_90": [], "coverage_90_late": [],
+    }
+    for i in range(n_runs):
+        ok = np.isfinite(rul_true[i]) & (rul_true[i] > 0)
+        t = pred_cycles[ok]
+        med = np.minimum(q[i, ok, 1], horizon)
+        for lam in (0.25, 0.5, 0.75):
+            res = alpha_lambda(t, med, float(eol[i]), alpha=0.2, lam=lam)
+            out[f"alpha_lambda_{lam}"].append(float(res.passed))
+            if lam == 0.5:
+                out["ra_0.5"].append(
+                    float(relative_accuracy(np.array([res.rul_pred]), np.array([res.rul_true]))[0])
+                )
+        # Saxena et al. 2010: PH = EOL - first time the prediction is within +- alpha EOL
+        ph = prognostic_horizon(t, med, float(eol[i]), alpha=0.05, bounds="absolute")
+        out["ph"].append(ph.horizon)
+        out["coverage_90"].append(interval_coverage(q[i, ok, 0], q[i, ok, 2], rul_true[i, ok]))
+        late = t >= 10
+        out["coverage_90_late"].append(
+            interval_coverage(q[i, ok, 0][late], q[i, ok, 2][late], rul_true[i, ok][late])
+        )
+    return {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
+
+
+def _scenario(
+    name: str,
+    tests: list[LifeTest],
+    z: FloatArray,
+    r: FloatArray,
+    first: FloatArray,
+    macro: MacroSettings,
+    cfg: ExperimentConfig,
+    rng: np.random.Generator,
+    *,
+    first_crossing: bool = False,
+    monte_carlo: bool = True,
+) -> ScenarioResult:
+    cycles = tests[0].cycle
+    c_fail = tests[0].c_fail
+    track = macro_track(cycles, z, r, macro)
+    pc, cov_q, mc_q, mc_mean, run0 = _rul_predictions(
+        track, macro, c_fail, cfg.n_min, rng, first_crossing=first_crossing,
+        mc_samples=cfg.mc_samples if monte_carlo else 0, horizon=cfg.horizon,
+    )
+    eol = first if first_crossing else np.array([t.eol for t in tests])
+    rul_true = eol[:, None] - pc[None, :]
+    rul_true = np.where(rul_true > 0, rul_true, np.nan)
+    metrics = {"covariance": _metrics(pc, cov_q, rul_true, eol, cfg.horizon)}
+    if monte_carlo:
+        metrics["monte-carlo"] = _metrics(pc, mc_q, rul_true, eol, cfg.horizon)
+    return ScenarioResult(
+        name=name, cycles=cycles, z=z, r=r,
+        damping=np.stack([t.damping for t in tests]), trend=tests[0].trend, track=track,
+        macro=macro, pred_cycles=pc, cov_q=cov_q, mc_q=mc_q, mc_mean=mc_mean,
+        rul_true=rul_true, eol=eol, c_fail=c_fail, mc_run0=run0, metrics=metrics,
+    )
+
+
+def _interval_width(q: FloatArray) -> FloatArray:
+    """Width of the 90 % intervals (R, K); ``inf`` when the upper bound is beyond the horizon
+    (both bounds beyond it give NaN from inf - inf: also ``inf``)."""
+    with np.errstate(invalid="ignore"):
+        w = q[..., 2] - q[..., 0]
+    return np.where(np.isnan(w), np.inf, w)
+
+
+def _model_comparison_rows(
+    truth: str, model: str, sres: ScenarioResult, cfg: ExperimentConfig
+) -> list[dict[str, Any]]:
+    """Rows of the ``macro_models`` table: one per RUL method, metrics over all prediction
+    cycles and over the first / second half of life (prediction cycle < or >= EOL / 2)."""
+    def over(fn: Any, values: FloatArray) -> float:
+        """``fn`` of the selected values; NaN (no prediction in that part of life) if empty."""
+        return float(fn(values)) if values.size else np.nan
+
+    rows = []
+    for method, q in (("covariance", sres.cov_q), ("monte-carlo", sres.mc_q)):
+        if method not in sres.metrics:
+            continue
+        m = sres.metrics[method]
+        ok = np.isfinite(sres.rul_true)
+        hit = (q[..., 0] <= sres.rul_true) & (sres.rul_true <= q[..., 2])
+        early = ok & (sres.pred_cycles[None, :] < 0.5 * sres.eol[:, None])
+        late = ok & ~early
+        width = _interval_width(q)
+        abs_err = np.abs(np.minimum(q[..., 1], cfg.horizon) - sres.rul_true)
+        rows.append({
+            "truth": truth, "macro_model": model, "method": method, "runs": cfg.runs,
+            "coverage_90": m["coverage_90"].mean(),
+            "coverage_90_first_half": over(np.mean, hit[early]),
+            "coverage_90_second_half": over(np.mean, hit[late]),
+            "alpha_lambda_pass_0.25": m["alpha_lambda_0.25"].mean(),
+            "alpha_lambda_pass_0.5": m["alpha_lambda_0.5"].mean(),
+            "alpha_lambda_pass_0.75": m["alpha_lambda_0.75"].mean(),
+            "ra_0.5_median": float(np.median(m["ra_0.5"])),
+            "median_abs_error_first_half": over(np.median, abs_err[early]),
+            "median_abs_error_second_half": over(np.median, abs_err[late]),
+            "median_width": over(np.median, width[ok]),
+            "median_width_first_half": over(np.median, width[early]),
+            "median_width_second_half": over(np.median, width[late]),
+            "unbounded_fraction_first_half": over(np.mean, np.isinf(width[early])),
+            "unbounded_fraction_second_half": over(np.mean, np.isinf(width[late])),
+        })
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# the experiment
+# ---------------------------------------------------------------------------------------------
+
+
+def _micro_variants(cfg: ExperimentConfig) -> Any:
+    """Micro-EKF error over cycles for the discretisations, channels and constant errors."""
+    import pandas as pd
+
+    life = cfg.life
+    base = cfg.micro
+    rows = []
+    variants: list[tuple[str, LifeTestConfig, MicroEKFSettings, MotorConstants | None]] = [
+        ("rk4, speed + measured acceleration (default)", life, base, None),
+        ("rk4, speed only", life, replace(base, use_acceleration=False), None),
+        ("seed eq. 3 (lagged Euler), speed + acceleration", life,
+         replace(base, scheme="seed-euler"), None),
+        ("rk4, acceleration by differencing speed, used as if independent",
+         replace(life, acceleration="differenced"),
+         replace(base, sigma_dw=life.sigma_w / (math.sqrt(2.0) * life.dt)), None),
+        ("rk4, acceleration by differencing speed, speed channel only",
+         replace(life, acceleration="differenced"), replace(base, use_acceleration=False), None),
+        ("rk4, K known +1 %", life, base, life.consts.scaled(K=1.01)),
+        ("rk4, J known +2 %", life, base, life.consts.scaled(J=1.02)),
+        ("rk4, T_L known +10 %", life, base, life.consts.scaled(T_L=1.10)),
+    ]
+    for label, lcfg, mset, est in variants:
+        tests, z, r, _ = _simulate_and_estimate(
+            lcfg, cfg.variant_runs, cfg.seed, mset, cfg.chunk_runs, est_consts=est
+        )
+        truth = np.stack([t.damping for t in tests])
+        e = z - truth
+        sd = np.sqrt(r)
+        rows.append({
+            "variant": label,
+            "runs": cfg.variant_runs,
+            "cycles": e.size,
+            "bias": e.mean(),
+            "rmse": math.sqrt(np.mean(e**2)),
+            "mean_stated_sd": sd.mean(),
+            "nees_mean": np.mean(e**2 / r),
+            "coverage_95": np.mean(np.abs(e) <= 1.96 * sd),
+            "bias_in_cycles_of_slope": e.mean() / lcfg.slope,
+        })
+    return pd.DataFrame(rows)
+
+
+def run_experiment(
+    cfg: ExperimentConfig | None = None, progress: Any = None
+) -> MotorDampingResult:
+    """Run every scenario of the reproduction and return tables + data for the figures.
+
+    ``progress``: optional callable ``progress(message)`` for the CLI.
+    """
+    import pandas as pd
+
+    cfg = cfg or ExperimentConfig()
+    say = progress or (lambda _m: None)
+    seeds_note = list(range(cfg.runs))
+    rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 2]))
+
+    say("linear damping: simulate + micro EKF")
+    tests, z, r, first = _simulate_and_estimate(
+        cfg.life, cfg.runs, cfg.seed, cfg.micro, cfg.chunk_runs
+    )
+    c_fail = tests[0].c_fail
+    scen: dict[str, ScenarioResult] = {}
+    say("linear damping: macro EKF + RUL")
+    scen["linear"] = _scenario("linear", tests, z, r, first, cfg.macro, cfg, rng)
+    scen["linear-micro-var-only"] = _scenario(
+        "linear-micro-var-only", tests, z, r, first,
+        replace(cfg.macro, include_scatter=False), cfg, rng,
+    )
+    scen["linear-first-crossing"] = _scenario(
+        "linear-first-crossing", tests, z, r, first, cfg.macro, cfg, rng, first_crossing=True
+    )
+    say("accelerating damping: simulate + micro EKF + macro EKF")
+    acc_life = replace(cfg.life, curvature=cfg.accel_curvature)
+    eol_acc = failure_cycle(c_fail, acc_life.c0, acc_life.slope, acc_life.curvature)
+    acc_life = replace(acc_life, n_cycles=math.floor(eol_acc))
+    a_tests, a_z, a_r, a_first = _simulate_and_estimate(
+        acc_life, cfg.runs, cfg.seed + 1, cfg.micro, cfg.chunk_runs
+    )
+    scen["accelerating"] = _scenario(
+        "accelerating", a_tests, a_z, a_r, a_first, cfg.macro, cfg, rng
+    )
+    ml = replace(cfg.macro, q_a_grid=cfg.q_a_grid)
+    scen["accelerating-qa-ml"] = _scenario(
+        "accelerating-qa-ml", a_tests, a_z, a_r, a_first, ml, cfg, rng
+    )
+    scen["linear-qa-ml"] = _scenario("linear-qa-ml", tests, z, r, first, ml, cfg, rng)
+
+    say("macro model comparison: linear vs quadratic law on linear and accelerating truth")
+    cmp_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 3]))
+    model_rows = []
+    jprior_rows: list[dict[str, Any]] = []
+    for truth_name, data in (
+        ("linear", (tests, z, r, first)), ("accelerating", (a_tests, a_z, a_r, a_first))
+    ):
+        for model in MACRO_MODELS:
+            if model == cfg.macro.model:
+                sres = scen[truth_name]
+            else:
+                name = f"{truth_name}-{model}-macro"
+                sres = _scenario(name, *data, replace(cfg.macro, model=model), cfg, cmp_rng)
+                scen[name] = sres
+            model_rows += _model_comparison_rows(truth_name, model, sres, cfg)
+        for jsd in cfg.j_prior_sweep_sd:
+            sres = _scenario(
+                f"{truth_name}-quadratic-j{jsd:g}", *data,
+                replace(cfg.macro, model="quadratic", j_prior_sd=jsd), cfg, cmp_rng,
+                monte_carlo=False,
+            )
+            row = _model_comparison_rows(truth_name, "quadratic", sres, cfg)[0]
+            jprior_rows.append({"j_prior_sd": jsd, **row})
+
+    say("q_a sensitivity sweep (covariance method)")
+    sweep_rows = []
+    for truth_name, (tt, zz, rr, ff) in (
+        ("linear", (tests, z, r, first)), ("accelerating", (a_tests, a_z, a_r, a_first))
+    ):
+        for sd in cfg.qa_sweep_sd:
+            sres = _scenario(
+                f"{truth_name}-qa{sd:g}", tt, zz, rr, ff, replace(cfg.macro, q_a=sd * sd), cfg,
+                rng, monte_carlo=False,
+            )
+            m = sres.metrics["covariance"]
+            late = sres.pred_cycles >= 10
+            width = sres.cov_q[:, late, 2] - sres.cov_q[:, late, 0]
+            width = np.where(np.isnan(width), np.inf, width)  # both bounds beyond the horizon
+            sweep_rows.append({
+                "truth": truth_name, "q_a_sd_per_cycle": sd, "runs": cfg.runs,
+                "coverage_90": m["coverage_90"].mean(),
+                "coverage_90_from_cycle_10": np.nanmean(m["coverage_90_late"]),
+                "alpha_lambda_pass_0.5": m["alpha_lambda_0.5"].mean(),
+                "median_interval_width_from_cycle_10": float(np.median(width)),
+            })
+
+    say("micro EKF variants")
+    micro_tab = _micro_variants(cfg)
+
+    # micro error over the main scenario
+    e = z - np.stack([t.damping for t in tests])
+    micro_main = pd.DataFrame([{
+        "runs": cfg.runs, "cycles": e.size, "bias": e.mean(), "rmse": math.sqrt(np.mean(e**2)),
+        "p05_error": np.quantile(e, 0.05), "p95_error": np.quantile(e, 0.95),
+        "mean_stated_sd": np.sqrt(r).mean(), "nees_mean": np.mean(e**2 / r),
+        "coverage_95": np.mean(np.abs(e) <= 1.96 * np.sqrt(r)),
+        "error_over_one_cycle_of_slope": math.sqrt(np.mean(e**2)) / cfg.life.slope,
+    }])
+
+    # slope convergence (Fig. 16) over runs
+    lin = scen["linear"]
+    slope_rows = []
+    for n in sorted({*(c for c in cfg.prediction_cycles if c <= cfg.life.n_cycles),
+                     cfg.life.n_cycles}):
+        k = int(np.flatnonzero(lin.cycles == n)[0])
+        a_est = lin.track.x[k, :, 1]
+        a_sd = np.sqrt(lin.track.P[k, :, 1, 1])
+        slope_rows.append({
+            "cycle": n, "true_slope": cfg.life.slope, "mean_estimate": a_est.mean(),
+            "sd_over_runs": a_est.std(ddof=1) if a_est.size > 1 else np.nan,
+            "mean_stated_sd": a_sd.mean(),
+            "coverage_95": np.mean(np.abs(a_est - cfg.life.slope) <= 1.96 * a_sd),
+            "run0_estimate": a_est[0],
+        })
+    slope_tab = pd.DataFrame(slope_rows)
+
+    # prognostic metrics
+    met_rows = []
+    for sname, sres in scen.items():
+        for method, m in sres.metrics.items():
+            ph = m["ph"]
+            met_rows.append({
+                "scenario": sname, "method": method, "runs": cfg.runs,
+                "macro_model": sres.macro.model,
+                "macro_q_a": "ML grid" if sres.macro.q_a_grid else f"{sres.macro.q_a:g}",
+                "q_a_sd_chosen_median": float(np.median(np.sqrt(sres.track.q_a[-1]))),
+                "eol_mean": float(np.mean(sres.eol)),
+                "alpha_lambda_pass_0.25": m["alpha_lambda_0.25"].mean(),
+                "alpha_lambda_pass_0.5": m["alpha_lambda_0.5"].mean(),
+                "alpha_lambda_pass_0.75": m["alpha_lambda_0.75"].mean(),
+                "ph_mean": np.nanmean(ph) if np.isfinite(ph).any() else np.nan,
+                "ph_none_fraction": np.mean(~np.isfinite(ph)),
+                "ra_0.5_median": np.median(m["ra_0.5"]),
+                "coverage_90": m["coverage_90"].mean(),
+                "coverage_90_from_cycle_10": np.nanmean(m["coverage_90_late"]),
+            })
+    met_tab = pd.DataFrame(met_rows)
+
+    # threshold from the characteristic curves of run 0 (seed section 4.2)
+    lt0 = tests[0]
+    consts = cfg.life.consts
+    steady = lt0.time >= 10.0 * consts.tau_I  # current spike decayed to 1.95 e^-10 A
+    torque = consts.J * lt0.acceleration
+    c_fail_curves = failure_damping_from_curves(lt0.speed, torque, z[0], mask=steady)
+    slopes = characteristic_curve_slope(lt0.speed, torque, steady)
+
+    # micro EKF history of one cycle (Fig. 8)
+    k8 = min(29, cfg.life.n_cycles - 1)
+    h = micro_ekf(
+        lt0.time, lt0.current[k8 : k8 + 1], lt0.speed[k8 : k8 + 1],
+        lt0.acceleration[k8 : k8 + 1], consts, cfg.micro, keep_history=True,
+    )
+    hist = {"cycle": k8 + 1, "time": lt0.time, "x": h.x_hist[:, 0], "P": h.p_hist[:, 0],
+            "speed": lt0.speed[k8], "true_c": lt0.damping[k8]}
+
+    thr_tab = pd.DataFrame([{
+        "quantity": "failure damping c_fail [N m s]",
+        "seed": SEED_VALUES["c_fail"],
+        "ours_algebra": failure_damping(consts),
+        "ours_from_curves_run0": c_fail_curves,
+        "relative_difference": c_fail_curves / failure_damping(consts) - 1.0,
+    }])
+    tables = {
+        "micro_main": micro_main, "micro_variants": micro_tab, "slope": slope_tab,
+        "rul_metrics": met_tab, "qa_sweep": pd.DataFrame(sweep_rows), "threshold": thr_tab,
+        "macro_models": pd.DataFrame(model_rows),
+        "macro_j_prior_sweep": pd.DataFrame(jprior_rows),
+    }
+    return MotorDampingResult(
+        config=cfg, tables=tables, scenarios=scen, life_run0=lt0, c_fail=c_fail,
+        c_fail_from_curves=c_fail_curves, curve_slopes_run0=slopes, seeds=seeds_note,
+        micro_history_run0=hist,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# outputs
+# ---------------------------------------------------------------------------------------------
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float | np.floating):
+        if not np.isfinite(v):
+            return str(v)
+        return f"{v:.4g}"
+    return str(v)
+
+
+def _md_table(df: Any) -> str:
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, row in df.iterrows():
+        lines.append("| " + " | ".join(_fmt(row[c]) for c in cols) + " |")
+    return "\n".join(lines)
+
+
+def write_outputs(res: MotorDampingResult, out: Path, command: str = "") -> list[Path]:
+    """Write tables (CSV), report.md and figures into ``out``; return the written paths."""
+    from rulkit.prognosis.rul import RULDistribution
+    from rulkit.systems.motor_damping.figures import make_figures
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    for name, df in res.tables.items():
+        p = out / f"{name}.csv"
+        df.to_csv(p, index=False)
+        paths.append(p)
+    lin = res.scenarios["linear"]
+    # run-0 RUL series and one RUL distribution as JSON
+    import pandas as pd
+
+    series = pd.DataFrame({
+        "cycle": lin.pred_cycles, "rul_true": lin.rul_true[0],
+        "cov_p05": lin.cov_q[0, :, 0], "cov_median": lin.cov_q[0, :, 1],
+        "cov_p95": lin.cov_q[0, :, 2], "mc_p05": lin.mc_q[0, :, 0],
+        "mc_median": lin.mc_q[0, :, 1], "mc_p95": lin.mc_q[0, :, 2],
+        "mc_mean": lin.mc_mean[0],
+        "slope_estimate": lin.track.x[lin.pred_cycles.astype(int) - 1, 0, 1],
+    })
+    p = out / "rul_series_run0.csv"
+    series.to_csv(p, index=False)
+    paths.append(p)
+    n_ref = min(SEED_VALUES["n_cycles"], res.config.life.n_cycles)
+    j = int(np.flatnonzero(lin.pred_cycles == n_ref)[0]) if n_ref in lin.pred_cycles else -1
+    smp, cen = lin.mc_run0[j]
+    p = out / f"rul_distribution_run0_cycle{int(lin.pred_cycles[j])}.json"
+    RULDistribution(smp, censored=cen, horizon=res.config.horizon).to_json(p)
+    paths.append(p)
+    paths += make_figures(res, out)
+    p = out / "report.md"
+    p.write_text(_report(res, command))
+    paths.append(p)
+    return paths
+
+
+def _model_summary(df: Any) -> str:
+    """One sentence per truth, from the measured ``macro_models`` table (covariance method)."""
+    out = []
+    for truth in ("linear", "accelerating"):
+        rows = df[(df["truth"] == truth) & (df["method"] == "covariance")].set_index(
+            "macro_model"
+        )
+        if not {"linear", "quadratic"} <= set(rows.index):
+            continue
+        li, qu = rows.loc["linear"], rows.loc["quadratic"]
+        out.append(
+            f"- {truth} truth (covariance method): coverage {li['coverage_90']:.3f} (linear) "
+            f"vs {qu['coverage_90']:.3f} (quadratic); first half of life "
+            f"{li['coverage_90_first_half']:.3f} vs {qu['coverage_90_first_half']:.3f}, "
+            f"second half {li['coverage_90_second_half']:.3f} vs "
+            f"{qu['coverage_90_second_half']:.3f}; alpha-lambda(0.5) "
+            f"{li['alpha_lambda_pass_0.5']:.2f} vs {qu['alpha_lambda_pass_0.5']:.2f}; median "
+            f"width first half {li['median_width_first_half']:.3g} vs "
+            f"{qu['median_width_first_half']:.3g}, second half "
+            f"{li['median_width_second_half']:.3g} vs {qu['median_width_second_half']:.3g} "
+            f"cycles."
+        )
+    return "\n".join(out)
+
+
+def _report(res: MotorDampingResult, command: str) -> str:
+    cfg = res.config
+    t = res.tables
+    lin = res.scenarios["linear"]
+    n_ref = min(SEED_VALUES["n_cycles"], cfg.life.n_cycles)
+    k58 = int(np.flatnonzero(lin.cycles == n_ref)[0])
+    a58 = lin.track.x[k58, :, 1]
+    seed_rows = [
+        (f"degradation slope a per cycle (macro EKF after cycle {n_ref})", "2.67e-6",
+         f"{a58.mean():.4g} +- {a58.std(ddof=1) if a58.size > 1 else float('nan'):.2g} "
+         f"(mean +- sd over {cfg.runs} runs; true {cfg.life.slope:.3g})"),
+        ("failure damping c_fail [N m s]", "0.000147",
+         f"{res.c_fail:.6g} (algebra at 300 rad/s, 16 mN m); "
+         f"{res.c_fail_from_curves:.6g} (from run 0's characteristic curves: measured "
+         f"J dw/dt vs w, t >= 10 s, against the micro-EKF damping)"),
+        ("slope of the characteristic curve at failure", "0.1428 (units not stated)",
+         f"-{res.c_fail * 1e3:.4g} mN m s/rad (= -c_fail; run-0 curve slopes vs the micro-EKF "
+         f"damping: see fig11_12)"),
+        ("cycles of data", "58 (real motor, 3 years at 60 C)",
+         f"{cfg.life.n_cycles} synthetic cycles per run (trend crosses c_fail at "
+         f"{lin.eol[0]:.1f})"),
+    ]
+    lines = [
+        "# Seed 002 reproduction: multi-scale EKF life prediction of a reaction-wheel motor",
+        "",
+        f"Command: `{command or 'rulkit reproduce motor-damping'}`",
+        "",
+        f"Runs: {cfg.runs} per scenario, seeds `numpy.random.SeedSequence({cfg.seed}).spawn("
+        f"{cfg.runs})` (linear) and `SeedSequence({cfg.seed + 1})` (accelerating); Monte Carlo "
+        f"RUL with {cfg.mc_samples} samples per unit and cycle, horizon {cfg.horizon:g} cycles.",
+        "",
+        "The seed's motor data are not public: every number of ours comes from the synthetic "
+        "life test of motor-damping.md (K = 0.030 N m/A, J = 3.0e-3 kg m^2, T_L = 1.4 mN m, "
+        "I(t) = 2.05 + 1.95 exp(-t/1 s) A, 35 s cycles at 0.05 s, sigma_w = 0.05 rad/s, "
+        "sigma_dw = 0.5 rad/s^2, c_n = 1e-5 + 2e-6 n + N(0, (2e-6)^2)). The seed's numbers are "
+        "not consistent with each other (a slope of 2.67e-6 and failure after cycle 58 need "
+        "a negative c0), so our slope differs from the seed's by design; the threshold agrees "
+        "because our constants were chosen to make the design point map to it.",
+        "",
+        "## The seed's reported values beside ours",
+        "",
+        "| quantity | seed 002 | ours |",
+        "|---|---|---|",
+        *[f"| {a} | {b} | {c} |" for a, b, c in seed_rows],
+        "",
+        "## Micro EKF: per-cycle damping error (Fig. 8, 9)",
+        "",
+        _md_table(t["micro_main"]),
+        "",
+        "Variants (fewer runs): discretisation, channels, constants known with error.",
+        "",
+        _md_table(t["micro_variants"]),
+        "",
+        "## Macro EKF: slope estimate (Fig. 16)",
+        "",
+        _md_table(t["slope"]),
+        "",
+        "## RUL metrics over runs (Fig. 17)",
+        "",
+        "Point prediction = median of the RUL distribution. alpha-lambda: alpha = 0.2, "
+        "pass fraction over runs at lambda = 0.25/0.5/0.75 (t_P = cycle "
+        f"{cfg.n_min}); PH: EOL minus the first cycle at which the median is within +- 0.05 EOL "
+        "of the true RUL (Saxena et al. 2010, absolute bounds), mean over runs that have one; "
+        "RA at lambda = 0.5 (median over runs); coverage: "
+        "fraction of cycles whose 90 % interval (5 %-95 %) holds the true RUL, mean over runs.",
+        "",
+        _md_table(t["rul_metrics"]),
+        "",
+        "macro_model: linear = the seed's law c + a n (state [c, a]); quadratic = "
+        "c + a n + j n^2 / 2 (state [c, a, j]). "
+        "q_a_sd_chosen_median: median over runs of the slope noise sd in use after the last "
+        "cycle. Sensitivity of the covariance-method intervals to a fixed q_a:",
+        "",
+        _md_table(t["qa_sweep"]),
+        "",
+        "## Macro model: linear vs quadratic law, on linear and accelerating truth",
+        "",
+        "Not in the seed (an extension): the seed's linear law (state [c, a]) against a "
+        "quadratic, constant-acceleration law (state [c, a, j]; curvature prior sd "
+        f"{cfg.macro.j_prior_sd:g} per cycle^2, q = 0; scatter from quadratic-fit residuals), "
+        f"both on the same {cfg.runs} runs of each truth (linear: c = 1e-5 + 2e-6 n; "
+        f"accelerating: + {cfg.accel_curvature:g} n^2, i.e. j = "
+        f"{2 * cfg.accel_curvature:g}). Truth = trend crossing. Coverage: fraction of "
+        "prediction cycles whose 90 % interval holds the true RUL (first/second half: "
+        "prediction cycle below/above EOL/2, pooled over runs); alpha-lambda pass fraction "
+        "over runs (alpha = 0.2); RA at lambda = 0.5 (median over runs); median absolute "
+        "error of the median RUL; median interval width in cycles (inf: the 95 % bound lies "
+        f"beyond the {cfg.horizon:g}-cycle horizon; unbounded_fraction: share of such "
+        "intervals).",
+        "",
+        _md_table(t["macro_models"]),
+        "",
+        _model_summary(t["macro_models"]),
+        "",
+        "Sensitivity of the quadratic law to its curvature prior sd (covariance method, same "
+        f"runs; the accelerating truth's curvature is j = {2 * cfg.accel_curvature:g}; a small "
+        "prior shrinks the law towards the linear one):",
+        "",
+        _md_table(t["macro_j_prior_sweep"].drop(columns=["macro_model", "method"])),
+        "",
+        "## Threshold (seed section 4.2)",
+        "",
+        _md_table(t["threshold"]),
+        "",
+        "Under steady current the characteristic curve is T_out = K I_s - T_L - c w, so "
+        "c_fail = (K I_s - T_L - T_d) / w_d; the curve slope equals -c (the seed's "
+        "slope-to-damping plot, Fig. 12, is the identity).",
+        "",
+        "## Figures",
+        "",
+        "fig08_micro_cycle.png, fig09_damping_over_cycles.png, fig10_characteristic_curves.png, "
+        "fig11_12_curve_slope.png, fig13_15_predictions.png, fig16_slope.png, fig17_rul.png, "
+        "fig_accelerating_rul.png, fig_macro_models_rul.png",
+        "",
+    ]
+    return "\n".join(lines)

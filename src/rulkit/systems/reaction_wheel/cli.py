@@ -1,0 +1,199 @@
+"""Commands of the reaction-wheel lubrication system (seeds 000/001, issue #3).
+
+- ``rulkit reproduce rw-lubrication [--quick] [--runs N] [--seed S] [--out DIR] [--workers N]
+  [--scheduler ADDRESS]``: steps 1-3, Tables 5-7 beside the paper's, figures, report.md.
+- ``rulkit rw estimate-temperature FILE [--out F] [--method M] [--particles N] [--seed S]``:
+  lubricant temperature with an interval per sample from a wheel telemetry file.
+- :func:`run_quick` is what ``rulkit demo`` (``make demo``) runs: the ``--quick`` reproduction.
+
+Heavy imports stay inside the command functions (``rulkit --help`` stays fast).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+METHODS = ("adaptive", "apf_eq28", "apf_tempered", "pf", "rbpf", "ekf")
+
+
+def _print_tables(rep: Any, console: Any) -> None:
+    """Tables 5-7 as compact rich tables, "ours / paper" per cell."""
+    import numpy as np
+    from rich.table import Table
+
+    def pair(row: Any, a: str, b: str) -> str:
+        x, y = row.get(a, np.nan), row.get(b, np.nan)
+        fx = "-" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:.2f}"
+        fy = "-" if y is None or (isinstance(y, float) and np.isnan(y)) else f"{y:.2f}"
+        return f"{fx} / {fy}"
+
+    if rep.table5 is not None and "rmspe_mean" in rep.table5:
+        t5 = rep.table5
+        tab = Table(title="Table 5: RMSPE of T (%), ours / paper")
+        for c in ("method", "design", "noise", "N", "ours / paper"):
+            tab.add_column(c)
+        for _, r in t5.iterrows():
+            tab.add_row(str(r.get("method")), str(r.get("design")), str(r.get("noise")),
+                        str(r.get("N")), pair(r, "rmspe_mean", "paper"))
+        console.print(tab)
+    t6 = rep.table6.table
+    tab = Table(title=f"Table 6: RMSPE (%) ours / paper ({rep.table6.n_runs} runs, seed "
+                      f"{rep.table6.seed})")
+    for c in ("method", "S1 b", "S1 beta0", "S2 b", "S2 beta0"):
+        tab.add_column(c)
+    for _, r in t6.iterrows():
+        tab.add_row(str(r["method"]), pair(r, "S1 b ours", "S1 b paper"),
+                    pair(r, "S1 beta ours", "S1 beta paper"), pair(r, "S2 b ours", "S2 b paper"),
+                    pair(r, "S2 beta ours", "S2 beta paper"))
+    console.print(tab)
+    t7 = rep.table7
+    tab = Table(title="Table 7: RUL error (%) ours / paper, min / max / mean over runs")
+    for c in ("method", "S1 LB", "S1 UB", "S1 mean", "S2 LB", "S2 UB", "S2 mean"):
+        tab.add_column(c)
+    for _, r in t7.iterrows():
+        tab.add_row(str(r["method"]), *(pair(r, f"S{s} {k} ours", f"S{s} {k} paper")
+                                        for s in (1, 2) for k in ("LB", "UB", "mean")))
+    console.print(tab)
+
+
+def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, workers: int,
+                     scheduler: str | None, show_progress: bool = True) -> Any:
+    """Run the reproduction with a rich progress bar over its stages; returns the result."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from rulkit.systems.reaction_wheel.degradation import SOURCES
+    from rulkit.systems.reaction_wheel.reproduce import (
+        ReproductionConfig,
+        reproduce,
+        with_overrides,
+    )
+
+    if runs is not None and runs < 1:
+        raise typer.BadParameter(f"--runs: expected >= 1, got {runs}")
+    if workers < 1:
+        raise typer.BadParameter(f"--workers: expected >= 1, got {workers}")
+    if scheduler is not None and workers != 1:
+        raise typer.BadParameter("give either --workers or --scheduler, not both")
+    cfg = (ReproductionConfig.quick_config(seed=seed, n_runs=runs) if quick
+           else with_overrides(ReproductionConfig(seed=seed), n_runs=runs))
+    cfg = with_overrides(cfg, workers=workers, scheduler=scheduler)
+    console = Console()
+    t0 = time.perf_counter()
+    # one log line per stage: step 1, one per T^ source (APF, PF, RBPF), steps 2 and 3, ...
+    n_src = len(SOURCES)
+    stages = (3 + n_src + n_src * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0)
+              + cfg.table6_alt)
+    if not show_progress:
+        return reproduce(out, cfg, log=lambda m: None)
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/"
+                  "{task.total}"), TimeElapsedColumn(), console=console) as bar:
+        task = bar.add_task("rw-lubrication", total=stages)
+
+        def log(msg: str) -> None:
+            bar.update(task, advance=1, description=msg[:70])
+            console.log(f"{time.perf_counter() - t0:6.1f} s  {msg}")
+
+        rep = reproduce(out, cfg, log=log)
+        bar.update(task, completed=stages, description="done")
+    return rep
+
+
+def run_quick(out: Path, seed: int) -> None:
+    """``rulkit demo``: the ``--quick`` reproduction; prints the tables, writes the figures."""
+    from rich.console import Console
+
+    t0 = time.perf_counter()
+    rep = run_reproduction(Path(out), quick=True, runs=None, seed=seed, workers=1,
+                           scheduler=None)
+    console = Console()
+    _print_tables(rep, console)
+    console.print(f"wrote {len(rep.files)} files to {out} (report: {Path(out) / 'report.md'}) "
+                  f"in {time.perf_counter() - t0:.1f} s")
+
+
+def register(app: typer.Typer, reproduce: typer.Typer) -> None:
+    """Add ``reproduce rw-lubrication`` and the ``rw`` group to the CLI."""
+
+    @reproduce.command("rw-lubrication")
+    def reproduce_rw(
+        quick: Annotated[bool, typer.Option("--quick", help="Reduced run (< 3 min).")] = False,
+        runs: Annotated[int | None, typer.Option(help="Runs per table (default 20; "
+                                                      "quick 5).")] = None,
+        seed: Annotated[int, typer.Option(help="Seed of the runs.")] = 0,
+        out: Annotated[Path, typer.Option(help="Output directory.")] = Path("rw-lubrication-out"),
+        workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
+        scheduler: Annotated[str | None, typer.Option(
+            help="Address of an existing Dask scheduler (tcp://host:port).")] = None,
+    ) -> None:
+        """Reproduce seed 001 Tables 5-7 (reaction-wheel lubrication prognostics)."""
+        from rich.console import Console
+
+        t0 = time.perf_counter()
+        rep = run_reproduction(out, quick=quick, runs=runs, seed=seed, workers=workers,
+                               scheduler=scheduler)
+        console = Console()
+        _print_tables(rep, console)
+        console.print(f"wrote {len(rep.files)} files to {out} in "
+                      f"{time.perf_counter() - t0:.1f} s; see {out / 'report.md'}")
+
+    rw = typer.Typer(help="Reaction-wheel lubrication tools.", no_args_is_help=True)
+    app.add_typer(rw, name="rw")
+
+    @rw.command("estimate-temperature")
+    def estimate_temperature_cmd(
+        file: Annotated[Path, typer.Argument(help="Telemetry CSV or Parquet: time_s, v_comm_V, "
+                                                  "speed_rad_s, current_A.")],
+        out: Annotated[Path | None, typer.Option(
+            help="Output CSV or Parquet (default FILE stem + _temperature.csv).")] = None,
+        method: Annotated[str, typer.Option(help=f"One of {', '.join(METHODS)}.")] = "adaptive",
+        particles: Annotated[int, typer.Option(help="Particles (PF methods).")] = 350,
+        seed: Annotated[int, typer.Option(help="Seed of the particle filter.")] = 0,
+        noise: Annotated[str, typer.Option(help="Assumed noise level: low or high.")] = "low",
+        level: Annotated[float, typer.Option(help="Interval level.")] = 0.95,
+    ) -> None:
+        """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
+        import numpy as np
+
+        from rulkit.systems.reaction_wheel.telemetry import TelemetryError, read_wheel_telemetry
+        from rulkit.systems.reaction_wheel.temperature import estimate_temperature
+
+        def fail(msg: str) -> None:
+            typer.echo(f"error: {msg}", err=True)
+            raise typer.Exit(code=2)
+
+        if method not in METHODS:
+            fail(f"--method: expected one of {', '.join(METHODS)}, got {method!r}")
+        if particles < 2:
+            fail(f"--particles: need at least 2, got {particles}")
+        if noise not in ("low", "high"):
+            fail(f"--noise: expected 'low' or 'high', got {noise!r}")
+        if not 0 < level < 1:
+            fail(f"--level: expected a value in (0, 1), got {level}")
+        dest = out or file.with_name(file.stem + "_temperature.csv")
+        if dest.suffix.lower() not in (".csv", ".parquet", ".pq"):
+            fail(f"--out: expected a .csv, .parquet or .pq file name, got {dest.name!r}")
+        try:
+            df = read_wheel_telemetry(file)
+        except TelemetryError as err:
+            fail(str(err))
+        try:
+            est = estimate_temperature(df, method=method, n_particles=particles,
+                                       rng=np.random.default_rng(seed), noise=noise, level=level)
+        except ValueError as err:  # e.g. a too-short file for the filter
+            fail(f"{file}: {err}")
+        try:
+            if dest.suffix.lower() == ".csv":
+                est.to_csv(dest, index=False)
+            else:
+                est.to_parquet(dest, index=False)
+        except OSError as err:
+            fail(f"cannot write {dest}: {err}")
+        m = est["T_mean"].to_numpy()
+        typer.echo(f"{len(est)} samples, T_lub {m[-1]:.2f} C at t = {est['time_s'].iloc[-1]:g} s "
+                   f"({level:.0%} interval {est['T_lo'].iloc[-1]:.2f} .. "
+                   f"{est['T_hi'].iloc[-1]:.2f} C); wrote {dest}")

@@ -1,0 +1,225 @@
+"""Shared pieces of the user-file readers: reading a CSV/Parquet table, coercing columns to
+float64 with row-level messages, and suggesting the intended name of a misnamed column.
+
+Used by :mod:`rulkit.systems.reaction_wheel.telemetry` (reaction-wheel telemetry),
+:mod:`rulkit.systems.motor_damping.pullup`
+(motor pull-up tests) and :mod:`rulkit.fleet.store` (``rulkit track`` acquisitions).
+Each reader passes its own exception class (``error=``, a ``ValueError`` subclass), so callers
+keep catching the reader's error; the helpers only decide *what* is wrong and say it in one
+consistent form (architecture.md, "bad input gets a clear, specific error: which field, which
+row, what was expected"):
+
+* file level, prefixed by the path: ``<path>: file not found (no such file or directory)``,
+  ``<path>: is a directory, ...``, ``<path>: empty file (no header, no rows; expected a header
+  with columns [...])``, ``<path>: no data rows (header only)``, ``<path>: unknown file type
+  '.xlsx'; expected .csv, .parquet or .pq``, ``<path>: cannot be read as CSV: <parser error>``;
+* cell level, prefixed by the source: ``column 'x', row 6: 'noon' is not a number (1
+  non-numeric value(s) in this column)`` and ``column 'x', row 18: NaN (an empty or NaN cell)
+  is not allowed: every value must be a finite number, no NaN/inf (2 non-finite value(s) in
+  this column)``. How a row is named (0- or 1-based, with the CSV file line, with the
+  component) is the reader's choice, passed as ``row_label``.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "CSV_SUFFIXES",
+    "PARQUET_SUFFIXES",
+    "cell_repr",
+    "did_you_mean",
+    "numeric_columns",
+    "read_table",
+    "suggest_column",
+    "table_format",
+]
+
+#: Default file name endings read as CSV and as Parquet (matched case-insensitively).
+CSV_SUFFIXES: tuple[str, ...] = (".csv",)
+PARQUET_SUFFIXES: tuple[str, ...] = (".parquet", ".pq")
+
+ErrorType = type[Exception]
+_COMPRESSION = (".gz", ".bz2", ".xz", ".zip", ".zst")  # shown with the ending before them
+
+
+def _accepted(suffixes: Sequence[str]) -> str:
+    """``.csv, .parquet or .pq`` from a list of endings."""
+    s = list(suffixes)
+    return s[0] if len(s) == 1 else f"{', '.join(s[:-1])} or {s[-1]}"
+
+
+def table_format(
+    path: str | Path,
+    *,
+    error: ErrorType = ValueError,
+    csv_suffixes: Sequence[str] = CSV_SUFFIXES,
+    parquet_suffixes: Sequence[str] = PARQUET_SUFFIXES,
+) -> str:
+    """``"csv"`` or ``"parquet"`` from the file name's ending (case-insensitive; multi-part
+    endings such as ``.csv.gz`` are allowed); any other ending raises ``error`` naming the
+    ending found and the accepted ones."""
+    p = Path(path)
+    name = p.name.lower()
+    if name.endswith(tuple(s.lower() for s in parquet_suffixes)):
+        return "parquet"
+    if name.endswith(tuple(s.lower() for s in csv_suffixes)):
+        return "csv"
+    compressed = len(p.suffixes) > 1 and p.suffix.lower() in _COMPRESSION
+    found = "".join(p.suffixes[-2:]) if compressed else p.suffix
+    raise error(
+        f"{p}: unknown file type {found.lower()!r}; expected "
+        f"{_accepted([*csv_suffixes, *parquet_suffixes])}"
+    )
+
+
+def read_table(
+    path: str | Path,
+    *,
+    error: ErrorType = ValueError,
+    csv_suffixes: Sequence[str] = CSV_SUFFIXES,
+    parquet_suffixes: Sequence[str] = PARQUET_SUFFIXES,
+    expected_columns: Sequence[str] | None = None,
+    csv_dtype: Mapping[str, Any] | None = None,
+    allow_no_rows: bool = False,
+) -> Any:
+    """Read a CSV or Parquet file into a ``pandas.DataFrame``; every problem raises ``error``.
+
+    The format is chosen by the file name's ending (:func:`table_format`; ``csv_suffixes`` /
+    ``parquet_suffixes``). Refused, each with the path first: a missing path, a directory, an
+    empty file (0 bytes, or a CSV without even a header line; ``expected_columns`` is then
+    named in the message), a header without data rows (unless ``allow_no_rows``), an unknown
+    ending, and a file the CSV / Parquet parser rejects (its message is quoted).
+    ``csv_dtype`` is passed to :func:`pandas.read_csv` as ``dtype`` (e.g. keep an identifier
+    column as text). The frame's ``attrs`` get ``"source"`` (the path as given) and
+    ``"format"`` (``"csv"`` or ``"parquet"``) so a caller can, e.g., report CSV file lines.
+    """
+    import pandas as pd
+
+    p = Path(path)
+    if not p.exists():
+        raise error(f"{p}: file not found (no such file or directory)")
+    if p.is_dir():
+        raise error(f"{p}: is a directory, expected a CSV or Parquet file")
+    fmt = table_format(p, error=error, csv_suffixes=csv_suffixes,
+                       parquet_suffixes=parquet_suffixes)
+    header = (f"; expected a header with columns {list(expected_columns)}"
+              if expected_columns else "")
+    empty = f"{p}: empty file (no header, no rows{header})"
+    if p.stat().st_size == 0:
+        raise error(empty)
+    try:
+        if fmt == "csv":
+            df = pd.read_csv(p, dtype=dict(csv_dtype) if csv_dtype else None)
+        else:
+            df = pd.read_parquet(p)
+    except pd.errors.EmptyDataError as err:  # e.g. only blank lines
+        raise error(empty) from err
+    except Exception as err:  # parser errors of pandas / pyarrow, unreadable file
+        raise error(f"{p}: cannot be read as {fmt.upper() if fmt == 'csv' else 'Parquet'}: "
+                    f"{err}") from err
+    if len(df) == 0 and not allow_no_rows:
+        raise error(f"{p}: no data rows (header only)")
+    df.attrs["source"] = str(path)
+    df.attrs["format"] = fmt
+    return df
+
+
+def cell_repr(v: object) -> str:
+    """repr of a cell value without numpy type wrappers (``'1,0'``, ``12.0``, not
+    ``np.float64(12.0)``), for messages."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    return repr(v)
+
+
+def _row_1_based(i: int) -> str:
+    return f"row {i + 1}"
+
+
+def numeric_columns(
+    df: Any,
+    names: Sequence[str] | Mapping[str, Hashable],
+    *,
+    error: ErrorType = ValueError,
+    source: str = "",
+    row_label: Callable[[int], str] = _row_1_based,
+) -> dict[str, NDArray[np.float64]]:
+    """Coerce columns of ``df`` to finite float64 arrays, or raise ``error`` at the first bad cell.
+
+    ``names`` lists the columns, in the order they are checked; a mapping ``{name: key}``
+    names a column in the messages by ``name`` while reading ``df[key]`` (e.g. a
+    case-insensitive match). Returns ``{name: array}`` (fresh float64 arrays, positional, the
+    frame's index ignored).
+
+    For each column in turn: a cell that is not a number (after :func:`pandas.to_numeric`)
+    raises ``"<source>: column 'x', <row_label(i)>: 'abc' is not a number (k non-numeric
+    value(s) in this column)"``; then a NaN / +-inf (an empty cell reads as NaN) raises
+    ``"<source>: column 'x', <row_label(i)>: NaN (an empty or NaN cell) is not allowed: every
+    value must be a finite number, no NaN/inf (k non-finite value(s) in this column)"``.
+    ``i`` is the 0-based position of the first offending row; ``row_label`` turns it into the
+    reader's row wording (default ``row {i + 1}``, 1-based over the data rows).
+    """
+    import pandas as pd
+
+    items = list(names.items()) if isinstance(names, Mapping) else [(n, n) for n in names]
+    prefix = f"{source}: " if source else ""
+    out: dict[str, NDArray[np.float64]] = {}
+    for name, key in items:
+        col = df[key]
+        num = pd.to_numeric(col, errors="coerce")
+        bad = (num.isna() & col.notna()).to_numpy()
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise error(
+                f"{prefix}column {name!r}, {row_label(i)}: {cell_repr(col.iloc[i])} is not a "
+                f"number ({int(bad.sum())} non-numeric value(s) in this column)"
+            )
+        a = np.array(num.to_numpy(dtype=np.float64), dtype=np.float64, copy=True)
+        nonfinite = ~np.isfinite(a)
+        if nonfinite.any():
+            i = int(np.flatnonzero(nonfinite)[0])
+            what = "NaN (an empty or NaN cell)" if np.isnan(a[i]) else f"{a[i]}"
+            raise error(
+                f"{prefix}column {name!r}, {row_label(i)}: {what} is not allowed: every value "
+                f"must be a finite number, no NaN/inf ({int(nonfinite.sum())} non-finite "
+                f"value(s) in this column)"
+            )
+        out[name] = a
+    return out
+
+
+def suggest_column(
+    name: str, present: Iterable[Hashable], aliases: Iterable[str] = ()
+) -> list[str]:
+    """Columns of ``present`` that are probably ``name`` under another spelling, best first.
+
+    First the present columns equal (case and surrounding blanks ignored) to ``name`` itself
+    or to one of ``aliases`` (known other names, e.g. ``"rpm"`` for ``"speed_rad_s"``), then up
+    to 3 close spellings by :func:`difflib.get_close_matches` (ratio >= 0.5, compared in lower
+    case). Empty when nothing is close.
+    """
+    cols = [str(c) for c in present]
+    low: dict[str, str] = {}
+    for c in cols:
+        low.setdefault(c.lower().strip(), c)
+    hits = [low[a] for a in (name.lower(), *(a.lower() for a in aliases))
+            if a in low and low[a] != name]
+    close = difflib.get_close_matches(name.lower(), list(low), n=3, cutoff=0.5)
+    hits += [low[c] for c in close if low[c] not in hits and low[c] != name]
+    return list(dict.fromkeys(hits))
+
+
+def did_you_mean(name: str, present: Iterable[Hashable], aliases: Iterable[str] = ()) -> str:
+    """``"; did you mean 'a' or 'b'? (rename it to 'name')"`` from :func:`suggest_column`, or
+    ``""`` when no present column is close to ``name``."""
+    hits = suggest_column(name, present, aliases)
+    if not hits:
+        return ""
+    return f"; did you mean {' or '.join(repr(h) for h in hits)}? (rename it to {name!r})"

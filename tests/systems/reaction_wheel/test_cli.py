@@ -1,0 +1,144 @@
+"""CLI of the reaction-wheel lubrication system: estimate-temperature on tiny files (good and
+bad), and the quick reproduction at a reduced size writing the expected files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from rulkit.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def telemetry(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from rulkit.systems.reaction_wheel.wheel import simulate_table3
+
+    run = simulate_table3(np.random.default_rng(0), "low", t_end=30.0)
+    df = pd.DataFrame({"time_s": run.t, "v_comm_V": run.V, "speed_rad_s": run.y[:, 0],
+                       "current_A": run.y[:, 1]})
+    p = tmp_path_factory.mktemp("tele") / "wheel.csv"
+    df.to_csv(p, index=False)
+    return p
+
+
+def _err(res) -> str:
+    return (res.stderr if hasattr(res, "stderr") and res.stderr else "") + res.output
+
+
+def test_estimate_temperature_writes_estimate_with_interval(telemetry: Path, tmp_path: Path):
+    out = tmp_path / "est.csv"
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(telemetry), "--out", str(out),
+                              "--particles", "40", "--seed", "1"])
+    assert res.exit_code == 0, _err(res)
+    est = pd.read_csv(out)
+    assert list(est.columns) == ["time_s", "T_mean", "T_lo", "T_hi"]
+    assert len(est) == 601
+    assert np.isfinite(est.to_numpy()).all() and (est["T_lo"] <= est["T_hi"]).all()
+    # the weighted mean may leave a quantile interval of a skewed particle set, but rarely
+    inside = (est["T_lo"] <= est["T_mean"]) & (est["T_mean"] <= est["T_hi"])
+    assert inside.mean() > 0.9
+    # same seed, same numbers; parquet output too
+    out2 = tmp_path / "est.parquet"
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(telemetry), "--out", str(out2),
+                              "--particles", "40", "--seed", "1"])
+    assert res.exit_code == 0, _err(res)
+    np.testing.assert_array_equal(pd.read_parquet(out2)["T_mean"], est["T_mean"])
+
+
+@pytest.mark.parametrize("case, expect", [
+    ("missing", "no such file"),
+    ("empty", "empty file"),
+    ("column", "speed_rad_s"),
+    ("nan", "row"),
+    ("suffix", "unknown file type"),
+])
+def test_bad_telemetry_gives_specific_error_and_exit_code_2(telemetry: Path, tmp_path: Path,
+                                                            case: str, expect: str) -> None:
+    df = pd.read_csv(telemetry)
+    p = tmp_path / "bad.csv"
+    if case == "missing":
+        p = tmp_path / "nope.csv"
+    elif case == "empty":
+        p.write_text("")
+    elif case == "column":
+        df.drop(columns="speed_rad_s").to_csv(p, index=False)
+    elif case == "nan":
+        df.loc[7, "current_A"] = np.nan
+        df.to_csv(p, index=False)
+    else:
+        p = tmp_path / "bad.xlsx"
+        p.write_text("x")
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(p)])
+    assert res.exit_code == 2
+    msg = _err(res)
+    assert "error:" in msg and expect in msg
+    assert "Traceback" not in msg
+    assert res.exception is None or isinstance(res.exception, SystemExit)
+
+
+def test_bad_options_exit_code_2(telemetry: Path) -> None:
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(telemetry), "--method", "magic"])
+    assert res.exit_code == 2 and "--method" in _err(res)
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(telemetry), "--particles", "1"])
+    assert res.exit_code == 2 and "--particles" in _err(res)
+
+
+def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeypatch) -> None:
+    from rulkit.systems.reaction_wheel.degradation import Step2Settings
+    from rulkit.systems.reaction_wheel.reproduce import ReproductionConfig
+    from rulkit.systems.reaction_wheel.rul import Step3Settings
+
+    tiny = ReproductionConfig(
+        quick=True, n_runs=2, seed=3,
+        step2=Step2Settings(n_particles=30, horizon_days=1.0),
+        step3=Step3Settings(failure_day=20.0, prediction_days=(0.5, 1.0), table7_day=1.0,
+                            forecast_horizon_days=40.0),
+        table5_particles=(20,), table5_ekf=False, step1_error_runs=1, step1_particles=30,
+        error_hours=0.1, table6_alt=False,
+        validation_hours=0.0, sensitivity_runs=0)
+    monkeypatch.setattr(ReproductionConfig, "quick_config",
+                        classmethod(lambda cls, seed=0, n_runs=None, **kw: tiny))
+    out = tmp_path / "rwq"
+    res = runner.invoke(app, ["reproduce", "rw-lubrication", "--quick", "--out", str(out)])
+    assert res.exit_code == 0, _err(res)
+    for name in ("table5.csv", "table6.csv", "table7.csv", "report.md", "rul_density.png",
+                 "forecast_scenario1.png", "forecast_scenario2.png",
+                 "step2_tracking_scenario1.png", "prognostic_metrics.csv", "settings.json"):
+        assert (out / name).exists(), name
+    t6 = pd.read_csv(out / "table6.csv")
+    assert t6["runs"].iloc[0] == 2 and "S1 b paper" in t6
+    new = ["RBPF + two-step PF (ours)", "RBPF + RB-PF (ours)"]  # RBPF step-1 source rows
+    t7 = pd.read_csv(out / "table7.csv")
+    for tab, cols in ((t6, [f"S{s} {p} ours" for s in (1, 2) for p in ("b", "beta")]),
+                      (t7, [f"S{s} {k} ours" for s in (1, 2) for k in ("LB", "UB", "mean")])):
+        rows = tab.set_index("method").loc[new, cols].to_numpy()
+        assert np.isfinite(rows).all(), tab
+    report = (out / "report.md").read_text()
+    assert "Table 6" in report and "[R]" in report and "not validated" in report
+    assert "| RBPF | rbpf RBJ |" in report and "RBPF step-1 source (ours)" in report
+    assert "Table 6: RMSPE" in res.output  # the tables are printed
+
+
+def test_reproduce_rejects_bad_options(tmp_path: Path) -> None:
+    res = runner.invoke(app, ["reproduce", "rw-lubrication", "--runs", "0", "--out",
+                              str(tmp_path)])
+    assert res.exit_code == 2
+    res = runner.invoke(app, ["reproduce", "rw-lubrication", "--workers", "2", "--scheduler",
+                              "tcp://x:1", "--out", str(tmp_path)])
+    assert res.exit_code == 2
+
+
+@pytest.mark.parametrize("method", ["ekf", "rbpf"])
+def test_estimate_temperature_other_methods(telemetry: Path, tmp_path: Path, method: str) -> None:
+    out = tmp_path / f"{method}.csv"
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(telemetry), "--out", str(out),
+                              "--method", method, "--particles", "30"])
+    assert res.exit_code == 0, _err(res)
+    est = pd.read_csv(out)
+    assert len(est) == 601 and (est["T_lo"] <= est["T_hi"]).all()

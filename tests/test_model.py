@@ -1,0 +1,68 @@
+"""The model contract helpers: as_batch, check_covariance, GaussianNoise sampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rulkit.model import GaussianNoise, as_batch, check_covariance
+
+
+def test_as_batch_shapes_and_errors() -> None:
+    assert as_batch(np.array([1.0, 2.0]), 2).shape == (1, 2)
+    x = np.arange(6.0).reshape(3, 2)
+    np.testing.assert_array_equal(as_batch(x, 2), x)
+    with pytest.raises(ValueError, match=r"x0: expected shape \(N, 3\) or \(3,\), got \(3, 2\)"):
+        as_batch(x, 3, "x0")
+    x[2, 1] = np.nan
+    with pytest.raises(ValueError, match="non-finite value at row 2, column 1"):
+        as_batch(x, 2)
+
+
+@pytest.mark.parametrize(
+    ("cov", "message"),
+    [
+        (np.array([[1.0, 0.5], [0.4, 1.0]]), "not symmetric"),
+        (np.array([[1.0, 2.0], [2.0, 1.0]]), r"not positive semi-definite \(smallest eig"),
+        (np.array([[1.0, np.nan], [np.nan, 1.0]]), "NaN or infinite"),
+        (np.eye(3), r"expected shape \(2, 2\), got \(3, 3\)"),
+    ],
+)
+def test_check_covariance_rejects(cov, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        check_covariance(cov, 2, "Q")
+
+
+def test_gaussian_noise_rejects_non_square() -> None:
+    with pytest.raises(ValueError, match=r"Q: expected a square \(n, n\) matrix"):
+        GaussianNoise(Q=np.ones(3), R=np.eye(1))
+    with pytest.raises(ValueError, match=r"R: expected a square \(n, n\) matrix"):
+        GaussianNoise(Q=np.eye(2), R=np.ones((2, 3)))
+
+
+@pytest.mark.parametrize("rank_deficient", [False, True])
+def test_noise_samples_have_the_stated_covariance(rank_deficient: bool) -> None:
+    """Sample covariance of 200 000 draws against Q (and R); a singular Q (rank 1) is sampled
+    in its range: the sample covariance is singular too."""
+    rng = np.random.default_rng(3)
+    if rank_deficient:
+        v = np.array([1.0, -2.0, 0.5])
+        Q = np.outer(v, v) * 1e-4
+    else:
+        A = rng.standard_normal((3, 3))
+        Q = A @ A.T + 0.1 * np.eye(3)
+    R = np.array([[0.25]])
+    noise = GaussianNoise(Q=Q, R=R)
+    n = 200_000
+    w = noise.sample_process(n, rng)
+    e = noise.sample_measurement(n, rng)
+    assert w.shape == (n, 3) and e.shape == (n, 1)
+    # the sample covariance entry C_ij has sd sqrt((Q_ii Q_jj + Q_ij^2) / n): 5 sd tolerance
+    C = np.cov(w, rowvar=False)
+    sd = np.sqrt((np.outer(np.diag(Q), np.diag(Q)) + Q**2) / n)
+    assert np.all(np.abs(C - Q) < 5 * sd)
+    assert np.all(np.abs(w.mean(axis=0)) < 5 * np.sqrt(np.diag(Q) / n))
+    assert abs(e.var() - 0.25) < 5 * 0.25 * np.sqrt(2 / n)
+    if rank_deficient:  # every draw is a multiple of v
+        resid = w - np.outer(w @ v / (v @ v), v)
+        assert np.abs(resid).max() < 1e-12 * np.abs(w).max()
