@@ -12,13 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from rulkit.fleet.health_index import HealthIndexModel
 from rulkit.fleet.store import ComponentStore, IngestError
-from rulkit.fleet.tracker_chain import (
-    HealthIndexModel,
-    TrackerConfig,
-    TrackerState,
-    tracker_update,
-)
+from rulkit.fleet.tracker_chain import TrackerConfig, TrackerState, tracker_update
 
 CFG = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e4, warn_rul=30.0)
 
@@ -168,7 +164,7 @@ CHILD = r"""
 import sys, time, pathlib
 import numpy as np, pandas as pd
 from rulkit.fleet.store import ComponentStore
-from rulkit.fleet.tracker_chain import TrackerConfig
+from rulkit.fleet.tracker_chain import (TrackerConfig)
 
 class Slow(ComponentStore):
     def _write_history(self, rows):

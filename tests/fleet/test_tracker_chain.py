@@ -6,16 +6,18 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
+from rulkit.fleet.health_index import (
+    RAYLEIGH_UNIT_VARIANCE_BETA,
+    HealthIndexModel,
+    empirical_offset,
+    nakagami_critical_value,
+)
 from rulkit.fleet.tracker_chain import (
     LEVEL_ALARM,
     LEVEL_NONE,
     LEVEL_WARNING,
-    RAYLEIGH_UNIT_VARIANCE_BETA,
-    HealthIndexModel,
     TrackerConfig,
     TrackerState,
-    empirical_offset,
-    nakagami_critical_value,
     paris_rul,
     rul_confidence_limits,
     track_series,

@@ -23,8 +23,9 @@ def _open_store(db: Path, given: dict[str, float | str], baseline: Path | None, 
     """Open or create the database; options only set a new database's configuration."""
     import numpy as np
 
+    from rulkit.fleet.health_index import HealthIndexModel
     from rulkit.fleet.store import ComponentStore, IngestError, read_acquisitions
-    from rulkit.fleet.tracker_chain import HealthIndexModel, TrackerConfig
+    from rulkit.fleet.tracker_chain import TrackerConfig
     from rulkit.tables import numeric_columns
 
     hi_model = None

@@ -40,12 +40,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.crack_growth import FatigueData, load_fatigue
-from rulkit.fleet.tracker_chain import (
-    LEVEL_ALARM,
-    LEVEL_WARNING,
-    TrackerConfig,
-    track_series,
-)
+from rulkit.fleet.tracker_chain import LEVEL_ALARM, LEVEL_WARNING, TrackerConfig, track_series
 
 HI_SIGMA = 0.01 / 1.6
 """HI reading noise: one 0.01 in step of the tabulated crack length, in HI units."""
@@ -282,7 +277,7 @@ def false_alarm_study(
     ``n_fit`` baseline rows (known offset) with and without whitening and evaluated on
     ``n_test`` fresh rows; the design rate is ``pfa``.
     """
-    from rulkit.fleet.tracker_chain import RAYLEIGH_UNIT_VARIANCE_BETA, HealthIndexModel
+    from rulkit.fleet.health_index import RAYLEIGH_UNIT_VARIANCE_BETA, HealthIndexModel
 
     rows = []
     offset = np.arange(1.0, n_ci + 1.0)

@@ -5,7 +5,7 @@ file holds
 
 * ``meta``: schema version, the :class:`~rulkit.fleet.tracker_chain.TrackerConfig` (JSON) the
   database was created with and, optionally, the
-  :class:`~rulkit.fleet.tracker_chain.HealthIndexModel`
+  :class:`~rulkit.fleet.health_index.HealthIndexModel`
   that maps condition indicators (CIs) to HI;
 * ``components``: one row per component with its tracker state (the seed's 7 numbers HI, fHI,
   dHI, RUL, fRUL, dRUL, d2RUL, plus the time of the last acquisition, the number of
@@ -41,9 +41,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rulkit.fleet.health_index import HealthIndexModel
 from rulkit.fleet.tracker_chain import (
     LEVEL_NAMES,
-    HealthIndexModel,
     TrackerConfig,
     TrackerState,
     tracker_outputs,
