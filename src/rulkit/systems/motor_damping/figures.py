@@ -116,13 +116,13 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     pcs = [n for n in cfg.prediction_cycles if n <= cfg.life.n_cycles]
     fig, axs = plt.subplots(1, len(pcs), figsize=(5 * len(pcs), 4), squeeze=False)
     for ax, n in zip(axs[0], pcs, strict=True):
-        k = int(np.flatnonzero(lin.cycles == n)[0])
-        x = lin.track.x[k, :1]
-        P = lin.track.P[k, :1]
+        kn = int(np.flatnonzero(lin.cycles == n)[0])
+        x = lin.track.x[kn, :1]
+        P = lin.track.P[kn, :1]
         m = np.arange(0.0, 60.0)
-        mu, v = predicted_damping(x, P, m, lin.track.q_a[k, :1])
+        mu, v = predicted_damping(x, P, m, lin.track.q_a[kn, :1])
         sd = np.sqrt(v[0])
-        ax.plot(lin.cycles[: k + 1], lin.z[0, : k + 1], "o", ms=3, label="micro estimates")
+        ax.plot(lin.cycles[: kn + 1], lin.z[0, : kn + 1], "o", ms=3, label="micro estimates")
         ax.plot(n + m, mu[0], "b", label="macro EKF prediction")
         ax.plot(n + m, mu[0] + 1.645 * sd, "g", lw=1, label="90 % band")
         ax.plot(n + m, mu[0] - 1.645 * sd, "g", lw=1)

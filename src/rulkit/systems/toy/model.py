@@ -170,4 +170,4 @@ class ToyDegradation(StateSpaceModel):
         for k in range(n_steps):
             xs[k + 1] = self.step(xs[k], None, k * h, h, rng)
         ys = xs[1:, :, :1] + self.sigma_y * rng.standard_normal((n_steps, x.shape[0], 1))
-        return np.arange(n_steps + 1) * h, xs, ys
+        return np.arange(n_steps + 1, dtype=np.float64) * h, xs, np.asarray(ys, np.float64)
