@@ -93,6 +93,7 @@ class Scenario:
             raise ValueError(f"Scenario.duration: expected > 0, got {self.duration}")
 
     def m_of_t(self, t: FloatArray) -> FloatArray:
+        """The true mass parameter m at times ``t`` (constant, jump or drift schedule)."""
         t = np.asarray(t, dtype=np.float64)
         if self.m_kind == "constant":
             return np.full(t.shape, self.m0)
@@ -101,6 +102,7 @@ class Scenario:
         return self.m0 + self.drift_rate * t
 
     def current_of_t(self, t: FloatArray) -> FloatArray:
+        """The input current at times ``t`` (square wave or constant)."""
         t = np.asarray(t, dtype=np.float64)
         if self.current == "square":
             return fd.square_wave_current(t, self.amplitude)

@@ -65,6 +65,7 @@ class ToyConfig:
     seed: int = 0
 
     def model(self) -> ToyDegradation:
+        """The toy degradation model with this configuration's noise levels and step."""
         return ToyDegradation(
             sigma_d=self.sigma_d, sigma_r=self.sigma_r, sigma_y=self.sigma_y, dt=self.dt
         )
