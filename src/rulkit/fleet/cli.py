@@ -226,7 +226,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         ] = Path("out/embedded-rul"),
         figures: bool = typer.Option(True, "--figures/--no-figures",
                                      help="Write one figure per unit."),
-        seed: int = typer.Option(0, "--seed", help="Seed of the false-alarm study."),
+        seed: int = typer.Option(0, "--seed", min=0, help="Seed of the false-alarm study."),
         false_alarms: bool = typer.Option(True, "--false-alarms/--no-false-alarms",
                                           help="Run the HI false-alarm study (~5 s)."),
     ) -> None:
