@@ -21,6 +21,7 @@ import time
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
+from urllib.parse import unquote
 
 import pandas as pd
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
@@ -235,27 +236,37 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
             raise _err(404, "no such component")
         return component
 
+    def _raw_tail(request: Request) -> str:
+        """The percent-encoded path after /api/v1/components/ (ids may hold "/" as %2F)."""
+        raw = request.scope.get("raw_path") or request.url.path.encode()
+        return raw.decode("latin-1").split("?", 1)[0][len("/api/v1/components/"):]
+
     @app.get("/api/v1/components/{component:path}/history", tags=["components"])
     def component_history(
-        component: Annotated[str, PathParam()],
+        component: Annotated[str, PathParam(description="Component id, '/' encoded as %2F")],
+        request: Request,
         _tok: Annotated[Token, Depends(authenticated)],
         limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000,
     ) -> dict[str, Any]:
         """The component's last ``limit`` acquisitions (HI, fHI, RUL and its interval,
         validity, level; time ascending) and its alerts."""
+        tail = _raw_tail(request)
         try:
-            return sdb.history(_component_id(component), limit=limit)
+            if not tail.endswith("/history"):  # an id ending in %2Fhistory: the component
+                return sdb.component(_component_id(unquote(tail)))
+            return sdb.history(_component_id(unquote(tail[:-len("/history")])), limit=limit)
         except NotFound as err:
             raise _err(404, str(err)) from None
 
     @app.get("/api/v1/components/{component:path}", tags=["components"])
     def get_component(
-        component: Annotated[str, PathParam()],
+        component: Annotated[str, PathParam(description="Component id, '/' encoded as %2F")],
+        request: Request,
         _tok: Annotated[Token, Depends(authenticated)],
     ) -> dict[str, Any]:
         """One component's state and its number of open alerts."""
         try:
-            return sdb.component(_component_id(component))
+            return sdb.component(_component_id(unquote(_raw_tail(request))))
         except NotFound as err:
             raise _err(404, str(err)) from None
 

@@ -112,7 +112,7 @@ class TempPostgres:
             self._n += 1
             name = f"t{self._n}"
         with psycopg.connect(self.url(), autocommit=True) as conn:
-            conn.execute(f'CREATE DATABASE "{name}"')
+            conn.execute(f'CREATE DATABASE "{name}" STRATEGY FILE_COPY')
         return self.url(name)
 
     def stop(self) -> None:
