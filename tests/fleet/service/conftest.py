@@ -17,7 +17,7 @@ from rulkit.fleet.service.pgtemp import TempPostgres, free_port, unavailable_rea
 REQUIRE = os.environ.get("RULKIT_REQUIRE_INTEGRATION", "") not in ("", "0")
 
 
-def need(reason: str | None) -> None:
+def _need(reason: str | None) -> None:
     """Skip (or fail under RULKIT_REQUIRE_INTEGRATION=1) when ``reason`` is set."""
     if reason:
         if REQUIRE:
@@ -27,7 +27,7 @@ def need(reason: str | None) -> None:
 
 @pytest.fixture(scope="session")
 def pg_server():
-    need(unavailable_reason())
+    _need(unavailable_reason())
     with TempPostgres() as pg:
         yield pg
 
@@ -98,3 +98,9 @@ class LiveServer:
 def live_server():
     """``with live_server(app) as srv: srv.url``: a real HTTP server on loopback."""
     return LiveServer
+
+
+@pytest.fixture(name="need")
+def need_fixture():
+    """``need(reason)``: skip, or fail under RULKIT_REQUIRE_INTEGRATION=1."""
+    return _need
