@@ -23,6 +23,7 @@ from rulkit.integrate import euler_step, integrate, rk4_step
 from rulkit.metrics import (
     alpha_lambda,
     convergence,
+    crps_rul,
     crps_samples,
     cumulative_relative_accuracy,
     interval_coverage,
@@ -30,6 +31,8 @@ from rulkit.metrics import (
     relative_accuracy,
 )
 from rulkit.model import GaussianNoise, Simulation, StateSpaceModel
+from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
+from rulkit.prognosis.profile import PrognosisProfile, prognosis_profile
 from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
 
 try:
@@ -44,6 +47,7 @@ __all__ = [
     "KalmanResult",
     "ParticleFilter",
     "ParticleFilterResult",
+    "PrognosisProfile",
     "RULDistribution",
     "Simulation",
     "StateSpaceModel",
@@ -51,13 +55,17 @@ __all__ = [
     "__version__",
     "alpha_lambda",
     "convergence",
+    "crps_rul",
     "crps_samples",
     "cumulative_relative_accuracy",
     "euler_step",
     "integrate",
     "interval_coverage",
+    "monte_carlo_rul",
+    "prognosis_profile",
     "prognostic_horizon",
     "propagate_to_threshold",
     "relative_accuracy",
     "rk4_step",
+    "unscented_rul",
 ]
