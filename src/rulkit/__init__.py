@@ -31,6 +31,7 @@ from rulkit.metrics import (
     relative_accuracy,
 )
 from rulkit.model import GaussianNoise, Simulation, StateSpaceModel
+from rulkit.prognosis.learning import ParameterFit, fit_parameters
 from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
 from rulkit.prognosis.profile import PrognosisProfile, prognosis_profile
 from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
@@ -45,6 +46,7 @@ __all__ = [
     "GaussianNoise",
     "KalmanFilter",
     "KalmanResult",
+    "ParameterFit",
     "ParticleFilter",
     "ParticleFilterResult",
     "PrognosisProfile",
@@ -59,6 +61,7 @@ __all__ = [
     "crps_samples",
     "cumulative_relative_accuracy",
     "euler_step",
+    "fit_parameters",
     "integrate",
     "interval_coverage",
     "monte_carlo_rul",
