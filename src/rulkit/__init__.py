@@ -19,7 +19,7 @@ from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.estimation.kalman import KalmanFilter, KalmanResult
 from rulkit.estimation.particle import ParticleFilter, ParticleFilterResult
 from rulkit.estimation.ukf import UnscentedKalmanFilter
-from rulkit.integrate import euler_step, integrate, rk4_step
+from rulkit.integrate import euler_step, ode_step, rk4_step
 from rulkit.metrics import (
     alpha_lambda,
     convergence,
@@ -62,9 +62,9 @@ __all__ = [
     "cumulative_relative_accuracy",
     "euler_step",
     "fit_parameters",
-    "integrate",
     "interval_coverage",
     "monte_carlo_rul",
+    "ode_step",
     "prognosis_profile",
     "prognostic_horizon",
     "propagate_to_threshold",
