@@ -317,7 +317,7 @@ def prognosis_profile(
     idx = _step_index(tp, t_meas)
     filt = _build(estimator, model, h, t0, u)
     if isinstance(filt, ParticleFilter):
-        est = filt.filter(y, x0, rng, keep_particles=True)
+        est = filt.filter(y, np.asarray(x0, dtype=np.float64), rng, keep_particles=True)
         assert est.particle_history is not None and est.weight_history is not None
         posts = [(est.particle_history[k], est.weight_history[k]) for k in idx]
     else:
