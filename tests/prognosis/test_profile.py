@@ -136,3 +136,15 @@ def test_profile_metrics_against_the_metric_functions() -> None:
     lo, hi = prof.lower, prof.upper
     r = prof.rul_true
     assert prof.coverage == pytest.approx(np.mean((lo <= r) & (r <= hi)))
+
+
+def test_profile_plot_hands_its_data_to_rulkit_plot() -> None:
+    """The figure itself is tested in tests/test_plot.py; here: the profile is accepted."""
+    pytest.importorskip("matplotlib")
+    model, sim = _record(7)
+    p0 = np.column_stack([np.zeros(200), np.full(200, 0.015)])
+    prof = prognosis_profile(model, sim.y, "pf", p0, times=[10.0, 20.0], t_eol=sim.event_time,
+                             horizon=300.0, rng=np.random.default_rng(0))
+    assert prof.dists is prof.distributions
+    fig = prof.plot()
+    assert len(fig.axes) >= 2

@@ -77,6 +77,20 @@ class PrognosisProfile:
     beta: float = 0.5
     level: float = 0.9
 
+    @property
+    def dists(self) -> tuple[RULDistribution, ...]:
+        """Alias of :attr:`distributions` (the name :func:`rulkit.plot.plot_profile` reads)."""
+        return self.distributions
+
+    def plot(self, **kwargs: Any) -> Any:
+        """The alpha-lambda cone and the RUL densities over time
+        (:func:`rulkit.plot.plot_profile` with this profile's ``alpha`` and ``level``)."""
+        from rulkit.plot import plot_profile
+
+        kwargs.setdefault("alpha", self.alpha)
+        kwargs.setdefault("level", self.level)
+        return plot_profile(self, **kwargs)
+
     # -- per time ---------------------------------------------------------------------------
     @property
     def truth_known(self) -> bool:
