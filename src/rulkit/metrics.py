@@ -208,7 +208,10 @@ def alpha_lambda(
 ) -> AlphaLambdaResult:
     """Alpha-lambda accuracy ([S2010]): is the prediction at ``t_lambda`` within alpha of r*?
 
-    ``t_lambda = t_P + lam (t_EoL - t_P)`` (``t_P`` defaults to the first prediction time).
+    ``t_lambda = t_P + lam (t_EoL - t_P)`` (``t_P`` defaults to the first prediction time):
+    ``lam`` is a *fraction* of the time from the first prediction to end of life, as in
+    [S2010]; NASA ProgPy's ``alpha_lambda`` takes the time ``t_lambda`` itself (convert with
+    ``lam = (t_lambda - t_P) / (t_EoL - t_P)``).
     The prediction used is the latest one made at or before ``t_lambda``. With point
     predictions it passes when ``(1 - alpha) r* <= r <= (1 + alpha) r*``; with a sequence of
     :class:`RULDistribution` it passes when the probability mass inside those bounds is
