@@ -30,6 +30,7 @@ COMMAND_MODULES = (
     "rulkit.systems.motor_damping.cli",
     "rulkit.systems.friction_drive.cli",
     "rulkit.fleet.cli",
+    "rulkit.fleet.service.cli",
     "rulkit.systems.toy.cli",
 )
 

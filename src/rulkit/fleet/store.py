@@ -423,10 +423,7 @@ class ComponentStore:
                 f"{_fmt(last_t[i])}"
             )
         rank = acq.groupby("component", sort=False).cumcount().to_numpy()
-        ingest_id = self._conn.execute(
-            "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?)",
-            (source, len(acq), b),
-        ).lastrowid
+        ingest_id = self._insert_ingest(source, len(acq), b)
         alerts: list[Alert] = []
         hist_cols: dict[str, list[np.ndarray]] = {f: [] for f in ("component", *HISTORY_FIELDS)}
         names_arr = np.array(names, dtype=object)
@@ -463,6 +460,15 @@ class ComponentStore:
         self._write_states(list(zip(*rows, strict=True)))
         return IngestResult(n_rows=len(acq), n_components=b,
                             n_new_components=b - len(stored), alerts=alerts)
+
+    def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
+        """Record one ingestion (audit row) and return its id (backend hook)."""
+        cur = self._conn.execute(
+            "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?)",
+            (source, n_rows, n_components),
+        )
+        assert cur.lastrowid is not None
+        return int(cur.lastrowid)
 
     def _write_history(self, rows: list[tuple]) -> None:
         cols = ("component", *HISTORY_FIELDS, "ingest")
