@@ -678,7 +678,9 @@ class ComponentStore:
         for col in df.columns:
             if col == "component":
                 continue
-            num = pd.to_numeric(df[col], errors="coerce")
+            num = df[col]
+            if num.dtype.kind not in "fiub":  # text or NULL among numbers: coerce and flag
+                num = pd.to_numeric(num, errors="coerce")
             bad = num.isna().to_numpy().copy()
             if col == "level":
                 bad |= ~num.isin(list(LEVEL_NAMES)).to_numpy()
