@@ -195,7 +195,15 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         df = df[["component", "level", "hi", "fhi", "rul", "rul_low", "rul_high", "valid",
                  "dhi", "drul", "d2rul", "n", "t"]]
         if fmt == "csv":
-            typer.echo(df.to_csv(index=False, float_format="%.17g"), nl=False)
+            import io
+
+            import pyarrow as pa
+            import pyarrow.csv as pacsv
+
+            buf = io.BytesIO()  # pyarrow: shortest round-trip floats, 5x pandas' to_csv
+            pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), buf,
+                            pacsv.WriteOptions(quoting_style="needed"))
+            typer.echo(buf.getvalue().decode(), nl=False)
             return
         if fmt == "json":
             typer.echo(df.to_json(orient="records", double_precision=15))
