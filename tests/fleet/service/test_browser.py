@@ -50,9 +50,20 @@ def test_dashboard_in_headless_chromium(tmp_path, live_server, need):
     _, token = sdb.create_token("write", "browser")
     t = np.arange(0.0, 120.0)
     frames = [pd.DataFrame({"component": "gearbox-7", "time": t, "hi": 0.3 * np.exp(0.012 * t)})]
-    for j, name in enumerate(["pump-1", *EVIL]):
+    for j, name in enumerate(["pump-1", *EVIL[:2], "control-chars"]):
         frames.append(pd.DataFrame({"component": name, "time": t[:30], "hi": 0.2 + 0.01 * j}))
     res = sdb.ingest(pd.concat(frames), source="test")
+    # ingestion refuses control characters in ids (issue 13 item 2); a row written by another
+    # program can still hold them, and the dashboard must show them escaped
+    import sqlite3
+
+    con = sqlite3.connect(tmp_path / "fleet.db")
+    for (tab,) in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall():
+        if "component" in [r[1] for r in con.execute(f"PRAGMA table_info({tab})")]:
+            con.execute(f"UPDATE {tab} SET component = ? WHERE component = ?",
+                        (EVIL[2], "control-chars"))
+    con.commit()
+    con.close()
     assert [a["level"] for a in res["alerts"]] == ["warning", "alarm"]
     user_dir = tempfile.mkdtemp(prefix="rulkit-chromium-")
     driver = None
