@@ -91,8 +91,8 @@ class TemperatureConfig:
     d^2 > gate_d2 is not trusted (weights kept, flagged); after ``reanchor_after`` untrusted
     samples in a row the F2 particles' [I, w] are redrawn around the measurement and T and the
     weights return to their values ``rollback`` samples before the first untrusted one
-    (recovery from a corrupted command sample). inf (the default here, the paper's filters) disables it;
-    :func:`estimate_temperature` uses :data:`DEFAULT_GATE_D2`.
+    (recovery from a corrupted command sample). inf (the default here, the paper's filters)
+    disables it; :func:`estimate_temperature` uses :data:`DEFAULT_GATE_D2`.
     """
 
     design: Design = "F2"
