@@ -40,6 +40,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.estimation.batched import ess_rows, normalise_rows
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
 from rulkit.model import (
     InputLike,
@@ -108,19 +109,15 @@ def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
     logw = np.asarray(logw, dtype=np.float64)
     if logw.ndim != 1 or logw.size == 0:
         raise ValueError(f"logw: expected a non-empty 1-D array, got shape {logw.shape}")
-    m = logw.max()
-    if not math.isfinite(m):  # NaN anywhere, +inf anywhere, or all -inf
+    _, w, ls = normalise_rows(logw)
+    if not math.isfinite(ls):  # NaN anywhere, +inf anywhere, or all -inf
         raise DegenerateWeightsError(_describe_degenerate(logw))
-    w = np.exp(logw - m)
-    s = w.sum()
-    w /= s
-    return w, float(m + math.log(s))
+    return w, float(ls)
 
 
 def effective_sample_size(w: FloatArray) -> float:
     """Effective sample size ``1 / sum_i w_i^2`` of normalised weights (seed 000 eq. 16)."""
-    w = np.asarray(w, dtype=np.float64)
-    return float(1.0 / np.dot(w, w))
+    return float(ess_rows(np.asarray(w, dtype=np.float64)))
 
 
 def weighted_mean(x: FloatArray, w: FloatArray) -> FloatArray:
@@ -773,4 +770,4 @@ def _logsumexp(a: FloatArray) -> float:
     m = a.max()
     if not math.isfinite(m):  # -inf (all zero), +inf or NaN: the value itself
         return float(m)
-    return float(m + math.log(np.exp(a - m).sum()))
+    return float(normalise_rows(a)[2])
