@@ -78,6 +78,21 @@ def test_docstring_citations_of_system_pages_resolve() -> None:
     assert cited > 0
 
 
+def test_crack_growth_tutorial_is_at_most_45_lines_of_user_code() -> None:
+    """Issue 10: model, simulation, PF and EKF, a profile at 10 times, metrics and plots in at
+    most 45 lines (blank lines and comment-only lines not counted). The code itself runs in
+    tests/test_examples.py."""
+    text = (DOCS / "tutorials" / "crack-growth.md").read_text()
+    blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.S | re.M)
+    lines = [ln for b in blocks for ln in b.splitlines()
+             if ln.strip() and not ln.strip().startswith("#")]
+    assert len(blocks) >= 4 and 25 <= len(lines) <= 45, len(lines)
+    code = "\n".join(blocks)
+    for needed in ("simulate(", '"pf"', '"ekf"', "prognosis_profile", "summary()",
+                   "plot_profile", "state_estimates"):
+        assert needed in code, needed
+
+
 @pytest.mark.slow
 def test_mkdocs_build_strict(tmp_path: Path) -> None:
     pytest.importorskip("mkdocs")
