@@ -40,6 +40,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
+from rulkit.model import (
+    InputLike,
+    StateSpaceModel,
+    check_measurements,
+    loglik_from_model,
+    transition_from_model,
+)
 
 __all__ = [
     "DegenerateWeightsError",
@@ -327,6 +334,16 @@ def _check_particles(particles: FloatArray, name: str = "particles0") -> FloatAr
     return x
 
 
+def _refuse_model(obj: Any, cls_name: str) -> None:
+    """A model (or its bound ``step``) where the low-level function form is expected is a
+    ``TypeError`` that names ``from_model`` (issue 10, stumble 2)."""
+    owner = getattr(obj, "__self__", None)
+    bound_step = isinstance(owner, StateSpaceModel) and getattr(obj, "__name__", "") == "step"
+    if isinstance(obj, StateSpaceModel) or bound_step:
+        raise TypeError(f"{cls_name}(...) takes the low-level functions; for a model use "
+                        f"{cls_name}.from_model(model, ...) (docs/engine-api.md, 'from_model')")
+
+
 class ParticleFilter:
     """SIR particle filter with log-weights, ESS-triggered resampling and plug-in points.
 
@@ -373,6 +390,7 @@ class ParticleFilter:
         recovery: Literal["raise", "reset"] = "raise",
         missing: Literal["skip", "raise", "pass"] = "skip",
     ) -> None:
+        _refuse_model(transition, "ParticleFilter")
         if not callable(transition):
             raise TypeError("transition must be callable(x, k, rng) -> x_next")
         if not callable(log_likelihood):
@@ -402,6 +420,41 @@ class ParticleFilter:
         self.weight_update = weight_update
         self.recovery = recovery
         self.missing = missing
+        self.n_x: int | None = None  # known when built from a model: shapes checked up front
+        self.n_y: int | None = None
+
+    @classmethod
+    def from_model(
+        cls,
+        model: StateSpaceModel,
+        *,
+        dt: float | None = None,
+        t0: float = 0.0,
+        u: InputLike = None,
+        R: np.ndarray | None = None,
+        log_likelihood: LogLikelihood | None = None,
+        **options: Any,
+    ) -> ParticleFilter:
+        """A bootstrap particle filter for ``model`` (docs/engine-api.md, "from_model").
+
+        The transition is ``model.step(x, u(t_k), t_k, dt, rng)`` with ``t_k = t0 + k dt``
+        (``dt`` defaults to ``model.dt``); the likelihood of measurement k (time
+        ``t_{k+1}``) is the model's own ``log_likelihood`` when it defines one, else
+        ``N(y; model.output(x), R)`` with ``R = model.noise.R`` unless ``R`` or a
+        ``log_likelihood(x, y, k)`` is given. ``options`` are the constructor's keywords
+        (``resampler``, ``ess_threshold``, ``recovery``, ...). The filter knows the model's
+        dimensions: ``filter`` accepts measurements of one unit as (T, n_y) or, for one
+        output, (T,), and a wrong shape of them or of the particles is a ``ValueError`` before
+        any model code runs.
+        """
+        pf = cls(
+            transition_from_model(model, dt, t0, u),
+            log_likelihood if log_likelihood is not None
+            else loglik_from_model(model, dt, t0, u, R),
+            **options,
+        )
+        pf.n_x, pf.n_y = model.n_x, model.n_y
+        return pf
 
     # -- per-step API -------------------------------------------------------------------------
 
@@ -561,6 +614,13 @@ class ParticleFilter:
         ``ys[k]`` is assimilated after the k-th transition. ``quantiles=None`` skips the
         per-step sort. Same ``rng`` seed -> identical result.
         """
+        if self.n_y is not None:
+            ys = check_measurements(ys, self.n_y)
+        if self.n_x is not None:
+            p0 = np.asarray(particles0)
+            if p0.ndim != 2 or p0.shape[1] != self.n_x:
+                raise ValueError(f"particles0: expected shape (N, {self.n_x}) for the model's "
+                                 f"{self.n_x} states, got {p0.shape}")
         y_arr = np.asarray(ys, dtype=np.float64)
         if y_arr.ndim == 0 or y_arr.shape[0] == 0:
             raise ValueError(f"ys: expected a non-empty array of shape (T, ...), got {y_arr.shape}")
