@@ -386,6 +386,36 @@ def _config_from_meta(path: Path, meta: dict[str, str]
     return cfg, model
 
 
+def _check_spacing(config: TrackerConfig, acq: pd.DataFrame, last_t: np.ndarray,
+                   first: np.ndarray) -> None:
+    """The batch's acquisition spacing against ``design_life`` (time-unit check,
+    :func:`rulkit.fleet.tracker_chain.check_time_unit`), as an :class:`IngestError`."""
+    from rulkit.fleet.tracker_chain import check_time_unit
+
+    t = acq["t"].to_numpy()
+    prev = acq.groupby("component", sort=False)["t"].shift(1).to_numpy()
+    prev = np.where(first, last_t, prev)
+    gaps = t - prev
+    gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
+    try:
+        check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column")
+    except ValueError as err:
+        raise IngestError(str(err)) from err
+
+
+def _degradation_from_meta(path: Path, meta: dict[str, str]) -> Any:
+    """The learned degradation model stored by ``rulkit fit`` (None if there is none)."""
+    if "degradation_model" not in meta:
+        return None
+    from rulkit.fleet.models.degradation import DegradationModel
+
+    try:
+        return DegradationModel.from_dict(json.loads(meta["degradation_model"]))
+    except (ValueError, TypeError, KeyError) as err:
+        raise StoreError(f"{path}: unreadable learned model in table meta: "
+                         f"{safe_text(err)}") from err
+
+
 def _meta_rows(config: TrackerConfig, hi_model: HealthIndexModel | None) -> list[tuple[str, str]]:
     rows = [("schema_version", str(SCHEMA_VERSION)),
             ("tracker_config", json.dumps(config.to_dict()))]
@@ -570,6 +600,7 @@ class ComponentStore:
             raise StoreError(_db_error_message(self.path, err)) from err
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
+        self.degradation = _degradation_from_meta(self.path, meta)
         if hi_model is not None and stored_model is None:
             try:
                 with self._transaction():
@@ -589,6 +620,7 @@ class ComponentStore:
         self.timeout = timeout
         self.readonly = False
         self.gains = config.gains()
+        self.degradation = None  # learned model (rulkit fit), set from meta by __init__
 
     # -- plumbing
     def close(self) -> None:
@@ -694,8 +726,12 @@ class ComponentStore:
                               kind="stable").reset_index(drop=True)
 
     def history(self, component: str | None = None) -> pd.DataFrame:
-        """History rows (all components, or one), ordered by component and time."""
+        """History rows (all components, or one), ordered by component and time; with a
+        learned model (``rulkit fit``) also ``rul_median`` (NULL/NaN before the model), and
+        ``rul_low``/``rul_high`` are then the model's 90 % interval."""
         cols = "component, " + ", ".join(HISTORY_FIELDS) + ", ingest"
+        if getattr(self, "degradation", None) is not None:
+            cols += ", rul_median"
         if component is None:
             df = self._query(f"SELECT {cols} FROM history ORDER BY component, t")
         else:
@@ -777,6 +813,12 @@ class ComponentStore:
                 f"{_fmt(last_t[i])}"
             )
         rank = acq.groupby("component", sort=False).cumcount().to_numpy()
+        _check_spacing(self.config, acq, last_t, first)
+        learned = None
+        if getattr(self, "degradation", None) is not None:  # rulkit fit: learned RUL
+            from rulkit.fleet.models.store_support import LearnedPass
+
+            learned = LearnedPass(self._conn, self.degradation, names)
         ingest_id = self._insert_ingest(source, len(acq), b)
         alerts: list[Alert] = []
         names_arr = np.array(names, dtype=object)
@@ -805,8 +847,18 @@ class ComponentStore:
                     f"{_fmt(t_r[ci[j]])}: the tracker's {f} is not finite (the interval "
                     "since the previous acquisition or the time itself is too large for "
                     "float64 arithmetic); use a smaller time unit or offset")
-            self._write_history(zip(names_arr[ci].tolist(), *(v.tolist() for v in hist),
-                                    itertools.repeat(ingest_id), strict=False))
+            extra: list[np.ndarray] = []
+            if learned is not None:  # the model's median and 90 % interval at this time
+                med, lo, hi90 = learned.step(ci, t_r, h_r)
+                hist[HISTORY_FIELDS.index("rul_low")] = lo
+                hist[HISTORY_FIELDS.index("rul_high")] = hi90
+                extra = [med]
+            rows_h = zip(names_arr[ci].tolist(), *(v.tolist() for v in hist),
+                         *(v.tolist() for v in extra), itertools.repeat(ingest_id), strict=False)
+            if learned is None:
+                self._write_history(rows_h)
+            else:
+                self._write_history(rows_h, extra_cols=("rul_median",))
             for i in ci[out.level[ci] > level[ci]]:
                 alerts.append(Alert(
                     component=names[i], t=float(state.t[i]), level=int(out.level[i]),
@@ -818,6 +870,8 @@ class ComponentStore:
         out = tracker_outputs(state, self.config)
         final = {**state.columns(), "valid": out.valid, "level": out.level,
                  "rul_low": out.rul_low, "rul_high": out.rul_high}
+        if learned is not None:
+            _, final["rul_low"], final["rul_high"] = learned.finish()
         rows = [names] + [np.asarray(final[f]).tolist() for f in ROW_FIELDS]
         rows.append(level.tolist())
         self._write_states(list(zip(*rows, strict=True)))
@@ -833,8 +887,8 @@ class ComponentStore:
         assert cur.lastrowid is not None
         return int(cur.lastrowid)
 
-    def _write_history(self, rows: Iterable[tuple]) -> None:
-        cols = ("component", *HISTORY_FIELDS, "ingest")
+    def _write_history(self, rows: Iterable[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+        cols = ("component", *HISTORY_FIELDS, *extra_cols, "ingest")
         self._conn.executemany(
             f"INSERT INTO history ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
             rows,
@@ -848,6 +902,18 @@ class ComponentStore:
             f"ON CONFLICT(component) DO UPDATE SET {updates}",
             rows,
         )
+
+    def set_degradation_model(self, model: Any) -> int:
+        """Store a learned model (:mod:`rulkit.fleet.models.degradation`) in one transaction:
+        meta ``degradation_model``, the additive migration (history column ``rul_median``,
+        table ``model_state``) and every existing component's model state rebuilt by replaying
+        its stored history. Returns the number of components rebuilt."""
+        from rulkit.fleet.models.store_support import install_model
+
+        with self._transaction("IMMEDIATE"):
+            n = install_model(self._conn, model)
+        self.degradation = model
+        return n
 
     def meta(self) -> dict[str, Any]:
         """The stored configuration (tracker config and HI model as dicts)."""

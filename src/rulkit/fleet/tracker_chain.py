@@ -730,16 +730,16 @@ def fit_tracker_config(hist: Any, **overrides: Any) -> TrackerConfig:
     return TrackerConfig.from_dict(d)
 
 
-def check_time_unit(config: TrackerConfig, t: np.ndarray, *, max_floor_step: float = 0.05,
+def check_time_unit(config: TrackerConfig, t: np.ndarray, *, max_floor_step: float = 0.01,
                     source: str = "acquisitions") -> None:
     """Reject a ``design_life`` that is not in the acquisitions' time unit.
 
     The dHI floor 1/design_life times the median acquisition interval is the HI the floor alone
-    adds per acquisition; above ``max_floor_step`` (0.05: 20 acquisitions to go from healthy to
-    failed without any measured degradation) the settings cannot be meant for this time unit
-    (e.g. design_life = 1e5 for hours with epoch-second timestamps, 3600 s apart: 0.036 per
-    acquisition is fine, but a design life of 1e4 gives 0.36, a false ALARM within 3 hours).
-    ``t`` are acquisition times of one component or several (only positive differences used).
+    adds per acquisition; above ``max_floor_step`` (0.01: fewer than 100 acquisitions take a
+    component from healthy to the alarm without any measured degradation) the settings cannot
+    be meant for this time unit. Example: the default design_life = 1e5 (hours) with hourly
+    acquisitions stamped in epoch seconds (3600 apart) adds 0.036 per acquisition: a false
+    ALARM after ~28 hours. ``t`` are acquisition times (only positive differences used).
     """
     d = np.diff(np.sort(np.asarray(t, dtype=np.float64)))
     d = d[d > 0]

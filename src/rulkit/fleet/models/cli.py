@@ -19,7 +19,7 @@ def _fail(msg: str) -> None:
     raise typer.Exit(code=1)
 
 
-def _read(path: Path):  # noqa: ANN202 - Histories, imported lazily
+def _read(path: Path):
     from rulkit.fleet.models.histories import HistoryError, read_histories
 
     try:
@@ -34,7 +34,7 @@ def _check_model(model: str) -> None:
         _fail(f"--model: expected one of {', '.join(MODEL_CHOICES)}, got {model!r}")
 
 
-def fmt_summary(summary, kind: str) -> str:  # noqa: ANN001 - pandas frame
+def fmt_summary(summary, kind: str) -> str:
     """Markdown table of an evaluation summary (one helper for the CLI and the docs)."""
     from rulkit.fleet.reproduce import _fmt_table
 

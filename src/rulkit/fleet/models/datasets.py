@@ -55,7 +55,7 @@ def synthetic_paris_fleet(
     for u in range(n_units):
         t_end = t_fail[u] * (rng.uniform(0.4, 0.9) if censored[u] else 1.05)
         t = _sample_times(rng, t_end, n_acq)
-        base = h0 ** (1.0 - p) - c[u] * (1.0 - p) * t
+        base = h0 ** (1.0 - p) + c[u] * (1.0 - p) * t
         h = np.power(np.maximum(base, 1e-12), 1.0 / (1.0 - p))
         hi = np.maximum(h + noise_sd * rng.standard_normal(t.size), 0.0)
         if not censored[u]:
