@@ -438,8 +438,9 @@ def tracker_update(
     ``"measured"``: the HI tracker starts as in ``"two-point"``; the RUL tracker is (re)started
     at (RUL, 0, 0) at every acquisition where no degradation is measured yet (dHI at its floor
     1/design_life, or fHI <= hi_floor), so it never starts from, nor carries the dynamics of,
-    the floor's RUL (e.g. -h ln h / dHI = 690 at h = 1e-3, dHI = 1e-5); from the first measured
-    slope on, the steady-state updates. dRUL = 0 after a restart makes the RUL invalid
+    the floor's RUL (e.g. -h ln h / dHI = 690 at h = 1e-3, dHI = 1e-5): it restarts once more
+    at the first acquisition with a measured slope (the previous state was still flat), and
+    from there on runs the steady-state updates. dRUL = 0 after a restart makes the RUL invalid
     (the validity band is open at 0) until the tracker has estimated a rate.
 
     With ``config.rul_clip`` fRUL is clipped at 0 after the update (a filtered RUL never goes
@@ -503,8 +504,11 @@ def tracker_update(
             rate = np.where(third, (rul - state.rul) / dt, 0.0)
         init = np.column_stack([rul, rate, zero])
         abg = np.where((n_prev < n_init)[:, None], init, abg)
-    if measured:  # restart the RUL tracker while no degradation is measured
-        flat = (ab[:, 1] <= dhi_min) | (ab[:, 0] <= config.hi_floor)
+    if measured:  # restart the RUL tracker while no degradation is measured, and at the
+        # first measured slope (so the tracker never carries the floor's RUL)
+        with np.errstate(invalid="ignore"):
+            flat = ((ab[:, 1] <= dhi_min) | (ab[:, 0] <= config.hi_floor)
+                    | (state.ab[:, 1] <= dhi_min) | (state.ab[:, 0] <= config.hi_floor))
         if flat.any():
             abg = np.where(flat[:, None], np.column_stack([rul, np.zeros(b), np.zeros(b)]), abg)
     clipped = None
@@ -634,8 +638,6 @@ def tracker_update_loop(
             frul, drul, d2rul = rul, 0.0, 0.0
         elif n_i == 2 and slope_start:
             frul, drul, d2rul = rul, (rul - out.rul[i]) / dt, 0.0
-        elif measured and (dhi <= dhi_min or fhi <= config.hi_floor):
-            frul, drul, d2rul = rul, 0.0, 0.0
         else:
             frul = frul + drul * dt + d2rul * dt * dt / 2.0
             drul = drul + d2rul * dt  # constant-acceleration prediction of the rate
@@ -643,7 +645,8 @@ def tracker_update_loop(
             frul = frul + a2 * r
             drul = drul + b2 * r / dt
             d2rul = d2rul + g2 * r / (dt * dt)
-        if measured and (dhi <= dhi_min or fhi <= config.hi_floor):
+        prev_flat = n_i > 0 and (out.ab[i, 1] <= dhi_min or out.ab[i, 0] <= config.hi_floor)
+        if measured and (dhi <= dhi_min or fhi <= config.hi_floor or prev_flat):
             frul, drul, d2rul = rul, 0.0, 0.0
         if config.rul_clip:
             frul = max(frul, 0.0)

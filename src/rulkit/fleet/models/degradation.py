@@ -403,6 +403,8 @@ def rul_quantiles(model: DegradationModel, state: UnitState,
     failed = state.hi >= 1.0
     missing = state.n == 0
     out = []
+    err = np.errstate(invalid="ignore")  # units without an acquisition (NaN) are masked below
+    err.__enter__()
     for lev in levels:
         target = ls0 + math.log1p(-lev)
         never = target <= ls_inf
@@ -419,6 +421,7 @@ def rul_quantiles(model: DegradationModel, state: UnitState,
         r = np.where(never, np.inf, r)
         r = np.where(failed, 0.0, r)
         out.append(np.where(missing, np.nan, r))
+    err.__exit__(None, None, None)
     return tuple(out)
 
 
