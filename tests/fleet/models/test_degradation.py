@@ -36,8 +36,8 @@ def _random_hist(rng, n_units=5, n_max=7):
         n = int(rng.integers(1, n_max + 1))
         t = np.sort(rng.uniform(0.5, 12.0, n))
         t = np.unique(t)
-        rows.append(pd.DataFrame({"component": f"u{u}", "time": t,
-                                  "hi": np.abs(0.1 + 0.08 * t + 0.05 * rng.standard_normal(t.size))}))
+        hi = np.abs(0.1 + 0.08 * t + 0.05 * rng.standard_normal(t.size))
+        rows.append(pd.DataFrame({"component": f"u{u}", "time": t, "hi": hi}))
     df = pd.concat(rows, ignore_index=True)
     df.loc[df.index[-1], "hi"] = 1.2  # one failed unit
     return histories_from_frame(df)

@@ -92,7 +92,7 @@ def test_old_stored_settings_keep_the_seed_behaviour():
 
 def test_design_life_in_another_time_unit_is_refused(tmp_path):
     epoch = 1.7e9 + 3600.0 * np.arange(30)  # hourly, epoch seconds
-    with pytest.raises(ValueError, match="design_life = 100000.*time unit"):
+    with pytest.raises(ValueError, match=r"design_life = 100000.*time unit"):
         check_time_unit(TrackerConfig(), epoch)
     check_time_unit(TrackerConfig(design_life=3.6e8), epoch)  # the same life in seconds
     df = pd.DataFrame({"component": "c", "time": epoch, "hi": np.linspace(0.1, 0.2, 30)})
