@@ -58,7 +58,11 @@ def _fit_baseline(baseline: Path, pfa: float, offset: str):
 
 
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:
-    """Add ``track``, ``status`` and ``reproduce embedded-rul``."""
+    """Add ``track``, ``status``, ``reproduce embedded-rul`` and the learned-model commands
+    ``fit`` and ``evaluate`` (:mod:`rulkit.fleet.models.cli`)."""
+    from rulkit.fleet.models.cli import register as register_models
+
+    register_models(app)
 
     @app.command("track")
     def track(
