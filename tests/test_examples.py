@@ -4,7 +4,9 @@ The examples print their own checks against independent oracles and exit with st
 one fails (``check`` in each script, with Monte Carlo tolerances); here they must exit 0.
 Each docs block runs in a fresh namespace and carries its own assertions, so the docs cannot
 drift from the code. Every fenced block must name its language: ```python runs, the others
-(```text for equations, ```console for shell commands) are declared as not Python.
+(```text for equations, ```console for shell commands) are declared as not Python. A python
+block right after a line ``<!-- slow -->`` (invisible on the site) runs only with
+``-m slow`` (`make test-slow`): longer tutorial steps stay out of the default run.
 """
 
 from __future__ import annotations
@@ -26,11 +28,20 @@ NOT_PYTHON = {"text", "console"}
 FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```[ \t]*$", flags=re.S | re.M)
 
 
+SLOW = "<!-- slow -->"
+
+
 def _fences(page: Path) -> list[tuple[int, str, str]]:
     """(line number, language, code) of every fenced block of a markdown page."""
     text = page.read_text()
     return [(text.count("\n", 0, m.start()) + 1, m.group(1).strip(), m.group(2))
             for m in FENCE.finditer(text)]
+
+
+def _is_slow(page: Path, line: int) -> bool:
+    before = page.read_text().splitlines()[: line - 1]
+    previous = [ln for ln in before if ln.strip()]
+    return bool(previous) and previous[-1].strip() == SLOW
 
 
 PAGES = sorted(DOCS.rglob("*.md"))
@@ -82,8 +93,10 @@ def test_example_writes_figure_with_out(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    "page, line, code", BLOCKS,
-    ids=[f"{p.relative_to(DOCS).with_suffix('')}:{ln}" for p, ln, _ in BLOCKS],
+    "page, line, code",
+    [pytest.param(p, ln, code, id=f"{p.relative_to(DOCS).with_suffix('')}:{ln}",
+                  marks=[pytest.mark.slow] if _is_slow(p, ln) else [])
+     for p, ln, code in BLOCKS],
 )
 def test_docs_block_executes(page: Path, line: int, code: str, tmp_path: Path,
                              monkeypatch: pytest.MonkeyPatch) -> None:

@@ -338,7 +338,8 @@ def _refuse_model(obj: Any, cls_name: str) -> None:
     """A model (or its bound ``step``) where the low-level function form is expected is a
     ``TypeError`` that names ``from_model`` (issue 10, stumble 2)."""
     owner = getattr(obj, "__self__", None)
-    if isinstance(obj, StateSpaceModel) or isinstance(owner, StateSpaceModel):
+    bound_step = isinstance(owner, StateSpaceModel) and getattr(obj, "__name__", "") == "step"
+    if isinstance(obj, StateSpaceModel) or bound_step:
         raise TypeError(f"{cls_name}(...) takes the low-level functions; for a model use "
                         f"{cls_name}.from_model(model, ...) (docs/engine-api.md, 'from_model')")
 

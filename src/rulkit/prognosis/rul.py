@@ -537,7 +537,8 @@ def propagate_to_threshold(
         rul, active = run.dropping(x, g0)
     else:
         rul, active = run.batch(x, g0, hold=after_crossing == "hold")
-    return RULDistribution(samples=rul, weights=weights, censored=active, horizon=horizon)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
+    return RULDistribution(samples=rul, weights=w, censored=active, horizon=horizon)
 
 
 def _indicator(indicator: IndicatorFn, x: FloatArray, n: int, k: int) -> FloatArray:

@@ -210,6 +210,10 @@ def test_ids_with_slashes_and_odd_characters_round_trip(client, sdb, tokens):
     df = pd.DataFrame({"component": ["seed"], "time": 1.0, "hi": 0.3})
     assert post(client, tokens["write"], df).status_code == 200
     clone_component(sdb, "seed", ids)
+    # control characters are outside the ingest id alphabet (issue 13 item 2): refused, by name
+    bad = pd.DataFrame({"component": ["\x1b[2J\x1b]0;pwn\x07"], "time": 1.0, "hi": 0.3})
+    r = post(client, tokens["write"], bad)
+    assert r.status_code == 422 and "non-printable character" in r.text, r.text
     from urllib.parse import quote
 
     for c in ids:
