@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 
-.PHONY: demo test test-slow bench bench-all reproduce lint clean venv
+.PHONY: demo test test-slow bench bench-all reproduce lint docs clean venv
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -36,10 +36,11 @@ bench-all: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'
 	$(BIN)/python benchmarks/run.py --quick
 	$(BIN)/python benchmarks/bench_engine.py --quick
-	$(BIN)/python benchmarks/bench_rw_step1.py --progpy
-	$(BIN)/python benchmarks/bench_rw_step2.py --workers 2
+	$(BIN)/python benchmarks/bench_rw_temperature.py --progpy
+	$(BIN)/python benchmarks/bench_rw_degradation.py --workers 2
 	$(BIN)/python benchmarks/bench_friction_rul.py
 	$(BIN)/python benchmarks/bench_trackers.py
+	$(BIN)/python benchmarks/bench_scale.py
 
 # The four full reproductions (tens of minutes on 2 cores), each into out/<system>/.
 reproduce: $(STAMP)
@@ -48,8 +49,14 @@ reproduce: $(STAMP)
 	$(BIN)/rulkit reproduce friction-drive --out out/friction-drive
 	$(BIN)/rulkit reproduce embedded-rul --out out/embedded-rul
 
+# The documentation site into site/ (open site/index.html): docs/ + the API from the docstrings.
+# Installs the `docs` extra; the build itself needs no network (no CDN fonts).
+docs: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
 clean:
-	rm -rf $(VENV) demo-out out build *.egg-info src/*.egg-info
+	rm -rf $(VENV) demo-out out site build *.egg-info src/*.egg-info

@@ -1,9 +1,14 @@
-"""Every example script runs and every ```python block of docs/guide.md executes.
+"""Every example script runs and every ```python block of docs/ (the site's pages) executes.
 
 The examples print their own checks against independent oracles and exit with status 1 when
 one fails (``check`` in each script, with Monte Carlo tolerances); here they must exit 0.
-Each guide block runs in a fresh namespace and carries its own assertions, so the guide cannot
-drift from the engine.
+Each docs block runs in a fresh namespace and carries its own assertions, so the docs cannot
+drift from the code. Every fenced block must name its language: ```python runs, the others
+(```text for equations, ```console for shell commands) are declared as not Python. A python
+block right after a line ``<!-- slow -->`` (invisible on the site) runs only with
+``-m slow`` (`make test-slow`): longer tutorial steps stay out of the default run. A python
+block right after ``<!-- continue -->`` continues the previous python block of its page: the
+chain runs as one test in one namespace (line numbers in tracebacks are the page's).
 """
 
 from __future__ import annotations
@@ -18,24 +23,74 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
-GUIDE = ROOT / "docs" / "guide.md"
+DOCS = ROOT / "docs"
+GUIDE = DOCS / "guide.md"
+#: Languages of fenced blocks that are deliberately not executed.
+NOT_PYTHON = {"text", "console"}
+FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```[ \t]*$", flags=re.S | re.M)
 
 
-def _guide_blocks() -> list[tuple[int, str]]:
-    """(line number, code) of every ```python fenced block of the guide."""
-    text = GUIDE.read_text()
-    blocks = []
-    for m in re.finditer(r"^```python\n(.*?)^```", text, flags=re.S | re.M):
-        blocks.append((text.count("\n", 0, m.start()) + 1, m.group(1)))
-    return blocks
+SLOW = "<!-- slow -->"
+CONTINUE = "<!-- continue -->"
 
 
-BLOCKS = _guide_blocks()
+def _fences(page: Path) -> list[tuple[int, str, str]]:
+    """(line number, language, code) of every fenced block of a markdown page."""
+    text = page.read_text()
+    return [(text.count("\n", 0, m.start()) + 1, m.group(1).strip(), m.group(2))
+            for m in FENCE.finditer(text)]
+
+
+def _marker(page: Path, line: int) -> str:
+    """The last non-blank line before the fence at ``line`` (a marker comment or text)."""
+    before = page.read_text().splitlines()[: line - 1]
+    previous = [ln for ln in before if ln.strip()]
+    return previous[-1].strip() if previous else ""
+
+
+def _is_slow(page: Path, line: int) -> bool:
+    return _marker(page, line) == SLOW
+
+
+def _python_blocks(page: Path) -> list[tuple[Path, int, str]]:
+    """(page, first fence line, code) per test: a <!-- continue --> block joins the previous
+    one, padded with blank lines so that the code sits at its line numbers in the page."""
+    out: list[tuple[Path, int, str]] = []
+    for line, lang, code in _fences(page):
+        if lang != "python":
+            continue
+        if _marker(page, line) == CONTINUE:
+            assert out, f"{page}:{line}: {CONTINUE} without a python block before it"
+            first, so_far = out[-1][1], out[-1][2]
+            pad = line - (first + so_far.count("\n"))
+            out[-1] = (page, first, so_far + "\n" * pad + code)
+        else:
+            out.append((page, line, code))
+    return [(p, ln, "\n" * ln + code) for p, ln, code in out]
+
+
+PAGES = sorted(DOCS.rglob("*.md"))
+BLOCKS = [block for page in PAGES for block in _python_blocks(page)]
+GUIDE_BLOCKS = [b for b in BLOCKS if b[0] == GUIDE]
 
 
 def test_there_is_something_to_run() -> None:
     assert len(EXAMPLES) >= 4, EXAMPLES
-    assert len(BLOCKS) >= 8, f"only {len(BLOCKS)} python blocks found in {GUIDE}"
+    assert len(GUIDE_BLOCKS) >= 8, f"only {len(GUIDE_BLOCKS)} python blocks found in {GUIDE}"
+
+
+def test_every_docs_block_names_its_language() -> None:
+    unmarked = [f"{page.relative_to(ROOT)}:{line} ({lang or 'no language'})"
+                for page in PAGES for line, lang, _ in _fences(page)
+                if lang != "python" and lang not in NOT_PYTHON]
+    assert not unmarked, f"mark these blocks python, text or console: {unmarked}"
+
+
+def test_fence_parser_sees_every_fence() -> None:
+    # an odd number of ``` lines means a block the parser would silently skip
+    for page in PAGES:
+        fences = [ln for ln in page.read_text().splitlines() if ln.startswith("```")]
+        assert len(fences) % 2 == 0 and len(fences) == 2 * len(_fences(page)), page
 
 
 @pytest.mark.parametrize("script", EXAMPLES, ids=lambda p: p.name)
@@ -61,12 +116,18 @@ def test_example_writes_figure_with_out(tmp_path: Path) -> None:
     assert (out / "pf_vs_kalman.png").stat().st_size > 0
 
 
-@pytest.mark.parametrize("line, code", BLOCKS, ids=[f"guide_line_{ln}" for ln, _ in BLOCKS])
-def test_guide_block_executes(line: int, code: str, tmp_path: Path,
-                              monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize(
+    "page, line, code",
+    [pytest.param(p, ln, code, id=f"{p.relative_to(DOCS).with_suffix('')}:{ln}",
+                  marks=[pytest.mark.slow] if _is_slow(p, ln) else [])
+     for p, ln, code in BLOCKS],
+)
+def test_docs_block_executes(page: Path, line: int, code: str, tmp_path: Path,
+                             monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
-    namespace: dict[str, object] = {"__name__": f"guide_block_{line}"}
-    exec(compile(code, f"{GUIDE}:{line}", "exec"), namespace)
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    namespace: dict[str, object] = {"__name__": f"docs_block_{line}"}
+    exec(compile(code, str(page), "exec"), namespace)
 
 
 def test_example_checks_can_fail(tmp_path: Path) -> None:

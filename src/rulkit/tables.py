@@ -37,8 +37,11 @@ __all__ = [
     "did_you_mean",
     "numeric_columns",
     "read_table",
+    "safe_text",
     "suggest_column",
     "table_format",
+    "text_table",
+    "time_seconds",
 ]
 
 #: Default file name endings read as CSV and as Parquet (matched case-insensitively).
@@ -88,6 +91,7 @@ def read_table(
     expected_columns: Sequence[str] | None = None,
     csv_dtype: Mapping[str, Any] | None = None,
     allow_no_rows: bool = False,
+    text_columns: Sequence[str] = (),
 ) -> Any:
     """Read a CSV or Parquet file into a ``pandas.DataFrame``; every problem raises ``error``.
 
@@ -97,7 +101,11 @@ def read_table(
     named in the message), a header without data rows (unless ``allow_no_rows``), an unknown
     ending, and a file the CSV / Parquet parser rejects (its message is quoted).
     ``csv_dtype`` is passed to :func:`pandas.read_csv` as ``dtype`` (e.g. keep an identifier
-    column as text). The frame's ``attrs`` get ``"source"`` (the path as given) and
+    column as text). ``text_columns`` are read from a CSV verbatim: pandas' missing-value
+    strings (``NA``, ``None``, ``null``, ``nan``, ...) stay text in them, as they do in a
+    Parquet string column (only an empty cell is missing); the other columns keep pandas'
+    missing-value strings. A duplicated column name is refused (pandas would rename the CSV
+    copy ``x.1`` silently). The frame's ``attrs`` get ``"source"`` (the path as given) and
     ``"format"`` (``"csv"`` or ``"parquet"``) so a caller can, e.g., report CSV file lines.
     """
     import pandas as pd
@@ -116,14 +124,28 @@ def read_table(
         raise error(empty)
     try:
         if fmt == "csv":
-            df = pd.read_csv(p, dtype=dict(csv_dtype) if csv_dtype else None)
+            kw: dict[str, Any] = {}
+            raw = pd.read_csv(p, nrows=1, header=None, dtype=str, keep_default_na=False)
+            header_cols = [str(c) for c in raw.iloc[0].tolist()] if len(raw) else []
+            _check_unique_columns(p, header_cols, error)
+            if text_columns:
+                from pandas._libs.parsers import STR_NA_VALUES
+
+                kw = {"keep_default_na": False,
+                      "na_values": {c: sorted(STR_NA_VALUES) for c in header_cols
+                                    if c not in text_columns}}
+                kw["na_values"].update({c: [""] for c in text_columns if c in header_cols})
+            df = pd.read_csv(p, dtype=dict(csv_dtype) if csv_dtype else None, **kw)
         else:
             df = pd.read_parquet(p)
     except pd.errors.EmptyDataError as err:  # e.g. only blank lines
         raise error(empty) from err
+    except error:
+        raise
     except Exception as err:  # parser errors of pandas / pyarrow, unreadable file
         raise error(f"{p}: cannot be read as {fmt.upper() if fmt == 'csv' else 'Parquet'}: "
-                    f"{err}") from err
+                    f"{safe_text(str(err), 300)}") from err
+    _check_unique_columns(p, [str(c) for c in df.columns], error)
     if len(df) == 0 and not allow_no_rows:
         raise error(f"{p}: no data rows (header only)")
     df.attrs["source"] = str(path)
@@ -131,12 +153,94 @@ def read_table(
     return df
 
 
+def _check_unique_columns(path: Path, cols: Sequence[str], error: ErrorType) -> None:
+    """Refuse a header that names a column twice (which copy would be meant is a guess)."""
+    seen: dict[str, int] = {}
+    for j, c in enumerate(cols):
+        if c in seen:
+            raise error(f"{path}: column {safe_text(c)!r} appears twice in the header (columns "
+                        f"{seen[c] + 1} and {j + 1}); rename or drop one")
+        seen[c] = j
+
+
+def safe_text(s: object, limit: int = 200) -> str:
+    """``str(s)`` safe to print on a terminal: every non-printable character (control
+    characters such as ESC, newline, tab, carriage return; Unicode format characters such as
+    bidirectional overrides; see :meth:`str.isprintable`) is replaced by its Python escape
+    (``\\x1b``, ``\\n``, ``\\u202e``), and text longer than ``limit`` characters is cut with a
+    note of its length. Used for every user-supplied string we echo (component ids, column
+    names, cell values)."""
+    text = str(s)
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                       for c in text)
+    if len(text) > limit:
+        text = f"{text[:limit]}... ({len(text)} characters)"
+    return text
+
+
+def time_seconds(
+    col: Any,
+    name: str,
+    *,
+    error: ErrorType = ValueError,
+    source: str = "",
+    row_label: Callable[[int], str] | None = None,
+) -> NDArray[np.float64] | None:
+    """A date-time column as float64 seconds since 1970-01-01T00:00:00Z, or ``None`` when
+    ``col`` holds no date-times (then the caller reads it as numbers).
+
+    Date-times are: a ``datetime64`` column (Parquet timestamps, naive ones taken as UTC,
+    time-zone aware ones converted to UTC), a ``timedelta64`` column (seconds of the duration)
+    and a text column whose every cell is an ISO 8601 date-time (``2024-05-01T12:00:00``,
+    ``2024-05-01 12:00:00+02:00``; naive ones taken as UTC), as CSV gives them. Without this a
+    Parquet timestamp read as a number is nanoseconds taken as seconds. A missing date-time
+    (``NaT``) raises ``error`` naming the column and row.
+    """
+    import pandas as pd
+
+    label = row_label or _row_1_based
+    prefix = f"{source}: " if source else ""
+    s = pd.Series(col).reset_index(drop=True)
+    if isinstance(s.dtype, pd.DatetimeTZDtype) or pd.api.types.is_datetime64_dtype(s.dtype):
+        ts = pd.to_datetime(s, utc=True)
+    elif pd.api.types.is_timedelta64_dtype(s.dtype):
+        ts = None
+        secs = s.dt.total_seconds().to_numpy(dtype=np.float64)
+        bad = ~np.isfinite(secs)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise error(f"{prefix}column {name!r}, {label(i)}: missing duration (NaT)")
+        return secs
+    elif s.dtype == object or pd.api.types.is_string_dtype(s.dtype):
+        txt = s.dropna()
+        if len(txt) == 0 or not txt.map(lambda v: isinstance(v, str)).all():
+            return None
+        if pd.to_numeric(txt, errors="coerce").notna().any():
+            return None  # numbers (perhaps with a typo): the numeric reader explains
+        if not txt.str.match(r"^\s*\d{4}-\d{2}-\d{2}([T ]\d{2}:\d{2}(:\d{2}(\.\d+)?)?)?"
+                             r"\s*(Z|[+-]\d{2}:?\d{2})?\s*$").all():
+            return None
+        try:
+            ts = pd.to_datetime(s, utc=True, format="ISO8601")
+        except (ValueError, OverflowError):
+            return None
+    else:
+        return None
+    bad = ts.isna().to_numpy()
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise error(f"{prefix}column {name!r}, {label(i)}: missing date-time (NaT or empty)")
+    epoch = pd.Timestamp("1970-01-01", tz="UTC")
+    return np.asarray((ts - epoch) / pd.Timedelta(seconds=1), dtype=np.float64)
+
+
 def cell_repr(v: object) -> str:
     """repr of a cell value without numpy type wrappers (``'1,0'``, ``12.0``, not
     ``np.float64(12.0)``), for messages."""
     if isinstance(v, np.generic):
         v = v.item()
-    return repr(v)
+    return safe_text(repr(v))
 
 
 def _row_1_based(i: int) -> str:
@@ -223,3 +327,19 @@ def did_you_mean(name: str, present: Iterable[Hashable], aliases: Iterable[str] 
     if not hits:
         return ""
     return f"; did you mean {' or '.join(repr(h) for h in hits)}? (rename it to {name!r})"
+
+
+def text_table(columns: Mapping[str, Sequence[str]], left: Sequence[str] = ()) -> str:
+    """Plain aligned text table (header, rule, rows; one line each, ending in a newline) of
+    already formatted, terminal-safe cells. Columns in ``left`` are left-aligned, the others
+    right-aligned. Linear in the number of cells (rich's tables took 8.6 s for 10^4 rows)."""
+    names = list(columns)
+    widths = [max([len(n), *(len(c) for c in columns[n])]) for n in names]
+    just = [str.ljust if n in left else str.rjust for n in names]
+    lines = ["  ".join(j(n, w) for n, w, j in zip(names, widths, just, strict=True)).rstrip(),
+             "  ".join("-" * w for w in widths)]
+    cells = [columns[n] for n in names]
+    for row in zip(*cells, strict=True):
+        lines.append("  ".join(j(c, w) for c, w, j in zip(row, widths, just, strict=True))
+                     .rstrip())
+    return "\n".join(lines) + "\n"

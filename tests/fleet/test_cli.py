@@ -1,5 +1,7 @@
 """`rulkit track`, `rulkit status`, `rulkit reproduce embedded-rul` (typer CliRunner, tmp dirs)."""
 
+import csv
+import io
 import sqlite3
 
 import numpy as np
@@ -47,15 +49,16 @@ def test_track_then_status_worst_first(tmp_path):
                                                 ["WARNING", "brg"]]
     r = runner.invoke(app, ["status", "--db", str(db)])
     assert r.exit_code == 0, r.output
-    order = [ln.split("│")[1].strip() for ln in r.output.splitlines()
-             if ln.startswith("│") and ln.split("│")[1].strip()]
-    assert order == ["gearA", "brg", "gearB"]
-    assert "alarm" in r.output and "warning" in r.output
-    r = runner.invoke(app, ["status", "--db", str(db), "--limit", "1"])
-    rows = [ln.split("│")[1].strip() for ln in r.output.splitlines()
-            if ln.startswith("│") and ln.split("│")[1].strip()]
-    assert rows == ["gearA"]
-    assert "3 components" in r.output
+    lines = r.output.splitlines()
+    body = lines[lines.index(next(ln for ln in lines if ln.startswith("---"))) + 1:-1]
+    assert [ln.split()[:2] for ln in body] == [["gearA", "alarm"], ["brg", "warning"],
+                                               ["gearB", "ok"]]
+    r = runner.invoke(app, ["status", "--db", str(db), "--limit", "1", "--format", "csv"])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(io.StringIO(r.output)))
+    assert [row["component"] for row in rows] == ["gearA"] and rows[0]["level"] == "alarm"
+    r = runner.invoke(app, ["status", "--db", str(db), "--limit", "2"])
+    assert "3 components, worst first, the worst 2 shown" in r.output
 
 
 @pytest.mark.parametrize(

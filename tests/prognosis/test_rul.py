@@ -323,3 +323,130 @@ def test_crossed_sample_diverging_later_keeps_its_crossing_time(blowup, directio
     )
     np.testing.assert_allclose(dist.samples, (1.0 - d0) / rate, rtol=1e-12)
     assert dist.n_censored == 0
+
+
+# ------------------------------------------------------------------ model=, freezing, weights
+class _Paris:
+    """Super-linear growth a' = c a^2 (blows up in finite time 1 / (c a0)); the crossing of
+    threshold A from a0 is at (1/a0 - 1/A) / c. ``as_batch``-like check: refuses non-finite."""
+
+    dt = 0.5
+    threshold = 2.0
+
+    def __init__(self, c: float = 0.1) -> None:
+        self.c = c
+
+    def step(self, x, u, t, dt, rng=None):
+        if not np.all(np.isfinite(x)):  # the user's own check (issue 10, stumble 1)
+            bad = np.argwhere(~np.isfinite(x))[0]
+            raise ValueError(f"x: non-finite value at row {bad[0]}")
+        a = x[:, 0]
+        # exact solution of a' = c a^2 over dt while finite; overflows once c a dt >= 1
+        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+            nxt = np.where(self.c * a * dt < 1, a / (1 - self.c * a * dt), np.inf)
+        return nxt[:, None] * x[:, 1:2] ** 0 * np.ones_like(x)
+
+    def health(self, x):
+        return x[:, 0]
+
+
+def test_crossed_samples_are_frozen_so_superlinear_growth_never_overflows() -> None:
+    """Stumble 1: stepping samples after they crossed overflowed inside the user's step."""
+    model = _Paris()
+    a0 = np.array([0.5, 1.0, 1.5, 0.2])
+    x0 = np.column_stack([a0, np.ones(4)])
+    exact = (1 / a0 - 1 / model.threshold) / model.c
+    with pytest.raises(ValueError, match="x: non-finite value"):
+        propagate_to_threshold(x0, model=model, horizon=100.0, rng=np.random.default_rng(0),
+                               after_crossing="continue")
+    for mode in ("hold", "drop"):
+        dist = propagate_to_threshold(x0, model=model, horizon=100.0,
+                                      rng=np.random.default_rng(0), after_crossing=mode)
+        assert dist.n_censored == 0
+        # the chord of a convex path reaches the threshold first: early by less than a step
+        assert np.all(dist.samples <= exact + 1e-12) and np.all(dist.samples > exact - 0.5)
+
+
+def test_hold_and_continue_give_identical_samples_and_drop_the_same_law() -> None:
+    """Holding crossed rows changes nothing for the running ones (same draws); dropping them
+    changes the draws, not the distribution (two-sample KS test)."""
+    def step(x, u, t, dt, rng):
+        out = x.copy()
+        out[:, 0] += x[:, 1] * dt + 0.05 * math.sqrt(dt) * rng.standard_normal(x.shape[0])
+        return out
+
+    x0 = np.column_stack([np.zeros(3000), np.full(3000, 0.1)])
+    kw = dict(step=step, indicator=damage, threshold=1.0, dt=0.5, horizon=30.0)
+    hold = propagate_to_threshold(x0, rng=np.random.default_rng(5), **kw)
+    cont = propagate_to_threshold(x0, rng=np.random.default_rng(5), after_crossing="continue",
+                                  **kw)
+    drop = propagate_to_threshold(x0, rng=np.random.default_rng(6), after_crossing="drop",
+                                  **kw)
+    np.testing.assert_array_equal(hold.samples, cont.samples)
+    assert stats.ks_2samp(hold.samples, drop.samples).pvalue > 1e-3
+    with pytest.raises(ValueError, match="after_crossing"):
+        propagate_to_threshold(x0, rng=np.random.default_rng(5), after_crossing="stop", **kw)
+
+
+def test_a_weighted_estimate_carries_its_weights_into_propagation() -> None:
+    """Stumble 3: propagating particles without their weights silently gave another median.
+    A weighted estimate (anything with ``particles`` and ``weights``) is propagated with them,
+    and giving weights twice is refused."""
+    from rulkit.estimation.particle import ParticleState
+
+    x = np.column_stack([np.zeros(4), np.array([0.1, 0.2, 0.4, 0.5])])  # RULs 10, 5, 2.5, 2
+    w = np.array([0.7, 0.1, 0.1, 0.1])
+    st = ParticleState(particles=x, logw=np.log(w), weights=w, rng=np.random.default_rng(0),
+                       ess=1 / np.sum(w**2))
+    dist = propagate_to_threshold(st, linear_step, damage, 1.0, dt=0.25, horizon=50.0,
+                                  rng=np.random.default_rng(0))
+    np.testing.assert_allclose(dist.weights, w)
+    assert dist.median == pytest.approx(10.0)  # unweighted, it would be 2.5
+    with pytest.raises(ValueError, match="carries its own weights"):
+        propagate_to_threshold(st, linear_step, damage, 1.0, dt=0.25, horizon=50.0,
+                               rng=np.random.default_rng(0), weights=w)
+
+
+def test_contract_step_gets_the_input_and_legacy_step_refuses_one() -> None:
+    seen = []
+
+    def step(x, u, t, dt, rng):
+        seen.append(u)
+        out = x.copy()
+        out[:, 0] += u * dt
+        return out
+
+    dist = propagate_to_threshold(np.zeros((2, 1)), step, lambda x: x[:, 0], 1.0, dt=0.5,
+                                  horizon=10.0, rng=np.random.default_rng(0), u=lambda t: 0.25)
+    np.testing.assert_allclose(dist.samples, 4.0)
+    assert seen[0] == 0.25
+    with pytest.raises(ValueError, match=r"u: the step takes no input"):
+        propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=0.5,
+                               horizon=10.0, rng=np.random.default_rng(0), u=1.0)
+    with pytest.raises(TypeError, match="give model="):
+        propagate_to_threshold(np.zeros((2, 2)), horizon=10.0, rng=np.random.default_rng(0))
+
+
+def test_particles_of_a_weighted_filter_result_without_their_weights_warn() -> None:
+    """Stumble 3, the plain-array form: the final particles or one step of the history of a
+    particle-filter result are recognised, and propagating them without weights warns."""
+    import warnings
+
+    from rulkit.estimation.particle import ParticleFilter
+
+    pf = ParticleFilter(lambda x, k, rng: x, lambda x, y, k: -0.5 * ((y[0] - x[:, 0]) / 0.1) ** 2,
+                        ess_threshold=0.0)  # never resample: the weights stay informative
+    x0 = np.column_stack([np.linspace(0.0, 0.5, 50), np.full(50, 0.1)])
+    res = pf.filter(np.array([[0.4], [0.4]]), x0, np.random.default_rng(0),
+                    keep_particles=True)
+    kw = dict(step=linear_step, indicator=damage, threshold=1.0, dt=0.5, horizon=30.0)
+    for arr in (res.particles, res.particle_history[1], res.particle_history[0]):
+        with pytest.warns(UserWarning, match="weighted particle-filter estimate"):
+            propagate_to_threshold(arr, rng=np.random.default_rng(0), **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        d = propagate_to_threshold(res, rng=np.random.default_rng(0), **kw)  # the result: fine
+        propagate_to_threshold(res.particle_history[1], rng=np.random.default_rng(0),
+                               weights=res.weight_history[1], **kw)
+        propagate_to_threshold(res.particles.copy(), rng=np.random.default_rng(0), **kw)
+    np.testing.assert_allclose(d.weights, res.weights)

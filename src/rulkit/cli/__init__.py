@@ -17,9 +17,12 @@ from rulkit import __version__
 
 app = typer.Typer(
     name="rulkit",
+    pretty_exceptions_enable=False,
     help="Model-based prognostics: Bayesian filters and Remaining Useful Life distributions.",
     no_args_is_help=True,
     add_completion=False,
+    # help texts are plain text: "[c, a]" must not be read as rich markup and vanish
+    rich_markup_mode=None,
 )
 reproduce = typer.Typer(help="Reproduce a seed paper's tables and figures.", no_args_is_help=True)
 app.add_typer(reproduce, name="reproduce")
@@ -30,6 +33,7 @@ COMMAND_MODULES = (
     "rulkit.systems.motor_damping.cli",
     "rulkit.systems.friction_drive.cli",
     "rulkit.fleet.cli",
+    "rulkit.fleet.service.cli",
     "rulkit.systems.toy.cli",
 )
 
@@ -69,7 +73,7 @@ def limit_blas_threads(n: int) -> None:
 @app.command()
 def demo(
     out: Path = typer.Option(Path("demo-out"), help="Directory for the tables and figures."),
-    seed: int = typer.Option(0, help="Seed of the run."),
+    seed: int = typer.Option(0, min=0, help="Seed of the run."),
 ) -> None:
     """Short end-to-end run of the reaction-wheel pipeline (what `make demo` runs)."""
     from rulkit.systems.reaction_wheel.cli import run_quick
@@ -82,5 +86,28 @@ for _name in COMMAND_MODULES:
 
 
 def main() -> None:
-    """Entry point of the ``rulkit`` console script."""
-    app()
+    """Entry point of the ``rulkit`` console script.
+
+    An exception no command turned into a message is a bug: one line on stderr and exit code
+    70 (:mod:`rulkit.cli.errors`), the traceback only with ``RULKIT_DEBUG=1``.
+    """
+    import os
+    import sys
+
+    from rulkit.cli.errors import EXIT_INTERNAL
+
+    try:
+        app()
+    except SystemExit:
+        raise
+    except KeyboardInterrupt:
+        sys.exit(130)
+    except Exception as err:
+        if os.environ.get("RULKIT_DEBUG"):
+            raise
+        from rulkit.tables import safe_text
+
+        sys.stderr.write(
+            f"rulkit: internal error (a bug; please report it with the command line): "
+            f"{type(err).__name__}: {safe_text(err, 500)}; RULKIT_DEBUG=1 shows the traceback\n")
+        sys.exit(EXIT_INTERNAL)

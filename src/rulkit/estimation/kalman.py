@@ -1,5 +1,9 @@
 """Kalman filter family batched over B units: KF, EKF, UKF (engine-api.md, estimation.kalman).
 
+This module holds the validation, the functional core (``kf_predict``, ``kf_update``) and the
+linear :class:`KalmanFilter`; the EKF is in :mod:`rulkit.estimation.ekf` and the UKF in
+:mod:`rulkit.estimation.ukf` (both importable from here too). Both have ``from_model``.
+
 Conventions (all arrays float64; a single unit is B = 1):
 
 * States ``x`` have shape (B, n), covariances ``P`` (B, n, n), measurements ``y`` (B, m).
@@ -30,13 +34,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from rulkit.integrate import rk4_step
+if TYPE_CHECKING:  # at run time these come lazily from the module __getattr__ below
+    from rulkit.estimation.ekf import ExtendedKalmanFilter
+    from rulkit.estimation.ukf import UnscentedKalmanFilter
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -405,6 +411,8 @@ def _van_loan(A: FloatArray, Qc: FloatArray, dt: float) -> tuple[FloatArray, Flo
 # filter classes
 # ----------------------------------------------------------------------------------------------
 def _check_x0_P0(x0: Any, P0: Any) -> tuple[FloatArray, FloatArray]:
+    if np.ndim(x0) == 1:  # one unit needs no batch axis: (n,) is (1, n)
+        x0 = np.asarray(x0, dtype=np.float64)[None, :]
     x0 = _as_state(x0, "x0")
     B, n = x0.shape
     P0 = _as_cov(P0, n, B, "P0")
@@ -413,10 +421,19 @@ def _check_x0_P0(x0: Any, P0: Any) -> tuple[FloatArray, FloatArray]:
     return x0, P0
 
 
-def _check_ys(ys: Any, B: int, m: int) -> FloatArray:
+def _one_unit_ys(ys: Any, B: int) -> FloatArray:
+    """``ys`` as (T, B, m): for one unit (B = 1) a (T, m) or (T,) array gains the unit axis."""
     arr = np.asarray(ys, dtype=np.float64)
+    if B == 1 and arr.ndim in (1, 2):
+        arr = arr.reshape(arr.shape[0], 1, -1)
+    return arr
+
+
+def _check_ys(ys: Any, B: int, m: int) -> FloatArray:
+    arr = _one_unit_ys(ys, B)
     if arr.ndim != 3 or arr.shape[1:] != (B, m):
-        raise ValueError(f"ys: expected shape (T, {B}, {m}), got {arr.shape}")
+        one = f" or (T, {m})" if B == 1 else ""
+        raise ValueError(f"ys: expected shape (T, {B}, {m}){one}, got {np.shape(ys)}")
     if np.any(np.isinf(arr)):
         idx = np.argwhere(np.isinf(arr))[0]
         raise ValueError(
@@ -590,6 +607,8 @@ class _SigmaOrJacobianFilter:
 
     Q: _MatrixSource
     R: _MatrixSource
+    n_x: int | None = None  # known when built from a model: shapes checked before any call
+    n_y: int | None = None
 
     def predict(
         self, x: FloatArray, P: FloatArray, k: int, u: Any = None
@@ -610,12 +629,17 @@ class _SigmaOrJacobianFilter:
     ) -> KalmanResult:
         """Run over ``ys`` (T, B, m) from ``x0``, ``P0`` one step before ``ys[0]``;
         ``us[k]`` (or ``us(k)``) is passed as ``u`` to ``f`` and ``h`` at step k."""
+        if self.n_x is not None and np.shape(x0)[-1:] != (self.n_x,):
+            raise ValueError(f"x0: expected {self.n_x} states (the model's), got shape "
+                             f"{np.shape(x0)}")
         x, P = _check_x0_P0(x0, P0)
         B, n = x.shape
         self.Q.validate(B, n, n)
-        ys_arr = np.asarray(ys, dtype=np.float64)
-        if ys_arr.ndim != 3:
-            raise ValueError(f"ys: expected shape (T, {B}, m), got {ys_arr.shape}")
+        ys_arr = _one_unit_ys(ys, B)
+        if ys_arr.ndim != 3 or (self.n_y is not None and ys_arr.shape[2] != self.n_y):
+            m_txt = "m" if self.n_y is None else str(self.n_y)
+            one = f" (or (T, {m_txt}) for one unit)" if B == 1 else ""
+            raise ValueError(f"ys: expected shape (T, {B}, {m_txt}){one}, got {np.shape(ys)}")
         m = ys_arr.shape[2]
         self.R.validate(B, m, m)
         ys_arr = _check_ys(ys_arr, B, m)
@@ -629,296 +653,15 @@ class _SigmaOrJacobianFilter:
         return out.result()
 
 
-def _check_jacobian_at(where: str | np.ndarray, continuous: bool) -> str | np.ndarray:
-    """``"start"``, ``"midpoint"`` or a 1-D boolean mask (continuous models only)."""
-    if isinstance(where, str):
-        if where not in ("start", "midpoint"):
-            raise ValueError(f"jacobian_at: expected 'start', 'midpoint' or a boolean mask, "
-                             f"got {where!r}")
-        if where == "midpoint" and not continuous:
-            raise ValueError("jacobian_at='midpoint' applies to continuous models only")
-        return where
-    mask = np.asarray(where)
-    if mask.dtype != np.bool_ or mask.ndim != 1:
-        raise ValueError("jacobian_at: a mask must be a 1-D boolean array (one entry per unit)")
-    if not continuous and mask.any():
-        raise ValueError("jacobian_at: the midpoint applies to continuous models only")
-    return mask.copy()
+def __getattr__(name: str) -> Any:
+    """``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` live in :mod:`.ekf` and
+    :mod:`.ukf` (imported lazily here: they build on this module's core)."""
+    if name == "ExtendedKalmanFilter":
+        from rulkit.estimation.ekf import ExtendedKalmanFilter
 
+        return ExtendedKalmanFilter
+    if name == "UnscentedKalmanFilter":
+        from rulkit.estimation.ukf import UnscentedKalmanFilter
 
-class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
-    """Extended Kalman filter for B units (first-order linearisation at the current estimate).
-
-    Discrete model (default): ``x_k = f(x_{k-1}, u_k, k) + w``, ``Q`` the per-step covariance.
-    Continuous model (``continuous=True``, ``dt`` required): ``dx/dt = f(x, u, t) + w(t)`` with
-    ``Q`` the spectral density of ``w``; the mean is advanced by RK4 (``substeps`` steps of
-    ``dt/substeps``) and the covariance with ``Phi = expm(J dt)``, ``Qd`` by Van Loan
-    (:func:`discretise`), ``J`` the Jacobian at the prior mean. Measurement
-    ``y_k = h(x_k, u_k, k) + v`` (for continuous models the third argument is the time
-    ``t0 + (k + 1) dt`` of ``ys[k]``, and ``f`` gets the start time ``t0 + k dt`` of the step).
-    ``jacobian_at`` (continuous models): where ``J`` of ``Phi = expm(J dt)`` is evaluated:
-    ``"start"`` (the prior mean, as above: ``Phi`` first order in ``dt``), ``"midpoint"`` (the
-    mean after half an RK4 step, at ``t + dt/2``: ``Phi`` second order, which matters when the
-    Jacobian changes within a step, e.g. right after an input switch), or a (B,) boolean mask
-    choosing the midpoint per unit. The mean prediction is the same either way.
-
-    Jacobians: ``jac_f(x, u, k) -> (B, n, n)``, ``jac_h(x, u, k) -> (B, m, n)``; central finite
-    differences (:func:`numerical_jacobian`) when not given. ``Q``, ``R`` may be shared, per
-    unit or callables of k.
-    """
-
-    def __init__(
-        self,
-        f: Callable[..., np.ndarray],
-        h: Callable[..., np.ndarray],
-        Q: MatrixLike,
-        R: MatrixLike,
-        *,
-        jac_f: Callable[..., np.ndarray] | None = None,
-        jac_h: Callable[..., np.ndarray] | None = None,
-        continuous: bool = False,
-        dt: float | None = None,
-        t0: float = 0.0,
-        substeps: int = 1,
-        jacobian_at: str | np.ndarray = "start",
-    ) -> None:
-        self.f, self.h, self.jac_f, self.jac_h = f, h, jac_f, jac_h
-        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
-        self.R = _MatrixSource(R, None, None, "R", cov=True)
-        self.continuous = bool(continuous)
-        if self.continuous:
-            if dt is None or not (np.isfinite(dt) and dt > 0):
-                raise ValueError(f"dt: a continuous model needs a positive finite dt, got {dt!r}")
-            if int(substeps) != substeps or substeps < 1:
-                raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
-        self.dt = None if dt is None else float(dt)
-        self.t0 = float(t0)
-        self.substeps = int(substeps)
-        self.jacobian_at = _check_jacobian_at(jacobian_at, self.continuous)
-
-    # -- time arguments -------------------------------------------------------------------
-    def _tf(self, k: int) -> float | int:
-        return self.t0 + k * self.dt if self.continuous else k  # type: ignore[operator]
-
-    def _th(self, k: int) -> float | int:
-        return self.t0 + (k + 1) * self.dt if self.continuous else k  # type: ignore[operator]
-
-    def _jacobian(
-        self,
-        fun: Callable[..., np.ndarray],
-        jac: Callable[..., np.ndarray] | None,
-        x: FloatArray,
-        u: Any,
-        targ: Any,
-        rows: int,
-        name: str,
-    ) -> FloatArray:
-        B, n = x.shape
-        if jac is None:
-            J = numerical_jacobian(lambda xx: fun(xx, u, targ), x)
-        else:
-            J = np.asarray(jac(x, u, targ), dtype=np.float64)
-            if J.ndim == 2 and J.shape == (rows, n):
-                J = np.broadcast_to(J, (B, rows, n))
-        if J.shape != (B, rows, n):
-            raise ValueError(
-                f"{name}: expected a Jacobian of shape ({B}, {rows}, {n}), got {J.shape}"
-            )
-        _check_finite(J, name)
-        return J
-
-    def predict(
-        self, x: FloatArray, P: FloatArray, k: int, u: Any = None
-    ) -> tuple[FloatArray, FloatArray]:
-        """Predict step k (from ``ys[k-1]`` to ``ys[k]``); returns ``(x_pred, P_pred)``."""
-        B, n = x.shape
-        targ = self._tf(k)
-        if self.continuous:
-            dt = self.dt
-            assert dt is not None
-            J = self._continuous_jacobian(x, u, targ, dt)
-            h = dt / self.substeps
-            xn = x
-            for i in range(self.substeps):
-                xn = rk4_step(lambda xx, tt, uu: self.f(xx, uu, tt), xn, targ + i * h, h, u)
-            Phi, Qd = _van_loan(J, self.Q.at(k, B), dt)
-            Pn = _sym(Phi @ P @ _T(Phi) + Qd)
-        else:
-            xn = _apply(self.f, x, u, targ, B, "f")
-            self._check_prediction(xn, B, n, k)  # before the Jacobian, so the error names f
-            J = self._jacobian(self.f, self.jac_f, x, u, targ, n, "jac_f")
-            Pn = _sym(J @ P @ _T(J) + self.Q.at(k, B))
-            return xn, Pn
-        self._check_prediction(xn, B, n, k)
-        return xn, Pn
-
-    def _continuous_jacobian(self, x: FloatArray, u: Any, t: float, dt: float) -> FloatArray:
-        """J for ``Phi = expm(J dt)`` at the prior mean or, per ``jacobian_at``, at the mean
-        after half an RK4 step (time ``t + dt/2``)."""
-        B, n = x.shape
-        where = self.jacobian_at
-        if isinstance(where, str) and where == "start":
-            return self._jacobian(self.f, self.jac_f, x, u, t, n, "jac_f")
-        x_mid = rk4_step(lambda xx, tt, uu: self.f(xx, uu, tt), x, t, 0.5 * dt, u)
-        _check_finite(x_mid, "f (half-step state for the midpoint Jacobian)")
-        J_mid = self._jacobian(self.f, self.jac_f, x_mid, u, t + 0.5 * dt, n, "jac_f")
-        if isinstance(where, str):
-            return J_mid
-        if where.shape != (B,):
-            raise ValueError(f"jacobian_at: a mask needs shape ({B},), got {where.shape}")
-        if where.all():
-            return J_mid
-        J_start = self._jacobian(self.f, self.jac_f, x, u, t, n, "jac_f")
-        return np.where(where[:, None, None], J_mid, J_start)
-
-    @staticmethod
-    def _check_prediction(xn: FloatArray, B: int, n: int, k: int) -> None:
-        """The predicted state must be (B, n) and finite (checked before its Jacobian is used)."""
-        if xn.shape != (B, n):
-            raise ValueError(f"f: expected an output of shape ({B}, {n}), got {xn.shape}")
-        _check_finite(xn, f"f (predicted state at step {k})")
-
-    def update(
-        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any = None
-    ) -> tuple[FloatArray, FloatArray, Innovation]:
-        """Assimilate ``y`` (B, m) (= ``ys[k]``); returns ``(x, P, Innovation)``."""
-        B = x.shape[0]
-        targ = self._th(k)
-        yhat = _apply(self.h, x, u, targ, B, "h")
-        m = yhat.shape[1]
-        H = self._jacobian(self.h, self.jac_h, x, u, targ, m, "jac_h")
-        return _update(x, P, y, H, self.R.at(k, B), yhat)
-
-
-class UnscentedKalmanFilter(_SigmaOrJacobianFilter):
-    """Unscented Kalman filter for B units, additive noise (Wan & van der Merwe 2000).
-
-    Model ``x_k = f(x_{k-1}, u_k, k) + w`` (``Q`` per step), ``y_k = h(x_k, u_k, k) + v``.
-    Scaled sigma points ``x, x +/- sqrt(n + lam) L_i`` (``L L^T = P``, ``lam = alpha^2 (n +
-    kappa) - n``), mean weights ``Wm0 = lam / (n + lam)``, ``Wc0 = Wm0 + 1 - alpha^2 + beta``,
-    ``Wi = 1 / (2 (n + lam))``. ``f``/``h`` are called once per step on all B (2n + 1) sigma
-    points stacked as (B (2n+1), n); a per-unit input ``u`` of shape (B, n_u) is repeated
-    to match (a 1-D input is shared and passed unchanged). Means are accumulated as deviations
-    from the central sigma point, which keeps the large negative ``Wm0`` of a small ``alpha``
-    from cancelling catastrophically.
-    Covariance update ``P - K S K^T`` (the UKF has no explicit H for the Joseph form).
-    Same ``predict`` / ``update`` / ``filter`` interface as :class:`ExtendedKalmanFilter`
-    (discrete models only).
-    """
-
-    def __init__(
-        self,
-        f: Callable[..., np.ndarray],
-        h: Callable[..., np.ndarray],
-        Q: MatrixLike,
-        R: MatrixLike,
-        alpha: float = 1e-3,
-        beta: float = 2.0,
-        kappa: float = 0.0,
-    ) -> None:
-        if not (np.isfinite(alpha) and alpha > 0):
-            raise ValueError(f"alpha: expected a positive finite value, got {alpha!r}")
-        if not np.isfinite(beta) or not np.isfinite(kappa):
-            raise ValueError("beta, kappa: expected finite values")
-        self.f, self.h = f, h
-        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
-        self.R = _MatrixSource(R, None, None, "R", cov=True)
-        self.alpha, self.beta, self.kappa = float(alpha), float(beta), float(kappa)
-
-    def _weights(self, n: int) -> tuple[float, float, float, float]:
-        lam = self.alpha**2 * (n + self.kappa) - n
-        if n + lam <= 0:
-            raise ValueError(f"alpha, kappa: n + lambda = {n + lam:.3g} must be positive")
-        wm0 = lam / (n + lam)
-        wc0 = wm0 + 1.0 - self.alpha**2 + self.beta
-        wi = 0.5 / (n + lam)
-        return float(np.sqrt(n + lam)), wm0, wc0, wi
-
-    @staticmethod
-    def _sqrt(P: FloatArray) -> FloatArray:
-        try:
-            return np.linalg.cholesky(P)
-        except np.linalg.LinAlgError:  # semi-definite P: symmetric square root
-            w, V = np.linalg.eigh(P)
-            if np.any(w[..., 0] < -1e-9 * np.maximum(1.0, np.abs(w[..., -1]))):
-                b = _first_bad(w[..., 0] < -1e-9 * np.maximum(1.0, np.abs(w[..., -1])))
-                raise ValueError(f"P: not positive semi-definite for unit {b}") from None
-            return V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
-
-    def _sigma(self, x: FloatArray, P: FloatArray, c: float) -> FloatArray:
-        B, n = x.shape
-        L = self._sqrt(P)
-        d = c * _T(L)  # rows are the columns of L
-        sig = np.empty((B, 2 * n + 1, n))
-        sig[:, 0] = x
-        sig[:, 1 : n + 1] = x[:, None, :] + d
-        sig[:, n + 1 :] = x[:, None, :] - d
-        return sig
-
-    @staticmethod
-    def _eval(
-        fun: Callable[..., np.ndarray], sig: FloatArray, u: Any, k: Any, name: str
-    ) -> FloatArray:
-        B, p, n = sig.shape
-        uu = u
-        if u is not None:
-            ua = np.asarray(u)
-            if ua.ndim >= 2 and ua.shape[0] == B:  # per-unit input: one row per sigma point
-                uu = np.repeat(ua, p, axis=0)
-        val = np.asarray(fun(sig.reshape(B * p, n), uu, k), dtype=np.float64)
-        if val.ndim == 1:
-            val = val[:, None]
-        if val.ndim != 2 or val.shape[0] != B * p:
-            raise ValueError(f"{name}: expected an output of shape ({B * p}, ...), got {val.shape}")
-        _check_finite(val, f"{name} (at the sigma points of step {k})")
-        return val.reshape(B, p, val.shape[1])
-
-    def _moments(
-        self, Y: FloatArray, wm0: float, wc0: float, wi: float
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        mean = Y[:, 0] + wi * (Y[:, 1:] - Y[:, :1]).sum(axis=1)
-        D = Y - mean[:, None, :]
-        cov = wc0 * np.einsum("bi,bj->bij", D[:, 0], D[:, 0]) + wi * np.einsum(
-            "bpi,bpj->bij", D[:, 1:], D[:, 1:]
-        )
-        return mean, _sym(cov), D
-
-    def predict(
-        self, x: FloatArray, P: FloatArray, k: int, u: Any = None
-    ) -> tuple[FloatArray, FloatArray]:
-        """Unscented transform of ``N(x, P)`` through ``f``, plus ``Q``."""
-        B, n = x.shape
-        c, wm0, wc0, wi = self._weights(n)
-        Y = self._eval(self.f, self._sigma(x, P, c), u, k, "f")
-        if Y.shape[2] != n:
-            raise ValueError(f"f: expected {n} output columns, got {Y.shape[2]}")
-        xn, Pn, _ = self._moments(Y, wm0, wc0, wi)
-        return xn, _sym(Pn + self.Q.at(k, B))
-
-    def update(
-        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any = None
-    ) -> tuple[FloatArray, FloatArray, Innovation]:
-        """Assimilate ``y`` (B, m) with sigma points redrawn from ``N(x, P)``."""
-        B, n = x.shape
-        c, wm0, wc0, wi = self._weights(n)
-        sig = self._sigma(x, P, c)
-        Z = self._eval(self.h, sig, u, k, "h")
-        zhat, Pzz, Dz = self._moments(Z, wm0, wc0, wi)
-        m = zhat.shape[1]
-        R = self.R.at(k, B)
-        Dx = sig[:, 1:] - x[:, None, :]
-        Pxz = wi * np.einsum("bpi,bpj->bij", Dx, Dz[:, 1:])  # central point has Dx = 0
-        S = _sym(Pzz + R)
-        y = _as_measurements(y, B, m)
-        skipped = np.isnan(y).any(axis=1)
-        nu = y - zhat
-        nu0 = np.where(skipped[:, None], 0.0, nu) if skipped.any() else nu
-        L = _chol_S(S)
-        sol = np.linalg.solve(S, np.concatenate([nu0[:, :, None], _T(Pxz)], axis=2))
-        Sinv_nu = sol[:, :, 0]
-        K = _T(sol[:, :, 1:])
-        xn = x + np.einsum("bij,bj->bi", K, nu0)
-        Pn = _sym(P - K @ S @ _T(K))
-        if skipped.any():
-            Pn = np.where(skipped[:, None, None], P, Pn)
-        return xn, Pn, _finish_innovation(nu, S, Sinv_nu, L, skipped)
+        return UnscentedKalmanFilter
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

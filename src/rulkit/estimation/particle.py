@@ -32,6 +32,7 @@ arrays plus whatever the user's ``transition`` and ``log_likelihood`` cost.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -39,7 +40,15 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.estimation.batched import ess_rows, normalise_rows
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
+from rulkit.model import (
+    InputLike,
+    StateSpaceModel,
+    check_measurements,
+    loglik_from_model,
+    transition_from_model,
+)
 
 __all__ = [
     "DegenerateWeightsError",
@@ -100,19 +109,15 @@ def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
     logw = np.asarray(logw, dtype=np.float64)
     if logw.ndim != 1 or logw.size == 0:
         raise ValueError(f"logw: expected a non-empty 1-D array, got shape {logw.shape}")
-    m = logw.max()
-    if not math.isfinite(m):  # NaN anywhere, +inf anywhere, or all -inf
+    _, w, ls = normalise_rows(logw)
+    if not math.isfinite(ls):  # NaN anywhere, +inf anywhere, or all -inf
         raise DegenerateWeightsError(_describe_degenerate(logw))
-    w = np.exp(logw - m)
-    s = w.sum()
-    w /= s
-    return w, float(m + math.log(s))
+    return w, float(ls)
 
 
 def effective_sample_size(w: FloatArray) -> float:
     """Effective sample size ``1 / sum_i w_i^2`` of normalised weights (seed 000 eq. 16)."""
-    w = np.asarray(w, dtype=np.float64)
-    return float(1.0 / np.dot(w, w))
+    return float(ess_rows(np.asarray(w, dtype=np.float64)))
 
 
 def weighted_mean(x: FloatArray, w: FloatArray) -> FloatArray:
@@ -308,6 +313,41 @@ class ParticleFilterResult:
         return int(self.resampled.sum())
 
 
+# A registry of the particle arrays a filter handed out with non-uniform weights, so that
+# propagating them without their weights can be noticed (issue 10, stumble 3). Keyed by id();
+# an entry dies with its array (weakref callback), and is only trusted while it is alive.
+_WEIGHTED: dict[int, tuple[weakref.ref[np.ndarray], FloatArray]] = {}
+
+
+def _register_weighted(particles: np.ndarray, weights: FloatArray) -> None:
+    key = id(particles)
+    ref = weakref.ref(particles, lambda _r, k=key: _WEIGHTED.pop(k, None))
+    _WEIGHTED[key] = (ref, weights)
+
+
+def weights_of(x: Any) -> FloatArray | None:
+    """The weights a particle filter returned together with ``x``, when ``x`` is its final
+    ``particles`` array or one step ``particle_history[k]`` of a ``ParticleFilterResult``
+    (None otherwise, or when those weights are uniform)."""
+    if not isinstance(x, np.ndarray):
+        return None
+    for cand in (x, x.base):
+        if not isinstance(cand, np.ndarray):
+            continue
+        entry = _WEIGHTED.get(id(cand))
+        if entry is None or entry[0]() is not cand:
+            continue
+        w = entry[1]
+        if cand is x:
+            return w if w.ndim == 1 else None
+        if cand.ndim == 3 and x.shape == cand.shape[1:] and w.ndim == 2:
+            off = x.__array_interface__["data"][0] - cand.__array_interface__["data"][0]
+            k, rem = divmod(off, cand.strides[0])
+            if rem == 0 and 0 <= k < cand.shape[0]:
+                return w[k]  # type: ignore[no-any-return]
+    return None
+
+
 # ---------------------------------------------------------------------------------------------
 # The filter
 # ---------------------------------------------------------------------------------------------
@@ -325,6 +365,16 @@ def _check_particles(particles: FloatArray, name: str = "particles0") -> FloatAr
         i, j = np.argwhere(~finite)[0]
         raise ValueError(f"{name}: non-finite value {x[i, j]} at particle {i}, state {j}")
     return x
+
+
+def _refuse_model(obj: Any, cls_name: str) -> None:
+    """A model (or its bound ``step``) where the low-level function form is expected is a
+    ``TypeError`` that names ``from_model`` (issue 10, stumble 2)."""
+    owner = getattr(obj, "__self__", None)
+    bound_step = isinstance(owner, StateSpaceModel) and getattr(obj, "__name__", "") == "step"
+    if isinstance(obj, StateSpaceModel) or bound_step:
+        raise TypeError(f"{cls_name}(...) takes the low-level functions; for a model use "
+                        f"{cls_name}.from_model(model, ...) (docs/engine-api.md, 'from_model')")
 
 
 class ParticleFilter:
@@ -373,6 +423,7 @@ class ParticleFilter:
         recovery: Literal["raise", "reset"] = "raise",
         missing: Literal["skip", "raise", "pass"] = "skip",
     ) -> None:
+        _refuse_model(transition, "ParticleFilter")
         if not callable(transition):
             raise TypeError("transition must be callable(x, k, rng) -> x_next")
         if not callable(log_likelihood):
@@ -402,6 +453,41 @@ class ParticleFilter:
         self.weight_update = weight_update
         self.recovery = recovery
         self.missing = missing
+        self.n_x: int | None = None  # known when built from a model: shapes checked up front
+        self.n_y: int | None = None
+
+    @classmethod
+    def from_model(
+        cls,
+        model: StateSpaceModel,
+        *,
+        dt: float | None = None,
+        t0: float = 0.0,
+        u: InputLike = None,
+        R: np.ndarray | None = None,
+        log_likelihood: LogLikelihood | None = None,
+        **options: Any,
+    ) -> ParticleFilter:
+        """A bootstrap particle filter for ``model`` (docs/engine-api.md, "from_model").
+
+        The transition is ``model.step(x, u(t_k), t_k, dt, rng)`` with ``t_k = t0 + k dt``
+        (``dt`` defaults to ``model.dt``); the likelihood of measurement k (time
+        ``t_{k+1}``) is the model's own ``log_likelihood`` when it defines one, else
+        ``N(y; model.output(x), R)`` with ``R = model.noise.R`` unless ``R`` or a
+        ``log_likelihood(x, y, k)`` is given. ``options`` are the constructor's keywords
+        (``resampler``, ``ess_threshold``, ``recovery``, ...). The filter knows the model's
+        dimensions: ``filter`` accepts measurements of one unit as (T, n_y) or, for one
+        output, (T,), and a wrong shape of them or of the particles is a ``ValueError`` before
+        any model code runs.
+        """
+        pf = cls(
+            transition_from_model(model, dt, t0, u),
+            log_likelihood if log_likelihood is not None
+            else loglik_from_model(model, dt, t0, u, R),
+            **options,
+        )
+        pf.n_x, pf.n_y = model.n_x, model.n_y
+        return pf
 
     # -- per-step API -------------------------------------------------------------------------
 
@@ -561,6 +647,13 @@ class ParticleFilter:
         ``ys[k]`` is assimilated after the k-th transition. ``quantiles=None`` skips the
         per-step sort. Same ``rng`` seed -> identical result.
         """
+        if self.n_y is not None:
+            ys = check_measurements(ys, self.n_y)
+        if self.n_x is not None:
+            p0 = np.asarray(particles0)
+            if p0.ndim != 2 or p0.shape[1] != self.n_x:
+                raise ValueError(f"particles0: expected shape (N, {self.n_x}) for the model's "
+                                 f"{self.n_x} states, got {p0.shape}")
         y_arr = np.asarray(ys, dtype=np.float64)
         if y_arr.ndim == 0 or y_arr.shape[0] == 0:
             raise ValueError(f"ys: expected a non-empty array of shape (T, ...), got {y_arr.shape}")
@@ -614,6 +707,10 @@ class ParticleFilter:
             self.resample_if_needed(state)
             resampled[k] = state.resampled
 
+        if np.ptp(state.weights) > 0:
+            _register_weighted(state.particles, state.weights)
+        if p_hist is not None and w_hist is not None:
+            _register_weighted(p_hist, w_hist)
         return ParticleFilterResult(
             mean=mean,
             cov=cov,
@@ -673,4 +770,4 @@ def _logsumexp(a: FloatArray) -> float:
     m = a.max()
     if not math.isfinite(m):  # -inf (all zero), +inf or NaN: the value itself
         return float(m)
-    return float(m + math.log(np.exp(a - m).sum()))
+    return float(normalise_rows(a)[2])

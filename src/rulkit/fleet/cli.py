@@ -13,83 +13,70 @@ from typing import Annotated
 import typer
 
 
-def _fail(msg: str) -> None:
-    typer.echo(f"error: {msg}", err=True)
-    raise typer.Exit(code=1)
-
-
-def _open_store(db: Path, given: dict[str, float | str], baseline: Path | None, pfa: float,
-                offset: str):
-    """Open or create the database; options only set a new database's configuration."""
-    import numpy as np
-
-    from rulkit.fleet.health_index import HealthIndexModel
-    from rulkit.fleet.store import ComponentStore, IngestError, read_acquisitions
-    from rulkit.fleet.tracker_chain import TrackerConfig
-    from rulkit.tables import numeric_columns
-
-    hi_model = None
-    if baseline is not None:
-        try:
-            base = read_acquisitions(baseline)
-        except IngestError as err:
-            _fail(f"baseline: {err}")
-        if base.shape[1] < 1 or len(base) < 2:
-            _fail(f"baseline {baseline}: expected rows of healthy CIs, one column per CI")
-        try:
-            cols = numeric_columns(base, [str(c) for c in base.columns], error=ValueError,
-                                   source=f"baseline {baseline}")
-        except ValueError as err:
-            _fail(str(err))
-        try:
-            hi_model = HealthIndexModel.fit(
-                np.column_stack(list(cols.values())), pfa=pfa, offset=offset,  # type: ignore[arg-type]
-                names=list(cols))
-        except ValueError as err:
-            _fail(f"baseline {baseline}: {err}")
-    try:
-        if db.exists():
-            store = ComponentStore(db, create=False)
-            if given:
-                merged = {**store.config.to_dict(), **given}
-                if TrackerConfig.from_dict(merged) != store.config:
-                    store.close()
-                    diff = {k: (store.config.to_dict()[k], v) for k, v in given.items()
-                            if store.config.to_dict()[k] != v}
-                    _fail(f"{db} was created with other tracker settings (stored, given): "
-                          f"{diff}; the state is only meaningful with its own settings")
-            if hi_model is not None:
-                store.close()
-                store = ComponentStore(db, hi_model=hi_model)
-            return store
-        cfg = TrackerConfig.from_dict({**TrackerConfig().to_dict(), **given})
-        return ComponentStore(db, config=cfg, hi_model=hi_model)
-    except (ValueError, FileNotFoundError) as err:
-        _fail(str(err))
-    raise AssertionError  # unreachable
-
-
 def _fmt(v: float, spec: str = ".3g") -> str:
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return "-"
     return format(v + 0.0, spec)  # + 0.0 turns -0.0 into 0.0
 
 
+def _tracker_options(given: dict[str, float | str]):
+    """The tracker settings from the options, each refused value naming its option (exit 2)."""
+    from rulkit.cli.errors import bad_option
+    from rulkit.fleet.tracker_chain import TrackerConfig
+
+    for key, value in given.items():
+        try:
+            TrackerConfig.from_dict({**TrackerConfig().to_dict(), key: value})
+        except ValueError as err:
+            msg = str(err).split(": ", 1)[-1]
+            bad_option("--" + key.replace("_", "-"), msg)
+    return TrackerConfig.from_dict({**TrackerConfig().to_dict(), **given})
+
+
+def _fit_baseline(baseline: Path, pfa: float, offset: str):
+    import numpy as np
+
+    from rulkit.cli.errors import fail
+    from rulkit.fleet.health_index import HealthIndexModel
+    from rulkit.fleet.store import IngestError, read_acquisitions
+    from rulkit.tables import numeric_columns
+
+    try:
+        base = read_acquisitions(baseline)
+    except IngestError as err:
+        fail(f"baseline: {err}")
+    if base.shape[1] < 1 or len(base) < 2:
+        fail(f"baseline {baseline}: expected rows of healthy CIs, one column per CI")
+    try:
+        cols = numeric_columns(base, [str(c) for c in base.columns], error=ValueError,
+                               source=f"baseline {baseline}")
+        return HealthIndexModel.fit(
+            np.column_stack(list(cols.values())), pfa=pfa, offset=offset,  # type: ignore[arg-type]
+            names=list(cols))
+    except ValueError as err:
+        fail(str(err) if str(err).startswith("baseline") else f"baseline {baseline}: {err}")
+
+
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:
-    """Add ``track``, ``status`` and ``reproduce embedded-rul``."""
+    """Add ``track``, ``status``, ``reproduce embedded-rul`` and the learned-model commands
+    ``fit`` and ``evaluate`` (:mod:`rulkit.fleet.models.cli`)."""
+    from rulkit.fleet.models.cli import register as register_models
+
+    register_models(app)
 
     @app.command("track")
     def track(
         acquisitions: Annotated[Path, typer.Argument(
             help="CSV or Parquet with columns component, time and hi (or the CI columns "
-                 "of the database's HI model).")],
+                 "of the database's HI model); see docs/file-formats.md.")],
         db: Annotated[Path, typer.Option(
-            "--db", help="SQLite component database (created if new).")],
+            "--db", help="SQLite component database (created with the first accepted batch).")],
         baseline: Annotated[Path | None, typer.Option(
             "--baseline", help="CSV of healthy CIs (one column per CI) to fit and store "
                                "the CI -> HI model (new database or one without a model).")
         ] = None,
-        pfa: float = typer.Option(1e-6, "--pfa", help="False-alarm probability of HI = 0.5."),
+        pfa: float = typer.Option(1e-6, "--pfa", min=0.0, max=1.0,
+                                  help="False-alarm probability of HI = 0.5."),
         offset: str = typer.Option("cdf05", "--offset", help="CI offset: cdf05 or none."),
         dt: float | None = typer.Option(None, "--dt", help="Nominal acquisition interval."),
         lambda_hi: float | None = typer.Option(None, "--lambda-hi", help="Tracking index, HI."),
@@ -107,11 +94,26 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                                                     help="Paris exponent m of the RUL."),
         initiation: str | None = typer.Option(None, "--initiation",
                                               help="Track start: floor or two-point."),
+        wait: float = typer.Option(60.0, "--wait", min=0.0,
+                                   help="Seconds to wait for another writer before giving up "
+                                        "(exit code 75, retry)."),
     ) -> None:
-        """Ingest acquisitions (one transaction) and print new warnings and alarms."""
-        from rich.console import Console
+        """Ingest acquisitions (one transaction) and print new warnings and alarms.
 
-        from rulkit.fleet.store import IngestError
+        Exit codes: 0 done; 1 the file or database was refused (nothing written); 2 a bad
+        option; 75 the database stayed busy (retry).
+        """
+        from rulkit.cli.errors import EXIT_BUSY, bad_option, fail
+        from rulkit.fleet.store import (
+            IngestError,
+            StoreBusyError,
+            StoreError,
+            ingest_into,
+            read_acquisitions,
+            read_settings,
+        )
+        from rulkit.fleet.tracker_chain import TrackerConfig
+        from rulkit.tables import safe_text
 
         given = {k: v for k, v in {
             "dt": dt, "lambda_hi": lambda_hi, "lambda_rul": lambda_rul,
@@ -120,75 +122,114 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             "initiation": initiation}.items()
             if v is not None}
         if offset not in ("cdf05", "none"):
-            _fail(f"--offset: expected cdf05 or none, got {offset!r}")
-        store = _open_store(db, given, baseline, pfa, offset)
+            bad_option("--offset", f"expected cdf05 or none, got {offset!r}")
+        new_cfg = _tracker_options(given)
+        hi_model = _fit_baseline(baseline, pfa, offset) if baseline is not None else None
+        nothing = f"nothing was written to {db}"
         try:
-            res = store.ingest_file(acquisitions)
+            df = read_acquisitions(acquisitions)
+            settings = read_settings(db)
+        except IngestError as err:
+            fail(f"{err} ({nothing})")
+        except StoreError as err:
+            fail(str(err))
+        if settings is None:
+            cfg = new_cfg
+        else:
+            stored = settings[0].to_dict()
+            cfg = TrackerConfig.from_dict({**stored, **given})
+            if cfg != settings[0]:
+                diff = {k: (stored[k], v) for k, v in given.items() if stored[k] != v}
+                fail(f"{db} was created with other tracker settings (stored, given): {diff}; "
+                     "the state is only meaningful with its own settings")
+        try:
+            res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
+                                       source=str(acquisitions), timeout=wait)
         except IngestError as err:
             msg = str(err)  # file-level errors already start with the path
             where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "
-            _fail(f"{where}{msg} (nothing was written to {db})")
-        finally:
-            store.close()
-        from rich.markup import escape
-
-        console = Console(highlight=False)
-        console.print(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
-                      f"({res.n_new_components} new) into {db}")
+            fail(f"{where}{msg} ({nothing})")
+        except StoreBusyError as err:
+            fail(f"{err}; retry the same command", code=EXIT_BUSY)
+        except StoreError as err:
+            fail(f"{err} ({nothing})")
+        typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
+                   f"({res.n_new_components} new) into {safe_text(db)}"
+                   + (" (new database)" if created else ""))
         if not res.alerts:
-            console.print("no new warnings or alarms")
+            typer.echo("no new warnings or alarms")
         for a in res.alerts:
-            style = "bold red" if a.name == "alarm" else "yellow"
-            console.print(
-                f"[{style}]{a.name.upper():7s}[/{style}] {escape(str(a.component))}  t={a.t:g}  "
-                f"HI={a.hi:.3f}  fHI={a.fhi:.3f}  RUL={_fmt(a.frul)} "
-                f"{escape(f'[{_fmt(a.rul_low)}, {_fmt(a.rul_high)}]')}  "
-                f"valid={'yes' if a.valid else 'no'}"
-            )
+            word = typer.style(f"{a.name.upper():7s}", fg="red" if a.name == "alarm"
+                               else "yellow", bold=a.name == "alarm")
+            typer.echo(
+                f"{word} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  fHI={a.fhi:.3f}  "
+                f"RUL={_fmt(a.frul)} [{_fmt(a.rul_low)}, {_fmt(a.rul_high)}]  "
+                f"valid={'yes' if a.valid else 'no'}")
 
     @app.command("status")
     def status(
         db: Annotated[Path, typer.Option("--db", help="SQLite component database.")],
         limit: int = typer.Option(0, "--limit", min=0, help="Show the worst N (0 = all)."),
+        fmt: str = typer.Option("table", "--format",
+                                help="table (for people), csv or json (for scripts)."),
     ) -> None:
-        """Table of components with HI, RUL, validity and alert level, worst first."""
-        from rich.console import Console
-        from rich.markup import escape
-        from rich.table import Table
+        """Components with HI, RUL, validity and alert level, worst first (read-only).
 
-        from rulkit.fleet.store import ComponentStore
+        Exit codes: 0 done; 1 the database was refused; 2 a bad option.
+        """
+        from rulkit.cli.errors import bad_option, fail
+        from rulkit.fleet.store import ComponentStore, StoreError
         from rulkit.fleet.tracker_chain import LEVEL_NAMES
+        from rulkit.tables import safe_text, text_table
 
+        if fmt not in ("table", "csv", "json"):
+            bad_option("--format", f"expected table, csv or json, got {fmt!r}")
         try:
-            store = ComponentStore(db, create=False)
-        except (FileNotFoundError, ValueError) as err:
-            _fail(str(err))
-        try:
-            df = store.status()
-        finally:
-            store.close()
+            with ComponentStore(db, readonly=True) as store:
+                df = store.status()
+        except FileNotFoundError as err:
+            fail(str(err))
+        except StoreError as err:
+            fail(str(err))
         n_all = len(df)
         if limit:
             df = df.head(limit)
+        df = df.drop(columns="rul").rename(columns={"frul": "rul"}).assign(
+            level=df["level"].map(LEVEL_NAMES))
+        df = df[["component", "level", "hi", "fhi", "rul", "rul_low", "rul_high", "valid",
+                 "dhi", "drul", "d2rul", "n", "t"]]
+        if fmt == "csv":
+            import io
+
+            import pyarrow as pa
+            import pyarrow.csv as pacsv
+
+            buf = io.BytesIO()  # pyarrow: shortest round-trip floats, 5x pandas' to_csv
+            pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), buf,
+                            pacsv.WriteOptions(quoting_style="needed"))
+            typer.echo(buf.getvalue().decode(), nl=False)
+            return
+        if fmt == "json":
+            typer.echo(df.to_json(orient="records", double_precision=15))
+            return
         shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
-        table = Table(
-            title=escape(f"{db}: {n_all} components, worst first{shown}"),
-            caption="RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
-                    "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
-                    "load +- load_factor",
-        )
-        for col in ("component", "level", "HI", "fHI", "RUL", "RUL low", "RUL high", "valid",
-                    "dRUL/dt", "d2RUL/dt2", "n", "last t"):
-            table.add_column(col, justify="left" if col in ("component", "level") else "right")
-        styles = {2: "bold red", 1: "yellow", 0: ""}
-        for r in df.itertuples(index=False):
-            table.add_row(
-                escape(str(r.component)), LEVEL_NAMES[int(r.level)], f"{r.hi:.3f}", f"{r.fhi:.3f}",
-                _fmt(r.frul), _fmt(r.rul_low), _fmt(r.rul_high), "yes" if r.valid else "no",
-                _fmt(r.drul), _fmt(r.d2rul), str(int(r.n)), f"{r.t:g}",
-                style=styles[int(r.level)],
-            )
-        Console(width=160).print(table)
+        g = lambda col: [_fmt(v) for v in df[col].tolist()]  # noqa: E731
+        cols = {
+            "component": [safe_text(c, 40) for c in df["component"].tolist()],
+            "level": df["level"].tolist(),
+            "HI": [f"{v:.3f}" for v in df["hi"].tolist()],
+            "fHI": [f"{v:.3f}" for v in df["fhi"].tolist()],
+            "RUL": g("rul"), "RUL low": g("rul_low"), "RUL high": g("rul_high"),
+            "valid": ["yes" if v else "no" for v in df["valid"].tolist()],
+            "dRUL/dt": g("drul"), "d2RUL/dt2": g("d2rul"),
+            "n": [str(v) for v in df["n"].tolist()],
+            "last t": [f"{v:g}" for v in df["t"].tolist()],
+        }
+        typer.echo(f"{safe_text(db)}: {n_all} components, worst first{shown}")
+        typer.echo(text_table(cols, left=("component", "level")), nl=False)
+        typer.echo("RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
+                   "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
+                   "load +- load_factor")
 
     @reproduce.command("embedded-rul")
     def reproduce_embedded_rul(
@@ -197,7 +238,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         ] = Path("out/embedded-rul"),
         figures: bool = typer.Option(True, "--figures/--no-figures",
                                      help="Write one figure per unit."),
-        seed: int = typer.Option(0, "--seed", help="Seed of the false-alarm study."),
+        seed: int = typer.Option(0, "--seed", min=0, help="Seed of the false-alarm study."),
         false_alarms: bool = typer.Option(True, "--false-alarms/--no-false-alarms",
                                           help="Run the HI false-alarm study (~5 s)."),
     ) -> None:

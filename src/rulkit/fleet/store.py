@@ -26,13 +26,33 @@ Guarantees (tested in tests/fleet/test_store.py):
 * **Consistent readers.** The database runs in WAL mode: a reader inside a read transaction
   (:meth:`ComponentStore.snapshot`) sees one committed state, never a half-applied batch,
   while a writer proceeds.
+* **Nothing created on rejection, atomic creation.** :func:`ingest_into` validates a batch
+  before touching the database; a new database is built beside its final name (schema,
+  settings and first batch in a temporary file) and linked into place only once complete, so
+  a rejected batch creates nothing and concurrent first ingests never see a half-made file
+  (the loser of the race applies its batch to the winner's database).
+* **Foreign files are never modified.** An existing file is checked read-only (SQLite header,
+  ``meta`` table, schema version) before it is opened for writing; a 0-byte file, a
+  non-SQLite file or an SQLite file of another application raises :class:`StoreError` and
+  keeps its bytes. ``readonly=True`` (``rulkit status``) opens with SQLite's ``mode=ro``.
+* **Busy, not broken.** A writer waits up to ``timeout`` seconds for another one to commit,
+  then raises :class:`StoreBusyError` (nothing written; retry), never a raw ``sqlite3`` error.
+
+Component ids (:func:`check_component_ids`): 1 to :data:`COMPONENT_ID_MAX_LEN` printable
+characters (:meth:`str.isprintable`: no control characters such as ESC, newline, tab, no
+Unicode format characters such as bidirectional overrides), surrounding blanks stripped.
+Anything else raises :class:`ComponentIdError` naming the row, so a crafted id cannot forge
+terminal output; printing still goes through :func:`rulkit.tables.safe_text`.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
+import os
 import sqlite3
-from collections.abc import Iterator
+import uuid
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,13 +70,16 @@ from rulkit.fleet.tracker_chain import (
     tracker_update,
 )
 from rulkit.tables import cell_repr as _fmt
-from rulkit.tables import numeric_columns, read_table
+from rulkit.tables import numeric_columns, read_table, safe_text, time_seconds
 
 SCHEMA_VERSION = 1
 STATE_FIELDS = ("t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul")
 OUTPUT_FIELDS = ("valid", "level", "rul_low", "rul_high")
 ROW_FIELDS = (*STATE_FIELDS, *OUTPUT_FIELDS)
 HISTORY_FIELDS = tuple(f for f in ROW_FIELDS if f != "n")
+COMPONENT_ID_MAX_LEN = 128
+"""Longest accepted component id, in characters (ids are names, not payloads)."""
+SQLITE_HEADER = b"SQLite format 3\x00"
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -84,6 +107,20 @@ CREATE TABLE IF NOT EXISTS ingests (
 
 class IngestError(ValueError):
     """A batch of acquisitions was rejected; the database is unchanged."""
+
+
+class ComponentIdError(IngestError):
+    """A component id outside the accepted alphabet or length (:func:`check_component_ids`)."""
+
+
+class StoreError(ValueError):
+    """The database file cannot be used as a rulkit component database (missing directory,
+    not a rulkit database, corrupt, other settings); the file is left as it was."""
+
+
+class StoreBusyError(StoreError):
+    """Another writer held the database longer than the timeout; nothing was written and the
+    same call can be retried."""
 
 
 @dataclass(frozen=True)
@@ -127,7 +164,53 @@ def read_acquisitions(path: str | Path) -> pd.DataFrame:
     :class:`IngestError` (see :func:`rulkit.tables.read_table`)."""
     return read_table(path, error=IngestError, csv_suffixes=(".csv", ".csv.gz", ".txt"),
                       expected_columns=("component", "time", "hi"),
-                      csv_dtype={"component": str})
+                      csv_dtype={"component": "category"}, text_columns=("component",))
+
+
+def check_component_ids(comp: pd.Series) -> pd.Series:
+    """Component ids as a categorical of stripped ``str``, or :class:`ComponentIdError` at the
+    first bad row.
+
+    Accepted: 1 to :data:`COMPONENT_ID_MAX_LEN` characters after stripping surrounding blanks,
+    every one printable (:meth:`str.isprintable`). Refused, naming the 1-based row: a missing
+    or empty id, a non-text id (e.g. a number in a Parquet column is taken as its text, but
+    bytes are refused), a control or format character (ESC, newline, tab, bidi override), and
+    an id longer than the limit. The check runs once per distinct id.
+    """
+    missing = comp.isna().to_numpy()
+    if missing.any():
+        i = int(np.flatnonzero(missing)[0])
+        raise ComponentIdError(f"row {i + 1}: empty component name")
+    codes, uniques = pd.factorize(comp, sort=False)
+    bad_code = None
+    reason = ""
+    clean: list[str] = []
+    for k, v in enumerate(uniques):
+        if isinstance(v, bytes | bytearray):
+            bad_code, reason = k, "is binary data, not text"
+            break
+        text = str(v).strip()
+        if not text:
+            bad_code, reason = k, "empty component name"
+            break
+        if len(text) > COMPONENT_ID_MAX_LEN:
+            bad_code, reason = k, (f"component id of {len(text)} characters, longer than the "
+                                   f"limit of {COMPONENT_ID_MAX_LEN}")
+            break
+        if not text.isprintable():
+            c = next(c for c in text if not c.isprintable())
+            bad_code, reason = k, (f"component id '{safe_text(text, 60)}' holds the "
+                                   f"non-printable character {safe_text(c)} (control and "
+                                   "format characters are not allowed)")
+            break
+        clean.append(text)
+    if bad_code is not None:
+        i = int(np.flatnonzero(codes == bad_code)[0])
+        raise ComponentIdError(f"row {i + 1}: {reason}")
+    # ids equal after stripping share one category; the frame keeps int codes, not 2M strings
+    ucodes, ucats = pd.factorize(pd.Index(clean, dtype=object))
+    return pd.Series(pd.Categorical.from_codes(np.asarray(ucodes)[codes], categories=ucats),
+                     index=comp.index)
 
 
 def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
@@ -151,8 +234,11 @@ def validate_acquisitions(
     if len(df) == 0:
         raise IngestError("the batch holds no acquisitions (0 rows)")
     cols = [str(c) for c in df.columns]
-    df = df.copy()
-    df.columns = cols
+    dup = pd.Index(cols).duplicated()
+    if dup.any():
+        raise IngestError(f"column {safe_text(cols[int(np.flatnonzero(dup)[0])])!r} appears "
+                          "twice; rename or drop one")
+    df = df.set_axis(cols, axis=1)  # a new frame; the caller's keeps its columns
     missing = [c for c in ("component", "time") if c not in cols]
     if missing:
         raise IngestError(f"missing required column(s) {missing}; got {cols}")
@@ -188,13 +274,11 @@ def validate_acquisitions(
         raise IngestError("no value column: expected 'hi'" + (
             f" or the CI columns {ci_names}" if ci_names else ""))
 
-    comp = df["component"]
-    empty = comp.isna().to_numpy() | (comp.astype(str).str.strip() == "").to_numpy()
-    if empty.any():
-        i = int(np.flatnonzero(empty)[0])
-        raise IngestError(f"row {i + 1}: empty component name")
-    df["component"] = comp.astype(str).str.strip()
-    t = _numeric_column(df, "time")
+    df["component"] = check_component_ids(df["component"])
+    t = time_seconds(df["time"], "time", error=IngestError,
+                     row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
+    if t is None:
+        t = _numeric_column(df, "time")
     if mode == "hi":
         hi = _numeric_column(df, "hi")
         source = "hi"
@@ -210,10 +294,12 @@ def validate_acquisitions(
             f"row {i + 1} (component {df['component'].iloc[i]!r}): {source} = {_fmt(hi[i])} is "
             f"outside [0, {config.hi_max}]"
         )
-    out = pd.DataFrame({"component": df["component"].to_numpy(), "t": t, "hi": hi,
-                        "row": np.arange(1, len(df) + 1)})
+    comp = df["component"]
+    out = pd.DataFrame({"component": comp.array, "t": t, "hi": hi,
+                        "row": np.arange(1, len(df) + 1)}, copy=False)  # no 2M-row copies
     # time strictly increasing per component, in file order
-    prev_t = out.groupby("component", sort=False)["t"].shift(1).to_numpy()
+    codes = np.asarray(comp.cat.codes)
+    prev_t = pd.Series(t).groupby(codes, sort=False).shift(1).to_numpy()
     back = np.isfinite(prev_t) & ~(t > prev_t)
     if back.any():
         i = int(np.flatnonzero(back)[0])
@@ -223,20 +309,266 @@ def validate_acquisitions(
             f"previous acquisition of that component at {_fmt(prev_t[i])} (times must be strictly "
             "increasing per component)"
         )
+    with np.errstate(over="ignore", invalid="ignore"):
+        gap = t - prev_t
+    huge = np.isfinite(prev_t) & ~np.isfinite(gap)
+    if huge.any():
+        i = int(np.flatnonzero(huge)[0])
+        raise IngestError(
+            f"row {i + 1} (component {out['component'].iloc[i]!r}), column 'time': the "
+            f"interval from {_fmt(prev_t[i])} to {_fmt(t[i])} overflows float64; use a "
+            "smaller time unit or offset")
     return out
+
+
+def _uri(path: Path, mode: str) -> str:
+    from urllib.parse import quote
+
+    return f"file:{quote(str(path.absolute()))}?mode={mode}"
+
+
+def _probe(path: Path) -> dict[str, str] | None:
+    """The ``meta`` of the rulkit database at ``path``, ``None`` if there is no file; anything
+    else raises :class:`StoreError`. Read-only: the file's bytes never change."""
+    if not path.exists():
+        if not path.parent.is_dir():
+            raise StoreError(f"{path}: the directory {path.parent} does not exist")
+        return None
+    if path.is_dir():
+        raise StoreError(f"{path}: is a directory, expected a rulkit component database file")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(SQLITE_HEADER))
+    except OSError as err:
+        raise StoreError(f"{path}: cannot be read: {err.strerror or err}") from err
+    if len(head) == 0:
+        raise StoreError(f"{path}: empty file (0 bytes), not a rulkit component database; "
+                         "refusing to write into it (remove it or choose another --db)")
+    if head != SQLITE_HEADER:
+        raise StoreError(f"{path}: not an SQLite database (no SQLite header), so not a rulkit "
+                         "component database; left unchanged")
+    try:
+        con = sqlite3.connect(_uri(path, "ro"), uri=True, timeout=5.0)
+    except sqlite3.Error as err:
+        raise StoreError(f"{path}: cannot be opened read-only: {err}") from err
+    try:
+        has_meta = con.execute(
+            "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'").fetchone()
+        meta = dict(con.execute("SELECT key, value FROM meta").fetchall()) if has_meta else {}
+    except sqlite3.DatabaseError as err:
+        raise StoreError(_db_error_message(path, err)) from err
+    finally:
+        con.close()
+    if "schema_version" not in meta or "tracker_config" not in meta:
+        raise StoreError(f"{path}: an SQLite database without rulkit's meta table, so not a "
+                         "rulkit component database; left unchanged")
+    if meta["schema_version"] != str(SCHEMA_VERSION):
+        raise StoreError(f"{path}: schema version {safe_text(meta['schema_version'])}, this "
+                         f"rulkit reads {SCHEMA_VERSION}")
+    return meta
+
+
+def _db_error_message(path: Path, err: sqlite3.Error) -> str:
+    text = str(err)
+    if isinstance(err, sqlite3.OperationalError) and ("locked" in text or "busy" in text):
+        return (f"{path}: the database is busy (another process is writing to it); nothing "
+                "was written, retry when it has finished")
+    if isinstance(err, sqlite3.OperationalError) and "readonly" in text.replace("-", ""):
+        return f"{path}: cannot be written (read-only file or directory): {text}"
+    return (f"{path}: corrupt or truncated database ({text}); restore it from a backup "
+            "(SQLite's .recover can salvage rows)")
+
+
+def _config_from_meta(path: Path, meta: dict[str, str]
+                      ) -> tuple[TrackerConfig, HealthIndexModel | None]:
+    try:
+        cfg = TrackerConfig.from_dict(json.loads(meta["tracker_config"]))
+        model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
+                 if "hi_model" in meta else None)
+    except (ValueError, TypeError, KeyError) as err:
+        raise StoreError(f"{path}: unreadable stored settings in table meta: "
+                         f"{safe_text(err)}") from err
+    return cfg, model
+
+
+def _check_spacing(config: TrackerConfig, acq: pd.DataFrame, last_t: np.ndarray,
+                   first: np.ndarray) -> None:
+    """The batch's acquisition spacing against ``design_life`` (time-unit check,
+    :func:`rulkit.fleet.tracker_chain.check_time_unit`), as an :class:`IngestError`."""
+    from rulkit.fleet.tracker_chain import check_time_unit
+
+    t = acq["t"].to_numpy()
+    prev = acq.groupby("component", sort=False)["t"].shift(1).to_numpy()
+    prev = np.where(first, last_t, prev)
+    gaps = t - prev
+    gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
+    try:
+        check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column")
+    except ValueError as err:
+        raise IngestError(str(err)) from err
+
+
+def _degradation_from_meta(path: Path, meta: dict[str, str]) -> Any:
+    """The learned degradation model stored by ``rulkit fit`` (None if there is none)."""
+    if "degradation_model" not in meta:
+        return None
+    from rulkit.fleet.models.degradation import DegradationModel
+
+    try:
+        return DegradationModel.from_dict(json.loads(meta["degradation_model"]))
+    except (ValueError, TypeError, KeyError) as err:
+        raise StoreError(f"{path}: unreadable learned model in table meta: "
+                         f"{safe_text(err)}") from err
+
+
+def _meta_rows(config: TrackerConfig, hi_model: HealthIndexModel | None) -> list[tuple[str, str]]:
+    rows = [("schema_version", str(SCHEMA_VERSION)),
+            ("tracker_config", json.dumps(config.to_dict()))]
+    if hi_model is not None:
+        rows.append(("hi_model", json.dumps(hi_model.to_dict())))
+    return rows
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexModel | None,
+                       acq: pd.DataFrame | None, source: str) -> IngestResult | None:
+    """Create the database in a temporary file beside ``path`` (schema, settings and, when
+    given, the validated batch ``acq``), then hard-link it to ``path``, which fails if
+    ``path`` appeared meanwhile. Returns the batch's result, or ``None`` when another process
+    created ``path`` first (then nothing of ours is kept and the caller applies the batch to
+    that database)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
+    result: IngestResult | None = None
+    try:
+        try:
+            conn = sqlite3.connect(str(tmp), isolation_level=None)
+        except sqlite3.Error as err:
+            raise StoreError(f"{path}: cannot create the database in {path.parent}: {err}"
+                             ) from err
+        try:
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=FULL")
+            conn.execute("BEGIN IMMEDIATE")
+            for stmt in _SCHEMA.split(";"):
+                if stmt.strip():
+                    conn.execute(stmt)
+            conn.executemany("INSERT INTO meta VALUES (?, ?)", _meta_rows(config, hi_model))
+            conn.execute("COMMIT")
+            if acq is not None:
+                store = ComponentStore.__new__(ComponentStore)
+                store._attach(tmp, conn, config, hi_model, timeout=0.0)
+                with store._transaction("IMMEDIATE"):
+                    result = store._apply(acq, source)
+            conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        except sqlite3.OperationalError as err:
+            raise StoreError(f"{path}: cannot create the database in {path.parent}: {err}"
+                             ) from err
+        finally:
+            conn.close()
+        for side in ("-wal", "-shm"):
+            Path(f"{tmp}{side}").unlink(missing_ok=True)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            return None
+        except OSError:  # a file system without hard links: rename, a small race window
+            if path.exists():
+                return None
+            os.replace(tmp, path)
+        _fsync_dir(path.parent)
+        return result
+    finally:
+        for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm"), Path(f"{tmp}-journal")):
+            p.unlink(missing_ok=True)
+
+
+def read_settings(path: str | Path) -> tuple[TrackerConfig, HealthIndexModel | None] | None:
+    """The stored tracker settings and HI model of the database at ``path`` (read-only), or
+    ``None`` if there is no file; a file that is not a rulkit database raises
+    :class:`StoreError`."""
+    path = Path(path)
+    meta = _probe(path)
+    return None if meta is None else _config_from_meta(path, meta)
+
+
+def ingest_into(
+    path: str | Path,
+    df: pd.DataFrame,
+    *,
+    config: TrackerConfig | None = None,
+    hi_model: HealthIndexModel | None = None,
+    source: str = "<dataframe>",
+    timeout: float = 30.0,
+) -> tuple[IngestResult, bool]:
+    """Validate ``df`` and commit it to the database at ``path``, creating it if missing.
+
+    Returns ``(result, created)``. Nothing is created or written when the batch is rejected
+    (:class:`IngestError`), and a new database appears complete with its first batch or not
+    at all, also when several processes create it at once (module docstring). ``config``:
+    the tracker settings of a new database (default ``TrackerConfig()``); for an existing one
+    it must equal the stored settings if given (else :class:`StoreError`). ``hi_model``: the
+    CI -> HI model; stored with the batch, in the same transaction, into a database without
+    one; a database holding a different one raises :class:`StoreError`.
+    """
+    path = Path(path)
+    for _attempt in range(2):
+        meta = _probe(path)
+        if meta is None:
+            cfg = config or TrackerConfig()
+            acq = validate_acquisitions(df, cfg, hi_model)
+            res = _build_and_publish(path, cfg, hi_model, acq, source)
+            if res is not None:
+                return res, True
+            continue  # another process created it first: apply the batch to theirs
+        stored_cfg, stored_model = _config_from_meta(path, meta)
+        if config is not None and config != stored_cfg:
+            raise StoreError(
+                f"{path} was created with tracker config {stored_cfg.to_dict()}; refusing to "
+                f"continue with a different one {config.to_dict()}")
+        if hi_model is not None and stored_model is not None and (
+                hi_model.to_dict() != stored_model.to_dict()):
+            raise StoreError(f"{path} already holds a different HI model")
+        model = stored_model or hi_model
+        acq = validate_acquisitions(df, stored_cfg, model)
+        with ComponentStore(path, create=False, timeout=timeout) as store:
+            new_model = hi_model if stored_model is None else None
+            return store._ingest_validated(acq, source, new_model=new_model), False
+    raise AssertionError("unreachable: the database exists after a lost creation race")
 
 
 # --------------------------------------------------------------------------- the store
 class ComponentStore:
     """SQLite store of component tracker state and acquisition history (see module docstring).
 
-    ``ComponentStore(path, config=None, hi_model=None)`` opens (creating if needed) the
-    database. A new database stores ``config`` (default ``TrackerConfig()``) and ``hi_model``;
-    opening an existing one with a different ``config`` or ``hi_model`` raises ``ValueError``
-    (the trackers' gains and state are only meaningful with the configuration they were run
-    with). ``create=False`` refuses to create a missing database (``FileNotFoundError``).
-    Use as a context manager or call :meth:`close`.
+    ``ComponentStore(path, config=None, hi_model=None)`` opens (creating if needed, atomically)
+    the database. A new database stores ``config`` (default ``TrackerConfig()``) and
+    ``hi_model``; opening an existing one with a different ``config`` or ``hi_model`` raises
+    :class:`StoreError` (a ``ValueError``; the trackers' gains and state are only meaningful
+    with the configuration they were run with). ``create=False`` refuses to create a missing
+    database (``FileNotFoundError``); ``readonly=True`` opens an existing one read-only
+    (implies ``create=False``). A file that is not a rulkit database raises
+    :class:`StoreError` and is not modified. Use as a context manager or call :meth:`close`.
     """
+
+    HISTORY_CHUNK = 50_000
+    """History rows per ``executemany`` call (bounds the Python tuples alive at once)."""
+    BLOCK_ROWS = 500_000
+    """Acquisitions per block of components run together (bounds the buffered outputs, ~80
+    bytes each; fewer, larger blocks mean fewer vectorised tracker calls)."""
 
     def __init__(
         self,
@@ -246,66 +578,62 @@ class ComponentStore:
         hi_model: HealthIndexModel | None = None,
         timeout: float = 30.0,
         create: bool = True,
+        readonly: bool = False,
     ) -> None:
         self.path = Path(path)
-        if not create and not self.path.exists():
-            raise FileNotFoundError(f"{self.path}: no such database")
-        self._conn = sqlite3.connect(str(self.path), timeout=timeout, isolation_level=None,
-                                     check_same_thread=False)
+        create = create and not readonly
+        meta = _probe(self.path)
+        if meta is None:
+            if not create:
+                raise FileNotFoundError(f"{self.path}: no such database")
+            _build_and_publish(self.path, config or TrackerConfig(), hi_model, None, "")
+            meta = _probe(self.path)
+            assert meta is not None
+        stored_cfg, stored_model = _config_from_meta(self.path, meta)
+        if config is not None and config != stored_cfg:
+            raise StoreError(
+                f"{self.path} was created with tracker config {stored_cfg.to_dict()}; "
+                f"refusing to continue with a different one {config.to_dict()}"
+            )
+        if hi_model is not None and stored_model is not None and (
+                hi_model.to_dict() != stored_model.to_dict()):
+            raise StoreError(f"{self.path} already holds a different HI model")
         try:
-            self._conn.execute("PRAGMA journal_mode=WAL")
-            self._conn.execute("PRAGMA synchronous=FULL")
-            self._conn.execute("PRAGMA foreign_keys=ON")
-            meta = self._read_meta()
-            if "schema_version" not in meta:
-                if not create:
-                    raise FileNotFoundError(f"{self.path}: not a rulkit component database")
-                with self._transaction():
-                    for stmt in _SCHEMA.split(";"):
-                        if stmt.strip():
-                            self._conn.execute(stmt)
-                    meta = dict(self._conn.execute("SELECT key, value FROM meta").fetchall())
-                    if "schema_version" not in meta:
-                        cfg = config or TrackerConfig()
-                        rows = [("schema_version", str(SCHEMA_VERSION)),
-                                ("tracker_config", json.dumps(cfg.to_dict()))]
-                        if hi_model is not None:
-                            rows.append(("hi_model", json.dumps(hi_model.to_dict())))
-                        self._conn.executemany("INSERT INTO meta VALUES (?, ?)", rows)
-                        meta = dict(rows)
-            if int(meta["schema_version"]) != SCHEMA_VERSION:
-                raise ValueError(f"{self.path}: schema version {meta['schema_version']}, "
-                                 f"this rulkit reads {SCHEMA_VERSION}")
-            self.config = TrackerConfig.from_dict(json.loads(meta["tracker_config"]))
-            self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
-                             if "hi_model" in meta else None)
-            if config is not None and config != self.config:
-                raise ValueError(
-                    f"{self.path} was created with tracker config {self.config.to_dict()}; "
-                    f"refusing to continue with a different one {config.to_dict()}"
-                )
-            if hi_model is not None and (
-                self.hi_model is None or hi_model.to_dict() != self.hi_model.to_dict()
-            ):
-                if self.hi_model is not None:
-                    raise ValueError(f"{self.path} already holds a different HI model")
+            if readonly:
+                conn = sqlite3.connect(_uri(self.path, "ro"), uri=True, timeout=timeout,
+                                       isolation_level=None, check_same_thread=False)
+                conn.execute("PRAGMA query_only=1")
+            else:
+                conn = sqlite3.connect(str(self.path), timeout=timeout, isolation_level=None,
+                                       check_same_thread=False)
+                conn.execute("PRAGMA synchronous=FULL")
+        except sqlite3.Error as err:
+            raise StoreError(_db_error_message(self.path, err)) from err
+        self._attach(self.path, conn, stored_cfg, stored_model, timeout)
+        self.readonly = readonly
+        self.degradation = _degradation_from_meta(self.path, meta)
+        if hi_model is not None and stored_model is None:
+            try:
                 with self._transaction():
                     self._conn.execute("INSERT INTO meta VALUES ('hi_model', ?)",
                                        (json.dumps(hi_model.to_dict()),))
-                self.hi_model = hi_model
-        except BaseException:
-            self._conn.close()
-            raise
-        self.gains = self.config.gains()
+            except BaseException:
+                self._conn.close()
+                raise
+            self.hi_model = hi_model
+
+    def _attach(self, path: Path, conn: sqlite3.Connection, config: TrackerConfig,
+                hi_model: HealthIndexModel | None, timeout: float) -> None:
+        self.path = path
+        self._conn = conn
+        self.config = config
+        self.hi_model = hi_model
+        self.timeout = timeout
+        self.readonly = False
+        self.gains = config.gains()
+        self.degradation = None  # learned model (rulkit fit), set from meta by __init__
 
     # -- plumbing
-    def _read_meta(self) -> dict[str, str]:
-        exists = self._conn.execute(
-            "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'").fetchone()
-        if not exists:
-            return {}
-        return dict(self._conn.execute("SELECT key, value FROM meta").fetchall())
-
     def close(self) -> None:
         self._conn.close()
 
@@ -317,14 +645,35 @@ class ComponentStore:
 
     @contextmanager
     def _transaction(self, mode: str = "IMMEDIATE") -> Iterator[sqlite3.Connection]:
-        self._conn.execute(f"BEGIN {mode}")
+        """``BEGIN mode`` ... ``COMMIT``, rolled back on any exception. SQLite errors become
+        :class:`StoreBusyError` (another writer held the lock past the timeout) or
+        :class:`StoreError` (corrupt file, disk full, read-only), with the path."""
+        try:
+            self._conn.execute(f"BEGIN {mode}")
+        except sqlite3.Error as err:
+            raise self._error(err) from err
         try:
             yield self._conn
-        except BaseException:
-            self._conn.execute("ROLLBACK")
+        except BaseException as exc:
+            if self._conn.in_transaction:
+                self._conn.execute("ROLLBACK")
+            if isinstance(exc, sqlite3.Error):
+                raise self._error(exc) from exc
             raise
         else:
-            self._conn.execute("COMMIT")
+            try:
+                self._conn.execute("COMMIT")
+            except sqlite3.Error as err:
+                if self._conn.in_transaction:
+                    self._conn.execute("ROLLBACK")
+                raise self._error(err) from err
+
+    def _error(self, err: sqlite3.Error) -> StoreError:
+        msg = _db_error_message(self.path, err)
+        if isinstance(err, sqlite3.OperationalError) and (
+                "locked" in str(err) or "busy" in str(err)):
+            return StoreBusyError(f"{msg} (waited {self.timeout:g} s)")
+        return StoreError(msg)
 
     @contextmanager
     def snapshot(self) -> Iterator[sqlite3.Connection]:
@@ -343,29 +692,65 @@ class ComponentStore:
                 out[row[0]] = row[1:]
         return out
 
+    def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
+        with self.snapshot() as conn:
+            try:
+                return pd.read_sql_query(sql, conn, params=params)
+            except sqlite3.Error as err:
+                raise self._error(err) from err
+            except Exception as err:  # pandas wraps the driver's errors
+                cause = err.__cause__ if isinstance(err.__cause__, sqlite3.Error) else None
+                if cause is not None:
+                    raise self._error(cause) from err
+                raise StoreError(f"{self.path}: cannot be read: {safe_text(err)}") from err
+
+    def _checked(self, df: pd.DataFrame, table: str) -> pd.DataFrame:
+        """Refuse rows rulkit cannot have written (text in a number column, an unknown alert
+        level), naming the table, component and column, instead of failing later."""
+        for col in df.columns:
+            if col == "component":
+                continue
+            num = df[col]
+            if num.dtype.kind not in "fiub":  # text or NULL among numbers: coerce and flag
+                num = pd.to_numeric(num, errors="coerce")
+            bad = num.isna().to_numpy().copy()
+            if col == "level":
+                bad |= ~num.isin(list(LEVEL_NAMES)).to_numpy()
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise StoreError(
+                    f"{self.path}: table {table}, component "
+                    f"{safe_text(df['component'].iloc[i], 60)!r}: column {col!r} holds "
+                    f"{_fmt(df[col].iloc[i])}, not "
+                    + ("an alert level 0, 1 or 2" if col == "level" else "a number")
+                    + f" ({int(bad.sum())} such row(s); not written by rulkit?)")
+            df[col] = num
+        df["component"] = df["component"].astype(str)
+        df["valid"] = df["valid"].astype(bool)
+        if "level" in df:
+            df["level"] = df["level"].astype(np.int64)
+        return df
+
     def status(self) -> pd.DataFrame:
         """All components, worst first (alert level, then filtered HI, descending)."""
-        with self.snapshot() as conn:
-            df = pd.read_sql_query(
-                "SELECT component, " + ", ".join(ROW_FIELDS) + " FROM components", conn
-            )
-        df["valid"] = df["valid"].astype(bool)
+        df = self._checked(self._query(
+            "SELECT component, " + ", ".join(ROW_FIELDS) + " FROM components"), "components")
         return df.sort_values(["level", "fhi", "component"], ascending=[False, False, True],
                               kind="stable").reset_index(drop=True)
 
     def history(self, component: str | None = None) -> pd.DataFrame:
-        """History rows (all components, or one), ordered by component and time."""
+        """History rows (all components, or one), ordered by component and time; with a
+        learned model (``rulkit fit``) also ``rul_median`` (NULL/NaN before the model), and
+        ``rul_low``/``rul_high`` are then the model's 90 % interval."""
         cols = "component, " + ", ".join(HISTORY_FIELDS) + ", ingest"
-        with self.snapshot() as conn:
-            if component is None:
-                df = pd.read_sql_query(f"SELECT {cols} FROM history ORDER BY component, t", conn)
-            else:
-                df = pd.read_sql_query(
-                    f"SELECT {cols} FROM history WHERE component = ? ORDER BY t", conn,
-                    params=(component,),
-                )
-        df["valid"] = df["valid"].astype(bool)
-        return df
+        if getattr(self, "degradation", None) is not None:
+            cols += ", rul_median"
+        if component is None:
+            df = self._query(f"SELECT {cols} FROM history ORDER BY component, t")
+        else:
+            df = self._query(f"SELECT {cols} FROM history WHERE component = ? ORDER BY t",
+                             (component,))
+        return self._checked(df, "history")
 
     def counts(self) -> tuple[int, int, int]:
         """(components, sum of their acquisition counts, history rows), in one snapshot."""
@@ -390,11 +775,32 @@ class ComponentStore:
         bad input.
         """
         acq = validate_acquisitions(df, self.config, self.hi_model)
+        return self._ingest_validated(acq, source)
+
+    def _ingest_validated(self, acq: pd.DataFrame, source: str,
+                          new_model: HealthIndexModel | None = None) -> IngestResult:
         with self._transaction("IMMEDIATE"):
-            return self._apply(acq, source)
+            if new_model is not None:
+                self._conn.execute("INSERT INTO meta VALUES ('hi_model', ?)",
+                                   (json.dumps(new_model.to_dict()),))
+            res = self._apply(acq, source)
+        if new_model is not None:
+            self.hi_model = new_model
+        return res
 
     def _apply(self, acq: pd.DataFrame, source: str) -> IngestResult:
-        names = list(dict.fromkeys(acq["component"].tolist()))
+        """Run the trackers over a validated batch and write history and states (inside the
+        caller's transaction).
+
+        Memory and time are linear in the batch: the tracker outputs are kept in float64
+        arrays (8 per acquisition), then the history rows are inserted in primary-key order
+        (component, t) in chunks of :attr:`HISTORY_CHUNK` rows, so SQLite appends to its
+        B-tree instead of visiting every component's page once per acquisition rank (that
+        order cost 3.5x the time on 200k rows).
+        """
+        codes_raw, uniq = pd.factorize(acq["component"], sort=False)
+        codes = codes_raw.astype(np.int64)
+        names = [str(u) for u in uniq]
         stored = self._load_states(names)
         pos = {name: i for i, name in enumerate(names)}
         b = len(names)
@@ -408,64 +814,165 @@ class ComponentStore:
             state.ab[i] = (vals["fhi"], vals["dhi"])
             state.abg[i] = (vals["frul"], vals["drul"], vals["d2rul"])
             level[i] = row[-1]
-        comp_idx = acq["component"].map(pos).to_numpy()
-        t = acq["t"].to_numpy()
-        hi = acq["hi"].to_numpy()
+        t = acq["t"].to_numpy(dtype=np.float64)
+        hi = acq["hi"].to_numpy(dtype=np.float64)
+        rows_all = acq["row"].to_numpy()
+        rank = pd.Series(codes).groupby(codes, sort=False).cumcount().to_numpy()
         # first acquisition of each component in this batch must follow its stored last one
-        first = ~acq.duplicated("component").to_numpy()
-        last_t = state.t[comp_idx]
+        first = rank == 0
+        last_t = state.t[codes]
         back = first & np.isfinite(last_t) & ~(t > last_t)
+        with np.errstate(over="ignore", invalid="ignore"):
+            huge = first & np.isfinite(last_t) & ~np.isfinite(t - last_t)
+        if huge.any():
+            i = int(np.flatnonzero(huge)[0])
+            raise IngestError(
+                f"row {rows_all[i]} (component {names[codes[i]]!r}), column 'time': "
+                f"the interval from the last stored acquisition at {_fmt(last_t[i])} to "
+                f"{_fmt(t[i])} overflows float64; use a smaller time unit or offset")
         if back.any():
             i = int(np.flatnonzero(back)[0])
             raise IngestError(
-                f"row {acq['row'].iloc[i]} (component {names[comp_idx[i]]!r}): time "
+                f"row {rows_all[i]} (component {names[codes[i]]!r}): time "
                 f"{_fmt(t[i])} is not after the component's last stored acquisition at "
                 f"{_fmt(last_t[i])}"
             )
-        rank = acq.groupby("component", sort=False).cumcount().to_numpy()
-        ingest_id = self._conn.execute(
-            "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?)",
-            (source, len(acq), b),
-        ).lastrowid
-        alerts: list[Alert] = []
-        hist_cols: dict[str, list[np.ndarray]] = {f: [] for f in ("component", *HISTORY_FIELDS)}
+        _check_spacing(self.config, acq, last_t, first)
+        del last_t, back, first
+        n = len(acq)
+        ingest_id = self._insert_ingest(source, n, b)
+        # rulkit fit: the learned model's RUL median and 90 % interval per acquisition, in its
+        # own pass over the ranks (it does not depend on the trackers); the history then holds
+        # them in rul_median / rul_low / rul_high.
+        learned = None
+        learned_cols: np.ndarray | None = None
+        if getattr(self, "degradation", None) is not None:
+            from rulkit.fleet.models.store_support import LearnedPass
+
+            learned = LearnedPass(self._conn, self.degradation, names)
+            learned_cols = np.full((3, n), np.nan)
+            for r in range(int(rank.max()) + 1):
+                sel = np.flatnonzero(rank == r)
+                ci = codes[sel]
+                t_r = np.full(b, np.nan)
+                h_r = np.full(b, np.nan)
+                t_r[ci] = t[sel]
+                h_r[ci] = hi[sel]
+                learned_cols[:, sel] = np.asarray(learned.step(ci, t_r, h_r))
+        # Components are processed in blocks of consecutive names in SQLite's key order
+        # (BINARY collation: UTF-8 byte order = code point order = Python's str order); each
+        # block runs the trackers rank by rank (one vectorised update per k-th acquisition)
+        # and writes its history sorted by (component, t), so SQLite appends to its B-tree
+        # (rank order visited every component's page once per rank: 3.5x the time on 200k
+        # rows) and only one block's outputs are held (~HISTORY_CHUNK rows).
+        sorted_pos = np.argsort(np.array(names, dtype=object), kind="stable")
+        name_order = np.empty(b, dtype=np.int64)
+        name_order[sorted_pos] = np.arange(b)
+        key = name_order[codes]
+        by_comp = np.lexsort((rows_all, key))  # rows grouped by component, file order inside
+        counts = np.bincount(key, minlength=b)
+        comp_start = np.concatenate([[0], np.cumsum(counts)])
+        out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
-        for r in range(int(rank.max()) + 1):
-            sel = rank == r
-            ci = comp_idx[sel]
-            t_r = np.full(b, np.nan)
-            h_r = np.full(b, np.nan)
-            t_r[ci] = t[sel]
-            h_r[ci] = hi[sel]
-            state, out = tracker_update(state, t_r, h_r, self.config, self.gains)
-            assert out is not None
-            cols = {**state.columns(), "valid": out.valid, "level": out.level,
-                    "rul_low": out.rul_low, "rul_high": out.rul_high}
-            hist_cols["component"].append(names_arr[ci])
-            for f in HISTORY_FIELDS:
-                hist_cols[f].append(cols[f][ci])
-            for i in ci[out.level[ci] > level[ci]]:
-                alerts.append(Alert(
-                    component=names[i], t=float(state.t[i]), level=int(out.level[i]),
-                    previous=int(level[i]), hi=float(state.hi[i]), fhi=float(state.fhi[i]),
-                    frul=float(state.frul[i]), valid=bool(out.valid[i]),
-                    rul_low=float(out.rul_low[i]), rul_high=float(out.rul_high[i]),
-                ))
-            level[ci] = np.maximum(level[ci], out.level[ci])
-        history = [np.concatenate(hist_cols[f]).tolist() for f in ("component", *HISTORY_FIELDS)]
-        history.append([ingest_id] * len(history[0]))
-        self._write_history(list(zip(*history, strict=True)))
+        alerts: list[tuple[int, int, Alert]] = []
+        k0 = 0
+        while k0 < b:
+            k1 = k0 + 1  # components k0 .. k1-1 (in key order) form the block
+            while k1 < b and comp_start[k1 + 1] - comp_start[k0] <= self.BLOCK_ROWS:
+                k1 += 1
+            rows_b = by_comp[comp_start[k0]:comp_start[k1]]  # block rows, key order
+            ci_b = sorted_pos[key[rows_b]]  # component index (into names / state)
+            rank_b = np.arange(rows_b.size) - comp_start[key[rows_b]] + comp_start[k0]
+            m = rows_b.size
+            buf = {f: np.empty(m) for f in out_fields}
+            valid_buf = np.empty(m, dtype=bool)
+            level_buf = np.empty(m, dtype=np.int8)
+            comps = sorted_pos[k0:k1]
+            sub = state.take(comps)
+            local = np.empty(b, dtype=np.int64)
+            local[comps] = np.arange(k1 - k0)
+            lvl = level[comps].copy()
+            by_rank = np.argsort(rank_b, kind="stable")
+            bounds = np.concatenate([[0], np.cumsum(np.bincount(rank_b))])
+            for r in range(len(bounds) - 1):
+                j = by_rank[bounds[r]:bounds[r + 1]]  # positions in the block
+                idx = rows_b[j]
+                li = local[ci_b[j]]
+                t_r = np.full(k1 - k0, np.nan)  # fresh: the new state may hold these arrays
+                h_r = np.full(k1 - k0, np.nan)
+                t_r[li] = t[idx]
+                h_r[li] = hi[idx]
+                sub, out = tracker_update(sub, t_r, h_r, self.config, self.gains)
+                assert out is not None
+                cols = {**sub.columns(), "rul_low": out.rul_low, "rul_high": out.rul_high}
+                finite = np.ones(li.size, dtype=bool)
+                for f in out_fields:
+                    v = cols[f][li]
+                    buf[f][j] = v
+                    finite &= np.isfinite(v)
+                if not finite.all():
+                    q = int(np.flatnonzero(~finite)[0])
+                    f = next(f for f in out_fields if not np.isfinite(cols[f][li[q]]))
+                    raise IngestError(
+                        f"row {rows_all[idx[q]]} (component {names[ci_b[j[q]]]!r}), column "
+                        f"'time' = {_fmt(t[idx[q]])}: the tracker's {f} is not finite (the "
+                        "interval since the previous acquisition or the time itself is too "
+                        "large for float64 arithmetic); use a smaller time unit or offset")
+                valid_buf[j] = out.valid[li]
+                level_buf[j] = out.level[li]
+                for q in np.flatnonzero(out.level[li] > lvl[li]):
+                    i, g = int(li[q]), int(ci_b[j[q]])
+                    alerts.append((r, int(idx[q]), Alert(
+                        component=names[g], t=float(sub.t[i]), level=int(out.level[i]),
+                        previous=int(lvl[i]), hi=float(sub.hi[i]), fhi=float(sub.fhi[i]),
+                        frul=float(sub.frul[i]), valid=bool(out.valid[i]),
+                        rul_low=float(out.rul_low[i]), rul_high=float(out.rul_high[i]),
+                    )))
+                lvl[li] = np.maximum(lvl[li], out.level[li])
+            level[comps] = lvl
+            for f in ("t", "n", "hi", "ab", "rul", "abg"):
+                getattr(state, f)[comps] = getattr(sub, f)
+            for c0 in range(0, m, self.HISTORY_CHUNK):
+                sl = slice(c0, c0 + self.HISTORY_CHUNK)
+                rb = rows_b[sl]
+                cols_out = [names_arr[ci_b[sl]].tolist(), t[rb].tolist(), hi[rb].tolist()]
+                cols_out += [buf[f][sl].tolist() for f in out_fields[:6]]  # fhi .. d2rul
+                cols_out += [valid_buf[sl].tolist(), level_buf[sl].tolist()]
+                if learned_cols is None:
+                    cols_out += [buf["rul_low"][sl].tolist(), buf["rul_high"][sl].tolist()]
+                    extra_cols: tuple[str, ...] = ()
+                else:  # low, high, then the extra column rul_median
+                    cols_out += [learned_cols[1, rb].tolist(), learned_cols[2, rb].tolist(),
+                                 learned_cols[0, rb].tolist()]
+                    extra_cols = ("rul_median",)
+                self._write_history(zip(*cols_out, itertools.repeat(ingest_id), strict=False),
+                                    extra_cols=extra_cols)
+                del cols_out
+            del buf
+            k0 = k1
+        alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then file row
         out = tracker_outputs(state, self.config)
         final = {**state.columns(), "valid": out.valid, "level": out.level,
                  "rul_low": out.rul_low, "rul_high": out.rul_high}
+        if learned is not None:
+            _, final["rul_low"], final["rul_high"] = learned.finish()
         rows = [names] + [np.asarray(final[f]).tolist() for f in ROW_FIELDS]
         rows.append(level.tolist())
         self._write_states(list(zip(*rows, strict=True)))
-        return IngestResult(n_rows=len(acq), n_components=b,
-                            n_new_components=b - len(stored), alerts=alerts)
+        return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(stored),
+                            alerts=[a for _, _, a in alerts])
 
-    def _write_history(self, rows: list[tuple]) -> None:
-        cols = ("component", *HISTORY_FIELDS, "ingest")
+    def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
+        """Record one ingestion (audit row) and return its id (backend hook)."""
+        cur = self._conn.execute(
+            "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?)",
+            (source, n_rows, n_components),
+        )
+        assert cur.lastrowid is not None
+        return int(cur.lastrowid)
+
+    def _write_history(self, rows: Iterable[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+        cols = ("component", *HISTORY_FIELDS, *extra_cols, "ingest")
         self._conn.executemany(
             f"INSERT INTO history ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
             rows,
@@ -479,6 +986,18 @@ class ComponentStore:
             f"ON CONFLICT(component) DO UPDATE SET {updates}",
             rows,
         )
+
+    def set_degradation_model(self, model: Any) -> int:
+        """Store a learned model (:mod:`rulkit.fleet.models.degradation`) in one transaction:
+        meta ``degradation_model``, the additive migration (history column ``rul_median``,
+        table ``model_state``) and every existing component's model state rebuilt by replaying
+        its stored history. Returns the number of components rebuilt."""
+        from rulkit.fleet.models.store_support import install_model
+
+        with self._transaction("IMMEDIATE"):
+            n = install_model(self._conn, model)
+        self.degradation = model
+        return n
 
     def meta(self) -> dict[str, Any]:
         """The stored configuration (tracker config and HI model as dicts)."""

@@ -23,9 +23,11 @@ its value set to the lower bound ``h`` and ``censored[i] = True``. Then
 from __future__ import annotations
 
 import csv
+import inspect
 import io
 import json
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +35,8 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from rulkit.model import input_at
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -397,41 +401,120 @@ class RULDistribution:
         )
 
 
-StepFn = Callable[[FloatArray, float, float, np.random.Generator], FloatArray]
+LegacyStepFn = Callable[[FloatArray, float, float, np.random.Generator], FloatArray]
 IndicatorFn = Callable[[FloatArray], FloatArray]
+AfterCrossing = Literal["hold", "drop", "continue"]
+
+
+def _contract_step(step: Callable[..., FloatArray], u: Any) -> Callable[..., FloatArray]:
+    """``step`` as ``f(x, t, dt, rng)``: a contract step ``step(x, u, t, dt, rng)`` (five
+    positional parameters, or ``*args``) gets ``u(t)``; the older four-parameter form
+    ``step(x, t, dt, rng)`` is still accepted as is (docs/engine-api.md, "The calling
+    convention")."""
+    try:
+        params = list(inspect.signature(step).parameters.values())
+    except (TypeError, ValueError):  # no signature (a builtin): assume the contract
+        params = []
+    pos = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    var = any(p.kind == p.VAR_POSITIONAL for p in params)
+    if params and not var and len(pos) == 4:
+        if u is not None:
+            raise ValueError("u: the step takes no input (it has the form step(x, t, dt, rng)); "
+                             "write it as step(x, u, t, dt, rng) to receive u")
+        return step
+    if u is None:
+        return lambda x, t, dt, rng: step(x, None, t, dt, rng)
+    return lambda x, t, dt, rng: step(x, input_at(u, t), t, dt, rng)
+
+
+def _estimate_samples(x0: Any, weights: ArrayLike | None) -> tuple[Any, ArrayLike | None]:
+    """Samples and weights of ``x0``: an array, or a weighted estimate (an object with
+    ``particles`` and ``weights``, e.g. a ``ParticleFilterResult`` or ``ParticleState``), whose
+    weights are used; giving ``weights`` as well is refused (one source of truth)."""
+    if hasattr(x0, "particles") and hasattr(x0, "weights"):
+        if weights is not None:
+            raise ValueError("weights: x0 is a weighted estimate that carries its own weights; "
+                             "do not pass weights= as well")
+        return x0.particles, x0.weights
+    if weights is None:
+        from rulkit.estimation.particle import weights_of
+
+        w = weights_of(x0)
+        if w is not None and np.ptp(w) > 0:
+            warnings.warn(
+                "x0 holds the particles of a weighted particle-filter estimate but no weights "
+                "were given: they would count as equally likely and change the RUL "
+                "distribution. Pass the result itself (x0=result) or weights=...",
+                UserWarning, stacklevel=3)
+    return x0, weights
 
 
 def propagate_to_threshold(
-    x0: ArrayLike,
-    step: StepFn,
-    indicator: IndicatorFn,
-    threshold: float,
+    x0: Any,
+    step: Callable[..., FloatArray] | None = None,
+    indicator: IndicatorFn | None = None,
+    threshold: float | None = None,
     *,
+    model: Any = None,
+    u: Any = None,
     t0: float = 0.0,
-    dt: float,
+    dt: float | None = None,
     horizon: float,
     rng: np.random.Generator,
     direction: Literal["up", "down"] = "up",
     weights: ArrayLike | None = None,
+    after_crossing: AfterCrossing = "hold",
 ) -> RULDistribution:
     """Monte Carlo time to threshold of a batch of states (engine-api.md, ``rulkit.prognosis``).
 
-    All N samples advance together: ``x <- step(x, t, dt, rng)`` on the whole (N, n) array,
-    from ``t0`` until ``t0 + horizon`` (the last step is shortened to end exactly at the
-    horizon), stopping early once every sample has crossed. The health indicator
-    ``g = indicator(x)`` (shape (N,)) fails when ``g >= threshold`` (``direction="up"``) or
-    ``g <= threshold`` (``"down"``). A sample crossing between ``t_k`` and ``t_k + h`` gets the
-    linearly interpolated time ``t_k + h (thr - g_k) / (g_{k+1} - g_k)``; its RUL is that time
-    minus ``t0``. Samples failed already at ``t0`` have RUL 0. Samples that never cross are
-    censored at ``horizon`` (counted, never dropped; see the module docstring).
+    With ``model=`` (a :class:`rulkit.model.StateSpaceModel`) the step is ``model.step``, the
+    indicator ``model.health``, the threshold ``model.threshold`` and ``dt`` defaults to
+    ``model.dt``; each may still be given explicitly. ``step`` follows the one calling
+    convention ``step(x, u, t, dt, rng)`` (``u`` is the input ``u`` or ``u(t)``); the older
+    form ``step(x, t, dt, rng)`` is accepted.
 
-    ``x0`` is (N, n); a 1-D ``x0`` is read as N samples of a scalar state, (N, 1).
-    Samples keep being stepped after they cross (the batch is not compacted), so ``step`` may
-    close over per-sample arrays of length N. ``weights`` (e.g. particle-filter weights) are
-    attached to the returned distribution. Raises ``ValueError`` for an empty batch, bad
-    shapes, non-positive ``dt``/``horizon``, or a non-finite indicator of a not-yet-failed
-    sample (naming the step and the first bad sample).
+    ``x0`` is (N, n) (a 1-D ``x0`` is read as N samples of a scalar state), or a weighted
+    estimate such as a ``ParticleFilterResult`` or ``ParticleState``: its particles are
+    propagated *with its weights* (passing ``weights=`` as well is an error). All samples
+    advance together from ``t0`` until ``t0 + horizon`` (the last step is shortened to end
+    exactly at the horizon), stopping early once every sample has crossed. The health
+    indicator ``g = indicator(x)`` (shape (N,)) fails when ``g >= threshold``
+    (``direction="up"``) or ``g <= threshold`` (``"down"``). A sample crossing between ``t_k``
+    and ``t_k + h`` gets the linearly interpolated time ``t_k + h (thr - g_k) / (g_{k+1} -
+    g_k)``; its RUL is that time minus ``t0``. Samples failed already at ``t0`` have RUL 0.
+    Samples that never cross are censored at ``horizon`` (counted, never dropped; see the
+    module docstring).
+
+    ``after_crossing`` says what happens to a sample once it has crossed:
+
+    * ``"hold"`` (default): it is frozen at its first state past the threshold. The batch keeps
+      its size N (a step may close over per-sample arrays) and the frozen rows are reset after
+      every step, so a model that grows without bound after failure never overflows; the
+      random draws and every RUL are bit-for-bit those of ``"continue"``.
+    * ``"drop"``: it leaves the batch; later steps see only the running samples (fewest
+      draws, fastest; the step and indicator must work row by row, as a model's do).
+    * ``"continue"``: the old behaviour, crossed samples keep being stepped.
+
+    Raises ``ValueError`` for an empty batch, bad shapes, non-positive ``dt``/``horizon``, or
+    a non-finite indicator of a not-yet-failed sample (naming the step and the first bad
+    sample).
     """
+    if model is not None:
+        step = model.step if step is None else step
+        indicator = model.health if indicator is None else indicator
+        threshold = model.threshold if threshold is None else threshold
+        if dt is None:
+            dt = getattr(model, "dt", None)
+    if step is None or indicator is None or threshold is None:
+        raise TypeError("propagate_to_threshold: give model=... or step, indicator and "
+                        "threshold")
+    if dt is None:
+        raise TypeError("propagate_to_threshold: dt is required (or a model with a dt)")
+    if after_crossing not in ("hold", "drop", "continue"):
+        raise ValueError(f"after_crossing: expected 'hold', 'drop' or 'continue', got "
+                         f"{after_crossing!r}")
+    x0, weights = _estimate_samples(x0, weights)
+    fstep = _contract_step(step, u)
     x = np.array(x0, dtype=np.float64, copy=True)
     if x.ndim == 1:
         x = x[:, None]
@@ -455,74 +538,142 @@ def propagate_to_threshold(
         raise ValueError(f"t0: expected a finite time, got {t0!r}")
     if weights is not None and np.shape(weights) != (n,):
         raise ValueError(f"weights: expected shape ({n},) like x0, got {np.shape(weights)}")
-    up = direction == "up"
-
-    def health(xk: FloatArray, k: int) -> FloatArray:
-        g = indicator(xk)
-        if not (isinstance(g, np.ndarray) and g.dtype == np.float64):
-            g = np.asarray(g, dtype=np.float64)
-        if g.shape != (n,):
-            raise ValueError(f"indicator: expected shape ({n},), got {g.shape} at step {k}")
-        return g
-
-    g_old = health(x, 0)
-    bad = np.flatnonzero(~np.isfinite(g_old))
+    g0 = _indicator(indicator, x, n, 0)
+    bad = np.flatnonzero(~np.isfinite(g0))
     if bad.size:
         raise ValueError(f"indicator: non-finite value at t0 for sample {bad[0]}")
-    failed0 = g_old >= threshold if up else g_old <= threshold
-    active = ~failed0  # not yet crossed
-    n_active = int(np.count_nonzero(active))
-    rul = np.full(n, float(horizon))
-    rul[failed0] = 0.0
+    run = _Run(fstep, indicator, float(threshold), direction == "up", float(t0), float(dt),
+               float(horizon), rng)
+    if after_crossing == "drop":
+        rul, active = run.dropping(x, g0)
+    else:
+        rul, active = run.batch(x, g0, hold=after_crossing == "hold")
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
+    return RULDistribution(samples=rul, weights=w, censored=active, horizon=horizon)
 
-    # The loop body is a handful of numpy calls on (N,) arrays: at small N their per-call
-    # overhead, not arithmetic, is the cost (benchmarks/run.py measures it). Each sample is
-    # compared with its own threshold, NaN once it has crossed (every comparison with NaN is
-    # False, even for an indicator that later diverges to +-inf), so one comparison finds the
-    # new crossings among the running samples; until the first crossing one reduction
-    # (max / min) shows that no sample has crossed.
-    thr = np.where(active, float(threshold), np.nan)
-    n_run0 = n_active
-    n_steps = max(1, math.ceil(horizon / dt - 1e-9))
-    for k in range(n_steps):
-        if n_active == 0:
-            break
-        tau = k * dt
-        h = dt if k < n_steps - 1 else horizon - tau
-        x = step(x, t0 + tau, h, rng)
-        if not isinstance(x, np.ndarray) or x.ndim != 2 or x.shape[0] != n:
+
+def _indicator(indicator: IndicatorFn, x: FloatArray, n: int, k: int) -> FloatArray:
+    g = indicator(x)
+    if not (isinstance(g, np.ndarray) and g.dtype == np.float64):
+        g = np.asarray(g, dtype=np.float64)
+    if g.shape != (n,):
+        raise ValueError(f"indicator: expected shape ({n},), got {g.shape} at step {k}")
+    return g
+
+
+def _check_step(x: Any, n: int, k: int) -> None:
+    if not isinstance(x, np.ndarray) or x.ndim != 2 or x.shape[0] != n:
+        raise ValueError(f"step: expected an array of shape ({n}, n), got {np.shape(x)} at "
+                         f"step {k}")
+
+
+@dataclass
+class _Run:
+    """The stepping loops of :func:`propagate_to_threshold` (validated arguments)."""
+
+    step: Callable[..., FloatArray]
+    indicator: IndicatorFn
+    threshold: float
+    up: bool
+    t0: float
+    dt: float
+    horizon: float
+    rng: np.random.Generator
+
+    @property
+    def n_steps(self) -> int:
+        return max(1, math.ceil(self.horizon / self.dt - 1e-9))
+
+    def _h(self, k: int) -> float:
+        return self.dt if k < self.n_steps - 1 else self.horizon - k * self.dt
+
+    def _diverged(self, g: FloatArray, running: Any, k: int, tau: float, h: float) -> None:
+        badk = np.flatnonzero(running & ~np.isfinite(g))
+        if badk.size:
             raise ValueError(
-                f"step: expected an array of shape ({n}, n), got {np.shape(x)} at step {k}"
+                f"indicator: non-finite value at step {k + 1} (t = {self.t0 + tau + h!r}) for "
+                f"sample {badk[0]} ({badk.size} samples); the model diverged"
             )
-        g_new = indicator(x)
-        if not (isinstance(g_new, np.ndarray) and g_new.dtype == np.float64):
-            g_new = np.asarray(g_new, dtype=np.float64)
-        if g_new.shape != (n,):
-            raise ValueError(f"indicator: expected shape ({n},), got {g_new.shape} at step "
-                             f"{k + 1}")
-        if not math.isfinite(g_new.sum()):  # one cheap test; details only when it fails
-            badk = np.flatnonzero(active & ~np.isfinite(g_new))
-            if badk.size:
-                raise ValueError(
-                    f"indicator: non-finite value at step {k + 1} (t = {t0 + tau + h!r}) for "
-                    f"sample {badk[0]} ({badk.size} samples); the model diverged"
-                )
-        if n_active == n_run0 and (
-            g_new.max() < threshold if up else g_new.min() > threshold
-        ):  # (a NaN of a crossed sample makes this False: the full test below handles it)
-            g_old = g_new
-            continue
-        new = g_new >= thr if up else g_new <= thr
-        idx = new.nonzero()[0]
-        if idx.size:
-            ga, gb = g_old[idx], g_new[idx]
-            # linear interpolation of the crossing: ga < thr <= gb (up) or ga > thr >= gb
-            # (down), so 0 < frac <= 1
-            frac = (threshold - ga) / (gb - ga)
-            rul[idx] = tau + frac * h
-            active[idx] = False
-            thr[idx] = np.nan
-            n_active -= idx.size
-        g_old = g_new
 
-    return RULDistribution(samples=rul, weights=weights, censored=active, horizon=horizon)
+    def batch(self, x: FloatArray, g_old: FloatArray, hold: bool) -> tuple[FloatArray, Any]:
+        """All N rows stepped every step; crossed rows reset to their frozen state (hold) or
+        left to run on (continue)."""
+        n = x.shape[0]
+        thr0, up = self.threshold, self.up
+        failed0 = g_old >= thr0 if up else g_old <= thr0
+        active = ~failed0  # not yet crossed
+        n_active = int(np.count_nonzero(active))
+        rul = np.full(n, self.horizon)
+        rul[failed0] = 0.0
+        # The loop body is a handful of numpy calls on (N,) arrays: at small N their per-call
+        # overhead, not arithmetic, is the cost (benchmarks/run.py measures it). Each sample is
+        # compared with its own threshold, NaN once it has crossed (every comparison with NaN
+        # is False, even for an indicator that later diverges to +-inf), so one comparison
+        # finds the new crossings among the running samples; until the first crossing one
+        # reduction (max / min) shows that no sample has crossed.
+        thr = np.where(active, thr0, np.nan)
+        frozen = ~active[:, None] if hold and n_active < n else None
+        n_run0 = n_active
+        for k in range(self.n_steps):
+            if n_active == 0:
+                break
+            tau = k * self.dt
+            h = self._h(k)
+            x_new = self.step(x, self.t0 + tau, h, self.rng)
+            _check_step(x_new, n, k)
+            if frozen is not None:
+                x_new = np.where(frozen, x, x_new)
+            x = x_new
+            g_new = _indicator(self.indicator, x, n, k + 1)
+            if not math.isfinite(g_new.sum()):  # one cheap test; details only when it fails
+                self._diverged(g_new, active, k, tau, h)
+            if n_active == n_run0 and (g_new.max() < thr0 if up else g_new.min() > thr0):
+                g_old = g_new  # (a NaN of a crossed sample makes the test False)
+                continue
+            new = g_new >= thr if up else g_new <= thr
+            idx = new.nonzero()[0]
+            if idx.size:
+                ga, gb = g_old[idx], g_new[idx]
+                # linear interpolation of the crossing: ga < thr <= gb (up) or ga > thr >= gb
+                # (down), so 0 < frac <= 1
+                rul[idx] = tau + (thr0 - ga) / (gb - ga) * h
+                active[idx] = False
+                thr[idx] = np.nan
+                n_active -= idx.size
+                if hold:
+                    frozen = ~active[:, None]
+            g_old = g_new
+        return rul, active
+
+    def dropping(self, x: FloatArray, g_old: FloatArray) -> tuple[FloatArray, Any]:
+        """Only the running rows are stepped: crossed ones leave the batch."""
+        n = x.shape[0]
+        thr0, up = self.threshold, self.up
+        failed0 = g_old >= thr0 if up else g_old <= thr0
+        rul = np.full(n, self.horizon)
+        rul[failed0] = 0.0
+        active = ~failed0
+        ids = np.flatnonzero(active)
+        x, g_old = x[ids], g_old[ids]
+        for k in range(self.n_steps):
+            m = ids.size
+            if m == 0:
+                break
+            tau = k * self.dt
+            h = self._h(k)
+            x = self.step(x, self.t0 + tau, h, self.rng)
+            _check_step(x, m, k)
+            g_new = _indicator(self.indicator, x, m, k + 1)
+            if not math.isfinite(g_new.sum()):
+                self._diverged(g_new, True, k, tau, h)
+            if g_new.max() < thr0 if up else g_new.min() > thr0:
+                g_old = g_new
+                continue
+            new = g_new >= thr0 if up else g_new <= thr0
+            idx = new.nonzero()[0]
+            ga, gb = g_old[idx], g_new[idx]
+            rul[ids[idx]] = tau + (thr0 - ga) / (gb - ga) * h
+            active[ids[idx]] = False
+            keep = ~new
+            ids, x, g_old = ids[keep], x[keep], g_new[keep]
+        return rul, active

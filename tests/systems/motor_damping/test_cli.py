@@ -64,10 +64,10 @@ def test_motor_damping_bad_file_gives_specific_error(pullup_csv, tmp_path: Path)
     p = tmp_path / "bad.csv"
     df.to_csv(p, index=False)
     res = runner.invoke(app, ["motor", "damping", str(p)])
-    assert res.exit_code == 2
+    assert res.exit_code == 1  # the input file was refused
     assert "column 'speed', row 11" in " ".join(res.output.split())
     res = runner.invoke(app, ["motor", "damping", str(tmp_path / "missing.csv")])
-    assert res.exit_code == 2 and "file not found" in res.output
+    assert res.exit_code == 1 and "file not found" in res.output
 
 
 @pytest.mark.parametrize(

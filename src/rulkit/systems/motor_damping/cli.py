@@ -46,6 +46,7 @@ def reproduce_motor_damping(
 ) -> Path:
     """Run the reproduction and write its outputs; returns the report path."""
     from rich.console import Console
+    from rich.markup import escape
 
     from rulkit.systems.motor_damping.macro import MacroSettings
     from rulkit.systems.motor_damping.report import write_report
@@ -94,8 +95,33 @@ def reproduce_motor_damping(
             f"{row['alpha_lambda_pass_0.5']:.2f} RA {row['ra_0.5_median']:.3f} width "
             f"{_fmt(float(row['median_width']), '.3g')}", highlight=False,
         )
-    console.print(f"wrote tables, figures and {report} ({time.perf_counter() - t0:.1f} s)")
+    console.print(f"wrote tables, figures and {escape(str(report))} "
+                  f"({time.perf_counter() - t0:.1f} s)", highlight=False)
     return report
+
+
+MAX_MAGNITUDE = 1e150
+"""Largest accepted |value| of a pull-up column: the filters square the data (noise variances,
+covariances), and float64 overflows above ~1.3e154."""
+
+
+def check_magnitudes(data: object) -> None:
+    """Refuse values whose squares overflow float64, naming the file, column, cycle and sample
+    (before: ``OverflowError`` from inside the micro EKF)."""
+    import numpy as np
+
+    from rulkit.systems.motor_damping.pullup import PullupDataError
+
+    for name in ("time", "current", "speed", "acceleration"):
+        a = np.asarray(getattr(data, name))
+        big = np.abs(np.nan_to_num(a, nan=0.0)) > MAX_MAGNITUDE
+        if big.any():
+            k, j = (int(v[0]) for v in np.nonzero(big))
+            cyc = np.asarray(data.cycle)[k]  # type: ignore[attr-defined]
+            raise PullupDataError(
+                f"{data.source}: column {name!r}, cycle {cyc:g}, sample {j + 1}: {a[k, j]:.3g} "  # type: ignore[attr-defined]
+                f"is beyond +-{MAX_MAGNITUDE:g}, where the filter's float64 arithmetic "
+                f"overflows; check the unit ({int(big.sum())} such value(s))")
 
 
 def analyse_file(
@@ -119,6 +145,7 @@ def analyse_file(
     """Read, validate and analyse a pull-up file; print the per-cycle table; write CSV/JSON."""
     import numpy as np
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from rulkit.prognosis.rul import RULDistribution
@@ -128,6 +155,7 @@ def analyse_file(
 
     console = Console(width=150)
     data = read_pullup(file, min_samples=min_samples)
+    check_magnitudes(data)
     base = MotorConstants()
     consts = MotorConstants(
         K=base.K if K is None else K, J=base.J if J is None else J,
@@ -139,7 +167,8 @@ def analyse_file(
         rng=np.random.default_rng(seed), macro_model=macro_model,
     )
     n_s = int(data.n_samples.sum())
-    console.print(f"[bold]{file}[/bold]: {data.n_cycles} cycles, {n_s} samples", highlight=False)
+    console.print(f"[bold]{escape(str(file))}[/bold]: {data.n_cycles} cycles, {n_s} samples",
+                  highlight=False)
     console.print(f"acceleration: {res.acceleration_source}")
     console.print(
         f"motor constants K={consts.K:g} N m/A, J={consts.J:g} kg m^2, T_L={consts.T_L:g} N m"
@@ -193,7 +222,7 @@ def analyse_file(
             RULDistribution(
                 res.last_rul_samples, censored=res.last_rul_censored, horizon=res.horizon
             ).to_json(out / "rul_last_cycle.json")
-        console.print(f"wrote {out / 'damping_per_cycle.csv'}")
+        console.print(f"wrote {escape(str(out / 'damping_per_cycle.csv'))}", highlight=False)
     return res
 
 
@@ -207,7 +236,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     def _reproduce(
         quick: Annotated[bool, typer.Option("--quick", help="Short run (< 1 min).")] = False,
         runs: Annotated[int | None, typer.Option(help="Seeded runs per scenario.")] = None,
-        seed: Annotated[int, typer.Option(help="Master seed of the runs.")] = 0,
+        seed: Annotated[int, typer.Option(min=0, help="Master seed of the runs.")] = 0,
         out: Annotated[Path, typer.Option(help="Output directory.")] = Path(
             "out/motor-damping"
         ),
@@ -252,22 +281,29 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             help="Macro law: linear (seed eq. 4, [c, a]) or quadratic ([c, a, j], constant "
                  "acceleration of the damping).")] = "linear",
         mc_samples: Annotated[int, typer.Option(help="Monte Carlo RUL samples.")] = 2000,
-        seed: Annotated[int, typer.Option(help="Seed of the Monte Carlo RUL.")] = 0,
+        seed: Annotated[int, typer.Option(min=0, help="Seed of the Monte Carlo RUL.")] = 0,
         min_samples: Annotated[int, typer.Option(help="Fewest samples per cycle.")] = 20,
     ) -> None:
         """Per-cycle damping (micro EKF), trend (macro EKF) and RUL of a pull-up test file."""
         from rich.console import Console
         from rich.markup import escape
 
+        from rulkit.cli.errors import EXIT_INPUT, EXIT_USAGE
         from rulkit.systems.motor_damping.pullup import PullupDataError
+        from rulkit.tables import safe_text
 
         err_console = Console(stderr=True, soft_wrap=True)
         problems = [
             f"{flag}: expected a positive finite number, got {v!r}"
             for flag, v in (("--k", k), ("--j", j), ("--c-fail", c_fail), ("--sigma-w", sigma_w),
-                            ("--sigma-dw", sigma_dw), ("--design-speed", design_speed))
+                            ("--sigma-dw", sigma_dw), ("--design-speed", design_speed),
+                            ("--design-torque", design_torque))
             if v is not None and not (math.isfinite(v) and v > 0)
         ]
+        if tl is not None and not (math.isfinite(tl) and tl >= 0):
+            problems.append(f"--tl: expected a finite load torque >= 0, got {tl!r}")
+        if out is not None and out.exists() and not out.is_dir():
+            problems.append(f"--out: {out} is an existing file; expected a directory")
         if not (math.isfinite(q_a) and q_a >= 0):
             problems.append(f"--q-a: expected a finite number >= 0, got {q_a!r}")
         if macro_model not in ("linear", "quadratic"):
@@ -280,7 +316,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             problems.append(f"--min-samples: expected >= 3, got {min_samples}")
         if problems:
             err_console.print(f"[red]error:[/red] {escape('; '.join(problems))}", highlight=False)
-            raise typer.Exit(code=2)
+            raise typer.Exit(code=EXIT_USAGE)
         try:
             analyse_file(
                 file, out, K=k, J=j, T_L=tl, design_speed=design_speed,
@@ -288,6 +324,14 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 sigma_dw=sigma_dw, q_a=q_a, mc_samples=mc_samples, seed=seed,
                 min_samples=min_samples, macro_model=macro_model,
             )
-        except (PullupDataError, ValueError) as err:
-            err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False)
-            raise typer.Exit(code=2) from None
+        except (PullupDataError, ValueError, OverflowError, FloatingPointError) as err:
+            msg = str(err)
+            if not isinstance(err, PullupDataError) and not msg.startswith(str(file)):
+                msg = f"{file}: {msg}"
+            err_console.print(f"[red]error:[/red] {escape(safe_text(msg, 2000))}",
+                              highlight=False)
+            raise typer.Exit(code=EXIT_INPUT) from None
+        except OSError as err:
+            err_console.print(f"[red]error:[/red] cannot write into {escape(str(out))}: "
+                              f"{escape(str(err.strerror or err))}", highlight=False)
+            raise typer.Exit(code=EXIT_INPUT) from None

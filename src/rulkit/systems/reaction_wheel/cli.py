@@ -103,17 +103,41 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     return rep
 
 
+def check_scheduler(address: str, timeout: float = 5.0) -> None:
+    """Fail fast, before any work, when the Dask scheduler at ``address`` (``tcp://host:port``)
+    is not listening (before: a traceback after distributed's 30 s connect timeout)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from rulkit.cli.errors import bad_option, fail
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host, port = None, None
+    if parts.scheme not in ("tcp", "tls") or not host or port is None:
+        bad_option("--scheduler", f"expected tcp://host:port, got {address!r}")
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as err:
+        fail(f"--scheduler {address}: cannot reach the Dask scheduler "
+             f"({err.strerror or err}); start it or check the address; nothing was run")
+
+
 def run_quick(out: Path, seed: int) -> None:
     """``rulkit demo``: the ``--quick`` reproduction; prints the tables, writes the figures."""
     from rich.console import Console
+    from rich.markup import escape
 
     t0 = time.perf_counter()
     rep = run_reproduction(Path(out), quick=True, runs=None, seed=seed, workers=1,
                            scheduler=None)
     console = Console()
     _print_tables(rep, console)
-    console.print(f"wrote {len(rep.files)} files to {out} (report: {Path(out) / 'report.md'}) "
-                  f"in {time.perf_counter() - t0:.1f} s")
+    console.print(f"wrote {len(rep.files)} files to {escape(str(out))} (report: "
+                  f"{escape(str(Path(out) / 'report.md'))}) in {time.perf_counter() - t0:.1f} s",
+                  highlight=False)
 
 
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:
@@ -124,7 +148,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         quick: Annotated[bool, typer.Option("--quick", help="Reduced run (< 3 min).")] = False,
         runs: Annotated[int | None, typer.Option(help="Runs per table (default 20; "
                                                       "quick 5).")] = None,
-        seed: Annotated[int, typer.Option(help="Seed of the runs.")] = 0,
+        seed: Annotated[int, typer.Option(min=0, help="Seed of the runs.")] = 0,
         out: Annotated[Path, typer.Option(help="Output directory.")] = Path("rw-lubrication-out"),
         workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
         scheduler: Annotated[str | None, typer.Option(
@@ -132,14 +156,26 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     ) -> None:
         """Reproduce seed 001 Tables 5-7 (reaction-wheel lubrication prognostics)."""
         from rich.console import Console
+        from rich.markup import escape
+
+        from rulkit.cli.errors import fail
 
         t0 = time.perf_counter()
-        rep = run_reproduction(out, quick=quick, runs=runs, seed=seed, workers=workers,
-                               scheduler=scheduler)
+        if scheduler is not None and workers == 1:
+            check_scheduler(scheduler)
+        try:
+            rep = run_reproduction(out, quick=quick, runs=runs, seed=seed, workers=workers,
+                                   scheduler=scheduler)
+        except (OSError, TimeoutError) as err:
+            if scheduler is None:
+                raise
+            fail(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({err}); start it "
+                 "or check the address (tcp://host:port)")
         console = Console()
         _print_tables(rep, console)
-        console.print(f"wrote {len(rep.files)} files to {out} in "
-                      f"{time.perf_counter() - t0:.1f} s; see {out / 'report.md'}")
+        console.print(f"wrote {len(rep.files)} files to {escape(str(out))} in "
+                      f"{time.perf_counter() - t0:.1f} s; see "
+                      f"{escape(str(out / 'report.md'))}", highlight=False)
 
     rw = typer.Typer(help="Reaction-wheel lubrication tools.", no_args_is_help=True)
     app.add_typer(rw, name="rw")
@@ -152,31 +188,33 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             help="Output CSV or Parquet (default FILE stem + _temperature.csv).")] = None,
         method: Annotated[str, typer.Option(help=f"One of {', '.join(METHODS)}.")] = "adaptive",
         particles: Annotated[int, typer.Option(help="Particles (PF methods).")] = 350,
-        seed: Annotated[int, typer.Option(help="Seed of the particle filter.")] = 0,
+        seed: Annotated[int, typer.Option(min=0, help="Seed of the particle filter.")] = 0,
         noise: Annotated[str, typer.Option(help="Assumed noise level: low or high.")] = "low",
         level: Annotated[float, typer.Option(help="Interval level.")] = 0.95,
     ) -> None:
         """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
         import numpy as np
 
+        from rulkit.cli.errors import EXIT_USAGE
+        from rulkit.cli.errors import fail as _fail
         from rulkit.systems.reaction_wheel.telemetry import TelemetryError, read_wheel_telemetry
         from rulkit.systems.reaction_wheel.temperature import estimate_temperature
 
-        def fail(msg: str) -> None:
-            typer.echo(f"error: {msg}", err=True)
-            raise typer.Exit(code=2)
+        def fail(msg: str, code: int = 1) -> None:  # 1: the input; 2: an option (usage)
+            _fail(msg, code=code)
 
         if method not in METHODS:
-            fail(f"--method: expected one of {', '.join(METHODS)}, got {method!r}")
+            fail(f"--method: expected one of {', '.join(METHODS)}, got {method!r}", EXIT_USAGE)
         if particles < 2:
-            fail(f"--particles: need at least 2, got {particles}")
+            fail(f"--particles: need at least 2, got {particles}", EXIT_USAGE)
         if noise not in ("low", "high"):
-            fail(f"--noise: expected 'low' or 'high', got {noise!r}")
+            fail(f"--noise: expected 'low' or 'high', got {noise!r}", EXIT_USAGE)
         if not 0 < level < 1:
-            fail(f"--level: expected a value in (0, 1), got {level}")
+            fail(f"--level: expected a value in (0, 1), got {level}", EXIT_USAGE)
         dest = out or file.with_name(file.stem + "_temperature.csv")
         if dest.suffix.lower() not in (".csv", ".parquet", ".pq"):
-            fail(f"--out: expected a .csv, .parquet or .pq file name, got {dest.name!r}")
+            fail(f"--out: expected a .csv, .parquet or .pq file name, got {dest.name!r}",
+                 EXIT_USAGE)
         try:
             df = read_wheel_telemetry(file)
         except TelemetryError as err:
@@ -193,6 +231,13 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 est.to_parquet(dest, index=False)
         except OSError as err:
             fail(f"cannot write {dest}: {err}")
+        if "note" in est.attrs:
+            typer.echo(f"note: {est.attrs['note']}", err=True)
+        n_bad = int(est["untrusted"].sum())
+        if n_bad:
+            typer.echo(f"warning: {n_bad} samples not trusted (outlier gate; column "
+                       "'untrusted'), the first at time_s = "
+                       f"{est['time_s'][est['untrusted']].iloc[0]:g}", err=True)
         m = est["T_mean"].to_numpy()
         typer.echo(f"{len(est)} samples, T_lub {m[-1]:.2f} C at t = {est['time_s'].iloc[-1]:g} s "
                    f"({level:.0%} interval {est['T_lo'].iloc[-1]:.2f} .. "

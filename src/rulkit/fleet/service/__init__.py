@@ -1,0 +1,10 @@
+"""The fleet service: ``rulkit serve`` (HTTP API + dashboard over the component store).
+
+* :mod:`.db`: the service's tables (API tokens, alerts with acknowledgements) and the
+  idempotent batch ingestion (duplicates, conflicts) on either backend;
+* :mod:`.app`: the FastAPI application (``/api/v1``, ``/healthz``, the dashboard at ``/``);
+* :mod:`.cli`: ``rulkit serve`` and ``rulkit token create|revoke|list``;
+* :mod:`.pgtemp`: a throwaway PostgreSQL server for tests and benchmarks.
+
+See docs/service.md. FastAPI, uvicorn and psycopg come with the ``service`` extra.
+"""

@@ -1,0 +1,106 @@
+"""Fixtures of the service tests: both store backends, tokens, clients, a live server.
+
+PostgreSQL tests start a throwaway server (rulkit.fleet.service.pgtemp) once per session.
+Without PostgreSQL or chromium those tests skip with the reason, unless
+RULKIT_REQUIRE_INTEGRATION=1 (set by .ci/run), which turns the skip into a failure.
+"""
+
+import os
+import threading
+import time
+import warnings
+
+import pytest
+
+from rulkit.fleet.service.pgtemp import TempPostgres, free_port, unavailable_reason
+
+REQUIRE = os.environ.get("RULKIT_REQUIRE_INTEGRATION", "") not in ("", "0")
+
+
+def _need(reason: str | None) -> None:
+    """Skip (or fail under RULKIT_REQUIRE_INTEGRATION=1) when ``reason`` is set."""
+    if reason:
+        if REQUIRE:
+            pytest.fail(f"{reason} (RULKIT_REQUIRE_INTEGRATION=1)")
+        pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def pg_server():
+    _need(unavailable_reason())
+    with TempPostgres() as pg:
+        yield pg
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def db_url(request, tmp_path):
+    """A fresh, empty database of each backend (SQLite path or PostgreSQL URL)."""
+    if request.param == "sqlite":
+        return str(tmp_path / "fleet.db")
+    pg = request.getfixturevalue("pg_server")
+    return pg.create_schema()
+
+
+@pytest.fixture
+def sdb(db_url):
+    from rulkit.fleet.service.db import ServiceDB
+
+    s = ServiceDB(db_url)
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def tokens(sdb):
+    return {"write": sdb.create_token("write", "writer")[1],
+            "read": sdb.create_token("read", "reader")[1]}
+
+
+@pytest.fixture
+def client(sdb):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # starlette: httpx -> httpx2 notice
+        from fastapi.testclient import TestClient
+
+    from rulkit.fleet.service.app import create_app
+
+    with TestClient(create_app(sdb)) as c:
+        yield c
+
+
+class LiveServer:
+    """uvicorn serving an app on a free loopback port in a thread of this process."""
+
+    def __init__(self, app):
+        import uvicorn
+
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=self.port,
+                                                    access_log=False, log_level="warning"))
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self):
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("uvicorn did not start")
+            time.sleep(0.02)
+        return self
+
+    def __exit__(self, *exc):
+        self.server.should_exit = True
+        self.thread.join(10)
+
+
+@pytest.fixture
+def live_server():
+    """``with live_server(app) as srv: srv.url``: a real HTTP server on loopback."""
+    return LiveServer
+
+
+@pytest.fixture(name="need")
+def need_fixture():
+    """``need(reason)``: skip, or fail under RULKIT_REQUIRE_INTEGRATION=1."""
+    return _need
