@@ -131,8 +131,10 @@ class ToyDegradation(StateSpaceModel):
         """The damage; failure when it reaches :attr:`threshold` (1.0)."""
         return np.asarray(x, dtype=np.float64)[:, 0]
 
-    def log_likelihood(self, x: FloatArray, y: float | FloatArray) -> FloatArray:
-        """``log N(y; damage_i, sigma_y^2)`` per particle, shape (N,)."""
+    def log_likelihood(
+        self, x: FloatArray, y: float | FloatArray, u: FloatArray | None = None
+    ) -> FloatArray:
+        """``log N(y; damage_i, sigma_y^2)`` per particle, shape (N,) (no input: ``u`` unused)."""
         yy = float(np.asarray(y, dtype=np.float64).reshape(-1)[0])
         r = np.subtract(yy, x[:, 0])
         r /= self.sigma_y
@@ -155,7 +157,9 @@ class ToyDegradation(StateSpaceModel):
         out[ok] = (self.threshold - d[ok]) / r[ok]
         return out
 
-    def simulate(
+    # The toy keeps its batch-always tuple (its example's numbers are drawn this way); the
+    # contract's simulate returns a Simulation (same draws order not guaranteed), hence ignore.
+    def simulate(  # type: ignore[override]
         self, x0: FloatArray, n_steps: int, rng: np.random.Generator, dt: float | None = None
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Simulate one or more units: returns ``t (T+1,)``, states ``X (T+1, N, 2)`` and noisy
