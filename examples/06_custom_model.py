@@ -8,13 +8,14 @@ geometrically at an uncertain, slowly wandering rate ``g``, measured by a logari
 
 Shows:
 1. the subclass (``state_names``, ``noise``, ``step`` with and without ``rng``, ``output``,
-   ``health``, ``threshold``) and the two closures that turn any such model into a
-   ``ParticleFilter`` (transition, Gaussian log-likelihood from ``noise.R``);
+   ``health``, ``threshold``), ``model.simulate`` for a record, and the model going straight
+   into ``ParticleFilter.from_model(model)`` (transition from ``step``, Gaussian likelihood
+   from ``noise.R``; no adapter code);
 2. an independent oracle: in ``z = log A`` the model is linear-Gaussian, so an exact
    ``KalmanFilter`` on ``[z, g]`` gives the posterior the particle filter (working on ``A``)
    must reproduce; printed is the error of the particle posterior mean of ``log A`` and ``g``
    in exact posterior standard deviations;
-3. ``propagate_to_threshold(..., model.health, model.threshold)`` with a known rate: the
+3. ``propagate_to_threshold(x0, model=model, ...)`` with a known rate: the
    first passage time of Brownian motion with drift is inverse Gaussian (mean ``a / g``,
    shape ``a^2 / s_a^2``, ``a = log(threshold / A_0)``). A discretely monitored path misses
    crossings between steps, which delays the mean by about ``0.5826 s_a sqrt(dt) / g``
@@ -32,10 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from rulkit.estimation.kalman import KalmanFilter
-from rulkit.estimation.particle import ParticleFilter, weighted_mean
+from rulkit import KalmanFilter, ParticleFilter, propagate_to_threshold
+from rulkit.estimation.particle import weighted_mean
 from rulkit.model import GaussianNoise, StateSpaceModel, as_batch
-from rulkit.prognosis.rul import propagate_to_threshold
 
 
 @dataclass(frozen=True)
@@ -77,22 +77,6 @@ class LogGrowth(StateSpaceModel):
         return np.asarray(x)[:, 0]
 
 
-def particle_filter_for(model: StateSpaceModel, dt: float) -> ParticleFilter:
-    """A bootstrap particle filter for any StateSpaceModel with additive Gaussian output noise."""
-    R = model.noise.R
-    L = np.linalg.cholesky(R)
-    log_norm = -0.5 * R.shape[0] * math.log(2 * math.pi) - np.log(np.diag(L)).sum()
-
-    def transition(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
-        return model.step(x, None, k * dt, dt, rng)
-
-    def log_likelihood(x: np.ndarray, y: np.ndarray, k: int) -> np.ndarray:
-        r = np.linalg.solve(L, (np.asarray(y) - model.output(x)).T)  # whitened residuals
-        return log_norm - 0.5 * np.sum(r * r, axis=0)
-
-    return ParticleFilter(transition, log_likelihood)
-
-
 def check(ok: bool, what: str) -> None:
     """Exit with status 1 when a printed check fails (tests/test_examples.py runs this script)."""
     if not ok:
@@ -109,18 +93,15 @@ def main(argv: list[str] | None = None) -> None:
     model = LogGrowth()
     T, N, dt = args.steps, args.particles, model.dt
 
-    # simulate one unit and its log-sensor readings
-    x = np.array([[1.0, 0.01]])
-    ys = np.empty((T, 1))
-    for k in range(T):
-        x = model.step(x, None, k * dt, dt, rng)
-        ys[k] = model.output(x)[0] + model.sigma_y * rng.standard_normal()
+    # simulate one unit and its log-sensor readings: ys[k] measures the state at (k + 1) dt
+    sim = model.simulate(np.array([1.0, 0.01]), T, rng)
+    ys, x = sim.y, sim.x[-1:]
 
     # prior: log A ~ N(0, 0.05^2), g ~ N(0.015, 0.01^2)
     m0, sd0 = np.array([0.0, 0.015]), np.array([0.05, 0.01])
     prior = m0 + sd0 * rng.standard_normal((N, 2))
     particles0 = np.column_stack([np.exp(prior[:, 0]), prior[:, 1]])  # amplitude space
-    res = particle_filter_for(model, dt).filter(ys, particles0, rng, keep_particles=True)
+    res = ParticleFilter.from_model(model).filter(ys, particles0, rng, keep_particles=True)
     logA = np.log(res.particle_history[:, :, 0])  # (T, N)
     pf_z = np.einsum("tn,tn->t", res.weight_history, logA)
     pf_g = res.mean[:, 1]
@@ -146,15 +127,10 @@ def main(argv: list[str] | None = None) -> None:
     quiet_rate = LogGrowth(s_a=0.05, s_g=0.0)
     g0, n_mc, h = 0.05, 20_000, 0.05
     x0 = np.tile([1.0, g0], (n_mc, 1))
-
-    def step(xx: np.ndarray, t: float, dt_: float, rng_: np.random.Generator) -> np.ndarray:
-        return quiet_rate.step(xx, None, t, dt_, rng_)
-
     a = math.log(quiet_rate.threshold / 1.0)
     mean_ig, shape_ig = a / g0, a**2 / quiet_rate.s_a**2
     ig = stats.invgauss(mean_ig / shape_ig, scale=shape_ig)
-    dist = propagate_to_threshold(x0, step, quiet_rate.health, quiet_rate.threshold,
-                                  dt=h, horizon=60.0, rng=rng)
+    dist = propagate_to_threshold(x0, model=quiet_rate, dt=h, horizon=60.0, rng=rng)
     se = dist.std / math.sqrt(n_mc)
     bias = 0.5826 * quiet_rate.s_a * math.sqrt(h) / g0
     print(f"first passage (dt={h}, {n_mc} paths, {dist.n_censored} censored at 60): mean "

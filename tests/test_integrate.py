@@ -155,3 +155,25 @@ def test_wrong_rhs_shape_and_blow_up_are_reported():
         integrate(lambda x, t, u: np.zeros((2, 3)), np.zeros((2, 2)), 0.0, 0.1, 2)
     with pytest.raises(ValueError, match="non-finite at step"), np.errstate(over="ignore"):
         integrate(lambda x, t, u: x**2, np.ones((1, 1)), 0.0, 0.5, 50)
+
+
+def test_ode_step_is_the_contract_step_of_rk4_and_euler() -> None:
+    """ode_step(rhs(x, u, t)) gives step(x, u, t, dt, rng) equal to rk4_step/euler_step on the
+    same right-hand side, and RK4 substeps converge to the closed form x0 exp(-a t) + u/a."""
+    from rulkit.integrate import ode_step
+
+    a = 0.7
+
+    def rhs(x, u, t):
+        return -a * x + u
+
+    x0 = np.array([[1.0], [2.0]])
+    step = ode_step(rhs)
+    np.testing.assert_array_equal(step(x0, 0.5, 0.0, 0.1, None),
+                                  rk4_step(lambda x, t, u: rhs(x, u, t), x0, 0.0, 0.1, 0.5))
+    eul = ode_step(rhs, method="euler", substeps=4)
+    np.testing.assert_allclose(eul(x0, 0.5, 0.0, 0.1), x0 + 0.1 * (-a * x0 + 0.5), rtol=1e-2)
+    exact = x0 * np.exp(-a * 1.0) + 0.5 / a * (1 - np.exp(-a * 1.0))
+    np.testing.assert_allclose(ode_step(rhs, substeps=10)(x0, 0.5, 0.0, 1.0), exact, rtol=1e-6)
+    with pytest.raises(ValueError, match="substeps"):
+        ode_step(rhs, substeps=0)

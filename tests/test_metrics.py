@@ -220,3 +220,39 @@ def test_scalar_nan_and_zero_truth_are_refused():
         crps_samples([1.0, 2.0], np.inf)
     with pytest.raises(ValueError, match="zero"):
         rmspe(1.0, 0.0)
+
+
+# ---------------------------------------------------------------------------- crps_rul
+def _grid_crps(dist, y, upper, truth_censored):
+    """Brute force: midpoint rule of (F(z) - 1{z >= y})^2 on a fine grid below ``upper``."""
+    z = np.linspace(-1.0, upper, 400_001)
+    zm = 0.5 * (z[1:] + z[:-1])
+    F = dist.cdf(zm)
+    ind = np.zeros_like(zm) if truth_censored else (zm >= y).astype(float)
+    return float(np.sum((F - ind) ** 2 * np.diff(z)))
+
+
+def test_crps_rul_equals_crps_samples_without_censoring() -> None:
+    from rulkit.metrics import crps_rul, crps_samples
+    from rulkit.prognosis.rul import RULDistribution
+
+    rng = np.random.default_rng(0)
+    s = rng.gamma(3.0, 2.0, 200)
+    w = rng.uniform(0.1, 1.0, 200)
+    d = RULDistribution(s, w)
+    for y in (0.5, 6.0, 40.0):
+        assert crps_rul(d, y) == pytest.approx(crps_samples(s, y, w), rel=1e-10)
+
+
+def test_crps_rul_with_censored_forecast_and_truth_against_brute_force() -> None:
+    from rulkit.metrics import crps_rul
+    from rulkit.prognosis.rul import RULDistribution
+
+    rng = np.random.default_rng(1)
+    s = rng.uniform(0, 12, 50)
+    cens = s > 10
+    d = RULDistribution(np.minimum(s, 10.0), censored=cens, horizon=10.0)
+    for y, tc in ((4.0, False), (11.0, False), (6.0, True), (15.0, True)):
+        upper = min(10.0, y if tc else math.inf)
+        assert crps_rul(d, y, truth_censored=tc) == pytest.approx(
+            _grid_crps(d, y, upper, tc), rel=1e-4, abs=1e-6)

@@ -70,6 +70,15 @@ def test_cone_marks_intervals_open_into_censored_mass() -> None:
     assert np.allclose(marks.get_xdata(), [0.0])
     assert np.isclose(marks.get_ydata()[0], ax.get_ylim()[1] / 1.04)  # just below the top
     assert not [a for a in ax.get_children() if a.get_gid() == "t-lambda"]
+    # mostly censored: the median itself is infinite and is drawn at the top, marked open
+    d_most = RULDistribution(np.r_[np.linspace(80, 95, 20), np.full(80, 100.0)],
+                             censored=np.r_[np.zeros(20, bool), np.ones(80, bool)], horizon=100.0)
+    assert d_most.median == np.inf
+    ax = plot.alpha_lambda_cone(times, [d_most, d_closed], 100.0)
+    top = ax.get_ylim()[1] / 1.04
+    bars = next(c for c in ax.containers if c.get_label().startswith("median"))
+    assert np.allclose(bars.lines[0].get_ydata(), [top, d_closed.median])
+    assert np.isfinite(ax.get_ylim()).all()
 
 
 def test_cone_with_point_predictions_and_bad_input() -> None:
@@ -102,10 +111,9 @@ def test_rul_distributions_one_density_per_time(tmp_path: Path) -> None:
         assert abs(top - d.median) < 3.0, k
         med = _by_gid(ax, f"rul-median-{k}")
         assert med.get_ydata()[0] == pytest.approx(d.median)
-    # the tallest density is exactly `width` wide
-    widest = max(p.get_paths()[0].vertices[:, 0].max() - t for p, t in zip(polys, times,
-                                                                          strict=True))
-    assert widest == pytest.approx(8.0)
+    # each density is scaled to its own peak: every violin is exactly `width` wide
+    for p, t in zip(polys, times, strict=True):
+        assert p.get_paths()[0].vertices[:, 0].max() - t == pytest.approx(8.0)
 
 
 def test_rul_distributions_degenerate_and_censored() -> None:
@@ -154,6 +162,30 @@ def test_state_estimates_quantile_band_and_errors() -> None:
         plot.state_estimates(t, t, std=t, lower=t, upper=t)
     with pytest.raises(ValueError, match="names: expected 1 names"):
         plot.state_estimates(t, t, names=["a", "b"])
+
+
+def test_state_estimates_from_filter_results() -> None:
+    from rulkit.estimation.kalman import KalmanFilter
+
+    rng = np.random.default_rng(4)
+    ys = np.cumsum(rng.standard_normal(20))[:, None, None] * 0.1
+    kr = KalmanFilter([[1.0]], [[1.0]], [[0.01]], [[0.25]]).filter(ys, [[0.0]], [[1.0]])
+    t = np.arange(1.0, 21.0)
+    fig = plot.state_estimates(t, kr, n_sigma=1.0)
+    assert np.allclose(_by_gid(fig.axes[0], "estimate").get_ydata(), kr.x[:, 0, 0])
+    band = next(c for c in fig.axes[0].collections if c.get_label() == "+-1 sigma")
+    v = band.get_paths()[0].vertices
+    assert v[:, 1].max() == pytest.approx((kr.x[:, 0, 0] + np.sqrt(kr.P[:, 0, 0, 0])).max())
+
+    class PFResult:  # the fields of ParticleFilterResult the plot reads
+        mean = np.column_stack([t, 2 * t])
+        cov = np.broadcast_to(np.diag([4.0, 9.0]), (20, 2, 2))
+
+    fig = plot.state_estimates(t, PFResult(), n_sigma=2.0)
+    band = next(c for c in fig.axes[1].collections if c.get_label() == "+-2 sigma")
+    assert band.get_paths()[0].vertices[:, 1].min() == pytest.approx(2.0 - 6.0)
+    with pytest.raises(ValueError, match="brings its own band"):
+        plot.state_estimates(t, PFResult(), std=np.ones(20))
 
 
 def test_consistency_bounds_are_chi_square(tmp_path: Path) -> None:
@@ -206,14 +238,23 @@ def test_draws_on_given_axes_and_never_imports_pyplot() -> None:
 
 
 def test_plot_profile_two_panels() -> None:
-    class Profile:
+    class Profile:  # the attributes of rulkit.prognosis.profile.PrognosisProfile it reads
         times = np.array([0.0, 10.0, 20.0])
-        dists = _dists(times, 40.0, np.random.default_rng(3))
+        distributions = tuple(_dists(times, 40.0, np.random.default_rng(3)))
         t_eol = 40.0
+        failed = True
+        alpha = 0.3
+        level = 0.8
 
     fig = plot.plot_profile(Profile())
     assert len(fig.axes) == 2
-    assert _by_gid(fig.axes[0], "alpha-lambda-cone") is not None
+    cone = _by_gid(fig.axes[0], "alpha-lambda-cone")
+    assert np.allclose(cone.get_xy()[0], [0.0, 1.3 * 40.0])  # the profile's alpha
+    assert "80 % interval" in " ".join(fig.axes[0].get_legend_handles_labels()[1])
     assert _by_gid(fig.axes[1], "rul-density-2") is not None
-    with pytest.raises(TypeError, match="'times' and 'dists'"):
+    # a censored record (failed=False): t_eol is only a lower bound, so no cone
+    Profile.failed = False
+    fig = plot.plot_profile(Profile())
+    assert len(fig.axes) == 1 and _by_gid(fig.axes[0], "rul-density-0") is not None
+    with pytest.raises(TypeError, match="'times' and 'distributions'"):
         plot.plot_profile(object())

@@ -19,10 +19,11 @@ from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.estimation.kalman import KalmanFilter, KalmanResult
 from rulkit.estimation.particle import ParticleFilter, ParticleFilterResult
 from rulkit.estimation.ukf import UnscentedKalmanFilter
-from rulkit.integrate import euler_step, integrate, rk4_step
+from rulkit.integrate import euler_step, ode_step, rk4_step
 from rulkit.metrics import (
     alpha_lambda,
     convergence,
+    crps_rul,
     crps_samples,
     cumulative_relative_accuracy,
     interval_coverage,
@@ -30,6 +31,9 @@ from rulkit.metrics import (
     relative_accuracy,
 )
 from rulkit.model import GaussianNoise, Simulation, StateSpaceModel
+from rulkit.prognosis.learning import ParameterFit, fit_parameters
+from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
+from rulkit.prognosis.profile import PrognosisProfile, prognosis_profile
 from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
 
 try:
@@ -42,8 +46,10 @@ __all__ = [
     "GaussianNoise",
     "KalmanFilter",
     "KalmanResult",
+    "ParameterFit",
     "ParticleFilter",
     "ParticleFilterResult",
+    "PrognosisProfile",
     "RULDistribution",
     "Simulation",
     "StateSpaceModel",
@@ -51,13 +57,18 @@ __all__ = [
     "__version__",
     "alpha_lambda",
     "convergence",
+    "crps_rul",
     "crps_samples",
     "cumulative_relative_accuracy",
     "euler_step",
-    "integrate",
+    "fit_parameters",
     "interval_coverage",
+    "monte_carlo_rul",
+    "ode_step",
+    "prognosis_profile",
     "prognostic_horizon",
     "propagate_to_threshold",
     "relative_accuracy",
     "rk4_step",
+    "unscented_rul",
 ]

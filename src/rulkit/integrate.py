@@ -12,6 +12,12 @@ Inputs ``u``
 
 Accuracy: Euler has global error O(dt), classical RK4 O(dt^4) (tested against closed forms
 and ``scipy.integrate.solve_ivp`` in tests/test_integrate.py).
+
+The model contract (:mod:`rulkit.model`) advances states by ``step(x, u, t, dt, rng)``;
+:func:`ode_step` turns a right-hand side written in the contract's argument order,
+``rhs(x, u, t) -> dxdt``, into such a step (what a continuous-time model's ``step`` returns,
+and what the EKF's continuous mode integrates). The functions above keep their older
+low-level form ``f(x, t, u)``, on which :func:`ode_step` builds.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ FloatArray = NDArray[np.float64]
 RHS = Callable[[FloatArray, float, Any], FloatArray]
 InputLike = None | np.ndarray | Callable[[float], Any]
 
-__all__ = ["euler_step", "integrate", "rk4_step"]
+__all__ = ["euler_step", "integrate", "ode_step", "rk4_step"]
 
 
 def _input_at(u: InputLike, t: float, n_rows: int) -> FloatArray | None:
@@ -143,3 +149,35 @@ def integrate(
     if store:
         return t, out
     return t[-1:], x[None]
+
+
+def ode_step(
+    rhs: Callable[[FloatArray, Any, float], FloatArray],
+    method: str = "rk4",
+    substeps: int = 1,
+) -> Callable[..., FloatArray]:
+    """The contract's ``step(x, u, t, dt, rng=None)`` for ``dx/dt = rhs(x, u, t)``.
+
+    ``substeps`` fixed steps of ``dt / substeps`` by ``method`` (``"rk4"`` or ``"euler"``); ``u``
+    is a constant or a callable ``u(t)`` (evaluated as in :func:`rk4_step`). ``rng`` is
+    accepted and unused: the step is deterministic (a model adds its process noise on top).
+    """
+    try:
+        stepper = _STEPPERS[method]
+    except KeyError:
+        raise ValueError(f"method: expected one of {sorted(_STEPPERS)}, got {method!r}") from None
+    if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+        raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
+    n_sub = int(substeps)
+
+    def f(x: FloatArray, t: float, u: Any) -> FloatArray:
+        return rhs(x, u, t)
+
+    def step(x: FloatArray, u: Any, t: float, dt: float,
+             rng: np.random.Generator | None = None) -> FloatArray:
+        h = dt / n_sub
+        for i in range(n_sub):
+            x = stepper(f, x, t + i * h, h, u)
+        return np.asarray(x, dtype=np.float64)
+
+    return step

@@ -208,7 +208,10 @@ def alpha_lambda(
 ) -> AlphaLambdaResult:
     """Alpha-lambda accuracy ([S2010]): is the prediction at ``t_lambda`` within alpha of r*?
 
-    ``t_lambda = t_P + lam (t_EoL - t_P)`` (``t_P`` defaults to the first prediction time).
+    ``t_lambda = t_P + lam (t_EoL - t_P)`` (``t_P`` defaults to the first prediction time):
+    ``lam`` is a *fraction* of the time from the first prediction to end of life, as in
+    [S2010]; NASA ProgPy's ``alpha_lambda`` takes the time ``t_lambda`` itself (convert with
+    ``lam = (t_lambda - t_P) / (t_EoL - t_P)``).
     The prediction used is the latest one made at or before ``t_lambda``. With point
     predictions it passes when ``(1 - alpha) r* <= r <= (1 + alpha) r*``; with a sequence of
     :class:`RULDistribution` it passes when the probability mass inside those bounds is
@@ -410,3 +413,33 @@ def crps_normal(mu: ArrayLike, sigma: ArrayLike, y: ArrayLike) -> float | FloatA
     pdf = np.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
     out = s * (z * (2 * ndtr(z) - 1) + 2 * pdf - 1 / math.sqrt(math.pi))
     return float(out) if np.ndim(out) == 0 else out
+
+
+def crps_rul(dist: RULDistribution, rul_true: float, *, truth_censored: bool = False) -> float:
+    """CRPS of a (possibly censored) RUL distribution, against a possibly censored truth.
+
+    ``int_{-inf}^{U} (F(z) - 1{z >= y})^2 dz`` with ``F`` the weighted CDF of the uncensored
+    samples and ``U = min(horizon, c)``: the forecast's CDF is known only below its horizon,
+    and a truth censored at ``c`` (``truth_censored=True``: the unit was still running, its RUL
+    exceeds ``c = rul_true``) only says ``1{z >= y} = 0`` below ``c``. This is the CRPS with
+    the threshold weight ``1{z < U}`` ([GR2007] section 4.2), a proper score for censored data;
+    with nothing censored and an infinite horizon it is the ordinary CRPS
+    (:func:`crps_samples`). Computed exactly from the step CDF, O(N log N).
+    """
+    y = float(rul_true)
+    if not math.isfinite(y):
+        raise ValueError(f"rul_true: expected a finite value, got {rul_true!r}")
+    upper = min(dist.horizon, y if truth_censored else math.inf)
+    y_ind = math.inf if truth_censored else y
+    keep = ~dist.censored
+    vals = dist.samples[keep]
+    pts = vals[vals < upper]
+    extra = [y_ind] if y_ind < upper else []
+    if math.isfinite(upper):
+        extra.append(upper)
+    pts = np.unique(np.concatenate([pts, np.asarray(extra, dtype=np.float64)]))
+    if pts.size < 2:
+        return 0.0
+    F = np.asarray(dist.cdf(pts[:-1]), dtype=np.float64)
+    ind = (pts[:-1] >= y_ind).astype(np.float64)
+    return float(np.sum((F - ind) ** 2 * np.diff(pts)))

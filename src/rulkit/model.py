@@ -328,7 +328,7 @@ def check_step_output(x: Any, shape: tuple[int, ...], k: int, name: str = "step"
     return x  # type: ignore[no-any-return]
 
 
-def gaussian_loglik(yhat: FloatArray, y: Any, chol_R: FloatArray) -> FloatArray:
+def gaussian_loglik(yhat: FloatArray, y: Any, chol_R: np.ndarray) -> FloatArray:
     """``log N(y; yhat_i, R)`` per row of ``yhat`` (N, n_y), ``chol_R`` the Cholesky factor of R.
 
     ``y`` may be (n_y,) or a scalar when n_y = 1.

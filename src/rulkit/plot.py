@@ -140,18 +140,21 @@ def alpha_lambda_cone(
     cone.set_gid("alpha-lambda-cone")
     ax.add_patch(cone)
     ax.plot([tp, t_eol], [r0, 0.0], "k--", lw=1, label="true RUL", gid="true-rul")
-    top = max(1.3 * (1 + alpha) * r0, float(np.nanmax(np.where(np.isfinite(hi), hi, med))) * 1.05)
-    if np.any(np.isfinite(lo)):
+    finite = np.concatenate([v[np.isfinite(v)] for v in (med, lo, hi)])
+    top = max(1.3 * (1 + alpha) * r0, 1.05 * float(finite.max()) if finite.size else 0.0)
+    med_drawn = np.where(np.isfinite(med), med, top)  # a median inside censored mass: at the top
+    if np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)):
+        lo_drawn = np.where(np.isfinite(lo), lo, top)
         hi_drawn = np.where(np.isfinite(hi), hi, top)
-        yerr = np.vstack([med - lo, hi_drawn - med])
-        ax.errorbar(t, med, yerr=yerr, fmt="o", color="C0", capsize=3, ms=4,
+        yerr = np.vstack([med_drawn - lo_drawn, hi_drawn - med_drawn])
+        ax.errorbar(t, med_drawn, yerr=yerr, fmt="o", color="C0", capsize=3, ms=4,
                     label=f"median, {100 * level:g} % interval", gid="predictions")
         open_top = ~np.isfinite(hi)
         if open_top.any():
             ax.plot(t[open_top], np.full(open_top.sum(), top), "^", color="C0", ms=6,
                     label="interval into censored mass", gid="censored-upper")
     else:
-        ax.plot(t, med, "o", color="C0", ms=4, label="prediction", gid="predictions")
+        ax.plot(t, med_drawn, "o", color="C0", ms=4, label="prediction", gid="predictions")
     if lam is not None:
         if not 0 <= lam <= 1:
             raise ValueError(f"lam: expected a fraction in [0, 1], got {lam!r}")
@@ -179,10 +182,11 @@ def rul_distributions(
 ) -> Axes:
     """One RUL density per prediction time, drawn as a half-violin to the right of its time.
 
-    The density is :meth:`RULDistribution.pdf` (a weighted KDE of the uncensored samples
-    scaled by their mass), so a distribution with censored mass looks smaller; its censored
-    fraction is printed above it. ``width`` is the horizontal size of the tallest density in
-    time units (default 0.8 of the smallest spacing of ``times``). A distribution with fewer
+    The density is :meth:`RULDistribution.pdf` (a weighted KDE of the uncensored samples),
+    each scaled to its own peak so that narrow late predictions and wide early ones are both
+    visible: compare shapes and locations, not heights. A censored fraction is printed above
+    its density. ``width`` is the horizontal size of each density's peak in time units
+    (default 0.8 of the smallest spacing of ``times``). A distribution with fewer
     than two distinct uncensored samples is drawn as its median only. ``t_eol`` adds the true
     RUL line. Returns the Axes.
     """
@@ -195,6 +199,7 @@ def rul_distributions(
         width = 0.8 * float(gaps.min()) if gaps.size else 1.0
     ax = new_axes() if ax is None else ax
     top = 0.0
+    cens_text = False
     curves: list[tuple[float, FloatArray, FloatArray]] = []
     for ti, d in zip(t, dists, strict=True):
         unc = d.samples[~d.censored]
@@ -206,21 +211,23 @@ def rul_distributions(
         except ValueError:
             dens = np.zeros(0)
         curves.append((float(ti), grid, dens))
-    peak = max((float(c[2].max()) for c in curves if c[2].size), default=0.0)
     for k, ((ti, grid, dens), d) in enumerate(zip(curves, dists, strict=True)):
-        if dens.size and peak > 0:
+        peak = float(dens.max()) if dens.size else 0.0
+        if peak > 0:
             poly = ax.fill_betweenx(grid, ti, ti + width * dens / peak, color="C0", alpha=0.4,
                                     lw=0.5, label="RUL density" if k == 0 else None)
             poly.set_gid(f"rul-density-{k}")
         ax.plot([ti], [d.median], "_", color="C3", ms=10, mew=2,
                 label="median" if k == 0 else None, gid=f"rul-median-{k}")
         if d.fraction_censored > 0:
-            ax.annotate(f"{100 * d.fraction_censored:.0f} % cens.", (ti, 1.1 * top),
-                        fontsize="x-small", ha="left")
+            pct = 100 * d.fraction_censored
+            ax.annotate(f"{pct:.0f} % cens." if pct >= 1 else "<1 % cens.", (ti, 1.12 * top),
+                        fontsize="x-small", ha="left", va="bottom", rotation=90)
+            cens_text = True
     if t_eol is not None:
         ax.plot([t.min(), t_eol], [t_eol - t.min(), 0.0], "k--", lw=1, label="true RUL",
                 gid="true-rul")
-    ax.set_ylim(bottom=0.0)
+    ax.set_ylim(0.0, 1.45 * top if cens_text else None)
     ax.set_xlabel("time")
     ax.set_ylabel("RUL")
     ax.set_title("RUL distributions")
@@ -239,9 +246,21 @@ def _columns(a: ArrayLike | None, T: int, name: str) -> FloatArray | None:
     return x
 
 
+def _filter_moments(result: Any, unit: int) -> tuple[FloatArray, FloatArray] | None:
+    """(mean (T, n), std (T, n)) of a particle-filter result (``mean``, ``cov``) or of one unit
+    of a Kalman-type result (``x`` (T, B, n), ``P`` (T, B, n, n)); None for plain arrays."""
+    if hasattr(result, "mean") and hasattr(result, "cov") and not isinstance(result, np.ndarray):
+        m, c = np.asarray(result.mean), np.asarray(result.cov)
+    elif hasattr(result, "x") and hasattr(result, "P"):
+        m, c = np.asarray(result.x)[:, unit], np.asarray(result.P)[:, unit]
+    else:
+        return None
+    return m, np.sqrt(np.einsum("tii->ti", c))
+
+
 def state_estimates(
     t: ArrayLike,
-    mean: ArrayLike,
+    mean: ArrayLike | Any,
     *,
     std: ArrayLike | None = None,
     n_sigma: float = 3.0,
@@ -251,18 +270,27 @@ def state_estimates(
     measurements: ArrayLike | None = None,
     measured: Sequence[int] | None = None,
     names: Sequence[str] | None = None,
+    unit: int = 0,
     fig: Figure | None = None,
 ) -> Figure:
     """State estimates over time with a band, the truth and the measurements, one panel each.
 
-    ``mean`` (T, n) or (T,); the band is ``mean +- n_sigma * std`` (``std`` (T, n), e.g. the
-    square root of a Kalman covariance's diagonal) or ``[lower, upper]`` (e.g. particle-filter
-    quantiles). ``truth`` (T, n) is drawn dashed; ``measurements`` (T, m) are dots on the
-    panels of the states ``measured`` (default: the first m). NaN points are gaps. Returns the
+    ``mean`` (T, n) or (T,), or a filter result: a particle filter's (its ``mean`` and the
+    square root of the diagonal of ``cov``) or a Kalman-type filter's (``x`` and ``P`` of unit
+    ``unit``), e.g. the ``estimate`` of a prognosis profile, which brings its own ``std``.
+    The band is ``mean +- n_sigma * std`` (``std`` (T, n), e.g. the square root of a Kalman
+    covariance's diagonal) or ``[lower, upper]`` (e.g. particle-filter quantiles). ``truth``
+    (T, n) is drawn dashed; ``measurements`` (T, m) are dots on the panels of the states
+    ``measured`` (default: the first m). NaN points are gaps. Returns the
     Figure (its axes are ``fig.axes``, one per state).
     """
     tt = _vector(t, "t")
     T = tt.size
+    moments = _filter_moments(mean, unit)
+    if moments is not None:
+        if std is not None or lower is not None or upper is not None:
+            raise ValueError("mean: a filter result brings its own band; give no std/lower/upper")
+        mean, std = moments
     m = _columns(mean, T, "mean")
     assert m is not None
     n = m.shape[1]
@@ -361,26 +389,36 @@ def consistency(
     return ax
 
 
-def plot_profile(profile: Any, *, t_eol: float | None = None, alpha: float = 0.2,
-                 lam: float | None = 0.5, level: float = 0.9, fig: Figure | None = None
+def plot_profile(profile: Any, *, t_eol: float | None = None, alpha: float | None = None,
+                 lam: float | None = 0.5, level: float | None = None, fig: Figure | None = None
                  ) -> Figure:
-    """Two panels from anything with ``times`` and ``dists`` (K RUL distributions): the
-    alpha-lambda cone (:func:`alpha_lambda_cone`) and the densities
-    (:func:`rul_distributions`). ``t_eol`` defaults to ``profile.t_eol`` when it has one."""
+    """Two panels for a prognosis profile: the alpha-lambda cone (:func:`alpha_lambda_cone`)
+    and the RUL densities over time (:func:`rul_distributions`).
+
+    ``profile`` is a :class:`rulkit.prognosis.profile.PrognosisProfile` or anything with
+    ``times`` and ``distributions`` (or ``dists``); ``t_eol``, ``alpha`` and ``level`` default to
+    the profile's own (``profile.t_eol`` must be the true end of life: a censored record,
+    ``failed=False``, has no cone, only the densities). Returns the Figure.
+    """
     times = getattr(profile, "times", None)
-    dists = getattr(profile, "dists", None)
+    dists = getattr(profile, "distributions", getattr(profile, "dists", None))
     if times is None or dists is None:
-        raise TypeError("profile: expected an object with 'times' and 'dists' attributes, got "
-                        f"{type(profile).__name__}")
-    if t_eol is None:
+        raise TypeError("profile: expected an object with 'times' and 'distributions' "
+                        f"attributes, got {type(profile).__name__}")
+    failed = bool(getattr(profile, "failed", True))
+    if t_eol is None and failed:
         t_eol = getattr(profile, "t_eol", None)
-    if t_eol is None or not math.isfinite(t_eol):
-        raise ValueError("t_eol: the true end of life is needed for the cone; pass t_eol=")
+    alpha = float(getattr(profile, "alpha", 0.2)) if alpha is None else alpha
+    level = float(getattr(profile, "level", 0.9)) if level is None else level
+    dists = list(dists)
     if fig is None:
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(11.0, 4.0), layout="constrained")
+    if t_eol is None or not math.isfinite(t_eol):
+        rul_distributions(times, dists, ax=fig.subplots())
+        return fig
     a1, a2 = fig.subplots(1, 2)
-    alpha_lambda_cone(times, list(dists), t_eol, alpha=alpha, lam=lam, level=level, ax=a1)
-    rul_distributions(times, list(dists), t_eol=t_eol, ax=a2)
+    alpha_lambda_cone(times, dists, t_eol, alpha=alpha, lam=lam, level=level, ax=a1)
+    rul_distributions(times, dists, t_eol=t_eol, ax=a2)
     return fig

@@ -194,6 +194,7 @@ def test_import_rulkit_exports_the_engine() -> None:
     """Stumble 7: ``import rulkit`` exported nothing."""
     for name in ("StateSpaceModel", "ParticleFilter", "ExtendedKalmanFilter",
                  "UnscentedKalmanFilter", "KalmanFilter", "propagate_to_threshold",
-                 "RULDistribution", "alpha_lambda", "prognostic_horizon", "Simulation"):
+                 "RULDistribution", "alpha_lambda", "prognostic_horizon", "Simulation",
+                 "unscented_rul", "monte_carlo_rul", "prognosis_profile", "PrognosisProfile"):
         assert name in rulkit.__all__, name
         assert getattr(rulkit, name) is not None

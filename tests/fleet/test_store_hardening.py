@@ -235,7 +235,9 @@ def test_parquet_datetime_time_column_is_seconds_not_nanoseconds(tmp_path):
     np.testing.assert_allclose(hist["t"], (t - pd.Timestamp("1970-01-01")).total_seconds())
     # the same instants as ISO 8601 text in a CSV give the same times
     df.assign(time=t.strftime("%Y-%m-%dT%H:%M:%S")).to_csv(tmp_path / "dt.csv", index=False)
-    got = ingest_into(tmp_path / "dt2.db", read_acquisitions(tmp_path / "dt.csv"))[0]
+    # (design life in seconds: the default 1e5 is refused for hourly epoch seconds, issue 11)
+    got = ingest_into(tmp_path / "dt2.db", read_acquisitions(tmp_path / "dt.csv"),
+                      config=TrackerConfig(dt=3600, design_life=3.6e8))[0]
     assert got.n_rows == 30
     with ComponentStore(tmp_path / "dt2.db", readonly=True) as s:
         np.testing.assert_array_equal(s.history("g")["t"], hist["t"])

@@ -432,7 +432,8 @@ def _one_unit_ys(ys: Any, B: int) -> FloatArray:
 def _check_ys(ys: Any, B: int, m: int) -> FloatArray:
     arr = _one_unit_ys(ys, B)
     if arr.ndim != 3 or arr.shape[1:] != (B, m):
-        raise ValueError(f"ys: expected shape (T, {B}, {m}), got {arr.shape}")
+        one = f" or (T, {m})" if B == 1 else ""
+        raise ValueError(f"ys: expected shape (T, {B}, {m}){one}, got {np.shape(ys)}")
     if np.any(np.isinf(arr)):
         idx = np.argwhere(np.isinf(arr))[0]
         raise ValueError(

@@ -58,7 +58,11 @@ def _fit_baseline(baseline: Path, pfa: float, offset: str):
 
 
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:
-    """Add ``track``, ``status`` and ``reproduce embedded-rul``."""
+    """Add ``track``, ``status``, ``reproduce embedded-rul`` and the learned-model commands
+    ``fit`` and ``evaluate`` (:mod:`rulkit.fleet.models.cli`)."""
+    from rulkit.fleet.models.cli import register as register_models
+
+    register_models(app)
 
     @app.command("track")
     def track(
@@ -239,16 +243,13 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                                           help="Run the HI false-alarm study (~5 s)."),
     ) -> None:
         """Trackers on the 21 Lu & Meeker crack-growth units: RUL accuracy, validity, report."""
-        import numpy as np
-
-        from rulkit.fleet.reproduce import false_alarm_study, run, write_report
+        from rulkit.fleet.reproduce import EmbeddedRULConfig, run, write_report
 
         cmd = ("rulkit reproduce embedded-rul" + ("" if figures else " --no-figures")
                + (f" --seed {seed}" if false_alarms else " --no-false-alarms"))
-        res = run()
-        far = false_alarm_study(np.random.default_rng(seed)) if false_alarms else None
-        rep = write_report(res, out, figures=figures, command=cmd, false_alarms=far,
-                           far_seed=seed)
+        res = run(EmbeddedRULConfig(false_alarms=false_alarms, seed=seed))
+        far = res.false_alarms
+        rep = write_report(res, out, figures=figures, command=cmd)
         typer.echo(f"Paris exponent from the data: m = {res.m_all:.3f}")
         typer.echo(res.summary.to_string())
         if far is not None:

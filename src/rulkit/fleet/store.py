@@ -398,6 +398,36 @@ def _config_from_meta(path: Path, meta: dict[str, str]
     return cfg, model
 
 
+def _check_spacing(config: TrackerConfig, acq: pd.DataFrame, last_t: np.ndarray,
+                   first: np.ndarray) -> None:
+    """The batch's acquisition spacing against ``design_life`` (time-unit check,
+    :func:`rulkit.fleet.tracker_chain.check_time_unit`), as an :class:`IngestError`."""
+    from rulkit.fleet.tracker_chain import check_time_unit
+
+    t = acq["t"].to_numpy()
+    prev = acq.groupby("component", sort=False)["t"].shift(1).to_numpy()
+    prev = np.where(first, last_t, prev)
+    gaps = t - prev
+    gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
+    try:
+        check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column")
+    except ValueError as err:
+        raise IngestError(str(err)) from err
+
+
+def _degradation_from_meta(path: Path, meta: dict[str, str]) -> Any:
+    """The learned degradation model stored by ``rulkit fit`` (None if there is none)."""
+    if "degradation_model" not in meta:
+        return None
+    from rulkit.fleet.models.degradation import DegradationModel
+
+    try:
+        return DegradationModel.from_dict(json.loads(meta["degradation_model"]))
+    except (ValueError, TypeError, KeyError) as err:
+        raise StoreError(f"{path}: unreadable learned model in table meta: "
+                         f"{safe_text(err)}") from err
+
+
 def _meta_rows(config: TrackerConfig, hi_model: HealthIndexModel | None) -> list[tuple[str, str]]:
     rows = [("schema_version", str(SCHEMA_VERSION)),
             ("tracker_config", json.dumps(config.to_dict()))]
@@ -594,6 +624,7 @@ class ComponentStore:
             raise
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
+        self.degradation = _degradation_from_meta(self.path, meta)
         if hi_model is not None and stored_model is None:
             try:
                 with self._transaction():
@@ -613,6 +644,7 @@ class ComponentStore:
         self.timeout = timeout
         self.readonly = False
         self.gains = config.gains()
+        self.degradation = None  # learned model (rulkit fit), set from meta by __init__
 
     # -- plumbing
     def close(self) -> None:
@@ -720,8 +752,12 @@ class ComponentStore:
                               kind="stable").reset_index(drop=True)
 
     def history(self, component: str | None = None) -> pd.DataFrame:
-        """History rows (all components, or one), ordered by component and time."""
+        """History rows (all components, or one), ordered by component and time; with a
+        learned model (``rulkit fit``) also ``rul_median`` (NULL/NaN before the model), and
+        ``rul_low``/``rul_high`` are then the model's 90 % interval."""
         cols = "component, " + ", ".join(HISTORY_FIELDS) + ", ingest"
+        if getattr(self, "degradation", None) is not None:
+            cols += ", rul_median"
         if component is None:
             df = self._query(f"SELECT {cols} FROM history ORDER BY component, t")
         else:
@@ -814,9 +850,28 @@ class ComponentStore:
                 f"{_fmt(t[i])} is not after the component's last stored acquisition at "
                 f"{_fmt(last_t[i])}"
             )
+        _check_spacing(self.config, acq, last_t, first)
         del last_t, back, first
         n = len(acq)
         ingest_id = self._insert_ingest(source, n, b)
+        # rulkit fit: the learned model's RUL median and 90 % interval per acquisition, in its
+        # own pass over the ranks (it does not depend on the trackers); the history then holds
+        # them in rul_median / rul_low / rul_high.
+        learned = None
+        learned_cols: np.ndarray | None = None
+        if getattr(self, "degradation", None) is not None:
+            from rulkit.fleet.models.store_support import LearnedPass
+
+            learned = LearnedPass(self._conn, self.degradation, names)
+            learned_cols = np.full((3, n), np.nan)
+            for r in range(int(rank.max()) + 1):
+                sel = np.flatnonzero(rank == r)
+                ci = codes[sel]
+                t_r = np.full(b, np.nan)
+                h_r = np.full(b, np.nan)
+                t_r[ci] = t[sel]
+                h_r[ci] = hi[sel]
+                learned_cols[:, sel] = np.asarray(learned.step(ci, t_r, h_r))
         # Components are processed in blocks of consecutive names in SQLite's key order
         # (BINARY collation: UTF-8 byte order = code point order = Python's str order); each
         # block runs the trackers rank by rank (one vectorised update per k-th acquisition)
@@ -895,9 +950,19 @@ class ComponentStore:
                 rb = rows_b[sl]
                 cols_out = [names_arr[ci_b[sl]].tolist(), t[rb].tolist(), hi[rb].tolist()]
                 cols_out += [buf[f][sl].tolist() for f in out_fields[:6]]  # fhi .. d2rul
-                cols_out += [valid_buf[sl].tolist(), level_buf[sl].tolist(),
-                             buf["rul_low"][sl].tolist(), buf["rul_high"][sl].tolist()]
-                self._write_history(zip(*cols_out, itertools.repeat(ingest_id), strict=False))
+                cols_out += [valid_buf[sl].tolist(), level_buf[sl].tolist()]
+                if learned_cols is None:
+                    cols_out += [buf["rul_low"][sl].tolist(), buf["rul_high"][sl].tolist()]
+                    extra_cols: tuple[str, ...] = ()
+                else:  # low, high, then the extra column rul_median
+                    cols_out += [learned_cols[1, rb].tolist(), learned_cols[2, rb].tolist(),
+                                 learned_cols[0, rb].tolist()]
+                    extra_cols = ("rul_median",)
+                rows_h = zip(*cols_out, itertools.repeat(ingest_id), strict=False)
+                if extra_cols:
+                    self._write_history(rows_h, extra_cols=extra_cols)
+                else:
+                    self._write_history(rows_h)
                 del cols_out
             del buf
             k0 = k1
@@ -905,6 +970,8 @@ class ComponentStore:
         out = tracker_outputs(state, self.config)
         final = {**state.columns(), "valid": out.valid, "level": out.level,
                  "rul_low": out.rul_low, "rul_high": out.rul_high}
+        if learned is not None:
+            _, final["rul_low"], final["rul_high"] = learned.finish()
         rows = [names] + [np.asarray(final[f]).tolist() for f in ROW_FIELDS]
         rows.append(level.tolist())
         self._write_states(list(zip(*rows, strict=True)))
@@ -920,8 +987,8 @@ class ComponentStore:
         assert cur.lastrowid is not None
         return int(cur.lastrowid)
 
-    def _write_history(self, rows: Iterable[tuple]) -> None:
-        cols = ("component", *HISTORY_FIELDS, "ingest")
+    def _write_history(self, rows: Iterable[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+        cols = ("component", *HISTORY_FIELDS, *extra_cols, "ingest")
         self._conn.executemany(
             f"INSERT INTO history ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
             rows,
@@ -935,6 +1002,18 @@ class ComponentStore:
             f"ON CONFLICT(component) DO UPDATE SET {updates}",
             rows,
         )
+
+    def set_degradation_model(self, model: Any) -> int:
+        """Store a learned model (:mod:`rulkit.fleet.models.degradation`) in one transaction:
+        meta ``degradation_model``, the additive migration (history column ``rul_median``,
+        table ``model_state``) and every existing component's model state rebuilt by replaying
+        its stored history. Returns the number of components rebuilt."""
+        from rulkit.fleet.models.store_support import install_model
+
+        with self._transaction("IMMEDIATE"):
+            n = install_model(self._conn, model)
+        self.degradation = model
+        return n
 
     def meta(self) -> dict[str, Any]:
         """The stored configuration (tracker config and HI model as dicts)."""

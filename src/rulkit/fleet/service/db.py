@@ -410,7 +410,8 @@ def _drop_duplicates(conn: Any, acq: pd.DataFrame) -> tuple[pd.DataFrame, int]:
         last.update({str(c): float(t) for c, t in conn.execute(q, chunk).fetchall()})
     if not last:
         return acq, 0
-    last_t = acq["component"].map(last).to_numpy(dtype=float)  # NaN for new components
+    nan = float("nan")
+    last_t = np.array([last.get(c, nan) for c in acq["component"].tolist()])  # NaN: new
     old = np.flatnonzero(acq["t"].to_numpy() <= last_t)
     if old.size == 0:
         return acq, 0

@@ -135,14 +135,18 @@ function svgEl(name, attrs, parent) {
   return el;
 }
 
-// series: [{type: "dots"|"line"|"band", y | lo, hi, color}], marks: [{x, color}]
-function chart(svg, xs, series, marks) {
+// series: [{type: "dots"|"line"|"band", y | lo, hi, color}], marks: [{x, color}];
+// focus: optional booleans, the points that set the y range (others are clipped)
+function chart(svg, xs, series, marks, focus) {
   svg.replaceChildren();
   const W = Number(svg.getAttribute("width")), H = Number(svg.getAttribute("height"));
   const m = { l: 60, r: 10, t: 10, b: 28 };
+  const useFocus = focus && focus.filter(Boolean).length >= 2;
   const ys = [];
   for (const s of series) for (const k of ["y", "lo", "hi"]) {
-    if (s[k]) for (const v of s[k]) if (v !== null && Number.isFinite(v)) ys.push(v);
+    if (s[k]) s[k].forEach((v, i) => {
+      if (v !== null && Number.isFinite(v) && (!useFocus || focus[i])) ys.push(v);
+    });
   }
   if (xs.length === 0 || ys.length === 0) {
     svgEl("text", { x: W / 2, y: H / 2, "text-anchor": "middle" }, svg).textContent = "no data";
@@ -212,7 +216,7 @@ async function loadDetail(name) {
   chart($("rul-chart"), H.t, [
     { type: "band", lo: H.rul_low, hi: H.rul_high, color: "#2a7" },
     { type: "line", y: H.rul, color: "#153" },
-  ], marks);
+  ], marks, H.valid);
 }
 
 async function refresh() {
