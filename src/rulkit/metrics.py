@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -136,7 +136,7 @@ def _point(pred: ArrayLike | Sequence[RULDistribution]) -> tuple[FloatArray, lis
         if not all(isinstance(d, RULDistribution) for d in dists):
             raise ValueError("rul_pred: mix of RULDistribution and numbers")
         return np.array([d.median for d in dists], dtype=np.float64), dists
-    return _arr(pred, "rul_pred"), None
+    return _arr(cast(ArrayLike, pred), "rul_pred"), None
 
 
 def _prediction_series(

@@ -73,7 +73,7 @@ IntArray = NDArray[np.int64]
 # ---------------------------------------------------------------------------------------------
 
 
-def normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+def normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray | np.float64]:
     """Log-sum-exp normalisation of every row: ``(normalised logw, weights, log_sum)``.
 
     ``logw`` (..., N); returns arrays of shapes (..., N), (..., N) and (...) (a float64 scalar

@@ -35,7 +35,7 @@ import math
 import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -321,7 +321,11 @@ _WEIGHTED: dict[int, tuple[weakref.ref[np.ndarray], FloatArray]] = {}
 
 def _register_weighted(particles: np.ndarray, weights: FloatArray) -> None:
     key = id(particles)
-    ref = weakref.ref(particles, lambda _r, k=key: _WEIGHTED.pop(k, None))
+
+    def forget(_r: object, k: int = key) -> None:
+        _WEIGHTED.pop(k, None)
+
+    ref = weakref.ref(particles, forget)
     _WEIGHTED[key] = (ref, weights)
 
 
@@ -662,7 +666,7 @@ class ParticleFilter:
         inf_rows = np.isinf(flat).any(axis=1)
         if inf_rows.any():
             raise ValueError(f"ys: infinite value in row {int(np.flatnonzero(inf_rows)[0])}")
-        nan_rows = np.isnan(flat).any(axis=1)
+        nan_rows = cast(NDArray[np.bool_], np.isnan(flat).any(axis=1))
         if self.missing == "raise" and nan_rows.any():
             raise ValueError(
                 f"ys: NaN in row {int(np.flatnonzero(nan_rows)[0])} (missing='raise'; use "
@@ -695,9 +699,9 @@ class ParticleFilter:
             x = state.particles
             w = state.weights
             mean[k], cov[k] = _mean_cov(x, w)
-            if qs is not None:
+            if qs is not None and q_levels is not None:
                 qs[k] = _weighted_quantile(x, w, q_levels)
-            if p_hist is not None:
+            if p_hist is not None and w_hist is not None:
                 p_hist[k] = x
                 w_hist[k] = w
             ess[k] = state.ess

@@ -36,6 +36,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
+# A scalar or one value per unit (B,).
+ScalarOrUnits = float | np.ndarray
 
 __all__ = [
     "alpha_beta_gains",
@@ -180,7 +182,8 @@ def _check_step_and_gains(dt: ArrayLike, B: int, **gains: ArrayLike) -> None:
 
 
 def alpha_beta_update(
-    state: np.ndarray, z: ArrayLike, dt: ArrayLike, alpha: ArrayLike, beta: ArrayLike
+    state: np.ndarray, z: ArrayLike, dt: ScalarOrUnits, alpha: ScalarOrUnits,
+    beta: ScalarOrUnits,
 ) -> FloatArray:
     """One alpha-beta step for B units at once (seed section 4 pseudo-code, spec section 2).
 
@@ -206,10 +209,10 @@ def alpha_beta_update(
 def alpha_beta_gamma_update(
     state: np.ndarray,
     z: ArrayLike,
-    dt: ArrayLike,
-    alpha: ArrayLike,
-    beta: ArrayLike,
-    gamma: ArrayLike,
+    dt: ScalarOrUnits,
+    alpha: ScalarOrUnits,
+    beta: ScalarOrUnits,
+    gamma: ScalarOrUnits,
 ) -> FloatArray:
     """One alpha-beta-gamma step for B units at once (spec section 2; see module docstring).
 

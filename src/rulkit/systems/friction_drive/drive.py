@@ -528,6 +528,7 @@ class FrictionDriveModel(StateSpaceModel):
 
     @property
     def noise(self) -> GaussianNoise:
+        """The Gaussian process and measurement noise (model contract, docs/engine.md)."""
         return self._noise
 
     def step(
@@ -538,6 +539,8 @@ class FrictionDriveModel(StateSpaceModel):
         dt: float,
         rng: np.random.Generator | None = None,
     ) -> FloatArray:
+        """One RK4 step (``n_sub`` sub-steps) of the batch (N, 4) over ``dt`` under the current
+        ``u``, plus process noise when ``rng`` is given (model contract)."""
         x = as_batch(x, 4)
         if u is None:
             raise ValueError("u: the friction drive needs the motor current I")
@@ -549,10 +552,13 @@ class FrictionDriveModel(StateSpaceModel):
         return x_next
 
     def output(self, x: FloatArray, u: FloatArray | None = None) -> FloatArray:
+        """The measured speeds (w1, w2), shape (N, 2)."""
         x = as_batch(x, 4)
         return x[:, :2].copy()
 
     def health(self, x: FloatArray) -> FloatArray:
+        """Deterioration D = 1 - alpha / alpha0, shape (N,): 0 when new, failure at
+        ``params.failure_level``."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         return 1.0 - x[:, 2] / self.params.alpha0
 

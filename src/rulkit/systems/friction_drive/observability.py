@@ -110,9 +110,15 @@ def observability(
         input_kind=truth.scenario.current,
         t_start=float(t_start),
         window=float(window),
-        sigma=tuple(float(v) for v in np.sqrt(np.clip(np.diag(crb), 0, None))),
+        sigma=_four(np.sqrt(np.clip(np.diag(crb), 0, None))),
         fisher_condition=float(np.linalg.cond(fisher / np.outer(d, d))),
         pointwise_rank=rank,
     )
 
 
+
+
+def _four(v: np.ndarray) -> tuple[float, float, float, float]:
+    """The four entries of ``v`` (one per state) as floats."""
+    a, b, c, d = (float(x) for x in v)
+    return a, b, c, d

@@ -103,7 +103,7 @@ def tables(res: FrictionDriveResult) -> dict:
 
     rul_rows = []
     for name, r in res.rul.items():
-        q05, q50, q95 = (float(v) for v in r.rul.quantile([0.05, 0.5, 0.95]))
+        q05, q50, q95 = (float(v) for v in np.atleast_1d(r.rul.quantile([0.05, 0.5, 0.95])))
         truth = res.rul_truth_h
         rul_rows.append({
             "config": name, "t_pred_s": r.t_pred, "N": r.rul.n,
@@ -197,7 +197,7 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     paths.append(p)
     # Fig. 7 and 8: bundle of D trajectories and RUL histogram, per RUL config.
     for name, r in res.rul.items():
-        finite = r.rul.samples[~r.rul.censored]
+        finite = r.rul.samples[~np.asarray(r.rul.censored, dtype=bool)]
         t_end = 1.3 * (np.quantile(finite, 0.99) if finite.size else r.nominal_h)
         if not np.isfinite(t_end):
             t_end = 300.0
@@ -232,11 +232,12 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
         fig, ax = plt.subplots(figsize=(6, 4))
         if finite.size:
             ax.hist(finite, bins=30, density=True, alpha=0.6, label="MC RUL (uncensored)")
-            mu, sd = r.normal_fit
-            if np.isfinite(sd) and sd > 0:
+            mu_fit, sd_fit = r.normal_fit
+            if np.isfinite(sd_fit) and sd_fit > 0:
                 g = np.linspace(finite.min(), finite.max(), 200)
-                ax.plot(g, np.exp(-0.5 * ((g - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)),
-                        "r", label=f"normal fit {mu:.2f} h, sd {sd:.2f} h")
+                ax.plot(g, np.exp(-0.5 * ((g - mu_fit) / sd_fit) ** 2)
+                        / (sd_fit * np.sqrt(2 * np.pi)),
+                        "r", label=f"normal fit {mu_fit:.2f} h, sd {sd_fit:.2f} h")
         ax.set_xlabel("RUL [h]")
         ax.set_title(f"Fig. 8 analogue ({name}); censored {r.rul.fraction_censored:.0%}")
         ax.legend(fontsize=8)
@@ -262,14 +263,14 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     return paths
 
 
-def _frac(df, config: str, scenario: str, col: str) -> str:  # type: ignore[no-untyped-def]
+def _frac(df: pd.DataFrame, config: str, scenario: str, col: str) -> str:
     """'k/N runs' for a boolean column of one (config, scenario) pair; '' when not run."""
     sel = df[(df["config"] == config) & (df["scenario"] == scenario)][col]
     sel = sel.dropna()
     return f"{int(sel.astype(bool).sum())}/{len(sel)}" if len(sel) else ""
 
 
-def _verdict_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-untyped-def]
+def _verdict_text(res: FrictionDriveResult, cons: pd.DataFrame) -> str:
     """How to read the verdicts, with the counts of this run (nothing hard-coded)."""
     T = res.summaries[0].innovations.n_steps if res.summaries else 0
     parts = [
@@ -321,7 +322,7 @@ def _verdict_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-unt
     return " ".join(parts)
 
 
-def _nees_cause_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-untyped-def]
+def _nees_cause_text(res: FrictionDriveResult, cons: pd.DataFrame) -> str:
     """Where the large single-step NEES occur and their measured cause (numbers of this run)."""
     q999 = float(stats.chi2.ppf(0.999, 4))
     fixed = cons["config"].str.startswith("tuned-consistent")

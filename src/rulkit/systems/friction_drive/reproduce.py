@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rulkit.estimation.consistency import (
     InnovationCheck,
@@ -92,6 +93,7 @@ class Scenario:
             raise ValueError(f"Scenario.duration: expected > 0, got {self.duration}")
 
     def m_of_t(self, t: FloatArray) -> FloatArray:
+        """The true mass parameter m at times ``t`` (constant, jump or drift schedule)."""
         t = np.asarray(t, dtype=np.float64)
         if self.m_kind == "constant":
             return np.full(t.shape, self.m0)
@@ -100,6 +102,7 @@ class Scenario:
         return self.m0 + self.drift_rate * t
 
     def current_of_t(self, t: FloatArray) -> FloatArray:
+        """The input current at times ``t`` (square wave or constant)."""
         t = np.asarray(t, dtype=np.float64)
         if self.current == "square":
             return fd.square_wave_current(t, self.amplitude)
@@ -226,7 +229,7 @@ def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10) -> Tru
     finer sub-steps than the filter). m follows the scenario's schedule, evaluated at the
     middle of each sample interval (exact for constant m and for the jump at a sample time)."""
     K = round(scenario.duration / dt)
-    t = np.arange(K + 1) * dt
+    t = np.arange(K + 1, dtype=np.float64) * dt
     currents = scenario.current_of_t(t[:-1])
     m_path = scenario.m_of_t(t[:-1] + 0.5 * dt)
     if scenario.m_kind == "jump":  # the jump falls on a sample time: use the step-start value
@@ -247,14 +250,15 @@ def one_step_discretisation_error(truth: Truth, n_sub: int = 1) -> FloatArray:
     return truth.X[1:] - pred
 
 
-def switch_steps(currents: FloatArray) -> FloatArray:
+def switch_steps(currents: FloatArray) -> NDArray[np.intp]:
     """Indices k of the steps whose held current differs from the previous step's (the steps
     that start at a current switch), shape (n_switch,)."""
     c = np.asarray(currents, dtype=np.float64)
     return np.flatnonzero(np.diff(c) != 0) + 1
 
 
-def nees_near_switches(nees: FloatArray, currents: FloatArray, window: int = 50) -> FloatArray:
+def nees_near_switches(nees: FloatArray, currents: FloatArray, window: int = 50
+                       ) -> NDArray[np.bool_]:
     """Boolean mask (K,) of the NEES entries within ``window`` steps after a current switch
     (``nees[k]`` is the NEES of the estimate after step k)."""
     near = np.zeros(np.shape(nees)[0], bool)
@@ -485,8 +489,8 @@ class FrictionDriveResult:
     settings: dict
 
 
-def _time_within(t: FloatArray, est: FloatArray, target: FloatArray, tol: FloatArray,
-                 t_from: float) -> float:
+def _time_within(t: FloatArray, est: FloatArray, target: FloatArray,
+                 tol: FloatArray | float, t_from: float) -> float:
     """First time >= t_from after which |est - target| <= tol holds for good (nan if never)."""
     ok = np.abs(est - target) <= tol
     sel = t >= t_from

@@ -8,12 +8,15 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy import stats
 from scipy.integrate import solve_ivp
 
 from rulkit.model import FloatArray, check_covariance
 from rulkit.prognosis.rul import RULDistribution
 from rulkit.systems.friction_drive import drive as fd
+
+BoolArray = NDArray[np.bool_]
 
 HOUR = 3600.0
 # RK4 step of the spin-up transient in the fast RUL propagation. Against LSODA over the full
@@ -31,7 +34,7 @@ def time_to_failure(
     dt: float = TRANSIENT_DT,
     full_model_below: float = 3600.0,
     horizon: float = np.inf,
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, BoolArray]:
     """Time (s) for D = 1 - alpha/alpha0 to reach ``params.failure_level`` from states ``x0``
     (N, 4) under a constant current, m held constant: the fast long-horizon propagation.
 

@@ -481,7 +481,7 @@ def rul_monte_carlo(
 
 
 def quadratic_crossing(
-    c: np.ndarray, a: np.ndarray, j: np.ndarray, c_fail: float
+    c: np.ndarray | float, a: np.ndarray | float, j: np.ndarray | float, c_fail: float
 ) -> FloatArray:
     """First ``m >= 0`` with ``c + a m + j m^2 / 2 >= c_fail`` (the quadratic trend's crossing;
     ``j = 0`` is the seed's linear law ``(c_fail - c) / a``); 0 when ``c >= c_fail`` already,

@@ -179,8 +179,9 @@ def micro_ekf(
     R = np.diag([s.sigma_w**2, s.sigma_dw**2])[:m, :m]
     nis_sum = np.zeros(b)
     n_upd = np.zeros(b)
-    x_hist = np.empty((n_t, b, 2)) if keep_history else None
-    p_hist = np.empty((n_t, b, 2, 2)) if keep_history else None
+    n_hist = n_t if keep_history else 0
+    x_hist = np.empty((n_hist, b, 2))
+    p_hist = np.empty((n_hist, b, 2, 2))
     if keep_history:
         x_hist[0] = x
         p_hist[0] = P
@@ -198,7 +199,7 @@ def micro_ekf(
         Pp = F @ P @ F.transpose(0, 2, 1) + Q
         y = np.empty((b, m))
         y[:, 0] = speed[:, k]
-        if use_acc:
+        if acc is not None:  # use_acc
             y[:, 1] = acc[:, k]
         y = np.where(ok[:, None], y, zp[:, :m])  # padded samples: no innovation
         xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m], check=False)
@@ -215,6 +216,6 @@ def micro_ekf(
         c_var=P[:, 1, 1].copy(),
         speed=x[:, 0].copy(),
         mean_nis=nis_sum / np.maximum(n_upd, 1),
-        x_hist=x_hist,
-        p_hist=p_hist,
+        x_hist=x_hist if keep_history else None,
+        p_hist=p_hist if keep_history else None,
     )

@@ -297,6 +297,7 @@ class DCMotor(StateSpaceModel):
 
     @property
     def noise(self) -> GaussianNoise:
+        """The Gaussian process and measurement noise (model contract, docs/engine.md)."""
         return self._noise
 
     def _currents(self, u: FloatArray | None, n: int) -> tuple[FloatArray, FloatArray]:
@@ -317,6 +318,8 @@ class DCMotor(StateSpaceModel):
         dt: float,
         rng: np.random.Generator | None = None,
     ) -> FloatArray:
+        """One RK4 step of the batch of states [speed, damping] (N, 2) over ``dt`` under the
+        current ``u``, plus process noise when ``rng`` is given (model contract)."""
         x = as_batch(x, 2)
         i0, i1 = self._currents(u, x.shape[0])
         x_next, _ = rk4_step_with_jacobian(x, i0, i1, dt, self.consts)
@@ -325,11 +328,13 @@ class DCMotor(StateSpaceModel):
         return x_next
 
     def output(self, x: FloatArray, u: FloatArray | None = None) -> FloatArray:
+        """The measured speed (and acceleration) of each state in the batch."""
         x = as_batch(x, 2)
         i0, _ = self._currents(u, x.shape[0])
         return measurement(x, i0, self.consts)[0]
 
     def health(self, x: FloatArray) -> FloatArray:
+        """The damping coefficient c of each state, shape (N,) (rises towards c_fail)."""
         return as_batch(x, 2)[:, 1]
 
 
@@ -517,6 +522,7 @@ class LifeTestConfig:
 
     @property
     def time(self) -> FloatArray:
+        """Sample times of one pull-up cycle, 0 to ``duration`` in steps of ``dt``."""
         n = round(self.duration / self.dt) + 1
         return self.dt * np.arange(n, dtype=np.float64)
 
