@@ -194,3 +194,16 @@ def test_kept_sort_order_equals_stable_argsort() -> None:
     np.testing.assert_array_equal(order, np.argsort(x, kind="stable"))
     bt.sort_order_row(x[::-1].copy(), order, False)  # reversed: falls back past 8 N moves
     np.testing.assert_array_equal(order, np.argsort(x[::-1], kind="stable"))
+
+
+def test_weights_from_log_form_is_the_same_weights_up_to_rounding() -> None:
+    lw = _logw(np.random.default_rng(9), 4, 60)
+    a = bt.normalise_rows(lw)
+    b = bt.normalise_rows(lw, weights_from_log=True)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_allclose(b[1], a[1], rtol=1e-13, atol=1e-300)
+    np.testing.assert_array_equal(b[1], np.exp(a[0]))
+    row, wn = lw[1].copy(), np.empty(60)
+    bt.normalise_row(row, wn, True)
+    np.testing.assert_allclose(wn, b[1][1], rtol=1e-13, atol=1e-300)
+    np.testing.assert_array_equal(wn, np.exp(row))

@@ -73,8 +73,13 @@ IntArray = NDArray[np.int64]
 # ---------------------------------------------------------------------------------------------
 
 
-def normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+def normalise_rows(
+    logw: FloatArray, weights_from_log: bool = False
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Log-sum-exp normalisation of every row: ``(normalised logw, weights, log_sum)``.
+
+    ``weights_from_log``: weights as ``exp(normalised logw)`` rather than
+    ``exp(logw - max) / sum`` (see :func:`normalise_row`).
 
     ``logw`` (..., N); returns arrays of shapes (..., N), (..., N) and (...) (a float64 scalar
     for a single row). A single row takes the log of its sum with ``math.log``, more rows with
@@ -89,21 +94,25 @@ def normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray
             e = np.exp(lw - m)
             s = float(e.sum())
             ls1 = m + math.log(s)
-            return lw - ls1, e / s, np.float64(ls1)
+            lwn1 = lw - ls1
+            return lwn1, np.exp(lwn1) if weights_from_log else e / s, np.float64(ls1)
     mx = lw.max(axis=-1, keepdims=True)
     ok = np.isfinite(mx)
     if ok.all():
         e = np.exp(lw - mx)
         s = e.sum(axis=-1, keepdims=True)
         ls = mx + np.log(s)
-        return lw - ls, e / s, ls[..., 0]
+        lwn = lw - ls
+        return lwn, np.exp(lwn) if weights_from_log else e / s, ls[..., 0]
     with np.errstate(invalid="ignore", divide="ignore"):
         m0 = np.where(ok, mx, 0.0)
         e = np.exp(lw - m0)
         s = e.sum(axis=-1, keepdims=True)
         bad = np.where(mx == -np.inf, -np.inf, np.nan)
         ls = np.where(ok, m0 + np.log(s), bad)
-        return np.where(ok, lw - ls, lw), np.where(ok, e / s, np.nan), ls[..., 0]
+        lwn = np.where(ok, lw - ls, lw)
+        w = np.exp(lwn) if weights_from_log else e / s
+        return lwn, np.where(ok, w, np.nan), ls[..., 0]
 
 
 def ess_rows(w: FloatArray) -> FloatArray | float:
@@ -175,8 +184,12 @@ def weighted_quantile_rows(x: FloatArray, w: FloatArray, q: FloatArray | float) 
 
 
 @nb.njit(cache=True)
-def normalise_row(lw, wn):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def normalise_row(lw, wn, weights_from_log=False):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Normalise one row in place: ``wn = exp(lw - max) / sum``, ``lw -= log_sum``.
+
+    ``weights_from_log=True``: ``wn = exp(normalised lw)`` instead (the same number up to the
+    last bit; the degradation trackers have always used this form, kept so their tables do
+    not move).
 
     Returns ``log_sum`` (the log-likelihood increment when ``lw`` held normalised log-weights
     plus log-likelihoods). A degenerate row returns -inf (every weight zero) or NaN (a NaN or
@@ -200,9 +213,14 @@ def normalise_row(lw, wn):  # type: ignore[no-untyped-def]  # pragma: no cover -
         wn[i] = e
         s += e
     ls = mx + math.log(s)
-    for i in range(n):
-        wn[i] /= s
-        lw[i] -= ls
+    if weights_from_log:
+        for i in range(n):
+            lw[i] -= ls
+            wn[i] = math.exp(lw[i])
+    else:
+        for i in range(n):
+            wn[i] /= s
+            lw[i] -= ls
     return ls
 
 

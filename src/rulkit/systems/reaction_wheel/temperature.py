@@ -867,8 +867,9 @@ def estimate_temperature(
         r = run_ekf(y, V, sigma=sigma, dt=dt, t0=float(t[0]))
         z = float(norm.ppf(0.5 + level / 2))
         m, s = r.T_mean[:, 0], r.T_std[:, 0]
-        return pd.DataFrame({"time_s": t, "T_mean": m, "T_lo": m - z * s, "T_hi": m + z * s,
-                             "untrusted": np.zeros(t.size, dtype=bool)})
+        return _checked(pd.DataFrame({"time_s": t, "T_mean": m, "T_lo": m - z * s,
+                                      "T_hi": m + z * s,
+                                      "untrusted": np.zeros(t.size, dtype=bool)}))
     if method not in kern.VARIANTS and method != "rbpf":
         raise ValueError(
             f"method: expected 'ekf', 'rbpf' or one of {sorted(kern.VARIANTS)}, got {method!r}"
@@ -891,14 +892,46 @@ def estimate_temperature(
         est = pd.DataFrame({"time_s": t, "T_mean": rb.T_mean, "T_lo": rb.T_lo,
                             "T_hi": rb.T_hi, "untrusted": np.zeros(t.size, dtype=bool)})
         est.attrs["note"] = RBPF_INTERVAL_NOTE
-        return est
+        return _checked(est)
     if design not in kern.DESIGNS:
         raise ValueError(f"design: expected one of {sorted(kern.DESIGNS)}, got {design!r}")
     cfg = config or TemperatureConfig(design=design, variant=method,  # type: ignore[arg-type]
                                 n_particles=n_particles, quantiles=q, gate_d2=DEFAULT_GATE_D2)
     res = filter_temperature(y, V, rng, cfg, sigma=sigma, dt=dt, t0=float(t[0]))
-    return pd.DataFrame({"time_s": t, "T_mean": res.T_mean, "T_lo": res.T_lo, "T_hi": res.T_hi,
-                         "untrusted": res.untrusted.astype(bool)})
+    return _checked(pd.DataFrame({"time_s": t, "T_mean": res.T_mean, "T_lo": res.T_lo,
+                                  "T_hi": res.T_hi, "untrusted": res.untrusted.astype(bool)}))
+
+
+#: Temperatures the wheel model describes (C): the viscous coefficient b_v(T) is positive
+#: from below -30 C up to 215 C (docs/systems/reaction-wheel.md, viscous friction).
+MODEL_RANGE_C = (-30.0, 215.0)
+ABSOLUTE_ZERO_C = -273.15
+
+
+class ImplausibleEstimateError(ValueError):
+    """The filter's estimate left physics (non-finite or below absolute zero)."""
+
+
+def _checked(est: Any) -> Any:
+    """Refuse a physically impossible estimate; note samples outside the model's range."""
+    m = est["T_mean"].to_numpy()
+    bad = ~np.isfinite(m) | (m < ABSOLUTE_ZERO_C)
+    if bad.any():
+        r = int(np.flatnonzero(bad)[0])
+        raise ImplausibleEstimateError(
+            f"the temperature estimate is {m[r]:.6g} C at time_s = {est['time_s'].iloc[r]:g} "
+            f"(row {r}), below absolute zero or not finite: the telemetry does not follow the "
+            "wheel model (wrong units, wrong noise level, or not this wheel); nothing written"
+        )
+    lo, hi = MODEL_RANGE_C
+    out = (m < lo) | (m > hi)
+    if out.any():
+        r = int(np.flatnonzero(out)[0])
+        est.attrs["warning"] = (
+            f"{int(out.sum())} estimates outside {lo:g}..{hi:g} C, the range the wheel model "
+            f"describes (first: {m[r]:.4g} C at time_s = {est['time_s'].iloc[r]:g}); treat them "
+            "as a sign the telemetry does not fit the model")
+    return est
 
 
 # --------------------------------------------------------------------------------------------
