@@ -52,7 +52,7 @@ MAX_ACCEL_RAD_S2 = 20.0
 JUMP_SLACK_RAD_S = 1.0
 #: Temperature is observable only through the viscous torque b_v(T) w: below this peak speed
 #: the record carries no temperature information.
-MIN_PEAK_SPEED_RAD_S = 5.0
+MIN_PEAK_SPEED_RAD_S = 0.5
 
 
 class TelemetryError(ValueError):
