@@ -32,6 +32,7 @@ arrays plus whatever the user's ``transition`` and ``log_likelihood`` cost.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -310,6 +311,41 @@ class ParticleFilterResult:
     @property
     def n_resampled(self) -> int:
         return int(self.resampled.sum())
+
+
+# A registry of the particle arrays a filter handed out with non-uniform weights, so that
+# propagating them without their weights can be noticed (issue 10, stumble 3). Keyed by id();
+# an entry dies with its array (weakref callback), and is only trusted while it is alive.
+_WEIGHTED: dict[int, tuple[weakref.ref[np.ndarray], FloatArray]] = {}
+
+
+def _register_weighted(particles: np.ndarray, weights: FloatArray) -> None:
+    key = id(particles)
+    ref = weakref.ref(particles, lambda _r, k=key: _WEIGHTED.pop(k, None))
+    _WEIGHTED[key] = (ref, weights)
+
+
+def weights_of(x: Any) -> FloatArray | None:
+    """The weights a particle filter returned together with ``x``, when ``x`` is its final
+    ``particles`` array or one step ``particle_history[k]`` of a ``ParticleFilterResult``
+    (None otherwise, or when those weights are uniform)."""
+    if not isinstance(x, np.ndarray):
+        return None
+    for cand in (x, x.base):
+        if not isinstance(cand, np.ndarray):
+            continue
+        entry = _WEIGHTED.get(id(cand))
+        if entry is None or entry[0]() is not cand:
+            continue
+        w = entry[1]
+        if cand is x:
+            return w if w.ndim == 1 else None
+        if cand.ndim == 3 and x.shape == cand.shape[1:] and w.ndim == 2:
+            off = x.__array_interface__["data"][0] - cand.__array_interface__["data"][0]
+            k, rem = divmod(off, cand.strides[0])
+            if rem == 0 and 0 <= k < cand.shape[0]:
+                return w[k]  # type: ignore[no-any-return]
+    return None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -671,6 +707,10 @@ class ParticleFilter:
             self.resample_if_needed(state)
             resampled[k] = state.resampled
 
+        if np.ptp(state.weights) > 0:
+            _register_weighted(state.particles, state.weights)
+        if p_hist is not None and w_hist is not None:
+            _register_weighted(p_hist, w_hist)
         return ParticleFilterResult(
             mean=mean,
             cov=cov,
