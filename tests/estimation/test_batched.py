@@ -198,3 +198,15 @@ def test_weights_from_log_form_is_the_same_weights_up_to_rounding() -> None:
     bt.normalise_row(row, wn, True)
     np.testing.assert_allclose(wn, b[1][1], rtol=1e-13, atol=1e-300)
     np.testing.assert_allclose(wn, np.exp(row), rtol=1e-15, atol=0)  # libm vs numpy exp
+
+
+def test_normalise_weights_and_systematic_indices_match_the_row_functions() -> None:
+    lw = _logw(np.random.default_rng(11), 1, 80)[0]
+    w, ls = bt.normalise_weights(lw)
+    _, w2, ls2 = bt.normalise_rows(lw)
+    np.testing.assert_array_equal(w, w2)
+    assert ls == ls2 == pytest.approx(logsumexp(lw), rel=1e-14)
+    wd, lsd = bt.normalise_weights(np.full(3, -np.inf))
+    assert lsd == -np.inf and np.isnan(wd).all()
+    assert np.isnan(bt.normalise_weights(np.array([0.0, np.nan]))[1])
+    np.testing.assert_array_equal(bt.systematic_indices(w, 0.3), _systematic_oracle(w, 0.3))

@@ -53,6 +53,8 @@ __all__ = [
     "normalise_row",
     "normalise_rows",
     "normalise_rows_numba",
+    "normalise_weights",
+    "systematic_indices",
     "systematic_row",
     "systematic_rows",
     "systematic_rows_numba",
@@ -111,6 +113,20 @@ def normalise_rows(
         lwn = np.where(ok, lw - ls, lw)
         w = np.exp(lwn) if weights_from_log else e / s
         return lwn, np.where(ok, w, np.nan), ls[..., 0]
+
+
+def normalise_weights(logw: FloatArray) -> tuple[FloatArray, float]:
+    """One row's weights and log-sum, as :func:`normalise_rows` without the normalised
+    log-weights (for callers that only need the weights; one array operation less).
+    Degenerate row: ``(NaN weights, -inf or NaN)``."""
+    lw = np.asarray(logw, dtype=np.float64)
+    m = float(lw.max())
+    if not math.isfinite(m):
+        return np.full(lw.shape, np.nan), (-math.inf if m == -math.inf else math.nan)
+    e = np.exp(lw - m)
+    s = float(e.sum())
+    e /= s
+    return e, m + math.log(s)
 
 
 def ess_rows(w: FloatArray) -> FloatArray | float:
@@ -292,6 +308,15 @@ def normalise_rows_numba(logw):  # type: ignore[no-untyped-def]  # pragma: no co
         if not ls[r] > -np.inf:
             w[r, :] = np.nan
     return lw, w, ls
+
+
+@nb.njit(cache=True)
+def systematic_indices(w, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """:func:`systematic_row` returning a fresh index array (scratch allocated inside)."""
+    n = w.size
+    idx = np.empty(n, dtype=np.int64)
+    systematic_row(w, u, idx, np.empty(n))
+    return idx
 
 
 @nb.njit(cache=True)
