@@ -40,7 +40,7 @@ from typing import Any, Literal, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.estimation.batched import ess_rows, normalise_rows
+from rulkit.estimation.batched import ess_rows, normalise_weights
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
 from rulkit.model import (
     InputLike,
@@ -109,7 +109,7 @@ def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
     logw = np.asarray(logw, dtype=np.float64)
     if logw.ndim != 1 or logw.size == 0:
         raise ValueError(f"logw: expected a non-empty 1-D array, got shape {logw.shape}")
-    _, w, ls = normalise_rows(logw)
+    w, ls = normalise_weights(logw)
     if not math.isfinite(ls):  # NaN anywhere, +inf anywhere, or all -inf
         raise DegenerateWeightsError(_describe_degenerate(logw))
     return w, float(ls)
@@ -774,4 +774,4 @@ def _logsumexp(a: FloatArray) -> float:
     m = a.max()
     if not math.isfinite(m):  # -inf (all zero), +inf or NaN: the value itself
         return float(m)
-    return float(normalise_rows(a)[2])
+    return float(normalise_weights(a)[1])

@@ -198,7 +198,7 @@ def _wmean_std(x: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def _np_normalise(logw: FloatArray) -> tuple[FloatArray, FloatArray]:
     """numpy path: normalise ``logw`` (U, N) in place; return weights and ESS per unit."""
-    lwn, w, ls = normalise_rows(logw)
+    lwn, w, ls = normalise_rows(logw, weights_from_log=True)
     bad = ~(ls > -np.inf)
     if bad.any():
         raise FloatingPointError(f"degenerate weights in unit {int(np.flatnonzero(bad)[0])}")
@@ -237,7 +237,7 @@ def _k_logsum(bb, c, s, nodes, weights, lcount):  # pragma: no cover - compiled
 def _k_normalise(r, logw, w):  # pragma: no cover - compiled
     """Normalise row r of logw in place, weights into ``w``; returns the ESS, or -1 when the
     row is degenerate (all -inf or NaN: the caller raises, naming the unit)."""
-    if not normalise_row(logw[r], w) > -np.inf:
+    if not normalise_row(logw[r], w, True) > -np.inf:
         return -1.0
     return ess_row(w)
 

@@ -29,10 +29,8 @@ import numpy as np
 from rulkit.estimation.batched import (
     ess_row,
     normalise_row,
-    order_after_resampling,
-    sort_order_row,
     systematic_row,
-    weighted_quantiles_sorted_row,
+    weighted_quantile_select_row,
 )
 from rulkit.systems.reaction_wheel.wheel import IthacoParams
 
@@ -268,13 +266,10 @@ def _resample(T, I, W, idx, wn, u, design, T2, I2, W2, cw):  # type: ignore[no-u
 
 
 @nb.njit(cache=True)
-def _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf):  # type: ignore[no-untyped-def]
-    """Weighted (q_lo, q_hi) quantiles of T with the sorted order kept from step to step
-    (:func:`rulkit.estimation.batched.sort_order_row`): O(N) when the cloud moved little."""
-    if resampled:
-        order_after_resampling(order, idx, ibuf)
-    sort_order_row(T, order, fresh)
-    return weighted_quantiles_sorted_row(T, wn, order, s.q_lo, s.q_hi, cw)
+def _interval(T, wn, s, ibuf):  # type: ignore[no-untyped-def]
+    """Weighted (q_lo, q_hi) quantiles of T by selection (expected O(N), no sort)."""
+    return (weighted_quantile_select_row(T, wn, s.q_lo, ibuf),
+            weighted_quantile_select_row(T, wn, s.q_hi, ibuf))
 
 
 @nb.njit(cache=True)
@@ -306,8 +301,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
     W2 = np.empty(N)
     cw = np.empty(N)
     idx = np.empty(N, dtype=np.int64)
-    order = np.arange(N)
-    ibuf = np.empty(2 * N + 1, dtype=np.int64)
+    ibuf = np.empty(N, dtype=np.int64)
     out_mean = np.full(K, np.nan)
     out_std = np.full(K, np.nan)
     out_qlo = np.full(K, np.nan)
@@ -343,11 +337,8 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
         wn[i] = 1.0 / N
     out_mean[0], out_std[0] = _mean_std(T, wn)
     out_ess[0] = N
-    fresh = True  # the kept sort order must be rebuilt
-    resampled = False
     if s.want_quantiles:
-        out_qlo[0], out_qhi[0] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
-        fresh = False
+        out_qlo[0], out_qhi[0] = _interval(T, wn, s, ibuf)
     win_sum = 0.0
     win_cnt = 0
     n_bad = 0
@@ -405,13 +396,11 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
                     T[:] = ring_T[back % R]
                     lw[:] = ring_lw[back % R]
                     normalise_row(lw, wn)
-                    fresh = True
                 n_bad = 0
                 act = 5
             out_mean[k], out_std[k] = _mean_std(T, wn)
             if s.want_quantiles:
-                out_qlo[k], out_qhi[k] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
-                fresh = resampled = False
+                out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
             out_ess[k] = ess_row(wn)
             out_act[k] = act
             continue
@@ -429,8 +418,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
         out_mean[k] = m
         out_std[k] = sd
         if s.want_quantiles:
-            out_qlo[k], out_qhi[k] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
-            fresh = resampled = False
+            out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
         ess = ess_row(wn)
         out_ess[k] = ess
         # --- resampling / adaptive spread
@@ -448,14 +436,12 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
             win_sum = 0.0
             win_cnt = 0
             act = 2
-            fresh = True
         elif ess < s.ess_frac * N:
             _resample(T, I, W, idx, wn, rng.random(), s.design, T2, I2, W2, cw)
             for i in range(N):
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             act = 1
-            resampled = True
         out_act[k] = act
     return (out_mean, out_std, out_qlo, out_qhi, out_ess, out_act, out_clip, out_gamma, out_ll,
             out_flag)

@@ -121,7 +121,7 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
     t = time.perf_counter()
     table5 = None
     if cfg.table5:
-        from rulkit.systems.reaction_wheel.temperature import run_table5
+        from rulkit.systems.reaction_wheel.temperature_study import run_table5
 
         log("step 1: Table 5 (temperature estimation)")
         table5 = run_table5(runs=min(cfg.n_runs, 20), seed=cfg.seed, quick=cfg.quick,
@@ -132,7 +132,7 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
         table5.to_csv(out / "table5.csv", index=False)
         files.append(out / "table5.csv")
         try:
-            from rulkit.systems.reaction_wheel.temperature import plot_temperature_estimates
+            from rulkit.systems.reaction_wheel.temperature_study import plot_temperature_estimates
 
             files += plot_temperature_estimates(out, seed=cfg.seed,
                                                 n_particles=200 if cfg.quick else 350,
@@ -333,11 +333,11 @@ def render_report(rep: Reproduction) -> str:
         keep = [c for c in ("method", "design", "noise", "N", "runs", "rmspe_mean", "rmspe_sd",
                             "paper", "rmspe_late_mean", "cover_mean", "cover_late_mean")
                 if c in t5.columns]
-        L.append("Produced by `rulkit.systems.reaction_wheel.temperature.run_table5` (see its "
-                 "own documentation for its settings). RMSPE of T in % over 0-500 s, ours beside "
-                 "the paper's; `rmspe_late_mean` is the RMSPE after 100 s and `cover_*` the "
-                 "fraction of samples whose 90 % interval holds the true T (over 0-500 s, after "
-                 "100 s).\n")
+        L.append("Produced by `rulkit.systems.reaction_wheel.temperature_study.run_table5` "
+                 "(see its own documentation for its settings). RMSPE of T in % over 0-500 s, "
+                 "ours beside the paper's; `rmspe_late_mean` is the RMSPE after 100 s and "
+                 "`cover_*` the fraction of samples whose 90 % interval holds the true T "
+                 "(over 0-500 s, after 100 s).\n")
         L.append(_md(t5[keep]) + "\n")
         if cfg.table5_extra_designs:
             L.append(
