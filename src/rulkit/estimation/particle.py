@@ -5,7 +5,7 @@ particles (eq. 13); with the transition density as importance function the weigh
 ``w_k^i ∝ w_{k-1}^i p(y_k | x_k^i)`` (eq. 15); the effective sample size is
 ``N_eff = 1 / sum_i (w_k^i)^2`` (eq. 16) and resampling happens when it falls below a threshold.
 
-Design (docs/engine-api.md, ``rulkit.estimation.particle``; architecture.md "Principles"):
+Design (docs/engine-api.md, ``rulkit.estimation.particle``; docs/guide.md "Concepts"):
 
 - Log-weights throughout, normalised by log-sum-exp. A degenerate update (every weight zero,
   i.e. every log-weight -inf, or any NaN / +inf log-weight) raises ``DegenerateWeightsError``
@@ -103,8 +103,9 @@ def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
     """Normalise log-weights by log-sum-exp: return ``(w, log_sum)`` with ``sum(w) == 1``.
 
     ``log_sum = log sum_i exp(logw_i)``, computed as ``m + log sum exp(logw - m)`` with
-    ``m = max logw`` so nothing overflows (architecture.md: "normalise with log-sum-exp").
-    Raises ``DegenerateWeightsError`` when every log-weight is -inf, or any is NaN or +inf.
+    ``m = max logw`` so nothing overflows (docs/guide.md, "Log-weights": normalise with
+    log-sum-exp). Raises ``DegenerateWeightsError`` when every log-weight is -inf, or any is NaN or
+    +inf.
     """
     logw = np.asarray(logw, dtype=np.float64)
     if logw.ndim != 1 or logw.size == 0:

@@ -1,6 +1,6 @@
 """Second storage backend of the component store: PostgreSQL, and :func:`open_store`.
 
-embedded-rul.md section 4 (the component state and history store). :class:`PgComponentStore`
+docs/systems/embedded-rul.md §4 (the component state and history store). :class:`PgComponentStore`
 is :class:`~rulkit.fleet.store.ComponentStore` with its plumbing (connection, schema,
 transactions, queries that used pandas' SQLite reader) replaced for PostgreSQL; the
 validation, the vectorised tracker update and the alert logic are the SQLite store's own code,

@@ -1,6 +1,6 @@
 """Persistent component state in SQLite: tracker state per component, history per acquisition.
 
-embedded-rul.md section 4 (the seed's "component state file" and "HI/RUL file"). One database
+docs/systems/embedded-rul.md §4 (the seed's "component state file" and "HI/RUL file"). One database
 file holds
 
 * ``meta``: schema version, the :class:`~rulkit.fleet.tracker_chain.TrackerConfig` (JSON) the
