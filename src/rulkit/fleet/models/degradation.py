@@ -376,9 +376,10 @@ def rul_cdf(model: DegradationModel, state: UnitState, r: FloatArray) -> FloatAr
     w = np.asarray(r, dtype=np.float64) / tau
     ls0 = log_ndtr(-(state.m[:, 0] - zs) / np.sqrt(state.p[:, 0]))
     out = np.empty_like(w)
-    for k in range(w.shape[1]):
-        out[:, k] = 1.0 - np.exp(np.minimum(_log_surv(state.m, state.p, w[:, k], q, zs) - ls0,
-                                            0.0))
+    with np.errstate(invalid="ignore"):  # NaN horizons (units without acquisitions) stay NaN
+        for k in range(w.shape[1]):
+            out[:, k] = 1.0 - np.exp(np.minimum(
+                _log_surv(state.m, state.p, w[:, k], q, zs) - ls0, 0.0))
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
