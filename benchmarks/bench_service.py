@@ -45,15 +45,17 @@ def write_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
     sdb.close()
     srv = start_server(db)
     try:
+        cpu0, client0 = srv.cpu_seconds(), time.process_time()
         res = run_load(srv.port, token, writers=args.writers, readers=args.readers,
                        batches=args.batches, batch_size=args.batch_size,
                        max_reads=args.batches * 4)
+        cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
     finally:
         srv.stop()
     if res.errors:
         raise SystemExit(f"errors during the load: {res.errors[:5]}")
     verify_exactly_once(db, args.writers, args.batches, args.batch_size)
-    return res.summary()
+    return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client}
 
 
 def read_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
@@ -72,7 +74,9 @@ def read_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
     try:
         for label, path in [("first_page", "/api/v1/components?limit=50"),
                             ("middle_page", f"/api/v1/components?limit=50&offset={n // 2}")]:
+            cpu0 = srv.cpu_seconds()
             lat = _reads(srv.port, token, path, args.readers, args.reads)
+            out[f"{label}_cpu_ms"] = (srv.cpu_seconds() - cpu0) / len(lat) * 1e3
             out[f"{label}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
             out[f"{label}_p99_ms"] = float(np.percentile(lat, 99)) * 1e3
             out[f"{label}_requests"] = len(lat)
@@ -156,16 +160,24 @@ def main() -> None:
                   f"p99 {w['post_p99_ms']:.0f} ms; concurrent GET limit=50 ({int(w['gets'])} "
                   f"requests) p50 {w['get_p50_ms']:.0f} ms, p99 {w['get_p99_ms']:.0f} ms; "
                   "every acquisition stored exactly once: yes")
+            print(f"CPU: service process {w['server_cpu_s']:.1f} s "
+                  f"({w['acquisitions'] / w['server_cpu_s']:.0f} acquisitions per service "
+                  f"CPU-second, GETs included), load client {w['client_cpu_s']:.1f} s"
+                  + ("" if backend == "sqlite" else "; PostgreSQL's own processes not counted"))
             print(f"read latency, {int(r['components'])} components (filled in "
                   f"{r['fill_s']:.1f} s), {args.readers} readers x {args.reads}: "
                   f"first page p50 {r['first_page_p50_ms']:.1f} ms, p99 "
                   f"{r['first_page_p99_ms']:.1f} ms; middle page p50 "
-                  f"{r['middle_page_p50_ms']:.1f} ms, p99 {r['middle_page_p99_ms']:.1f} ms")
-    print("\n| backend | acquisitions/s | POST p50 / p99 ms | GET p99 ms under load | "
-          "GET limit=50 p99 ms at N components (first / middle page) |")
-    print("|---|---|---|---|---|")
+                  f"{r['middle_page_p50_ms']:.1f} ms, p99 {r['middle_page_p99_ms']:.1f} ms; "
+                  f"service CPU per request {r['first_page_cpu_ms']:.1f} / "
+                  f"{r['middle_page_cpu_ms']:.1f} ms")
+    print(f"\nload average at end {os.getloadavg()[0]:.1f}")
+    print("\n| backend | acquisitions/s | per service CPU-s | POST p50 / p99 ms | GET p99 ms "
+          "under load | GET limit=50 p99 ms at N components (first / middle page) |")
+    print("|---|---|---|---|---|---|")
     for backend, w, r in rows:
-        print(f"| {backend} | {w['acq_per_s']:.0f} | {w['post_p50_ms']:.0f} / "
+        print(f"| {backend} | {w['acq_per_s']:.0f} | "
+              f"{w['acquisitions'] / w['server_cpu_s']:.0f} | {w['post_p50_ms']:.0f} / "
               f"{w['post_p99_ms']:.0f} | {w['get_p99_ms']:.0f} | "
               f"{r['first_page_p99_ms']:.1f} / {r['middle_page_p99_ms']:.1f} "
               f"(N = {int(r['components'])}) |")

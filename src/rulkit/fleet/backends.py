@@ -33,12 +33,7 @@ from typing import Any
 import pandas as pd
 
 from rulkit.fleet.health_index import HealthIndexModel
-from rulkit.fleet.store import (
-    HISTORY_FIELDS,
-    ROW_FIELDS,
-    SCHEMA_VERSION,
-    ComponentStore,
-)
+from rulkit.fleet.store import SCHEMA_VERSION, ComponentStore, StoreError
 from rulkit.fleet.tracker_chain import TrackerConfig
 
 PG_SCHEMES = ("postgresql://", "postgres://")
@@ -135,8 +130,11 @@ class PgComponentStore(ComponentStore):
         timeout: float = 30.0,
         create: bool = True,
     ) -> None:
-        self.path = Path(_redact(url))  # for messages only: never holds a password
+        # for messages only (never holds a password); a str, since Path would fold the "//"
+        self.path = _redact(url)  # type: ignore[assignment]
         self.url = url
+        self.timeout = timeout
+        self.readonly = False
         self._conn = _connect_pg(url, timeout)  # type: ignore[assignment]
         try:
             with self._transaction("IMMEDIATE"):  # creation under the writers' lock: atomic
@@ -153,13 +151,13 @@ class PgComponentStore(ComponentStore):
                     self._conn.executemany("INSERT INTO meta VALUES (?, ?)", rows)
                     meta = dict(rows)
             if int(meta["schema_version"]) != SCHEMA_VERSION:
-                raise ValueError(f"{self.path}: schema version {meta['schema_version']}, "
+                raise StoreError(f"{self.path}: schema version {meta['schema_version']}, "
                                  f"this rulkit reads {SCHEMA_VERSION}")
             self.config = TrackerConfig.from_dict(json.loads(meta["tracker_config"]))
             self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
                              if "hi_model" in meta else None)
             if config is not None and config != self.config:
-                raise ValueError(
+                raise StoreError(
                     f"{self.path} was created with tracker config {self.config.to_dict()}; "
                     f"refusing to continue with a different one {config.to_dict()}"
                 )
@@ -167,7 +165,7 @@ class PgComponentStore(ComponentStore):
                 self.hi_model is None or hi_model.to_dict() != self.hi_model.to_dict()
             ):
                 if self.hi_model is not None:
-                    raise ValueError(f"{self.path} already holds a different HI model")
+                    raise StoreError(f"{self.path} already holds a different HI model")
                 with self._transaction():
                     self._conn.execute("INSERT INTO meta VALUES ('hi_model', ?)",
                                        (json.dumps(hi_model.to_dict()),))
@@ -198,46 +196,20 @@ class PgComponentStore(ComponentStore):
         else:
             self._conn.execute("COMMIT")
 
-    def _frame(self, sql: str, params: tuple = ()) -> pd.DataFrame:
-        cur = self._conn.execute(sql, params)
-        cols = [d.name for d in cur.description]
-        return pd.DataFrame(cur.fetchall(), columns=cols)
-
-    def status(self) -> pd.DataFrame:
+    def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
+        """A query in one read snapshot as a DataFrame (the base class's reads and checks,
+        :meth:`status`, :meth:`history`, run on it unchanged)."""
         with self.snapshot():
-            df = self._frame("SELECT component, " + ", ".join(ROW_FIELDS) + " FROM components")
-        df = _typed(df)
-        return df.sort_values(["level", "fhi", "component"], ascending=[False, False, True],
-                              kind="stable").reset_index(drop=True)
-
-    def history(self, component: str | None = None) -> pd.DataFrame:
-        cols = "component, " + ", ".join(HISTORY_FIELDS) + ", ingest"
-        with self.snapshot():
-            if component is None:
-                df = self._frame(f"SELECT {cols} FROM history ORDER BY component, t")
-            else:
-                df = self._frame(f"SELECT {cols} FROM history WHERE component = ? ORDER BY t",
-                                 (component,))
-        return _typed(df)
+            cur = self._conn.execute(sql, params)
+            cols = [d.name for d in cur.description]
+            rows = cur.fetchall()
+        return pd.DataFrame(rows, columns=cols) if rows else pd.DataFrame(
+            {c: pd.Series(dtype=object if c == "component" else float) for c in cols})
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return int(self._conn.execute(
             "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?) RETURNING id",
             (source, n_rows, n_components)).fetchone()[0])
-
-
-def _typed(df: pd.DataFrame) -> pd.DataFrame:
-    """Column dtypes as the SQLite store returns them (float64, int64, bool)."""
-    for c in df.columns:
-        if c == "component":
-            df[c] = df[c].astype(object)
-        elif c == "valid":
-            df[c] = df[c].astype(bool)
-        elif c in ("n", "level", "ingest"):
-            df[c] = df[c].astype("int64")
-        else:
-            df[c] = df[c].astype("float64")
-    return df
 
 
 def _redact(url: str) -> str:

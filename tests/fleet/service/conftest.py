@@ -38,7 +38,7 @@ def db_url(request, tmp_path):
     if request.param == "sqlite":
         return str(tmp_path / "fleet.db")
     pg = request.getfixturevalue("pg_server")
-    return pg.create_database()
+    return pg.create_schema()
 
 
 @pytest.fixture

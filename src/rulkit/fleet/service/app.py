@@ -34,7 +34,7 @@ from pydantic import BaseModel, Field
 
 from rulkit import __version__
 from rulkit.fleet.service.db import ConflictError, NotFound, ServiceDB, Token
-from rulkit.fleet.store import IngestError
+from rulkit.fleet.store import IngestError, StoreError
 
 log = logging.getLogger("rulkit.service")
 
@@ -174,6 +174,7 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         return JSONResponse({"detail": "database busy or unavailable, retry"}, status_code=503,
                             headers={"Retry-After": "1"})
 
+    app.add_exception_handler(StoreError, _busy)  # StoreBusyError, or a broken database
     app.add_exception_handler(sqlite3.OperationalError, _busy)
     app.add_exception_handler(ConnectionError, _busy)
     try:

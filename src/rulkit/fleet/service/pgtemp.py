@@ -115,6 +115,18 @@ class TempPostgres:
             conn.execute(f'CREATE DATABASE "{name}" STRATEGY FILE_COPY')
         return self.url(name)
 
+    def create_schema(self, name: str | None = None) -> str:
+        """A new empty schema in the ``postgres`` database; returns a URL whose
+        ``search_path`` is that schema (much cheaper than a database per test)."""
+        import psycopg
+
+        if name is None:
+            self._n += 1
+            name = f"s{self._n}"
+        with psycopg.connect(self.url(), autocommit=True) as conn:
+            conn.execute(f'CREATE SCHEMA "{name}"')
+        return f"{self.url()}?options=-csearch_path%3D{name}"
+
     def stop(self) -> None:
         if self._started:
             subprocess.run(self._cmd(str(self.bindir / "pg_ctl"), "-D", str(self.dir / "data"),
