@@ -763,7 +763,11 @@ class ComponentStore:
         else:
             df = self._query(f"SELECT {cols} FROM history WHERE component = ? ORDER BY t",
                              (component,))
-        return self._checked(df, "history")
+        median = df.pop("rul_median") if "rul_median" in df else None  # NULL before a model
+        df = self._checked(df, "history")
+        if median is not None:
+            df["rul_median"] = pd.to_numeric(median, errors="coerce")
+        return df
 
     def counts(self) -> tuple[int, int, int]:
         """(components, sum of their acquisition counts, history rows), in one snapshot."""
