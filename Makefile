@@ -36,10 +36,11 @@ bench-all: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'
 	$(BIN)/python benchmarks/run.py --quick
 	$(BIN)/python benchmarks/bench_engine.py --quick
-	$(BIN)/python benchmarks/bench_rw_step1.py --progpy
-	$(BIN)/python benchmarks/bench_rw_step2.py --workers 2
+	$(BIN)/python benchmarks/bench_rw_temperature.py --progpy
+	$(BIN)/python benchmarks/bench_rw_degradation.py --workers 2
 	$(BIN)/python benchmarks/bench_friction_rul.py
 	$(BIN)/python benchmarks/bench_trackers.py
+	$(BIN)/python benchmarks/bench_scale.py
 
 # The four full reproductions (tens of minutes on 2 cores), each into out/<system>/.
 reproduce: $(STAMP)

@@ -35,6 +35,7 @@ import numpy as np  # noqa: E402
 
 from rulkit.systems.friction_drive import drive as fd  # noqa: E402
 from rulkit.systems.friction_drive import reproduce as E  # noqa: E402
+from rulkit.systems.friction_drive import rul as RUL  # noqa: E402
 
 HOUR = 3600.0
 
@@ -65,21 +66,21 @@ def main() -> None:
     x_hat = truth.X[-1].copy()
     P = np.diag([1e-8, 1e-10, (2e-5) ** 2, (2.5e-4) ** 2])
     rng = np.random.default_rng(a.seed)
-    X0 = E.sample_states(x_hat, P, a.n, rng)
+    X0 = RUL.sample_states(x_hat, P, a.n, rng)
     print(f"friction-drive MC RUL benchmark: N = {a.n}, x_hat = {np.round(x_hat, 5).tolist()}, "
           f"sigma_alpha = 2e-5, sigma_m = 2.5e-4, 20 A, D_f = 0.99, seed {a.seed}, "
           f"median of {repeats} repeats")
 
-    E.time_to_failure(X0[:2])  # JIT warm-up (numba cache) outside the timing
-    t_ours, (tf, _) = _median_time(lambda: E.time_to_failure(X0), repeats)
+    RUL.time_to_failure(X0[:2])  # JIT warm-up (numba cache) outside the timing
+    t_ours, (tf, _) = _median_time(lambda: RUL.time_to_failure(X0), repeats)
     rul_h = tf / HOUR
     t_full, res = _median_time(
-        lambda: E.predict_rul(x_hat, P, np.random.default_rng(a.seed), n_samples=a.n,
+        lambda: RUL.predict_rul(x_hat, P, np.random.default_rng(a.seed), n_samples=a.n,
                               n_validate=0),
         repeats,
     )
     n_steps_full = int(np.ceil(np.max(tf) / 1e-3))
-    print(f"ours time_to_failure (10 s RK4 transient at {E.TRANSIENT_DT * 1e3:g} ms + closed "
+    print(f"ours time_to_failure (10 s RK4 transient at {RUL.TRANSIENT_DT * 1e3:g} ms + closed "
           f"form): {t_ours:.3f} s; "
           f"RUL mean {rul_h.mean():.3f} h, sd {rul_h.std():.3f} h, max {rul_h.max():.3f} h")
     print(f"ours predict_rul (sampling + RUL distribution + fit + extremes): {t_full:.3f} s "
@@ -111,7 +112,7 @@ def main() -> None:
 
     idx = np.arange(lsoda_n)
     t0 = time.perf_counter()
-    ref = E.time_to_failure_reference(X0[idx])
+    ref = RUL.time_to_failure_reference(X0[idx])
     t_ls = time.perf_counter() - t0
     t_ls_full = t_ls / lsoda_n * a.n
     err = np.abs(ref - tf[idx]) / HOUR

@@ -78,6 +78,55 @@ def test_docstring_citations_of_system_pages_resolve() -> None:
     assert cited > 0
 
 
+SYSTEM_PACKAGES = {
+    "reaction-wheel": "rulkit.systems.reaction_wheel",
+    "motor-damping": "rulkit.systems.motor_damping",
+    "friction-drive": "rulkit.systems.friction_drive",
+    "embedded-rul": "rulkit.fleet",
+}
+
+
+@pytest.mark.parametrize("page", sorted(SYSTEM_PACKAGES))
+def test_system_pages_name_code_that_exists(page: str) -> None:
+    """`module.name` references of a model page (e.g. `wheel.table3_temperature`) resolve in
+    its package (or the engine), so a rename cannot leave the page pointing nowhere."""
+    text = (DOCS / "systems" / f"{page}.md").read_text()
+    pkg = SYSTEM_PACKAGES[page]
+    checked = 0
+    for ref in sorted(set(re.findall(r"`([a-z_]+(?:\.[A-Za-z_]\w*)+)`", text))):
+        head, *rest = ref.split(".")
+        if rest[-1] in ("py", "md"):
+            continue  # a file name
+        for base in (f"{pkg}.{head}", f"rulkit.{head}", f"rulkit.estimation.{head}"):
+            try:
+                obj = importlib.import_module(base)
+            except ModuleNotFoundError:
+                continue
+            for attr in rest:
+                if not hasattr(obj, attr) and hasattr(obj, "__path__"):  # a submodule
+                    importlib.import_module(f"{obj.__name__}.{attr}")
+                assert hasattr(obj, attr), f"{page}.md: `{ref}`: {base} has no {attr!r}"
+                obj = getattr(obj, attr)
+            checked += 1
+            break
+    assert checked >= 3, f"{page}.md: only {checked} code references found"
+
+
+def test_crack_growth_tutorial_is_at_most_45_lines_of_user_code() -> None:
+    """Issue 10: model, simulation, PF and EKF, a profile at 10 times, metrics and plots in at
+    most 45 lines (blank lines and comment-only lines not counted). The code itself runs in
+    tests/test_examples.py."""
+    text = (DOCS / "tutorials" / "crack-growth.md").read_text()
+    blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.S | re.M)
+    lines = [ln for b in blocks for ln in b.splitlines()
+             if ln.strip() and not ln.strip().startswith("#")]
+    assert len(blocks) >= 4 and 25 <= len(lines) <= 45, len(lines)
+    code = "\n".join(blocks)
+    for needed in ("simulate(", '"pf"', '"ekf"', "prognosis_profile", "summary()",
+                   "plot_profile", "state_estimates"):
+        assert needed in code, needed
+
+
 @pytest.mark.slow
 def test_mkdocs_build_strict(tmp_path: Path) -> None:
     pytest.importorskip("mkdocs")

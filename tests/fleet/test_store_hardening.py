@@ -235,7 +235,9 @@ def test_parquet_datetime_time_column_is_seconds_not_nanoseconds(tmp_path):
     np.testing.assert_allclose(hist["t"], (t - pd.Timestamp("1970-01-01")).total_seconds())
     # the same instants as ISO 8601 text in a CSV give the same times
     df.assign(time=t.strftime("%Y-%m-%dT%H:%M:%S")).to_csv(tmp_path / "dt.csv", index=False)
-    got = ingest_into(tmp_path / "dt2.db", read_acquisitions(tmp_path / "dt.csv"))[0]
+    # (design life in seconds: the default 1e5 is refused for hourly epoch seconds, issue 11)
+    got = ingest_into(tmp_path / "dt2.db", read_acquisitions(tmp_path / "dt.csv"),
+                      config=TrackerConfig(dt=3600, design_life=3.6e8))[0]
     assert got.n_rows == 30
     with ComponentStore(tmp_path / "dt2.db", readonly=True) as s:
         np.testing.assert_array_equal(s.history("g")["t"], hist["t"])
@@ -278,3 +280,55 @@ def test_time_interval_overflowing_float64_names_row_and_column(tmp_path):
     assert r.exception is None or isinstance(r.exception, SystemExit)
     assert "big.csv: row 2 (component 'a'), column 'time': the interval" in r.output
     assert not (tmp_path / "big.db").exists()
+
+
+# ------------------------------------------------------------------ scale path
+@pytest.mark.parametrize("chunk", [1, 7, 10_000])
+def test_blocked_ingest_matches_the_direct_tracker_run(tmp_path, monkeypatch, chunk):
+    """History written block by block in key order equals one vectorised run over the panel
+    (tracker_update on all components at once), alerts in acquisition order."""
+    from rulkit.fleet.tracker_chain import TrackerState, tracker_update
+
+    monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", chunk)
+    monkeypatch.setattr(ComponentStore, "HISTORY_CHUNK", max(1, chunk // 3))
+    rng = np.random.default_rng(7)
+    names = ["zeta", "Alpha", "ä-unit", "b", "c10", "c9"]
+    steps = [12, 5, 9, 1, 12, 7]
+    rows = []
+    for name, k in zip(names, steps, strict=True):
+        h0 = rng.uniform(0.3, 0.6)
+        for s in range(k):
+            rows.append((name, float(s), h0 * np.exp(0.08 * s) + rng.normal(0, 1e-3)))
+    df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sample(frac=1, random_state=1)
+    df = df.sort_values("time", kind="stable")  # interleaved, times increasing per component
+    cfg = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, warn_rul=50.0)
+    res, _ = ingest_into(tmp_path / "b.db", df, config=cfg)
+    with ComponentStore(tmp_path / "b.db", readonly=True) as s:
+        hist = s.history()
+    state = TrackerState.empty(len(names))
+    expect, alerts = [], []
+    level = np.zeros(len(names), dtype=int)
+    for s in range(max(steps)):
+        tt = np.array([float(s) if s < k else np.nan for k in steps])
+        hh = np.array([df[(df.component == n) & (df.time == s)].hi.sum() if s < k else np.nan
+                       for n, k in zip(names, steps, strict=True)])
+        state, out = tracker_update(state, tt, hh, cfg)
+        for j, n in enumerate(names):
+            if s < steps[j]:
+                expect.append((n, s, state.fhi[j], state.frul[j], out.rul_low[j]))
+                if out.level[j] > level[j]:
+                    alerts.append((n, int(out.level[j])))
+                    level[j] = out.level[j]
+    exp = pd.DataFrame(expect, columns=["component", "t", "fhi", "frul", "rul_low"])
+    exp = exp.sort_values(["component", "t"]).reset_index(drop=True)
+    np.testing.assert_array_equal(hist["component"], exp["component"])
+    np.testing.assert_array_equal(hist["t"], exp["t"])
+    for c in ("fhi", "frul", "rul_low"):
+        np.testing.assert_allclose(hist[c], exp[c], rtol=1e-12, atol=1e-12)
+    assert alerts, "the fixture must raise alerts"
+    got = [(a.component, a.level) for a in res.alerts]
+    assert sorted(got) == sorted(alerts)
+    # ordered by acquisition rank: a component's warning precedes its alarm
+    for n in names:
+        lv = [lv for c, lv in got if c == n]
+        assert lv == sorted(lv)

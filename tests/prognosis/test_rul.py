@@ -425,3 +425,28 @@ def test_contract_step_gets_the_input_and_legacy_step_refuses_one() -> None:
                                horizon=10.0, rng=np.random.default_rng(0), u=1.0)
     with pytest.raises(TypeError, match="give model="):
         propagate_to_threshold(np.zeros((2, 2)), horizon=10.0, rng=np.random.default_rng(0))
+
+
+def test_particles_of_a_weighted_filter_result_without_their_weights_warn() -> None:
+    """Stumble 3, the plain-array form: the final particles or one step of the history of a
+    particle-filter result are recognised, and propagating them without weights warns."""
+    import warnings
+
+    from rulkit.estimation.particle import ParticleFilter
+
+    pf = ParticleFilter(lambda x, k, rng: x, lambda x, y, k: -0.5 * ((y[0] - x[:, 0]) / 0.1) ** 2,
+                        ess_threshold=0.0)  # never resample: the weights stay informative
+    x0 = np.column_stack([np.linspace(0.0, 0.5, 50), np.full(50, 0.1)])
+    res = pf.filter(np.array([[0.4], [0.4]]), x0, np.random.default_rng(0),
+                    keep_particles=True)
+    kw = dict(step=linear_step, indicator=damage, threshold=1.0, dt=0.5, horizon=30.0)
+    for arr in (res.particles, res.particle_history[1], res.particle_history[0]):
+        with pytest.warns(UserWarning, match="weighted particle-filter estimate"):
+            propagate_to_threshold(arr, rng=np.random.default_rng(0), **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        d = propagate_to_threshold(res, rng=np.random.default_rng(0), **kw)  # the result: fine
+        propagate_to_threshold(res.particle_history[1], rng=np.random.default_rng(0),
+                               weights=res.weight_history[1], **kw)
+        propagate_to_threshold(res.particles.copy(), rng=np.random.default_rng(0), **kw)
+    np.testing.assert_allclose(d.weights, res.weights)

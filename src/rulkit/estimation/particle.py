@@ -32,6 +32,7 @@ arrays plus whatever the user's ``transition`` and ``log_likelihood`` cost.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -39,6 +40,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.estimation.batched import ess_rows, normalise_rows
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
 from rulkit.model import (
     InputLike,
@@ -107,19 +109,15 @@ def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
     logw = np.asarray(logw, dtype=np.float64)
     if logw.ndim != 1 or logw.size == 0:
         raise ValueError(f"logw: expected a non-empty 1-D array, got shape {logw.shape}")
-    m = logw.max()
-    if not math.isfinite(m):  # NaN anywhere, +inf anywhere, or all -inf
+    _, w, ls = normalise_rows(logw)
+    if not math.isfinite(ls):  # NaN anywhere, +inf anywhere, or all -inf
         raise DegenerateWeightsError(_describe_degenerate(logw))
-    w = np.exp(logw - m)
-    s = w.sum()
-    w /= s
-    return w, float(m + math.log(s))
+    return w, float(ls)
 
 
 def effective_sample_size(w: FloatArray) -> float:
     """Effective sample size ``1 / sum_i w_i^2`` of normalised weights (seed 000 eq. 16)."""
-    w = np.asarray(w, dtype=np.float64)
-    return float(1.0 / np.dot(w, w))
+    return float(ess_rows(np.asarray(w, dtype=np.float64)))
 
 
 def weighted_mean(x: FloatArray, w: FloatArray) -> FloatArray:
@@ -313,6 +311,41 @@ class ParticleFilterResult:
     @property
     def n_resampled(self) -> int:
         return int(self.resampled.sum())
+
+
+# A registry of the particle arrays a filter handed out with non-uniform weights, so that
+# propagating them without their weights can be noticed (issue 10, stumble 3). Keyed by id();
+# an entry dies with its array (weakref callback), and is only trusted while it is alive.
+_WEIGHTED: dict[int, tuple[weakref.ref[np.ndarray], FloatArray]] = {}
+
+
+def _register_weighted(particles: np.ndarray, weights: FloatArray) -> None:
+    key = id(particles)
+    ref = weakref.ref(particles, lambda _r, k=key: _WEIGHTED.pop(k, None))
+    _WEIGHTED[key] = (ref, weights)
+
+
+def weights_of(x: Any) -> FloatArray | None:
+    """The weights a particle filter returned together with ``x``, when ``x`` is its final
+    ``particles`` array or one step ``particle_history[k]`` of a ``ParticleFilterResult``
+    (None otherwise, or when those weights are uniform)."""
+    if not isinstance(x, np.ndarray):
+        return None
+    for cand in (x, x.base):
+        if not isinstance(cand, np.ndarray):
+            continue
+        entry = _WEIGHTED.get(id(cand))
+        if entry is None or entry[0]() is not cand:
+            continue
+        w = entry[1]
+        if cand is x:
+            return w if w.ndim == 1 else None
+        if cand.ndim == 3 and x.shape == cand.shape[1:] and w.ndim == 2:
+            off = x.__array_interface__["data"][0] - cand.__array_interface__["data"][0]
+            k, rem = divmod(off, cand.strides[0])
+            if rem == 0 and 0 <= k < cand.shape[0]:
+                return w[k]  # type: ignore[no-any-return]
+    return None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -674,6 +707,10 @@ class ParticleFilter:
             self.resample_if_needed(state)
             resampled[k] = state.resampled
 
+        if np.ptp(state.weights) > 0:
+            _register_weighted(state.particles, state.weights)
+        if p_hist is not None and w_hist is not None:
+            _register_weighted(p_hist, w_hist)
         return ParticleFilterResult(
             mean=mean,
             cov=cov,
@@ -733,4 +770,4 @@ def _logsumexp(a: FloatArray) -> float:
     m = a.max()
     if not math.isfinite(m):  # -inf (all zero), +inf or NaN: the value itself
         return float(m)
-    return float(m + math.log(np.exp(a - m).sum()))
+    return float(normalise_rows(a)[2])

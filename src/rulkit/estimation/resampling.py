@@ -21,9 +21,9 @@ by ``numpy.searchsorted``. Positions are scaled by the last element of the cumul
 cumulative sum that ends just below (or above) 1 through round-off never yields index ``N``;
 zero-weight particles are never selected. Systematic resampling (used by the particle filter
 at every resampling) locates its N sorted positions by one merge pass over the cumulative sum,
-compiled by numba (imported on first use, ``cache=True``), instead of N binary searches; it
-returns exactly the indices of the ``searchsorted`` reference ``_systematic_reference``
-(tested).
+the compiled row function of the batched particle core (:mod:`rulkit.estimation.batched`),
+instead of N binary searches; it returns exactly the indices of the ``searchsorted`` reference
+``_systematic_reference`` (tested).
 
 Every function validates its input (1-D, non-empty, finite, non-negative, summing to 1 within
 ``WEIGHT_SUM_TOL``) and raises ``ValueError`` saying what is wrong.
@@ -35,6 +35,8 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
+
+from rulkit.estimation.batched import systematic_row
 
 __all__ = [
     "RESAMPLERS",
@@ -117,49 +119,13 @@ def _systematic_reference(
 
 
 def _systematic_loop(w: NDArray[np.float64], u: float) -> NDArray[np.int64]:
-    """Compiled body of :func:`_systematic`: the same positions, cumulative sum and
-    comparisons as :func:`_locate`, located by one merge pass instead of N binary searches.
-
-    ``c`` is accumulated left to right like ``numpy.cumsum``; position ``k`` is
-    ``((k + u) / N) c_{N-1}`` and its ancestor the number of ``c_i <= p_k`` (``searchsorted``
-    side "right"); positions past the end (round-off) go to the last positive weight.
-    """
+    """Ancestors of systematic resampling with uniform ``u``: the batched core's compiled
+    :func:`rulkit.estimation.batched.systematic_row` (the same positions, cumulative sum and
+    comparisons as :func:`_locate`, located by one merge pass instead of N binary searches)."""
     n = w.size
-    c = np.empty(n)
-    acc = 0.0
-    for i in range(n):
-        acc += w[i]
-        c[i] = acc
-    total = c[n - 1]
     idx = np.empty(n, dtype=np.int64)
-    i = 0
-    for k in range(n):
-        p = (k + u) / n * total
-        while i < n and c[i] <= p:
-            i += 1
-        idx[k] = i
-    if idx[n - 1] >= n:
-        last = n - 1
-        while last > 0 and w[last] == 0.0:
-            last -= 1
-        for k in range(n):
-            if idx[k] > last:
-                idx[k] = last
+    systematic_row(w, u, idx, np.empty(n))
     return idx
-
-
-_COMPILED: dict[str, Callable[[NDArray[np.float64], float], NDArray[np.int64]]] = {}
-
-
-def _systematic_kernel() -> Callable[[NDArray[np.float64], float], NDArray[np.int64]]:
-    """:func:`_systematic_loop` compiled by numba (imported on first use; cache=True)."""
-    fn = _COMPILED.get("systematic")
-    if fn is None:
-        import numba
-
-        fn = numba.njit(cache=True, nogil=True)(_systematic_loop)
-        _COMPILED["systematic"] = fn
-    return fn
 
 
 def _systematic(w: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.int64]:
@@ -168,7 +134,7 @@ def _systematic(w: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.
     :func:`_systematic_reference` for the same ``rng`` state (tested), without its N binary
     searches and per-call numpy overhead (the particle filter calls it every step).
     """
-    return _systematic_kernel()(w, rng.random())
+    return _systematic_loop(w, rng.random())
 
 
 def _residual(w: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.int64]:

@@ -41,6 +41,7 @@ import pandas as pd
 
 from rulkit.fleet.crack_growth import FatigueData, load_fatigue
 from rulkit.fleet.tracker_chain import LEVEL_ALARM, LEVEL_WARNING, TrackerConfig, track_series
+from rulkit.reporting import markdown_table
 
 HI_SIGMA = 0.01 / 1.6
 """HI reading noise: one 0.01 in step of the tabulated crack length, in HI units."""
@@ -96,12 +97,32 @@ def growth_exponent(data: FatigueData, exclude: int | None = None) -> float:
 
 
 @dataclass(frozen=True)
+class EmbeddedRULConfig:
+    """Settings of the seed-004 reproduction.
+
+    ``tracker``: the chain's configuration (None: :func:`crack_tracker_config`);
+    ``sensitivity``: also rerun the chain over a grid of tracking indices;
+    ``false_alarms``: also run the HI false-alarm study (:func:`false_alarm_study`, ~5 s), the
+    only random part, drawn from ``numpy.random.default_rng(seed)``."""
+
+    tracker: TrackerConfig | None = None
+    sensitivity: bool = True
+    false_alarms: bool = True
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ValueError(f"seed: expected a non-negative integer, got {self.seed!r}")
+
+
+@dataclass(frozen=True)
 class EmbeddedRULResult:
     """Result of :func:`run`.
 
     ``history``/``units``: the seed's chain (Paris exponent 2). ``history_loo``/``units_loo``:
     the same chain with the Paris exponent of each unit estimated from the other 20 units
     (leave-one-out, :func:`growth_exponent`; ``m_loo (U,)``). ``summary`` puts both side by side.
+    ``false_alarms``: the false-alarm table (None when not run), drawn with seed ``far_seed``.
     """
 
     data: FatigueData
@@ -114,6 +135,8 @@ class EmbeddedRULResult:
     m_loo: np.ndarray
     history_loo: dict[str, np.ndarray]
     units_loo: pd.DataFrame
+    false_alarms: pd.DataFrame | None = None
+    far_seed: int | None = None
 
 
 def _first_time(t: np.ndarray, mask: np.ndarray) -> float:
@@ -233,14 +256,15 @@ def sensitivity_table(
     return pd.DataFrame(rows)
 
 
-def run(config: TrackerConfig | None = None, *, sensitivity: bool = True) -> EmbeddedRULResult:
+def run(config: EmbeddedRULConfig | None = None) -> EmbeddedRULResult:
     """Run the tracker chain on all 21 units (one vectorised update per acquisition time).
 
     Also runs the leave-one-out Paris-exponent variant (each unit alone, its exponent from the
-    other 20 units).
+    other 20 units) and, as configured, the sensitivity grid and the false-alarm study.
     """
+    settings = config or EmbeddedRULConfig()
     data = load_fatigue()
-    cfg = config or crack_tracker_config()
+    cfg = settings.tracker or crack_tracker_config()
     hist = track_series(data.t, data.hi.T, cfg)
     units = unit_metrics(data, hist, cfg)
     m_loo = np.array([growth_exponent(data, exclude=u) for u in range(data.units.size)])
@@ -256,8 +280,11 @@ def run(config: TrackerConfig | None = None, *, sensitivity: bool = True) -> Emb
          summarise(units_loo).rename(columns={"value": "m leave-one-out"})], axis=1)
     return EmbeddedRULResult(
         data=data, config=cfg, history=hist, units=units, summary=summary,
-        sensitivity=sensitivity_table(data) if sensitivity else None,
+        sensitivity=sensitivity_table(data) if settings.sensitivity else None,
         m_all=growth_exponent(data), m_loo=m_loo, history_loo=hist_loo, units_loo=units_loo,
+        false_alarms=(false_alarm_study(np.random.default_rng(settings.seed))
+                      if settings.false_alarms else None),
+        far_seed=settings.seed if settings.false_alarms else None,
     )
 
 
@@ -355,21 +382,14 @@ def plot_unit(res: EmbeddedRULResult, u: int, path: Path) -> Path:
 
 
 def _fmt_table(df: pd.DataFrame) -> str:
-    def cell(v: object) -> str:
-        if isinstance(v, float | np.floating):
-            return "" if math.isnan(v) else f"{v:.3g}"
-        return str(v)
-
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
-    return "\n".join(lines)
+    return markdown_table(df, ".3g")
 
 
 def write_report(res: EmbeddedRULResult, out: Path, *, figures: bool = True,
-                 command: str = "rulkit reproduce embedded-rul",
-                 false_alarms: pd.DataFrame | None = None, far_seed: int | None = None) -> Path:
-    """Write report.md, units.csv, sensitivity.csv and one figure per unit into ``out``."""
+                 command: str = "rulkit reproduce embedded-rul") -> Path:
+    """Write report.md, units.csv, sensitivity.csv and one figure per unit into ``out``;
+    return the path of report.md."""
+    false_alarms, far_seed = res.false_alarms, res.far_seed
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     res.units.to_csv(out / "units.csv", index=False)

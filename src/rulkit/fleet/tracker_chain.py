@@ -30,6 +30,7 @@ MIN_UPDATES_VALID = 4
 alpha-beta-gamma tracker after a two-point initiation (before it d2RUL is 0 by construction,
 not estimated, and would pass |d2RUL| < 0.01 trivially); the same rule for both initiations."""
 LEVEL_NAMES = {LEVEL_NONE: "ok", LEVEL_WARNING: "warning", LEVEL_ALARM: "alarm"}
+INITIATIONS = ("floor", "two-point", "measured")
 
 
 # --------------------------------------------------------------------------------------------
@@ -57,7 +58,18 @@ class TrackerConfig:
     setting m alone keeps the limits consistent with the RUL formula. ``paris_exponent`` m:
     the crack-growth exponent of the RUL relation (2 = the seed's formula; see
     :func:`paris_rul`). ``initiation``: how a new component's trackers start, ``"floor"`` or
-    ``"two-point"`` (see :func:`tracker_update`).
+    ``"two-point"`` (the seed's behaviour, kept by name for the reproduction) or ``"measured"``
+    (see :func:`tracker_update`). ``rul_clip``: fRUL is clipped at 0 (and each clip is counted
+    in :attr:`TrackerOutput.clipped`); False keeps the seed's unclipped tracker.
+    The seed's chain is ``TrackerConfig()`` / :meth:`seed`; :meth:`safe` and
+    :func:`fit_tracker_config` give the safe chain (measured initiation, clipping).
+
+    **Time unit.** Every rate is per unit of the database's time column (hours in the seed,
+    kcycles for the crack data, seconds if the file holds epoch seconds): ``design_life``
+    (dHI floor = 1/design_life per time unit), ``dt``, ``warn_rul``, ``valid_drul`` (RUL time
+    per time, dimensionless) and ``valid_d2rul`` (per time unit). :func:`check_time_unit`
+    rejects a design life that, at the acquisitions' spacing, alone moves the HI by more than
+    ``max_floor_step`` per acquisition (the "hourly acquisitions, epoch seconds" false alarm).
     Validity (seed section 6): ``valid_drul = (-2, 0)`` open interval for dRUL/dt and
     ``|d2RUL/dt2| < valid_d2rul``. Warning: fHI >= ``warn_hi`` and valid and fRUL < ``warn_rul``;
     alarm: fHI >= ``alarm_hi``. ``hi_max`` bounds an accepted HI measurement (ingestion checks).
@@ -75,6 +87,7 @@ class TrackerConfig:
     load_exponent: float | None = None
     paris_exponent: float = 2.0
     initiation: str = "floor"
+    rul_clip: bool = False
     valid_drul: tuple[float, float] = (-2.0, 0.0)
     valid_d2rul: float = 0.01
     warn_hi: float = 0.75
@@ -107,11 +120,12 @@ class TrackerConfig:
                 f"TrackerConfig.valid_drul: expected (low, high), low < high, got {self.valid_drul}"
             )
         object.__setattr__(self, "valid_drul", (float(lo), float(hi)))
-        if self.initiation not in ("floor", "two-point"):
+        if self.initiation not in INITIATIONS:
             raise ValueError(
-                f"TrackerConfig.initiation: expected 'floor' or 'two-point', got "
+                f"TrackerConfig.initiation: expected one of {INITIATIONS}, got "
                 f"{self.initiation!r}"
             )
+        object.__setattr__(self, "rul_clip", bool(self.rul_clip))
 
     @classmethod
     def from_noise(
@@ -131,6 +145,18 @@ class TrackerConfig:
             lambda_rul=float(tracking_index(sigma_w_rul, sigma_v_rul, dt)),
             **kwargs,
         )
+
+    @classmethod
+    def seed(cls, **kwargs: Any) -> TrackerConfig:
+        """The seed-004 chain as published (floor initiation, no clipping): today's default."""
+        return cls(**kwargs)
+
+    @classmethod
+    def safe(cls, **kwargs: Any) -> TrackerConfig:
+        """The safe chain: measured initiation, fRUL clipped at 0 (:func:`tracker_update`)."""
+        kwargs.setdefault("initiation", "measured")
+        kwargs.setdefault("rul_clip", True)
+        return cls(**kwargs)
 
     def gains(self) -> TrackerGains:
         """The five steady-state gains (rulkit.estimation.trackers, embedded-rul.md section 2)."""
@@ -258,7 +284,8 @@ class TrackerState:
 class TrackerOutput:
     """Per-component outputs of one update (B,): validity, alert level, confidence limits.
 
-    ``updated`` marks the components that assimilated an acquisition in this call.
+    ``updated`` marks the components that assimilated an acquisition in this call;
+    ``clipped`` those whose fRUL was clipped at 0 in this call (``config.rul_clip``).
     """
 
     updated: NDArray[np.bool_]
@@ -266,6 +293,12 @@ class TrackerOutput:
     level: NDArray[np.int8]
     rul_low: FloatArray
     rul_high: FloatArray
+    clipped: NDArray[np.bool_] | None = None
+
+    @property
+    def n_clipped(self) -> int:
+        """Number of fRUL values clipped at 0 in this call."""
+        return 0 if self.clipped is None else int(self.clipped.sum())
 
 
 def paris_rul(
@@ -402,6 +435,17 @@ def tracker_update(
       d2RUL = 0;
     * from the 4th on the steady-state updates 1-3 above.
 
+    ``"measured"``: the HI tracker starts as in ``"two-point"``; the RUL tracker is (re)started
+    at (RUL, 0, 0) at every acquisition where no degradation is measured yet (dHI at its floor
+    1/design_life, or fHI <= hi_floor), so it never starts from, nor carries the dynamics of,
+    the floor's RUL (e.g. -h ln h / dHI = 690 at h = 1e-3, dHI = 1e-5): it restarts once more
+    at the first acquisition with a measured slope (the previous state was still flat), and
+    from there on runs the steady-state updates. dRUL = 0 after a restart makes the RUL invalid
+    (the validity band is open at 0) until the tracker has estimated a rate.
+
+    With ``config.rul_clip`` fRUL is clipped at 0 after the update (a filtered RUL never goes
+    negative); :attr:`TrackerOutput.clipped` counts the clips.
+
     A component is therefore not valid before its RUL tracker has estimated dRUL and d2RUL.
     dt = t - t_last must be > 0 for every updated component (``ValueError`` naming the first
     offending index otherwise; nothing is modified since the function is pure).
@@ -420,8 +464,10 @@ def tracker_update(
         raise ValueError(f"t and hi: expected shape ({b},), got {t.shape} and {z.shape}")
     have = np.isfinite(z) & np.isfinite(t)
     n_prev = state.n
-    two_point = config.initiation == "two-point"
-    initiating = bool((n_prev < (3 if two_point else 1)).any())
+    two_point = config.initiation in ("two-point", "measured")
+    measured = config.initiation == "measured"
+    n_init = 3 if config.initiation == "two-point" else (2 if measured else 1)
+    initiating = bool((n_prev < n_init).any())
     all_have = bool(have.all())
     dt = t - state.t
     if initiating:
@@ -453,11 +499,24 @@ def tracker_update(
     abg = alpha_beta_gamma_update(state.abg, rul, dt, gains.alpha2, gains.beta2, gains.gamma2)
     if initiating:  # (re)start of the RUL tracker, then its two-point slope
         zero = np.zeros(b)
-        third = (n_prev == 2) if two_point else np.zeros(b, dtype=bool)
+        third = (n_prev == 2) if config.initiation == "two-point" else np.zeros(b, dtype=bool)
         with np.errstate(invalid="ignore"):
             rate = np.where(third, (rul - state.rul) / dt, 0.0)
         init = np.column_stack([rul, rate, zero])
-        abg = np.where((n_prev < (3 if two_point else 1))[:, None], init, abg)
+        abg = np.where((n_prev < n_init)[:, None], init, abg)
+    if measured:  # restart the RUL tracker while no degradation is measured, and at the
+        # first measured slope (so the tracker never carries the floor's RUL)
+        with np.errstate(invalid="ignore"):
+            flat = ((ab[:, 1] <= dhi_min) | (ab[:, 0] <= config.hi_floor)
+                    | (state.ab[:, 1] <= dhi_min) | (state.ab[:, 0] <= config.hi_floor))
+        if flat.any():
+            abg = np.where(flat[:, None], np.column_stack([rul, np.zeros(b), np.zeros(b)]), abg)
+    clipped = None
+    if config.rul_clip:
+        clipped = have & (abg[:, 0] < 0.0)
+        if clipped.any():
+            abg = abg.copy()
+            abg[:, 0] = np.maximum(abg[:, 0], 0.0)
     n = state.n + 1
     new_t = t
     new_hi = z
@@ -471,7 +530,11 @@ def tracker_update(
     new = TrackerState(t=new_t, n=n, hi=new_hi, ab=ab, rul=rul, abg=abg)
     if not outputs:
         return new, None
-    return new, tracker_outputs(new, config, updated=have)
+    out = tracker_outputs(new, config, updated=have)
+    if clipped is not None:
+        out = TrackerOutput(updated=out.updated, valid=out.valid, level=out.level,
+                            rul_low=out.rul_low, rul_high=out.rul_high, clipped=clipped)
+    return new, out
 
 
 def tracker_outputs(
@@ -496,7 +559,7 @@ def track_series(
 
     One vectorised :func:`tracker_update` per time step across all B components. Returns a dict
     with the history of every :data:`STATE_COLUMNS` field plus ``valid``, ``level``,
-    ``rul_low``, ``rul_high`` and ``updated``, each of shape (T, B).
+    ``rul_low``, ``rul_high``, ``updated`` and ``clipped``, each of shape (T, B).
     """
     t = np.asarray(t, dtype=np.float64)
     hi = np.atleast_2d(np.asarray(hi, dtype=np.float64))
@@ -506,7 +569,7 @@ def track_series(
     tt = np.broadcast_to(t[:, None] if t.ndim == 1 else t, (n_t, b))
     gains = config.gains()
     state = TrackerState.empty(b)
-    keys = [*STATE_COLUMNS, "valid", "level", "rul_low", "rul_high", "updated"]
+    keys = [*STATE_COLUMNS, "valid", "level", "rul_low", "rul_high", "updated", "clipped"]
     hist: dict[str, np.ndarray] = {k: np.empty((n_t, b)) for k in keys}
     for k in range(n_t):
         state, out = tracker_update(state, tt[k], hi[k], config, gains)
@@ -518,7 +581,8 @@ def track_series(
         hist["rul_low"][k] = out.rul_low
         hist["rul_high"][k] = out.rul_high
         hist["updated"][k] = out.updated
-    for name in ("valid", "updated"):
+        hist["clipped"][k] = out.clipped if out.clipped is not None else False
+    for name in ("valid", "updated", "clipped"):
         hist[name] = hist[name].astype(bool)
     hist["level"] = hist["level"].astype(np.int8)
     hist["n"] = hist["n"].astype(np.int64)
@@ -541,7 +605,9 @@ def tracker_update_loop(
     a1, b1, a2, b2, g2 = gains.alpha1, gains.beta1, gains.alpha2, gains.beta2, gains.gamma2
     dhi_min = 1.0 / config.design_life
     m_paris = config.paris_exponent
-    two_point = config.initiation == "two-point"
+    two_point = config.initiation in ("two-point", "measured")
+    slope_start = config.initiation == "two-point"
+    measured = config.initiation == "measured"
     p_half = 0.5 * m_paris
     out = state.take(np.arange(len(state)))
     for i in range(len(state)):
@@ -570,7 +636,7 @@ def tracker_update_loop(
         frul, drul, d2rul = out.abg[i]
         if n_i == 0 or (n_i == 1 and two_point):
             frul, drul, d2rul = rul, 0.0, 0.0
-        elif n_i == 2 and two_point:
+        elif n_i == 2 and slope_start:
             frul, drul, d2rul = rul, (rul - out.rul[i]) / dt, 0.0
         else:
             frul = frul + drul * dt + d2rul * dt * dt / 2.0
@@ -579,13 +645,122 @@ def tracker_update_loop(
             frul = frul + a2 * r
             drul = drul + b2 * r / dt
             d2rul = d2rul + g2 * r / (dt * dt)
+        prev_flat = n_i > 0 and (out.ab[i, 1] <= dhi_min or out.ab[i, 0] <= config.hi_floor)
+        if measured and (dhi <= dhi_min or fhi <= config.hi_floor or prev_flat):
+            frul, drul, d2rul = rul, 0.0, 0.0
+        if config.rul_clip:
+            frul = max(frul, 0.0)
         out.t[i], out.n[i], out.hi[i], out.rul[i] = ti, out.n[i] + 1, z, rul
         out.ab[i] = (fhi, dhi)
         out.abg[i] = (frul, drul, d2rul)
     return out
 
 
+# --------------------------------------------------------------------------------------------
+# The chain made safe: settings from histories, time-unit check
+# --------------------------------------------------------------------------------------------
+
+
+def _quadratic_noise(t: np.ndarray, y: np.ndarray, start: np.ndarray) -> tuple[float, float]:
+    """(sigma_v, sigma_w) of series: per unit a least-squares quadratic in t (units with >= 5
+    points); sigma_v = the pooled residual standard deviation (degrees of freedom n - 3),
+    sigma_w = the root mean square of the units' second derivatives 2 c_2 (the acceleration a
+    constant-velocity tracker must follow: the white-acceleration process noise of
+    embedded-rul.md section 2)."""
+    res2, dof, acc = 0.0, 0, []
+    for u in range(start.size - 1):
+        tt, yy = t[start[u]:start[u + 1]], y[start[u]:start[u + 1]]
+        ok = np.isfinite(yy)
+        tt, yy = tt[ok], yy[ok]
+        if tt.size < 5:
+            continue
+        c = np.polyfit(tt - tt.mean(), yy, 2)
+        r = yy - np.polyval(c, tt - tt.mean())
+        res2 += float(r @ r)
+        dof += tt.size - 3
+        acc.append(2.0 * c[0])
+    if dof == 0:
+        raise ValueError("estimating tracker noise needs a unit with at least 5 acquisitions")
+    return math.sqrt(res2 / dof), float(np.sqrt(np.mean(np.square(acc))))
+
+
+def fit_tracker_config(hist: Any, **overrides: Any) -> TrackerConfig:
+    """The safe chain with its settings estimated from histories (no guessed constants).
+
+    ``hist``: :class:`rulkit.fleet.models.histories.Histories`. All numbers are in the
+    histories' time unit (see :class:`TrackerConfig`):
+
+    * ``dt`` = the median acquisition interval;
+    * HI: sigma_v (measurement) and sigma_w (acceleration) by per-unit quadratic fits
+      (:func:`_quadratic_noise`), lambda_HI = sigma_w dt^2 / sigma_v (seed eq 12),
+      ``hi_sigma`` = sigma_v (confidence limits);
+    * RUL: the same estimate on the raw Paris RUL the HI tracker produces on the histories,
+      lambda_RUL = sigma_w dt^2 / sigma_v (seed eq 16);
+    * ``design_life`` = 100 x the longest observed life (the dHI floor is 1 % of the slowest
+      full-life slope), ``warn_rul`` = 10 % of the median failure time, ``valid_d2rul`` =
+      10 / median failure time (0.01 per hour for a 1000-hour life, the seed's value);
+    * measured initiation and fRUL clipped at 0 (:meth:`TrackerConfig.safe`).
+
+    ``overrides`` replace any field. Tracking indices are clipped to [1e-4, 1e3].
+    """
+    t, hi, start = hist.t, hist.hi, hist.start
+    dts = np.concatenate([np.diff(t[start[u]:start[u + 1]]) for u in range(start.size - 1)])
+    dt = float(np.median(dts)) if dts.size else 1.0
+    life = hist.failure_time()
+    t_last = t[start[1:] - 1]
+    t_first = t[start[:-1]]
+    longest = float(np.max(t_last - np.minimum(t_first, 0.0)))
+    med_life = float(np.nanmedian(life)) if np.isfinite(life).any() else longest
+    sv_hi, sw_hi = _quadratic_noise(t, hi, start)
+    sv_hi = max(sv_hi, 1e-6)
+    lam_hi = float(np.clip(max(sw_hi, 1e-12) * dt * dt / sv_hi, 1e-4, 1e3))
+    base = TrackerConfig.safe(
+        dt=dt, lambda_hi=lam_hi, lambda_rul=1.0, design_life=100.0 * max(longest, dt),
+        hi_sigma=sv_hi, warn_rul=0.1 * med_life, valid_d2rul=10.0 / med_life,
+    )
+    # raw RUL along the histories under the HI tracker, then its noise
+    raw = np.full(t.size, np.nan)
+    for u in range(start.size - 1):
+        s = slice(start[u], start[u + 1])
+        h = track_series(t[s], hi[s][:, None], base)
+        raw[s] = np.where(hi[s] < 1.0, h["rul"][:, 0], np.nan)
+    try:
+        sv_r, sw_r = _quadratic_noise(t, raw, start)
+        lam_rul = float(np.clip(max(sw_r, 1e-12) * dt * dt / max(sv_r, 1e-12), 1e-4, 1e3))
+    except ValueError:
+        lam_rul = 1.0
+    d = {**base.to_dict(), "lambda_rul": lam_rul, **overrides}
+    return TrackerConfig.from_dict(d)
+
+
+def check_time_unit(config: TrackerConfig, t: np.ndarray, *, max_floor_step: float = 0.01,
+                    source: str = "acquisitions") -> None:
+    """Reject a ``design_life`` that is not in the acquisitions' time unit.
+
+    The dHI floor 1/design_life times the median acquisition interval is the HI the floor alone
+    adds per acquisition; above ``max_floor_step`` (0.01: fewer than 100 acquisitions take a
+    component from healthy to the alarm without any measured degradation) the settings cannot
+    be meant for this time unit. Example: the default design_life = 1e5 (hours) with hourly
+    acquisitions stamped in epoch seconds (3600 apart) adds 0.036 per acquisition: a false
+    ALARM after ~28 hours. ``t`` are acquisition times (only positive differences used).
+    """
+    d = np.diff(np.sort(np.asarray(t, dtype=np.float64)))
+    d = d[d > 0]
+    if d.size == 0:
+        return
+    step = float(np.median(d)) / config.design_life
+    if step > max_floor_step:
+        raise ValueError(
+            f"{source}: acquisitions are {float(np.median(d)):g} time units apart but "
+            f"design_life = {config.design_life:g}: the no-healing floor 1/design_life alone "
+            f"raises the HI by {step:.3g} per acquisition. design_life, dt, warn_rul and "
+            "valid_d2rul are in the database's time unit: give them in that unit (or convert "
+            "the time column)"
+        )
+
+
 __all__ = [
+    "INITIATIONS",
     "LEVEL_ALARM",
     "LEVEL_NAMES",
     "LEVEL_NONE",
@@ -597,6 +772,8 @@ __all__ = [
     "TrackerOutput",
     "TrackerState",
     "alert_level",
+    "check_time_unit",
+    "fit_tracker_config",
     "paris_rul",
     "rul_confidence_limits",
     "rul_validity",

@@ -27,6 +27,7 @@ import inspect
 import io
 import json
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -435,6 +436,16 @@ def _estimate_samples(x0: Any, weights: ArrayLike | None) -> tuple[Any, ArrayLik
             raise ValueError("weights: x0 is a weighted estimate that carries its own weights; "
                              "do not pass weights= as well")
         return x0.particles, x0.weights
+    if weights is None:
+        from rulkit.estimation.particle import weights_of
+
+        w = weights_of(x0)
+        if w is not None and np.ptp(w) > 0:
+            warnings.warn(
+                "x0 holds the particles of a weighted particle-filter estimate but no weights "
+                "were given: they would count as equally likely and change the RUL "
+                "distribution. Pass the result itself (x0=result) or weights=...",
+                UserWarning, stacklevel=3)
     return x0, weights
 
 

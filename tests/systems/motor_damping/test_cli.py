@@ -127,7 +127,7 @@ def test_reproduce_motor_damping_quick_small(tmp_path: Path, monkeypatch) -> Non
     # the real command with a reduced quick configuration (fewer cycles, shorter cycles)
     from rulkit.systems.motor_damping import reproduce as md
 
-    small = md.ExperimentConfig.quick
+    small = md.MotorDampingConfig.quick
 
     def tiny(**kw):
         cfg = small(**kw)
@@ -135,7 +135,7 @@ def test_reproduce_motor_damping_quick_small(tmp_path: Path, monkeypatch) -> Non
                           variant_runs=1, qa_sweep_sd=(0.0,), q_a_grid=(0.0, 1e-14),
                           prediction_cycles=(10, 20, 30), j_prior_sweep_sd=(1e-7,))
 
-    monkeypatch.setattr(md.ExperimentConfig, "quick", staticmethod(tiny))
+    monkeypatch.setattr(md.MotorDampingConfig, "quick", staticmethod(tiny))
     res = runner.invoke(app, ["reproduce", "motor-damping", "--quick", "--runs", "2",
                               "--seed", "3", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output

@@ -202,19 +202,16 @@ def test_rul_with_slope_noise_is_wider() -> None:
 
 
 def test_tiny_experiment_end_to_end(tmp_path) -> None:
-    from rulkit.systems.motor_damping.reproduce import (
-        ExperimentConfig,
-        run_experiment,
-        write_outputs,
-    )
+    from rulkit.systems.motor_damping.report import write_outputs, write_report
+    from rulkit.systems.motor_damping.reproduce import MotorDampingConfig, run
 
     life = LifeTestConfig(n_cycles=30, duration=15.0)
-    cfg = ExperimentConfig(
+    cfg = MotorDampingConfig(
         runs=2, life=life, mc_samples=40, variant_runs=1, qa_sweep_sd=(0.0,),
         q_a_grid=(0.0, 1e-14), prediction_cycles=(10, 20, 30), j_prior_sweep_sd=(1e-7,),
     )
     cfg = replace(cfg, micro=MicroEKFSettings())
-    res = run_experiment(cfg)
+    res = run(cfg)
     assert set(res.tables) >= {"micro_main", "micro_variants", "slope", "rul_metrics",
                                "qa_sweep", "threshold"}
     assert res.c_fail == pytest.approx(1.47e-4)
@@ -247,6 +244,8 @@ def test_tiny_experiment_end_to_end(tmp_path) -> None:
     assert "fig_macro_models_rul.png" in names
     text = (tmp_path / "report.md").read_text()
     assert "2.67e-6" in text and "0.000147" in text
+    assert write_report(res, tmp_path / "again", "test") == tmp_path / "again" / "report.md"
+    assert (tmp_path / "again" / "report.md").read_text() == text
 
 
 def test_runs_reproducible_from_seed_and_independent_of_chunking() -> None:

@@ -37,9 +37,10 @@ def test_estimate_temperature_writes_estimate_with_interval(telemetry: Path, tmp
                               "--particles", "40", "--seed", "1"])
     assert res.exit_code == 0, _err(res)
     est = pd.read_csv(out)
-    assert list(est.columns) == ["time_s", "T_mean", "T_lo", "T_hi"]
+    assert list(est.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted"]
     assert len(est) == 601
-    assert np.isfinite(est.to_numpy()).all() and (est["T_lo"] <= est["T_hi"]).all()
+    num = est[["time_s", "T_mean", "T_lo", "T_hi"]].to_numpy()
+    assert np.isfinite(num).all() and (est["T_lo"] <= est["T_hi"]).all()
     # the weighted mean may leave a quantile interval of a skewed particle set, but rarely
     inside = (est["T_lo"] <= est["T_mean"]) & (est["T_mean"] <= est["T_hi"])
     assert inside.mean() > 0.9
@@ -90,13 +91,13 @@ def test_bad_options_exit_code_2(telemetry: Path) -> None:
 
 
 def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeypatch) -> None:
-    from rulkit.systems.reaction_wheel.degradation import Step2Settings
+    from rulkit.systems.reaction_wheel.degradation import DegradationConfig
     from rulkit.systems.reaction_wheel.reproduce import ReproductionConfig
     from rulkit.systems.reaction_wheel.rul import Step3Settings
 
     tiny = ReproductionConfig(
         quick=True, n_runs=2, seed=3,
-        step2=Step2Settings(n_particles=30, horizon_days=1.0),
+        step2=DegradationConfig(n_particles=30, horizon_days=1.0),
         step3=Step3Settings(failure_day=20.0, prediction_days=(0.5, 1.0), table7_day=1.0,
                             forecast_horizon_days=40.0),
         table5_particles=(20,), table5_ekf=False, step1_error_runs=1, step1_particles=30,

@@ -10,14 +10,12 @@ import pytest
 
 from rulkit.systems.reaction_wheel.degradation import (
     CaseTask,
-    Step2Settings,
-    log_normalise_rows,
+    DegradationConfig,
     one_step_pf,
     rbpf,
     rbpf_engine,
     run_case,
     run_table6,
-    systematic_rows,
     truth_parameters,
     two_step_pf,
     unit_rng,
@@ -38,7 +36,7 @@ BETA_REF = SCENARIOS[1].beta0_healthy
 
 def _problem(U: int, days: float, err_std: float = 0.0, seed: int = 0, sid: int = 1,
              noise_rel: float = 0.01):
-    st = Step2Settings(horizon_days=days, n_particles=60, noise_rel=noise_rel)
+    st = DegradationConfig(horizon_days=days, n_particles=60, noise_rel=noise_rel)
     setup = LubricationSetup(sid, days, noise_rel, PATHS[sid])
     W = st.n_windows
     y_true = true_window_increments(PATHS[sid], SCENARIOS[sid], W)
@@ -52,30 +50,6 @@ def _problem(U: int, days: float, err_std: float = 0.0, seed: int = 0, sid: int 
 
 def _rngs(tag: int, U: int) -> list[np.random.Generator]:
     return [np.random.default_rng([tag, r]) for r in range(U)]
-
-
-def test_systematic_rows_equals_engine_systematic() -> None:
-    from rulkit.estimation.resampling import systematic
-
-    rng = np.random.default_rng(0)
-    w = rng.dirichlet(np.full(40, 0.3), size=6)
-    w[2, 5:20] = 0.0
-    w[2] /= w[2].sum()
-    w[3, -3:] = 0.0  # zero weights at the end (round-off guard)
-    w[3] /= w[3].sum()
-    u = np.array([np.random.default_rng(s).random() for s in range(6)])
-    idx = systematic_rows(w, u)
-    for r in range(6):
-        np.testing.assert_array_equal(idx[r], systematic(w[r], np.random.default_rng(r)))
-
-
-def test_log_normalise_rows_and_degenerate_row() -> None:
-    lw = np.array([[0.0, -1.0, -1000.0], [5.0, 5.0, 5.0]])
-    out, ls = log_normalise_rows(lw.copy())
-    np.testing.assert_allclose(np.exp(out).sum(axis=1), 1.0, rtol=1e-15)
-    assert ls[1] == pytest.approx(5.0 + np.log(3.0))
-    with pytest.raises(FloatingPointError, match="unit 1"):
-        log_normalise_rows(np.array([[0.0, 1.0], [-np.inf, -np.inf]]))
 
 
 @pytest.mark.parametrize("tracker", ["one_step", "two_step", "rbpf"])
@@ -177,7 +151,7 @@ def test_biased_temperature_biases_b() -> None:
 
 
 def test_run_case_independent_of_grouping_and_table6() -> None:
-    st = Step2Settings(horizon_days=0.5, n_particles=40)
+    st = DegradationConfig(horizon_days=0.5, n_particles=40)
     err = EstimateErrorProcess(std_c=0.3, tau_s=20.0)
     a = run_case(CaseTask(2, "PF", (0, 1), 3, st, err, (50,)))
     b = run_case(CaseTask(2, "PF", (1,), 3, st, err, (50,)))
@@ -233,7 +207,7 @@ def test_validate_shortcut_runs_the_real_step1_estimator(source: str) -> None:
 
     err = EstimateErrorProcess(bias_c=-1.0, std_c=0.5, tau_s=100.0)
     v = validate_shortcut(err, source, hours=0.14, n_runs=1, seed=0,
-                          settings=Step2Settings(n_particles=30), n_particles_step1=30)
+                          settings=DegradationConfig(n_particles=30), n_particles_step1=30)
     assert v.n_runs == 1 and v.rmspe_b_real["rbpf"].shape == (1,)
     assert np.isfinite(v.window_error_std_real) and v.window_error_std_real > 0
     assert np.isfinite(v.fitted_on_path.std_c) and "step-2 path" in v.fitted_on_path.source
@@ -249,13 +223,13 @@ def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> N
     from rulkit.systems.reaction_wheel.degradation import (
         RBPF_STEP1_DESIGN,
         SOURCES,
-        measure_step1_errors,
+        measure_temperature_errors,
     )
     from rulkit.systems.reaction_wheel.lubrication import fit_error_process
     from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, simulate_table3
 
     seed, N = 4, 30
-    e = measure_step1_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
+    e = measure_temperature_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
     assert "rbpf RBJ" in e.source and "2 step-1 runs" in e.source
     errs = []  # independent reconstruction: the RBJ design called directly
     for r in range(2):
@@ -269,7 +243,8 @@ def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> N
     ref = fit_error_process(np.stack(errs), hold_samples=40)
     assert (e.bias_c, e.std_c, e.tau_s) == pytest.approx((ref.bias_c, ref.std_c, ref.tau_s))
     assert e.std_c > 0 and abs(e.bias_c) < 1.0
-    assert measure_step1_errors("RBPF", 2, seed + 1, n_particles=N, on="table3").std_c != e.std_c
+    alt = measure_temperature_errors("RBPF", 2, seed + 1, n_particles=N, on="table3")
+    assert alt.std_c != e.std_c
 
     real = rbpf.run_rbpf
 
@@ -278,5 +253,5 @@ def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> N
         return replace(out, T_mean=out.T_mean + 3.0)
 
     monkeypatch.setattr(rbpf, "run_rbpf", shifted)
-    e3 = measure_step1_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
+    e3 = measure_temperature_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
     assert e3.bias_c == pytest.approx(e.bias_c + 3.0)

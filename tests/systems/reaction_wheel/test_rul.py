@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rulkit.systems.reaction_wheel.degradation import Step2Settings, run_table6
+from rulkit.systems.reaction_wheel.degradation import DegradationConfig, run_table6
 from rulkit.systems.reaction_wheel.lubrication import (
     DAY_S,
     PATHS,
@@ -85,7 +85,7 @@ def test_engine_propagation_equals_vectorised_forecast() -> None:
 
 
 def test_table7_from_a_small_step2_run(tmp_path) -> None:
-    st2 = Step2Settings(horizon_days=2.0, n_particles=40)
+    st2 = DegradationConfig(horizon_days=2.0, n_particles=40)
     err = EstimateErrorProcess(std_c=0.2, tau_s=20.0)
     t6 = run_table6(2, 0, st2, {"APF": err, "PF": err, "RBPF": err},
                     snapshot_windows=ST3.prediction_windows(st2.n_windows))

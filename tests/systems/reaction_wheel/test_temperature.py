@@ -12,14 +12,14 @@ from scipy.linalg import expm
 
 from rulkit.systems.reaction_wheel.temperature import (
     PAPER_TABLE5,
-    Step1Config,
+    TemperatureConfig,
     apf_eq28_weights,
     estimate_temperature,
+    filter_temperature,
     format_table5,
     likelihood_covariance,
     plot_temperature_estimates,
     run_ekf,
-    run_step1,
     run_table5,
     table3_telemetry,
 )
@@ -41,10 +41,10 @@ def test_kernel_equals_numpy_reference(short_run, design: str, variant: str) -> 
     extra = {}
     if variant == "adaptive":  # p_eff above the peak density: the spread fires every 20 steps
         extra = {"adapt_log_drop": -50.0}
-    cfg = Step1Config(design=design, variant=variant, n_particles=40, **extra)  # type: ignore[arg-type]
+    cfg = TemperatureConfig(design=design, variant=variant, n_particles=40, **extra)  # type: ignore[arg-type]
     y, V = short_run.y[:300], short_run.V[:300]
-    a = run_step1(y, V, np.random.default_rng(3), cfg)
-    b = run_step1(y, V, np.random.default_rng(3), cfg, backend="numpy")
+    a = filter_temperature(y, V, np.random.default_rng(3), cfg)
+    b = filter_temperature(y, V, np.random.default_rng(3), cfg, backend="numpy")
     # tempering: gamma comes from a 30-halving bisection in log gamma over [0, ln 1e4]
     # (resolution 9e-9); a halving decision flipped by round-off moves gamma by ~1e-8 relative
     temper = variant == "apf_tempered"
@@ -68,11 +68,11 @@ def test_kernel_equals_numpy_reference(short_run, design: str, variant: str) -> 
 
 
 def test_same_seed_same_result_different_seed_differs(short_run) -> None:
-    cfg = Step1Config(n_particles=30)
+    cfg = TemperatureConfig(n_particles=30)
     y, V = short_run.y[:100], short_run.V[:100]
-    a = run_step1(y, V, np.random.default_rng(1), cfg)
-    b = run_step1(y, V, np.random.default_rng(1), cfg)
-    c = run_step1(y, V, np.random.default_rng(2), cfg)
+    a = filter_temperature(y, V, np.random.default_rng(1), cfg)
+    b = filter_temperature(y, V, np.random.default_rng(1), cfg)
+    c = filter_temperature(y, V, np.random.default_rng(2), cfg)
     assert np.array_equal(a.T_mean, b.T_mean)
     assert not np.allclose(a.T_mean, c.T_mean)
 
@@ -124,8 +124,8 @@ def test_estimators_track_constant_temperature_from_equilibrium() -> None:
         x[k + 1] = rk4_wheel_step(x[k : k + 1], 1.0, 30.0, k * dt, dt, m.params)[0]
     y = m.output(x) + m.noise.sample_measurement(K, np.random.default_rng(0))
     V = np.ones(K)
-    cfg = Step1Config(design="F2", variant="pf", n_particles=300, T_prior=(10.0, 40.0))
-    r = run_step1(y, V, np.random.default_rng(1), cfg)
+    cfg = TemperatureConfig(design="F2", variant="pf", n_particles=300, T_prior=(10.0, 40.0))
+    r = filter_temperature(y, V, np.random.default_rng(1), cfg)
     assert abs(r.T_mean[-200:].mean() - 30.0) < 1.5
     e = run_ekf(y, V, T_prior=(10.0, 40.0))
     assert abs(e.T_mean[-200:, 0].mean() - 30.0) < 0.5
@@ -136,19 +136,19 @@ def test_run_step1_rejects_bad_input(short_run) -> None:
     y, V = short_run.y[:50], short_run.V[:50]
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="y: expected shape"):
-        run_step1(y[:, :1], V, rng)
+        filter_temperature(y[:, :1], V, rng)
     with pytest.raises(ValueError, match="V: expected shape"):
-        run_step1(y, V[:-1], rng)
+        filter_temperature(y, V[:-1], rng)
     bad = y.copy()
     bad[7, 0] = np.nan
     with pytest.raises(ValueError, match="finite"):
-        run_step1(bad, V, rng)
+        filter_temperature(bad, V, rng)
     with pytest.raises(ValueError, match="variant"):
-        Step1Config(variant="apf")  # type: ignore[arg-type]
+        TemperatureConfig(variant="apf")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="T_prior"):
-        Step1Config(T_prior=(30.0, 20.0))
+        TemperatureConfig(T_prior=(30.0, 20.0))
     with pytest.raises(ValueError, match="backend"):
-        run_step1(y, V, rng, backend="cuda")  # type: ignore[arg-type]
+        filter_temperature(y, V, rng, backend="cuda")  # type: ignore[arg-type]
 
 
 def test_table5_quick_grid_serial_equals_workers_and_carries_paper_values() -> None:
@@ -168,7 +168,7 @@ def test_table5_quick_grid_serial_equals_workers_and_carries_paper_values() -> N
 def test_estimate_temperature_from_telemetry_frame(tmp_path) -> None:
     df = table3_telemetry(np.random.default_rng(2), "low", t_end=10.0)
     out = estimate_temperature(df, "adaptive", 50, np.random.default_rng(0))
-    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi"]
+    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted"]
     assert len(out) == len(df) and np.all(out["T_lo"] <= out["T_hi"])
     assert np.all(np.isfinite(out[["T_mean", "T_lo", "T_hi"]].to_numpy()))
     ekf = estimate_temperature(df.iloc[:60], "ekf")
@@ -185,3 +185,60 @@ def test_plot_temperature_estimates_writes_figures(tmp_path) -> None:
     paths = plot_temperature_estimates(tmp_path, n_particles=30, variants=("adaptive",),
                                        with_ekf=False, t_end=5.0)
     assert len(paths) == 1 and paths[0].exists() and paths[0].stat().st_size > 10_000
+
+
+def _constant_record(T: float = 30.0, V: float = 1.0, K: int = 4000, seed: int = 0,
+                     noise: str = "low") -> tuple[object, np.ndarray]:
+    """Telemetry frame of the wheel at equilibrium at constant T and V, and the true T."""
+    import pandas as pd
+
+    from rulkit.systems.reaction_wheel.telemetry import COLUMNS
+    from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, ReactionWheel, rk4_wheel_step
+
+    p = IthacoParams()
+    sw, sI = NOISE_LEVELS[noise]
+    x = ReactionWheel(p, noise=(sw, sI)).steady_state(V, T)[None]
+    X = np.empty((K, 2))
+    X[0] = x[0]
+    for k in range(K - 1):
+        x = rk4_wheel_step(x, V, T, k * 0.05, 0.05, p)
+        X[k + 1] = x[0]
+    rng = np.random.default_rng(seed)
+    t = 0.05 * np.arange(K)
+    df = pd.DataFrame(dict(zip(COLUMNS, (t, np.full(K, V), X[:, 1] + sw * rng.standard_normal(K),
+                                         X[:, 0] + sI * rng.standard_normal(K)), strict=True)))
+    return df, np.full(K, T)
+
+
+@pytest.mark.parametrize("noise", ["low", "high"])
+def test_default_method_survives_one_corrupted_command_sample(noise: str) -> None:
+    """Issue 13: +1 V on one command sample early in a record. Without the outlier gate the
+    default adaptive PF carries the wrong [I, w] it predicted and its RMSPE roughly quadruples
+    (before the gate: 4.8 % vs 1.2 % clean at low noise, 4.6 % vs 1.0 % at high); with it the
+    glitch is flagged, the cloud recovers, and the RMSPE stays within 1.5x the clean one."""
+    from rulkit.metrics import rmspe
+
+    df, T = _constant_record(noise=noise)
+    bad = df.copy()
+    bad.loc[20, "v_comm_V"] += 1.0
+    kw = dict(noise=noise)
+    clean = estimate_temperature(df, rng=np.random.default_rng(1), **kw)
+    glitch = estimate_temperature(bad, rng=np.random.default_rng(1), **kw)
+    e_clean = rmspe(clean["T_mean"].to_numpy()[1:], T[1:])
+    e_glitch = rmspe(glitch["T_mean"].to_numpy()[1:], T[1:])
+    assert e_glitch <= 1.5 * e_clean, (e_clean, e_glitch)
+    flagged = np.flatnonzero(glitch["untrusted"].to_numpy())
+    assert flagged.size and 21 <= flagged[0] <= 30  # the samples after the bad command
+    assert not np.any(clean["untrusted"].to_numpy()[2000:])  # no flag once converged
+
+
+def test_gate_off_by_default_in_config_and_same_numbers_as_numpy_reference() -> None:
+    """TemperatureConfig's default gate is off (the paper's filters, Table 5): nothing is
+    flagged, and the numpy reference (which has no gate) refuses a finite one."""
+    d = simulate_table3(np.random.default_rng(3), "low", t_end=5.0)
+    cfg = TemperatureConfig(n_particles=30)
+    r = filter_temperature(d.y, d.V, np.random.default_rng(0), cfg, sigma=(d.sigma_w, d.sigma_I))
+    assert not r.untrusted.any() and not np.isin(r.action, (4, 5)).any()
+    with pytest.raises(ValueError, match="no outlier gate"):
+        filter_temperature(d.y, d.V, np.random.default_rng(0),
+                           TemperatureConfig(n_particles=30, gate_d2=25.0), backend="numpy")

@@ -32,6 +32,12 @@ def test_example_writes_rul_json_summary_and_png(tmp_path):
         assert row["relative_accuracy"] == pytest.approx(ra, rel=1e-12)
     png = (out / "toy_degradation.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    # report.md: one markdown row per prediction time, the median with 4 significant digits
+    report = (out / "report.md").read_text().splitlines()
+    header = next(i for i, line in enumerate(report) if line.startswith("| t_pred |"))
+    body = report[header + 2 : header + 2 + len(summary["rows"])]
+    assert len(body) == len(summary["rows"]) and all(line.startswith("| ") for line in body)
+    assert f" {last['rul_median']:.4g} " in body[-1]
     # same seed -> same distribution
     out2 = tmp_path / "ex2"
     res2 = CliRunner().invoke(app, ["example", "--out", str(out2), "--seed", "5",

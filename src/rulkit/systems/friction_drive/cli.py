@@ -33,7 +33,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     ) -> None:
         """Augmented EKF on the roller-on-tire drive, consistency, observability, MC RUL."""
         from rulkit.systems.friction_drive.report import tables, write_report
-        from rulkit.systems.friction_drive.reproduce import run_study
+        from rulkit.systems.friction_drive.reproduce import FrictionDriveConfig, run
 
         n_runs = runs if runs is not None else (1 if quick else 5)
         cmd = (
@@ -42,10 +42,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             + f" --runs {n_runs} --seed {seed} --n-rul {n_rul} --duration {duration:g}"
         )
         typer.echo(f"friction-drive: {n_runs} run(s) per filter/scenario, seed {seed} ...")
-        res = run_study(
+        res = run(FrictionDriveConfig(
             n_runs=n_runs, seed=seed, n_rul=n_rul, duration=duration,
             n_validate=3 if quick else 10,
-        )
+        ))
         rep = write_report(res, out, command=cmd)
         tabs = tables(res)
         cols = ["config", "N", "fit_mean_h", "fit_std_h", "median_h", "frac_censored",

@@ -1,14 +1,15 @@
 """Tables, figures and report.md of the friction-drive study (seed 003; spec friction-drive.md).
 
-:func:`tables` turns a :class:`~rulkit.systems.friction_drive.reproduce.StudyResult` into pandas
-DataFrames; :func:`figures` draws figures like the seed's Figs. 3, 5, 7 and 8 (matplotlib, Agg);
-:func:`write_report` writes the CSV tables, the figures and ``report.md`` with the seed's values
-beside ours.
+:func:`tables` turns a :class:`~rulkit.systems.friction_drive.reproduce.FrictionDriveResult`
+into pandas DataFrames; :func:`figures` draws figures like the seed's Figs. 3, 5, 7 and 8
+(matplotlib, Agg); :func:`write_report` writes the CSV tables, the figures and ``report.md``
+with the seed's values beside ours.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import stats
@@ -18,21 +19,23 @@ from rulkit.estimation.consistency import (
     ellipsoid_probability,
     erf_statement,
 )
-from rulkit.systems.friction_drive.drive import DEFAULT_PARAMS
+from rulkit.reporting import markdown_table
+from rulkit.systems.friction_drive.drive import DEFAULT_PARAMS, SPEED_Q_RATE
 from rulkit.systems.friction_drive.reproduce import (
-    HOUR,
     MAX_LAG,
     SEED_VALUES,
-    SPEED_Q_RATE,
     WHITENESS_ALPHA,
-    StudyResult,
-    deterioration_bundle,
+    FrictionDriveResult,
     one_step_discretisation_error,
     seed_configs,
 )
+from rulkit.systems.friction_drive.rul import HOUR, deterioration_bundle
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
-def tables(res: StudyResult) -> dict:
+def tables(res: FrictionDriveResult) -> dict:
     """The study's tables as pandas DataFrames: consistency, ellipsoid, observability, rul."""
     import pandas as pd
 
@@ -128,7 +131,7 @@ def tables(res: StudyResult) -> dict:
             "observability": obs, "rul": rul, "convergence": conv}
 
 
-def figures(res: StudyResult, out: Path) -> list[Path]:
+def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     """Figures like the seed's Figs. 3, 5, 7, 8 (plus the running NIS); returns the paths."""
     import matplotlib
 
@@ -266,7 +269,7 @@ def _frac(df, config: str, scenario: str, col: str) -> str:  # type: ignore[no-u
     return f"{int(sel.astype(bool).sum())}/{len(sel)}" if len(sel) else ""
 
 
-def _verdict_text(res: StudyResult, cons) -> str:  # type: ignore[no-untyped-def]
+def _verdict_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-untyped-def]
     """How to read the verdicts, with the counts of this run (nothing hard-coded)."""
     T = res.summaries[0].innovations.n_steps if res.summaries else 0
     parts = [
@@ -318,7 +321,7 @@ def _verdict_text(res: StudyResult, cons) -> str:  # type: ignore[no-untyped-def
     return " ".join(parts)
 
 
-def _nees_cause_text(res: StudyResult, cons) -> str:  # type: ignore[no-untyped-def]
+def _nees_cause_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-untyped-def]
     """Where the large single-step NEES occur and their measured cause (numbers of this run)."""
     q999 = float(stats.chi2.ppf(0.999, 4))
     fixed = cons["config"].str.startswith("tuned-consistent")
@@ -376,7 +379,7 @@ def _nees_cause_text(res: StudyResult, cons) -> str:  # type: ignore[no-untyped-
     )
 
 
-def _observability_text(res: StudyResult) -> str:
+def _observability_text(res: FrictionDriveResult) -> str:
     """The observability findings of this run, from its numbers."""
     if not res.observability:
         return "(not run)"
@@ -391,24 +394,12 @@ def _observability_text(res: StudyResult) -> str:
     )
 
 
-def _md(df) -> str:  # type: ignore[no-untyped-def]
-    """A small markdown table without the optional 'tabulate' dependency."""
-    cols = list(df.columns)
-
-    def fmt(v: object) -> str:
-        if isinstance(v, (float, np.floating)):
-            if not np.isfinite(v):
-                return str(v)
-            return f"{v:.5g}"  # 5 digits: the seed's 106.09 h must print as given
-        return str(v)
-
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, row in df.iterrows():
-        lines.append("| " + " | ".join(fmt(row[c]) for c in cols) + " |")
-    return "\n".join(lines)
+def _md(df: pd.DataFrame) -> str:
+    """A markdown table with 5 significant digits (the seed's 106.09 h must print as given)."""
+    return markdown_table(df, ".5g")
 
 
-def write_report(res: StudyResult, out: Path, command: str = "") -> Path:
+def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path:
     """Write tables (CSV), figures (PNG) and ``report.md`` into ``out``; returns report path."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -14,11 +14,9 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
-from scipy import stats
-from scipy.integrate import solve_ivp
-from scipy.linalg import expm
 
 from rulkit.estimation.consistency import (
     InnovationCheck,
@@ -27,35 +25,27 @@ from rulkit.estimation.consistency import (
     state_error_check,
 )
 from rulkit.estimation.kalman import ExtendedKalmanFilter
-from rulkit.model import FloatArray, check_covariance
-from rulkit.prognosis.rul import RULDistribution
+from rulkit.model import FloatArray
 from rulkit.systems.friction_drive import drive as fd
+from rulkit.systems.friction_drive.drive import (
+    REALISTIC_R,
+    SEED_P0,
+    SEED_R,
+    SEED_SIGMA_M2,
+    SPEED_Q_RATE,
+    TUNED_Q_RATE,
+)
+from rulkit.systems.friction_drive.observability import Observability, observability
+from rulkit.systems.friction_drive.rul import (
+    HOUR,
+    TRANSIENT_DT,
+    RULResult,
+    predict_rul,
+    time_to_failure_reference,
+)
 
-HOUR = 3600.0
-
-# Seed section 5.2: R = diag(sigma1^2, sigma2^2), sigma_m^2 = (0.02 - 0)^2 / 12, P0 = sigma_m^2 I.
-SEED_R = np.diag([1.0063e-8, 1.0083e-10])
-SEED_SIGMA_M2 = 3.3333e-5
-SEED_P0 = SEED_SIGMA_M2 * np.eye(4)
-# A realistic speed-noise level (spec: "add a realistic-noise scenario"): 0.01 rad/s on the motor
-# (an encoder-differentiated speed), 0.001 rad/s on the slow wheel; 100 x the seed's sigmas.
-REALISTIC_R = np.diag([1e-4, 1e-6])
-TUNED_Q_RATE = 3e-7  # per second (spec "Tuned run")
-# Process-noise rates (per second) on (w1, w2) of the "tuned-consistent" filter, sized from the
-# measured one-step error of the filter's single 1 ms RK4 step against the fine truth
-# (:func:`one_step_discretisation_error`; 50 sub-steps, square wave): the largest errors,
-# 1.4e-7 rad/s on w1 and 1.7e-9 rad/s on w2, occur right after each current switch and decay
-# with the 20 ms mode. q = (largest error)^2 / t_s rounded up: (2e-11, 3e-15) /s. Without it the
-# filter, having no process noise on the speeds, believes a combination of (w1, w2) known to
-# ~1e-8 rad/s and the systematic post-switch error gives single-step NEES of 1e2-1e3.
-SPEED_Q_RATE = (2e-11, 3e-15)
-# Configurations whose study units draw their noise from a separate seeded stream (run_study).
+# Configurations whose study units draw their noise from a separate seeded stream (run).
 ADDED_CONFIGS = ("tuned-consistent", "tuned-consistent-realistic")
-# RK4 step of the spin-up transient in the fast RUL propagation. Against LSODA over the full
-# horizon the 5 ms step adds < 0.1 s to the quasi-steady tail error (~26 s at D_f = 0.99;
-# 1 ms gives the same to 0.05 s); RK4 is stable to ~55 ms at the fastest mode (~20 ms).
-TRANSIENT_DT = 5e-3
-
 # Innovation tests of every run (reported by report.py): Ljung-Box over MAX_LAG lags
 # of the whitened innovations, white when every component's p > WHITENESS_ALPHA / m.
 MAX_LAG = 20
@@ -397,324 +387,6 @@ def run_filter(
 
 
 # ------------------------------------------------------------------------------------------
-# Observability (spec "Observability": windowed Gramian / Cramer-Rao bound)
-# ------------------------------------------------------------------------------------------
-def output_sensitivities_jacobian(
-    X: FloatArray, dt: float, params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
-) -> FloatArray:
-    """dy_k / dx_0 along a trajectory ``X`` (K+1, 4) by the product of ``expm(F_k dt)``
-    (F the analytic Jacobian at the midpoint of each step, second order in dt); returns
-    (K, 2, 4) for y_1..y_K."""
-    J = fd.jacobian(0.5 * (X[:-1] + X[1:]), None, params) * dt
-    Phi = expm(J)  # (K, 4, 4), batched
-    K = X.shape[0] - 1
-    out = np.empty((K, 2, 4))
-    M = np.eye(4)
-    for k in range(K):
-        M = Phi[k] @ M
-        out[k] = M[:2]
-    return out
-
-
-def output_sensitivities_fd(
-    x0: FloatArray,
-    currents: FloatArray,
-    dt: float,
-    n_sub: int = 4,
-    rel: float = 1e-6,
-    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
-) -> FloatArray:
-    """dy_k / dx_0 by central finite differences of the full model (an independent check of
-    :func:`output_sensitivities_jacobian`); returns (K, 2, 4)."""
-    x0 = np.asarray(x0, dtype=np.float64).reshape(4)
-    h = rel * np.maximum(np.abs(x0), [1.0, 1.0, 1.0, 1e-2])
-    batch = np.repeat(x0[None, :], 8, axis=0)
-    for j in range(4):
-        batch[2 * j, j] += h[j]
-        batch[2 * j + 1, j] -= h[j]
-    Y = fd.integrate_path(batch, currents, dt, n_sub=n_sub, params=params)[1:, :, :2]
-    sens = np.empty((Y.shape[0], 2, 4))
-    for j in range(4):
-        sens[:, :, j] = (Y[:, 2 * j] - Y[:, 2 * j + 1]) / (2.0 * h[j])
-    return sens
-
-
-def fisher_information(sens: FloatArray, R: FloatArray) -> FloatArray:
-    """Fisher information sum_k S_k^T R^-1 S_k of the window's initial state (the
-    observability Gramian weighted by R^-1), (4, 4); ``sens`` (K, 2, 4)."""
-    return np.einsum("kij,jl,klm->im", np.swapaxes(sens, 1, 2), np.linalg.inv(R), sens)
-
-
-def cramer_rao(sens: FloatArray, R: FloatArray) -> FloatArray:
-    """Cramer-Rao bound inv(sum_k S_k^T R^-1 S_k) of the window's initial state, (4, 4).
-
-    The Fisher matrix (the observability Gramian weighted by R^-1) is inverted after a
-    diagonal scaling (it spans many decades)."""
-    fisher = fisher_information(sens, R)
-    d = np.sqrt(np.clip(np.diag(fisher), 1e-300, None))
-    scaled = fisher / np.outer(d, d)
-    return np.linalg.pinv(scaled, rcond=1e-15) / np.outer(d, d)
-
-
-@dataclass(frozen=True)
-class Observability:
-    """Windowed observability of alpha and m (Cramer-Rao sigmas over ``window`` seconds)."""
-
-    input_kind: str
-    t_start: float
-    window: float
-    sigma: tuple[float, float, float, float]
-    fisher_condition: float
-    pointwise_rank: int
-
-
-def observability(
-    truth: Truth, t_start: float, window: float = 2.0, R: FloatArray = SEED_R
-) -> Observability:
-    """Cramer-Rao sigmas of (w1, w2, alpha, m) from a ``window`` of measurements starting at
-    ``t_start`` along ``truth`` (spec "Observability"), and the pointwise rank of the
-    observability matrix [H; H F; H F^2; H F^3] at ``t_start`` (full whenever slip != 0)."""
-    k0 = round(t_start / truth.dt)
-    k1 = k0 + round(window / truth.dt)
-    if k1 >= truth.X.shape[0]:
-        raise ValueError(f"observability: window [{t_start}, {t_start + window}] s exceeds the "
-                         f"truth ({truth.t[-1]} s)")
-    sens = output_sensitivities_jacobian(truth.X[k0 : k1 + 1], truth.dt)
-    crb = cramer_rao(sens, R)
-    fisher = fisher_information(sens, R)
-    F = fd.jacobian(truth.X[k0 : k0 + 1])[0]
-    H = np.eye(4)[:2]
-    O = np.vstack([H, H @ F, H @ F @ F, H @ F @ F @ F])
-    sv = np.linalg.svd(O, compute_uv=False)
-    rank = int(np.sum(sv > sv[0] * 1e-14))
-    d = np.sqrt(np.diag(fisher))
-    return Observability(
-        input_kind=truth.scenario.current,
-        t_start=float(t_start),
-        window=float(window),
-        sigma=tuple(float(v) for v in np.sqrt(np.clip(np.diag(crb), 0, None))),
-        fisher_condition=float(np.linalg.cond(fisher / np.outer(d, d))),
-        pointwise_rank=rank,
-    )
-
-
-# ------------------------------------------------------------------------------------------
-# RUL (seed section 6; spec "RUL")
-# ------------------------------------------------------------------------------------------
-def time_to_failure(
-    x0: FloatArray,
-    current: float = 20.0,
-    *,
-    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
-    transient: float = 10.0,
-    dt: float = TRANSIENT_DT,
-    full_model_below: float = 3600.0,
-    horizon: float = np.inf,
-) -> tuple[FloatArray, FloatArray]:
-    """Time (s) for D = 1 - alpha/alpha0 to reach ``params.failure_level`` from states ``x0``
-    (N, 4) under a constant current, m held constant: the fast long-horizon propagation.
-
-    The full model is integrated (RK4, ``dt``, numba kernel, vectorised over N, each sample
-    stopping at its crossing) over the ``transient`` (spin-up from the off-equilibrium
-    estimate); the quasi-steady closed form
-    :func:`rulkit.systems.friction_drive.drive.quasi_steady_time` then gives the rest (spec "RUL").
-    The closed form ignores the lag of the mechanical state behind the falling alpha, so it is
-    early by a roughly constant ~15-26 s (measured against LSODA over the full horizon: 26 s at
-    D_f = 0.99 and RUL ~ 105 h, ~80 s at D_f = 0.999); samples whose closed-form remainder is
-    below ``full_model_below`` seconds are therefore finished with the full model as well, so
-    the relative error stays below ~1 % even for failures within minutes (a first-order lag
-    correction was tried and diverges as D_f -> 1). Returns ``(t_fail, never)``: ``t_fail``
-    (N,) (inf where m <= 0 or beyond ``horizon``) and the mask of samples that never fail.
-    """
-    x0 = np.asarray(x0, dtype=np.float64)
-    a_e = (1.0 - params.failure_level) * params.alpha0
-    t_cross, xT = fd.time_to_alpha(x0, current, a_e, dt, transient, params)
-    t_fail = t_cross.copy()
-    open_ = ~np.isfinite(t_cross)
-    t_fail[open_] = transient + fd.quasi_steady_time(
-        xT[open_, 2], a_e, xT[open_, 3], current, params
-    )
-    short = open_ & np.isfinite(t_fail) & (t_fail - transient < full_model_below)
-    if np.any(short):
-        t_rest, _ = fd.time_to_alpha(xT[short], current, a_e, dt, 2.0 * full_model_below, params)
-        t_fail[short] = np.where(np.isfinite(t_rest), transient + t_rest, t_fail[short])
-    never = open_ & (xT[:, 3] <= 0)
-    t_fail = np.where(t_fail > horizon, np.inf, t_fail)
-    return t_fail, never
-
-
-def time_to_failure_reference(
-    x0: FloatArray,
-    current: float = 20.0,
-    *,
-    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
-    t_max: float = 5000.0 * HOUR,
-    method: str = "LSODA",
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-) -> FloatArray:
-    """Oracle: integrate the full model over the whole horizon with an adaptive stiff solver
-    (scipy ``solve_ivp``, LSODA or Radau) and stop at D = D_f; (N,) seconds (inf if never)."""
-    x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
-    a_e = (1.0 - params.failure_level) * params.alpha0
-
-    def rhs(t: float, y: FloatArray) -> FloatArray:
-        return fd.drift(y[None, :], current, params)[0]
-
-    def event(t: float, y: FloatArray) -> float:
-        return y[2] - a_e
-
-    event.terminal = True  # type: ignore[attr-defined]
-    out = np.full(x0.shape[0], np.inf)
-    for i, x in enumerate(x0):
-        if x[2] <= a_e:
-            out[i] = 0.0
-            continue
-        sol = solve_ivp(rhs, (0.0, t_max), x, method=method, events=event, rtol=rtol, atol=atol)
-        if sol.t_events[0].size:
-            out[i] = float(sol.t_events[0][0])
-    return out
-
-
-@dataclass(frozen=True)
-class RULResult:
-    """RUL prognosis at time ``t_pred`` from an estimate (seed section 6).
-
-    ``samples`` (N, 4) initial states drawn from N(x_hat, P); ``rul`` the distribution (hours,
-    censored where m <= 0 or beyond the horizon); ``normal_fit`` (mean, std) of the uncensored
-    RUL (scipy.stats.norm.fit, i.e. ML); ``nominal``/``optimistic``/``pessimistic`` RUL (h) from
-    x_hat and from (alpha +- 3 sigma, m -+ 3 sigma); ``validation`` max |fast - LSODA| (h) on a
-    subset, with the subset size.
-    """
-
-    t_pred: float
-    x_hat: FloatArray
-    P: FloatArray
-    samples: FloatArray
-    rul: RULDistribution
-    normal_fit: tuple[float, float]
-    nominal_h: float
-    optimistic_h: float
-    pessimistic_h: float
-    fraction_never: float
-    validation_max_abs_h: float
-    validation_n: int
-    seconds: float
-
-
-def sample_states(
-    x_hat: FloatArray, P: FloatArray, n: int, rng: np.random.Generator
-) -> FloatArray:
-    """n draws from N(x_hat, P) (seed eq. 29) via a symmetric square root (P may be singular)."""
-    w, V = np.linalg.eigh(0.5 * (P + P.T))
-    L = V * np.sqrt(np.clip(w, 0.0, None))
-    return x_hat[None, :] + rng.standard_normal((n, x_hat.shape[0])) @ L.T
-
-
-def predict_rul(
-    x_hat: FloatArray,
-    P: FloatArray,
-    rng: np.random.Generator,
-    *,
-    t_pred: float = 20.0,
-    n_samples: int = 100,
-    current: float = 20.0,
-    c: float = 3.0,
-    horizon_h: float = 2000.0,
-    transient: float = 10.0,
-    dt: float = TRANSIENT_DT,
-    n_validate: int = 5,
-    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
-) -> RULResult:
-    """Monte Carlo RUL from the estimate (x_hat, P) at ``t_pred`` (seed section 6, eq. 29):
-    ``n_samples`` initial states from N(x_hat, P), future current held at ``current``, m
-    constant; RUL = t_f - t_pred where D reaches D_f. Samples with m <= 0 never fail (censored
-    at the horizon). ``n_validate`` samples are re-run with LSODA over the full horizon."""
-    x_hat = np.asarray(x_hat, dtype=np.float64)
-    if x_hat.shape != (4,) or not np.all(np.isfinite(x_hat)):
-        raise ValueError(f"x_hat: expected 4 finite values [w1, w2, alpha, m], got {x_hat!r}")
-    P = check_covariance(P, 4, "P")
-    if n_samples < 1:
-        raise ValueError(f"n_samples: expected >= 1, got {n_samples}")
-    t0 = time.perf_counter()
-    X0 = sample_states(x_hat, P, n_samples, rng)
-    horizon = horizon_h * HOUR
-    tf, _never = time_to_failure(
-        X0, current, params=params, transient=transient, dt=dt, horizon=horizon
-    )
-    seconds = time.perf_counter() - t0
-    censored = ~np.isfinite(tf)
-    rul_h = np.where(censored, horizon_h, tf / HOUR)
-    dist = RULDistribution(samples=rul_h, censored=censored, horizon=horizon_h)
-    unc = rul_h[~censored]
-    fit = tuple(float(v) for v in stats.norm.fit(unc)) if unc.size >= 2 else (np.nan, np.nan)
-    sa, sm = np.sqrt(P[2, 2]), np.sqrt(P[3, 3])
-    ext = np.repeat(x_hat[None, :], 3, axis=0)
-    ext[1, 2] += c * sa
-    ext[1, 3] -= c * sm
-    ext[2, 2] -= c * sa
-    ext[2, 3] += c * sm
-    tf_ext, _ = time_to_failure(ext, current, params=params, transient=transient, dt=dt)
-    n_val = min(n_validate, int((~censored).sum()))
-    if n_val > 0:
-        idx = np.flatnonzero(~censored)[:n_val]
-        ref = time_to_failure_reference(X0[idx], current, params=params)
-        val = float(np.max(np.abs(ref - tf[idx])) / HOUR)
-    else:
-        val = float("nan")
-    return RULResult(
-        t_pred=float(t_pred),
-        x_hat=x_hat,
-        P=P,
-        samples=X0,
-        rul=dist,
-        normal_fit=fit,  # type: ignore[arg-type]
-        nominal_h=float(tf_ext[0] / HOUR),
-        optimistic_h=float(tf_ext[1] / HOUR),
-        pessimistic_h=float(tf_ext[2] / HOUR),
-        fraction_never=float(np.mean(X0[:, 3] <= 0)),
-        validation_max_abs_h=val,
-        validation_n=n_val,
-        seconds=seconds,
-    )
-
-
-def deterioration_bundle(
-    samples: FloatArray,
-    t_grid_h: FloatArray,
-    current: float = 20.0,
-    transient: float = 10.0,
-    dt: float = TRANSIENT_DT,
-    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
-) -> FloatArray:
-    """D(t) of each sample on ``t_grid_h`` (hours after t_pred; seed Fig. 7): full model over the
-    transient (grid times inside it read off the stored RK4 path, linear between steps), then
-    the quasi-steady inverse of :func:`rulkit.systems.friction_drive.drive.quasi_steady_time`.
-    Returns (N, len(t_grid_h)); grid times must be finite and >= 0."""
-    t = np.asarray(t_grid_h, dtype=np.float64).reshape(-1) * HOUR
-    if not np.all(np.isfinite(t) & (t >= 0)):
-        raise ValueError("t_grid_h: expected finite times >= 0 (hours after t_pred)")
-    n_tr = max(1, round(transient / dt))
-    t_tr = n_tr * dt
-    inside = t < t_tr
-    cur = np.full(n_tr, float(current))
-    if inside.any():  # the path is stored only when a grid time falls inside the transient
-        full = fd.integrate_path(samples, cur, dt, params=params)  # (n_tr + 1, N, 4)
-        path, xT = full[:, :, 2], full[-1].copy()
-    else:
-        xT = fd.integrate_path(samples, cur, dt, params=params, store=False)
-    xT[:, 2] = np.maximum(xT[:, 2], 1e-300)  # failed inside the transient: D = 1 on the plot
-    a = fd.quasi_steady_alpha(xT[:, 2:3], xT[:, 3:4], current,
-                              np.maximum(t - t_tr, 0.0)[None, :], params)
-    if inside.any():
-        pos = t[inside] / dt
-        k = np.floor(pos).astype(np.int64)
-        f = (pos - k)[:, None]
-        a[:, inside] = ((1.0 - f) * path[k] + f * path[np.minimum(k + 1, n_tr)]).T
-    return 1.0 - a / params.alpha0
-
-
-# ------------------------------------------------------------------------------------------
 # Convergence from wrong initial estimates (spec "Augmented EKF", last line)
 # ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
@@ -795,7 +467,7 @@ class UnitSummary:
 
 
 @dataclass
-class StudyResult:
+class FrictionDriveResult:
     """Everything the report needs."""
 
     dt: float
@@ -825,46 +497,124 @@ def _time_within(t: FloatArray, est: FloatArray, target: FloatArray, tol: FloatA
     return float(t[bad[-1] + 1] - t_from) if bad.size else 0.0
 
 
-def run_study(
-    *,
-    n_runs: int = 1,
-    seed: int = 0,
-    dt: float = 1e-3,
-    duration: float = 20.0,
-    pairs: tuple[tuple[str, str], ...] = DEFAULT_PAIRS,
-    n_rul: int = 100,
-    rul_configs: tuple[str, ...] = ("tuned", "seed", "seed-f44"),
-    n_validate: int = 5,
-    truth_substeps: int = 10,
-    converge: bool = True,
-) -> StudyResult:
-    """Run the whole seed-003 study (spec friction-drive.md "What must be shown").
+@dataclass(frozen=True)
+class FrictionDriveConfig:
+    """Settings of the seed-003 study (defaults: the full run; the CLI's ``--quick`` uses
+    ``n_runs=1, n_validate=3``).
+
+    ``n_runs`` runs per (filter config, scenario) pair of ``pairs``, filtered over ``duration``
+    s at ``dt``; the Monte Carlo RUL (``n_rul`` trajectories, ``n_validate`` of them checked
+    against LSODA) for ``rul_configs`` on the jump scenario; ``truth_substeps`` RK4 sub-steps
+    of the truth per filter step; ``converge``: also the convergence study from wrong initial
+    estimates. ``seed`` drives every draw."""
+
+    n_runs: int = 1
+    seed: int = 0
+    dt: float = 1e-3
+    duration: float = 20.0
+    pairs: tuple[tuple[str, str], ...] = DEFAULT_PAIRS
+    n_rul: int = 100
+    rul_configs: tuple[str, ...] = ("tuned", "seed", "seed-f44")
+    n_validate: int = 5
+    truth_substeps: int = 10
+    converge: bool = True
+
+    def __post_init__(self) -> None:
+        if self.n_runs < 1:
+            raise ValueError(f"n_runs: expected >= 1, got {self.n_runs}")
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ValueError(f"seed: expected a non-negative integer, got {self.seed!r}")
+        if not self.duration >= 3.0:
+            raise ValueError(
+                f"duration: expected >= 3 s (a 2 s observability window), got {self.duration}"
+            )
+        configs = seed_configs(self.dt)
+        for c, s in self.pairs:
+            if c not in configs or s not in SCENARIOS:
+                raise ValueError(f"pairs: unknown config/scenario {c!r}/{s!r}")
+
+
+class _Batch(NamedTuple):
+    """The study's units (config, scenario, run) as one batch: measurements ``ys`` (T, B, 2),
+    currents (T, B), true states (T + 1, B, 4) and initial estimates ``x0`` (B, 4)."""
+
+    units: list[tuple[str, str, int]]
+    ys: FloatArray
+    cur: FloatArray
+    truth: FloatArray
+    x0: FloatArray
+
+
+def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
+    """Run the whole seed-003 study (friction-drive.md "What must be shown").
 
     For every (config, scenario) pair and run: measurements with the config's truth noise, an
     initial estimate drawn from N(x_true(0), P0) (consistent start), the augmented EKF over
     ``duration`` s at ``dt``; then consistency verdicts, windowed observability under both
     inputs and, for ``rul_configs`` on the jump scenario (run 0), the Monte Carlo RUL at
-    t = ``duration``. Seeded: ``numpy.random.default_rng(seed)`` drives all draws.
+    t = ``duration``. Seeded: ``numpy.random.default_rng(seed)`` drives all draws (units of
+    the configurations added later, ``ADDED_CONFIGS``, from ``default_rng([seed, 1])``).
     """
-    if n_runs < 1:
-        raise ValueError(f"n_runs: expected >= 1, got {n_runs}")
-    if int(seed) != seed or seed < 0:
-        raise ValueError(f"seed: expected a non-negative integer, got {seed!r}")
-    if not duration >= 3.0:
-        raise ValueError(f"duration: expected >= 3 s (a 2 s observability window), got {duration}")
-    rng = np.random.default_rng(seed)
-    configs = seed_configs(dt)
-    for c, s in pairs:
-        if c not in configs or s not in SCENARIOS:
-            raise ValueError(f"pairs: unknown config/scenario {c!r}/{s!r}")
-    scen_names = sorted({s for _, s in pairs} | {"jump", "constant-current"})
+    cfg = config or FrictionDriveConfig()
+    rng = np.random.default_rng(cfg.seed)
+    configs = seed_configs(cfg.dt)
+    truths = _simulate_truths(cfg)
+    batch = _draw_batch(cfg, truths, configs, rng)
+    units = batch.units
+    ekf = make_ekf(
+        np.array([configs[c].q_m for c, _, _ in units]),
+        np.array([configs[c].f44 for c, _, _ in units]),
+        np.stack([configs[c].R_filter for c, _, _ in units]),
+        cfg.dt,
+        q_speed=np.array([configs[c].q_speed for c, _, _ in units]),
+        midpoint=np.array([configs[c].jacobian_at == "midpoint" for c, _, _ in units]),
+    )
+    res = run_filter(ekf, batch.ys, batch.cur, batch.x0, SEED_P0, batch.truth)
+    summaries = [_summarise_unit(res, b, unit, truths[unit[1]], batch)
+                 for b, unit in enumerate(units)]
+    runs = {(c, s): _first_run(res, b) for b, (c, s, r) in enumerate(units) if r == 0}
+    duration, dt = cfg.duration, cfg.dt
+    obs = [
+        observability(truths["jump"], duration - 2.0 - dt, 2.0),
+        observability(truths["constant-current"], duration - 2.0 - dt, 2.0),
+    ]
+    rul = {}
+    for c in cfg.rul_configs:
+        b = units.index((c, "jump", 0)) if (c, "jump", 0) in units else None
+        if b is None:
+            continue
+        rul[c] = predict_rul(res.x[-1, b], res.P_final[b], rng, t_pred=duration,
+                             n_samples=cfg.n_rul, n_validate=cfg.n_validate)
+    rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:])[0] / HOUR)
+    conv = (convergence_study(truths["jump"], rng, duration=min(3.0, duration))
+            if cfg.converge else [])
+    return FrictionDriveResult(
+        dt=dt, n_runs=cfg.n_runs, seed=cfg.seed, pairs=tuple(cfg.pairs), truths=truths,
+        runs=runs, summaries=summaries, observability=obs, rul=rul, convergence=conv,
+        rul_truth_h=rul_truth, filter_seconds=res.seconds,
+        settings={"dt": dt, "duration": duration, "n_rul": cfg.n_rul,
+                  "truth_substeps": cfg.truth_substeps, "n_validate": cfg.n_validate,
+                  "B": len(units), "transient": 10.0, "transient_dt": TRANSIENT_DT},
+    )
+
+
+def _simulate_truths(cfg: FrictionDriveConfig) -> dict[str, Truth]:
+    """The true trajectory of every scenario of the study (and of the two the observability
+    and RUL always use), over ``cfg.duration``."""
+    scen_names = sorted({s for _, s in cfg.pairs} | {"jump", "constant-current"})
     truths = {}
     for s in scen_names:
         sc = SCENARIOS[s]
-        sc = Scenario(**{**sc.__dict__, "duration": duration})
-        truths[s] = simulate_truth(sc, dt, truth_substeps)
-    T = truths[scen_names[0]].currents.shape[0]
-    units = [(c, s, r) for (c, s) in pairs for r in range(n_runs)]
+        sc = Scenario(**{**sc.__dict__, "duration": cfg.duration})
+        truths[s] = simulate_truth(sc, cfg.dt, cfg.truth_substeps)
+    return truths
+
+
+def _draw_batch(cfg: FrictionDriveConfig, truths: dict[str, Truth],
+                configs: dict[str, FilterConfig], rng: np.random.Generator) -> _Batch:
+    """Measurements and initial estimates of every unit, drawn in unit order."""
+    T = next(iter(truths.values())).currents.shape[0]
+    units = [(c, s, r) for (c, s) in cfg.pairs for r in range(cfg.n_runs)]
     B = len(units)
     ys = np.empty((T, B, 2))
     cur = np.empty((T, B))
@@ -873,7 +623,7 @@ def run_study(
     # Units of configurations added after the study's first release draw from their own stream,
     # so adding them leaves every other number of a seeded study (filters, RUL, convergence)
     # unchanged.
-    rng_added = np.random.default_rng([seed, 1])
+    rng_added = np.random.default_rng([cfg.seed, 1])
     for b, (c, s, _r) in enumerate(units):
         tr = truths[s]
         g = rng_added if c in ADDED_CONFIGS else rng
@@ -882,82 +632,57 @@ def run_study(
         cur[:, b] = tr.currents
         truth_b[:, b] = tr.X
         x0[b] = tr.X[0] + g.standard_normal(4) * np.sqrt(np.diag(SEED_P0))
-    ekf = make_ekf(
-        np.array([configs[c].q_m for c, _, _ in units]),
-        np.array([configs[c].f44 for c, _, _ in units]),
-        np.stack([configs[c].R_filter for c, _, _ in units]),
-        dt,
-        q_speed=np.array([configs[c].q_speed for c, _, _ in units]),
-        midpoint=np.array([configs[c].jacobian_at == "midpoint" for c, _, _ in units]),
-    )
-    res = run_filter(ekf, ys, cur, x0, SEED_P0, truth_b)
-    runs: dict[tuple[str, str], FilterRun] = {}
-    summaries = []
+    return _Batch(units, ys, cur, truth_b, x0)
+
+
+def _summarise_unit(res: FilterRun, b: int, unit: tuple[str, str, int], truth: Truth,
+                    batch: _Batch) -> UnitSummary:
+    """Consistency verdicts, final estimates and settling times of unit ``b``."""
+    c, s, r = unit
+    sc = truth.scenario
     t = res.t
-    for b, (c, s, r) in enumerate(units):
-        sc = truths[s].scenario
-        nu, S = res.nu[:, b], res.S[:, b]
-        inn = check_innovations(nu, S, max_lag=MAX_LAG, whiteness_alpha=WHITENESS_ALPHA)
-        inn_x = None
-        se_x = None
-        err = truth_b[:, b] - res.x[:, b]
-        if sc.m_kind == "jump":  # the same tests without the second after the jump
-            cut = (t[1:] >= sc.t_jump) & (t[1:] < sc.t_jump + 1.0)
-            inn_x = check_innovations(np.where(cut[:, None], np.nan, nu), S, max_lag=MAX_LAG,
-                                      whiteness_alpha=WHITENESS_ALPHA)
-            keep = ~cut
-            se_x = state_error_check(res.nees[keep, b], err[1:][keep], res.Pdiag[1:, b][keep])
-        # NEES needs the full P; we keep diag only, so the state check uses the per-step NEES
-        # computed in the loop and the diagonal for the coverage.
-        se = state_error_check(res.nees[:, b], err[1:], res.Pdiag[1:, b])
-        near = nees_near_switches(res.nees[:, b], cur[:, b])
-        valid = np.ones(T, bool) if sc.m_kind != "jump" else ~cut  # not the jump's second
-        n_sw, n_other = res.nees[near & valid, b], res.nees[~near & valid, b]
-        max_sw = float(np.nanmax(n_sw)) if n_sw.size else float("nan")
-        max_other = float(np.nanmax(n_other)) if n_other.size else float("nan")
-        xb = res.x[-1, b]
-        Pd = res.Pdiag[-1, b]
-        m_true = truths[s].X[-1, 3]
-        jump_s = float("nan")
-        if sc.m_kind == "jump":
-            jump_s = _time_within(t, res.x[:, b, 3], truths[s].X[:, 3], 0.05 * sc.m_jump,
-                                  sc.t_jump)
-        conv = _time_within(t, res.x[:, b, 2], truths[s].X[:, 2],
-                            3.0 * np.sqrt(res.Pdiag[:, b, 2]), 0.0)
-        summaries.append(
-            UnitSummary(
-                config=c, scenario=s, run=r, innovations=inn, state_errors=se,
-                alpha_hat=float(xb[2]), alpha_true=float(truths[s].X[-1, 2]),
-                sigma_alpha=float(np.sqrt(Pd[2])), m_hat=float(xb[3]), m_true=float(m_true),
-                sigma_m=float(np.sqrt(Pd[3])), m_rel_error=float((xb[3] - m_true) / m_true),
-                jump_tracking_s=jump_s, alpha_converged_s=conv, innovations_excl_jump=inn_x,
-                max_nees_switch=max_sw, max_nees_other=max_other, state_errors_excl_jump=se_x,
-            )
-        )
-        if r == 0:
-            runs[(c, s)] = FilterRun(
-                t=t, x=res.x[:, b : b + 1], Pdiag=res.Pdiag[:, b : b + 1],
-                P_final=res.P_final[b : b + 1], nu=nu[:, None], S=S[:, None],
-                nees=res.nees[:, b : b + 1], seconds=res.seconds,
-            )
-    obs = [
-        observability(truths["jump"], duration - 2.0 - dt, 2.0),
-        observability(truths["constant-current"], duration - 2.0 - dt, 2.0),
-    ]
-    rul = {}
-    for c in rul_configs:
-        b = units.index((c, "jump", 0)) if (c, "jump", 0) in units else None
-        if b is None:
-            continue
-        rul[c] = predict_rul(res.x[-1, b], res.P_final[b], rng, t_pred=duration,
-                             n_samples=n_rul, n_validate=n_validate)
-    rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:])[0] / HOUR)
-    conv = convergence_study(truths["jump"], rng, duration=min(3.0, duration)) if converge else []
-    return StudyResult(
-        dt=dt, n_runs=n_runs, seed=seed, pairs=tuple(pairs), truths=truths, runs=runs,
-        summaries=summaries, observability=obs, rul=rul, convergence=conv, rul_truth_h=rul_truth,
-        filter_seconds=res.seconds,
-        settings={"dt": dt, "duration": duration, "n_rul": n_rul, "truth_substeps": truth_substeps,
-                  "n_validate": n_validate, "B": B, "transient": 10.0,
-                  "transient_dt": TRANSIENT_DT},
+    T = batch.cur.shape[0]
+    nu, S = res.nu[:, b], res.S[:, b]
+    inn = check_innovations(nu, S, max_lag=MAX_LAG, whiteness_alpha=WHITENESS_ALPHA)
+    inn_x = None
+    se_x = None
+    err = batch.truth[:, b] - res.x[:, b]
+    valid = np.ones(T, bool)
+    if sc.m_kind == "jump":  # the same tests without the second after the jump
+        cut = (t[1:] >= sc.t_jump) & (t[1:] < sc.t_jump + 1.0)
+        inn_x = check_innovations(np.where(cut[:, None], np.nan, nu), S, max_lag=MAX_LAG,
+                                  whiteness_alpha=WHITENESS_ALPHA)
+        valid = ~cut  # not the jump's second
+        se_x = state_error_check(res.nees[valid, b], err[1:][valid], res.Pdiag[1:, b][valid])
+    # NEES needs the full P; we keep diag only, so the state check uses the per-step NEES
+    # computed in the loop and the diagonal for the coverage.
+    se = state_error_check(res.nees[:, b], err[1:], res.Pdiag[1:, b])
+    near = nees_near_switches(res.nees[:, b], batch.cur[:, b])
+    n_sw, n_other = res.nees[near & valid, b], res.nees[~near & valid, b]
+    max_sw = float(np.nanmax(n_sw)) if n_sw.size else float("nan")
+    max_other = float(np.nanmax(n_other)) if n_other.size else float("nan")
+    xb = res.x[-1, b]
+    Pd = res.Pdiag[-1, b]
+    m_true = truth.X[-1, 3]
+    jump_s = float("nan")
+    if sc.m_kind == "jump":
+        jump_s = _time_within(t, res.x[:, b, 3], truth.X[:, 3], 0.05 * sc.m_jump, sc.t_jump)
+    conv = _time_within(t, res.x[:, b, 2], truth.X[:, 2], 3.0 * np.sqrt(res.Pdiag[:, b, 2]),
+                        0.0)
+    return UnitSummary(
+        config=c, scenario=s, run=r, innovations=inn, state_errors=se,
+        alpha_hat=float(xb[2]), alpha_true=float(truth.X[-1, 2]),
+        sigma_alpha=float(np.sqrt(Pd[2])), m_hat=float(xb[3]), m_true=float(m_true),
+        sigma_m=float(np.sqrt(Pd[3])), m_rel_error=float((xb[3] - m_true) / m_true),
+        jump_tracking_s=jump_s, alpha_converged_s=conv, innovations_excl_jump=inn_x,
+        max_nees_switch=max_sw, max_nees_other=max_other, state_errors_excl_jump=se_x,
+    )
+
+
+def _first_run(res: FilterRun, b: int) -> FilterRun:
+    """Unit ``b`` of the batched filter run, kept for the figures (run 0 of each pair)."""
+    return FilterRun(
+        t=res.t, x=res.x[:, b : b + 1], Pdiag=res.Pdiag[:, b : b + 1],
+        P_final=res.P_final[b : b + 1], nu=res.nu[:, b][:, None], S=res.S[:, b][:, None],
+        nees=res.nees[:, b : b + 1], seconds=res.seconds,
     )

@@ -5,6 +5,7 @@
 - :mod:`.micro`: the micro EKF, the damping of each pull-up cycle;
 - :mod:`.macro`: the macro EKF across cycles and the RUL in cycles;
 - :mod:`.analysis`: the two-scale estimate on a user's own data;
-- :mod:`.reproduce` and :mod:`.figures`: the seed reproduction, its report and figures;
+- :mod:`.reproduce`, :mod:`.report` and :mod:`.figures`: the seed reproduction
+  (``MotorDampingConfig``, ``run``), its report (``write_report``) and figures;
 - :mod:`.cli`: ``rulkit motor ...`` and ``rulkit reproduce motor-damping``.
 """

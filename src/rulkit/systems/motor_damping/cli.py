@@ -49,11 +49,8 @@ def reproduce_motor_damping(
     from rich.markup import escape
 
     from rulkit.systems.motor_damping.macro import MacroSettings
-    from rulkit.systems.motor_damping.reproduce import (
-        ExperimentConfig,
-        run_experiment,
-        write_outputs,
-    )
+    from rulkit.systems.motor_damping.report import write_report
+    from rulkit.systems.motor_damping.reproduce import MotorDampingConfig, run
 
     console = Console()
     kw: dict = {"seed": seed, "macro": MacroSettings(model=_check_macro_model(macro_model))}
@@ -61,14 +58,14 @@ def reproduce_motor_damping(
         if runs < 1:
             raise typer.BadParameter(f"--runs: expected >= 1, got {runs}")
         kw["runs"] = runs
-    cfg = ExperimentConfig.quick(**kw) if quick else ExperimentConfig(**kw)
+    cfg = MotorDampingConfig.quick(**kw) if quick else MotorDampingConfig(**kw)
     t0 = time.perf_counter()
 
     def progress(msg: str) -> None:
         console.print(f"[dim]{time.perf_counter() - t0:6.1f} s[/dim] {msg}")
 
-    res = run_experiment(cfg, progress=progress)
-    paths = write_outputs(res, out, command=command)
+    res = run(cfg, progress=progress)
+    report = write_report(res, out, command=command)
     lin = res.scenarios["linear"]
     n_ref = min(58, cfg.life.n_cycles)
     k58 = int((lin.cycles == n_ref).nonzero()[0][0])
@@ -98,8 +95,7 @@ def reproduce_motor_damping(
             f"{row['alpha_lambda_pass_0.5']:.2f} RA {row['ra_0.5_median']:.3f} width "
             f"{_fmt(float(row['median_width']), '.3g')}", highlight=False,
         )
-    report = next(p for p in paths if p.name == "report.md")
-    console.print(f"wrote {len(paths)} files into {escape(str(out))} "
+    console.print(f"wrote tables, figures and {escape(str(report))} "
                   f"({time.perf_counter() - t0:.1f} s)", highlight=False)
     return report
 

@@ -231,6 +231,13 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 est.to_parquet(dest, index=False)
         except OSError as err:
             fail(f"cannot write {dest}: {err}")
+        if "note" in est.attrs:
+            typer.echo(f"note: {est.attrs['note']}", err=True)
+        n_bad = int(est["untrusted"].sum())
+        if n_bad:
+            typer.echo(f"warning: {n_bad} samples not trusted (outlier gate; column "
+                       "'untrusted'), the first at time_s = "
+                       f"{est['time_s'][est['untrusted']].iloc[0]:g}", err=True)
         m = est["T_mean"].to_numpy()
         typer.echo(f"{len(est)} samples, T_lub {m[-1]:.2f} C at t = {est['time_s'].iloc[-1]:g} s "
                    f"({level:.0%} interval {est['T_lo'].iloc[-1]:.2f} .. "

@@ -16,15 +16,16 @@ The window sums use :class:`rulkit.systems.reaction_wheel.lubrication.WindowQuad
 nodes per window
 instead of 4,800 exponentials per particle). ``T^`` over three months comes from the error-process
 shortcut (spec §4): true path + an error process whose statistics are measured on step-1 runs
-(:func:`measure_step1_errors`), validated against the real step-1 estimator on a shorter horizon
+(:func:`measure_temperature_errors`), validated against the real step-1 estimator on a shorter
+horizon
 (:func:`validate_shortcut`).
 
 Batched over units: every array has a leading unit axis U (runs x scenarios x T^ sources) and a
 particle axis N, so the 32,400-window loop runs once per tracker for all 20 runs. Each unit has its
 own random generators, so a unit's numbers do not depend on how units are batched or spread over
-workers. The per-unit normalisation and systematic resampling are those of
-:mod:`rulkit.estimation.particle` / :mod:`rulkit.estimation.resampling` applied row-wise
-(:func:`systematic_rows`, tested equal to ``resampling.systematic`` row by row); a single-run
+workers. The per-unit normalisation, ESS and systematic resampling are the batched particle core
+:mod:`rulkit.estimation.batched` (numpy rows in the numpy path, the numba row functions inside
+the compiled kernels); a single-run
 path through the engine's :class:`~rulkit.estimation.particle.ParticleFilter` is
 :func:`rbpf_engine` (tested to agree with the batched RBPF).
 """
@@ -41,6 +42,14 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.estimation.batched import (
+    ess_row,
+    ess_rows,
+    normalise_row,
+    normalise_rows,
+    systematic_row,
+    systematic_rows,
+)
 from rulkit.systems.reaction_wheel.lubrication import (
     DAY_S,
     PATHS,
@@ -73,7 +82,7 @@ SOURCES = ("APF", "PF", "RBPF")
 
 
 @dataclass(frozen=True)
-class Step2Settings:
+class DegradationConfig:
     """Every setting of step 2 the seeds leave open [R]; each is varied in the sensitivity study.
 
     ``q_b`` random-walk std of b per window (deg C); ``q_beta0_rel`` that of beta0 per window as a
@@ -119,37 +128,6 @@ def unit_rng(seed: int, stream: str, scenario_id: int, source: int, run: int
 # ---------------------------------------------------------------------------------------------
 # Batched particle-filter pieces
 # ---------------------------------------------------------------------------------------------
-
-
-def log_normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Row-wise log-sum-exp normalisation: ``(normalised logw, log_sum)``, shapes (U, N), (U,).
-
-    The per-row operation of ``rulkit.estimation.particle.log_normalise``; rows that are all
-    -inf/NaN raise ``FloatingPointError`` naming the row.
-    """
-    mx = logw.max(axis=1)
-    bad = ~np.isfinite(mx)
-    if bad.any():
-        raise FloatingPointError(f"degenerate weights in unit {int(np.flatnonzero(bad)[0])}")
-    ls = mx + np.log(np.exp(logw - mx[:, None]).sum(axis=1))
-    return logw - ls[:, None], ls
-
-
-def systematic_rows(w: FloatArray, u: FloatArray) -> NDArray[np.int64]:
-    """Systematic resampling of every row of ``w`` (U, N) with its own uniform ``u`` (U,).
-
-    Row ``r`` equals ``rulkit.estimation.resampling.systematic`` with a generator whose
-    ``random()`` returns ``u[r]`` (positions ``(i + u)/N`` scaled by the row's cumulative sum,
-    located with ``searchsorted(side='right')``): one ``searchsorted`` for all rows.
-    """
-    U, N = w.shape
-    c = np.cumsum(w, axis=1)
-    pos = (np.arange(N)[None, :] + u[:, None]) / N * c[:, -1:]
-    off = 2.0 * np.arange(U)[:, None]  # rows live in disjoint intervals [2r, 2r + 1]
-    idx = np.searchsorted((c + off).ravel(), (pos + off).ravel(), side="right")
-    idx = idx.reshape(U, N) - N * np.arange(U)[:, None]
-    last = N - 1 - np.argmax(w[:, ::-1] > 0, axis=1)  # round-off guard: last non-zero weight
-    return np.minimum(idx, last[:, None]).astype(np.int64)
 
 
 def _progress(progress: Progress | None, label: str, done: int, W: int) -> None:
@@ -219,10 +197,13 @@ def _wmean_std(x: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _np_normalise(logw: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """numpy path: normalise ``logw`` in place; return weights and ESS per unit."""
-    logw[:], _ = log_normalise_rows(logw)
-    w = np.exp(logw)
-    return w, 1.0 / (w * w).sum(axis=1)
+    """numpy path: normalise ``logw`` (U, N) in place; return weights and ESS per unit."""
+    lwn, w, ls = normalise_rows(logw)
+    bad = ~(ls > -np.inf)
+    if bad.any():
+        raise FloatingPointError(f"degenerate weights in unit {int(np.flatnonzero(bad)[0])}")
+    logw[:] = lwn
+    return w, ess_rows(w)
 
 
 def _np_resample(logw: FloatArray, ess: FloatArray, states: list[FloatArray], u: FloatArray,
@@ -254,43 +235,18 @@ def _k_logsum(bb, c, s, nodes, weights, lcount):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _k_normalise(r, logw, w):  # pragma: no cover - compiled
-    """Normalise row r of logw in place, weights into ``w``; returns the ESS."""
-    N = logw.shape[1]
-    mx = -np.inf
-    for p in range(N):
-        if logw[r, p] > mx:
-            mx = logw[r, p]
-    if not np.isfinite(mx):
-        return -1.0  # degenerate: all -inf or NaN (the caller raises, naming the unit)
-    acc = 0.0
-    for p in range(N):
-        acc += np.exp(logw[r, p] - mx)
-    ls = mx + np.log(acc)
-    sw2 = 0.0
-    for p in range(N):
-        logw[r, p] -= ls
-        w[p] = np.exp(logw[r, p])
-        sw2 += w[p] * w[p]
-    return 1.0 / sw2
+    """Normalise row r of logw in place, weights into ``w``; returns the ESS, or -1 when the
+    row is degenerate (all -inf or NaN: the caller raises, naming the unit)."""
+    if not normalise_row(logw[r], w) > -np.inf:
+        return -1.0
+    return ess_row(w)
 
 
 @numba.njit(cache=True)
 def _k_resample(r, logw, w, u, s0, s1, s2, nstate, c, idx, tmp):  # pragma: no cover
     """Systematic resampling of row r (as ``resampling.systematic`` with uniform ``u``)."""
     N = logw.shape[1]
-    tot = 0.0
-    last = 0
-    for p in range(N):
-        tot += w[p]
-        c[p] = tot
-        if w[p] > 0:
-            last = p
-    j = 0
-    for i in range(N):
-        pos = (i + u) / N * c[N - 1]
-        while j < N and c[j] <= pos:
-            j += 1
-        idx[i] = min(j, last)
+    systematic_row(w, u, idx, c)
     for q in range(nstate):
         st = s0 if q == 0 else (s1 if q == 1 else s2)
         for p in range(N):
@@ -469,7 +425,7 @@ def _check_inputs(y: FloatArray, quad: WindowQuadrature, n_rngs: int) -> tuple[i
     return U, W
 
 
-def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Step2Settings,
+def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
                 rngs: list[np.random.Generator], *, beta_ref: float,
                 snapshot_windows: Sequence[int] = (), progress: Progress | None = None,
                 backend: str = "numba") -> TrackOutput:
@@ -519,7 +475,7 @@ def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     return out
 
 
-def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Step2Settings,
+def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
                 rngs_b: list[np.random.Generator], rngs_beta: list[np.random.Generator], *,
                 beta_ref: float, snapshot_windows: Sequence[int] = (),
                 progress: Progress | None = None, backend: str = "numba") -> TrackOutput:
@@ -614,7 +570,7 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     return out
 
 
-def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Step2Settings,
+def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
          rngs: list[np.random.Generator], *, beta_ref: float,
          snapshot_windows: Sequence[int] = (), progress: Progress | None = None,
          backend: str = "numba") -> TrackOutput:
@@ -678,7 +634,7 @@ def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Step2S
     return out
 
 
-def rbpf_engine(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Step2Settings,
+def rbpf_engine(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
                 rng: np.random.Generator, *, beta_ref: float) -> tuple[FloatArray, FloatArray]:
     """The same RBPF for a single run through the engine's ``ParticleFilter`` (per-step API).
 
@@ -755,7 +711,7 @@ class CaseTask:
     source: str
     runs: tuple[int, ...]
     seed: int
-    settings: Step2Settings
+    settings: DegradationConfig
     error: EstimateErrorProcess
     snapshot_windows: tuple[int, ...] = ()
     methods: tuple[str, ...] | None = None
@@ -870,7 +826,7 @@ class Table6Result:
 
     table: Any  # pandas.DataFrame
     cases: list[CaseResult]
-    settings: Step2Settings
+    settings: DegradationConfig
     errors: dict[str, EstimateErrorProcess]
     n_runs: int
     seed: int
@@ -883,7 +839,7 @@ class Table6Result:
         raise KeyError((scenario_id, source))
 
 
-def run_table6(n_runs: int, seed: int, settings: Step2Settings,
+def run_table6(n_runs: int, seed: int, settings: DegradationConfig,
                errors: dict[str, EstimateErrorProcess], *, workers: int = 1,
                scheduler: str | None = None, snapshot_windows: Sequence[int] = (),
                progress: Any = None, backend: str = "numba",
@@ -941,18 +897,19 @@ def run_table6(n_runs: int, seed: int, settings: Step2Settings,
 # ---------------------------------------------------------------------------------------------
 
 #: Step-1 variants behind the T^ sources: names of
-#: rulkit.systems.reaction_wheel.temperature.Step1Config
+#: rulkit.systems.reaction_wheel.temperature.TemperatureConfig
 #: variants, and for "RBPF" the design name in rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS.
 RBPF_STEP1_DESIGN = "RBJ"
 STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive", "RBPF": f"rbpf {RBPF_STEP1_DESIGN}"}
 
 
-def step1_temperature(source: str, y: FloatArray, V: FloatArray, rng: np.random.Generator, *,
+def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
+                                    rng: np.random.Generator, *,
                       n_particles: int, sigma: tuple[float, float], dt: float = SAMPLE_DT
                       ) -> FloatArray:
     """T^ (K,) of the real step-1 estimator behind ``source`` on telemetry ``y`` (K, 2), ``V``.
 
-    "APF", "PF": ``rulkit.systems.reaction_wheel.temperature.run_step1`` (variant
+    "APF", "PF": ``rulkit.systems.reaction_wheel.temperature.filter_temperature`` (variant
     :data:`STEP1_VARIANTS`,
     F2 design, its default settings); "RBPF": ``rulkit.systems.reaction_wheel.rbpf.run_rbpf``
     with design :data:`RBPF_STEP1_DESIGN` (its settings, ``n_particles`` particles).
@@ -964,25 +921,26 @@ def step1_temperature(source: str, y: FloatArray, V: FloatArray, rng: np.random.
         return run_rbpf(y, V, rng, rcfg, sigma=sigma, dt=dt, quantiles=False).T_mean
     if source not in STEP1_VARIANTS:
         raise ValueError(f"source: expected one of {SOURCES}, got {source!r}")
-    from rulkit.systems.reaction_wheel.temperature import Step1Config, run_step1
+    from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
 
-    cfg = Step1Config(variant=STEP1_VARIANTS[source], n_particles=n_particles)
-    return run_step1(y, V, rng, cfg, sigma=sigma, dt=dt, quantiles=False).T_mean
+    cfg = TemperatureConfig(variant=STEP1_VARIANTS[source], n_particles=n_particles)
+    return filter_temperature(y, V, rng, cfg, sigma=sigma, dt=dt, quantiles=False).T_mean
 
 
 def _step1_name(source: str) -> str:
     return STEP1_VARIANTS[source] + ("" if source == "RBPF" else ", F2")
 
 
-def measure_step1_errors(source: str, n_runs: int, seed: int, *, n_particles: int = 200,
+def measure_temperature_errors(source: str, n_runs: int, seed: int, *, n_particles: int = 200,
                          noise: str = "low", burn_in_s: float = 100.0,
                          hold_samples: int = 40, on: str = "path",
                          hours: float = 2.0) -> EstimateErrorProcess:
     """Fit the T^ error process to real step-1 runs (spec §4).
 
-    Runs the real step-1 estimator of ``source`` (:func:`step1_temperature`: the seed PFs'
-    variant :data:`STEP1_VARIANTS` [source], F2 design, or the RBJ RBPF) on ``n_runs`` simulated
-    wheel runs and fits :func:`fit_error_process` to ``T^ - T`` after ``burn_in_s`` [R].
+    Runs the real step-1 estimator of ``source`` (:func:`estimate_temperature_for_source`:
+    the seed PFs' variant :data:`STEP1_VARIANTS` [source], F2 design, or the RBJ RBPF) on
+    ``n_runs`` simulated wheel runs and fits :func:`fit_error_process` to ``T^ - T`` after
+    ``burn_in_s`` [R].
     ``on="path"`` [R, default]: the wheel at constant 2 V along the scenario-1 step-2 path for
     ``hours`` (the conditions of step 2); ``on="table3"``: the 500 s Table 3 validation path of
     step 1 (a temperature step and a voltage step: transients that the months-long path lacks).
@@ -1004,7 +962,7 @@ def measure_step1_errors(source: str, n_runs: int, seed: int, *, n_particles: in
             t, V, T, y = run.t, run.V, run.T, run.y
         else:
             y = model.output(x) + model.noise.sample_measurement(t.size, g)
-        est = step1_temperature(source, y, V, g, n_particles=n_particles,
+        est = estimate_temperature_for_source(source, y, V, g, n_particles=n_particles,
                                 sigma=NOISE_LEVELS[noise])[-t.size:]
         keep = t >= burn_in_s
         errs.append(est[keep] - T[keep])
@@ -1062,7 +1020,7 @@ def simulate_wheel_on_path(path: Any, hours: float, v_comm: float = 2.0, dt: flo
 
 
 def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours: float = 3.0,
-                      n_runs: int = 3, seed: int = 0, settings: Step2Settings | None = None,
+                      n_runs: int = 3, seed: int = 0, settings: DegradationConfig | None = None,
                       n_particles_step1: int = 200) -> ShortcutValidation:
     """Compare step 2 on the real step-1 T^ with step 2 on the synthetic T^ (spec §4).
 
@@ -1081,7 +1039,7 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     from rulkit.systems.reaction_wheel.wheel import ReactionWheel
 
     t0 = time.perf_counter()
-    st = replace(settings or Step2Settings(), horizon_days=hours / 24.0)
+    st = replace(settings or DegradationConfig(), horizon_days=hours / 24.0)
     W = st.n_windows
     sid, si = 1, SOURCES.index(source)
     path = PATHS[sid]
@@ -1091,7 +1049,7 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     for r in range(n_runs):
         g = unit_rng(seed, "estimate", 9, si, r)
         y1 = model.output(x) + model.noise.sample_measurement(t.size, g)
-        T_hat[r] = step1_temperature(source, y1, V, g, n_particles=n_particles_step1,
+        T_hat[r] = estimate_temperature_for_source(source, y1, V, g, n_particles=n_particles_step1,
                                      sigma=(model.sigma_w, model.sigma_I))[-W * WINDOW_SAMPLES:]
     T_true = T[-W * WINDOW_SAMPLES:]
     err = T_hat - T_true
@@ -1133,7 +1091,7 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
 # Sensitivity of Table 6 to the unstated settings
 # ---------------------------------------------------------------------------------------------
 
-#: Variations of the sensitivity study: (label, field, values). Fields of Step2Settings, of the
+#: Variations of the sensitivity study: (label, field, values). Fields of DegradationConfig, of the
 #: error process ("error.std_c", "error.tau_s" as multiples) or of the path ("path.orbit").
 SENSITIVITY: tuple[tuple[str, str, tuple[float, ...]], ...] = (
     ("measurement noise (fraction of window loss)", "noise_rel", (0.003, 0.01, 0.03)),
@@ -1146,7 +1104,7 @@ SENSITIVITY: tuple[tuple[str, str, tuple[float, ...]], ...] = (
 )
 
 
-def sensitivity_study(base: Step2Settings, error: EstimateErrorProcess, *, n_runs: int = 5,
+def sensitivity_study(base: DegradationConfig, error: EstimateErrorProcess, *, n_runs: int = 5,
                       horizon_days: float = 10.0, seed: int = 0, source: str = "APF",
                       methods: tuple[str, ...] = ("two_step", "rbpf", "one_step"),
                       progress: Progress | None = None) -> Any:
@@ -1183,6 +1141,6 @@ def sensitivity_study(base: Step2Settings, error: EstimateErrorProcess, *, n_run
     return pd.DataFrame(rows)
 
 
-def settings_dict(settings: Step2Settings) -> dict[str, Any]:
+def settings_dict(settings: DegradationConfig) -> dict[str, Any]:
     """The settings as a plain dict (for report.md)."""
     return asdict(settings)

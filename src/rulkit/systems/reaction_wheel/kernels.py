@@ -6,7 +6,7 @@ Ithaco wheel (spec section 1) per particle, the Gaussian likelihood, the weight 
 chosen variant, the estimates, the ESS and systematic resampling. Random numbers come from the
 ``numpy.random.Generator`` passed in (numba draws from the same bit generator, in the same
 order as the numpy reference path
-:func:`rulkit.systems.reaction_wheel.temperature.run_step1_numpy`, so both
+:func:`rulkit.systems.reaction_wheel.temperature.filter_temperature_numpy`, so both
 give the same numbers; tested).
 
 Draw order (both paths): T0 = lo + (hi - lo) U (N uniforms); for F2 the initial [I, w] as
@@ -21,10 +21,19 @@ w_a, V_bus, R_B, P_q, friction law (0 spec, 1 seed literal); see :func:`pack_par
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
 
+from rulkit.estimation.batched import (
+    ess_row,
+    normalise_row,
+    order_after_resampling,
+    sort_order_row,
+    systematic_row,
+    weighted_quantiles_sorted_row,
+)
 from rulkit.systems.reaction_wheel.wheel import IthacoParams
 
 # variants and designs (integer codes used by the kernel)
@@ -98,96 +107,194 @@ def _predict_loglik(I, W, T, ll, N, design, yprev_w, yprev_I, yw, yI, Vk, tn0, t
         ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - log_norm
 
 
-@nb.njit(cache=True)
-def _weighted_quantile(x, w, q, order, cw):  # type: ignore[no-untyped-def]
-    """Inverse weighted CDF: smallest sorted x with cumulative weight >= q."""
-    n = x.size
-    order[:] = np.argsort(x, kind="mergesort")
-    acc = 0.0
-    for j in range(n):
-        acc += w[order[j]]
-        cw[j] = acc
-    qq = q * cw[n - 1]
-    for j in range(n):
-        if cw[j] >= qq:
-            return x[order[j]]
-    return x[order[n - 1]]
+class KernelInputs(NamedTuple):
+    """Arrays of one filter run: ``y`` (K, 2) = [w, I_m], ``V`` (K,) commanded voltage,
+    ``S_inv`` (2, 2) inverse likelihood covariance of [w, I], ``init_sd`` (2,) = [sd_I, sd_w]
+    of the F2 initial cloud around y_0, ``P`` the parameter vector of :func:`pack_params`."""
+
+    y: np.ndarray
+    V: np.ndarray
+    S_inv: np.ndarray
+    init_sd: np.ndarray
+    P: np.ndarray
+
+
+class KernelSettings(NamedTuple):
+    """Scalar settings of :func:`pf_kernel` (types fixed: numba compiles one signature).
+
+    ``design`` 0 F1 / 1 F2; ``variant`` 0 PF, 1 adaptive, 2 APF eq. 28, 3 APF tempering;
+    ``log_norm`` = log(2 pi sqrt det S); ``log_p_eff`` the adaptive threshold (log);
+    ``temper_log_gmax`` = log gamma_max; ``gate_d2``: a sample whose *best* particle has a
+    squared Mahalanobis prediction error above this is not trusted (inf: no gate);
+    ``reanchor_after``: after that many untrusted samples in a row the F2 particles' [I, w]
+    are redrawn around the measurement (recovery from a corrupted input) and, with
+    ``rollback`` > 0, T and the weights go back to their values ``rollback`` samples before the
+    first untrusted one (undoing the updates by predictions the bad input had already
+    biased)."""
+
+    t0: float
+    dt: float
+    design: int
+    variant: int
+    n: int
+    T_lo: float
+    T_hi: float
+    q_T: float
+    q_I: float
+    q_w: float
+    log_norm: float
+    ess_frac: float
+    adapt_window: int
+    log_p_eff: float
+    adapt_spread: float
+    apf_c0: float
+    apf_c1: float
+    temper_target: float
+    temper_log_gmax: float
+    want_quantiles: bool
+    q_lo: float
+    q_hi: float
+    gate_d2: float
+    reanchor_after: int
+    rollback: int
 
 
 @nb.njit(cache=True)
-def _normalise(lw, wn):  # type: ignore[no-untyped-def]
-    """Log-sum-exp normalisation in place: wn = exp(lw - max) / sum; lw -= log-sum.
+def _friction_law(P):  # type: ignore[no-untyped-def]
+    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction_wheel.md, viscous friction)."""
+    if P[15] > 0.5:  # seed literal viscous law b = 0.0049 - 0.0002 (T + 30)
+        return 0.0049 - 0.0002 * 30.0, -0.0002
+    return 1e-3 * (0.049 - 0.0002 * 30.0), -1e-3 * 0.0002  # b = 1e-3 (0.049 - 0.0002 (T + 30))
 
-    Returns the log of the sum of the unnormalised weights (the log-likelihood increment when
-    lw held normalised log-weights plus log-likelihoods), or -inf when all weights are zero.
+
+@nb.njit(cache=True)
+def _mean_std(T, wn):  # type: ignore[no-untyped-def]
+    m = 0.0
+    for i in range(T.size):
+        m += wn[i] * T[i]
+    v = 0.0
+    for i in range(T.size):
+        v += wn[i] * (T[i] - m) ** 2
+    return m, math.sqrt(v)
+
+
+@nb.njit(cache=True)
+def _temper_gamma(lw, ll, s, T2, cw):  # type: ignore[no-untyped-def]
+    """Largest gamma in [1, gmax] with ESS(lw + gamma ll) >= target N (bisection in log);
+    ``cw`` holds the weights of the plain update on entry."""
+    N = lw.size
+    if not ess_row(cw) > s.temper_target * N:
+        return 1.0
+    lo = 0.0
+    hi = s.temper_log_gmax
+    for i in range(N):
+        T2[i] = lw[i] + math.exp(hi) * ll[i]
+    normalise_row(T2, cw)
+    if ess_row(cw) >= s.temper_target * N:
+        return math.exp(hi)
+    for _it in range(30):
+        mid = 0.5 * (lo + hi)
+        gm = math.exp(mid)
+        for i in range(N):
+            T2[i] = lw[i] + gm * ll[i]
+        normalise_row(T2, cw)
+        if ess_row(cw) >= s.temper_target * N:
+            lo = mid
+        else:
+            hi = mid
+    return math.exp(lo)
+
+
+@nb.njit(cache=True)
+def _weight_update(lw, wn, ll, Vk, s, T2, cw):  # type: ignore[no-untyped-def]
+    """Weight update of the chosen variant, normalised in place. Returns (log-sum of the new
+    unnormalised weights, data log-likelihood log sum_i exp(lw_i + ll_i), clipped count,
+    gamma)."""
+    N = lw.size
+    ls_data = 0.0
+    ncl = 0
+    g = 1.0
+    if s.variant >= 2:
+        for i in range(N):
+            T2[i] = lw[i] + ll[i]
+        ls_data = normalise_row(T2, cw)
+    if s.variant == 2:  # APF, seed 001 eq. 28 with clipping
+        c = s.apf_c0 / (s.apf_c0 - Vk)
+        tot = 0.0
+        for i in range(N):
+            beta = 1.0 / N - wn[i] * math.exp(ll[i])
+            sb = 1.0 if beta > 0.0 else (-1.0 if beta < 0.0 else 0.0)
+            wt = 1.0 - math.exp(c * (beta - s.apf_c1 * sb))
+            if wt < 0.0:
+                wt = 0.0
+                ncl += 1
+            T2[i] = wt
+            tot += wt
+        if tot > 0.0:
+            for i in range(N):
+                lw[i] = math.log(T2[i]) if T2[i] > 0.0 else -np.inf
+        else:
+            for i in range(N):
+                lw[i] += ll[i]
+    elif s.variant == 3:
+        g = _temper_gamma(lw, ll, s, T2, cw)
+        for i in range(N):
+            lw[i] += g * ll[i]
+    else:
+        for i in range(N):
+            lw[i] += ll[i]
+    ls = normalise_row(lw, wn)
+    if s.variant < 2:
+        ls_data = ls
+    return ls, ls_data, ncl, g
+
+
+@nb.njit(cache=True)
+def _resample(T, I, W, idx, wn, u, design, T2, I2, W2, cw):  # type: ignore[no-untyped-def]
+    """Systematic resampling of the cloud in place (ancestors into ``idx``)."""
+    N = T.size
+    systematic_row(wn, u, idx, cw)
+    for j in range(N):
+        T2[j] = T[idx[j]]
+    for j in range(N):
+        T[j] = T2[j]
+    if design == 1:
+        for j in range(N):
+            I2[j] = I[idx[j]]
+            W2[j] = W[idx[j]]
+        for j in range(N):
+            I[j] = I2[j]
+            W[j] = W2[j]
+
+
+@nb.njit(cache=True)
+def _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf):  # type: ignore[no-untyped-def]
+    """Weighted (q_lo, q_hi) quantiles of T with the sorted order kept from step to step
+    (:func:`rulkit.estimation.batched.sort_order_row`): O(N) when the cloud moved little."""
+    if resampled:
+        order_after_resampling(order, idx, ibuf)
+    sort_order_row(T, order, fresh)
+    return weighted_quantiles_sorted_row(T, wn, order, s.q_lo, s.q_hi, cw)
+
+
+@nb.njit(cache=True)
+def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
+    """Run one temperature particle filter over ``inp.y`` (K, 2) = [w, I_m].
+
+    ``inp`` a :class:`KernelInputs`, ``s`` a :class:`KernelSettings`. ``V[k-1]`` is held over
+    the step ending at t_k = t0 + k dt (and sets the APF gain c = c0 / (c0 - V)). Design F1:
+    each particle predicts y_k by one RK4 step from the measured y_{k-1}; F2: particles carry
+    [I, w], initialised at y_0 + init_sd * normal. Likelihood log p = -d^2/2 - log_norm.
+
+    Returns (T_mean, T_std, T_qlo, T_qhi, ess, action, n_clipped, gamma, loglik, untrusted),
+    each (K,). Row 0 is the prior. ``action``: 0 none, 1 ESS resampling, 2 adaptive spread,
+    3 all weights zero (reset to equal weights), 4 untrusted sample (gated: weights kept),
+    5 untrusted and the F2 [I, w] redrawn around the measurement. ``untrusted`` (int8) is 1
+    for a gated sample.
     """
-    n = lw.size
-    mx = -np.inf
-    for i in range(n):
-        if lw[i] > mx:
-            mx = lw[i]
-    if not mx > -np.inf:  # all -inf or NaN
-        return -np.inf
-    s = 0.0
-    for i in range(n):
-        e = math.exp(lw[i] - mx)
-        wn[i] = e
-        s += e
-    ls = mx + math.log(s)
-    for i in range(n):
-        wn[i] /= s
-        lw[i] -= ls
-    return ls
-
-
-@nb.njit(cache=True)
-def _ess(wn):  # type: ignore[no-untyped-def]
-    s = 0.0
-    for i in range(wn.size):
-        s += wn[i] * wn[i]
-    return 1.0 / s
-
-
-@nb.njit(cache=True)
-def _systematic(wn, u, idx, cw):  # type: ignore[no-untyped-def]
-    """Systematic resampling as rulkit.estimation.resampling.systematic: positions
-    (j + u) / N scaled by the last cumulative weight, located with side='right'."""
-    n = wn.size
-    acc = 0.0
-    for i in range(n):
-        acc += wn[i]
-        cw[i] = acc
-    last_nz = n - 1
-    while last_nz > 0 and wn[last_nz] == 0.0:
-        last_nz -= 1
-    i = 0
-    for j in range(n):
-        pos = (j + u) / n * cw[n - 1]
-        while i < n and cw[i] <= pos:
-            i += 1
-        idx[j] = i if i < n else last_nz
-
-
-@nb.njit(cache=True)
-def pf_kernel(  # type: ignore[no-untyped-def]
-    y, V, t0, dt, design, variant, N, T_lo, T_hi, q_T, q_I, q_w, init_sd, S_inv, log_norm,
-    ess_frac, adapt_window, log_p_eff, adapt_spread, apf_c0, apf_c1, temper_target,
-    temper_log_gmax, want_quantiles, q_lo, q_hi, P, rng,
-):
-    """Run one step-1 particle filter over measurements ``y`` (K, 2) = [w, I_m].
-
-    ``V`` (K,) commanded voltage; V[k-1] is held over the step ending at t_k = t0 + k dt (and
-    sets the APF gain c = c0 / (c0 - V)). ``design`` 0 = F1 (each particle predicts y_k by one
-    RK4 step from the measured y_{k-1}), 1 = F2 (particles carry [I, w], initialised at
-    y_0 + init_sd * normal). ``variant`` 0 PF, 1 PF + adaptive resampling, 2 APF eq. 28 with
-    clipping, 3 APF by likelihood tempering. ``S_inv`` (2, 2) inverse likelihood covariance of
-    [w, I]; ``log_norm`` = log(2 pi sqrt det S), so log p = -d^2/2 - log_norm.
-
-    Returns (T_mean, T_std, T_qlo, T_qhi, ess, action, n_clipped, gamma, loglik), each (K,).
-    Row 0 is the prior. ``action``: 0 none, 1 ESS resampling, 2 adaptive spread, 3 all
-    weights zero (reset to equal weights, flagged).
-    """
+    y, V, S_inv, init_sd, P = inp
     K = y.shape[0]
+    N = s.n
     T = np.empty(N)
     I = np.empty(N)
     W = np.empty(N)
@@ -199,7 +306,8 @@ def pf_kernel(  # type: ignore[no-untyped-def]
     W2 = np.empty(N)
     cw = np.empty(N)
     idx = np.empty(N, dtype=np.int64)
-    order = np.empty(N, dtype=np.int64)
+    order = np.arange(N)
+    ibuf = np.empty(2 * N + 1, dtype=np.int64)
     out_mean = np.full(K, np.nan)
     out_std = np.full(K, np.nan)
     out_qlo = np.full(K, np.nan)
@@ -209,138 +317,107 @@ def pf_kernel(  # type: ignore[no-untyped-def]
     out_clip = np.zeros(K, dtype=np.int64)
     out_gamma = np.ones(K)
     out_ll = np.zeros(K)
+    out_flag = np.zeros(K, dtype=np.int8)
     a11 = S_inv[0, 0]
     a12 = S_inv[0, 1]
     a22 = S_inv[1, 1]
     logN = math.log(N)
     C = _consts(P)
-    if P[15] > 0.5:  # seed literal viscous law b = 0.0049 - 0.0002 (T + 30)
-        b0, b1 = 0.0049 - 0.0002 * 30.0, -0.0002
-    else:  # spec: b = 1e-3 (0.049 - 0.0002 (T + 30))
-        b0, b1 = 1e-3 * (0.049 - 0.0002 * 30.0), -1e-3 * 0.0002
+    b0, b1 = _friction_law(P)
     tn_amp = P[7] * P[10] * P[11] * P[11]
     w_a = P[11]
+    ll_gate = -0.5 * s.gate_d2 - s.log_norm
+    gated = ll_gate > -np.inf
+    R = s.rollback + s.reanchor_after + 2 if gated and s.rollback > 0 else 1
+    ring_T = np.empty((R, N))
+    ring_lw = np.empty((R, N))
 
     for i in range(N):
-        T[i] = T_lo + (T_hi - T_lo) * rng.random()
-    if design == 1:
+        T[i] = s.T_lo + (s.T_hi - s.T_lo) * rng.random()
+    if s.design == 1:
         for i in range(N):
             I[i] = y[0, 1] + init_sd[0] * rng.standard_normal()
             W[i] = y[0, 0] + init_sd[1] * rng.standard_normal()
     for i in range(N):
         lw[i] = -logN
         wn[i] = 1.0 / N
-    # prior row
-    m = 0.0
-    for i in range(N):
-        m += wn[i] * T[i]
-    v = 0.0
-    for i in range(N):
-        v += wn[i] * (T[i] - m) ** 2
-    out_mean[0] = m
-    out_std[0] = math.sqrt(v)
+    out_mean[0], out_std[0] = _mean_std(T, wn)
     out_ess[0] = N
-    if want_quantiles:
-        out_qlo[0] = _weighted_quantile(T, wn, q_lo, order, cw)
-        out_qhi[0] = _weighted_quantile(T, wn, q_hi, order, cw)
+    fresh = True  # the kept sort order must be rebuilt
+    resampled = False
+    if s.want_quantiles:
+        out_qlo[0], out_qhi[0] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
+        fresh = False
     win_sum = 0.0
     win_cnt = 0
+    n_bad = 0
 
     for k in range(1, K):
-        t = t0 + (k - 1) * dt
+        if R > 1:  # the cloud after step k - 1, for a rollback
+            ring_T[(k - 1) % R] = T
+            ring_lw[(k - 1) % R] = lw
+        t = s.t0 + (k - 1) * s.dt
         Vk = V[k - 1]
         tn0 = tn_amp * math.sin(w_a * t)
-        tn1 = tn_amp * math.sin(w_a * (t + 0.5 * dt))
-        tn2 = tn_amp * math.sin(w_a * (t + dt))
+        tn1 = tn_amp * math.sin(w_a * (t + 0.5 * s.dt))
+        tn2 = tn_amp * math.sin(w_a * (t + s.dt))
         yw = y[k, 0]
         yI = y[k, 1]
         # --- prediction: T random walk, then RK4 per particle with its own T
         for i in range(N):
-            T[i] += q_T * rng.standard_normal()
-        if design == 1 and q_I > 0.0:
+            T[i] += s.q_T * rng.standard_normal()
+        if s.design == 1 and s.q_I > 0.0:
             for i in range(N):
-                I2[i] = q_I * rng.standard_normal()
-        if design == 1 and q_w > 0.0:
+                I2[i] = s.q_I * rng.standard_normal()
+        if s.design == 1 and s.q_w > 0.0:
             for i in range(N):
-                W2[i] = q_w * rng.standard_normal()
-        _predict_loglik(I, W, T, ll, N, design, y[k - 1, 0], y[k - 1, 1], yw, yI, Vk, tn0, tn1,
-                        tn2, dt, b0, b1, a11, a12, a22, log_norm, C)
-        if design == 1 and (q_I > 0.0 or q_w > 0.0):
+                W2[i] = s.q_w * rng.standard_normal()
+        _predict_loglik(I, W, T, ll, N, s.design, y[k - 1, 0], y[k - 1, 1], yw, yI, Vk, tn0,
+                        tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
+        if s.design == 1 and (s.q_I > 0.0 or s.q_w > 0.0):
             for i in range(N):
-                if q_I > 0.0:
+                if s.q_I > 0.0:
                     I[i] += I2[i]
-                if q_w > 0.0:
+                if s.q_w > 0.0:
                     W[i] += W2[i]
                 e0 = yw - W[i]
                 e1 = yI - I[i]
-                ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - log_norm
+                ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) \
+                    - s.log_norm
         llmax = -np.inf
         for i in range(N):
             if ll[i] != ll[i]:  # NaN prediction (diverged particle): zero likelihood
                 ll[i] = -np.inf
             if ll[i] > llmax:
                 llmax = ll[i]
-        # --- weight update; ls_data = log sum_i exp(lw_i + ll_i), the data log-likelihood
-        ls_data = 0.0
-        if variant >= 2:
-            for i in range(N):
-                T2[i] = lw[i] + ll[i]
-            ls_data = _normalise(T2, cw)
-        if variant == 2:
-            c = apf_c0 / (apf_c0 - Vk)
-            ncl = 0
-            tot = 0.0
-            for i in range(N):
-                beta = 1.0 / N - wn[i] * math.exp(ll[i])
-                sb = 1.0 if beta > 0.0 else (-1.0 if beta < 0.0 else 0.0)
-                wt = 1.0 - math.exp(c * (beta - apf_c1 * sb))
-                if wt < 0.0:
-                    wt = 0.0
-                    ncl += 1
-                T2[i] = wt
-                tot += wt
-            out_clip[k] = ncl
-            if tot > 0.0:
-                for i in range(N):
-                    lw[i] = math.log(T2[i]) if T2[i] > 0.0 else -np.inf
-            else:
-                for i in range(N):
-                    lw[i] += ll[i]
-            ls = _normalise(lw, wn)
-        elif variant == 3:
-            # largest gamma in [1, gmax] with ESS(lw + gamma ll) >= target N (bisection in log)
-            g = 1.0
-            if _ess(cw) > temper_target * N:
-                lo = 0.0
-                hi = temper_log_gmax
-                for i in range(N):
-                    T2[i] = lw[i] + math.exp(hi) * ll[i]
-                _normalise(T2, cw)
-                if _ess(cw) >= temper_target * N:
-                    lo = hi
-                else:
-                    for _it in range(30):
-                        mid = 0.5 * (lo + hi)
-                        gm = math.exp(mid)
-                        for i in range(N):
-                            T2[i] = lw[i] + gm * ll[i]
-                        _normalise(T2, cw)
-                        if _ess(cw) >= temper_target * N:
-                            lo = mid
-                        else:
-                            hi = mid
-                g = math.exp(lo)
-            out_gamma[k] = g
-            for i in range(N):
-                lw[i] += g * ll[i]
-            ls = _normalise(lw, wn)
-        else:
-            for i in range(N):
-                lw[i] += ll[i]
-            ls = _normalise(lw, wn)
-        if variant < 2:
-            ls_data = ls
         act = 0
+        if llmax < ll_gate:
+            # --- untrusted sample: no particle explains it; keep the weights
+            out_flag[k] = 1
+            n_bad += 1
+            act = 4
+            if s.design == 1 and n_bad >= s.reanchor_after:
+                for i in range(N):
+                    I[i] = yI + init_sd[0] * rng.standard_normal()
+                    W[i] = yw + init_sd[1] * rng.standard_normal()
+                back = k - n_bad - s.rollback  # the cloud after step back, if still kept
+                if R > 1 and back >= 0:
+                    T[:] = ring_T[back % R]
+                    lw[:] = ring_lw[back % R]
+                    normalise_row(lw, wn)
+                    fresh = True
+                n_bad = 0
+                act = 5
+            out_mean[k], out_std[k] = _mean_std(T, wn)
+            if s.want_quantiles:
+                out_qlo[k], out_qhi[k] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
+                fresh = resampled = False
+            out_ess[k] = ess_row(wn)
+            out_act[k] = act
+            continue
+        n_bad = 0
+        # --- weight update; ls_data = log sum_i exp(lw_i + ll_i), the data log-likelihood
+        ls, ls_data, out_clip[k], out_gamma[k] = _weight_update(lw, wn, ll, Vk, s, T2, cw)
         if not ls > -np.inf:  # every weight zero: documented reset to equal weights
             for i in range(N):
                 lw[i] = -logN
@@ -348,51 +425,37 @@ def pf_kernel(  # type: ignore[no-untyped-def]
             act = 3
         out_ll[k] = ls_data
         # --- estimates
-        m = 0.0
-        for i in range(N):
-            m += wn[i] * T[i]
-        v = 0.0
-        for i in range(N):
-            v += wn[i] * (T[i] - m) ** 2
+        m, sd = _mean_std(T, wn)
         out_mean[k] = m
-        out_std[k] = math.sqrt(v)
-        if want_quantiles:
-            out_qlo[k] = _weighted_quantile(T, wn, q_lo, order, cw)
-            out_qhi[k] = _weighted_quantile(T, wn, q_hi, order, cw)
-        ess = _ess(wn)
+        out_std[k] = sd
+        if s.want_quantiles:
+            out_qlo[k], out_qhi[k] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
+            fresh = resampled = False
+        ess = ess_row(wn)
         out_ess[k] = ess
         # --- resampling / adaptive spread
         spread = False
-        if variant == 1:
+        if s.variant == 1:
             win_sum += math.exp(llmax)
             win_cnt += 1
-            if win_cnt >= adapt_window and math.log(win_sum / win_cnt) < log_p_eff:
+            if win_cnt >= s.adapt_window and math.log(win_sum / win_cnt) < s.log_p_eff:
                 spread = True
         if spread:
             for i in range(N):
-                T[i] = m + adapt_spread * rng.standard_normal()
+                T[i] = m + s.adapt_spread * rng.standard_normal()
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             win_sum = 0.0
             win_cnt = 0
             act = 2
-        elif ess < ess_frac * N:
-            u = rng.random()
-            _systematic(wn, u, idx, cw)
-            for j in range(N):
-                T2[j] = T[idx[j]]
-            for j in range(N):
-                T[j] = T2[j]
-            if design == 1:
-                for j in range(N):
-                    I2[j] = I[idx[j]]
-                    W2[j] = W[idx[j]]
-                for j in range(N):
-                    I[j] = I2[j]
-                    W[j] = W2[j]
+            fresh = True
+        elif ess < s.ess_frac * N:
+            _resample(T, I, W, idx, wn, rng.random(), s.design, T2, I2, W2, cw)
             for i in range(N):
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             act = 1
+            resampled = True
         out_act[k] = act
-    return (out_mean, out_std, out_qlo, out_qhi, out_ess, out_act, out_clip, out_gamma, out_ll)
+    return (out_mean, out_std, out_qlo, out_qhi, out_ess, out_act, out_clip, out_gamma, out_ll,
+            out_flag)

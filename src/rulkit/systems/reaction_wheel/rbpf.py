@@ -39,6 +39,16 @@ from typing import Literal
 import numba as nb
 import numpy as np
 
+from rulkit.estimation.batched import (
+    ess_row,
+    ess_rows,
+    normalise_row,
+    normalise_rows,
+    systematic_row,
+    systematic_rows,
+    weighted_quantile_row,
+    weighted_quantile_rows,
+)
 from rulkit.systems.reaction_wheel import kernels as kern
 from rulkit.systems.reaction_wheel.wheel import (
     NOISE_LEVELS,
@@ -210,9 +220,6 @@ def _run_numpy(
     sI: float, dt: float, t0: float, p: IthacoParams, quantiles: bool,
     T_path: FloatArray | None,
 ) -> RBPFResult:
-    from rulkit.estimation.particle import weighted_quantile
-    from rulkit.estimation.resampling import systematic
-
     K, N = y.shape[0], int(cfg.n_particles)
     lo, hi = cfg.T_prior
     rho, reweight = _proposal(cfg)
@@ -234,8 +241,8 @@ def _run_numpy(
         out["mean"][k] = mu
         out["std"][k] = math.sqrt(max(float(w @ (T - mu) ** 2), 0.0))
         if quantiles:
-            out["lo"][k], out["hi"][k] = weighted_quantile(T, w, np.array(cfg.quantiles))
-        out["ess"][k] = 1.0 / float(w @ w)
+            out["lo"][k], out["hi"][k] = weighted_quantile_rows(T, w, np.array(cfg.quantiles))
+        out["ess"][k] = ess_rows(w)
         Iw[k] = w @ m
 
     record(0)
@@ -265,16 +272,11 @@ def _run_numpy(
         m = m + np.einsum("nij,nj->ni", Kg, e)
         P = P - Kg @ S @ Kg.transpose(0, 2, 1)
         P = 0.5 * (P + P.transpose(0, 2, 1))
-        lw = logw + corr + ll
-        mx = lw.max()
-        ex = np.exp(lw - mx)
-        sm = ex.sum()
-        out["ll"][k] = mx + math.log(sm)
-        logw = lw - out["ll"][k]
-        w = ex / sm
+        logw, w, ls = normalise_rows(logw + corr + ll)
+        out["ll"][k] = float(ls)
         record(k)
         if out["ess"][k] < cfg.ess_threshold * N:
-            idx = systematic(w, rng)
+            idx = systematic_rows(w, rng.random())
             T, m, P = T[idx], m[idx], P[idx]
             logw = np.full(N, -math.log(N))
             w = np.full(N, 1.0 / N)
@@ -440,16 +442,14 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
                 P11[i], P12[i], P22[i] = n11, 0.5 * (n12 + n21), n22
             for i in range(N):
                 lw[i] += ll[i]
-            o_ll[k] = kern._normalise(lw, wn)
+            o_ll[k] = normalise_row(lw, wn)
         mu = 0.0
         mI_ = 0.0
         mw_ = 0.0
-        sq = 0.0
         for i in range(N):
             mu += wn[i] * T[i]
             mI_ += wn[i] * mI[i]
             mw_ += wn[i] * mw[i]
-            sq += wn[i] * wn[i]
         var = 0.0
         for i in range(N):
             var += wn[i] * (T[i] - mu) ** 2
@@ -457,12 +457,12 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
         o_std[k] = math.sqrt(max(var, 0.0))
         o_Iw[k, 0] = mI_
         o_Iw[k, 1] = mw_
-        o_ess[k] = 1.0 / sq
+        o_ess[k] = ess_row(wn)
         if want_q:
-            o_lo[k] = kern._weighted_quantile(T, wn, q0, order, cw)
-            o_hi[k] = kern._weighted_quantile(T, wn, q1, order, cw)
+            o_lo[k] = weighted_quantile_row(T, wn, q0, order, cw)
+            o_hi[k] = weighted_quantile_row(T, wn, q1, order, cw)
         if k > 0 and o_ess[k] < ess_thr * N:
-            kern._systematic(wn, rng.random(), idx, cw)
+            systematic_row(wn, rng.random(), idx, cw)
             b_T, b_I, b_w, b_11, b_12, b_22 = bufs
             for i in range(N):
                 j = idx[i]

@@ -22,8 +22,8 @@ import numpy as np
 from rulkit.systems.reaction_wheel.degradation import (
     SOURCES,
     STEP1_VARIANTS,
-    Step2Settings,
-    measure_step1_errors,
+    DegradationConfig,
+    measure_temperature_errors,
     run_table6,
     sensitivity_study,
     truth_parameters,
@@ -53,7 +53,7 @@ class ReproductionConfig:
     quick: bool = False
     n_runs: int = 20
     seed: int = 0
-    step2: Step2Settings = field(default_factory=Step2Settings)
+    step2: DegradationConfig = field(default_factory=DegradationConfig)
     step3: Step3Settings = field(default_factory=Step3Settings)
     table5: bool = True
     table5_particles: tuple[int, ...] | None = None  # None: the step-1 module's default list
@@ -80,7 +80,7 @@ class ReproductionConfig:
         """The ``--quick`` size: 5 runs, 10-day horizon, 150 particles, predictions at days
         2, 5 and 10, Table 5 quick at N = 200 only, T^ error statistics from 2 one-hour
         step-1 runs, no shortcut validation, no sensitivity, no second Table 6."""
-        kw.setdefault("step2", Step2Settings(n_particles=150, horizon_days=10.0))
+        kw.setdefault("step2", DegradationConfig(n_particles=150, horizon_days=10.0))
         kw.setdefault("step3", Step3Settings(prediction_days=(2.0, 5.0, 10.0)))
         kw.setdefault("table5_particles", (200,))
         kw.setdefault("error_hours", 1.0)
@@ -151,10 +151,10 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
         log(f"step 1 -> 2: error statistics of {src} ({STEP1_VARIANTS[src]})")
         kw = dict(n_particles=cfg.step1_particles, hold_samples=cfg.step2.hold_samples,
                   hours=cfg.error_hours)
-        errors[src] = measure_step1_errors(src, cfg.step1_error_runs, cfg.seed,
+        errors[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
                                            on=cfg.error_on, **kw)
         if cfg.table6_alt:
-            errors_alt[src] = measure_step1_errors(src, cfg.step1_error_runs, cfg.seed,
+            errors_alt[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
                                                    on=alt_on, **kw)
     timings["step-1 error statistics"] = time.perf_counter() - t
 
@@ -424,7 +424,7 @@ def render_report(rep: Reproduction) -> str:
              f"the stated {st3.interval_level:.0%} intervals over all (time, run) pairs.\n")
     L.append(_md(rep.step3.metrics) + "\n")
     L.append("## Choices where the seeds are silent [R]\n")
-    L.append("Step 2 (`rulkit.systems.reaction_wheel.degradation.Step2Settings`):\n")
+    L.append("Step 2 (`rulkit.systems.reaction_wheel.degradation.DegradationConfig`):\n")
     for k, v in asdict(st2).items():
         L.append(f"- `{k}` = {v}")
     L.append("- measurement noise: the Wiener term gives y_k noise sigma_y = noise_rel x healthy "

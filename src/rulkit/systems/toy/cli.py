@@ -7,7 +7,8 @@ threshold at several prediction times, prints a table and writes into ``--out``:
 - ``rul.json``: the RUL distribution at the last prediction time
   (``RULDistribution.from_json`` reads it back);
 - ``summary.json``: configuration, one row per prediction time, and the metrics;
-- ``toy_degradation.png``: state estimates and RUL densities.
+- ``toy_degradation.png``: state estimates and RUL densities;
+- ``report.md``: the table above as markdown.
 
 ``rulkit demo`` calls :func:`run_example` when the reaction-wheel pipeline is not available.
 Heavy imports stay inside the functions (``rulkit --help`` stays fast).
@@ -16,22 +17,10 @@ Heavy imports stay inside the functions (``rulkit --help`` stays fast).
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-
-
-def _json_safe(v: Any) -> Any:
-    """Replace non-finite floats by None (strict JSON) recursively."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {k: _json_safe(x) for k, x in v.items()}
-    if isinstance(v, list | tuple):
-        return [_json_safe(x) for x in v]
-    return v
 
 
 def run_example(out: Path, seed: int, n_particles: int = 2000) -> dict[str, Any]:
@@ -39,12 +28,10 @@ def run_example(out: Path, seed: int, n_particles: int = 2000) -> dict[str, Any]
 
     Returns the summary dict that is also written to ``out/summary.json``.
     """
-    from dataclasses import asdict
-
     from rich.console import Console
     from rich.table import Table
 
-    from rulkit.systems.toy.example import ToyConfig, plot_result, run
+    from rulkit.systems.toy.example import ToyConfig, run, write_report
 
     if n_particles < 2:
         raise typer.BadParameter(f"n_particles: need at least 2, got {n_particles}")
@@ -91,21 +78,9 @@ def run_example(out: Path, seed: int, n_particles: int = 2000) -> dict[str, Any]
         f"{pk['kf_mean'][1]:.5f} +- {pk['kf_std'][1]:.5f}"
     )
 
-    files = {}
-    if result.ruls:
-        files["rul"] = str(result.ruls[-1].to_json(out / "rul.json"))
-    files["figure"] = str(plot_result(result, out / "toy_degradation.png"))
-    summary = {
-        "example": "toy_degradation",
-        "seed": seed,
-        "config": asdict(cfg),
-        "rows": rows,
-        "metrics": m,
-        "files": files,
-    }
-    files["summary"] = str(out / "summary.json")
-    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
-    console.print(f"wrote {', '.join(files.values())}")
+    write_report(result, out)
+    summary: dict[str, Any] = json.loads((out / "summary.json").read_text())
+    console.print(f"wrote {', '.join(summary['files'].values())}")
     return summary
 
 

@@ -12,7 +12,9 @@ continued past the observation window with the same process noise.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import json
+import math
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +34,7 @@ from rulkit.systems.toy.model import ToyDegradation
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["ToyConfig", "ToyResult", "plot_result", "run", "simulate_truth"]
+__all__ = ["ToyConfig", "ToyResult", "plot_result", "run", "simulate_truth", "write_report"]
 
 
 @dataclass(frozen=True)
@@ -276,3 +278,56 @@ def plot_result(r: ToyResult, path: str | Path) -> Path:
     plt.close(fig)
     return p
 
+
+
+def _json_safe(v: Any) -> Any:
+    """Replace non-finite floats by None (strict JSON) recursively."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_json_safe(x) for x in v]
+    return v
+
+
+def write_report(result: ToyResult, out: str | Path) -> Path:
+    """Write the example's outputs into ``out`` and return the path of ``report.md``.
+
+    - ``rul.json``: the RUL distribution at the last prediction time
+      (``RULDistribution.from_json`` reads it back);
+    - ``summary.json``: configuration, one row per prediction time, metrics, file names;
+    - ``toy_degradation.png``: state estimates and RUL densities (:func:`plot_result`);
+    - ``report.md``: the per-prediction table (:func:`rulkit.reporting.markdown_table`).
+    """
+    import pandas as pd
+
+    from rulkit.reporting import markdown_table
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = result.config
+    rows = result.table()
+    files: dict[str, str] = {}
+    if result.ruls:
+        files["rul"] = str(result.ruls[-1].to_json(out / "rul.json"))
+    files["figure"] = str(plot_result(result, out / "toy_degradation.png"))
+    files["summary"] = str(out / "summary.json")
+    report = out / "report.md"
+    files["report"] = str(report)
+    summary = {"example": "toy_degradation", "seed": cfg.seed, "config": asdict(cfg),
+               "rows": rows, "metrics": result.metrics, "files": files}
+    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
+    lines = [
+        "# Toy degradation: particle filter and Monte Carlo RUL",
+        "",
+        f"Seed {cfg.seed}, {cfg.n_particles} particles; true end of life {result.t_eol:.4g}. "
+        f"One row per prediction time ({cfg.interval_level:.0%} interval; RA = relative "
+        "accuracy of the median, CRPS of the samples against the true RUL).",
+        "",
+        markdown_table(pd.DataFrame(rows)) if rows else
+        "No prediction time before the true end of life.",
+        "",
+    ]
+    report.write_text("\n".join(lines))
+    return report

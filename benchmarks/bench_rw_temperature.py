@@ -19,7 +19,7 @@ x rate / peak flops of one core, the peak measured by a single-threaded float64 
 product (numpy/BLAS, 2 n^3 flops) and also stated from the clock (2.6 GHz x 32 flops/cycle
 for 2 AVX-512 FMA units, an upper bound).
 
-    .venv/bin/python benchmarks/bench_rw_step1.py [--repeats 5] [--progpy]
+    .venv/bin/python benchmarks/bench_rw_temperature.py [--repeats 5] [--progpy]
 """
 
 from __future__ import annotations
@@ -39,7 +39,11 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf  # noqa: E402
-from rulkit.systems.reaction_wheel.temperature import TABLE5_N, Step1Config, run_step1  # noqa: E402
+from rulkit.systems.reaction_wheel.temperature import (  # noqa: E402
+    TABLE5_N,
+    TemperatureConfig,
+    filter_temperature,
+)
 from rulkit.systems.reaction_wheel.wheel import IthacoParams, simulate_table3  # noqa: E402
 
 # Flops per particle-step of the F2 filter, counted from the kernel source (an add, multiply,
@@ -145,23 +149,26 @@ def main() -> None:
     sig = (data.sigma_w, data.sigma_I)
     results: dict[str, tuple[float, float]] = {}
     for design in ("F2", "F1"):
-        cfg = Step1Config(design=design, variant="pf", n_particles=N)
-        run_step1(data.y[:50], data.V[:50], np.random.default_rng(0), cfg, sigma=sig)  # compile
-        w, c = _time(lambda cfg=cfg: run_step1(data.y, data.V, np.random.default_rng(1), cfg,
+        cfg = TemperatureConfig(design=design, variant="pf", n_particles=N)
+        filter_temperature(data.y[:50], data.V[:50], np.random.default_rng(0), cfg,
+                           sigma=sig)  # compile
+        w, c = _time(lambda cfg=cfg: filter_temperature(data.y, data.V,
+                                                        np.random.default_rng(1), cfg,
                                                sigma=sig, quantiles=False), args.repeats)
         results[f"numba {design}"] = (N * (K - 1) / w, N * (K - 1) / c)
-    cfg = Step1Config(design="F2", variant="pf", n_particles=N)
-    w, c = _time(lambda: run_step1(data.y, data.V, np.random.default_rng(1), cfg, sigma=sig,
+    cfg = TemperatureConfig(design="F2", variant="pf", n_particles=N)
+    w, c = _time(lambda: filter_temperature(data.y, data.V, np.random.default_rng(1), cfg,
+                                            sigma=sig,
                                    quantiles=True), max(1, args.repeats // 2))
     results["numba F2 + per-step quantiles"] = (N * (K - 1) / w, N * (K - 1) / c)
     Kn = args.numpy_steps + 1
-    w, c = _time(lambda: run_step1(data.y[:Kn], data.V[:Kn], np.random.default_rng(1), cfg,
+    w, c = _time(lambda: filter_temperature(data.y[:Kn], data.V[:Kn], np.random.default_rng(1), cfg,
                                    sigma=sig, backend="numpy", quantiles=False),
                  max(1, args.repeats // 2))
     results["numpy reference F2"] = (N * (Kn - 1) / w, N * (Kn - 1) / c)
     # same numbers check on the numpy horizon
-    a = run_step1(data.y[:Kn], data.V[:Kn], np.random.default_rng(7), cfg, sigma=sig)
-    b = run_step1(data.y[:Kn], data.V[:Kn], np.random.default_rng(7), cfg, sigma=sig,
+    a = filter_temperature(data.y[:Kn], data.V[:Kn], np.random.default_rng(7), cfg, sigma=sig)
+    b = filter_temperature(data.y[:Kn], data.V[:Kn], np.random.default_rng(7), cfg, sigma=sig,
                   backend="numpy")
     diff = float(np.max(np.abs(a.T_mean - b.T_mean)))
     rcfg = replace(RBPF_DESIGNS["RB05"], n_particles=N)

@@ -8,7 +8,7 @@
    rows (APF + two-step, PF + two-step, APF + one-step) and of all rows with our RB-PF, and the
    extrapolated time of the same experiment with direct sums.
 
-    .venv/bin/python benchmarks/bench_rw_step2.py [--runs 20] [--days 90] [--workers 1]
+    .venv/bin/python benchmarks/bench_rw_degradation.py [--runs 20] [--days 90] [--workers 1]
                                                   [--skip-table6]
 """
 
@@ -70,13 +70,13 @@ def bench_table6(runs: int, days: float, workers: int) -> dict[str, float]:
     from rulkit.runner import run_independent
     from rulkit.systems.reaction_wheel.degradation import (
         CaseTask,
-        Step2Settings,
-        measure_step1_errors,
+        DegradationConfig,
+        measure_temperature_errors,
         run_case,
     )
 
-    st = Step2Settings(horizon_days=days)
-    errors = {s: measure_step1_errors(s, 3, 0) for s in ("APF", "PF")}
+    st = DegradationConfig(horizon_days=days)
+    errors = {s: measure_temperature_errors(s, 3, 0) for s in ("APF", "PF")}
     out: dict[str, float] = {"windows": st.n_windows, "particles": st.n_particles}
     paper = {"APF": ("two_step", "one_step"), "PF": ("two_step",)}
     allm = {"APF": ("two_step", "one_step", "rbpf"), "PF": ("two_step", "rbpf")}

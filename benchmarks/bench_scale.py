@@ -1,0 +1,121 @@
+"""Benchmark: ``rulkit track`` and ``rulkit status`` at fleet scale (issue 13, "Scale").
+
+Each figure is one ``rulkit`` process (the console script, as a user runs it), measured from
+outside: wall time, CPU time (user + system, from ``os.wait4``) and peak resident memory of
+that process (``ru_maxrss``). On a shared machine the wall time mostly measures waiting for a
+core, so the CPU time is printed beside it; medians over ``--repeats``.
+
+* ``track``: a new database from one CSV of ``--components`` x ``--acquisitions`` rows
+  (default 2000 x 1000 = 2M rows; HI growing exponentially with noise, rows in time order as
+  a feed delivers them). Goal (issue 13): <= 8 s and <= 400 MB (was 24.6 s, 1.83 GB).
+* ``status --format table|csv|json`` on a database of ``--status-components`` components
+  (default 10^5, 3 acquisitions each), output to /dev/null. Goal: < 1 s for 10^5 (was 8.6 s
+  for 10^4 with the rich table).
+* the interpreter start with ``import rulkit.cli`` alone, the floor under every command.
+
+    .venv/bin/python benchmarks/bench_scale.py              # the defaults above (~2 min)
+    .venv/bin/python benchmarks/bench_scale.py --components 200 --repeats 1   # quick look
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+# the console script's entry point, in this interpreter
+RULKIT = [sys.executable, "-c", "import sys; sys.argv[0] = 'rulkit'; "
+          "from rulkit.cli import main; main()"]
+
+
+def measure(cmd: list[str]) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak RSS MB) of one process running ``cmd`` (stdout discarded)."""
+    t0 = time.perf_counter()
+    with open(os.devnull, "wb") as null:
+        proc = subprocess.Popen(cmd, stdout=null, stderr=subprocess.PIPE)
+        _, status, ru = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        err = proc.stderr.read().decode() if proc.stderr else ""
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {err}")
+    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0
+
+
+def median3(rows: list[tuple[float, float, float]]) -> tuple[float, float, float]:
+    return tuple(statistics.median(r[i] for r in rows) for i in range(3))  # type: ignore[return-value]
+
+
+def fleet_csv(path: Path, n_comp: int, n_acq: int, rng: np.random.Generator) -> None:
+    t = np.arange(n_acq, dtype=np.float64)
+    h0 = rng.uniform(0.05, 0.3, n_comp)
+    names = np.array([f"unit-{i:06d}" for i in range(n_comp)], dtype=object)
+    # time-major order: all components' k-th acquisition, then the (k+1)-th
+    comp = np.tile(names, n_acq)
+    tt = np.repeat(t, n_comp)
+    hi = np.clip(np.tile(h0, n_acq) * np.exp(0.002 * tt)
+                 + rng.normal(0.0, 0.005, n_comp * n_acq), 0.0, 10.0)
+    pd.DataFrame({"component": comp, "time": tt, "hi": hi}).to_csv(path, index=False)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--components", type=int, default=2000)
+    ap.add_argument("--acquisitions", type=int, default=1000)
+    ap.add_argument("--status-components", type=int, default=100_000)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    rng = np.random.default_rng(args.seed)
+    tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-scale-"))
+    try:
+        print(f"rulkit bench_scale: {os.cpu_count()} cores, load average "
+              f"{os.getloadavg()[0]:.1f}, seed {args.seed}, medians of {args.repeats} runs")
+        floor = median3([measure([sys.executable, "-c", "import rulkit.cli, rulkit.fleet.store"])
+                         for _ in range(args.repeats)])
+        print(f"import rulkit.cli, rulkit.fleet.store (start-up floor, pandas included): "
+              f"wall {floor[0]:.2f} s, CPU {floor[1]:.2f} s, peak {floor[2]:.0f} MB")
+
+        n_rows = args.components * args.acquisitions
+        src = tmp / "acquisitions.csv"
+        fleet_csv(src, args.components, args.acquisitions, rng)
+        size_mb = src.stat().st_size / 2**20
+        runs = []
+        for k in range(args.repeats):
+            db = tmp / f"track{k}.db"
+            runs.append(measure([*RULKIT, "track", "--db", str(db), str(src)]))
+            db.unlink()
+        w, c, m = median3(runs)
+        print(f"track {n_rows:,} rows ({args.components} components x {args.acquisitions}, "
+              f"CSV {size_mb:.0f} MB) into a new database: wall {w:.2f} s, CPU {c:.2f} s, "
+              f"peak {m:.0f} MB ({m / size_mb:.1f}x the file); goal <= 8 s, <= 400 MB")
+        src.unlink()
+
+        n = args.status_components
+        sdb = tmp / "status.db"
+        frame = pd.DataFrame({
+            "component": np.repeat([f"c{i:07d}" for i in range(n)], 3),
+            "time": np.tile([0.0, 1.0, 2.0], n),
+            "hi": np.repeat(rng.uniform(0.05, 1.2, n), 3)})
+        from rulkit.fleet.store import ingest_into
+
+        ingest_into(sdb, frame)
+        for fmt in ("table", "csv", "json"):
+            w, c, m = median3([measure([*RULKIT, "status", "--db", str(sdb), "--format", fmt])
+                               for _ in range(args.repeats)])
+            print(f"status --format {fmt:5s} {n:,} components: wall {w:.2f} s, CPU {c:.2f} s "
+                  f"(minus start-up {max(c - floor[1], 0):.2f} s), peak {m:.0f} MB; goal < 1 s")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

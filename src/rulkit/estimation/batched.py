@@ -1,0 +1,407 @@
+"""One batched particle core: row-wise log-sum-exp normalisation, effective sample size,
+systematic resampling and weighted quantiles, each in a numpy version and a numba version.
+
+Every particle filter in rulkit uses these: the generic
+:class:`rulkit.estimation.particle.ParticleFilter` and :mod:`rulkit.estimation.resampling` call the
+numpy versions (and the compiled systematic row), the fused numba kernels of the systems call
+the numba row functions from inside their own compiled loops (numba links them across modules;
+``cache=True`` caches both the callee and the caller, tested in a fresh process).
+
+A *row* is one particle population: a 1-D array of ``N`` values. The numpy functions work on
+the last axis of arrays of any leading shape (``(N,)`` or ``(U, N)``); the numba row functions
+work in place on one 1-D row with caller-provided scratch arrays (no allocation in a hot loop),
+and the numba ``*_rows_numba`` functions apply them to every row of a 2-D array (the numba
+twins of the numpy functions, tested equal to them and to independent oracles).
+
+Definitions (the contract every caller relies on):
+
+- **normalise**: ``log_sum = m + log sum_i exp(l_i - m)`` with ``m = max_i l_i`` (no overflow),
+  normalised log-weights ``l_i - log_sum`` and weights ``exp(l_i - m) / sum_j exp(l_j - m)``.
+  A row whose maximum is not finite is *degenerate*: ``log_sum`` is ``-inf`` when every
+  log-weight is ``-inf`` (every weight zero) and NaN when any is NaN or ``+inf``; its
+  log-weights are left as they were and its weights are NaN (numpy / ``*_rows_numba``) or left
+  as they were (the in-place row function). The caller decides what a degenerate row means.
+- **ESS**: ``1 / sum_i w_i^2`` of normalised weights (seed 000 eq. 16).
+- **systematic resampling** with uniform ``u`` in [0, 1): positions ``p_j = (j + u) / N * c_N``
+  (``c`` the cumulative sum of the weights, ``c_N`` its last element, so round-off in the sum
+  never yields index ``N``); ancestor ``a_j`` = the number of ``c_i <= p_j`` (numpy's
+  ``searchsorted(c, p, side="right")``); a position past the end through round-off goes to the
+  last particle with positive weight. Zero-weight particles are never selected.
+- **weighted quantile** ``q`` in [0, 1] of values ``x`` with non-negative weights ``w`` (need not
+  be normalised): the smallest ``x_(j)`` (sorted ascending) whose cumulative weight
+  ``C_j >= q C_N``, and for ``q = 0`` the smallest ``x`` with positive weight; numpy's
+  ``np.quantile(x, q, weights=w, method="inverted_cdf")``. Ties in ``x`` return the same value
+  whatever the order among them.
+
+Float details: the numba functions sum left to right; numpy's ``sum`` is pairwise, so the two
+versions of normalise and ESS agree to a few ulp, not bit for bit (cumulative sums, quantiles and
+resampling indices are identical).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "ess_row",
+    "ess_rows",
+    "ess_rows_numba",
+    "normalise_row",
+    "normalise_rows",
+    "normalise_rows_numba",
+    "order_after_resampling",
+    "sort_order_row",
+    "systematic_row",
+    "systematic_rows",
+    "systematic_rows_numba",
+    "weighted_quantile_row",
+    "weighted_quantile_rows",
+    "weighted_quantile_rows_numba",
+    "weighted_quantiles_sorted_row",
+]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+# ---------------------------------------------------------------------------------------------
+# numpy versions (last axis = particles)
+# ---------------------------------------------------------------------------------------------
+
+
+def normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Log-sum-exp normalisation of every row: ``(normalised logw, weights, log_sum)``.
+
+    ``logw`` (..., N); returns arrays of shapes (..., N), (..., N) and (...) (a float64 scalar
+    for a single row). A single row takes the log of its sum with ``math.log``, more rows with
+    ``numpy.log`` (the two can differ in the last bit; each caller keeps the one it had).
+    Degenerate rows (see the module docstring) get ``log_sum`` -inf (all weights zero) or
+    NaN, their log-weights unchanged and NaN weights.
+    """
+    lw = np.asarray(logw, dtype=np.float64)
+    if lw.ndim == 1:  # one row: the scalar log of the C library (math.log), as the kernels
+        m = float(lw.max())
+        if math.isfinite(m):
+            e = np.exp(lw - m)
+            s = float(e.sum())
+            ls1 = m + math.log(s)
+            return lw - ls1, e / s, np.float64(ls1)
+    mx = lw.max(axis=-1, keepdims=True)
+    ok = np.isfinite(mx)
+    if ok.all():
+        e = np.exp(lw - mx)
+        s = e.sum(axis=-1, keepdims=True)
+        ls = mx + np.log(s)
+        return lw - ls, e / s, ls[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m0 = np.where(ok, mx, 0.0)
+        e = np.exp(lw - m0)
+        s = e.sum(axis=-1, keepdims=True)
+        bad = np.where(mx == -np.inf, -np.inf, np.nan)
+        ls = np.where(ok, m0 + np.log(s), bad)
+        return np.where(ok, lw - ls, lw), np.where(ok, e / s, np.nan), ls[..., 0]
+
+
+def ess_rows(w: FloatArray) -> FloatArray | float:
+    """Effective sample size ``1 / sum_i w_i^2`` of every row of normalised weights (..., N).
+
+    A single row (1-D) returns a float (BLAS dot), more rows an array (pairwise sum)."""
+    wa = np.asarray(w, dtype=np.float64)
+    if wa.ndim == 1:
+        return float(1.0 / np.dot(wa, wa))
+    return 1.0 / (wa * wa).sum(axis=-1)
+
+
+def systematic_rows(w: FloatArray, u: FloatArray | float) -> IntArray:
+    """Systematic resampling of every row of ``w`` (N,) or (U, N) with its own uniform ``u``
+    (scalar or (U,)); returns ancestor indices of the same shape as ``w`` (int64).
+
+    One ``searchsorted`` for all rows: row ``r`` is shifted to ``[2r, 2r + c_N]`` (needs
+    ``c_N < 2``, true for normalised weights). For one row the shift is zero and the result is
+    exactly :func:`systematic_row`'s.
+    """
+    wa = np.asarray(w, dtype=np.float64)
+    one = wa.ndim == 1
+    W2 = wa[None] if one else wa
+    U, N = W2.shape
+    ua = np.broadcast_to(np.asarray(u, dtype=np.float64), (U,))
+    c = np.cumsum(W2, axis=1)
+    pos = (np.arange(N)[None, :] + ua[:, None]) / N * c[:, -1:]
+    if U == 1:
+        idx = np.searchsorted(c[0], pos[0], side="right")[None]
+    else:
+        off = 2.0 * np.arange(U)[:, None]  # rows live in disjoint intervals [2r, 2r + 1]
+        idx = np.searchsorted((c + off).ravel(), (pos + off).ravel(), side="right")
+        idx = idx.reshape(U, N) - N * np.arange(U)[:, None]
+    last = N - 1 - np.argmax(W2[:, ::-1] > 0, axis=1)  # round-off guard: last non-zero weight
+    out = np.minimum(idx, last[:, None]).astype(np.int64)
+    return out[0] if one else out
+
+
+def weighted_quantile_rows(x: FloatArray, w: FloatArray, q: FloatArray | float) -> FloatArray:
+    """Weighted quantiles (inverted CDF, see the module docstring) of every row.
+
+    ``x``, ``w`` (N,) or (U, N); ``q`` scalar or (n_q,). Returns (U, n_q) for 2-D input with
+    1-D ``q``, dropping the axes that were scalar / 1-D in the input.
+    """
+    xa = np.asarray(x, dtype=np.float64)
+    wa = np.asarray(w, dtype=np.float64)
+    qa = np.asarray(q, dtype=np.float64)
+    one = xa.ndim == 1
+    X, Wt = (xa[None], wa[None]) if one else (xa, wa)
+    q1 = np.atleast_1d(qa)
+    order = np.argsort(X, axis=1, kind="mergesort")
+    cw = np.cumsum(np.take_along_axis(Wt, order, axis=1), axis=1)
+    thr = q1[None, :] * cw[:, -1:]  # (U, n_q)
+    # first sorted index with cumulative weight >= q total (> 0 for q = 0)
+    ge = cw[:, None, :] >= thr[:, :, None]
+    pos0 = cw[:, None, :] > 0.0
+    hit = np.where((q1 == 0.0)[None, :, None], pos0, ge)
+    n = X.shape[1]
+    j = np.where(hit.any(axis=2), hit.argmax(axis=2), n - 1)
+    out = np.take_along_axis(X, np.take_along_axis(order, j, axis=1), axis=1)
+    if qa.ndim == 0:
+        out = out[:, 0]
+    return out[0] if one else out
+
+
+# ---------------------------------------------------------------------------------------------
+# numba row functions (in place, scratch arrays from the caller)
+# ---------------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def normalise_row(lw, wn):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Normalise one row in place: ``wn = exp(lw - max) / sum``, ``lw -= log_sum``.
+
+    Returns ``log_sum`` (the log-likelihood increment when ``lw`` held normalised log-weights
+    plus log-likelihoods). A degenerate row returns -inf (every weight zero) or NaN (a NaN or
+    +inf log-weight) and leaves ``lw`` and ``wn`` unchanged.
+    """
+    n = lw.size
+    mx = -np.inf
+    for i in range(n):
+        v = lw[i]
+        if v > mx:
+            mx = v
+        elif v != v:
+            return np.nan
+    if not mx > -np.inf:
+        return -np.inf
+    if mx == np.inf:
+        return np.nan
+    s = 0.0
+    for i in range(n):
+        e = math.exp(lw[i] - mx)
+        wn[i] = e
+        s += e
+    ls = mx + math.log(s)
+    for i in range(n):
+        wn[i] /= s
+        lw[i] -= ls
+    return ls
+
+
+@nb.njit(cache=True)
+def ess_row(wn):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """``1 / sum_i w_i^2`` of one row of normalised weights."""
+    s = 0.0
+    for i in range(wn.size):
+        s += wn[i] * wn[i]
+    return 1.0 / s
+
+
+@nb.njit(cache=True)
+def systematic_row(wn, u, idx, cw):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Systematic resampling of one row with uniform ``u``: ancestors into ``idx`` (int64,
+    N), ``cw`` (N) scratch for the cumulative sum. One merge pass over the N sorted
+    positions (see the module docstring for the definition)."""
+    n = wn.size
+    acc = 0.0
+    for i in range(n):
+        acc += wn[i]
+        cw[i] = acc
+    last_nz = n - 1
+    while last_nz > 0 and wn[last_nz] == 0.0:
+        last_nz -= 1
+    total = cw[n - 1]
+    i = 0
+    for j in range(n):
+        pos = (j + u) / n * total
+        while i < n and cw[i] <= pos:
+            i += 1
+        idx[j] = i if i < n else last_nz
+
+
+@nb.njit(cache=True)
+def weighted_quantile_row(x, w, q, order, cw):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Weighted quantile ``q`` of one row (inverted CDF); ``order`` (int64, N) and ``cw`` (N)
+    are scratch. Smallest sorted ``x`` with cumulative weight >= ``q`` total (> 0 for q = 0)."""
+    n = x.size
+    order[:] = np.argsort(x, kind="mergesort")
+    acc = 0.0
+    for j in range(n):
+        acc += w[order[j]]
+        cw[j] = acc
+    qq = q * cw[n - 1]
+    if q == 0.0:
+        for j in range(n):
+            if cw[j] > 0.0:
+                return x[order[j]]
+    else:
+        for j in range(n):
+            if cw[j] >= qq:
+                return x[order[j]]
+    return x[order[n - 1]]
+
+
+# ---------------------------------------------------------------------------------------------
+# numba twins of the numpy functions (2-D, one row at a time)
+# ---------------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def normalise_rows_numba(logw):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """numba twin of :func:`normalise_rows` for (U, N) input."""
+    U, N = logw.shape
+    lw = logw.copy()
+    w = np.full((U, N), np.nan)
+    ls = np.empty(U)
+    for r in range(U):
+        ls[r] = normalise_row(lw[r], w[r])
+        if not ls[r] > -np.inf:
+            w[r, :] = np.nan
+    return lw, w, ls
+
+
+@nb.njit(cache=True)
+def ess_rows_numba(w):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """numba twin of :func:`ess_rows` for (U, N) input."""
+    U = w.shape[0]
+    out = np.empty(U)
+    for r in range(U):
+        out[r] = ess_row(w[r])
+    return out
+
+
+@nb.njit(cache=True)
+def systematic_rows_numba(w, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """numba twin of :func:`systematic_rows` for (U, N) weights and (U,) uniforms."""
+    U, N = w.shape
+    idx = np.empty((U, N), dtype=np.int64)
+    cw = np.empty(N)
+    for r in range(U):
+        systematic_row(w[r], u[r], idx[r], cw)
+    return idx
+
+
+@nb.njit(cache=True)
+def weighted_quantile_rows_numba(x, w, q):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """numba twin of :func:`weighted_quantile_rows` for (U, N) input and (n_q,) levels."""
+    U, N = x.shape
+    out = np.empty((U, q.size))
+    order = np.empty(N, dtype=np.int64)
+    cw = np.empty(N)
+    for r in range(U):
+        for j in range(q.size):
+            out[r, j] = weighted_quantile_row(x[r], w[r], q[j], order, cw)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# numba: weighted quantiles of a cloud that moves little between steps (sorted order kept)
+# ---------------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def sort_order_row(x, order, fresh):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Make ``order`` (int64, N) the stable ascending argsort of ``x`` in place.
+
+    ``fresh``: rebuild by ``np.argsort(kind="mergesort")``; otherwise ``order`` is taken as a
+    near-sorted start and finished by insertion sort on the key (x_i, i), which is exactly the
+    stable argsort (O(N + inversions)); past 8 N moves, or with a NaN in ``x``, it falls back to
+    the full sort. Same result as ``np.argsort(x, kind="stable")`` either way (tested).
+    """
+    n = x.size
+    if not fresh:
+        for i in range(n):
+            if x[i] != x[i]:
+                fresh = True
+                break
+    if not fresh:
+        moves = 0
+        for i in range(1, n):
+            o = order[i]
+            v = x[o]
+            j = i - 1
+            while j >= 0:
+                p = order[j]
+                xp = x[p]
+                if xp > v or (xp == v and p > o):
+                    order[j + 1] = p
+                    j -= 1
+                    moves += 1
+                else:
+                    break
+            order[j + 1] = o
+            if moves > 8 * n:
+                fresh = True
+                break
+    if fresh:
+        order[:] = np.argsort(x, kind="mergesort")
+
+
+@nb.njit(cache=True)
+def order_after_resampling(order, idx, ibuf):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Stable sorted order of a resampled row from the old one, in O(N).
+
+    ``idx`` the ancestors of :func:`systematic_row` (non-decreasing: the copies of particle i
+    are a contiguous run of new indices); ``ibuf`` int64 scratch of size 2 N + 1. The copies
+    of an ancestor share its value, so walking the old order and emitting each ancestor's run
+    gives the stable order of the new values.
+    """
+    n = idx.size
+    for i in range(n + 1):
+        ibuf[i] = 0
+    for j in range(n):
+        ibuf[idx[j] + 1] += 1
+    for i in range(n):
+        ibuf[i + 1] += ibuf[i]
+    m = 0
+    for k in range(n):
+        o = order[k]
+        for j in range(ibuf[o], ibuf[o + 1]):
+            ibuf[n + 1 + m] = j
+            m += 1
+    for k in range(n):
+        order[k] = ibuf[n + 1 + k]
+
+
+@nb.njit(cache=True)
+def weighted_quantiles_sorted_row(x, w, order, q_lo, q_hi, cw):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Two weighted quantiles (as :func:`weighted_quantile_row`) from a sorted ``order``."""
+    n = x.size
+    acc = 0.0
+    for j in range(n):
+        acc += w[order[j]]
+        cw[j] = acc
+    return _quantile_from_cw(x, order, cw, q_lo), _quantile_from_cw(x, order, cw, q_hi)
+
+
+@nb.njit(cache=True)
+def _quantile_from_cw(x, order, cw, q):  # type: ignore[no-untyped-def]  # pragma: no cover
+    n = x.size
+    qq = q * cw[n - 1]
+    if q == 0.0:
+        for j in range(n):
+            if cw[j] > 0.0:
+                return x[order[j]]
+    else:
+        for j in range(n):
+            if cw[j] >= qq:
+                return x[order[j]]
+    return x[order[n - 1]]

@@ -1,0 +1,196 @@
+"""The batched particle core: numpy and numba versions equal to each other and to independent
+oracles (scipy's logsumexp, a per-row searchsorted systematic resampler, numpy's weighted
+``inverted_cdf`` quantile), and numba's cache reused across modules in a fresh process."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+from rulkit.estimation import batched as bt
+
+
+def _logw(rng: np.random.Generator, U: int, N: int) -> np.ndarray:
+    lw = rng.normal(scale=30.0, size=(U, N)) + rng.normal(scale=500.0, size=(U, 1))
+    lw[rng.random((U, N)) < 0.1] = -np.inf  # zero weights
+    lw[:, 0] = rng.normal(size=U)  # at least one finite entry per row
+    return lw
+
+
+@pytest.mark.parametrize("N", [1, 2, 7, 200, 1001])
+def test_normalise_matches_scipy_logsumexp_numpy_and_numba(N: int) -> None:
+    rng = np.random.default_rng(N)
+    lw = _logw(rng, 6, N)
+    ref = logsumexp(lw, axis=1)
+    lwn, w, ls = bt.normalise_rows(lw)
+    lwn2, w2, ls2 = bt.normalise_rows_numba(lw)
+    for a, b in ((ls, ref), (ls2, ref), (w2, w), (lwn2, lwn)):
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-300)
+    np.testing.assert_allclose(w, np.exp(lw - ref[:, None]), rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, rtol=1e-14)
+    np.testing.assert_allclose(logsumexp(lwn, axis=1), 0.0, atol=1e-12)
+    # one row = the same function on 1-D input
+    a, b, c = bt.normalise_rows(lw[0])
+    np.testing.assert_array_equal(a, lwn[0])
+    np.testing.assert_array_equal(b, w[0])
+    assert float(c) == ls[0]
+
+
+def test_normalise_degenerate_rows_same_in_both_versions() -> None:
+    lw = np.array([[0.0, 1.0, -np.inf], [-np.inf, -np.inf, -np.inf], [0.0, np.nan, 1.0],
+                   [0.0, np.inf, 1.0]])
+    for fn in (bt.normalise_rows, bt.normalise_rows_numba):
+        lwn, w, ls = fn(lw)
+        assert ls[0] == pytest.approx(logsumexp(lw[0]))
+        assert ls[1] == -np.inf and np.isnan(ls[2]) and np.isnan(ls[3])
+        assert np.isnan(w[1:]).all()
+        np.testing.assert_array_equal(lwn[1:], lw[1:])
+    # the in-place row function leaves a degenerate row untouched
+    row, wn = lw[2].copy(), np.full(3, 7.0)
+    assert np.isnan(bt.normalise_row(row, wn))
+    np.testing.assert_array_equal(wn, 7.0)
+
+
+def test_normalise_does_not_overflow() -> None:
+    lw = np.array([[1000.0, 1000.0], [-1000.0, -1001.0]])
+    _, w, ls = bt.normalise_rows(lw)
+    _, w2, ls2 = bt.normalise_rows_numba(lw)
+    np.testing.assert_allclose(ls, [1000 + np.log(2), logsumexp(lw[1])])
+    np.testing.assert_allclose(w2, w, rtol=1e-15)
+    np.testing.assert_allclose(ls2, ls, rtol=1e-15)
+
+
+def test_ess_numpy_numba_and_bounds() -> None:
+    rng = np.random.default_rng(3)
+    w = rng.dirichlet(np.full(50, 0.3), size=8)
+    e = bt.ess_rows(w)
+    np.testing.assert_allclose(bt.ess_rows_numba(w), e, rtol=1e-13)
+    np.testing.assert_allclose(e, 1.0 / np.einsum("ij,ij->i", w, w), rtol=1e-13)
+    assert bt.ess_rows(np.full(4, 0.25)) == pytest.approx(4.0)
+    assert bt.ess_rows(np.array([0.0, 1.0, 0.0])) == 1.0
+    assert np.all((e >= 1) & (e <= 50))
+
+
+def _systematic_oracle(w: np.ndarray, u: float) -> np.ndarray:
+    """Per-row reference written independently: searchsorted of the N positions."""
+    c = np.cumsum(w)
+    n = w.size
+    idx = np.searchsorted(c, (np.arange(n) + u) / n * c[-1], side="right")
+    return np.minimum(idx, np.flatnonzero(w)[-1])
+
+
+@pytest.mark.parametrize("N", [1, 3, 64, 500])
+def test_systematic_equals_searchsorted_oracle(N: int) -> None:
+    rng = np.random.default_rng(10 + N)
+    w = rng.dirichlet(np.full(N, 0.5), size=12)
+    w[:, -1] = 0.0 if N > 1 else w[:, -1]  # trailing zero weight: never selected
+    w /= w.sum(axis=1, keepdims=True)
+    u = rng.random(12)
+    u[0] = 0.0
+    u[1] = np.nextafter(1.0, 0.0)
+    ref = np.stack([_systematic_oracle(w[r], u[r]) for r in range(12)])
+    np.testing.assert_array_equal(bt.systematic_rows(w, u), ref)
+    np.testing.assert_array_equal(bt.systematic_rows_numba(w, u), ref)
+    for r in range(3):
+        np.testing.assert_array_equal(bt.systematic_rows(w[r], u[r]), ref[r])
+        idx, cw = np.empty(N, np.int64), np.empty(N)
+        bt.systematic_row(w[r], u[r], idx, cw)
+        np.testing.assert_array_equal(idx, ref[r])
+    # unbiased copy counts: floor or ceil of N w
+    counts = np.stack([np.bincount(ref[r], minlength=N) for r in range(12)])
+    assert np.all(counts >= np.floor(N * w - 1e-9)) and np.all(counts <= np.ceil(N * w + 1e-9))
+
+
+def test_systematic_round_off_never_returns_index_n() -> None:
+    w = np.array([0.3, 0.7 - 1e-12, 0.0])  # sums just below 1
+    for u in (0.0, 0.999999999999):
+        assert bt.systematic_rows(w, u).max() <= 1
+        assert bt.systematic_rows_numba(w[None], np.array([u])).max() <= 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_weighted_quantile_equals_numpy_inverted_cdf(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    U, N = 5, 37
+    x = np.round(rng.normal(size=(U, N)), 1)  # ties
+    w = rng.random((U, N))
+    w[rng.random((U, N)) < 0.2] = 0.0
+    q = np.array([0.0, 0.025, 0.3, 0.5, 0.975, 1.0])
+    ref = np.stack([np.quantile(x[r], q, weights=w[r], method="inverted_cdf")
+                    for r in range(U)])
+    np.testing.assert_array_equal(bt.weighted_quantile_rows(x, w, q), ref)
+    np.testing.assert_array_equal(bt.weighted_quantile_rows_numba(x, w, q), ref)
+    assert bt.weighted_quantile_rows(x[0], w[0], 0.3) == ref[0, 2]
+    # q = 0 never returns a zero-weight particle
+    x0, w0 = np.array([-5.0, 1.0, 2.0]), np.array([0.0, 1.0, 1.0])
+    assert bt.weighted_quantile_rows(x0, w0, 0.0) == 1.0
+    assert bt.weighted_quantile_rows_numba(x0[None], w0[None], np.array([0.0]))[0, 0] == 1.0
+
+
+_CACHE_SCRIPT = textwrap.dedent("""
+    import numpy as np
+    from rulkit.estimation import batched
+    from rulkit.systems.reaction_wheel import kernels
+    from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
+    from rulkit.systems.reaction_wheel.wheel import simulate_table3
+    d = simulate_table3(np.random.default_rng(0), "low", t_end=5.0)
+    r = filter_temperature(d.y, d.V, np.random.default_rng(1),
+                                  TemperatureConfig(n_particles=40), sigma=(d.sigma_w, d.sigma_I))
+    lw = np.random.default_rng(2).normal(size=(3, 9))
+    print(repr(float(r.T_mean[-1])), repr(float(batched.normalise_rows_numba(lw)[2][1])))
+""")
+
+
+def test_numba_cache_is_reused_across_modules(tmp_path: Path) -> None:
+    """Second fresh process: cache index files exist for batched's row functions and for the
+    kernel that calls them, and the numbers are identical."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    outs = [subprocess.run([sys.executable, "-c", _CACHE_SCRIPT], env=env, check=True,
+                           capture_output=True, text=True, timeout=300).stdout
+            for _ in range(2)]
+    assert outs[0] == outs[1] and outs[0].strip()
+    idx = [p.name for p in (tmp_path / "cache").rglob("*.nbi")]
+    for fn in ("batched.normalise_row", "batched.ess_row", "batched.systematic_row",
+               "batched.sort_order_row", "batched.weighted_quantiles_sorted_row",
+               "batched.normalise_rows_numba",
+               "kernels.pf_kernel"):
+        assert any(n.startswith(fn + "-") for n in idx), (fn, idx)
+    data = [p for p in (tmp_path / "cache").rglob("*.nbc") if "pf_kernel" in p.name]
+    assert data, "no compiled pf_kernel in the cache"
+
+
+def test_kept_sort_order_equals_stable_argsort() -> None:
+    """Insertion sort from a near-sorted order, the rebuild after resampling and the two
+    quantiles read from it equal the stable argsort and the quantile oracle."""
+    rng = np.random.default_rng(5)
+    N = 300
+    x = np.round(rng.normal(size=N), 2)  # ties
+    order = np.argsort(x, kind="stable")
+    ibuf = np.empty(2 * N + 1, dtype=np.int64)
+    idx, cw = np.empty(N, np.int64), np.empty(N)
+    for step in range(30):
+        w = rng.dirichlet(np.full(N, 0.2))
+        if step % 3 == 0:  # resample: values copied from their ancestors
+            bt.systematic_row(w, rng.random(), idx, cw)
+            x = x[idx]
+            bt.order_after_resampling(order, idx, ibuf)
+            np.testing.assert_array_equal(order, np.argsort(x, kind="stable"))
+            w = np.full(N, 1.0 / N)
+        x = x + np.round(0.02 * rng.normal(size=N), 3)  # random walk: few inversions
+        bt.sort_order_row(x, order, False)
+        np.testing.assert_array_equal(order, np.argsort(x, kind="stable"))
+        lo, hi = bt.weighted_quantiles_sorted_row(x, w, order, 0.025, 0.975, cw)
+        ref = np.quantile(x, [0.025, 0.975], weights=w, method="inverted_cdf")
+        assert (lo, hi) == (ref[0], ref[1])
+    x = rng.normal(size=N)  # a fresh cloud: the full sort
+    bt.sort_order_row(x, order, True)
+    np.testing.assert_array_equal(order, np.argsort(x, kind="stable"))
+    bt.sort_order_row(x[::-1].copy(), order, False)  # reversed: falls back past 8 N moves
+    np.testing.assert_array_equal(order, np.argsort(x[::-1], kind="stable"))
