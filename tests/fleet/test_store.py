@@ -164,7 +164,7 @@ CHILD = r"""
 import sys, time, pathlib
 import numpy as np, pandas as pd
 from rulkit.fleet.store import ComponentStore
-from rulkit.fleet.tracker_chain import (TrackerConfig)
+from rulkit.fleet.tracker_chain import TrackerConfig
 
 class Slow(ComponentStore):
     def _write_history(self, rows):

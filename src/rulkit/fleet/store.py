@@ -945,8 +945,11 @@ class ComponentStore:
                     cols_out += [learned_cols[1, rb].tolist(), learned_cols[2, rb].tolist(),
                                  learned_cols[0, rb].tolist()]
                     extra_cols = ("rul_median",)
-                self._write_history(zip(*cols_out, itertools.repeat(ingest_id), strict=False),
-                                    extra_cols=extra_cols)
+                rows_h = zip(*cols_out, itertools.repeat(ingest_id), strict=False)
+                if extra_cols:
+                    self._write_history(rows_h, extra_cols=extra_cols)
+                else:
+                    self._write_history(rows_h)
                 del cols_out
             del buf
             k0 = k1
