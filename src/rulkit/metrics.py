@@ -77,7 +77,7 @@ def rul_percentage_error(rul_pred: ArrayLike, rul_true: ArrayLike) -> FloatArray
 def rmspe(estimate: ArrayLike, truth: ArrayLike, axis: int | None = None) -> float | FloatArray:
     """Root mean squared percentage error ``100 sqrt(mean(((x_hat - x) / x)^2))``.
 
-    The definition of rw-lubrication.md section 6 (and the RMSPE of [S2010]'s accuracy metrics
+    The definition of docs/systems/reaction-wheel.md §6 (and the RMSPE of [S2010]'s accuracy metrics
     with ``x = r*``). ``axis`` as in :func:`numpy.mean`; ``None`` averages over all entries.
     """
     e = _arr(estimate, "estimate")

@@ -158,39 +158,55 @@ def test_numba_cache_is_reused_across_modules(tmp_path: Path) -> None:
     assert outs[0] == outs[1] and outs[0].strip()
     idx = [p.name for p in (tmp_path / "cache").rglob("*.nbi")]
     for fn in ("batched.normalise_row", "batched.ess_row", "batched.systematic_row",
-               "batched.sort_order_row", "batched.weighted_quantiles_sorted_row",
-               "batched.normalise_rows_numba",
+               "batched.weighted_quantile_select_row", "batched.normalise_rows_numba",
                "kernels.pf_kernel"):
         assert any(n.startswith(fn + "-") for n in idx), (fn, idx)
     data = [p for p in (tmp_path / "cache").rglob("*.nbc") if "pf_kernel" in p.name]
     assert data, "no compiled pf_kernel in the cache"
 
 
-def test_kept_sort_order_equals_stable_argsort() -> None:
-    """Insertion sort from a near-sorted order, the rebuild after resampling and the two
-    quantiles read from it equal the stable argsort and the quantile oracle."""
+def test_weighted_quantile_by_selection_equals_inverted_cdf() -> None:
+    """The quickselect quantile used in the filter loops equals np.quantile's inverted CDF
+    (ties, zero weights, resampled copies, q = 0 and 1, a single particle)."""
     rng = np.random.default_rng(5)
-    N = 300
-    x = np.round(rng.normal(size=N), 2)  # ties
-    order = np.argsort(x, kind="stable")
-    ibuf = np.empty(2 * N + 1, dtype=np.int64)
-    idx, cw = np.empty(N, np.int64), np.empty(N)
-    for step in range(30):
-        w = rng.dirichlet(np.full(N, 0.2))
-        if step % 3 == 0:  # resample: values copied from their ancestors
-            bt.systematic_row(w, rng.random(), idx, cw)
-            x = x[idx]
-            bt.order_after_resampling(order, idx, ibuf)
-            np.testing.assert_array_equal(order, np.argsort(x, kind="stable"))
-            w = np.full(N, 1.0 / N)
-        x = x + np.round(0.02 * rng.normal(size=N), 3)  # random walk: few inversions
-        bt.sort_order_row(x, order, False)
-        np.testing.assert_array_equal(order, np.argsort(x, kind="stable"))
-        lo, hi = bt.weighted_quantiles_sorted_row(x, w, order, 0.025, 0.975, cw)
-        ref = np.quantile(x, [0.025, 0.975], weights=w, method="inverted_cdf")
-        assert (lo, hi) == (ref[0], ref[1])
-    x = rng.normal(size=N)  # a fresh cloud: the full sort
-    bt.sort_order_row(x, order, True)
-    np.testing.assert_array_equal(order, np.argsort(x, kind="stable"))
-    bt.sort_order_row(x[::-1].copy(), order, False)  # reversed: falls back past 8 N moves
-    np.testing.assert_array_equal(order, np.argsort(x[::-1], kind="stable"))
+    for N in (1, 2, 3, 50, 350):
+        buf = np.empty(N, np.int64)
+        for trial in range(20):
+            x = np.round(rng.normal(size=N), 1 if trial % 2 else 6)
+            if trial % 3 == 0:  # resampled cloud: many copies
+                x = x[rng.integers(0, max(1, N // 10), N)]
+            w = rng.dirichlet(np.full(N, 0.3))
+            w[rng.random(N) < 0.2] = 0.0
+            if not w.sum() > 0:
+                w[0] = 1.0
+            for q in (0.0, 0.025, 0.05, 0.5, 0.95, 0.975, 1.0):
+                ref = np.quantile(x, q, weights=w, method="inverted_cdf")
+                assert bt.weighted_quantile_select_row(x, w, q, buf) == ref, (N, trial, q)
+                if q > 0:
+                    order, cw = np.empty(N, np.int64), np.empty(N)
+                    assert bt.weighted_quantile_row(x, w, q, order, cw) == ref
+
+
+def test_weights_from_log_form_is_the_same_weights_up_to_rounding() -> None:
+    lw = _logw(np.random.default_rng(9), 4, 60)
+    a = bt.normalise_rows(lw)
+    b = bt.normalise_rows(lw, weights_from_log=True)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_allclose(b[1], a[1], rtol=1e-13, atol=1e-300)
+    np.testing.assert_array_equal(b[1], np.exp(a[0]))
+    row, wn = lw[1].copy(), np.empty(60)
+    bt.normalise_row(row, wn, True)
+    np.testing.assert_allclose(wn, b[1][1], rtol=1e-13, atol=1e-300)
+    np.testing.assert_allclose(wn, np.exp(row), rtol=1e-15, atol=0)  # libm vs numpy exp
+
+
+def test_normalise_weights_and_systematic_indices_match_the_row_functions() -> None:
+    lw = _logw(np.random.default_rng(11), 1, 80)[0]
+    w, ls = bt.normalise_weights(lw)
+    _, w2, ls2 = bt.normalise_rows(lw)
+    np.testing.assert_array_equal(w, w2)
+    assert ls == ls2 == pytest.approx(logsumexp(lw), rel=1e-14)
+    wd, lsd = bt.normalise_weights(np.full(3, -np.inf))
+    assert lsd == -np.inf and np.isnan(wd).all()
+    assert np.isnan(bt.normalise_weights(np.array([0.0, np.nan]))[1])
+    np.testing.assert_array_equal(bt.systematic_indices(w, 0.3), _systematic_oracle(w, 0.3))

@@ -53,15 +53,15 @@ __all__ = [
     "normalise_row",
     "normalise_rows",
     "normalise_rows_numba",
-    "order_after_resampling",
-    "sort_order_row",
+    "normalise_weights",
+    "systematic_indices",
     "systematic_row",
     "systematic_rows",
     "systematic_rows_numba",
     "weighted_quantile_row",
     "weighted_quantile_rows",
     "weighted_quantile_rows_numba",
-    "weighted_quantiles_sorted_row",
+    "weighted_quantile_select_row",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -73,8 +73,13 @@ IntArray = NDArray[np.int64]
 # ---------------------------------------------------------------------------------------------
 
 
-def normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray | np.float64]:
+def normalise_rows(
+    logw: FloatArray, weights_from_log: bool = False
+) -> tuple[FloatArray, FloatArray, FloatArray | np.float64]:
     """Log-sum-exp normalisation of every row: ``(normalised logw, weights, log_sum)``.
+
+    ``weights_from_log``: weights as ``exp(normalised logw)`` rather than
+    ``exp(logw - max) / sum`` (see :func:`normalise_row`).
 
     ``logw`` (..., N); returns arrays of shapes (..., N), (..., N) and (...) (a float64 scalar
     for a single row). A single row takes the log of its sum with ``math.log``, more rows with
@@ -89,21 +94,39 @@ def normalise_rows(logw: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray
             e = np.exp(lw - m)
             s = float(e.sum())
             ls1 = m + math.log(s)
-            return lw - ls1, e / s, np.float64(ls1)
+            lwn1 = lw - ls1
+            return lwn1, np.exp(lwn1) if weights_from_log else e / s, np.float64(ls1)
     mx = lw.max(axis=-1, keepdims=True)
     ok = np.isfinite(mx)
     if ok.all():
         e = np.exp(lw - mx)
         s = e.sum(axis=-1, keepdims=True)
         ls = mx + np.log(s)
-        return lw - ls, e / s, ls[..., 0]
+        lwn = lw - ls
+        return lwn, np.exp(lwn) if weights_from_log else e / s, ls[..., 0]
     with np.errstate(invalid="ignore", divide="ignore"):
         m0 = np.where(ok, mx, 0.0)
         e = np.exp(lw - m0)
         s = e.sum(axis=-1, keepdims=True)
         bad = np.where(mx == -np.inf, -np.inf, np.nan)
         ls = np.where(ok, m0 + np.log(s), bad)
-        return np.where(ok, lw - ls, lw), np.where(ok, e / s, np.nan), ls[..., 0]
+        lwn = np.where(ok, lw - ls, lw)
+        w = np.exp(lwn) if weights_from_log else e / s
+        return lwn, np.where(ok, w, np.nan), ls[..., 0]
+
+
+def normalise_weights(logw: FloatArray) -> tuple[FloatArray, float]:
+    """One row's weights and log-sum, as :func:`normalise_rows` without the normalised
+    log-weights (for callers that only need the weights; one array operation less).
+    Degenerate row: ``(NaN weights, -inf or NaN)``."""
+    lw = np.asarray(logw, dtype=np.float64)
+    m = float(lw.max())
+    if not math.isfinite(m):
+        return np.full(lw.shape, np.nan), (-math.inf if m == -math.inf else math.nan)
+    e = np.exp(lw - m)
+    s = float(e.sum())
+    e /= s
+    return e, m + math.log(s)
 
 
 def ess_rows(w: FloatArray) -> FloatArray | float:
@@ -175,8 +198,12 @@ def weighted_quantile_rows(x: FloatArray, w: FloatArray, q: FloatArray | float) 
 
 
 @nb.njit(cache=True)
-def normalise_row(lw, wn):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def normalise_row(lw, wn, weights_from_log=False):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Normalise one row in place: ``wn = exp(lw - max) / sum``, ``lw -= log_sum``.
+
+    ``weights_from_log=True``: ``wn = exp(normalised lw)`` instead (the same number up to the
+    last bit; the degradation trackers have always used this form, kept so their tables do
+    not move).
 
     Returns ``log_sum`` (the log-likelihood increment when ``lw`` held normalised log-weights
     plus log-likelihoods). A degenerate row returns -inf (every weight zero) or NaN (a NaN or
@@ -200,9 +227,14 @@ def normalise_row(lw, wn):  # type: ignore[no-untyped-def]  # pragma: no cover -
         wn[i] = e
         s += e
     ls = mx + math.log(s)
-    for i in range(n):
-        wn[i] /= s
-        lw[i] -= ls
+    if weights_from_log:
+        for i in range(n):
+            lw[i] -= ls
+            wn[i] = math.exp(lw[i])
+    else:
+        for i in range(n):
+            wn[i] /= s
+            lw[i] -= ls
     return ls
 
 
@@ -279,6 +311,15 @@ def normalise_rows_numba(logw):  # type: ignore[no-untyped-def]  # pragma: no co
 
 
 @nb.njit(cache=True)
+def systematic_indices(w, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """:func:`systematic_row` returning a fresh index array (scratch allocated inside)."""
+    n = w.size
+    idx = np.empty(n, dtype=np.int64)
+    systematic_row(w, u, idx, np.empty(n))
+    return idx
+
+
+@nb.njit(cache=True)
 def ess_rows_numba(w):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """numba twin of :func:`ess_rows` for (U, N) input."""
     U = w.shape[0]
@@ -313,95 +354,84 @@ def weighted_quantile_rows_numba(x, w, q):  # type: ignore[no-untyped-def]  # pr
 
 
 # ---------------------------------------------------------------------------------------------
-# numba: weighted quantiles of a cloud that moves little between steps (sorted order kept)
+# numba: weighted quantiles by selection (no sort), for per-step intervals in a filter loop
 # ---------------------------------------------------------------------------------------------
 
 
 @nb.njit(cache=True)
-def sort_order_row(x, order, fresh):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Make ``order`` (int64, N) the stable ascending argsort of ``x`` in place.
+def weighted_quantile_select_row(x, w, q, buf):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Weighted quantile ``q`` of one row (the inverted-CDF definition of the module
+    docstring) by three-way quickselect, expected O(N), without sorting. ``buf`` int64 scratch
+    of size N.
 
-    ``fresh``: rebuild by ``np.argsort(kind="mergesort")``; otherwise ``order`` is taken as a
-    near-sorted start and finished by insertion sort on the key (x_i, i), which is exactly the
-    stable argsort (O(N + inversions)); past 8 N moves, or with a NaN in ``x``, it falls back to
-    the full sort. Same result as ``np.argsort(x, kind="stable")`` either way (tested).
+    The inverted-CDF quantile is the smallest value ``v`` with ``S(v) = sum_{x_i <= v} w_i >=
+    q sum_i w_i`` (and the smallest value of positive weight for q = 0), so it only needs the
+    weight below and at a pivot value, not the order. The partial sums are taken in another
+    order than the sorted cumulative sum, so the result can differ from
+    :func:`weighted_quantile_row` only when ``S(v)`` and ``q`` x total agree to the last bits;
+    that is the rule, not the exception, for equal weights (a prior, a resampled cloud), which
+    therefore take the sorted path.
     """
     n = x.size
-    if not fresh:
-        for i in range(n):
-            if x[i] != x[i]:
-                fresh = True
-                break
-    if not fresh:
-        moves = 0
-        for i in range(1, n):
-            o = order[i]
-            v = x[o]
-            j = i - 1
-            while j >= 0:
-                p = order[j]
-                xp = x[p]
-                if xp > v or (xp == v and p > o):
-                    order[j + 1] = p
-                    j -= 1
-                    moves += 1
-                else:
-                    break
-            order[j + 1] = o
-            if moves > 8 * n:
-                fresh = True
-                break
-    if fresh:
-        order[:] = np.argsort(x, kind="mergesort")
-
-
-@nb.njit(cache=True)
-def order_after_resampling(order, idx, ibuf):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Stable sorted order of a resampled row from the old one, in O(N).
-
-    ``idx`` the ancestors of :func:`systematic_row` (non-decreasing: the copies of particle i
-    are a contiguous run of new indices); ``ibuf`` int64 scratch of size 2 N + 1. The copies
-    of an ancestor share its value, so walking the old order and emitting each ancestor's run
-    gives the stable order of the new values.
-    """
-    n = idx.size
-    for i in range(n + 1):
-        ibuf[i] = 0
-    for j in range(n):
-        ibuf[idx[j] + 1] += 1
+    total = 0.0
     for i in range(n):
-        ibuf[i + 1] += ibuf[i]
-    m = 0
-    for k in range(n):
-        o = order[k]
-        for j in range(ibuf[o], ibuf[o + 1]):
-            ibuf[n + 1 + m] = j
-            m += 1
-    for k in range(n):
-        order[k] = ibuf[n + 1 + k]
-
-
-@nb.njit(cache=True)
-def weighted_quantiles_sorted_row(x, w, order, q_lo, q_hi, cw):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Two weighted quantiles (as :func:`weighted_quantile_row`) from a sorted ``order``."""
-    n = x.size
-    acc = 0.0
-    for j in range(n):
-        acc += w[order[j]]
-        cw[j] = acc
-    return _quantile_from_cw(x, order, cw, q_lo), _quantile_from_cw(x, order, cw, q_hi)
-
-
-@nb.njit(cache=True)
-def _quantile_from_cw(x, order, cw, q):  # type: ignore[no-untyped-def]  # pragma: no cover
-    n = x.size
-    qq = q * cw[n - 1]
+        total += w[i]
     if q == 0.0:
-        for j in range(n):
-            if cw[j] > 0.0:
-                return x[order[j]]
-    else:
-        for j in range(n):
-            if cw[j] >= qq:
-                return x[order[j]]
-    return x[order[n - 1]]
+        best = np.inf
+        for i in range(n):
+            if w[i] > 0.0 and x[i] < best:
+                best = x[i]
+        return best
+    equal = True
+    for i in range(1, n):
+        if w[i] != w[0]:
+            equal = False
+            break
+    if equal:  # equal weights sit on the boundary S(v) = q total: sum in sorted order
+        order = np.empty(n, dtype=np.int64)
+        return weighted_quantile_row(x, w, q, order, np.empty(n))
+    target = q * total
+    for i in range(n):
+        buf[i] = i
+    lo = 0
+    hi = n
+    below = 0.0
+    while lo < hi:
+        a = x[buf[lo]]
+        b = x[buf[(lo + hi) // 2]]
+        c = x[buf[hi - 1]]
+        p = max(min(a, b), min(max(a, b), c))  # median of three
+        lt = lo  # [lo, lt) < p, [lt, i) == p, (gt, hi) > p
+        i = lo
+        gt = hi - 1
+        w_lt = 0.0
+        w_eq = 0.0
+        while i <= gt:
+            v = x[buf[i]]
+            if v < p:
+                w_lt += w[buf[i]]
+                t = buf[lt]
+                buf[lt] = buf[i]
+                buf[i] = t
+                lt += 1
+                i += 1
+            elif v > p:
+                t = buf[gt]
+                buf[gt] = buf[i]
+                buf[i] = t
+                gt -= 1
+            else:
+                w_eq += w[buf[i]]
+                i += 1
+        if below + w_lt >= target:
+            hi = lt
+        elif below + w_lt + w_eq >= target:
+            return p
+        else:
+            below += w_lt + w_eq
+            lo = gt + 1
+    mx = -np.inf  # round-off: q total above every partial sum -> the largest value of
+    for i in range(n):  # positive weight (where the sorted cumulative sum reaches its total)
+        if w[i] > 0.0 and x[i] > mx:
+            mx = x[i]
+    return mx

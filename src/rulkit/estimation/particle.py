@@ -5,7 +5,7 @@ particles (eq. 13); with the transition density as importance function the weigh
 ``w_k^i ∝ w_{k-1}^i p(y_k | x_k^i)`` (eq. 15); the effective sample size is
 ``N_eff = 1 / sum_i (w_k^i)^2`` (eq. 16) and resampling happens when it falls below a threshold.
 
-Design (docs/engine-api.md, ``rulkit.estimation.particle``; architecture.md "Principles"):
+Design (docs/engine-api.md, ``rulkit.estimation.particle``; docs/guide.md "Concepts"):
 
 - Log-weights throughout, normalised by log-sum-exp. A degenerate update (every weight zero,
   i.e. every log-weight -inf, or any NaN / +inf log-weight) raises ``DegenerateWeightsError``
@@ -40,7 +40,7 @@ from typing import Any, Literal, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.estimation.batched import ess_rows, normalise_rows
+from rulkit.estimation.batched import ess_rows, normalise_weights
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
 from rulkit.model import (
     InputLike,
@@ -103,13 +103,14 @@ def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
     """Normalise log-weights by log-sum-exp: return ``(w, log_sum)`` with ``sum(w) == 1``.
 
     ``log_sum = log sum_i exp(logw_i)``, computed as ``m + log sum exp(logw - m)`` with
-    ``m = max logw`` so nothing overflows (architecture.md: "normalise with log-sum-exp").
-    Raises ``DegenerateWeightsError`` when every log-weight is -inf, or any is NaN or +inf.
+    ``m = max logw`` so nothing overflows (docs/guide.md, "Log-weights": normalise with
+    log-sum-exp). Raises ``DegenerateWeightsError`` when every log-weight is -inf, or any is NaN or
+    +inf.
     """
     logw = np.asarray(logw, dtype=np.float64)
     if logw.ndim != 1 or logw.size == 0:
         raise ValueError(f"logw: expected a non-empty 1-D array, got shape {logw.shape}")
-    _, w, ls = normalise_rows(logw)
+    w, ls = normalise_weights(logw)
     if not math.isfinite(ls):  # NaN anywhere, +inf anywhere, or all -inf
         raise DegenerateWeightsError(_describe_degenerate(logw))
     return w, float(ls)
@@ -774,4 +775,4 @@ def _logsumexp(a: FloatArray) -> float:
     m = a.max()
     if not math.isfinite(m):  # -inf (all zero), +inf or NaN: the value itself
         return float(m)
-    return float(normalise_rows(a)[2])
+    return float(normalise_weights(a)[1])

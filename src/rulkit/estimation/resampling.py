@@ -36,7 +36,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.estimation.batched import systematic_row
+from rulkit.estimation.batched import systematic_indices
 
 __all__ = [
     "RESAMPLERS",
@@ -120,12 +120,10 @@ def _systematic_reference(
 
 def _systematic_loop(w: NDArray[np.float64], u: float) -> NDArray[np.int64]:
     """Ancestors of systematic resampling with uniform ``u``: the batched core's compiled
-    :func:`rulkit.estimation.batched.systematic_row` (the same positions, cumulative sum and
-    comparisons as :func:`_locate`, located by one merge pass instead of N binary searches)."""
-    n = w.size
-    idx = np.empty(n, dtype=np.int64)
-    systematic_row(w, u, idx, np.empty(n))
-    return idx
+    :func:`rulkit.estimation.batched.systematic_indices` (the same positions, cumulative sum
+    and comparisons as :func:`_locate`, located by one merge pass instead of N binary
+    searches)."""
+    return systematic_indices(w, u)  # type: ignore[no-any-return]
 
 
 def _systematic(w: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.int64]:
@@ -172,7 +170,7 @@ def systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArra
     """Systematic resampling: positions ``(k + U) / N`` with a single ``U ~ U[0, 1)``.
 
     Unbiased; particle ``i`` receives ``floor(N w_i)`` or ``ceil(N w_i)`` copies. The default of
-    the rw-lubrication spec (section 3).
+    docs/systems/reaction-wheel.md §3.
     """
     return _systematic(_check_weights(weights), rng)
 

@@ -1,7 +1,7 @@
 """Monte Carlo propagation to a failure threshold and the RUL distribution it produces.
 
-Contract: docs/engine-api.md, section ``rulkit.prognosis.rul``; architecture.md ("Small, frozen
-result types holding arrays (a RUL distribution = samples + weights ...)").
+Contract: docs/engine-api.md, section ``rulkit.prognosis.rul``: a small, frozen result type
+holding arrays (a RUL distribution = samples + weights + censoring); docs/guide.md, "Censoring".
 
 Censoring convention (decided here, used everywhere in rulkit)
 -------------------------------------------------------------

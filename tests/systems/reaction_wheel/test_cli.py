@@ -143,3 +143,26 @@ def test_estimate_temperature_other_methods(telemetry: Path, tmp_path: Path, met
     assert res.exit_code == 0, _err(res)
     est = pd.read_csv(out)
     assert len(est) == 601 and (est["T_lo"] <= est["T_hi"]).all()
+
+
+def test_estimate_temperature_refuses_to_overwrite_its_input(tmp_path) -> None:
+    """Issue 13: ``--out f.csv`` on input f.csv overwrote the input; now refused, unchanged."""
+    from rulkit.systems.reaction_wheel.temperature import table3_telemetry
+
+    f = tmp_path / "f.csv"
+    table3_telemetry(np.random.default_rng(0), "low", t_end=2.0).to_csv(f, index=False)
+    before = f.read_bytes()
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(f), "--out", str(f)])
+    assert res.exit_code != 0 and "overwrite" in _err(res)
+    assert f.read_bytes() == before
+
+
+def test_estimate_below_absolute_zero_is_refused() -> None:
+    from rulkit.systems.reaction_wheel.temperature import ImplausibleEstimateError, _checked
+
+    est = pd.DataFrame({"time_s": [0.0, 0.05], "T_mean": [20.0, -300.0], "T_lo": [19, -301],
+                        "T_hi": [21, -299], "untrusted": [False, False]})
+    with pytest.raises(ImplausibleEstimateError, match="absolute zero"):
+        _checked(est)
+    ok = _checked(est.assign(T_mean=[20.0, 250.0]))
+    assert "outside -30..215 C" in ok.attrs["warning"]

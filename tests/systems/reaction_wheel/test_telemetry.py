@@ -124,3 +124,39 @@ def test_failed_validation_leaves_input_untouched() -> None:
     with pytest.raises(TelemetryError):
         validate_wheel_telemetry(df)
     pd.testing.assert_frame_equal(df, before)
+
+
+def test_parquet_datetime_time_column_is_read_as_seconds(tmp_path) -> None:
+    """Issue 13: a datetime64 time column was nanoseconds since 1970 taken as seconds."""
+    df = _frame()
+    start = pd.Timestamp("2026-03-01 12:00:00")
+    df["time_s"] = start + pd.to_timedelta(df["time_s"], unit="s")
+    df.to_parquet(tmp_path / "dt.parquet")
+    out = read_wheel_telemetry(tmp_path / "dt.parquet")
+    assert out.attrs["dt"] == pytest.approx(0.05, rel=1e-5)  # float64 epoch seconds: ~2e-7 s
+    assert out["time_s"].iloc[0] == pytest.approx(start.timestamp())
+    np.testing.assert_allclose(np.diff(out["time_s"]), 0.05, atol=1e-6)
+    # time zone aware and durations too
+    tz = _frame()
+    tz["time_s"] = (start + pd.to_timedelta(tz["time_s"], unit="s")).dt.tz_localize("Europe/Paris")
+    assert validate_wheel_telemetry(tz).attrs["dt"] == pytest.approx(0.05, rel=1e-5)
+    td = _frame()
+    td["time_s"] = pd.to_timedelta(td["time_s"], unit="s")
+    assert validate_wheel_telemetry(td)["time_s"].iloc[-1] == pytest.approx(49 * 0.05)
+
+
+@pytest.mark.parametrize(("change", "match"), [
+    (lambda d: d.assign(time_s=d["time_s"] * 1e306), "sampling step"),
+    (lambda d: d.assign(speed_rad_s=0.0, current_A=0.0, v_comm_V=0.0), "no temperature"),
+    (lambda d: pd.concat([d, d], ignore_index=True).assign(
+        time_s=np.arange(2 * len(d)) * 0.05), "speed jumps"),
+])
+def test_physically_implausible_records_are_refused(change, match) -> None:
+    """Issue 13: all-zero signals, time scaled by 1e306 and tiled telemetry ran and reported
+    temperatures (below absolute zero); now a named error says what is wrong and where."""
+    from rulkit.systems.reaction_wheel.telemetry import ImplausibleTelemetryError
+
+    df = _frame(200).drop(columns="note")
+    df["speed_rad_s"] = 90 + 0.5 * df["time_s"]  # 90 -> 95 rad/s over the record
+    with pytest.raises(ImplausibleTelemetryError, match=match):
+        validate_wheel_telemetry(change(df))

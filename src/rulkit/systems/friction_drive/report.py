@@ -1,4 +1,5 @@
-"""Tables, figures and report.md of the friction-drive study (seed 003; spec friction-drive.md).
+"""Tables, figures and report.md of the friction-drive study (seed 003;
+docs/systems/friction-drive.md).
 
 :func:`tables` turns a :class:`~rulkit.systems.friction_drive.reproduce.FrictionDriveResult`
 into pandas DataFrames; :func:`figures` draws figures like the seed's Figs. 3, 5, 7 and 8
@@ -49,7 +50,8 @@ def tables(res: FrictionDriveResult) -> dict:
             "frac_NIS_outside_95": i.frac_nis_outside,
             "innov_cov_w1": i.innovation_coverage[0], "innov_cov_w2": i.innovation_coverage[1],
             "LjungBox_p_w1": i.ljung_box_p[0], "LjungBox_p_w2": i.ljung_box_p[1],
-            # the spec's lag-autocorrelation test: fraction of lags outside +-z/sqrt(T)
+            # the lag-autocorrelation test of docs/systems/friction-drive.md §5: fraction of lags
+            # outside +-z/sqrt(T)
             "ACF_out_w1": i.frac_autocorr_outside[0], "ACF_out_w2": i.frac_autocorr_outside[1],
             "NIS_ok": i.nis_ok, "white": i.white, "consistent": i.consistent,
             "mean_NIS_excl_jump": ix.mean_nis if ix else np.nan,
@@ -111,7 +113,8 @@ def tables(res: FrictionDriveResult) -> dict:
             "fit_std_h": r.normal_fit[1], "seed_std_h": SEED_VALUES["rul_std_h"],
             "median_h": q50, "q05_h": q05, "q95_h": q95,
             "frac_censored": r.rul.fraction_censored, "frac_m_le_0": r.fraction_never,
-            # spec: with samples that never fail, read the quantiles, not the normal fit
+            # docs/systems/friction-drive.md §7: with samples that never fail, read the quantiles,
+            # not the normal fit
             "summary": "normal fit" if r.fraction_never == 0 else "quantiles (m <= 0 present)",
             "nominal_h": r.nominal_h, "optimistic_h": r.optimistic_h,
             "pessimistic_h": r.pessimistic_h,
@@ -293,8 +296,9 @@ def _verdict_text(res: FrictionDriveResult, cons: pd.DataFrame) -> str:
         parts.append(
             f"Jump scenario, tuned filter: consistent (NIS and whiteness) without the second "
             f"after the jump in {tj} runs, NIS {sel['mean_NIS_excl_jump'].min():.3f}-"
-            f"{sel['mean_NIS_excl_jump'].max():.3f} (spec, measured elsewhere: consistent, "
-            "NIS 1.98-2.01, white; where our verdict differs, the Ljung-Box p-values in the "
+            f"{sel['mean_NIS_excl_jump'].max():.3f} (an earlier prototype outside this "
+            "repository: consistent, NIS 1.98-2.01, white; where our verdict differs, the "
+            "Ljung-Box p-values in the "
             "per-run table below are the evidence; compare tuned-low-q on the same scenario). "
             "A smaller q_m tracks the jump more slowly (jump_tracking_s below)."
         )
@@ -473,7 +477,8 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         f"{SEED_VALUES['rul_std_h']} h on {SEED_VALUES['rul_mean_h']} h implies sigma_m / m ~ "
         f"{seed_ratio:.1%}; the seed does not print the sigma_m it used, so this cannot be "
         f"matched, only compared. {never_text}",
-        f"- RUL uses D_f = {DEFAULT_PARAMS.failure_level:g} (D = 1 is never reached, spec). "
+        f"- RUL uses D_f = {DEFAULT_PARAMS.failure_level:g} (D = 1 is never reached, "
+        "docs/systems/friction-drive.md §2). "
         f"Fast propagation: {res.settings.get('transient', 10.0):g} s of the full model (RK4, "
         f"{res.settings.get('transient_dt', float('nan')) * 1e3:g} ms, numba) then the "
         "quasi-steady closed form, checked against LSODA over the full horizon (column "
@@ -485,7 +490,8 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         "Verdict per run: `NIS_ok` (time-averaged NIS inside its 95 % chi-square interval, "
         "2 T degrees of freedom for T steps), "
         f"`white` (Ljung-Box, {MAX_LAG} lags, on whitened innovations, p > {WHITENESS_ALPHA:g}/2 "
-        "per component, Bonferroni over the two speeds; `ACF_out_*` is the spec's lag test, the "
+        "per component, Bonferroni over the two speeds; `ACF_out_*` is the lag test of "
+        "docs/systems/friction-drive.md §5, the "
         f"fraction of the {MAX_LAG} lags whose autocorrelation is outside +-1.96/sqrt(T), about "
         "0.05 for white innovations), "
         "`consistent` = both. `*_excl_jump`: the same without the second after the jump "

@@ -1,5 +1,5 @@
 """Friction-drive deterioration: augmented EKF, consistency checks, observability and Monte Carlo
-RUL (seed 003, Rodriguez Obando, Martinez & Berenguer, IFAC 2017; spec friction-drive.md).
+RUL (seed 003, Rodriguez Obando, Martinez & Berenguer, IFAC 2017; docs/systems/friction-drive.md).
 
 The experiment composes the physics of :mod:`rulkit.systems.friction_drive.drive` with the generic
 :class:`rulkit.estimation.kalman.ExtendedKalmanFilter` (continuous model, RK4 mean prediction,
@@ -70,7 +70,7 @@ class Scenario:
 
     ``m_kind``: "constant" (assumption i), "jump" (ii: m -> ``m_jump`` at ``t_jump``) or
     "drift" (iii: dm/dt = ``drift_rate``). ``current``: "square" (0/20 A, period 2 s, on during
-    [2k, 2k+1) s; spec [R]) or "constant" (20 A from rest).
+    [2k, 2k+1) s; [R], docs/systems/friction-drive.md §3) or "constant" (20 A from rest).
     """
 
     name: str
@@ -153,7 +153,7 @@ def seed_configs(dt: float = 1e-3) -> dict[str, FilterConfig]:
     - ``seed``: Q = diag(0, 0, 0, 3.3333e-5) per step as printed (seed eq. 15, 27), i.e.
       q_m = 3.3333e-5 / t_s per second, F44 = 0;
     - ``seed-f44``: the same with the seed's F44 = -100 heuristic (Jacobian only);
-    - ``tuned``: q_m = 3e-7 / s (spec "Tuned run");
+    - ``tuned``: q_m = 3e-7 / s (docs/systems/friction-drive.md §4);
     - ``tuned-low-q``: q_m = 3e-8 / s (less process noise than ``tuned``: whiter innovations
       when m is constant, slower tracking of a change);
     - ``tuned-realistic``: the tuned filter with 100 x the seed's speed-noise sigmas;
@@ -225,9 +225,10 @@ class Truth:
 
 
 def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10) -> Truth:
-    """Integrate the full model with ``n_sub`` RK4 sub-steps per sample (spec: the truth uses
-    finer sub-steps than the filter). m follows the scenario's schedule, evaluated at the
-    middle of each sample interval (exact for constant m and for the jump at a sample time)."""
+    """Integrate the full model with ``n_sub`` RK4 sub-steps per sample
+    (docs/systems/friction-drive.md §4: the truth uses finer sub-steps than the filter). m follows
+    the scenario's schedule, evaluated at the middle of each sample interval (exact for constant m
+    and for the jump at a sample time)."""
     K = round(scenario.duration / dt)
     t = np.arange(K + 1, dtype=np.float64) * dt
     currents = scenario.current_of_t(t[:-1])
@@ -391,7 +392,7 @@ def run_filter(
 
 
 # ------------------------------------------------------------------------------------------
-# Convergence from wrong initial estimates (spec "Augmented EKF", last line)
+# Convergence from wrong initial estimates (docs/systems/friction-drive.md §4, last line)
 # ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ConvergenceRow:
@@ -550,7 +551,7 @@ class _Batch(NamedTuple):
 
 
 def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
-    """Run the whole seed-003 study (friction-drive.md "What must be shown").
+    """Run the whole seed-003 study (docs/systems/friction-drive.md §8).
 
     For every (config, scenario) pair and run: measurements with the config's truth noise, an
     initial estimate drawn from N(x_true(0), P0) (consistent start), the augmented EKF over

@@ -1,5 +1,5 @@
-"""Remaining useful life of the friction drive (seed 003 section 6; friction-drive.md, "RUL"):
-time to failure by the fast two-stage propagation (RK4 transient, then the quasi-steady closed
+"""Remaining useful life of the friction drive (seed 003 section 6; docs/systems/friction-drive.md
+§7): time to failure by the fast two-stage propagation (RK4 transient, then the quasi-steady closed
 form) checked against LSODA, Monte Carlo RUL from the EKF posterior, deterioration bundles."""
 
 from __future__ import annotations
@@ -41,14 +41,15 @@ def time_to_failure(
     The full model is integrated (RK4, ``dt``, numba kernel, vectorised over N, each sample
     stopping at its crossing) over the ``transient`` (spin-up from the off-equilibrium
     estimate); the quasi-steady closed form
-    :func:`rulkit.systems.friction_drive.drive.quasi_steady_time` then gives the rest (spec "RUL").
-    The closed form ignores the lag of the mechanical state behind the falling alpha, so it is
-    early by a roughly constant ~15-26 s (measured against LSODA over the full horizon: 26 s at
-    D_f = 0.99 and RUL ~ 105 h, ~80 s at D_f = 0.999); samples whose closed-form remainder is
-    below ``full_model_below`` seconds are therefore finished with the full model as well, so
-    the relative error stays below ~1 % even for failures within minutes (a first-order lag
-    correction was tried and diverges as D_f -> 1). Returns ``(t_fail, never)``: ``t_fail``
-    (N,) (inf where m <= 0 or beyond ``horizon``) and the mask of samples that never fail.
+    :func:`rulkit.systems.friction_drive.drive.quasi_steady_time` then gives the rest
+    (docs/systems/friction-drive.md §7). The closed form ignores the lag of the mechanical state
+    behind the falling alpha, so it is early by a roughly constant ~15-26 s (measured against LSODA
+    over the full horizon: 26 s at D_f = 0.99 and RUL ~ 105 h, ~80 s at D_f = 0.999); samples whose
+    closed-form remainder is below ``full_model_below`` seconds are therefore finished with the full
+    model as well, so the relative error stays below ~1 % even for failures within minutes (a
+    first-order lag correction was tried and diverges as D_f -> 1). Returns ``(t_fail, never)``:
+    ``t_fail`` (N,) (inf where m <= 0 or beyond ``horizon``) and the mask of samples that never
+    fail.
     """
     x0 = np.asarray(x0, dtype=np.float64)
     a_e = (1.0 - params.failure_level) * params.alpha0

@@ -5,7 +5,7 @@ State ``x_k = [w_k, c_k]`` per cycle, input the current, measurement ``z_k = [w_
 B units: the loop is over the samples of a cycle, never over cycles or runs. Cycles of different
 lengths are padded with NaN; a unit whose samples have run out keeps its last posterior.
 
-Two discretisations (motor-damping.md, "Micro EKF"):
+Two discretisations (docs/systems/motor-damping.md §2):
 - ``"rk4"`` (default): one RK4 step of eq. 1 with the current linear between samples, exact
   Jacobian of the RK4 map; measurement taken at the current state and current.
 - ``"seed-euler"``: the seed's eq. 3 as printed - explicit Euler with the lagged current, and
@@ -144,7 +144,7 @@ def micro_ekf(
     *,
     keep_history: bool = False,
 ) -> MicroEKFResult:
-    """Run the micro EKF over a batch of cycles (seed eqs. 2-3; motor-damping.md "Micro EKF").
+    """Run the micro EKF over a batch of cycles (seed eqs. 2-3; docs/systems/motor-damping.md §2).
 
     ``time`` (T,) shared or (B, T); ``current``, ``speed``, ``acceleration`` (B, T). NaN-padded
     tails (time NaN) mark cycles shorter than T; a NaN speed/acceleration inside a cycle is a

@@ -2,10 +2,10 @@
 
 Composes :mod:`rulkit.systems.motor_damping.motor` (physics, synthetic life test), the micro EKF
 (:mod:`.micro`, seed eqs. 2-3), the macro EKF and RUL (:mod:`.macro`,
-seed eqs. 4-7) and :mod:`rulkit.metrics` over many seeded runs (motor-damping.md, "What must be
-shown"). :func:`run` returns the tables as data;
-:func:`rulkit.systems.motor_damping.report.write_report` writes CSV tables, ``report.md`` (the
-seed's values beside ours) and figures like the seed's Figs. 8-17.
+seed eqs. 4-7) and :mod:`rulkit.metrics` over many seeded runs (docs/systems/motor-damping.md §7).
+:func:`run` returns the tables as data; :func:`rulkit.systems.motor_damping.report.write_report`
+writes CSV tables, ``report.md`` (the seed's values beside ours) and figures like the seed's Figs.
+8-17.
 
 Scenarios (each over ``runs`` seeded runs; run r uses ``SeedSequence(seed).spawn(runs)[r]``):
 

@@ -149,7 +149,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         runs: Annotated[int | None, typer.Option(help="Runs per table (default 20; "
                                                       "quick 5).")] = None,
         seed: Annotated[int, typer.Option(min=0, help="Seed of the runs.")] = 0,
-        out: Annotated[Path, typer.Option(help="Output directory.")] = Path("rw-lubrication-out"),
+        out: Annotated[Path, typer.Option(help="Output directory.")] = Path(
+            "out/rw-lubrication"),
         workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
         scheduler: Annotated[str | None, typer.Option(
             help="Address of an existing Dask scheduler (tcp://host:port).")] = None,
@@ -193,6 +194,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         level: Annotated[float, typer.Option(help="Interval level.")] = 0.95,
     ) -> None:
         """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
+        import os
+
         import numpy as np
 
         from rulkit.cli.errors import EXIT_USAGE
@@ -212,6 +215,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if not 0 < level < 1:
             fail(f"--level: expected a value in (0, 1), got {level}", EXIT_USAGE)
         dest = out or file.with_name(file.stem + "_temperature.csv")
+        if dest.exists() and file.exists() and os.path.samefile(dest, file):
+            fail(f"--out {dest} is the input file; refusing to overwrite it (choose another "
+                 "name)", EXIT_USAGE)
         if dest.suffix.lower() not in (".csv", ".parquet", ".pq"):
             fail(f"--out: expected a .csv, .parquet or .pq file name, got {dest.name!r}",
                  EXIT_USAGE)
@@ -233,6 +239,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             fail(f"cannot write {dest}: {err}")
         if "note" in est.attrs:
             typer.echo(f"note: {est.attrs['note']}", err=True)
+        if "warning" in est.attrs:
+            typer.echo(f"warning: {est.attrs['warning']}", err=True)
         n_bad = int(est["untrusted"].sum())
         if n_bad:
             typer.echo(f"warning: {n_bad} samples not trusted (outlier gate; column "

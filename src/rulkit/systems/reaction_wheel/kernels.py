@@ -1,9 +1,10 @@
-"""Fused numba kernels for the reaction-wheel step-1 particle filters (spec rw-lubrication.md
-section 3; seed 000 eqs 13-17 and 27, seed 001 eq. 28).
+"""Fused numba kernels for the reaction-wheel step-1 particle filters
+(docs/systems/reaction-wheel.md §3; seed 000 eqs 13-17 and 27, seed 001 eq. 28).
 
 The whole time loop is compiled: per step the temperature random walk, one RK4 step of the
-Ithaco wheel (spec section 1) per particle, the Gaussian likelihood, the weight update of the
-chosen variant, the estimates, the ESS and systematic resampling. Random numbers come from the
+Ithaco wheel (docs/systems/reaction-wheel.md §1) per particle, the Gaussian likelihood, the weight
+update of the chosen variant, the estimates, the ESS and systematic resampling. Random numbers come
+from the
 ``numpy.random.Generator`` passed in (numba draws from the same bit generator, in the same
 order as the numpy reference path
 :func:`rulkit.systems.reaction_wheel.temperature.filter_temperature_numpy`, so both
@@ -29,10 +30,8 @@ import numpy as np
 from rulkit.estimation.batched import (
     ess_row,
     normalise_row,
-    order_after_resampling,
-    sort_order_row,
     systematic_row,
-    weighted_quantiles_sorted_row,
+    weighted_quantile_select_row,
 )
 from rulkit.systems.reaction_wheel.wheel import IthacoParams
 
@@ -44,7 +43,8 @@ DESIGNS = {"F1": 0, "F2": 1}
 def pack_params(p: IthacoParams) -> np.ndarray:
     """Pack :class:`IthacoParams` into the kernel's float64 parameter vector."""
     if p.B != 0.0 or p.C != 0.0:
-        raise ValueError("the step-1 kernels model no ripple (B = C = 0, spec section 1)")
+        raise ValueError("the step-1 kernels model no ripple "
+                         "(B = C = 0, docs/systems/reaction-wheel.md §1.2)")
     return np.array(
         [p.G_d, p.w_d, p.K_t, p.K_e, p.K_s, p.w_s, p.tau_c, p.J, p.R_in, p.K_f, p.theta_a,
          p.w_a, p.V_bus, p.R_B, p.P_q, 0.0 if p.friction_law == "spec" else 1.0],
@@ -58,8 +58,9 @@ _FM = {"nsz", "arcp", "contract", "reassoc"}  # no nnan/ninf: NaN and -inf are h
 @nb.njit(cache=True, inline="always", fastmath=_FM)
 def _deriv(I, w, V, b, tn, C):  # type: ignore[no-untyped-def]
     """Wheel derivatives for one particle: the algebra of ``wheel_derivatives`` written
-    branch-free (comparisons as 0/1 factors, spec section 1: Heavisides are exact steps) so the
-    particle loop vectorises. ``C`` is the tuple from :func:`_consts` (inverses precomputed)."""
+    branch-free (comparisons as 0/1 factors, docs/systems/reaction-wheel.md §1: Heavisides are exact
+    steps) so the particle loop vectorises. ``C`` is the tuple from :func:`_consts` (inverses
+    precomputed)."""
     G_d, w_d, K_t, K_e, K_s, w_s, tau_c, inv_J, R_in, K_f, V_bus, R_B, P_q, inv_Vbus = C
     aI = abs(I)
     aw = abs(w)
@@ -161,7 +162,7 @@ class KernelSettings(NamedTuple):
 
 @nb.njit(cache=True)
 def _friction_law(P):  # type: ignore[no-untyped-def]
-    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction_wheel.md, viscous friction)."""
+    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction-wheel.md §1, (RW-7))."""
     if P[15] > 0.5:  # seed literal viscous law b = 0.0049 - 0.0002 (T + 30)
         return 0.0049 - 0.0002 * 30.0, -0.0002
     return 1e-3 * (0.049 - 0.0002 * 30.0), -1e-3 * 0.0002  # b = 1e-3 (0.049 - 0.0002 (T + 30))
@@ -268,13 +269,10 @@ def _resample(T, I, W, idx, wn, u, design, T2, I2, W2, cw):  # type: ignore[no-u
 
 
 @nb.njit(cache=True)
-def _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf):  # type: ignore[no-untyped-def]
-    """Weighted (q_lo, q_hi) quantiles of T with the sorted order kept from step to step
-    (:func:`rulkit.estimation.batched.sort_order_row`): O(N) when the cloud moved little."""
-    if resampled:
-        order_after_resampling(order, idx, ibuf)
-    sort_order_row(T, order, fresh)
-    return weighted_quantiles_sorted_row(T, wn, order, s.q_lo, s.q_hi, cw)
+def _interval(T, wn, s, ibuf):  # type: ignore[no-untyped-def]
+    """Weighted (q_lo, q_hi) quantiles of T by selection (expected O(N), no sort)."""
+    return (weighted_quantile_select_row(T, wn, s.q_lo, ibuf),
+            weighted_quantile_select_row(T, wn, s.q_hi, ibuf))
 
 
 @nb.njit(cache=True)
@@ -306,8 +304,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
     W2 = np.empty(N)
     cw = np.empty(N)
     idx = np.empty(N, dtype=np.int64)
-    order = np.arange(N)
-    ibuf = np.empty(2 * N + 1, dtype=np.int64)
+    ibuf = np.empty(N, dtype=np.int64)
     out_mean = np.full(K, np.nan)
     out_std = np.full(K, np.nan)
     out_qlo = np.full(K, np.nan)
@@ -343,11 +340,8 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
         wn[i] = 1.0 / N
     out_mean[0], out_std[0] = _mean_std(T, wn)
     out_ess[0] = N
-    fresh = True  # the kept sort order must be rebuilt
-    resampled = False
     if s.want_quantiles:
-        out_qlo[0], out_qhi[0] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
-        fresh = False
+        out_qlo[0], out_qhi[0] = _interval(T, wn, s, ibuf)
     win_sum = 0.0
     win_cnt = 0
     n_bad = 0
@@ -405,13 +399,11 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
                     T[:] = ring_T[back % R]
                     lw[:] = ring_lw[back % R]
                     normalise_row(lw, wn)
-                    fresh = True
                 n_bad = 0
                 act = 5
             out_mean[k], out_std[k] = _mean_std(T, wn)
             if s.want_quantiles:
-                out_qlo[k], out_qhi[k] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
-                fresh = resampled = False
+                out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
             out_ess[k] = ess_row(wn)
             out_act[k] = act
             continue
@@ -429,8 +421,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
         out_mean[k] = m
         out_std[k] = sd
         if s.want_quantiles:
-            out_qlo[k], out_qhi[k] = _interval(T, wn, s, order, cw, fresh, idx, resampled, ibuf)
-            fresh = resampled = False
+            out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
         ess = ess_row(wn)
         out_ess[k] = ess
         # --- resampling / adaptive spread
@@ -448,14 +439,12 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
             win_sum = 0.0
             win_cnt = 0
             act = 2
-            fresh = True
         elif ess < s.ess_frac * N:
             _resample(T, I, W, idx, wn, rng.random(), s.design, T2, I2, W2, cw)
             for i in range(N):
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             act = 1
-            resampled = True
         out_act[k] = act
     return (out_mean, out_std, out_qlo, out_qhi, out_ess, out_act, out_clip, out_gamma, out_ll,
             out_flag)

@@ -1,4 +1,5 @@
-"""Reaction-wheel lubrication prognostics, all three steps (spec rw-lubrication.md; seed 001).
+"""Reaction-wheel lubrication prognostics, all three steps (docs/systems/reaction-wheel.md; seed
+001).
 
 :func:`reproduce` runs step 1 (Table 5, by :mod:`rulkit.systems.reaction_wheel.temperature`),
 measures the
@@ -121,7 +122,7 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
     t = time.perf_counter()
     table5 = None
     if cfg.table5:
-        from rulkit.systems.reaction_wheel.temperature import run_table5
+        from rulkit.systems.reaction_wheel.temperature_study import run_table5
 
         log("step 1: Table 5 (temperature estimation)")
         table5 = run_table5(runs=min(cfg.n_runs, 20), seed=cfg.seed, quick=cfg.quick,
@@ -132,7 +133,7 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
         table5.to_csv(out / "table5.csv", index=False)
         files.append(out / "table5.csv")
         try:
-            from rulkit.systems.reaction_wheel.temperature import plot_temperature_estimates
+            from rulkit.systems.reaction_wheel.temperature_study import plot_temperature_estimates
 
             files += plot_temperature_estimates(out, seed=cfg.seed,
                                                 n_particles=200 if cfg.quick else 350,
@@ -333,11 +334,11 @@ def render_report(rep: Reproduction) -> str:
         keep = [c for c in ("method", "design", "noise", "N", "runs", "rmspe_mean", "rmspe_sd",
                             "paper", "rmspe_late_mean", "cover_mean", "cover_late_mean")
                 if c in t5.columns]
-        L.append("Produced by `rulkit.systems.reaction_wheel.temperature.run_table5` (see its "
-                 "own documentation for its settings). RMSPE of T in % over 0-500 s, ours beside "
-                 "the paper's; `rmspe_late_mean` is the RMSPE after 100 s and `cover_*` the "
-                 "fraction of samples whose 90 % interval holds the true T (over 0-500 s, after "
-                 "100 s).\n")
+        L.append("Produced by `rulkit.systems.reaction_wheel.temperature_study.run_table5` "
+                 "(see its own documentation for its settings). RMSPE of T in % over 0-500 s, "
+                 "ours beside the paper's; `rmspe_late_mean` is the RMSPE after 100 s and "
+                 "`cover_*` the fraction of samples whose 90 % interval holds the true T "
+                 "(over 0-500 s, after 100 s).\n")
         L.append(_md(t5[keep]) + "\n")
         if cfg.table5_extra_designs:
             L.append(
@@ -359,7 +360,8 @@ def render_report(rep: Reproduction) -> str:
     L.append("A 0.05 s particle filter over three months (155 million steps) per run is out of "
              "reach for 20 runs, so step 2 uses T^ = T + e with e a bias plus a stationary AR(1) "
              f"process held over {st2.hold_samples} samples ({st2.hold_samples * 0.05:g} s), "
-             "whose statistics are measured on real step-1 runs (spec section 4):\n")
+             "whose statistics are measured on real step-1 runs "
+             "(docs/systems/reaction-wheel.md §4):\n")
     L.append("| source | step-1 variant | bias (C) | std (C) | tau (s) | within-block jitter (C) "
              "| measured on |")
     L.append("| --- | --- | --- | --- | --- | --- | --- |")
@@ -429,7 +431,7 @@ def render_report(rep: Reproduction) -> str:
         L.append(f"- `{k}` = {v}")
     L.append("- measurement noise: the Wiener term gives y_k noise sigma_y = noise_rel x healthy "
              "window loss at the mean path temperature")
-    L.append("- b and T in deg C; loss rate beta0 exp(-b/T) (spec section 4)")
+    L.append("- b and T in deg C; loss rate beta0 exp(-b/T) (docs/systems/reaction-wheel.md §4)")
     L.append("- two-step PF1 likelihood on ln z with delta-method variance; PF2 uses PF1's "
              "posterior mean of b")
     L.append("- RB-PF beta0 prior: Gaussian with the mean and sd of the uniform prior")
@@ -483,7 +485,8 @@ def _findings(rep: Reproduction) -> list[str]:
                 f"correlation time {e.tau_s:.0f} s)")
         if max(abs(e.bias_c), e.std_c) > 0.1:
             L.append(head + " is an error in the regressor 1/T of step 2: b is identified only "
-                     "through the change of 1/T between windows (spec section 4), so a slow T^ "
+                     "through the change of 1/T between windows "
+                     "(docs/systems/reaction-wheel.md §4), so a slow T^ "
                      "error biases b (errors-in-variables attenuation) and a T^ bias rescales it "
                      "by about (T^/T)^2.")
         else:
@@ -498,7 +501,8 @@ def _findings(rep: Reproduction) -> list[str]:
                                                                     strict=True))
             L.append(f"- Sensitivity, {meth}: RMSPE of b against the T^ error std scale "
                      f"({pairs}).")
-    L.append("- The spec notes that an unoptimised attempt gave 10-25 % RMSPE of b for both "
+    L.append("- docs/systems/reaction-wheel.md §6 notes that an unoptimised attempt gave "
+             "10-25 % RMSPE of b for both "
              "methods while the seeds claim about 4 % (two-step) vs 137 % (one-step); the "
              "numbers above are what this implementation measures under the settings listed "
              "below, not tuned towards either.\n")

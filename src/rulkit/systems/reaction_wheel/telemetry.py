@@ -1,5 +1,5 @@
 """Reading and validating a user's reaction-wheel telemetry (CSV or Parquet) for step 1 of the
-lubrication prognostics (spec rw-lubrication.md section 3: T_lub from wheel speed and motor
+lubrication prognostics (docs/systems/reaction-wheel.md §3: T_lub from wheel speed and motor
 current with the commanded voltage as input).
 
 Required columns (SI units; extra columns are ignored):
@@ -43,8 +43,25 @@ _ALIASES = {
 }
 
 
+#: Sampling steps the wheel model can be integrated with (RK4 on the driver pole w_d = 9
+#: rad/s is unstable above ~0.3 s; below 1e-4 s the record is not wheel telemetry in seconds).
+MIN_DT_S, MAX_DT_S = 1e-4, 0.25
+#: Largest speed change per sample that is physics plus noise: |dw/dt| <= (K_t I_max +
+#: tau_c) / J ~ 19 rad/s^2 at 5 A, so a jump above MAX_ACCEL dt + JUMP_SLACK is a splice.
+MAX_ACCEL_RAD_S2 = 20.0
+JUMP_SLACK_RAD_S = 1.0
+#: Temperature is observable only through the viscous torque b_v(T) w: below this peak speed
+#: the record carries no temperature information.
+MIN_PEAK_SPEED_RAD_S = 0.5
+
+
 class TelemetryError(ValueError):
     """A telemetry file or frame that cannot be used; the message names field and row."""
+
+
+class ImplausibleTelemetryError(TelemetryError):
+    """Well-formed telemetry that is not a physically possible wheel record (sampling step
+    out of range, speed jumps no wheel can make, or no temperature information at all)."""
 
 
 def _where(row: int, csv: bool) -> str:
@@ -77,6 +94,8 @@ def validate_wheel_telemetry(
 
     if not isinstance(df, pd.DataFrame):
         raise TelemetryError(f"{source}: expected a pandas DataFrame, got {type(df).__name__}")
+    if TIME in df.columns:
+        df = _time_in_seconds(df, source)
     present = [str(c) for c in df.columns]
     missing = [c for c in COLUMNS if c not in present]
     if missing:
@@ -127,6 +146,58 @@ def validate_wheel_telemetry(
                 f"{source}: column {c!r}, {_where(r, csv)}: |value| {v[r]:.6g} {unit} exceeds "
                 f"{lim:g} {unit} ({hint})"
             )
+    _check_physics(out, dt, source, csv)
     out.attrs["dt"] = dt
     out.attrs["source"] = source
     return out
+
+
+def _time_in_seconds(df: Any, source: str) -> Any:
+    """A datetime64 / timedelta64 ``time_s`` (Parquet timestamps) as float seconds (since the
+    Unix epoch / of the duration), not nanoseconds taken for seconds."""
+    import pandas as pd
+
+    col = df[TIME]
+    if isinstance(col, pd.DataFrame):
+        raise TelemetryError(f"{source}: column {TIME!r} appears more than once")
+    if pd.api.types.is_datetime64_any_dtype(col):
+        if col.isna().any():
+            r = int(np.flatnonzero(col.isna().to_numpy())[0])
+            raise TelemetryError(f"{source}: column {TIME!r}, row {r}: missing timestamp (NaT)")
+        ts = col.dt.tz_convert("UTC") if getattr(col.dt, "tz", None) is not None else col
+        ns = ts.to_numpy(dtype="datetime64[ns]").astype(np.int64)
+        sec = (ns // 1_000_000_000).astype(np.float64) + (ns % 1_000_000_000) * 1e-9
+    elif pd.api.types.is_timedelta64_dtype(col):
+        ns = col.to_numpy(dtype="timedelta64[ns]").astype(np.int64)
+        sec = ns * 1e-9
+    else:
+        return df
+    df = df.copy()
+    df[TIME] = sec
+    return df
+
+
+def _check_physics(out: Any, dt: float, source: str, csv: bool) -> None:
+    """Physical plausibility of a well-formed record (raises :class:`ImplausibleTelemetryError`)."""
+    if not MIN_DT_S <= dt <= MAX_DT_S:
+        raise ImplausibleTelemetryError(
+            f"{source}: column {TIME!r}: sampling step {dt:.6g} s is outside "
+            f"[{MIN_DT_S:g}, {MAX_DT_S:g}] s, the steps the wheel model can be integrated with "
+            "(is time in seconds?)"
+        )
+    w = out[SPEED].to_numpy()
+    jump = np.abs(np.diff(w)) > MAX_ACCEL_RAD_S2 * dt + JUMP_SLACK_RAD_S
+    if jump.any():
+        r = int(np.flatnonzero(jump)[0]) + 1
+        raise ImplausibleTelemetryError(
+            f"{source}: column {SPEED!r}, {_where(r, csv)}: speed jumps from {w[r - 1]:.6g} to "
+            f"{w[r]:.6g} rad/s in one {dt:.6g} s step; no wheel accelerates that fast "
+            f"(> {MAX_ACCEL_RAD_S2:g} rad/s^2): records spliced or tiled together? Give one "
+            "continuous record"
+        )
+    if np.max(np.abs(w)) < MIN_PEAK_SPEED_RAD_S:
+        raise ImplausibleTelemetryError(
+            f"{source}: column {SPEED!r}: the wheel never exceeds {MIN_PEAK_SPEED_RAD_S:g} rad/s "
+            "(all-zero or standing-still record); the lubricant temperature acts only through "
+            "the viscous torque b_v(T) w, so this record carries no temperature information"
+        )

@@ -1,0 +1,114 @@
+"""Benchmark: ``rulkit rw estimate-temperature`` at scale and the cost of per-sample intervals
+(issue 13, goals: 2M rows in <= 25 s with bounded memory; intervals <= 1.5x the filter alone).
+
+1. The default temperature filter (F2 adaptive, N = 350) over the 500 s Table 3 path with and
+   without per-sample 95 % intervals: particle-steps per second and the ratio (medians of
+   ``--repeats``).
+2. A telemetry CSV of ``--rows`` rows (default 2,000,000 = 27.8 h at 20 Hz; the wheel at
+   equilibrium at 2 V and 30 C, 500 s segments tiled, fresh measurement noise), written into a
+   temporary directory (deleted afterwards, never committed), then the CLI command in a
+   subprocess: wall time and peak resident memory of that process (``ru_maxrss``).
+
+    .venv/bin/python benchmarks/bench_rw_telemetry.py [--rows 2000000] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
+from rulkit.systems.reaction_wheel.wheel import (
+    NOISE_LEVELS,
+    IthacoParams,
+    ReactionWheel,
+    rk4_wheel_step,
+    simulate_table3,
+)
+
+
+def interval_cost(repeats: int) -> None:
+    d = simulate_table3(np.random.default_rng(0), "low")
+    sig = (d.sigma_w, d.sigma_I)
+    cfg = TemperatureConfig(design="F2", variant="adaptive", n_particles=350)
+    K = d.y.shape[0]
+    rates = {}
+    for q in (False, True):
+        filter_temperature(d.y[:50], d.V[:50], np.random.default_rng(0), cfg, sigma=sig,
+                           quantiles=q)  # compile / load
+        ts = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            filter_temperature(d.y, d.V, np.random.default_rng(1), cfg, sigma=sig, quantiles=q)
+            ts.append(time.perf_counter() - t)
+        rates[q] = 350 * (K - 1) / statistics.median(ts)
+    print("temperature PF F2 adaptive N=350, Table 3 path (median of "
+          f"{repeats}): {rates[False]:.3g} particle-steps/s without intervals, "
+          f"{rates[True]:.3g} with per-sample 95 % intervals; cost of the intervals "
+          f"{rates[False] / rates[True]:.2f}x (goal <= 1.5x; issue 13 measured 5x before)")
+
+
+def write_record(path: Path, rows: int) -> None:
+    import pandas as pd
+
+    p = IthacoParams()
+    sw, sI = NOISE_LEVELS["low"]
+    seg = 10_000  # 500 s
+    x = ReactionWheel(p, noise=(sw, sI)).steady_state(2.0, 30.0)[None]
+    X = np.empty((seg, 2))
+    for k in range(seg):
+        X[k] = x[0]
+        x = rk4_wheel_step(x, 2.0, 30.0, k * 0.05, 0.05, p)
+    reps = -(-rows // seg)
+    rng = np.random.default_rng(0)
+    Xr = np.tile(X, (reps, 1))[:rows]
+    df = pd.DataFrame({"time_s": 0.05 * np.arange(rows), "v_comm_V": np.full(rows, 2.0),
+                       "speed_rad_s": Xr[:, 1] + sw * rng.standard_normal(rows),
+                       "current_A": Xr[:, 0] + sI * rng.standard_normal(rows)})
+    df.to_csv(path, index=False, float_format="%.9g")
+
+
+def cli_at_scale(rows: int) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        f = Path(tmp) / "telemetry.csv"
+        t = time.perf_counter()
+        write_record(f, rows)
+        print(f"wrote a {rows:,}-row telemetry CSV ({f.stat().st_size / 1e6:.0f} MB) in "
+              f"{time.perf_counter() - t:.1f} s")
+        exe = Path(sys.executable).with_name("rulkit")
+        cmd = [str(exe), "rw", "estimate-temperature", str(f), "--out", str(Path(tmp) / "e.csv")]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        t = time.perf_counter()
+        res = subprocess.run(cmd, capture_output=True, text=True, check=False,
+                             env=dict(os.environ, OMP_NUM_THREADS="1"))
+        wall = time.perf_counter() - t
+        peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        if res.returncode != 0:
+            print(f"rw estimate-temperature failed ({res.returncode}): {res.stderr[-2000:]}")
+            return
+        print(f"rw estimate-temperature on {rows:,} rows: {wall:.1f} s, peak RSS "
+              f"{max(peak, before) / 1024:.0f} MB (goals <= 25 s and bounded memory; issue 13 "
+              "measured 81 s and 728 MB before)")
+        print("  " + res.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", type=int, default=2_000_000)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    interval_cost(args.repeats)
+    cli_at_scale(args.rows)
+
+
+if __name__ == "__main__":
+    main()
