@@ -159,7 +159,7 @@ class KernelSettings(NamedTuple):
 
 @nb.njit(cache=True)
 def _friction_law(P):  # type: ignore[no-untyped-def]
-    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction_wheel.md, viscous friction)."""
+    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction-wheel.md, (RW-7))."""
     if P[15] > 0.5:  # seed literal viscous law b = 0.0049 - 0.0002 (T + 30)
         return 0.0049 - 0.0002 * 30.0, -0.0002
     return 1e-3 * (0.049 - 0.0002 * 30.0), -1e-3 * 0.0002  # b = 1e-3 (0.049 - 0.0002 (T + 30))

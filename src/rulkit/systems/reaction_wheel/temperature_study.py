@@ -1,5 +1,5 @@
-"""The Table 5 study of the temperature estimators (seed 001 Table 5; docs/systems/
-reaction-wheel.md, sections 3 and 6) and its figures (like seed 001 Figs 9-11).
+"""The Table 5 study of the temperature estimators (seed 001 Table 5;
+docs/systems/reaction-wheel.md section 3) and its figures (like seed 001 Figs 9-11).
 
 :func:`run_table5` runs every (variant, design, noise, N, run) cell of the grid with
 :func:`rulkit.systems.reaction_wheel.temperature.filter_temperature` (the Rao-Blackwellised PF
