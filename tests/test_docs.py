@@ -61,7 +61,7 @@ def test_docstring_citations_of_system_pages_resolve() -> None:
     equations: dict[str, set[str]] = {}
     for page in (DOCS / "systems").glob("*.md"):
         text = page.read_text()
-        headings[page.stem] = set(re.findall(r"^#{2,3} (\d+(?:\.\d+)?)\. ", text, flags=re.M))
+        headings[page.stem] = set(re.findall(r"^#{2,3} (\d+(?:\.\d+)?)\.? ", text, flags=re.M))
         equations[page.stem] = set(re.findall(r"\(([A-Z]{2}-\d+)\)", text))
     cited = 0
     for path in SRC.rglob("*.py"):
@@ -84,6 +84,34 @@ SYSTEM_PACKAGES = {
     "friction-drive": "rulkit.systems.friction_drive",
     "embedded-rul": "rulkit.fleet",
 }
+
+
+_OUTSIDE = re.compile(
+    r"\(spec\b|\bspec (section|§|rw-|motor-|friction-|embedded-)|\bspec: \"|\bthe spec\b"
+    r"|\bspec's\b|(^|[^\w/.])§\s?\d|\b(rw-lubrication|architecture|style)\.md"
+    r"|(?<![\w/])(motor-damping|friction-drive|embedded-rul|reaction-wheel)\.md",
+    flags=re.I,
+)
+
+
+_VALID = re.compile(r"docs/systems/[\w-]+\.md(?:,? ?§\s?[\d.]+(?:-\d+)?)*(?:, §[\d.]+)*")
+
+
+def test_no_source_cites_a_spec_outside_the_repository() -> None:
+    """Docstrings, comments and report texts cite docs/systems/<page>.md (in the repository),
+    never the project's spec files, which are not shipped. A section sign must follow a
+    docs/systems page name (on the same line or at the end of the previous one)."""
+    offenders = []
+    for path in sorted(SRC.rglob("*.py")):
+        lines = path.read_text().splitlines()
+        for i, line in enumerate(lines):
+            rest = _VALID.sub("", line)
+            before = lines[i - 1].rstrip() if i else ""
+            if re.search(r"docs/systems/[\w-]+\.md(?:,? ?§[\d.]+)*,?$", before):
+                rest = re.sub(r"^\s*(?:§[\d.]+(?:-\d+)?(?:, )?)+", "", rest)
+            if _OUTSIDE.search(rest):
+                offenders.append(f"{path.relative_to(ROOT)}:{i + 1}: {line.strip()}")
+    assert not offenders, "cite docs/systems/<page>.md instead:\n" + "\n".join(offenders)
 
 
 @pytest.mark.parametrize("page", sorted(SYSTEM_PACKAGES))

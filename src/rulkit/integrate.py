@@ -1,4 +1,4 @@
-"""Fixed-step ODE integrators over a batch of states (architecture.md, "Layout": integrate.py).
+"""Fixed-step ODE integrators over a batch of states (docs/engine-api.md; docs/guide.md).
 
 A batch of states is an ``(N, n)`` float64 array (N particles, Monte Carlo samples or fleet
 units). The right-hand side is vectorised over the batch: ``f(x (N, n), t, u) -> dxdt (N, n)``.

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -77,7 +77,7 @@ def rul_percentage_error(rul_pred: ArrayLike, rul_true: ArrayLike) -> FloatArray
 def rmspe(estimate: ArrayLike, truth: ArrayLike, axis: int | None = None) -> float | FloatArray:
     """Root mean squared percentage error ``100 sqrt(mean(((x_hat - x) / x)^2))``.
 
-    The definition of rw-lubrication.md section 6 (and the RMSPE of [S2010]'s accuracy metrics
+    The definition of docs/systems/reaction-wheel.md §6 (and the RMSPE of [S2010]'s accuracy metrics
     with ``x = r*``). ``axis`` as in :func:`numpy.mean`; ``None`` averages over all entries.
     """
     e = _arr(estimate, "estimate")
@@ -136,7 +136,7 @@ def _point(pred: ArrayLike | Sequence[RULDistribution]) -> tuple[FloatArray, lis
         if not all(isinstance(d, RULDistribution) for d in dists):
             raise ValueError("rul_pred: mix of RULDistribution and numbers")
         return np.array([d.median for d in dists], dtype=np.float64), dists
-    return _arr(pred, "rul_pred"), None
+    return _arr(cast(ArrayLike, pred), "rul_pred"), None
 
 
 def _prediction_series(

@@ -1,4 +1,5 @@
-"""The model contract shared by every physical system (architecture.md, "Layout").
+"""The model contract shared by every physical system (CONTRIBUTING.md, "Layout";
+docs/engine-api.md).
 
 A model is a vectorised discrete-time (or discretised continuous-time) state-space model over a
 batch of states ``x`` of shape ``(N, n_x)``: N particles, N Monte Carlo samples or N fleet units.

@@ -6,8 +6,8 @@ Used by :mod:`rulkit.systems.reaction_wheel.telemetry` (reaction-wheel telemetry
 (motor pull-up tests) and :mod:`rulkit.fleet.store` (``rulkit track`` acquisitions).
 Each reader passes its own exception class (``error=``, a ``ValueError`` subclass), so callers
 keep catching the reader's error; the helpers only decide *what* is wrong and say it in one
-consistent form (architecture.md, "bad input gets a clear, specific error: which field, which
-row, what was expected"):
+consistent form (CONTRIBUTING.md, "Habits": bad input gets a specific error, which file, column,
+row, and what was expected):
 
 * file level, prefixed by the path: ``<path>: file not found (no such file or directory)``,
   ``<path>: is a directory, ...``, ``<path>: empty file (no header, no rows; expected a header

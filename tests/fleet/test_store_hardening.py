@@ -245,13 +245,13 @@ def test_parquet_datetime_time_column_is_seconds_not_nanoseconds(tmp_path):
 
 @pytest.mark.parametrize("ext", ["csv", "parquet"])
 def test_na_and_none_ids_are_ids_in_csv_and_parquet_alike(tmp_path, ext):
-    df = acq(comps=["NA", "None", "null"], n=2)
+    df = acq(comps=["NA", "None", "null", "007"], n=2)
     path = tmp_path / f"na.{ext}"
     df.to_csv(path, index=False) if ext == "csv" else df.to_parquet(path)
     res, _ = ingest_into(tmp_path / "na.db", read_acquisitions(path))
-    assert res.n_components == 3
+    assert res.n_components == 4
     with ComponentStore(tmp_path / "na.db", readonly=True) as s:
-        assert sorted(s.status()["component"]) == ["NA", "None", "null"]
+        assert sorted(s.status()["component"]) == ["007", "NA", "None", "null"]
     # an empty id cell is missing in both formats
     bad = df.assign(component=df["component"].where(df.index != 3, None))
     path2 = tmp_path / f"empty.{ext}"

@@ -75,7 +75,7 @@ IntArray = NDArray[np.int64]
 
 def normalise_rows(
     logw: FloatArray, weights_from_log: bool = False
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, FloatArray | np.float64]:
     """Log-sum-exp normalisation of every row: ``(normalised logw, weights, log_sum)``.
 
     ``weights_from_log``: weights as ``exp(normalised logw)`` rather than

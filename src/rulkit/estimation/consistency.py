@@ -1,6 +1,6 @@
-"""Filter consistency checks, physics-free (seed 003 sections 4.3-4.4; spec friction-drive.md,
-"Consistency and bounds"; Bar-Shalom, Li & Kirubarajan, *Estimation with Applications to Tracking
-and Navigation*, 2001, section 5.4).
+"""Filter consistency checks, physics-free (seed 003 sections 4.3-4.4;
+docs/systems/friction-drive.md §5; Bar-Shalom, Li & Kirubarajan, *Estimation with Applications to
+Tracking and Navigation*, 2001, section 5.4).
 
 A Kalman-type filter is *consistent* when its errors are zero-mean with the covariance it reports,
 and its innovations are zero-mean, white, with covariance S. This module provides:
@@ -198,7 +198,7 @@ def whiten(nu: np.ndarray, S: np.ndarray) -> FloatArray:
 
 @dataclass(frozen=True)
 class InnovationCheck:
-    """Result of :func:`check_innovations` (seed 4.4; spec "Consistency and bounds").
+    """Result of :func:`check_innovations` (seed 4.4; docs/systems/friction-drive.md §5).
 
     ``mean_nis`` and its ``nis_interval`` (time-averaged, two-sided ``level``);
     ``frac_nis_outside`` the fraction of steps outside the per-step interval ``nis_step_interval``
@@ -244,7 +244,7 @@ def check_innovations(
     max_lag: int = 20,
     whiteness_alpha: float = 0.01,
 ) -> InnovationCheck:
-    """Innovation-based consistency tests of one run (seed 4.4; spec "Consistency and bounds").
+    """Innovation-based consistency tests of one run (seed 4.4; docs/systems/friction-drive.md §5).
 
     ``nu`` (T, m) innovations, ``S`` (T, m, m) their predicted covariances.
 

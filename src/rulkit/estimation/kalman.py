@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import scipy.linalg
@@ -212,7 +212,7 @@ def _predict(
 
 def _chol_S(S: FloatArray) -> FloatArray:
     try:
-        return np.linalg.cholesky(S)
+        return cast(FloatArray, np.linalg.cholesky(S))
     except np.linalg.LinAlgError:
         lo = np.linalg.eigvalsh(S)[..., 0]
         b = int(np.argmin(lo))  # Cholesky may fail on a tiny positive eigenvalue too
@@ -246,7 +246,7 @@ def _update(
     yhat: FloatArray | None,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
     B, n = x.shape
-    skipped = np.isnan(y).any(axis=1)
+    skipped = cast(BoolArray, np.isnan(y).any(axis=1))
     if yhat is None:
         yhat = _matvec(H, x)
     nu = y - yhat
@@ -583,7 +583,8 @@ class KalmanFilter:
             if self.G is not None:
                 u = np.asarray(_input_at(us, k, T), dtype=np.float64)
                 _check_finite(u, f"us[{k}]")
-                bu = _matvec(self.G.value, np.broadcast_to(u, (B, u.shape[-1])))
+                bu = _matvec(cast(FloatArray, self.G.value),  # G is constant
+                             np.broadcast_to(u, (B, u.shape[-1])))
             xp, Pp = _predict(x, P, self.F.at(k, B), self.Q.at(k, B), bu)
             x, P, inn = _update(xp, Pp, ys[k], self.H.at(k, B), self.R.at(k, B), None)
             out.put(k, xp, Pp, x, P, inn)

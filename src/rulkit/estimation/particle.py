@@ -5,7 +5,7 @@ particles (eq. 13); with the transition density as importance function the weigh
 ``w_k^i ∝ w_{k-1}^i p(y_k | x_k^i)`` (eq. 15); the effective sample size is
 ``N_eff = 1 / sum_i (w_k^i)^2`` (eq. 16) and resampling happens when it falls below a threshold.
 
-Design (docs/engine-api.md, ``rulkit.estimation.particle``; architecture.md "Principles"):
+Design (docs/engine-api.md, ``rulkit.estimation.particle``; docs/guide.md "Concepts"):
 
 - Log-weights throughout, normalised by log-sum-exp. A degenerate update (every weight zero,
   i.e. every log-weight -inf, or any NaN / +inf log-weight) raises ``DegenerateWeightsError``
@@ -35,7 +35,7 @@ import math
 import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -103,8 +103,9 @@ def log_normalise(logw: FloatArray) -> tuple[FloatArray, float]:
     """Normalise log-weights by log-sum-exp: return ``(w, log_sum)`` with ``sum(w) == 1``.
 
     ``log_sum = log sum_i exp(logw_i)``, computed as ``m + log sum exp(logw - m)`` with
-    ``m = max logw`` so nothing overflows (architecture.md: "normalise with log-sum-exp").
-    Raises ``DegenerateWeightsError`` when every log-weight is -inf, or any is NaN or +inf.
+    ``m = max logw`` so nothing overflows (docs/guide.md, "Log-weights": normalise with
+    log-sum-exp). Raises ``DegenerateWeightsError`` when every log-weight is -inf, or any is NaN or
+    +inf.
     """
     logw = np.asarray(logw, dtype=np.float64)
     if logw.ndim != 1 or logw.size == 0:
@@ -321,7 +322,11 @@ _WEIGHTED: dict[int, tuple[weakref.ref[np.ndarray], FloatArray]] = {}
 
 def _register_weighted(particles: np.ndarray, weights: FloatArray) -> None:
     key = id(particles)
-    ref = weakref.ref(particles, lambda _r, k=key: _WEIGHTED.pop(k, None))
+
+    def forget(_r: object, k: int = key) -> None:
+        _WEIGHTED.pop(k, None)
+
+    ref = weakref.ref(particles, forget)
     _WEIGHTED[key] = (ref, weights)
 
 
@@ -662,7 +667,7 @@ class ParticleFilter:
         inf_rows = np.isinf(flat).any(axis=1)
         if inf_rows.any():
             raise ValueError(f"ys: infinite value in row {int(np.flatnonzero(inf_rows)[0])}")
-        nan_rows = np.isnan(flat).any(axis=1)
+        nan_rows = cast(NDArray[np.bool_], np.isnan(flat).any(axis=1))
         if self.missing == "raise" and nan_rows.any():
             raise ValueError(
                 f"ys: NaN in row {int(np.flatnonzero(nan_rows)[0])} (missing='raise'; use "
@@ -695,9 +700,9 @@ class ParticleFilter:
             x = state.particles
             w = state.weights
             mean[k], cov[k] = _mean_cov(x, w)
-            if qs is not None:
+            if qs is not None and q_levels is not None:
                 qs[k] = _weighted_quantile(x, w, q_levels)
-            if p_hist is not None:
+            if p_hist is not None and w_hist is not None:
                 p_hist[k] = x
                 w_hist[k] = w
             ess[k] = state.ess

@@ -170,7 +170,7 @@ def systematic(weights: NDArray[np.float64], rng: np.random.Generator) -> NDArra
     """Systematic resampling: positions ``(k + U) / N`` with a single ``U ~ U[0, 1)``.
 
     Unbiased; particle ``i`` receives ``floor(N w_i)`` or ``ceil(N w_i)`` copies. The default of
-    the rw-lubrication spec (section 3).
+    docs/systems/reaction-wheel.md §3.
     """
     return _systematic(_check_weights(weights), rng)
 

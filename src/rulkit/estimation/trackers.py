@@ -1,7 +1,7 @@
-"""Steady-state alpha-beta and alpha-beta-gamma trackers (embedded-rul.md section 2, seed 004
+"""Steady-state alpha-beta and alpha-beta-gamma trackers (docs/systems/embedded-rul.md §2, seed 004
 section 4, Kalata 1984 / Bar-Shalom 1992).
 
-Noise convention that defines the tracking index (spec section 2, seed eq 12)
+Noise convention that defines the tracking index (docs/systems/embedded-rul.md §2, seed eq 12)
     ``lambda = sigma_w dt^2 / sigma_v``. The trackers are the steady-state Kalman filters of
 
     * constant velocity, state (x, v): ``F = [[1, dt], [0, 1]]``, process noise ``G w`` with
@@ -20,8 +20,8 @@ Update conventions
     ``x += v dt + a dt^2/2; v += a dt`` and the correction ``a += gamma r / dt^2`` with
     ``gamma = beta^2 / (2 alpha)``: this is the steady-state Kalman update. The seed's
     pseudo-code differs in two places: it divides the acceleration correction by ``2 dt^2``
-    (half the Kalman gain, spec section 2) and it does not predict ``v += a dt``; both are
-    Kalman-inconsistent and not reproduced here.
+    (half the Kalman gain, docs/systems/embedded-rul.md §2) and it does not predict ``v += a dt``;
+    both are Kalman-inconsistent and not reproduced here.
 
 Missing data: a NaN measurement skips the correction for that unit (prediction only), like the
 Kalman filters; an infinite measurement raises ``ValueError``. The state itself is not scanned
@@ -36,6 +36,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
+# A scalar or one value per unit (B,).
+ScalarOrUnits = float | np.ndarray
 
 __all__ = [
     "alpha_beta_gains",
@@ -61,7 +63,8 @@ def _out(a: FloatArray) -> FloatArray | float:
 
 
 def tracking_index(sigma_w: ArrayLike, sigma_v: ArrayLike, dt: ArrayLike) -> FloatArray | float:
-    """Tracking index ``lambda = sigma_w dt^2 / sigma_v`` (seed eq 12, spec section 2).
+    """Tracking index ``lambda = sigma_w dt^2 / sigma_v`` (seed eq 12, docs/systems/embedded-rul.md
+    §2).
 
     ``sigma_w``: process-noise standard deviation (the per-step acceleration, resp. acceleration
     increment, of the module docstring); ``sigma_v``: measurement-noise standard deviation;
@@ -74,7 +77,8 @@ def tracking_index(sigma_w: ArrayLike, sigma_v: ArrayLike, dt: ArrayLike) -> Flo
 
 
 def alpha_beta_gains(lam: ArrayLike) -> tuple[FloatArray | float, FloatArray | float]:
-    """Steady-state alpha-beta gains from the tracking index (seed eqs 13-15, spec section 2).
+    """Steady-state alpha-beta gains from the tracking index (seed eqs 13-15,
+    docs/systems/embedded-rul.md §2).
 
     ``r = (4 + lam - sqrt(8 lam + lam^2)) / 4``, ``alpha = 1 - r^2``,
     ``beta = 2 (2 - alpha) - 4 sqrt(1 - alpha) = 2 (1 - r)^2``. Evaluated without cancellation
@@ -92,7 +96,8 @@ def alpha_beta_gains(lam: ArrayLike) -> tuple[FloatArray | float, FloatArray | f
 
 
 def _abg_root(lam: FloatArray) -> FloatArray:
-    """``u = 1 - s`` for the root s in (0, 1) of ``s^3 + b s^2 + c s - 1 = 0`` (spec section 2).
+    """``u = 1 - s`` for the root s in (0, 1) of ``s^3 + b s^2 + c s - 1 = 0``
+    (docs/systems/embedded-rul.md §2).
 
     With ``s = 1 - u`` the cubic becomes ``g(u) = u^3 - (lam/2) u^2 + (3 lam/2) u - lam = 0``;
     ``g(0) = -lam < 0 < 1 = g(1)`` and the product of its roots is lam, so exactly one root lies
@@ -130,8 +135,8 @@ def _abg_root(lam: FloatArray) -> FloatArray:
 def alpha_beta_gamma_gains(
     lam: ArrayLike,
 ) -> tuple[FloatArray | float, FloatArray | float, FloatArray | float]:
-    """Steady-state alpha-beta-gamma gains from the tracking index (seed eqs 16-26, spec
-    section 2).
+    """Steady-state alpha-beta-gamma gains from the tracking index (seed eqs 16-26,
+    docs/systems/embedded-rul.md §2).
 
     ``s`` is the root in (0, 1) of ``s^3 + b s^2 + c s - 1 = 0``, ``b = lam/2 - 3``,
     ``c = lam/2 + 3``; ``alpha = 1 - s^2``, ``beta = 2 (1 - s)^2``, ``gamma = beta^2 / (2
@@ -180,9 +185,11 @@ def _check_step_and_gains(dt: ArrayLike, B: int, **gains: ArrayLike) -> None:
 
 
 def alpha_beta_update(
-    state: np.ndarray, z: ArrayLike, dt: ArrayLike, alpha: ArrayLike, beta: ArrayLike
+    state: np.ndarray, z: ArrayLike, dt: ScalarOrUnits, alpha: ScalarOrUnits,
+    beta: ScalarOrUnits,
 ) -> FloatArray:
-    """One alpha-beta step for B units at once (seed section 4 pseudo-code, spec section 2).
+    """One alpha-beta step for B units at once (seed section 4 pseudo-code,
+    docs/systems/embedded-rul.md §2).
 
     ``state`` (B, 2) = (x, dx/dt); ``z`` (B,); ``dt``, ``alpha``, ``beta`` scalars or (B,).
     ``x_p = x + v dt; r = z - x_p; x = x_p + alpha r; v = v + beta r / dt``. Returns a new
@@ -206,12 +213,13 @@ def alpha_beta_update(
 def alpha_beta_gamma_update(
     state: np.ndarray,
     z: ArrayLike,
-    dt: ArrayLike,
-    alpha: ArrayLike,
-    beta: ArrayLike,
-    gamma: ArrayLike,
+    dt: ScalarOrUnits,
+    alpha: ScalarOrUnits,
+    beta: ScalarOrUnits,
+    gamma: ScalarOrUnits,
 ) -> FloatArray:
-    """One alpha-beta-gamma step for B units at once (spec section 2; see module docstring).
+    """One alpha-beta-gamma step for B units at once (docs/systems/embedded-rul.md §2; see module
+    docstring).
 
     ``state`` (B, 3) = (x, dx/dt, d2x/dt2); ``z`` (B,); ``dt`` and gains scalars or (B,).
     ``x_p = x + v dt + a dt^2/2; v_p = v + a dt; r = z - x_p;``

@@ -7,9 +7,10 @@ missing data, errors naming the argument); also importable from there.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rulkit.estimation.kalman import (
     _T,
@@ -102,7 +103,7 @@ class UnscentedKalmanFilter(_SigmaOrJacobianFilter):
     @staticmethod
     def _sqrt(P: FloatArray) -> FloatArray:
         try:
-            return np.linalg.cholesky(P)
+            return cast(FloatArray, np.linalg.cholesky(P))
         except np.linalg.LinAlgError:  # semi-definite P: symmetric square root
             w, V = np.linalg.eigh(P)
             if np.any(w[..., 0] < -1e-9 * np.maximum(1.0, np.abs(w[..., -1]))):
@@ -175,7 +176,7 @@ class UnscentedKalmanFilter(_SigmaOrJacobianFilter):
         Pxz = wi * np.einsum("bpi,bpj->bij", Dx, Dz[:, 1:])  # central point has Dx = 0
         S = _sym(Pzz + R)
         y = _as_measurements(y, B, m)
-        skipped = np.isnan(y).any(axis=1)
+        skipped = cast(NDArray[np.bool_], np.isnan(y).any(axis=1))
         nu = y - zhat
         nu0 = np.where(skipped[:, None], 0.0, nu) if skipped.any() else nu
         L = _chol_S(S)

@@ -1,6 +1,6 @@
 """Second storage backend of the component store: PostgreSQL, and :func:`open_store`.
 
-embedded-rul.md section 4 (the component state and history store). :class:`PgComponentStore`
+docs/systems/embedded-rul.md §4 (the component state and history store). :class:`PgComponentStore`
 is :class:`~rulkit.fleet.store.ComponentStore` with its plumbing (connection, schema,
 transactions, queries that used pandas' SQLite reader) replaced for PostgreSQL; the
 validation, the vectorised tracker update and the alert logic are the SQLite store's own code,
@@ -156,6 +156,10 @@ class PgComponentStore(ComponentStore):
             self.config = TrackerConfig.from_dict(json.loads(meta["tracker_config"]))
             self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
                              if "hi_model" in meta else None)
+            self.degradation = None
+            if "degradation_model" in meta:
+                raise StoreError(f"{self.path}: holds a learned degradation model (rulkit "
+                                 "fit), which the PostgreSQL backend does not support yet")
             if config is not None and config != self.config:
                 raise StoreError(
                     f"{self.path} was created with tracker config {self.config.to_dict()}; "
@@ -205,6 +209,11 @@ class PgComponentStore(ComponentStore):
             rows = cur.fetchall()
         return pd.DataFrame(rows, columns=cols) if rows else pd.DataFrame(
             {c: pd.Series(dtype=object if c == "component" else float) for c in cols})
+
+    def set_degradation_model(self, model: Any) -> int:
+        """Not supported on PostgreSQL yet (the learned models' migration is SQLite's)."""
+        raise StoreError(f"{self.path}: learned degradation models (rulkit fit) are not "
+                         "supported on the PostgreSQL backend yet; use a SQLite database")
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return int(self._conn.execute(

@@ -1,6 +1,6 @@
 """``rulkit track``, ``rulkit status`` and ``rulkit reproduce embedded-rul`` (seed 004).
 
-embedded-rul.md: the per-component tracker chain with its state in an SQLite database
+docs/systems/embedded-rul.md: the per-component tracker chain with its state in an SQLite database
 (:mod:`rulkit.fleet.store`). Heavy imports stay inside the commands.
 """
 

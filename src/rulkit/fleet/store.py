@@ -1,6 +1,6 @@
 """Persistent component state in SQLite: tracker state per component, history per acquisition.
 
-embedded-rul.md section 4 (the seed's "component state file" and "HI/RUL file"). One database
+docs/systems/embedded-rul.md §4 (the seed's "component state file" and "HI/RUL file"). One database
 file holds
 
 * ``meta``: schema version, the :class:`~rulkit.fleet.tracker_chain.TrackerConfig` (JSON) the
@@ -164,7 +164,7 @@ def read_acquisitions(path: str | Path) -> pd.DataFrame:
     :class:`IngestError` (see :func:`rulkit.tables.read_table`)."""
     return read_table(path, error=IngestError, csv_suffixes=(".csv", ".csv.gz", ".txt"),
                       expected_columns=("component", "time", "hi"),
-                      csv_dtype={"component": "category"}, text_columns=("component",))
+                      csv_dtype={"component": str}, text_columns=("component",))
 
 
 def check_component_ids(comp: pd.Series) -> pd.Series:
@@ -327,6 +327,12 @@ def _uri(path: Path, mode: str) -> str:
     return f"file:{quote(str(path.absolute()))}?mode={mode}"
 
 
+def _read_meta(conn: sqlite3.Connection) -> dict[str, str]:
+    has_meta = conn.execute(
+        "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'").fetchone()
+    return dict(conn.execute("SELECT key, value FROM meta").fetchall()) if has_meta else {}
+
+
 def _probe(path: Path) -> dict[str, str] | None:
     """The ``meta`` of the rulkit database at ``path``, ``None`` if there is no file; anything
     else raises :class:`StoreError`. Read-only: the file's bytes never change."""
@@ -348,13 +354,14 @@ def _probe(path: Path) -> dict[str, str] | None:
         raise StoreError(f"{path}: not an SQLite database (no SQLite header), so not a rulkit "
                          "component database; left unchanged")
     try:
-        con = sqlite3.connect(_uri(path, "ro"), uri=True, timeout=5.0)
+        # immutable: no lock, no -wal/-shm beside a file that may not be ours; the meta a
+        # rulkit database is created with is in the main file (checkpointed before it is
+        # linked into place), and an open store re-reads it through its own connection
+        con = sqlite3.connect(_uri(path, "ro") + "&immutable=1", uri=True, timeout=5.0)
     except sqlite3.Error as err:
         raise StoreError(f"{path}: cannot be opened read-only: {err}") from err
     try:
-        has_meta = con.execute(
-            "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta'").fetchone()
-        meta = dict(con.execute("SELECT key, value FROM meta").fetchall()) if has_meta else {}
+        meta = _read_meta(con)
     except sqlite3.DatabaseError as err:
         raise StoreError(_db_error_message(path, err)) from err
     finally:
@@ -534,17 +541,13 @@ def ingest_into(
             if res is not None:
                 return res, True
             continue  # another process created it first: apply the batch to theirs
-        stored_cfg, stored_model = _config_from_meta(path, meta)
-        if config is not None and config != stored_cfg:
-            raise StoreError(
-                f"{path} was created with tracker config {stored_cfg.to_dict()}; refusing to "
-                f"continue with a different one {config.to_dict()}")
-        if hi_model is not None and stored_model is not None and (
-                hi_model.to_dict() != stored_model.to_dict()):
-            raise StoreError(f"{path} already holds a different HI model")
-        model = stored_model or hi_model
-        acq = validate_acquisitions(df, stored_cfg, model)
-        with ComponentStore(path, create=False, timeout=timeout) as store:
+        # the settings checks and the HI model come from the store's own connection
+        with ComponentStore(path, config=config, create=False, timeout=timeout) as store:
+            stored_model = store.hi_model
+            if hi_model is not None and stored_model is not None and (
+                    hi_model.to_dict() != stored_model.to_dict()):
+                raise StoreError(f"{path} already holds a different HI model")
+            acq = validate_acquisitions(df, store.config, stored_model or hi_model)
             new_model = hi_model if stored_model is None else None
             return store._ingest_validated(acq, source, new_model=new_model), False
     raise AssertionError("unreachable: the database exists after a lost creation race")
@@ -589,26 +592,36 @@ class ComponentStore:
             _build_and_publish(self.path, config or TrackerConfig(), hi_model, None, "")
             meta = _probe(self.path)
             assert meta is not None
-        stored_cfg, stored_model = _config_from_meta(self.path, meta)
-        if config is not None and config != stored_cfg:
-            raise StoreError(
-                f"{self.path} was created with tracker config {stored_cfg.to_dict()}; "
-                f"refusing to continue with a different one {config.to_dict()}"
-            )
-        if hi_model is not None and stored_model is not None and (
-                hi_model.to_dict() != stored_model.to_dict()):
-            raise StoreError(f"{self.path} already holds a different HI model")
         try:
-            if readonly:
+            writable = os.access(self.path, os.W_OK) and os.access(self.path.parent, os.W_OK)
+            if readonly and not writable:  # SQLite's read-only mode (may leave -shm/-wal)
                 conn = sqlite3.connect(_uri(self.path, "ro"), uri=True, timeout=timeout,
                                        isolation_level=None, check_same_thread=False)
-                conn.execute("PRAGMA query_only=1")
-            else:
+            else:  # the last connection to close removes -wal/-shm
                 conn = sqlite3.connect(str(self.path), timeout=timeout, isolation_level=None,
                                        check_same_thread=False)
                 conn.execute("PRAGMA synchronous=FULL")
+            if readonly:
+                conn.execute("PRAGMA query_only=1")
         except sqlite3.Error as err:
             raise StoreError(_db_error_message(self.path, err)) from err
+        try:
+            meta = _read_meta(conn)  # through this connection: sees the write-ahead log
+            stored_cfg, stored_model = _config_from_meta(self.path, meta)
+            if config is not None and config != stored_cfg:
+                raise StoreError(
+                    f"{self.path} was created with tracker config {stored_cfg.to_dict()}; "
+                    f"refusing to continue with a different one {config.to_dict()}"
+                )
+            if hi_model is not None and stored_model is not None and (
+                    hi_model.to_dict() != stored_model.to_dict()):
+                raise StoreError(f"{self.path} already holds a different HI model")
+        except sqlite3.Error as err:
+            conn.close()
+            raise StoreError(_db_error_message(self.path, err)) from err
+        except BaseException:
+            conn.close()
+            raise
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
         self.degradation = _degradation_from_meta(self.path, meta)
@@ -750,7 +763,11 @@ class ComponentStore:
         else:
             df = self._query(f"SELECT {cols} FROM history WHERE component = ? ORDER BY t",
                              (component,))
-        return self._checked(df, "history")
+        median = df.pop("rul_median") if "rul_median" in df else None  # NULL before a model
+        df = self._checked(df, "history")
+        if median is not None:
+            df["rul_median"] = pd.to_numeric(median, errors="coerce")
+        return df
 
     def counts(self) -> tuple[int, int, int]:
         """(components, sum of their acquisition counts, history rows), in one snapshot."""

@@ -40,7 +40,7 @@ INITIATIONS = ("floor", "two-point", "measured")
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Configuration of the per-component tracker chain (embedded-rul.md sections 2-3).
+    """Configuration of the per-component tracker chain (docs/systems/embedded-rul.md sections 2-3).
 
     Gains: the alpha-beta tracker on HI uses tracking index ``lambda_hi`` and the
     alpha-beta-gamma tracker on RUL ``lambda_rul`` (lambda = sigma_w dt^2 / sigma_v, see
@@ -159,7 +159,8 @@ class TrackerConfig:
         return cls(**kwargs)
 
     def gains(self) -> TrackerGains:
-        """The five steady-state gains (rulkit.estimation.trackers, embedded-rul.md section 2)."""
+        """The five steady-state gains (rulkit.estimation.trackers, docs/systems/embedded-rul.md
+        §2)."""
         from rulkit.estimation.trackers import alpha_beta_gains, alpha_beta_gamma_gains
 
         a1, b1 = alpha_beta_gains(self.lambda_hi)
@@ -334,7 +335,8 @@ def _time_to_one(h0: np.ndarray, c: np.ndarray, p: float) -> FloatArray:
 def rul_confidence_limits(
     fhi: np.ndarray, dhi: np.ndarray, config: TrackerConfig
 ) -> tuple[FloatArray, FloatArray]:
-    """Low and high RUL under HI +- one standard deviation and load +- 10 % (spec section 3).
+    """Low and high RUL under HI +- one standard deviation and load +- 10 %
+    (docs/systems/embedded-rul.md §3).
 
     Derivation (the seed's eqs 27-29 are garbled in print; same Paris-law model as
     :func:`paris_rul`). With exponent m = 2 the growth rate is k = 4 pi D alpha^2 sigma^2 per
@@ -404,7 +406,7 @@ def tracker_update(
     component whose ``hi`` or ``t`` is NaN or infinite has no acquisition in this call and keeps
     its state (``TrackerOutput.updated`` is False for it); ingestion (component_store) rejects
     such rows with an error instead.
-    The chain per component (seed section 4 pseudo-code; embedded-rul.md section 2):
+    The chain per component (seed section 4 pseudo-code; docs/systems/embedded-rul.md §2):
 
     1. alpha-beta on HI: predict fHI += dHI dt, r = HI - fHI, fHI += alpha1 r, dHI += beta1 r/dt
        (``alpha_beta_update``), then dHI = max(dHI, 1/design_life) (no healing);
@@ -413,7 +415,7 @@ def tracker_update(
        r = RUL - fRUL, fRUL += alpha2 r, dRUL += beta2 r/dt, d2RUL += gamma2 r/dt^2
        (``alpha_beta_gamma_update``: the steady-state Kalman update of the constant-acceleration
        model; the seed's pseudo-code omits the rate prediction and divides by 2 dt^2, half the
-       Kalman gain, see embedded-rul.md section 2 and rulkit.estimation.trackers).
+       Kalman gain, see docs/systems/embedded-rul.md §2 and rulkit.estimation.trackers).
 
     Track initiation (``config.initiation``; the seed initialises everything to zero, which
     would put log(0) into step 2):
@@ -540,7 +542,7 @@ def tracker_update(
 def tracker_outputs(
     state: TrackerState, config: TrackerConfig, updated: np.ndarray | None = None
 ) -> TrackerOutput:
-    """Validity, alert level and confidence limits of a state (spec section 3)."""
+    """Validity, alert level and confidence limits of a state (docs/systems/embedded-rul.md §3)."""
     fhi, dhi = state.fhi, state.dhi
     valid = rul_validity(state.drul, state.d2rul, config) & (state.n >= MIN_UPDATES_VALID)
     level = alert_level(fhi, state.frul, valid, config)
@@ -666,7 +668,7 @@ def _quadratic_noise(t: np.ndarray, y: np.ndarray, start: np.ndarray) -> tuple[f
     points); sigma_v = the pooled residual standard deviation (degrees of freedom n - 3),
     sigma_w = the root mean square of the units' second derivatives 2 c_2 (the acceleration a
     constant-velocity tracker must follow: the white-acceleration process noise of
-    embedded-rul.md section 2)."""
+    docs/systems/embedded-rul.md §2)."""
     res2, dof, acc = 0.0, 0, []
     for u in range(start.size - 1):
         tt, yy = t[start[u]:start[u + 1]], y[start[u]:start[u + 1]]

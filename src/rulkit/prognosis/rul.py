@@ -1,7 +1,7 @@
 """Monte Carlo propagation to a failure threshold and the RUL distribution it produces.
 
-Contract: docs/engine-api.md, section ``rulkit.prognosis.rul``; architecture.md ("Small, frozen
-result types holding arrays (a RUL distribution = samples + weights ...)").
+Contract: docs/engine-api.md, section ``rulkit.prognosis.rul``: a small, frozen result type
+holding arrays (a RUL distribution = samples + weights + censoring); docs/guide.md, "Censoring".
 
 Censoring convention (decided here, used everywhere in rulkit)
 -------------------------------------------------------------
@@ -31,7 +31,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -78,8 +78,10 @@ class RULDistribution:
     """
 
     samples: FloatArray
-    weights: FloatArray | None = None
-    censored: BoolArray | None = None
+    # None is accepted and replaced in __post_init__ (uniform weights, nothing censored), so
+    # the attributes are always arrays: typed as such for the readers.
+    weights: FloatArray = None  # type: ignore[assignment]
+    censored: BoolArray = None  # type: ignore[assignment]
     horizon: float = math.inf
     _sorted_values: FloatArray = field(init=False, repr=False)
     _sorted_cumw: FloatArray = field(init=False, repr=False)
@@ -235,7 +237,7 @@ class RULDistribution:
         """Equal-tailed interval ``(Q((1 - level)/2), Q((1 + level)/2))``; bounds may be inf."""
         if not 0 < level < 1:
             raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
-        lo, hi = self.quantile([(1 - level) / 2, (1 + level) / 2])
+        lo, hi = np.asarray(self.quantile([(1 - level) / 2, (1 + level) / 2]))
         return float(lo), float(hi)
 
     def cdf(self, t: ArrayLike) -> float | FloatArray:
@@ -549,7 +551,8 @@ def propagate_to_threshold(
     else:
         rul, active = run.batch(x, g0, hold=after_crossing == "hold")
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
-    return RULDistribution(samples=rul, weights=w, censored=active, horizon=horizon)
+    return RULDistribution(samples=rul, weights=cast(FloatArray, w), censored=active,
+                           horizon=horizon)
 
 
 def _indicator(indicator: IndicatorFn, x: FloatArray, n: int, k: int) -> FloatArray:

@@ -201,3 +201,22 @@ def test_filtered_states_count_acquisitions():
     h = _random_hist(np.random.default_rng(6))
     st = filtered_states(_model(), h)
     np.testing.assert_array_equal(st.n[h.start[:-1]], 1)
+
+
+@pytest.mark.parametrize("kind,shape", [("linear", 0.0), ("paris", -0.5), ("exponential", -0.1)])
+def test_closed_form_quantiles_equal_bisection(kind, shape):
+    """eq. (6) (quadratic) against bisection on the survival function, over random states."""
+    rng = np.random.default_rng(7)
+    m = _model(walk=0.2, kind=kind, shape=shape)
+    b = 5000
+    t1 = rng.uniform(1, 15, b)
+    hi1 = rng.uniform(0.0, 1.0, b)
+    st = update_state(UnitState.empty(m, b), m, t1, hi1)
+    st = update_state(st, m, t1 + rng.uniform(0.1, 30, b),
+                      np.clip(hi1 + rng.uniform(-0.1, 0.3, b), 0, 1.2))
+    fast = m.rul_quantiles(st, (0.5, 0.05, 0.95, 0.999))
+    ref = m.rul_quantiles(st, (0.5, 0.05, 0.95, 0.999), method="bisect")
+    for x, y in zip(fast, ref, strict=True):
+        np.testing.assert_array_equal(np.isinf(x), np.isinf(y))
+        fin = np.isfinite(y)
+        np.testing.assert_allclose(x[fin], y[fin], rtol=1e-6, atol=1e-9)

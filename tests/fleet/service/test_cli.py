@@ -42,3 +42,14 @@ def test_serve_help_lists_options():
     assert r.exit_code == 0
     for opt in ("--db", "--host", "--port"):
         assert opt in r.stdout
+
+
+def test_unreachable_postgres_is_a_message_without_the_password():
+    from rulkit.fleet.backends import _redact
+
+    assert _redact("postgresql://ops:s3cret@db.local:5432/fleet") == (
+        "postgresql://ops:***@db.local:5432/fleet")
+    r = CliRunner().invoke(app, ["token", "create", "--db",
+                                 "postgresql://ops:s3cret@127.0.0.1:1/fleet", "--role", "read"])
+    assert r.exit_code == 1 and "cannot connect to PostgreSQL" in r.output, r.output
+    assert "s3cret" not in r.output

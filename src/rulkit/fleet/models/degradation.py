@@ -33,7 +33,7 @@ P_zz + 2 r P_zb + r^2 P_bb + sigma_w^2 r; with S(r) the probability that it is s
 g(1), the RUL given that the unit has not failed has survival function S(r) / S(0), r >= 0
 (the exceedance form of Lu & Meeker; it neglects a Brownian path that crosses and comes back
 before r). The mass with b <= 0 never fails (censored mass): quantiles in it are +inf.
-Quantiles by vectorised bisection on log S. RUL is 0 once the measured hi >= 1.
+Quantiles in closed form (a quadratic, eq. (6)). RUL is 0 once the measured hi >= 1.
 
 Usage::
 
@@ -161,13 +161,13 @@ class DegradationModel:
         return 2.0 * (1.0 - self.shape) if self.kind == "paris" else math.nan
 
     def rul_quantiles(self, state: UnitState, levels: tuple[float, ...] = (0.5, 0.05, 0.95),
-                      *, iterations: int = 48) -> tuple[FloatArray, ...]:
+                      *, method: str = "closed-form") -> tuple[FloatArray, ...]:
         """RUL quantiles (file time unit) per unit at its last acquisition, eq. (5).
 
         >= 0 always; +inf where the level lies in the never-failing (censored) mass; 0 once the
         last measured hi >= 1; NaN for units without an acquisition.
         """
-        return rul_quantiles(self, state, levels, iterations=iterations)
+        return rul_quantiles(self, state, levels, method=method)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -376,53 +376,94 @@ def rul_cdf(model: DegradationModel, state: UnitState, r: FloatArray) -> FloatAr
     w = np.asarray(r, dtype=np.float64) / tau
     ls0 = log_ndtr(-(state.m[:, 0] - zs) / np.sqrt(state.p[:, 0]))
     out = np.empty_like(w)
-    for k in range(w.shape[1]):
-        out[:, k] = 1.0 - np.exp(np.minimum(_log_surv(state.m, state.p, w[:, k], q, zs) - ls0,
-                                            0.0))
+    with np.errstate(invalid="ignore"):  # NaN horizons (units without acquisitions) stay NaN
+        for k in range(w.shape[1]):
+            out[:, k] = 1.0 - np.exp(np.minimum(
+                _log_surv(state.m, state.p, w[:, k], q, zs) - ls0, 0.0))
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
 
 def rul_quantiles(model: DegradationModel, state: UnitState,
                   levels: tuple[float, ...] = (0.5, 0.05, 0.95), *,
-                  iterations: int = 48) -> tuple[FloatArray, ...]:
-    """Quantiles of eq. (5) by bisection; see :meth:`DegradationModel.rul_quantiles`.
+                  method: str = "closed-form", iterations: int = 48) -> tuple[FloatArray, ...]:
+    """Quantiles of eq. (5); see :meth:`DegradationModel.rul_quantiles`.
 
-    The search variable u in (0, 1) maps to the horizon w = W u / (1 - u) (W = max(x0, 1) in
-    scaled time), so it covers (0, inf); 48 halvings give ~1e-14 in u. A level beyond the
-    failing mass 1 - S(inf)/S(0), S(inf) = P(b < 0) = Phi(-m_b / sqrt(P_bb)), is +inf.
+    A level p is reached where log S(w) = log S(0) + log(1 - p) = L, i.e. where
+    h(w) = (A + B w) / sqrt(P_zz + 2 w P_zb + w^2 P_bb + sigma_w^2 w) equals
+    c = -Phi^-1(exp(L)) (A = m_z - g(1), B = m_b). Squaring gives a quadratic in w (eq. (6)):
+
+        (B^2 - c^2 P_bb) w^2 + (2 A B - c^2 (2 P_zb + sigma_w^2)) w + A^2 - c^2 P_zz = 0,
+
+    whose smallest root w >= 0 with sign(A + B w) = sign(c) is the quantile
+    (``method="closed-form"``, the default). ``method="bisect"``: bisection on u in (0, 1),
+    w = W u / (1 - u), W = max(x0, 1), ``iterations`` halvings (the reference of the tests).
+    A level beyond the failing mass 1 - S(inf)/S(0), S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf.
     """
-    from scipy.special import log_ndtr
+    from scipy.special import log_ndtr, ndtri
 
+    if method not in ("closed-form", "bisect"):
+        raise ValueError(f"method: expected 'closed-form' or 'bisect', got {method!r}")
     q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
     m, p = state.m, state.p
-    ls0 = log_ndtr(-(m[:, 0] - zs) / np.sqrt(p[:, 0]))
-    ls_inf = log_ndtr(-m[:, 1] / np.sqrt(p[:, 2]))
-    x0 = np.where(state.n > 0, state.t, 0.0) / tau
-    w_scale = np.maximum(np.abs(x0), 1.0)
     failed = state.hi >= 1.0
     missing = state.n == 0
     out = []
-    err = np.errstate(invalid="ignore")  # units without an acquisition (NaN) are masked below
-    err.__enter__()
-    for lev in levels:
-        target = ls0 + math.log1p(-lev)
-        never = target <= ls_inf
-        lo = np.zeros(len(state))
-        hi = np.ones(len(state))
-        for _ in range(iterations):
-            u = 0.5 * (lo + hi)
-            w = w_scale * u / (1.0 - u)
-            above = _log_surv(m, p, w, q, zs) > target
-            lo = np.where(above, u, lo)
-            hi = np.where(above, hi, u)
-        u = 0.5 * (lo + hi)
-        r = w_scale * u / (1.0 - u) * tau
-        r = np.where(never, np.inf, r)
-        r = np.where(failed, 0.0, r)
-        out.append(np.where(missing, np.nan, r))
-    err.__exit__(None, None, None)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        ls0 = log_ndtr(-(m[:, 0] - zs) / np.sqrt(p[:, 0]))
+        ls_inf = log_ndtr(-m[:, 1] / np.sqrt(p[:, 2]))
+        x0 = np.where(state.n > 0, state.t, 0.0) / tau
+        for lev in levels:
+            target = ls0 + math.log1p(-lev)
+            never = target <= ls_inf
+            if method == "bisect":
+                w = _bisect(m, p, q, zs, target, np.maximum(np.abs(x0), 1.0), iterations)
+            else:
+                w = _quadratic_root(m, p, q, zs, target, ndtri)
+            r = np.where(never, np.inf, np.maximum(w, 0.0) * tau)
+            r = np.where(failed, 0.0, r)
+            out.append(np.where(missing, np.nan, r))
     return tuple(out)
+
+
+def _bisect(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
+            w_scale: FloatArray, iterations: int) -> FloatArray:
+    lo = np.zeros(m.shape[0])
+    hi = np.ones(m.shape[0])
+    for _ in range(iterations):
+        u = 0.5 * (lo + hi)
+        above = _log_surv(m, p, w_scale * u / (1.0 - u), q, zs) > target
+        lo = np.where(above, u, lo)
+        hi = np.where(above, hi, u)
+    u = 0.5 * (lo + hi)
+    return w_scale * u / (1.0 - u)
+
+
+def _quadratic_root(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
+                    ndtri: Any) -> FloatArray:
+    """The smallest admissible root of eq. (6) (see :func:`rul_quantiles`); 0 if the level is
+    already reached at w = 0, +inf if no root (the caller masks the never-failing levels)."""
+    # c = -Phi^-1(S): precise near S = 1 through 1 - S = -expm1(log S)
+    c = np.where(target > -0.6931471805599453, ndtri(-np.expm1(target)), -ndtri(np.exp(target)))
+    a_, b_ = m[:, 0] - zs, m[:, 1]
+    c2 = c * c
+    a2 = b_ * b_ - c2 * p[:, 2]
+    a1 = 2.0 * a_ * b_ - c2 * (2.0 * p[:, 1] + q)
+    a0 = a_ * a_ - c2 * p[:, 0]
+    disc = np.maximum(a1 * a1 - 4.0 * a2 * a0, 0.0)
+    sq = np.sqrt(disc)
+    # numerically stable pair of roots
+    qq = -0.5 * (a1 + np.copysign(sq, a1))
+    r1 = qq / a2
+    r2 = a0 / qq
+    lin = np.abs(a2) <= 1e-14 * (np.abs(a1) + np.abs(a0) + 1e-300)
+    r_lin = -a0 / a1
+    cands = np.stack([np.where(lin, r_lin, r1), np.where(lin, np.inf, r2)])
+    ok = (cands >= 0) & np.isfinite(cands)
+    num = a_ + b_ * cands  # the crossing's sign must be that of c (squaring lost it)
+    ok &= (np.sign(num) == np.sign(c)) | (np.abs(num) <= 1e-7 * (np.abs(a_) + np.abs(b_ * cands)))
+    w = np.where(ok, cands, np.inf).min(axis=0)
+    return np.where(target >= 0.0, 0.0, w)
 
 
 def crps(model: DegradationModel, state: UnitState, y: FloatArray, cap: float,

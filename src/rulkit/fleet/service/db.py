@@ -416,7 +416,7 @@ def _drop_duplicates(conn: Any, acq: pd.DataFrame) -> tuple[pd.DataFrame, int]:
     if old.size == 0:
         return acq, 0
     sub = acq.iloc[old]
-    for comp, grp in sub.groupby("component", sort=False):
+    for comp, grp in sub.groupby("component", sort=False, observed=True):
         stored = dict(conn.execute(
             "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
             (comp, float(grp["t"].min()), float(grp["t"].max()))).fetchall())

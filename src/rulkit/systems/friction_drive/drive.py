@@ -1,4 +1,5 @@
-"""Roller-on-tire friction drive with contact-quality deterioration (seed 003, friction-drive.md).
+"""Roller-on-tire friction drive with contact-quality deterioration (seed 003,
+docs/systems/friction-drive.md).
 
 Augmented state ``x = [w1, w2, alpha, m]`` (seed section 4.2), input ``u = I`` (motor current),
 output ``y = [w1, w2]``:
@@ -9,13 +10,13 @@ output ``y = [w1, w2]``:
     dm/dt = 0                                                              seed eq. (11)
 
 Normalised deterioration ``D = 1 - alpha / alpha0`` (seed eq. 8); failure when ``D >= D_f``
-(spec "Failure threshold": D = 1 is never reached, default ``D_f = 0.99``).
+(docs/systems/friction-drive.md §2: D = 1 is never reached, default ``D_f = 0.99``).
 
 Besides the vectorised right-hand side and its analytic Jacobian (seed eq. 19) this module holds
-the physics used by the fast long-horizon RUL propagation (spec "RUL"): the quasi-steady slip at
-constant current, the closed-form time for alpha to fall between two levels on the quasi-steady
-manifold, its inverse, and a fixed-step RK4 integrator of the full model over a batch (numpy
-reference path and a numba kernel that gives the same numbers).
+the physics used by the fast long-horizon RUL propagation (docs/systems/friction-drive.md §7): the
+quasi-steady slip at constant current, the closed-form time for alpha to fall between two levels on
+the quasi-steady manifold, its inverse, and a fixed-step RK4 integrator of the full model over a
+batch (numpy reference path and a numba kernel that gives the same numbers).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ class FrictionDriveParams:
     """Physical parameters of the roller-on-tire actuator (seed Table 1) and the failure level.
 
     ``alpha0`` is the known initial contact quality used in D = 1 - alpha/alpha0 (seed eq. 8);
-    ``failure_level`` is D_f (spec "Failure threshold", default 0.99).
+    ``failure_level`` is D_f (docs/systems/friction-drive.md §2, default 0.99).
     """
 
     r1: float = 0.0315
@@ -80,10 +81,11 @@ class FrictionDriveParams:
 SEED_R = np.diag([1.0063e-8, 1.0083e-10])
 SEED_SIGMA_M2 = 3.3333e-5
 SEED_P0 = SEED_SIGMA_M2 * np.eye(4)
-# A realistic speed-noise level (spec: "add a realistic-noise scenario"): 0.01 rad/s on the motor
-# (an encoder-differentiated speed), 0.001 rad/s on the slow wheel; 100 x the seed's sigmas.
+# A realistic speed-noise level (docs/systems/friction-drive.md §3: a realistic-noise scenario):
+# 0.01 rad/s on the motor (an encoder-differentiated speed), 0.001 rad/s on the slow wheel; 100 x
+# the seed's sigmas.
 REALISTIC_R = np.diag([1e-4, 1e-6])
-TUNED_Q_RATE = 3e-7  # per second (spec "Tuned run")
+TUNED_Q_RATE = 3e-7  # per second (docs/systems/friction-drive.md §4)
 # Process-noise rates (per second) on (w1, w2) of the "tuned-consistent" filter, sized from the
 # measured one-step error of the filter's single 1 ms RK4 step against the fine truth
 # (:func:`one_step_discretisation_error`; 50 sub-steps, square wave): the largest errors,
@@ -146,8 +148,9 @@ def jacobian(
     """Analytic Jacobian df/dx of the augmented model, seed eq. (19); shape (N, 4, 4).
 
     ``f44`` sets the (4, 4) entry: 0 for the model as written, -100 for the seed's covariance
-    heuristic of section 5.2 ("band-pass model for m"; spec: Jacobian only, never the state
-    prediction). The current does not enter the Jacobian (the input is affine).
+    heuristic of section 5.2 ("band-pass model for m"; docs/systems/friction-drive.md §4: Jacobian
+    only, never the state prediction). The current does not enter the Jacobian (the input is
+    affine).
     """
     p = params
     w1, w2, a, m = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
@@ -370,7 +373,8 @@ def time_to_alpha(
 
 
 # --------------------------------------------------------------------------------------------
-# Quasi-steady deterioration at constant current (spec "RUL": closed-form time to failure).
+# Quasi-steady deterioration at constant current (docs/systems/friction-drive.md §7: closed-form
+# time to failure).
 # --------------------------------------------------------------------------------------------
 
 
@@ -419,8 +423,9 @@ def quasi_steady_time(
     """Time for alpha to fall from ``alpha_start`` to ``alpha_end`` on the quasi-steady manifold.
 
     With the slip at equilibrium, dalpha/dt = -m G^2 alpha / (1 + c alpha)^2, so
-    t = [ln(a_s/a_e) + 2c(a_s - a_e) + c^2 (a_s^2 - a_e^2)/2] / (m G^2) (spec "RUL").
-    Returns +inf where m <= 0 (alpha never falls) and 0 where alpha_start <= alpha_end.
+    t = [ln(a_s/a_e) + 2c(a_s - a_e) + c^2 (a_s^2 - a_e^2)/2] / (m G^2)
+    (docs/systems/friction-drive.md §7). Returns +inf where m <= 0 (alpha never falls) and 0 where
+    alpha_start <= alpha_end.
     """
     a_s = np.asarray(alpha_start, dtype=np.float64)
     a_e = np.broadcast_to(np.asarray(alpha_end, dtype=np.float64), a_s.shape)
@@ -483,7 +488,8 @@ def quasi_steady_alpha(
 def square_wave_current(
     t: FloatArray, amplitude: float = 20.0, period: float = 2.0, duty: float = 0.5
 ) -> FloatArray:
-    """0 / ``amplitude`` square wave, on during [k T, k T + duty T) (seed 5.1; spec [R])."""
+    """0 / ``amplitude`` square wave, on during [k T, k T + duty T) (seed 5.1; [R],
+    docs/systems/friction-drive.md §3)."""
     t = np.asarray(t, dtype=np.float64)
     phase = np.mod(t, period) / period
     # Guard rounding at the switching instants of a sampled grid (t = k*dt).
@@ -496,9 +502,9 @@ class FrictionDriveModel(StateSpaceModel):
 
     ``step`` integrates the continuous model over ``dt`` with ``n_sub`` RK4 sub-steps (the
     seed's eq. 16 prediction) and adds process noise ``Q_d = Q_rate * dt`` when ``rng`` is given.
-    ``Q_rate`` is a per-second rate (spec: "process noise on m: specify it as a rate per
-    second"); ``R`` is the speed-measurement covariance (seed eq. 15). Health is the normalised
-    deterioration D (seed eq. 8); failure when D >= ``params.failure_level``.
+    ``Q_rate`` is a per-second rate (docs/systems/friction-drive.md §4, (FD-7): the noise on m
+    is a rate per second); ``R`` is the speed-measurement covariance (seed eq. 15). Health is the
+    normalised deterioration D (seed eq. 8); failure when D >= ``params.failure_level``.
     """
 
     state_names = STATE_NAMES
@@ -528,6 +534,7 @@ class FrictionDriveModel(StateSpaceModel):
 
     @property
     def noise(self) -> GaussianNoise:
+        """The Gaussian process and measurement noise (model contract, docs/engine.md)."""
         return self._noise
 
     def step(
@@ -538,6 +545,8 @@ class FrictionDriveModel(StateSpaceModel):
         dt: float,
         rng: np.random.Generator | None = None,
     ) -> FloatArray:
+        """One RK4 step (``n_sub`` sub-steps) of the batch (N, 4) over ``dt`` under the current
+        ``u``, plus process noise when ``rng`` is given (model contract)."""
         x = as_batch(x, 4)
         if u is None:
             raise ValueError("u: the friction drive needs the motor current I")
@@ -549,10 +558,13 @@ class FrictionDriveModel(StateSpaceModel):
         return x_next
 
     def output(self, x: FloatArray, u: FloatArray | None = None) -> FloatArray:
+        """The measured speeds (w1, w2), shape (N, 2)."""
         x = as_batch(x, 4)
         return x[:, :2].copy()
 
     def health(self, x: FloatArray) -> FloatArray:
+        """Deterioration D = 1 - alpha / alpha0, shape (N,): 0 when new, failure at
+        ``params.failure_level``."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         return 1.0 - x[:, 2] / self.params.alpha0
 

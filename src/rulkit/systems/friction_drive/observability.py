@@ -1,6 +1,6 @@
-"""Observability of the friction drive's augmented state (seed 003; friction-drive.md,
-"Observability"): output sensitivities by the linearisation and by finite differences, the
-Fisher information and Cramer-Rao bound of a window, and the pointwise rank."""
+"""Observability of the friction drive's augmented state (seed 003; docs/systems/friction-drive.md
+§6): output sensitivities by the linearisation and by finite differences, the Fisher information and
+Cramer-Rao bound of a window, and the pointwise rank."""
 
 from __future__ import annotations
 
@@ -90,7 +90,7 @@ def observability(
     truth: Truth, t_start: float, window: float = 2.0, R: FloatArray = SEED_R
 ) -> Observability:
     """Cramer-Rao sigmas of (w1, w2, alpha, m) from a ``window`` of measurements starting at
-    ``t_start`` along ``truth`` (spec "Observability"), and the pointwise rank of the
+    ``t_start`` along ``truth`` (docs/systems/friction-drive.md §6), and the pointwise rank of the
     observability matrix [H; H F; H F^2; H F^3] at ``t_start`` (full whenever slip != 0)."""
     k0 = round(t_start / truth.dt)
     k1 = k0 + round(window / truth.dt)
@@ -110,9 +110,15 @@ def observability(
         input_kind=truth.scenario.current,
         t_start=float(t_start),
         window=float(window),
-        sigma=tuple(float(v) for v in np.sqrt(np.clip(np.diag(crb), 0, None))),
+        sigma=_four(np.sqrt(np.clip(np.diag(crb), 0, None))),
         fisher_condition=float(np.linalg.cond(fisher / np.outer(d, d))),
         pointwise_rank=rank,
     )
 
 
+
+
+def _four(v: np.ndarray) -> tuple[float, float, float, float]:
+    """The four entries of ``v`` (one per state) as floats."""
+    a, b, c, d = (float(x) for x in v)
+    return a, b, c, d

@@ -1,4 +1,5 @@
-"""Tables, figures and report.md of the friction-drive study (seed 003; spec friction-drive.md).
+"""Tables, figures and report.md of the friction-drive study (seed 003;
+docs/systems/friction-drive.md).
 
 :func:`tables` turns a :class:`~rulkit.systems.friction_drive.reproduce.FrictionDriveResult`
 into pandas DataFrames; :func:`figures` draws figures like the seed's Figs. 3, 5, 7 and 8
@@ -49,7 +50,8 @@ def tables(res: FrictionDriveResult) -> dict:
             "frac_NIS_outside_95": i.frac_nis_outside,
             "innov_cov_w1": i.innovation_coverage[0], "innov_cov_w2": i.innovation_coverage[1],
             "LjungBox_p_w1": i.ljung_box_p[0], "LjungBox_p_w2": i.ljung_box_p[1],
-            # the spec's lag-autocorrelation test: fraction of lags outside +-z/sqrt(T)
+            # the lag-autocorrelation test of docs/systems/friction-drive.md §5: fraction of lags
+            # outside +-z/sqrt(T)
             "ACF_out_w1": i.frac_autocorr_outside[0], "ACF_out_w2": i.frac_autocorr_outside[1],
             "NIS_ok": i.nis_ok, "white": i.white, "consistent": i.consistent,
             "mean_NIS_excl_jump": ix.mean_nis if ix else np.nan,
@@ -103,7 +105,7 @@ def tables(res: FrictionDriveResult) -> dict:
 
     rul_rows = []
     for name, r in res.rul.items():
-        q05, q50, q95 = (float(v) for v in r.rul.quantile([0.05, 0.5, 0.95]))
+        q05, q50, q95 = (float(v) for v in np.atleast_1d(r.rul.quantile([0.05, 0.5, 0.95])))
         truth = res.rul_truth_h
         rul_rows.append({
             "config": name, "t_pred_s": r.t_pred, "N": r.rul.n,
@@ -111,7 +113,8 @@ def tables(res: FrictionDriveResult) -> dict:
             "fit_std_h": r.normal_fit[1], "seed_std_h": SEED_VALUES["rul_std_h"],
             "median_h": q50, "q05_h": q05, "q95_h": q95,
             "frac_censored": r.rul.fraction_censored, "frac_m_le_0": r.fraction_never,
-            # spec: with samples that never fail, read the quantiles, not the normal fit
+            # docs/systems/friction-drive.md §7: with samples that never fail, read the quantiles,
+            # not the normal fit
             "summary": "normal fit" if r.fraction_never == 0 else "quantiles (m <= 0 present)",
             "nominal_h": r.nominal_h, "optimistic_h": r.optimistic_h,
             "pessimistic_h": r.pessimistic_h,
@@ -197,7 +200,7 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     paths.append(p)
     # Fig. 7 and 8: bundle of D trajectories and RUL histogram, per RUL config.
     for name, r in res.rul.items():
-        finite = r.rul.samples[~r.rul.censored]
+        finite = r.rul.samples[~np.asarray(r.rul.censored, dtype=bool)]
         t_end = 1.3 * (np.quantile(finite, 0.99) if finite.size else r.nominal_h)
         if not np.isfinite(t_end):
             t_end = 300.0
@@ -232,11 +235,12 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
         fig, ax = plt.subplots(figsize=(6, 4))
         if finite.size:
             ax.hist(finite, bins=30, density=True, alpha=0.6, label="MC RUL (uncensored)")
-            mu, sd = r.normal_fit
-            if np.isfinite(sd) and sd > 0:
+            mu_fit, sd_fit = r.normal_fit
+            if np.isfinite(sd_fit) and sd_fit > 0:
                 g = np.linspace(finite.min(), finite.max(), 200)
-                ax.plot(g, np.exp(-0.5 * ((g - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)),
-                        "r", label=f"normal fit {mu:.2f} h, sd {sd:.2f} h")
+                ax.plot(g, np.exp(-0.5 * ((g - mu_fit) / sd_fit) ** 2)
+                        / (sd_fit * np.sqrt(2 * np.pi)),
+                        "r", label=f"normal fit {mu_fit:.2f} h, sd {sd_fit:.2f} h")
         ax.set_xlabel("RUL [h]")
         ax.set_title(f"Fig. 8 analogue ({name}); censored {r.rul.fraction_censored:.0%}")
         ax.legend(fontsize=8)
@@ -262,14 +266,14 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     return paths
 
 
-def _frac(df, config: str, scenario: str, col: str) -> str:  # type: ignore[no-untyped-def]
+def _frac(df: pd.DataFrame, config: str, scenario: str, col: str) -> str:
     """'k/N runs' for a boolean column of one (config, scenario) pair; '' when not run."""
     sel = df[(df["config"] == config) & (df["scenario"] == scenario)][col]
     sel = sel.dropna()
     return f"{int(sel.astype(bool).sum())}/{len(sel)}" if len(sel) else ""
 
 
-def _verdict_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-untyped-def]
+def _verdict_text(res: FrictionDriveResult, cons: pd.DataFrame) -> str:
     """How to read the verdicts, with the counts of this run (nothing hard-coded)."""
     T = res.summaries[0].innovations.n_steps if res.summaries else 0
     parts = [
@@ -292,8 +296,9 @@ def _verdict_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-unt
         parts.append(
             f"Jump scenario, tuned filter: consistent (NIS and whiteness) without the second "
             f"after the jump in {tj} runs, NIS {sel['mean_NIS_excl_jump'].min():.3f}-"
-            f"{sel['mean_NIS_excl_jump'].max():.3f} (spec, measured elsewhere: consistent, "
-            "NIS 1.98-2.01, white; where our verdict differs, the Ljung-Box p-values in the "
+            f"{sel['mean_NIS_excl_jump'].max():.3f} (an earlier prototype outside this "
+            "repository: consistent, NIS 1.98-2.01, white; where our verdict differs, the "
+            "Ljung-Box p-values in the "
             "per-run table below are the evidence; compare tuned-low-q on the same scenario). "
             "A smaller q_m tracks the jump more slowly (jump_tracking_s below)."
         )
@@ -321,7 +326,7 @@ def _verdict_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-unt
     return " ".join(parts)
 
 
-def _nees_cause_text(res: FrictionDriveResult, cons) -> str:  # type: ignore[no-untyped-def]
+def _nees_cause_text(res: FrictionDriveResult, cons: pd.DataFrame) -> str:
     """Where the large single-step NEES occur and their measured cause (numbers of this run)."""
     q999 = float(stats.chi2.ppf(0.999, 4))
     fixed = cons["config"].str.startswith("tuned-consistent")
@@ -472,7 +477,8 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         f"{SEED_VALUES['rul_std_h']} h on {SEED_VALUES['rul_mean_h']} h implies sigma_m / m ~ "
         f"{seed_ratio:.1%}; the seed does not print the sigma_m it used, so this cannot be "
         f"matched, only compared. {never_text}",
-        f"- RUL uses D_f = {DEFAULT_PARAMS.failure_level:g} (D = 1 is never reached, spec). "
+        f"- RUL uses D_f = {DEFAULT_PARAMS.failure_level:g} (D = 1 is never reached, "
+        "docs/systems/friction-drive.md §2). "
         f"Fast propagation: {res.settings.get('transient', 10.0):g} s of the full model (RK4, "
         f"{res.settings.get('transient_dt', float('nan')) * 1e3:g} ms, numba) then the "
         "quasi-steady closed form, checked against LSODA over the full horizon (column "
@@ -484,7 +490,8 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         "Verdict per run: `NIS_ok` (time-averaged NIS inside its 95 % chi-square interval, "
         "2 T degrees of freedom for T steps), "
         f"`white` (Ljung-Box, {MAX_LAG} lags, on whitened innovations, p > {WHITENESS_ALPHA:g}/2 "
-        "per component, Bonferroni over the two speeds; `ACF_out_*` is the spec's lag test, the "
+        "per component, Bonferroni over the two speeds; `ACF_out_*` is the lag test of "
+        "docs/systems/friction-drive.md §5, the "
         f"fraction of the {MAX_LAG} lags whose autocorrelation is outside +-1.96/sqrt(T), about "
         "0.05 for white innovations), "
         "`consistent` = both. `*_excl_jump`: the same without the second after the jump "

@@ -1,5 +1,5 @@
 """Friction-drive deterioration: augmented EKF, consistency checks, observability and Monte Carlo
-RUL (seed 003, Rodriguez Obando, Martinez & Berenguer, IFAC 2017; spec friction-drive.md).
+RUL (seed 003, Rodriguez Obando, Martinez & Berenguer, IFAC 2017; docs/systems/friction-drive.md).
 
 The experiment composes the physics of :mod:`rulkit.systems.friction_drive.drive` with the generic
 :class:`rulkit.estimation.kalman.ExtendedKalmanFilter` (continuous model, RK4 mean prediction,
@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rulkit.estimation.consistency import (
     InnovationCheck,
@@ -69,7 +70,7 @@ class Scenario:
 
     ``m_kind``: "constant" (assumption i), "jump" (ii: m -> ``m_jump`` at ``t_jump``) or
     "drift" (iii: dm/dt = ``drift_rate``). ``current``: "square" (0/20 A, period 2 s, on during
-    [2k, 2k+1) s; spec [R]) or "constant" (20 A from rest).
+    [2k, 2k+1) s; [R], docs/systems/friction-drive.md §3) or "constant" (20 A from rest).
     """
 
     name: str
@@ -92,6 +93,7 @@ class Scenario:
             raise ValueError(f"Scenario.duration: expected > 0, got {self.duration}")
 
     def m_of_t(self, t: FloatArray) -> FloatArray:
+        """The true mass parameter m at times ``t`` (constant, jump or drift schedule)."""
         t = np.asarray(t, dtype=np.float64)
         if self.m_kind == "constant":
             return np.full(t.shape, self.m0)
@@ -100,6 +102,7 @@ class Scenario:
         return self.m0 + self.drift_rate * t
 
     def current_of_t(self, t: FloatArray) -> FloatArray:
+        """The input current at times ``t`` (square wave or constant)."""
         t = np.asarray(t, dtype=np.float64)
         if self.current == "square":
             return fd.square_wave_current(t, self.amplitude)
@@ -150,7 +153,7 @@ def seed_configs(dt: float = 1e-3) -> dict[str, FilterConfig]:
     - ``seed``: Q = diag(0, 0, 0, 3.3333e-5) per step as printed (seed eq. 15, 27), i.e.
       q_m = 3.3333e-5 / t_s per second, F44 = 0;
     - ``seed-f44``: the same with the seed's F44 = -100 heuristic (Jacobian only);
-    - ``tuned``: q_m = 3e-7 / s (spec "Tuned run");
+    - ``tuned``: q_m = 3e-7 / s (docs/systems/friction-drive.md §4);
     - ``tuned-low-q``: q_m = 3e-8 / s (less process noise than ``tuned``: whiter innovations
       when m is constant, slower tracking of a change);
     - ``tuned-realistic``: the tuned filter with 100 x the seed's speed-noise sigmas;
@@ -222,11 +225,12 @@ class Truth:
 
 
 def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10) -> Truth:
-    """Integrate the full model with ``n_sub`` RK4 sub-steps per sample (spec: the truth uses
-    finer sub-steps than the filter). m follows the scenario's schedule, evaluated at the
-    middle of each sample interval (exact for constant m and for the jump at a sample time)."""
+    """Integrate the full model with ``n_sub`` RK4 sub-steps per sample
+    (docs/systems/friction-drive.md §4: the truth uses finer sub-steps than the filter). m follows
+    the scenario's schedule, evaluated at the middle of each sample interval (exact for constant m
+    and for the jump at a sample time)."""
     K = round(scenario.duration / dt)
-    t = np.arange(K + 1) * dt
+    t = np.arange(K + 1, dtype=np.float64) * dt
     currents = scenario.current_of_t(t[:-1])
     m_path = scenario.m_of_t(t[:-1] + 0.5 * dt)
     if scenario.m_kind == "jump":  # the jump falls on a sample time: use the step-start value
@@ -247,14 +251,15 @@ def one_step_discretisation_error(truth: Truth, n_sub: int = 1) -> FloatArray:
     return truth.X[1:] - pred
 
 
-def switch_steps(currents: FloatArray) -> FloatArray:
+def switch_steps(currents: FloatArray) -> NDArray[np.intp]:
     """Indices k of the steps whose held current differs from the previous step's (the steps
     that start at a current switch), shape (n_switch,)."""
     c = np.asarray(currents, dtype=np.float64)
     return np.flatnonzero(np.diff(c) != 0) + 1
 
 
-def nees_near_switches(nees: FloatArray, currents: FloatArray, window: int = 50) -> FloatArray:
+def nees_near_switches(nees: FloatArray, currents: FloatArray, window: int = 50
+                       ) -> NDArray[np.bool_]:
     """Boolean mask (K,) of the NEES entries within ``window`` steps after a current switch
     (``nees[k]`` is the NEES of the estimate after step k)."""
     near = np.zeros(np.shape(nees)[0], bool)
@@ -387,7 +392,7 @@ def run_filter(
 
 
 # ------------------------------------------------------------------------------------------
-# Convergence from wrong initial estimates (spec "Augmented EKF", last line)
+# Convergence from wrong initial estimates (docs/systems/friction-drive.md §4, last line)
 # ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ConvergenceRow:
@@ -485,8 +490,8 @@ class FrictionDriveResult:
     settings: dict
 
 
-def _time_within(t: FloatArray, est: FloatArray, target: FloatArray, tol: FloatArray,
-                 t_from: float) -> float:
+def _time_within(t: FloatArray, est: FloatArray, target: FloatArray,
+                 tol: FloatArray | float, t_from: float) -> float:
     """First time >= t_from after which |est - target| <= tol holds for good (nan if never)."""
     ok = np.abs(est - target) <= tol
     sel = t >= t_from
@@ -546,7 +551,7 @@ class _Batch(NamedTuple):
 
 
 def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
-    """Run the whole seed-003 study (friction-drive.md "What must be shown").
+    """Run the whole seed-003 study (docs/systems/friction-drive.md §8).
 
     For every (config, scenario) pair and run: measurements with the config's truth noise, an
     initial estimate drawn from N(x_true(0), P0) (consistent start), the augmented EKF over

@@ -1,5 +1,5 @@
-"""Remaining useful life of the friction drive (seed 003 section 6; friction-drive.md, "RUL"):
-time to failure by the fast two-stage propagation (RK4 transient, then the quasi-steady closed
+"""Remaining useful life of the friction drive (seed 003 section 6; docs/systems/friction-drive.md
+§7): time to failure by the fast two-stage propagation (RK4 transient, then the quasi-steady closed
 form) checked against LSODA, Monte Carlo RUL from the EKF posterior, deterioration bundles."""
 
 from __future__ import annotations
@@ -8,12 +8,15 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy import stats
 from scipy.integrate import solve_ivp
 
 from rulkit.model import FloatArray, check_covariance
 from rulkit.prognosis.rul import RULDistribution
 from rulkit.systems.friction_drive import drive as fd
+
+BoolArray = NDArray[np.bool_]
 
 HOUR = 3600.0
 # RK4 step of the spin-up transient in the fast RUL propagation. Against LSODA over the full
@@ -31,21 +34,22 @@ def time_to_failure(
     dt: float = TRANSIENT_DT,
     full_model_below: float = 3600.0,
     horizon: float = np.inf,
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, BoolArray]:
     """Time (s) for D = 1 - alpha/alpha0 to reach ``params.failure_level`` from states ``x0``
     (N, 4) under a constant current, m held constant: the fast long-horizon propagation.
 
     The full model is integrated (RK4, ``dt``, numba kernel, vectorised over N, each sample
     stopping at its crossing) over the ``transient`` (spin-up from the off-equilibrium
     estimate); the quasi-steady closed form
-    :func:`rulkit.systems.friction_drive.drive.quasi_steady_time` then gives the rest (spec "RUL").
-    The closed form ignores the lag of the mechanical state behind the falling alpha, so it is
-    early by a roughly constant ~15-26 s (measured against LSODA over the full horizon: 26 s at
-    D_f = 0.99 and RUL ~ 105 h, ~80 s at D_f = 0.999); samples whose closed-form remainder is
-    below ``full_model_below`` seconds are therefore finished with the full model as well, so
-    the relative error stays below ~1 % even for failures within minutes (a first-order lag
-    correction was tried and diverges as D_f -> 1). Returns ``(t_fail, never)``: ``t_fail``
-    (N,) (inf where m <= 0 or beyond ``horizon``) and the mask of samples that never fail.
+    :func:`rulkit.systems.friction_drive.drive.quasi_steady_time` then gives the rest
+    (docs/systems/friction-drive.md §7). The closed form ignores the lag of the mechanical state
+    behind the falling alpha, so it is early by a roughly constant ~15-26 s (measured against LSODA
+    over the full horizon: 26 s at D_f = 0.99 and RUL ~ 105 h, ~80 s at D_f = 0.999); samples whose
+    closed-form remainder is below ``full_model_below`` seconds are therefore finished with the full
+    model as well, so the relative error stays below ~1 % even for failures within minutes (a
+    first-order lag correction was tried and diverges as D_f -> 1). Returns ``(t_fail, never)``:
+    ``t_fail`` (N,) (inf where m <= 0 or beyond ``horizon``) and the mask of samples that never
+    fail.
     """
     x0 = np.asarray(x0, dtype=np.float64)
     a_e = (1.0 - params.failure_level) * params.alpha0

@@ -2,7 +2,8 @@
 
 Per-cycle damping by the micro EKF (all cycles as one batch), the trend by the macro EKF after
 every cycle, and the RUL in cycles (from the EKF covariance and by Monte Carlo) until the
-damping reaches ``c_fail`` from the design point (seed 002 sections 3-4; motor-damping.md).
+damping reaches ``c_fail`` from the design point (seed 002 sections 3-4;
+docs/systems/motor-damping.md).
 """
 
 from __future__ import annotations

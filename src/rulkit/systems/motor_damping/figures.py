@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,19 +25,20 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
 
     out = Path(out)
     paths: list[Path] = []
-    cfg = res.config
-    consts = cfg.life.consts
-    lin = res.scenarios["linear"]
-    lt0 = res.life_run0
+    for draw in (_fig08_micro_cycle, _fig09_damping, _fig10_curves, _fig11_12_curve_slope,
+                 _fig13_15_predictions, _fig16_slope, _fig17_rul, _fig_macro_models):
+        for fig, name in draw(res, plt):
+            p = out / name
+            fig.tight_layout()
+            fig.savefig(p, dpi=110)
+            plt.close(fig)
+            paths.append(p)
+    return paths
 
-    def save(fig, name: str) -> None:
-        p = out / name
-        fig.tight_layout()
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        paths.append(p)
 
-    # Fig. 8: micro EKF within one cycle
+def _fig08_micro_cycle(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Fig. 8: micro EKF within one cycle."""
+    figs: list[tuple[Any, str]] = []
     h = res.micro_history_run0
     t = h["time"]
     fig, ax = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
@@ -59,9 +60,14 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     ax[1].set_xlabel("t [s]")
     ax[1].legend()
     ax[0].set_title(f"Micro EKF, cycle {h['cycle']} of run 0 (seed Fig. 8)")
-    save(fig, "fig08_micro_cycle.png")
+    figs.append((fig, "fig08_micro_cycle.png"))
+    return figs
 
-    # Fig. 9: damping over cycles
+
+def _fig09_damping(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Fig. 9: damping over cycles."""
+    lin = res.scenarios["linear"]
+    figs: list[tuple[Any, str]] = []
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.errorbar(lin.cycles, lin.z[0], yerr=1.96 * np.sqrt(lin.r[0]), fmt="o", ms=3,
                 label="micro EKF estimate (95 %)")
@@ -72,9 +78,17 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     ax.set_ylabel("c [N m s]")
     ax.set_title("Damping over cycles, run 0 (seed Fig. 9)")
     ax.legend()
-    save(fig, "fig09_damping_over_cycles.png")
+    figs.append((fig, "fig09_damping_over_cycles.png"))
+    return figs
 
-    # Fig. 10: characteristic curves every 5 cycles
+
+def _fig10_curves(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Fig. 10: characteristic curves every 5 cycles."""
+    cfg = res.config
+    consts = cfg.life.consts
+    lin = res.scenarios["linear"]
+    lt0 = res.life_run0
+    figs: list[tuple[Any, str]] = []
     fig, ax = plt.subplots(figsize=(7, 4.5))
     cyc = np.arange(0, cfg.life.n_cycles, 5)
     cmap = plt.get_cmap("viridis")
@@ -92,9 +106,14 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     ax.set_ylim(0, 130)
     ax.set_title("Characteristic curves (dots: measured; lines: with micro-EKF c) (Fig. 10)")
     ax.legend(fontsize=7, ncol=2)
-    save(fig, "fig10_characteristic_curves.png")
+    figs.append((fig, "fig10_characteristic_curves.png"))
+    return figs
 
-    # Figs. 11-12: curve slope over cycles and vs damping
+
+def _fig11_12_curve_slope(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Figs. 11-12: curve slope over cycles and vs damping."""
+    lin = res.scenarios["linear"]
+    figs: list[tuple[Any, str]] = []
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
     ax[0].plot(lin.cycles, 1e3 * res.curve_slopes_run0, "o", ms=3)
     ax[0].axhline(-1e3 * res.c_fail, color="r", ls=":", label="-c_fail")
@@ -110,19 +129,25 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     ax[1].set_ylabel("-slope [N m s/rad]")
     ax[1].legend()
     ax[1].set_title("Slope vs damping (Fig. 12)")
-    save(fig, "fig11_12_curve_slope.png")
+    figs.append((fig, "fig11_12_curve_slope.png"))
+    return figs
 
-    # Figs. 13-15: predictions from given cycles
+
+def _fig13_15_predictions(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Figs. 13-15: predictions from given cycles."""
+    cfg = res.config
+    lin = res.scenarios["linear"]
+    figs: list[tuple[Any, str]] = []
     pcs = [n for n in cfg.prediction_cycles if n <= cfg.life.n_cycles]
     fig, axs = plt.subplots(1, len(pcs), figsize=(5 * len(pcs), 4), squeeze=False)
     for ax, n in zip(axs[0], pcs, strict=True):
-        k = int(np.flatnonzero(lin.cycles == n)[0])
-        x = lin.track.x[k, :1]
-        P = lin.track.P[k, :1]
+        kn = int(np.flatnonzero(lin.cycles == n)[0])
+        x = lin.track.x[kn, :1]
+        P = lin.track.P[kn, :1]
         m = np.arange(0.0, 60.0)
-        mu, v = predicted_damping(x, P, m, lin.track.q_a[k, :1])
+        mu, v = predicted_damping(x, P, m, lin.track.q_a[kn, :1])
         sd = np.sqrt(v[0])
-        ax.plot(lin.cycles[: k + 1], lin.z[0, : k + 1], "o", ms=3, label="micro estimates")
+        ax.plot(lin.cycles[: kn + 1], lin.z[0, : kn + 1], "o", ms=3, label="micro estimates")
         ax.plot(n + m, mu[0], "b", label="macro EKF prediction")
         ax.plot(n + m, mu[0] + 1.645 * sd, "g", lw=1, label="90 % band")
         ax.plot(n + m, mu[0] - 1.645 * sd, "g", lw=1)
@@ -133,9 +158,15 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
         ax.set_ylim(0, 2.2e-4)
         ax.set_title(f"Prediction from cycle {n}")
         ax.legend(fontsize=7)
-    save(fig, "fig13_15_predictions.png")
+    figs.append((fig, "fig13_15_predictions.png"))
+    return figs
 
-    # Fig. 16: slope
+
+def _fig16_slope(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Fig. 16: slope."""
+    cfg = res.config
+    lin = res.scenarios["linear"]
+    figs: list[tuple[Any, str]] = []
     fig, ax = plt.subplots(figsize=(7, 4))
     a = lin.track.x[:, 0, 1]
     sa = np.sqrt(lin.track.P[:, 0, 1, 1])
@@ -148,43 +179,55 @@ def make_figures(res: MotorDampingResult, out: Path) -> list[Path]:
     ax.set_ylabel("a [N m s / cycle]")
     ax.set_title("Slope of the degradation model (Fig. 16)")
     ax.legend()
-    save(fig, "fig16_slope.png")
+    figs.append((fig, "fig16_slope.png"))
+    return figs
 
-    # Fig. 17: RUL vs cycle
-    def rul_panel(ax, sres, title: str) -> None:
-        pc = sres.pred_cycles
-        tr = sres.rul_true[0]
-        ax.plot(pc, tr, "k", label="true RUL")
-        ax.fill_between(pc, (1 - 0.2) * tr, (1 + 0.2) * tr, color="0.85", label="alpha = 0.2")
-        ax.plot(pc, sres.cov_q[0, :, 1], "b", label="median (covariance)")
-        ax.plot(pc, sres.cov_q[0, :, 0], "r", lw=1, label="90 % bounds (covariance)")
-        ax.plot(pc, sres.cov_q[0, :, 2], "r", lw=1)
-        ax.plot(pc, sres.mc_q[0, :, 0], "m:", lw=1, label="90 % bounds (Monte Carlo)")
-        ax.plot(pc, sres.mc_q[0, :, 2], "m:", lw=1)
-        top = np.nanmax(tr) * 1.8
-        ax.set_ylim(0, top)
-        ax.set_xlabel("cycle")
-        ax.set_ylabel("RUL [cycles]")
-        ax.set_title(title)
-        ax.legend(fontsize=7)
 
+def _fig17_rul(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Fig. 17: RUL vs cycle."""
+    lin = res.scenarios["linear"]
+    figs: list[tuple[Any, str]] = []
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    rul_panel(ax, lin, "RUL vs cycle, run 0 (seed Fig. 17)")
-    save(fig, "fig17_rul.png")
+    _rul_panel(ax, lin, "RUL vs cycle, run 0 (seed Fig. 17)")
+    figs.append((fig, "fig17_rul.png"))
 
     fig, axs = plt.subplots(1, 2, figsize=(11, 4.5))
-    rul_panel(axs[0], res.scenarios["accelerating"], "Accelerating c, linear macro (q_a = 0)")
-    rul_panel(axs[1], res.scenarios["accelerating-qa-ml"],
-              "Accelerating c, random-walk slope (q_a by max. likelihood)")
-    save(fig, "fig_accelerating_rul.png")
+    _rul_panel(axs[0], res.scenarios["accelerating"], "Accelerating c, linear macro (q_a = 0)")
+    _rul_panel(axs[1], res.scenarios["accelerating-qa-ml"],
+               "Accelerating c, random-walk slope (q_a by max. likelihood)")
+    figs.append((fig, "fig_accelerating_rul.png"))
+    return figs
 
-    # linear vs quadratic macro law on both truths (run 0)
+
+def _fig_macro_models(res: MotorDampingResult, plt: Any) -> list[tuple[Any, str]]:
+    """Linear vs quadratic macro law on both truths (run 0)."""
+    cfg = res.config
+    figs: list[tuple[Any, str]] = []
     fig, axs = plt.subplots(2, 2, figsize=(11, 8.5))
     for i, truth in enumerate(("linear", "accelerating")):
         for j, model in enumerate(("linear", "quadratic")):
             name = truth if cfg.macro.model == model else f"{truth}-{model}-macro"
             if name in res.scenarios:
-                rul_panel(axs[i, j], res.scenarios[name],
-                          f"{truth.capitalize()} c, {model} macro law (run 0)")
-    save(fig, "fig_macro_models_rul.png")
-    return paths
+                _rul_panel(axs[i, j], res.scenarios[name],
+                           f"{truth.capitalize()} c, {model} macro law (run 0)")
+    figs.append((fig, "fig_macro_models_rul.png"))
+    return figs
+
+
+def _rul_panel(ax: Any, sres: Any, title: str) -> None:
+    """RUL of run 0 against the truth: covariance median and bounds, Monte Carlo bounds."""
+    pc = sres.pred_cycles
+    tr = sres.rul_true[0]
+    ax.plot(pc, tr, "k", label="true RUL")
+    ax.fill_between(pc, (1 - 0.2) * tr, (1 + 0.2) * tr, color="0.85", label="alpha = 0.2")
+    ax.plot(pc, sres.cov_q[0, :, 1], "b", label="median (covariance)")
+    ax.plot(pc, sres.cov_q[0, :, 0], "r", lw=1, label="90 % bounds (covariance)")
+    ax.plot(pc, sres.cov_q[0, :, 2], "r", lw=1)
+    ax.plot(pc, sres.mc_q[0, :, 0], "m:", lw=1, label="90 % bounds (Monte Carlo)")
+    ax.plot(pc, sres.mc_q[0, :, 2], "m:", lw=1)
+    top = np.nanmax(tr) * 1.8
+    ax.set_ylim(0, top)
+    ax.set_xlabel("cycle")
+    ax.set_ylabel("RUL [cycles]")
+    ax.set_title(title)
+    ax.legend(fontsize=7)

@@ -9,7 +9,7 @@ State ``x_n = [c_n, a_n]`` (damping trend value and slope per cycle). Between ob
 the seed's linear law eq. 4, F is eq. 7). Measurement ``z_n = c_n + v_n``, ``H = [1, 0]``, with
 ``var(v_n) = r_n + s^2``: the micro EKF's variance of that cycle plus the cycle-to-cycle
 scatter of the damping, estimated from the residuals of a straight-line fit
-(motor-damping.md, "Macro measurement noise and truth").
+(docs/systems/motor-damping.md §6).
 
 After each cycle n the filter is re-run on cycles 1..n with the scatter estimated from those
 cycles only (no look-ahead), all runs of a Monte Carlo study together as a batch of units.
@@ -82,7 +82,8 @@ class MacroSettings:
     ``s^2 = max((nu0 s0^2 + RSS_n) / (nu0 + n - 2) - mean(r), 0)`` with a weak prior
     ``s0 = scatter_prior_sd`` worth ``nu0 = scatter_prior_dof`` residuals (default 0: the pure
     residual estimate; ``s0`` is then only used while n <= 2); ``scatter_sd`` fixes ``s``.
-    ``include_scatter=False`` uses the micro variance alone (the failure mode in the spec).
+    ``include_scatter=False`` uses the micro variance alone (the failure mode of
+    docs/systems/motor-damping.md §6).
     ``model``: ``"linear"`` (the seed's law, state [c, a]) or ``"quadratic"`` (state [c, a, j],
     module docstring); ``j_prior_sd``: zero-mean prior sd of the curvature j (change of the
     slope per cycle) at cycle 0, used by the quadratic model only (default 1e-7 per cycle^2:
@@ -481,7 +482,7 @@ def rul_monte_carlo(
 
 
 def quadratic_crossing(
-    c: np.ndarray, a: np.ndarray, j: np.ndarray, c_fail: float
+    c: np.ndarray | float, a: np.ndarray | float, j: np.ndarray | float, c_fail: float
 ) -> FloatArray:
     """First ``m >= 0`` with ``c + a m + j m^2 / 2 >= c_fail`` (the quadratic trend's crossing;
     ``j = 0`` is the seed's linear law ``(c_fail - c) / a``); 0 when ``c >= c_fail`` already,

@@ -5,7 +5,7 @@ State ``x_k = [w_k, c_k]`` per cycle, input the current, measurement ``z_k = [w_
 B units: the loop is over the samples of a cycle, never over cycles or runs. Cycles of different
 lengths are padded with NaN; a unit whose samples have run out keeps its last posterior.
 
-Two discretisations (motor-damping.md, "Micro EKF"):
+Two discretisations (docs/systems/motor-damping.md §2):
 - ``"rk4"`` (default): one RK4 step of eq. 1 with the current linear between samples, exact
   Jacobian of the RK4 map; measurement taken at the current state and current.
 - ``"seed-euler"``: the seed's eq. 3 as printed - explicit Euler with the lagged current, and
@@ -144,7 +144,7 @@ def micro_ekf(
     *,
     keep_history: bool = False,
 ) -> MicroEKFResult:
-    """Run the micro EKF over a batch of cycles (seed eqs. 2-3; motor-damping.md "Micro EKF").
+    """Run the micro EKF over a batch of cycles (seed eqs. 2-3; docs/systems/motor-damping.md §2).
 
     ``time`` (T,) shared or (B, T); ``current``, ``speed``, ``acceleration`` (B, T). NaN-padded
     tails (time NaN) mark cycles shorter than T; a NaN speed/acceleration inside a cycle is a
@@ -179,8 +179,9 @@ def micro_ekf(
     R = np.diag([s.sigma_w**2, s.sigma_dw**2])[:m, :m]
     nis_sum = np.zeros(b)
     n_upd = np.zeros(b)
-    x_hist = np.empty((n_t, b, 2)) if keep_history else None
-    p_hist = np.empty((n_t, b, 2, 2)) if keep_history else None
+    n_hist = n_t if keep_history else 0
+    x_hist = np.empty((n_hist, b, 2))
+    p_hist = np.empty((n_hist, b, 2, 2))
     if keep_history:
         x_hist[0] = x
         p_hist[0] = P
@@ -198,7 +199,7 @@ def micro_ekf(
         Pp = F @ P @ F.transpose(0, 2, 1) + Q
         y = np.empty((b, m))
         y[:, 0] = speed[:, k]
-        if use_acc:
+        if acc is not None:  # use_acc
             y[:, 1] = acc[:, k]
         y = np.where(ok[:, None], y, zp[:, :m])  # padded samples: no innovation
         xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m], check=False)
@@ -215,6 +216,6 @@ def micro_ekf(
         c_var=P[:, 1, 1].copy(),
         speed=x[:, 0].copy(),
         mean_nis=nis_sum / np.maximum(n_upd, 1),
-        x_hist=x_hist,
-        p_hist=p_hist,
+        x_hist=x_hist if keep_history else None,
+        p_hist=p_hist if keep_history else None,
     )

@@ -4,11 +4,12 @@ Physics (seed 002 eq. 1): ``T_gen = K I = J dw/dt + c w + T_L`` with torque cons
 rotor inertia ``J``, viscous damping ``c`` (the health parameter, growing over cycles) and a
 constant load torque ``T_L``. In a pull-up test the drive applies maximum voltage and the
 (current-limited) driver delivers a current with an initial spike that settles to a steady
-value; we model it as ``I(t) = I_s + I_p exp(-t / tau_I)`` (motor-damping.md, "Data" [R]).
+value; we model it as ``I(t) = I_s + I_p exp(-t / tau_I)`` (docs/systems/motor-damping.md §5 [R]).
 
 Contents
 --------
-- :class:`MotorConstants`: the synthetic motor's constants (documented, spec "Data").
+- :class:`MotorConstants`: the synthetic motor's constants (documented,
+docs/systems/motor-damping.md §5).
 - :func:`speed_derivative`, :func:`pullup_speed_exact`: eq. 1 and its closed-form solution
   under the exponential current (the oracle for every integrator here).
 - :func:`rk4_step_with_jacobian`, :func:`euler_step_with_jacobian`, :func:`measurement`,
@@ -57,7 +58,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class MotorConstants:
-    """Constants of the synthetic reaction-wheel motor (motor-damping.md, "Data" [R]).
+    """Constants of the synthetic reaction-wheel motor (docs/systems/motor-damping.md §5 [R]).
 
     The seed's SRB-361-1103 data are not public; these constants are physically sensible for a
     small reaction-wheel motor and make the seed's failure threshold come out by algebra:
@@ -98,7 +99,7 @@ class MotorConstants:
 
     def scaled(self, K: float = 1.0, J: float = 1.0, T_L: float = 1.0) -> MotorConstants:
         """The same motor with K, J, T_L multiplied by the given factors (constants known with
-        error, motor-damping.md "Data")."""
+        error, docs/systems/motor-damping.md §5)."""
         return replace(self, K=self.K * K, J=self.J * J, T_L=self.T_L * T_L)
 
 
@@ -170,8 +171,8 @@ def rk4_step_with_jacobian(
     (midpoint value ``(i0 + i1)/2`` for the stages k2, k3); ``c`` is constant over the step
     (seed eq. 3, second row). ``dt`` is a scalar or (B,). The Jacobian ``F = d x_next / d x``
     (B, 2, 2) is the exact derivative of the RK4 map, obtained by differentiating the four
-    stages (forward sensitivities) - the default micro-EKF discretisation (motor-damping.md,
-    "Micro EKF": "discretise exactly or with RK4").
+    stages (forward sensitivities) - the default micro-EKF discretisation
+    (docs/systems/motor-damping.md §2: "discretise exactly or with RK4").
     """
     w = x[:, 0]
     c = x[:, 1]
@@ -297,6 +298,7 @@ class DCMotor(StateSpaceModel):
 
     @property
     def noise(self) -> GaussianNoise:
+        """The Gaussian process and measurement noise (model contract, docs/engine.md)."""
         return self._noise
 
     def _currents(self, u: FloatArray | None, n: int) -> tuple[FloatArray, FloatArray]:
@@ -317,6 +319,8 @@ class DCMotor(StateSpaceModel):
         dt: float,
         rng: np.random.Generator | None = None,
     ) -> FloatArray:
+        """One RK4 step of the batch of states [speed, damping] (N, 2) over ``dt`` under the
+        current ``u``, plus process noise when ``rng`` is given (model contract)."""
         x = as_batch(x, 2)
         i0, i1 = self._currents(u, x.shape[0])
         x_next, _ = rk4_step_with_jacobian(x, i0, i1, dt, self.consts)
@@ -325,11 +329,13 @@ class DCMotor(StateSpaceModel):
         return x_next
 
     def output(self, x: FloatArray, u: FloatArray | None = None) -> FloatArray:
+        """The measured speed (and acceleration) of each state in the batch."""
         x = as_batch(x, 2)
         i0, _ = self._currents(u, x.shape[0])
         return measurement(x, i0, self.consts)[0]
 
     def health(self, x: FloatArray) -> FloatArray:
+        """The damping coefficient c of each state, shape (N,) (rises towards c_fail)."""
         return as_batch(x, 2)[:, 1]
 
 
@@ -389,7 +395,7 @@ def failure_damping(
 
     Under the steady current the curve is ``T_out = J dw/dt = K I_s - T_L - c w`` (eq. 1), a line
     of slope ``-c``; it falls below the design point ``(w_d, T_d)`` when
-    ``c > c_fail = (K I_s - T_L - T_d) / w_d`` (motor-damping.md, "Failure threshold").
+    ``c > c_fail = (K I_s - T_L - T_d) / w_d`` (docs/systems/motor-damping.md §4).
     With the default constants: (0.0615 - 0.0014 - 0.016) / 300 = 1.47e-4.
     """
     i_s = consts.I_s if steady_current is None else float(steady_current)
@@ -471,13 +477,13 @@ def failure_damping_from_curves(
 
 
 # ---------------------------------------------------------------------------------------------
-# Synthetic life test (motor-damping.md, "Data")
+# Synthetic life test (docs/systems/motor-damping.md §5)
 # ---------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class LifeTestConfig:
-    """Settings of the synthetic life test (motor-damping.md, "Data" [R]).
+    """Settings of the synthetic life test (docs/systems/motor-damping.md §5 [R]).
 
     Damping trend over cycles ``n = 1..n_cycles``: ``c_trend(n) = c0 + a n + b n^2`` (``b`` =
     ``curvature``, 0 for the seed's linear law eq. 4; > 0 for an accelerating law); each cycle's
@@ -517,6 +523,7 @@ class LifeTestConfig:
 
     @property
     def time(self) -> FloatArray:
+        """Sample times of one pull-up cycle, 0 to ``duration`` in steps of ``dt``."""
         n = round(self.duration / self.dt) + 1
         return self.dt * np.arange(n, dtype=np.float64)
 
@@ -560,7 +567,7 @@ class LifeTest:
 def simulate_life_test(
     config: LifeTestConfig, rng: np.random.Generator, c_fail: float | None = None
 ) -> LifeTest:
-    """Seeded synthetic pull-up life test (motor-damping.md, "Data"); all cycles at once.
+    """Seeded synthetic pull-up life test (docs/systems/motor-damping.md §5); all cycles at once.
 
     Speeds come from the closed form :func:`pullup_speed_exact` (no integration error), so the
     only errors in the data are the stated noises. Reproducible from ``rng``'s seed.

@@ -74,6 +74,7 @@ class PullupData:
 
     @property
     def n_cycles(self) -> int:
+        """Number of pull-up cycles in the data."""
         return int(self.cycle.shape[0])
 
 

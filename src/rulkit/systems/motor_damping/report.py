@@ -122,7 +122,8 @@ def _report(res: MotorDampingResult, command: str) -> str:
         f"RUL with {cfg.mc_samples} samples per unit and cycle, horizon {cfg.horizon:g} cycles.",
         "",
         "The seed's motor data are not public: every number of ours comes from the synthetic "
-        "life test of motor-damping.md (K = 0.030 N m/A, J = 3.0e-3 kg m^2, T_L = 1.4 mN m, "
+        "life test of docs/systems/motor-damping.md §5 (K = 0.030 N m/A, J = 3.0e-3 kg m^2, "
+        "T_L = 1.4 mN m, "
         "I(t) = 2.05 + 1.95 exp(-t/1 s) A, 35 s cycles at 0.05 s, sigma_w = 0.05 rad/s, "
         "sigma_dw = 0.5 rad/s^2, c_n = 1e-5 + 2e-6 n + N(0, (2e-6)^2)). The seed's numbers are "
         "not consistent with each other (a slope of 2.67e-6 and failure after cycle 58 need "

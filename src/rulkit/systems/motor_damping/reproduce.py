@@ -2,10 +2,10 @@
 
 Composes :mod:`rulkit.systems.motor_damping.motor` (physics, synthetic life test), the micro EKF
 (:mod:`.micro`, seed eqs. 2-3), the macro EKF and RUL (:mod:`.macro`,
-seed eqs. 4-7) and :mod:`rulkit.metrics` over many seeded runs (motor-damping.md, "What must be
-shown"). :func:`run` returns the tables as data;
-:func:`rulkit.systems.motor_damping.report.write_report` writes CSV tables, ``report.md`` (the
-seed's values beside ours) and figures like the seed's Figs. 8-17.
+seed eqs. 4-7) and :mod:`rulkit.metrics` over many seeded runs (docs/systems/motor-damping.md §7).
+:func:`run` returns the tables as data; :func:`rulkit.systems.motor_damping.report.write_report`
+writes CSV tables, ``report.md`` (the seed's values beside ours) and figures like the seed's Figs.
+8-17.
 
 Scenarios (each over ``runs`` seeded runs; run r uses ``SeedSequence(seed).spawn(runs)[r]``):
 
@@ -112,7 +112,8 @@ class MotorDampingConfig:
 
     @classmethod
     def quick(cls, **kw: Any) -> MotorDampingConfig:
-        base = {"runs": 20, "mc_samples": 100, "variant_runs": 2}
+        """The ``--quick`` size: 20 runs, 100 Monte Carlo samples, 2 runs per micro variant."""
+        base: dict[str, Any] = {"runs": 20, "mc_samples": 100, "variant_runs": 2}
         base.update(kw)
         return cls(**base)
 
@@ -300,7 +301,8 @@ def _metrics(
             out[f"alpha_lambda_{lam}"].append(float(res.passed))
             if lam == 0.5:
                 out["ra_0.5"].append(
-                    float(relative_accuracy(np.array([res.rul_pred]), np.array([res.rul_true]))[0])
+                    float(np.asarray(relative_accuracy(np.array([res.rul_pred]),
+                                                       np.array([res.rul_true])))[0])
                 )
         # Saxena et al. 2010: PH = EOL - first time the prediction is within +- alpha EOL
         ph = prognostic_horizon(t, med, float(eol[i]), alpha=0.05, bounds="absolute")
@@ -360,7 +362,7 @@ def _model_comparison_rows(
 ) -> list[dict[str, Any]]:
     """Rows of the ``macro_models`` table: one per RUL method, metrics over all prediction
     cycles and over the first / second half of life (prediction cycle < or >= EOL / 2)."""
-    def over(fn: Any, values: FloatArray) -> float:
+    def over(fn: Any, values: np.ndarray) -> float:
         """``fn`` of the selected values; NaN (no prediction in that part of life) if empty."""
         return float(fn(values)) if values.size else np.nan
 
@@ -679,5 +681,6 @@ def _micro_history(lt0: LifeTest, cfg: MotorDampingConfig) -> dict[str, Any]:
         lt0.time, lt0.current[k8 : k8 + 1], lt0.speed[k8 : k8 + 1],
         lt0.acceleration[k8 : k8 + 1], cfg.life.consts, cfg.micro, keep_history=True,
     )
+    assert h.x_hist is not None and h.p_hist is not None  # keep_history=True
     return {"cycle": k8 + 1, "time": lt0.time, "x": h.x_hist[:, 0], "P": h.p_hist[:, 0],
             "speed": lt0.speed[k8], "true_c": lt0.damping[k8]}

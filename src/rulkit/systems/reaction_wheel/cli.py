@@ -149,7 +149,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         runs: Annotated[int | None, typer.Option(help="Runs per table (default 20; "
                                                       "quick 5).")] = None,
         seed: Annotated[int, typer.Option(min=0, help="Seed of the runs.")] = 0,
-        out: Annotated[Path, typer.Option(help="Output directory.")] = Path("rw-lubrication-out"),
+        out: Annotated[Path, typer.Option(help="Output directory.")] = Path(
+            "out/rw-lubrication"),
         workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
         scheduler: Annotated[str | None, typer.Option(
             help="Address of an existing Dask scheduler (tcp://host:port).")] = None,

@@ -1,4 +1,5 @@
-"""Step 2 of the reaction-wheel study: tracking the lubricant-loss parameters (spec §4, Table 6).
+"""Step 2 of the reaction-wheel study: tracking the lubricant-loss parameters
+(docs/systems/reaction-wheel.md §4, Table 6).
 
 Three trackers of ``theta = [b, beta0]`` (random walks) from the window losses
 ``y_k = beta0 S_k(b) dt + noise`` with ``S_k(b) = sum_{j in window k} exp(-b / T^_j)``:
@@ -15,9 +16,9 @@ Three trackers of ``theta = [b, beta0]`` (random walks) from the window losses
 The window sums use :class:`rulkit.systems.reaction_wheel.lubrication.WindowQuadrature` (n Gauss
 nodes per window
 instead of 4,800 exponentials per particle). ``T^`` over three months comes from the error-process
-shortcut (spec §4): true path + an error process whose statistics are measured on step-1 runs
-(:func:`measure_temperature_errors`), validated against the real step-1 estimator on a shorter
-horizon
+shortcut (docs/systems/reaction-wheel.md §4): true path + an error process whose statistics are
+measured on step-1 runs (:func:`measure_temperature_errors`), validated against the real step-1
+estimator on a shorter horizon
 (:func:`validate_shortcut`).
 
 Batched over units: every array has a leading unit axis U (runs x scenarios x T^ sources) and a
@@ -844,7 +845,8 @@ def run_table6(n_runs: int, seed: int, settings: DegradationConfig,
                scheduler: str | None = None, snapshot_windows: Sequence[int] = (),
                progress: Any = None, backend: str = "numba",
                scenarios: Sequence[int] = (1, 2)) -> Table6Result:
-    """Table 6: mean over ``n_runs`` runs of the per-run RMSPE of b and beta0 (spec §6).
+    """Table 6: mean over ``n_runs`` runs of the per-run RMSPE of b and beta0
+    (docs/systems/reaction-wheel.md §6).
 
     Tasks are (scenario, T^ source) pairs sent to :func:`rulkit.runner.run_independent`
     (serial, ``workers`` processes, or a Dask ``scheduler``); results are identical either way.
@@ -935,7 +937,7 @@ def measure_temperature_errors(source: str, n_runs: int, seed: int, *, n_particl
                          noise: str = "low", burn_in_s: float = 100.0,
                          hold_samples: int = 40, on: str = "path",
                          hours: float = 2.0) -> EstimateErrorProcess:
-    """Fit the T^ error process to real step-1 runs (spec §4).
+    """Fit the T^ error process to real step-1 runs (docs/systems/reaction-wheel.md §4).
 
     Runs the real step-1 estimator of ``source`` (:func:`estimate_temperature_for_source`:
     the seed PFs' variant :data:`STEP1_VARIANTS` [source], F2 design, or the RBJ RBPF) on
@@ -1022,7 +1024,8 @@ def simulate_wheel_on_path(path: Any, hours: float, v_comm: float = 2.0, dt: flo
 def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours: float = 3.0,
                       n_runs: int = 3, seed: int = 0, settings: DegradationConfig | None = None,
                       n_particles_step1: int = 200) -> ShortcutValidation:
-    """Compare step 2 on the real step-1 T^ with step 2 on the synthetic T^ (spec §4).
+    """Compare step 2 on the real step-1 T^ with step 2 on the synthetic T^
+    (docs/systems/reaction-wheel.md §4).
 
     Scenario 1 path over ``hours``; the wheel at constant 2 V [R]; low noise; noise seeds
     different from those the error statistics were fitted on. For each run the real
@@ -1108,7 +1111,8 @@ def sensitivity_study(base: DegradationConfig, error: EstimateErrorProcess, *, n
                       horizon_days: float = 10.0, seed: int = 0, source: str = "APF",
                       methods: tuple[str, ...] = ("two_step", "rbpf", "one_step"),
                       progress: Progress | None = None) -> Any:
-    """Mean RMSPE of b and beta0 (scenario 1) when one unstated setting varies (spec §4).
+    """Mean RMSPE of b and beta0 (scenario 1) when one unstated setting varies
+    (docs/systems/reaction-wheel.md §4).
 
     Shorter horizon and fewer runs than Table 6 (stated in the output). Returns a DataFrame.
     """

@@ -1,9 +1,10 @@
-"""Fused numba kernels for the reaction-wheel step-1 particle filters (spec rw-lubrication.md
-section 3; seed 000 eqs 13-17 and 27, seed 001 eq. 28).
+"""Fused numba kernels for the reaction-wheel step-1 particle filters
+(docs/systems/reaction-wheel.md §3; seed 000 eqs 13-17 and 27, seed 001 eq. 28).
 
 The whole time loop is compiled: per step the temperature random walk, one RK4 step of the
-Ithaco wheel (spec section 1) per particle, the Gaussian likelihood, the weight update of the
-chosen variant, the estimates, the ESS and systematic resampling. Random numbers come from the
+Ithaco wheel (docs/systems/reaction-wheel.md §1) per particle, the Gaussian likelihood, the weight
+update of the chosen variant, the estimates, the ESS and systematic resampling. Random numbers come
+from the
 ``numpy.random.Generator`` passed in (numba draws from the same bit generator, in the same
 order as the numpy reference path
 :func:`rulkit.systems.reaction_wheel.temperature.filter_temperature_numpy`, so both
@@ -42,7 +43,8 @@ DESIGNS = {"F1": 0, "F2": 1}
 def pack_params(p: IthacoParams) -> np.ndarray:
     """Pack :class:`IthacoParams` into the kernel's float64 parameter vector."""
     if p.B != 0.0 or p.C != 0.0:
-        raise ValueError("the step-1 kernels model no ripple (B = C = 0, spec section 1)")
+        raise ValueError("the step-1 kernels model no ripple "
+                         "(B = C = 0, docs/systems/reaction-wheel.md §1.2)")
     return np.array(
         [p.G_d, p.w_d, p.K_t, p.K_e, p.K_s, p.w_s, p.tau_c, p.J, p.R_in, p.K_f, p.theta_a,
          p.w_a, p.V_bus, p.R_B, p.P_q, 0.0 if p.friction_law == "spec" else 1.0],
@@ -56,8 +58,9 @@ _FM = {"nsz", "arcp", "contract", "reassoc"}  # no nnan/ninf: NaN and -inf are h
 @nb.njit(cache=True, inline="always", fastmath=_FM)
 def _deriv(I, w, V, b, tn, C):  # type: ignore[no-untyped-def]
     """Wheel derivatives for one particle: the algebra of ``wheel_derivatives`` written
-    branch-free (comparisons as 0/1 factors, spec section 1: Heavisides are exact steps) so the
-    particle loop vectorises. ``C`` is the tuple from :func:`_consts` (inverses precomputed)."""
+    branch-free (comparisons as 0/1 factors, docs/systems/reaction-wheel.md §1: Heavisides are exact
+    steps) so the particle loop vectorises. ``C`` is the tuple from :func:`_consts` (inverses
+    precomputed)."""
     G_d, w_d, K_t, K_e, K_s, w_s, tau_c, inv_J, R_in, K_f, V_bus, R_B, P_q, inv_Vbus = C
     aI = abs(I)
     aw = abs(w)
@@ -159,7 +162,7 @@ class KernelSettings(NamedTuple):
 
 @nb.njit(cache=True)
 def _friction_law(P):  # type: ignore[no-untyped-def]
-    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction-wheel.md, (RW-7))."""
+    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction-wheel.md §1, (RW-7))."""
     if P[15] > 0.5:  # seed literal viscous law b = 0.0049 - 0.0002 (T + 30)
         return 0.0049 - 0.0002 * 30.0, -0.0002
     return 1e-3 * (0.049 - 0.0002 * 30.0), -1e-3 * 0.0002  # b = 1e-3 (0.049 - 0.0002 (T + 30))

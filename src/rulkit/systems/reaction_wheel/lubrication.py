@@ -1,14 +1,16 @@
-"""Reaction-wheel bearing lubricant-loss model (seed 001 eqs 7-9, 29-36; spec §4-5).
+"""Reaction-wheel bearing lubricant-loss model (seed 001 eqs 7-9, 29-36;
+docs/systems/reaction-wheel.md §4-5).
 
 Physics only: the loss-rate law, the two fault scenarios of Table 4, the step-2/3 temperature
 paths over months, the 4-minute measurement windows and the fast window sums
 
-    S_k(b) = sum_{j in window k} exp(-b / T^_j)          (spec §4; 4800 samples of 0.05 s)
+    S_k(b) = sum_{j in window k} exp(-b / T^_j)          (docs/systems/reaction-wheel.md §4; 4800
+    samples of 0.05 s)
 
 evaluated for many particles at once by Gauss quadrature on each window's empirical
 distribution of ``u = 1/T^`` (see :func:`window_quadrature`).
 
-Conventions (spec §4):
+Conventions (docs/systems/reaction-wheel.md §4):
 
 * loss rate ``beta(t) = beta0 exp(-b / T(t))`` with ``b`` and ``T`` in deg C (the "+b/T" of the
   printed eqs 29, 30, 34 is a lost minus sign);
@@ -37,7 +39,8 @@ WINDOW_SAMPLES = 4800
 WINDOW_S = SAMPLE_DT * WINDOW_SAMPLES
 #: Seconds per day.
 DAY_S = 86400.0
-#: Lowest temperature (deg C) accepted by the loss law: exp(-b/T) is singular at T = 0 (spec §4).
+#: Lowest temperature (deg C) accepted by the loss law: exp(-b/T) is singular at T = 0
+#: (docs/systems/reaction-wheel.md §4).
 T_MIN_C = 5.0
 
 
@@ -51,7 +54,8 @@ def loss_rate(temperature_c: FloatArray | float, b: FloatArray | float,
     """Lubricant loss rate ``beta0 exp(-b / T)`` in mL/s (seed 001 eq. 7 with the sign fixed).
 
     Broadcasts over its arguments. Raises ``ValueError`` when a temperature is below
-    :data:`T_MIN_C` or not finite (the law is singular at 0 deg C, spec §4).
+    :data:`T_MIN_C` or not finite (the law is singular at 0 deg C, docs/systems/reaction-wheel.md
+    §4).
     """
     T = np.asarray(temperature_c, dtype=np.float64)
     _check_temperature(T, "temperature_c")
@@ -69,7 +73,7 @@ def _check_temperature(T: FloatArray, name: str) -> None:
         i = int(np.argmin(T.ravel()))
         raise ValueError(
             f"{name}: temperature {lo:.4g} C at flat index {i} is below {T_MIN_C} C; the loss law "
-            "exp(-b/T) with T in deg C is singular at 0 C (spec rw-lubrication.md section 4)"
+            "exp(-b/T) with T in deg C is singular at 0 C (docs/systems/reaction-wheel.md §4)"
         )
 
 
@@ -116,9 +120,10 @@ class TemperaturePath:
     + season_amplitude sin(2 pi t / season_period) + drift_per_day * t / 1 day``.
 
     The orbital cycle moves T between consecutive 4-minute windows, which is what makes ``b``
-    identifiable (spec §4: ln z ~ b (1/T_{k-1} - 1/T_k)); the seasonal term gives the periodic
-    three-month path of scenario 1 (Fig 18) and the drift the slowly rising path of scenario 2
-    (Fig 20). The same path is the truth of step 2 and the assumed future path of step 3.
+    identifiable (docs/systems/reaction-wheel.md §4: ln z ~ b (1/T_{k-1} - 1/T_k)); the seasonal
+    term gives the periodic three-month path of scenario 1 (Fig 18) and the drift the slowly rising
+    path of scenario 2 (Fig 20). The same path is the truth of step 2 and the assumed future path of
+    step 3.
     """
 
     mean_c: float = 30.0
@@ -163,8 +168,9 @@ def true_window_increments(path: TemperaturePath, scenario: FaultScenario, n_win
     """Noise-free loss per window ``sum_j beta0(t_j) exp(-b(t_j)/T(t_j)) dt``, shape (n_windows,).
 
     Sample ``j`` of window ``k`` is at ``t = (k * window_samples + j) * dt``, each sample with the
-    parameters of its own time (spec §4). ``method="direct"`` sums every 0.05 s sample (the
-    oracle; 155 million terms for three months). ``"euler-maclaurin"`` (default) uses
+    parameters of its own time (docs/systems/reaction-wheel.md §4). ``method="direct"`` sums every
+    0.05 s sample (the oracle; 155 million terms for three months). ``"euler-maclaurin"`` (default)
+    uses
     ``sum_{j<n} f(a + j h) = (1/h) int f - [f(a+nh) - f(a)]/2 + h [f'(a+nh) - f'(a)]/12``
     (next term O(h^3 f''')), the integral by 12-point Gauss-Legendre per window (the integrand
     is analytic and varies on the 95-minute orbit scale); the window containing the fault time,
@@ -430,7 +436,7 @@ def direct_log_sums(u: FloatArray, b: FloatArray, *, multiplicity: float = 1.0) 
 
 
 # ---------------------------------------------------------------------------------------------
-# The error-process shortcut for T^ over months (spec §4)
+# The error-process shortcut for T^ over months (docs/systems/reaction-wheel.md §4)
 # ---------------------------------------------------------------------------------------------
 
 

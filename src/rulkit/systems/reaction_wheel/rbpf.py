@@ -1,12 +1,12 @@
 """Rao-Blackwellised particle filter for step 1 of the reaction-wheel lubrication prognostics
-(spec rw-lubrication.md section 3, "beyond the seeds"; the seeds' PFs are in
+(docs/systems/reaction-wheel.md §3, "beyond the seeds"; the seeds' PFs are in
 :mod:`rulkit.systems.reaction_wheel.temperature`).
 
-Why: given the temperature path T_{0:k}, the wheel [I, w] (spec section 1) is deterministic and
-nearly linear, so p([I, w]_k | T_{0:k}, y_{0:k}) is close to Gaussian and a Kalman filter per
-particle computes it. Only T is sampled; [I, w] is marginalised (marginalised / Rao-Blackwellised
-PF). The seeds' F2 design instead samples [I, w] and, with no process noise, can correct a
-particle's speed only through its temperature: after the 50 s step of the Table 3 path the
+Why: given the temperature path T_{0:k}, the wheel [I, w] (docs/systems/reaction-wheel.md §1) is
+deterministic and nearly linear, so p([I, w]_k | T_{0:k}, y_{0:k}) is close to Gaussian and a Kalman
+filter per particle computes it. Only T is sampled; [I, w] is marginalised (marginalised /
+Rao-Blackwellised PF). The seeds' F2 design instead samples [I, w] and, with no process noise, can
+correct a particle's speed only through its temperature: after the 50 s step of the Table 3 path the
 cloud lags (the Gaussian random walk gives no prior mass to an 8 C jump), the particles' speeds
 fall behind, and T must overshoot to drive them back (a slowly decaying oscillation over
 ~150 s, with intervals that miss the truth). Here the speed error is absorbed by each particle's
@@ -14,8 +14,8 @@ Kalman update, and the temperature transition may carry a jump component [R]:
 
     T_k = T_{k-1} + s_k xi_k,  s_k = jump_sd with probability p_jump, else q_T     [R]
 
-(``p_jump = 0``: the spec's Gaussian random walk). Per particle i and step k (inputs V_{k-1}
-and T_k held over the step, as the seed-faithful kernel):
+(``p_jump = 0``: the Gaussian random walk (RW-10) of docs/systems/reaction-wheel.md §3). Per
+particle i and step k (inputs V_{k-1} and T_k held over the step, as the seed-faithful kernel):
 
     m^- = RK4(m_{k-1}, V, T_k),  F = d RK4 / d[I, w] (tangent-linear RK4 stages),
     P^- = F P F^T + diag(q_I^2, q_w^2),  e = y_k - H m^-,  S = H P^- H^T + R,
@@ -110,9 +110,9 @@ class RBPFConfig:
 
 
 #: Named RBPF designs for the Table 5 "beyond the seeds" rows (``run_table5(designs=...)``).
-#: "RB": the spec's q_T = 0.02 C per sample (as the seed PFs and the EKF): Rao-Blackwellisation
-#: alone. "RB05": q_T = 0.05 [R]: a random walk wide enough to follow the 50 s step of the
-#: Table 3 path without the lag-and-overshoot of q_T = 0.02, at the price of a higher
+#: "RB": docs/systems/reaction-wheel.md §3's q_T = 0.02 C per sample (as the seed PFs and the EKF):
+#: Rao-Blackwellisation alone. "RB05": q_T = 0.05 [R]: a random walk wide enough to follow the 50 s
+#: step of the Table 3 path without the lag-and-overshoot of q_T = 0.02, at the price of a higher
 #: steady-state error floor (the EKF shows the same trade-off); one setting, robust.
 #: "RBJ" (the default of ``estimate_temperature(method="rbpf")``): q_T = 0.01 plus a jump
 #: component (prior 3e-4 per sample, sd 5 C) [R], proposed with probability 0.02 and reweighted

@@ -1,4 +1,5 @@
-"""Reaction-wheel lubrication prognostics, all three steps (spec rw-lubrication.md; seed 001).
+"""Reaction-wheel lubrication prognostics, all three steps (docs/systems/reaction-wheel.md; seed
+001).
 
 :func:`reproduce` runs step 1 (Table 5, by :mod:`rulkit.systems.reaction_wheel.temperature`),
 measures the
@@ -359,7 +360,8 @@ def render_report(rep: Reproduction) -> str:
     L.append("A 0.05 s particle filter over three months (155 million steps) per run is out of "
              "reach for 20 runs, so step 2 uses T^ = T + e with e a bias plus a stationary AR(1) "
              f"process held over {st2.hold_samples} samples ({st2.hold_samples * 0.05:g} s), "
-             "whose statistics are measured on real step-1 runs (spec section 4):\n")
+             "whose statistics are measured on real step-1 runs "
+             "(docs/systems/reaction-wheel.md §4):\n")
     L.append("| source | step-1 variant | bias (C) | std (C) | tau (s) | within-block jitter (C) "
              "| measured on |")
     L.append("| --- | --- | --- | --- | --- | --- | --- |")
@@ -429,7 +431,7 @@ def render_report(rep: Reproduction) -> str:
         L.append(f"- `{k}` = {v}")
     L.append("- measurement noise: the Wiener term gives y_k noise sigma_y = noise_rel x healthy "
              "window loss at the mean path temperature")
-    L.append("- b and T in deg C; loss rate beta0 exp(-b/T) (spec section 4)")
+    L.append("- b and T in deg C; loss rate beta0 exp(-b/T) (docs/systems/reaction-wheel.md §4)")
     L.append("- two-step PF1 likelihood on ln z with delta-method variance; PF2 uses PF1's "
              "posterior mean of b")
     L.append("- RB-PF beta0 prior: Gaussian with the mean and sd of the uniform prior")
@@ -483,7 +485,8 @@ def _findings(rep: Reproduction) -> list[str]:
                 f"correlation time {e.tau_s:.0f} s)")
         if max(abs(e.bias_c), e.std_c) > 0.1:
             L.append(head + " is an error in the regressor 1/T of step 2: b is identified only "
-                     "through the change of 1/T between windows (spec section 4), so a slow T^ "
+                     "through the change of 1/T between windows "
+                     "(docs/systems/reaction-wheel.md §4), so a slow T^ "
                      "error biases b (errors-in-variables attenuation) and a T^ bias rescales it "
                      "by about (T^/T)^2.")
         else:
@@ -498,7 +501,8 @@ def _findings(rep: Reproduction) -> list[str]:
                                                                     strict=True))
             L.append(f"- Sensitivity, {meth}: RMSPE of b against the T^ error std scale "
                      f"({pairs}).")
-    L.append("- The spec notes that an unoptimised attempt gave 10-25 % RMSPE of b for both "
+    L.append("- docs/systems/reaction-wheel.md §6 notes that an unoptimised attempt gave "
+             "10-25 % RMSPE of b for both "
              "methods while the seeds claim about 4 % (two-step) vs 137 % (one-step); the "
              "numbers above are what this implementation measures under the settings listed "
              "below, not tuned towards either.\n")

@@ -1,4 +1,5 @@
-"""Step 3 of the reaction-wheel study: RUL under the two lubrication faults (spec §5, Table 7).
+"""Step 3 of the reaction-wheel study: RUL under the two lubrication faults
+(docs/systems/reaction-wheel.md §5, Table 7).
 
 At a prediction time ``t_k`` (end of window k) every step-2 posterior particle ``[b, beta0]`` is
 propagated along the assumed future temperature path (the scenario path, known [R]) with
@@ -7,7 +8,7 @@ propagated along the assumed future temperature path (the scenario path, known [
 * scenario 1 (excessive loss): ``X^(t) = X_k + beta0 sum exp(-b/T_f) dt``; failure when
   ``X^`` reaches ``X_total`` (seed 001 eq. 35);
 * scenario 2 (insufficient injection): ``HI(t) = X_healthy(t) - X^(t)`` (the printed eq. 36 has
-  the sign reversed, spec §5); failure when HI reaches ``X_bearing``.
+  the sign reversed, docs/systems/reaction-wheel.md §5); failure when HI reaches ``X_bearing``.
 
 The forecast advances over windows of ``forecast_window_h`` hours whose sums use the Gauss
 quadrature of ``1/T_f`` within each window
@@ -301,7 +302,8 @@ class Step3Result:
 
 
 def run_table7(table6: Any, settings: Step3Settings) -> Step3Result:
-    """RUL of every step-2 method and scenario from the Table 6 snapshots (spec §5, §6).
+    """RUL of every step-2 method and scenario from the Table 6 snapshots
+    (docs/systems/reaction-wheel.md §5, docs/systems/reaction-wheel.md §6).
 
     ``table6`` a :class:`rulkit.systems.reaction_wheel.degradation.Table6Result` run with
     ``snapshot_windows=settings.prediction_windows(W)``. Table 7 at the prediction time closest

@@ -1,5 +1,5 @@
 """Reading and validating a user's reaction-wheel telemetry (CSV or Parquet) for step 1 of the
-lubrication prognostics (spec rw-lubrication.md section 3: T_lub from wheel speed and motor
+lubrication prognostics (docs/systems/reaction-wheel.md §3: T_lub from wheel speed and motor
 current with the commanded voltage as input).
 
 Required columns (SI units; extra columns are ignored):

@@ -1,7 +1,8 @@
 """Step 1 of the reaction-wheel lubrication prognostics: estimate the lubricant temperature
-T_lub from wheel speed and motor current (spec rw-lubrication.md section 3; seed 001 section
+T_lub from wheel speed and motor current (docs/systems/reaction-wheel.md §3; seed 001 section
 3.1, eqs 13-17 and 28; seed 000 section 3.2 and eq. 27). The Table 5 experiment and its
-figures are in :mod:`rulkit.systems.reaction_wheel.temperature_study`.
+figures (docs/systems/reaction-wheel.md §6) are in
+:mod:`rulkit.systems.reaction_wheel.temperature_study`.
 
 Estimators (all with the temperature random walk T_k = T_{k-1} + q_T xi_k):
 
@@ -19,8 +20,8 @@ Estimators (all with the temperature random walk T_k = T_{k-1} + q_T xi_k):
 - ``variant="apf_tempered"``: the intent of eq. 28 in a well-defined form: w ~ w_prev p^gamma
   with the largest gamma in [1, temper_gamma_max] keeping ESS >= temper_target N.
 
-Prediction designs (spec section 3): ``"F1"`` each particle predicts y_k by one RK4 step from
-the measured y_{k-1} with its own T; the likelihood covariance is inflated to
+Prediction designs (docs/systems/reaction-wheel.md §3): ``"F1"`` each particle predicts y_k by one
+RK4 step from the measured y_{k-1} with its own T; the likelihood covariance is inflated to
 S = R + Phi R Phi^T for the noise in that start (Phi the Jacobian of the RK4 step, by central
 differences at the 1 V / 23 C steady state). ``"F2"`` particles carry their own [I, w].
 
@@ -72,7 +73,8 @@ RBPF_INTERVAL_NOTE = ("the RBPF interval is not calibrated: its 95 % interval co
 
 @dataclass(frozen=True)
 class TemperatureConfig:
-    """Settings of a step-1 estimator. Every value the seeds leave open is [R] (spec section 3).
+    """Settings of a step-1 estimator. Every value the seeds leave open is [R]
+    (docs/systems/reaction-wheel.md §3).
 
     q_T: random-walk step of T per sample (C); T_prior: uniform prior bounds (C); q_I, q_w:
     process noise of the F2 particles' [I, w] per step (0: the wheel is deterministic given T);
@@ -180,7 +182,8 @@ def likelihood_covariance(
     design: Design, sigma: tuple[float, float], params: IthacoParams | None = None,
     dt: float = 0.05,
 ) -> np.ndarray:
-    """Covariance S of the [w, I] prediction error used in the likelihood (spec section 3).
+    """Covariance S of the [w, I] prediction error used in the likelihood
+    (docs/systems/reaction-wheel.md §3).
 
     F2: the measurement noise R = diag(sigma_w^2, sigma_I^2). F1: R + Phi R Phi^T, adding the
     measurement noise carried by the measured start y_{k-1} through one RK4 step.
@@ -222,7 +225,7 @@ def filter_temperature(
     quantiles: bool = True,
 ) -> TemperatureResult:
     """Run a step-1 temperature estimator over ``y`` (K, 2) = [w (rad/s), I_m (A)] with
-    commanded voltage ``V`` (K,) sampled every ``dt`` s (spec section 3).
+    commanded voltage ``V`` (K,) sampled every ``dt`` s (docs/systems/reaction-wheel.md §3).
 
     ``sigma = (sigma_w, sigma_I)`` is the measurement-noise level assumed by the filter.
     ``backend="numba"`` runs the fused kernel, ``"numpy"`` the vectorised reference path
@@ -313,7 +316,7 @@ def filter_temperature_numpy(
         return ll
 
     def apf_eq28(logw: FloatArray, ll: FloatArray, state: Any) -> FloatArray:
-        """Seed 001 eq. 28 with clipping of negative weights (spec section 3)."""
+        """Seed 001 eq. 28 with clipping of negative weights (docs/systems/reaction-wheel.md §3)."""
         # V[k-1] with k = state.k + 1
         wt, state.info["n_clipped"] = apf_eq28_weights(state.weights, np.exp(ll), V[state.k],
                                                        cfg.apf_c0, cfg.apf_c1)
@@ -390,8 +393,8 @@ def filter_temperature_numpy(
 def apf_eq28_weights(
     w_prev: FloatArray, p: FloatArray, V_comm: float, c0: float = 10.0, c1: float = 0.6
 ) -> tuple[FloatArray, int]:
-    """Seed 001 eq. 28 as printed, made usable (spec section 3): returns the clipped,
-    unnormalised weights ``max(0, 1 - exp(c (beta - c1 sign beta)))`` with ``c = c0 / (c0 -
+    """Seed 001 eq. 28 as printed, made usable (docs/systems/reaction-wheel.md §3): returns the
+    clipped, unnormalised weights ``max(0, 1 - exp(c (beta - c1 sign beta)))`` with ``c = c0 / (c0 -
     V_comm)``, ``beta = 1/N - w_prev p`` (``p`` the likelihood pdf values), and the number of
     clipped (negative) weights. The printed rule maps weights into (1 - e^{c(1/N - c1)}, 1):
     it compresses rather than amplifies, and is negative for -c1 < beta < 0."""
@@ -437,7 +440,7 @@ def _temper_gamma_np(lw: FloatArray, ll: FloatArray, cfg: TemperatureConfig, N: 
 
 
 # --------------------------------------------------------------------------------------------
-# reference estimator that is not a particle filter (spec section 3)
+# reference estimator that is not a particle filter (docs/systems/reaction-wheel.md §3)
 
 
 @dataclass(frozen=True)
@@ -462,7 +465,8 @@ def run_ekf(
     params: IthacoParams | None = None,
     analytic_jacobian: bool = True,
 ) -> EKFResult:
-    """Extended Kalman filter on [I, w, T] (spec section 3 reference), batched over B units.
+    """Extended Kalman filter on [I, w, T] (docs/systems/reaction-wheel.md §3 reference), batched
+    over B units.
 
     ``ys`` (K, 2) or (K, B, 2) = [w, I_m] sharing the voltage ``V`` (K,); ``sigma`` is
     ``(sigma_w, sigma_I)`` or per unit (B, 2). Discrete model: one
@@ -546,7 +550,7 @@ def estimate_temperature(
     config: Any = None,
     level: float = 0.95,
 ) -> Any:
-    """Estimate the lubricant temperature from wheel telemetry (spec section 3).
+    """Estimate the lubricant temperature from wheel telemetry (docs/systems/reaction-wheel.md §3).
 
     ``df``: a frame with columns time_s, v_comm_V, speed_rad_s, current_A (validated with
     :func:`rulkit.systems.reaction_wheel.telemetry.validate_wheel_telemetry`; regular sampling, its

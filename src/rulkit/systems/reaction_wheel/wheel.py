@@ -1,10 +1,11 @@
-"""Ithaco type-A reaction wheel after Bialke (spec rw-lubrication.md section 1; seed 000/001
-eqs 1-6, Table 2), vectorised over a batch of states, and the Table 3 validation path (spec
-section 2).
+"""Ithaco type-A reaction wheel after Bialke (docs/systems/reaction-wheel.md §1; seed 000/001
+eqs 1-6, Table 2), vectorised over a batch of states, and the Table 3 validation path
+(docs/systems/reaction-wheel.md §2).
 
 States ``x = [I_m (A), w (rad/s)]`` (plus the wheel angle ``theta (rad)`` when the motor ripple is
 kept as unmodelled dynamics). Inputs ``u = [V_comm (V), T_lub (deg C)]``, held over a step.
-Outputs ``y = [w, I_m]`` plus white noise (:data:`NOISE_LEVELS`, spec section 1 "Noise").
+Outputs ``y = [w, I_m]`` plus white noise (:data:`NOISE_LEVELS`, docs/systems/reaction-wheel.md
+§1.2).
 
     I_bus = (R_B I^2 + 0.04 |I| V_bus + P_q + K_e w I) / V_bus                       (eq. 1)
     V_h   = K_f [V_bus - 6 - (1 + R_in I_bus) 1{I_bus > 0} - K_e |w|]                 (eq. 5)
@@ -41,7 +42,8 @@ NOISE_LEVELS: dict[str, tuple[float, float]] = {
 
 @dataclass(frozen=True)
 class IthacoParams:
-    """Parameters of the Ithaco type-A wheel (seed Table 2; ``[R]`` = spec resolution)."""
+    """Parameters of the Ithaco type-A wheel (seed Table 2; ``[R]`` = our resolution,
+    docs/systems/reaction-wheel.md §1.2)."""
 
     G_d: float = 0.19  # drive gain, A/V
     w_d: float = 9.0  # driver bandwidth, rad/s
@@ -75,7 +77,8 @@ class IthacoParams:
 def check_measurements(
     y: FloatArray, V: FloatArray, sigma: tuple[float, float], dt: float
 ) -> tuple[FloatArray, FloatArray, float, float]:
-    """Validate step-1 filter inputs (spec section 3): ``y`` (K >= 2, 2) = [w (rad/s), I_m (A)],
+    """Validate step-1 filter inputs (docs/systems/reaction-wheel.md §3): ``y`` (K >= 2, 2) = [w
+    (rad/s), I_m (A)],
     ``V`` (K,) commanded voltage, ``sigma`` = (sigma_w, sigma_I) > 0, ``dt`` > 0.
 
     Returns contiguous float64 ``y``, ``V`` and the two noise levels; raises ``ValueError``
@@ -101,7 +104,8 @@ def check_measurements(
 
 
 def viscous_coefficient(T: FloatArray | float, law: FrictionLaw = "spec") -> FloatArray:
-    """Viscous friction coefficient b_v(T) in N m s/rad (spec section 1, seed eq. 2).
+    """Viscous friction coefficient b_v(T) in N m s/rad (docs/systems/reaction-wheel.md §1, seed eq.
+    2).
 
     ``"spec"``: 1e-3 [0.049 - 0.0002 (T + 30)], positive from -30 to 215 C [R].
     ``"seed_literal"``: 0.0049 - 0.0002 (T + 30) as printed (negative above -5.5 C).
@@ -117,10 +121,12 @@ def viscous_coefficient(T: FloatArray | float, law: FrictionLaw = "spec") -> Flo
 def wheel_derivatives(
     x: FloatArray, V_comm: FloatArray | float, T: FloatArray | float, t: float, p: IthacoParams
 ) -> FloatArray:
-    """Time derivative of a batch of wheel states ``x`` (N, 2) or (N, 3) (spec section 1).
+    """Time derivative of a batch of wheel states ``x`` (N, 2) or (N, 3)
+    (docs/systems/reaction-wheel.md §1).
 
     ``V_comm`` and ``T`` are scalars or (N,) arrays. The Heaviside functions of seed eq. 6 are
-    exact comparisons (spec: MATLAB's round(0.5) differs from numpy's).
+    exact comparisons (docs/systems/reaction-wheel.md §1.2: MATLAB's round(0.5) differs from
+    numpy's).
     """
     I = x[:, 0]
     w = x[:, 1]
@@ -214,13 +220,14 @@ def rk4_wheel_step_jacobian(
 
 
 class ReactionWheel(StateSpaceModel):
-    """Ithaco type-A reaction wheel as a :class:`StateSpaceModel` (spec section 1).
+    """Ithaco type-A reaction wheel as a :class:`StateSpaceModel` (docs/systems/reaction-wheel.md
+    §1).
 
     ``u`` is ``[V_comm, T_lub]`` (shape (2,) or (N, 2)). ``noise`` is the Table 5 level
     ``"low"`` or ``"high"`` (or explicit ``(sigma_w, sigma_I)``). ``ripple=True`` keeps the
-    motor ripple (B = 0.22, Table 2) with the wheel angle as a third state; the spec uses it in
-    the truth model only, as unmodelled dynamics. There is no process noise (Q = 0): the
-    wheel is deterministic given V_comm and T_lub.
+    motor ripple (B = 0.22, Table 2) with the wheel angle as a third state;
+    docs/systems/reaction-wheel.md §1.2 uses it in the truth model only, as unmodelled dynamics.
+    There is no process noise (Q = 0): the wheel is deterministic given V_comm and T_lub.
     """
 
     input_names = ("V_comm", "T_lub")
@@ -293,11 +300,12 @@ class ReactionWheel(StateSpaceModel):
 
 
 # --------------------------------------------------------------------------------------------
-# Table 3 validation path (spec section 2)
+# Table 3 validation path (docs/systems/reaction-wheel.md §2)
 
 
 def table3_temperature(t: FloatArray | float) -> FloatArray:
-    """Lubricant temperature of the Table 3 path read as a continuous rate (spec section 2).
+    """Lubricant temperature of the Table 3 path read as a continuous rate
+    (docs/systems/reaction-wheel.md §2).
 
     23 C for t < 50 s; 31 exp(3e-4 (t - 50)) for 50 <= t <= 300 s (33.41 C at 300 s);
     33.41.. exp(-3e-4 (t - 300)) after (31.47 C at 500 s).
@@ -312,7 +320,8 @@ def table3_temperature(t: FloatArray | float) -> FloatArray:
 
 
 def table3_voltage(t: FloatArray | float) -> FloatArray:
-    """Commanded voltage of the Table 3 path: 1 V before 250 s, 3 V after (spec section 2)."""
+    """Commanded voltage of the Table 3 path: 1 V before 250 s, 3 V after
+    (docs/systems/reaction-wheel.md §2)."""
     t = np.asarray(t, dtype=np.float64)
     return np.where(t < 250.0, 1.0, 3.0)
 
@@ -377,7 +386,7 @@ def simulate_table3(
     ripple: bool = False,
     params: IthacoParams | None = None,
 ) -> WheelRun:
-    """Simulate the Table 3 validation path (spec section 2) with RK4 at ``dt``.
+    """Simulate the Table 3 validation path (docs/systems/reaction-wheel.md §2) with RK4 at ``dt``.
 
     Step k -> k+1 holds V(t_k) and T(t_k). ``initial="rest"`` starts at I = w = 0 [R];
     ``"equilibrium"`` at the 1 V, 23 C steady state. Measurement noise ``[w, I_m]`` is drawn

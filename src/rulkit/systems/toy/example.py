@@ -65,6 +65,7 @@ class ToyConfig:
     seed: int = 0
 
     def model(self) -> ToyDegradation:
+        """The toy degradation model with this configuration's noise levels and step."""
         return ToyDegradation(
             sigma_d=self.sigma_d, sigma_r=self.sigma_r, sigma_y=self.sigma_y, dt=self.dt
         )
@@ -185,6 +186,7 @@ def run(config: ToyConfig | None = None) -> ToyResult:
     steps = [k for k in cfg.prediction_steps if k * dt < t_eol]
     ruls = []
     for k in steps:
+        assert res.particle_history is not None and res.weight_history is not None
         parts = res.particle_history[k - 1]
         w = res.weight_history[k - 1]
         ruls.append(
@@ -260,7 +262,7 @@ def plot_result(r: ToyResult, path: str | Path) -> Path:
 
     for i, (tp, rt, d) in enumerate(zip(r.prediction_times, r.rul_true, r.ruls, strict=True)):
         color = f"C{i % 10}"
-        unc = d.samples[~d.censored]
+        unc = d.samples[~np.asarray(d.censored, dtype=bool)]
         if unc.size >= 2 and np.ptp(unc) > 0:
             lo, hi = float(unc.min()), float(unc.max())
             pad = 0.1 * (hi - lo) + 1e-9
