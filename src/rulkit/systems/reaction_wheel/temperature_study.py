@@ -130,7 +130,8 @@ def _scores(
 ) -> dict[str, float]:
     """RMSPE of T over all estimates of a run (samples 1..K-1; row 0 is the prior) and over
     t >= t_burn (docs/systems/reaction-wheel.md section 6); with ``band = (lo, hi)`` also the
-    fraction of those samples whose true T lies in [lo, hi] (interval coverage; ~0.90 for a calibrated 90 % interval)."""
+    fraction of those samples whose true T lies in [lo, hi] (interval coverage; ~0.90 for a
+    calibrated 90 % interval)."""
     from rulkit.metrics import rmspe
 
     late = t >= t_burn
