@@ -68,9 +68,9 @@ def bench_table6(runs: int, days: float, workers: int) -> dict[str, float]:
     from dataclasses import replace
 
     from rulkit.runner import run_independent
-    from rulkit.systems.reaction_wheel.degradation import (
+    from rulkit.systems.reaction_wheel.degradation import DegradationConfig
+    from rulkit.systems.reaction_wheel.degradation_study import (
         CaseTask,
-        DegradationConfig,
         measure_temperature_errors,
         run_case,
     )

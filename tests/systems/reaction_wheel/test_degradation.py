@@ -9,16 +9,18 @@ import numpy as np
 import pytest
 
 from rulkit.systems.reaction_wheel.degradation import (
-    CaseTask,
     DegradationConfig,
     one_step_pf,
     rbpf,
     rbpf_engine,
+    two_step_pf,
+    unit_rng,
+)
+from rulkit.systems.reaction_wheel.degradation_study import (
+    CaseTask,
     run_case,
     run_table6,
     truth_parameters,
-    two_step_pf,
-    unit_rng,
 )
 from rulkit.systems.reaction_wheel.lubrication import (
     PATHS,
@@ -203,7 +205,7 @@ def test_truth_per_window_and_bad_inputs() -> None:
 
 @pytest.mark.parametrize("source", ["PF", "RBPF"])
 def test_validate_shortcut_runs_the_real_step1_estimator(source: str) -> None:
-    from rulkit.systems.reaction_wheel.degradation import validate_shortcut
+    from rulkit.systems.reaction_wheel.degradation_study import validate_shortcut
 
     err = EstimateErrorProcess(bias_c=-1.0, std_c=0.5, tau_s=100.0)
     v = validate_shortcut(err, source, hours=0.14, n_runs=1, seed=0,
@@ -220,7 +222,7 @@ def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> N
     to a fit of errors of run_rbpf called directly on the same simulated data, and it follows
     the estimator's output (a shifted estimator shifts the measured bias)."""
     from rulkit.systems.reaction_wheel import rbpf
-    from rulkit.systems.reaction_wheel.degradation import (
+    from rulkit.systems.reaction_wheel.degradation_study import (
         RBPF_STEP1_DESIGN,
         SOURCES,
         measure_temperature_errors,

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rulkit.systems.reaction_wheel.degradation import DegradationConfig, run_table6
+from rulkit.systems.reaction_wheel.degradation import DegradationConfig
+from rulkit.systems.reaction_wheel.degradation_study import run_table6
 from rulkit.systems.reaction_wheel.lubrication import (
     DAY_S,
     PATHS,

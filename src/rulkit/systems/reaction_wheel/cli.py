@@ -66,7 +66,7 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from rulkit.systems.reaction_wheel.degradation import SOURCES
+    from rulkit.systems.reaction_wheel.degradation_study import SOURCES
     from rulkit.systems.reaction_wheel.reproduce import (
         ReproductionConfig,
         reproduce,

@@ -2,11 +2,11 @@
 001).
 
 :func:`reproduce` runs step 1 (Table 5, by :mod:`rulkit.systems.reaction_wheel.temperature`),
-measures the
-error statistics of the step-1 estimators, runs step 2 (Table 6, :mod:`.degradation`) and step 3
-(Table 7, :mod:`.rul`), validates the T^ shortcut, runs the sensitivity study, and writes
-``table5.csv``, ``table6.csv``, ``table7.csv``, PNG figures and ``report.md`` putting our numbers
-beside the paper's and listing every choice made where the seeds are silent.
+measures the error statistics of the step-1 estimators, runs step 2 (Table 6,
+:mod:`.degradation_study`) and step 3 (Table 7, :mod:`.rul`), validates the T^ shortcut, runs
+the sensitivity study, and writes ``table5.csv``, ``table6.csv``, ``table7.csv``, PNG figures
+and ``report.md`` putting our numbers beside the paper's and listing every choice made where
+the seeds are silent.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from rulkit.systems.reaction_wheel.degradation import (
+from rulkit.systems.reaction_wheel.degradation import DegradationConfig
+from rulkit.systems.reaction_wheel.degradation_study import (
     SOURCES,
     STEP1_VARIANTS,
-    DegradationConfig,
     measure_temperature_errors,
     run_table6,
     sensitivity_study,
@@ -244,7 +244,7 @@ def _plot_tracking(t6: Any, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from rulkit.systems.reaction_wheel.degradation import ROW_LABELS
+    from rulkit.systems.reaction_wheel.degradation_study import ROW_LABELS
 
     paths = []
     for sid in sorted({c.scenario_id for c in t6.cases}):

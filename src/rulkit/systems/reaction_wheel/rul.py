@@ -305,13 +305,13 @@ def run_table7(table6: Any, settings: Step3Settings) -> Step3Result:
     """RUL of every step-2 method and scenario from the Table 6 snapshots
     (docs/systems/reaction-wheel.md §5, docs/systems/reaction-wheel.md §6).
 
-    ``table6`` a :class:`rulkit.systems.reaction_wheel.degradation.Table6Result` run with
+    ``table6`` a :class:`rulkit.systems.reaction_wheel.degradation_study.Table6Result` run with
     ``snapshot_windows=settings.prediction_windows(W)``. Table 7 at the prediction time closest
     to ``table7_day``: min / max / mean over runs of ``100 |RUL^ - RUL| / RUL``.
     """
     import pandas as pd
 
-    from rulkit.systems.reaction_wheel.degradation import ROW_LABELS
+    from rulkit.systems.reaction_wheel.degradation_study import ROW_LABELS
 
     methods: list[MethodRUL] = []
     for case in table6.cases:
@@ -390,7 +390,7 @@ def plot_forecasts(res: Step3Result, table6: Any, scenario_id: int, path: Any, *
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from rulkit.systems.reaction_wheel.degradation import ROW_LABELS, measurements
+    from rulkit.systems.reaction_wheel.degradation_study import ROW_LABELS, measurements
 
     ms = [m for m in res.methods if m.scenario_id == scenario_id
           and (labels is None or m.label in labels)]
@@ -440,7 +440,7 @@ def plot_forecasts(res: Step3Result, table6: Any, scenario_id: int, path: Any, *
 
 
 def _one_run_task(case: Any, table6: Any, scenario_id: int, source: str) -> Any:
-    from rulkit.systems.reaction_wheel.degradation import CaseTask
+    from rulkit.systems.reaction_wheel.degradation_study import CaseTask
 
     return CaseTask(scenario_id, source, (case.runs[0],), table6.seed, table6.settings,
                     table6.errors[source])
