@@ -65,12 +65,12 @@ def rw_tiny_config():  # type: ignore[no-untyped-def]
     Whoever renames these classes or fields updates this function, never the goldens."""
     from rulkit.systems.reaction_wheel.degradation import DegradationConfig
     from rulkit.systems.reaction_wheel.reproduce import ReproductionConfig
-    from rulkit.systems.reaction_wheel.rul import Step3Settings
+    from rulkit.systems.reaction_wheel.rul import RULConfig
 
     return ReproductionConfig(
         quick=True, n_runs=2, seed=0,
         step2=DegradationConfig(n_particles=30, horizon_days=1.0),
-        step3=Step3Settings(failure_day=20.0, prediction_days=(0.5, 1.0), table7_day=1.0,
+        step3=RULConfig(failure_day=20.0, prediction_days=(0.5, 1.0), table7_day=1.0,
                             forecast_horizon_days=40.0),
         table5_particles=(20,), table5_ekf=False, step1_error_runs=1, step1_particles=30,
         error_hours=0.1, table6_alt=False, validation_hours=0.0, sensitivity_runs=0)

@@ -93,12 +93,12 @@ def test_bad_options_exit_code_2(telemetry: Path) -> None:
 def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeypatch) -> None:
     from rulkit.systems.reaction_wheel.degradation import DegradationConfig
     from rulkit.systems.reaction_wheel.reproduce import ReproductionConfig
-    from rulkit.systems.reaction_wheel.rul import Step3Settings
+    from rulkit.systems.reaction_wheel.rul import RULConfig
 
     tiny = ReproductionConfig(
         quick=True, n_runs=2, seed=3,
         step2=DegradationConfig(n_particles=30, horizon_days=1.0),
-        step3=Step3Settings(failure_day=20.0, prediction_days=(0.5, 1.0), table7_day=1.0,
+        step3=RULConfig(failure_day=20.0, prediction_days=(0.5, 1.0), table7_day=1.0,
                             forecast_horizon_days=40.0),
         table5_particles=(20,), table5_ekf=False, step1_error_runs=1, step1_particles=30,
         error_hours=0.1, table6_alt=False,

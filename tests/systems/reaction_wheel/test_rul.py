@@ -17,7 +17,7 @@ from rulkit.systems.reaction_wheel.lubrication import (
 )
 from rulkit.systems.reaction_wheel.rul import (
     Forecaster,
-    Step3Settings,
+    RULConfig,
     expected_cumulative,
     failure_threshold,
     plot_forecasts,
@@ -26,7 +26,7 @@ from rulkit.systems.reaction_wheel.rul import (
     run_table7,
 )
 
-ST3 = Step3Settings(failure_day=20.0, prediction_days=(1.0, 2.0), table7_day=2.0,
+ST3 = RULConfig(failure_day=20.0, prediction_days=(1.0, 2.0), table7_day=2.0,
                     forecast_horizon_days=40.0)
 
 

@@ -38,7 +38,7 @@ from rulkit.systems.reaction_wheel.lubrication import (
     EstimateErrorProcess,
 )
 from rulkit.systems.reaction_wheel.rul import (
-    Step3Settings,
+    RULConfig,
     plot_forecasts,
     plot_rul_densities,
     run_table7,
@@ -55,7 +55,7 @@ class ReproductionConfig:
     n_runs: int = 20
     seed: int = 0
     step2: DegradationConfig = field(default_factory=DegradationConfig)
-    step3: Step3Settings = field(default_factory=Step3Settings)
+    step3: RULConfig = field(default_factory=RULConfig)
     table5: bool = True
     table5_particles: tuple[int, ...] | None = None  # None: the step-1 module's default list
     table5_ekf: bool = True
@@ -82,7 +82,7 @@ class ReproductionConfig:
         2, 5 and 10, Table 5 quick at N = 200 only, T^ error statistics from 2 one-hour
         step-1 runs, no shortcut validation, no sensitivity, no second Table 6."""
         kw.setdefault("step2", DegradationConfig(n_particles=150, horizon_days=10.0))
-        kw.setdefault("step3", Step3Settings(prediction_days=(2.0, 5.0, 10.0)))
+        kw.setdefault("step3", RULConfig(prediction_days=(2.0, 5.0, 10.0)))
         kw.setdefault("table5_particles", (200,))
         kw.setdefault("error_hours", 1.0)
         return cls(quick=True, n_runs=n_runs or 5, seed=seed, step1_error_runs=2,
@@ -442,7 +442,7 @@ def render_report(rep: Reproduction) -> str:
     L.append("\nStep-2/3 temperature paths (`rulkit.systems.reaction_wheel.lubrication.PATHS`):\n")
     for s, p in PATHS.items():
         L.append(f"- scenario {s}: {p}")
-    L.append("\nStep 3 (`rulkit.systems.reaction_wheel.rul.Step3Settings`):\n")
+    L.append("\nStep 3 (`rulkit.systems.reaction_wheel.rul.RULConfig`):\n")
     for k, v in asdict(st3).items():
         L.append(f"- `{k}` = {v}")
     L.append("- forecast along the true (known) future path; true RUL from the true "

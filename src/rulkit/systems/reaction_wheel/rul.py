@@ -49,8 +49,8 @@ PAPER_TABLE7: dict[str, tuple[float, ...]] = {
 
 
 @dataclass(frozen=True)
-class Step3Settings:
-    """Settings of step 3; every one is ours [R] (the seeds give none of them)."""
+class RULConfig:
+    """Settings of the RUL prediction (step 3); every one is ours [R] (the seeds give none)."""
 
     failure_day: float = 60.0
     prediction_days: tuple[float, ...] = (2.0, 5.0, 10.0, 20.0, 30.0, 45.0)
@@ -102,7 +102,7 @@ def expected_cumulative(scenario_id: int, t: FloatArray, *, healthy: bool = Fals
     return np.interp(t, grid, cum)
 
 
-def failure_threshold(scenario_id: int, settings: Step3Settings) -> float:
+def failure_threshold(scenario_id: int, settings: RULConfig) -> float:
     """``X_total`` (scenario 1) or ``X_bearing`` (scenario 2) [R]: the expected indicator at
     ``failure_day`` on the scenario path with the true parameters."""
     t = np.array([settings.failure_day * DAY_S])
@@ -133,12 +133,12 @@ class Forecaster:
     healthy_inc: FloatArray
 
     @classmethod
-    def build(cls, scenario_id: int, t_k: float, settings: Step3Settings) -> Forecaster:
+    def build(cls, scenario_id: int, t_k: float, settings: RULConfig) -> Forecaster:
         """Forecaster for ``(scenario, t_k)`` (cached: every method shares it)."""
         return _build_forecaster(scenario_id, float(t_k), settings)
 
     @classmethod
-    def _build(cls, scenario_id: int, t_k: float, settings: Step3Settings) -> Forecaster:
+    def _build(cls, scenario_id: int, t_k: float, settings: RULConfig) -> Forecaster:
         window_s = settings.forecast_window_h * 3600.0
         n = int(np.ceil(settings.forecast_horizon_days * DAY_S / window_s))
         q = path_quadrature(PATHS[scenario_id], t_k, n, window_s, n_nodes=settings.n_nodes)
@@ -187,7 +187,7 @@ class Forecaster:
 
 
 @functools.lru_cache(maxsize=64)
-def _build_forecaster(scenario_id: int, t_k: float, settings: Step3Settings) -> Forecaster:
+def _build_forecaster(scenario_id: int, t_k: float, settings: RULConfig) -> Forecaster:
     return Forecaster._build(scenario_id, t_k, settings)
 
 
@@ -220,7 +220,7 @@ class MethodRUL:
 
 def rul_for_method(scenario_id: int, label: str,
                    snapshots: dict[int, tuple[FloatArray, FloatArray]],
-                   X_at: dict[int, FloatArray], settings: Step3Settings, seed: int,
+                   X_at: dict[int, FloatArray], settings: RULConfig, seed: int,
                    true_params: tuple[float, float]) -> MethodRUL:
     """RUL distributions of every run at every snapshot window, and the truth on the same path."""
     from rulkit.systems.reaction_wheel.degradation import unit_rng
@@ -258,7 +258,7 @@ def rul_for_method(scenario_id: int, label: str,
     return out
 
 
-def prognostic_metrics(m: MethodRUL, settings: Step3Settings) -> dict[str, Any]:
+def prognostic_metrics(m: MethodRUL, settings: RULConfig) -> dict[str, Any]:
     """Alpha-lambda pass rate, prognostic horizon (median over runs) and interval coverage.
 
     Per run: ``t_EoL`` = median over prediction times of ``t_p + RUL_true`` (the truth differs
@@ -297,11 +297,11 @@ class Step3Result:
     table: Any
     metrics: Any
     methods: list[MethodRUL]
-    settings: Step3Settings
+    settings: RULConfig
     thresholds: dict[int, float]
 
 
-def run_table7(table6: Any, settings: Step3Settings) -> Step3Result:
+def run_table7(table6: Any, settings: RULConfig) -> Step3Result:
     """RUL of every step-2 method and scenario from the Table 6 snapshots
     (docs/systems/reaction-wheel.md §5, docs/systems/reaction-wheel.md §6).
 
