@@ -142,9 +142,9 @@ def test_reduced_reproduction_tables_unchanged(system: str, tmp_path: Path) -> N
 
 
 def test_reaction_wheel_tiny_reproduction_tables_unchanged(tmp_path: Path) -> None:
-    from rulkit.systems.reaction_wheel.reproduce import reproduce
+    from rulkit.systems.reaction_wheel.reproduce import run, write_report
 
-    reproduce(tmp_path, rw_tiny_config(), log=lambda _msg: None)
+    write_report(run(rw_tiny_config(), log=lambda _msg: None), tmp_path)
     _assert_tables_equal(GOLDEN / "small" / "rw-lubrication", tmp_path)
 
 

@@ -69,8 +69,9 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     from rulkit.systems.reaction_wheel.degradation_study import SOURCES
     from rulkit.systems.reaction_wheel.reproduce import (
         ReproductionConfig,
-        reproduce,
+        run,
         with_overrides,
+        write_report,
     )
 
     if runs is not None and runs < 1:
@@ -84,12 +85,15 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     cfg = with_overrides(cfg, workers=workers, scheduler=scheduler)
     console = Console()
     t0 = time.perf_counter()
-    # one log line per stage: step 1, one per T^ source (APF, PF, RBPF), steps 2 and 3, ...
+    # one log line per stage: step 1, one per T^ source (APF, PF, RBPF), steps 2 and 3, ...,
+    # and the files (tables, figures, report.md) at the end
     n_src = len(SOURCES)
-    stages = (3 + n_src + n_src * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0)
+    stages = (4 + n_src + n_src * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0)
               + cfg.table6_alt)
     if not show_progress:
-        return reproduce(out, cfg, log=lambda m: None)
+        rep = run(cfg, log=lambda m: None)
+        write_report(rep, out)
+        return rep
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/"
                   "{task.total}"), TimeElapsedColumn(), console=console) as bar:
         task = bar.add_task("rw-lubrication", total=stages)
@@ -98,7 +102,9 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
             bar.update(task, advance=1, description=msg[:70])
             console.log(f"{time.perf_counter() - t0:6.1f} s  {msg}")
 
-        rep = reproduce(out, cfg, log=log)
+        rep = run(cfg, log=log)
+        log(f"writing tables, figures and report.md into {out}")
+        write_report(rep, out)
         bar.update(task, completed=stages, description="done")
     return rep
 

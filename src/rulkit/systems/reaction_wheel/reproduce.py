@@ -1,12 +1,12 @@
 """Reaction-wheel lubrication prognostics, all three steps (docs/systems/reaction-wheel.md; seed
 001).
 
-:func:`reproduce` runs step 1 (Table 5, by :mod:`rulkit.systems.reaction_wheel.temperature`),
+:func:`run` runs step 1 (Table 5, by :mod:`rulkit.systems.reaction_wheel.temperature`),
 measures the error statistics of the step-1 estimators, runs step 2 (Table 6,
 :mod:`.degradation_study`) and step 3 (Table 7, :mod:`.rul`), validates the T^ shortcut, runs
 the sensitivity study, and writes ``table5.csv``, ``table6.csv``, ``table7.csv``, PNG figures
 and ``report.md`` putting our numbers beside the paper's and listing every choice made where
-the seeds are silent.
+the seeds are silent (:func:`write_report`). :func:`reproduce` is the two in a row.
 """
 
 from __future__ import annotations
@@ -108,58 +108,20 @@ class Reproduction:
     table6_alt: Any = None
 
 
-def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | None = None,
-              log: Callable[[str], None] = print) -> Reproduction:
-    """Run the three steps and write tables, figures and report.md into ``out``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    timings: dict[str, float] = {}
-    notes: list[str] = []
-    files: list[Path] = []
+def run(config: ReproductionConfig, *, progress: Progress | None = None,
+        log: Callable[[str], None] = print) -> Reproduction:
+    """Run the three steps of ``config`` (tables, error statistics, validation, sensitivity);
+    writes nothing (:func:`write_report` does). ``log`` gets one line per stage."""
     cfg = config
-
-    # ---- step 1: Table 5 and its figures (the step-1 engineer's module) ------------------
+    timings: dict[str, float] = {}
     t = time.perf_counter()
-    table5 = None
-    if cfg.table5:
-        from rulkit.systems.reaction_wheel.temperature_study import run_table5
-
-        log("step 1: Table 5 (temperature estimation)")
-        table5 = run_table5(runs=min(cfg.n_runs, 20), seed=cfg.seed, quick=cfg.quick,
-                            workers=cfg.workers, scheduler=cfg.scheduler,
-                            n_particles=cfg.table5_particles, ekf=cfg.table5_ekf,
-                            designs=("F1", *cfg.table5_extra_designs),
-                            coverage=cfg.table5_coverage)
-        table5.to_csv(out / "table5.csv", index=False)
-        files.append(out / "table5.csv")
-        try:
-            from rulkit.systems.reaction_wheel.temperature_study import plot_temperature_estimates
-
-            files += plot_temperature_estimates(out, seed=cfg.seed,
-                                                n_particles=200 if cfg.quick else 350,
-                                                variants=("adaptive", "apf_eq28"),
-                                                with_ekf=not cfg.quick)
-        except Exception as err:  # a figure must not sink the run; say so in the report
-            notes.append(f"step-1 figures failed: {type(err).__name__}: {err}")
+    table5 = _run_table5(cfg, log) if cfg.table5 else None
     timings["step 1 (Table 5)"] = time.perf_counter() - t
 
-    # ---- error statistics of the real step-1 estimators -----------------------------------
     t = time.perf_counter()
-    errors: dict[str, EstimateErrorProcess] = {}
-    errors_alt: dict[str, EstimateErrorProcess] = {}
-    alt_on = "table3" if cfg.error_on == "path" else "path"
-    for src in SOURCES:
-        log(f"step 1 -> 2: error statistics of {src} ({STEP1_VARIANTS[src]})")
-        kw = dict(n_particles=cfg.step1_particles, hold_samples=cfg.step2.hold_samples,
-                  hours=cfg.error_hours)
-        errors[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
-                                           on=cfg.error_on, **kw)
-        if cfg.table6_alt:
-            errors_alt[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
-                                                   on=alt_on, **kw)
+    errors, errors_alt = _measure_errors(cfg, log)
     timings["step-1 error statistics"] = time.perf_counter() - t
 
-    # ---- step 2: Table 6 ------------------------------------------------------------------
     t = time.perf_counter()
     log(f"step 2: Table 6 ({cfg.n_runs} runs, {cfg.step2.horizon_days:g} days, "
         f"{cfg.step2.n_windows} windows)")
@@ -167,37 +129,21 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
     t6 = run_table6(cfg.n_runs, cfg.seed, cfg.step2, errors, workers=cfg.workers,
                     scheduler=cfg.scheduler, snapshot_windows=snaps,
                     progress=True if progress is not None else None)
-    t6.table.to_csv(out / "table6.csv", index=False)
-    files.append(out / "table6.csv")
     timings["step 2 (Table 6)"] = time.perf_counter() - t
-    files += _plot_tracking(t6, out)
     t6_alt = None
     if cfg.table6_alt:
         t = time.perf_counter()
+        alt_on = _alt_error_on(cfg)
         log(f"step 2: Table 6 again with the T^ error statistics of the {alt_on} runs")
         t6_alt = run_table6(cfg.n_runs, cfg.seed, cfg.step2, errors_alt, workers=cfg.workers,
                             scheduler=cfg.scheduler)
-        t6_alt.table.to_csv(out / f"table6_errors_{alt_on}.csv", index=False)
-        files.append(out / f"table6_errors_{alt_on}.csv")
         timings[f"step 2 (Table 6, {alt_on} error statistics)"] = time.perf_counter() - t
 
-    # ---- step 3: Table 7 ------------------------------------------------------------------
     t = time.perf_counter()
     log("step 3: RUL (Table 7)")
     s3 = run_table7(t6, cfg.step3)
-    s3.table.to_csv(out / "table7.csv", index=False)
-    s3.metrics.to_csv(out / "prognostic_metrics.csv", index=False)
-    files += [out / "table7.csv", out / "prognostic_metrics.csv"]
-    plot_rul_densities(s3, out / "rul_density.png")
-    files.append(out / "rul_density.png")
-    for s in (1, 2):
-        p = out / f"forecast_scenario{s}.png"
-        plot_forecasts(s3, t6, s, p)
-        files.append(p)
-    files.append(_plot_paths(out / "temperature_paths.png"))
     timings["step 3 (Table 7)"] = time.perf_counter() - t
 
-    # ---- validation of the shortcut and sensitivity ----------------------------------------
     validation: dict[str, Any] = {}
     if cfg.validation_hours > 0:
         t = time.perf_counter()
@@ -214,16 +160,102 @@ def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | Non
         log("sensitivity of Table 6 to the unstated settings")
         sens = sensitivity_study(cfg.step2, errors["APF"], n_runs=cfg.sensitivity_runs,
                                  horizon_days=cfg.sensitivity_days, seed=cfg.seed)
-        sens.to_csv(out / "sensitivity.csv", index=False)
-        files.append(out / "sensitivity.csv")
         timings["sensitivity"] = time.perf_counter() - t
+    return Reproduction(cfg, table5, errors, t6, s3.table, s3, validation, sens, [], timings,
+                        [], errors_alt, t6_alt)
 
-    rep = Reproduction(cfg, table5, errors, t6, s3.table, s3, validation, sens, files, timings,
-                       notes, errors_alt, t6_alt)
-    files += [out / "report.md", out / "settings.json"]
+
+def _run_table5(cfg: ReproductionConfig, log: Callable[[str], None]) -> Any:
+    """Step 1: Table 5 (the temperature estimators' study)."""
+    from rulkit.systems.reaction_wheel.temperature_study import run_table5
+
+    log("step 1: Table 5 (temperature estimation)")
+    return run_table5(runs=min(cfg.n_runs, 20), seed=cfg.seed, quick=cfg.quick,
+                      workers=cfg.workers, scheduler=cfg.scheduler,
+                      n_particles=cfg.table5_particles, ekf=cfg.table5_ekf,
+                      designs=("F1", *cfg.table5_extra_designs),
+                      coverage=cfg.table5_coverage)
+
+
+def _alt_error_on(cfg: ReproductionConfig) -> str:
+    """Where the second Table 6's T^ error statistics are measured (the other of path/table3)."""
+    return "table3" if cfg.error_on == "path" else "path"
+
+
+def _measure_errors(cfg: ReproductionConfig, log: Callable[[str], None]
+                    ) -> tuple[dict[str, EstimateErrorProcess], dict[str, EstimateErrorProcess]]:
+    """The T^ error statistics of every step-1 source (and on the other path if
+    ``table6_alt``)."""
+    errors: dict[str, EstimateErrorProcess] = {}
+    errors_alt: dict[str, EstimateErrorProcess] = {}
+    for src in SOURCES:
+        log(f"step 1 -> 2: error statistics of {src} ({STEP1_VARIANTS[src]})")
+        kw = dict(n_particles=cfg.step1_particles, hold_samples=cfg.step2.hold_samples,
+                  hours=cfg.error_hours)
+        errors[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
+                                                 on=cfg.error_on, **kw)
+        if cfg.table6_alt:
+            errors_alt[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
+                                                         on=_alt_error_on(cfg), **kw)
+    return errors, errors_alt
+
+
+def write_report(result: Reproduction, out: Path) -> Path:
+    """Write the tables (CSV), figures (PNG), ``report.md`` and ``settings.json`` of ``result``
+    into ``out``; sets ``result.files`` and returns the path of ``report.md``.
+
+    The step-1 figures rerun one filter per estimator (their own seeds); a failing figure is
+    noted in the report instead of sinking the run."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rep, cfg = result, result.config
+    t = time.perf_counter()
+    files: list[Path] = []
+    if rep.table5 is not None:
+        rep.table5.to_csv(out / "table5.csv", index=False)
+        files.append(out / "table5.csv")
+        try:
+            from rulkit.systems.reaction_wheel.temperature_study import plot_temperature_estimates
+
+            files += plot_temperature_estimates(out, seed=cfg.seed,
+                                                n_particles=200 if cfg.quick else 350,
+                                                variants=("adaptive", "apf_eq28"),
+                                                with_ekf=not cfg.quick)
+        except Exception as err:  # a figure must not sink the run; say so in the report
+            rep.notes.append(f"step-1 figures failed: {type(err).__name__}: {err}")
+    rep.table6.table.to_csv(out / "table6.csv", index=False)
+    files.append(out / "table6.csv")
+    files += _plot_tracking(rep.table6, out)
+    if rep.table6_alt is not None:
+        name = f"table6_errors_{_alt_error_on(cfg)}.csv"
+        rep.table6_alt.table.to_csv(out / name, index=False)
+        files.append(out / name)
+    rep.step3.table.to_csv(out / "table7.csv", index=False)
+    rep.step3.metrics.to_csv(out / "prognostic_metrics.csv", index=False)
+    files += [out / "table7.csv", out / "prognostic_metrics.csv"]
+    plot_rul_densities(rep.step3, out / "rul_density.png")
+    files.append(out / "rul_density.png")
+    for s in (1, 2):
+        p = out / f"forecast_scenario{s}.png"
+        plot_forecasts(rep.step3, rep.table6, s, p)
+        files.append(p)
+    files.append(_plot_paths(out / "temperature_paths.png"))
+    if rep.sensitivity is not None:
+        rep.sensitivity.to_csv(out / "sensitivity.csv", index=False)
+        files.append(out / "sensitivity.csv")
+    rep.files = [*files, out / "report.md", out / "settings.json"]
+    rep.timings["tables, figures and report files"] = time.perf_counter() - t
     (out / "report.md").write_text(render_report(rep))
     (out / "settings.json").write_text(json.dumps(_jsonable(cfg), indent=2))
-    return rep
+    return out / "report.md"
+
+
+def reproduce(out: Path, config: ReproductionConfig, *, progress: Progress | None = None,
+              log: Callable[[str], None] = print) -> Reproduction:
+    """:func:`run` then :func:`write_report` into ``out``; returns the result."""
+    result = run(config, progress=progress, log=log)
+    write_report(result, out)
+    return result
 
 
 def _jsonable(cfg: ReproductionConfig) -> dict[str, Any]:
