@@ -457,6 +457,14 @@ def render_report(rep: Reproduction) -> str:
              f"(alpha = {st3.ph_alpha} of t_EoL, absolute bounds) median over runs; coverage of "
              f"the stated {st3.interval_level:.0%} intervals over all (time, run) pairs.\n")
     L.append(_md(rep.step3.metrics) + "\n")
+    L += _report_choices_and_files(rep)
+    return "\n".join(L) + "\n"
+
+
+def _report_choices_and_files(rep: Reproduction) -> list[str]:
+    """The end of report.md: every setting where the seeds are silent, timings, notes, files."""
+    st2, st3 = rep.config.step2, rep.config.step3
+    L: list[str] = []
     L.append("## Choices where the seeds are silent [R]\n")
     L.append("Step 2 (`rulkit.systems.reaction_wheel.degradation.DegradationConfig`):\n")
     for k, v in asdict(st2).items():
@@ -488,7 +496,7 @@ def render_report(rep: Reproduction) -> str:
         L += [f"- {n}" for n in rep.notes]
     L.append("\n## Files\n")
     L += [f"- {p.name}" for p in rep.files]
-    return "\n".join(L) + "\n"
+    return L
 
 
 def _findings(rep: Reproduction) -> list[str]:
