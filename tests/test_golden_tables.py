@@ -16,13 +16,21 @@ oracles: the numbers' correctness is tested elsewhere against independent refere
 One column is not compared: ``mc_seconds`` of the friction drive's ``rul.csv`` is the wall-clock
 time of the Monte Carlo RUL (a timing, different on every run).
 
-One table needs a tolerance: the reaction wheel's ``table5.csv``. Its step-1 particle-filter
-kernels are compiled by numba with ``fastmath`` reassociation and contraction (kernels.py,
-``_FM``), and the adaptive PF's RMSPE statistics differ in the last 2-3 digits (relative
-~1e-14, measured) between a process that compiled the kernels itself (cold numba cache, as on
-a fresh CI checkout) and one that loaded them from the cache, with the code unchanged. Its floats
-are compared to a relative 1e-12: a real change moves them by far more. Every other table,
-including the reaction wheel's Tables 6 and 7, is compared exactly.
+The reaction wheel's tables need a tolerance, for two measured reasons:
+
+- ``table5.csv``: the step-1 particle-filter kernels are compiled by numba with ``fastmath``
+  reassociation and contraction (kernels.py, ``_FM``); the adaptive PF's RMSPE statistics
+  differ in the last 2-3 digits (relative ~1e-14) between a process that compiled the kernels
+  itself (cold numba cache, as on a fresh CI checkout) and one that loaded them from the cache,
+  with the code unchanged.
+- ``table6.csv`` (and what derives from it): the shared batched particle core (issue 9 item 3,
+  e.g. d02db32 "log_normalise via batched.normalise_weights") changed the order of the
+  floating-point sums in the step-2 filters; after it, 87 cells of Table 6 (tiny and --quick
+  runs) moved by at most 6.2e-13 relative, measured on this branch.
+
+So the reaction wheel's float cells are compared to a relative 1e-10: a change of a draw, a
+setting or a formula moves them by orders of magnitude more. Every other system's tables are
+compared exactly.
 """
 
 from __future__ import annotations
@@ -38,7 +46,8 @@ GOLDEN = Path(__file__).parent / "golden"
 # Columns that are measurements of time, not results: never compared.
 VOLATILE = {"rul.csv": ("mc_seconds",)}
 # (golden folder, table) -> relative tolerance of its float cells (see the module docstring).
-RTOL = {("rw-lubrication", "table5.csv"): 1e-12}
+RTOL = {("rw-lubrication", t): 1e-10
+        for t in ("table5.csv", "table6.csv", "table7.csv", "prognostic_metrics.csv")}
 
 # system -> reduced CLI arguments of the default run (goldens in golden/small/<system>/).
 SMALL = {

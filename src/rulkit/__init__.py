@@ -13,28 +13,80 @@ Useful Life (RUL) distribution, with metrics and alerts. Physics lives in models
 The engine's API is documented once in docs/engine-api.md.
 """
 
-from importlib.metadata import PackageNotFoundError, version
+from __future__ import annotations
 
-from rulkit.estimation.ekf import ExtendedKalmanFilter
-from rulkit.estimation.kalman import KalmanFilter, KalmanResult
-from rulkit.estimation.particle import ParticleFilter, ParticleFilterResult
-from rulkit.estimation.ukf import UnscentedKalmanFilter
-from rulkit.integrate import euler_step, ode_step, rk4_step
-from rulkit.metrics import (
-    alpha_lambda,
-    convergence,
-    crps_rul,
-    crps_samples,
-    cumulative_relative_accuracy,
-    interval_coverage,
-    prognostic_horizon,
-    relative_accuracy,
-)
-from rulkit.model import GaussianNoise, Simulation, StateSpaceModel
-from rulkit.prognosis.learning import ParameterFit, fit_parameters
-from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
-from rulkit.prognosis.profile import PrognosisProfile, prognosis_profile
-from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
+import importlib
+from importlib.metadata import PackageNotFoundError, version
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from rulkit.estimation.ekf import ExtendedKalmanFilter
+    from rulkit.estimation.kalman import KalmanFilter, KalmanResult
+    from rulkit.estimation.particle import ParticleFilter, ParticleFilterResult
+    from rulkit.estimation.ukf import UnscentedKalmanFilter
+    from rulkit.integrate import euler_step, ode_step, rk4_step
+    from rulkit.metrics import (
+        alpha_lambda,
+        convergence,
+        crps_rul,
+        crps_samples,
+        cumulative_relative_accuracy,
+        interval_coverage,
+        prognostic_horizon,
+        relative_accuracy,
+    )
+    from rulkit.model import GaussianNoise, Simulation, StateSpaceModel
+    from rulkit.prognosis.learning import ParameterFit, fit_parameters
+    from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
+    from rulkit.prognosis.profile import PrognosisProfile, prognosis_profile
+    from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
+
+# The engine's names are imported on first use (PEP 562): the command line and the fleet
+# commands, which need none of them, start without loading scipy and the filters.
+_EXPORTS = {
+    "ExtendedKalmanFilter": "rulkit.estimation.ekf",
+    "KalmanFilter": "rulkit.estimation.kalman",
+    "KalmanResult": "rulkit.estimation.kalman",
+    "ParticleFilter": "rulkit.estimation.particle",
+    "ParticleFilterResult": "rulkit.estimation.particle",
+    "UnscentedKalmanFilter": "rulkit.estimation.ukf",
+    "euler_step": "rulkit.integrate",
+    "ode_step": "rulkit.integrate",
+    "rk4_step": "rulkit.integrate",
+    "alpha_lambda": "rulkit.metrics",
+    "convergence": "rulkit.metrics",
+    "crps_rul": "rulkit.metrics",
+    "crps_samples": "rulkit.metrics",
+    "cumulative_relative_accuracy": "rulkit.metrics",
+    "interval_coverage": "rulkit.metrics",
+    "prognostic_horizon": "rulkit.metrics",
+    "relative_accuracy": "rulkit.metrics",
+    "GaussianNoise": "rulkit.model",
+    "Simulation": "rulkit.model",
+    "StateSpaceModel": "rulkit.model",
+    "ParameterFit": "rulkit.prognosis.learning",
+    "fit_parameters": "rulkit.prognosis.learning",
+    "monte_carlo_rul": "rulkit.prognosis.predictors",
+    "unscented_rul": "rulkit.prognosis.predictors",
+    "PrognosisProfile": "rulkit.prognosis.profile",
+    "prognosis_profile": "rulkit.prognosis.profile",
+    "RULDistribution": "rulkit.prognosis.rul",
+    "propagate_to_threshold": "rulkit.prognosis.rul",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'rulkit' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
+
 
 try:
     __version__ = version("rulkit")

@@ -121,6 +121,8 @@ class PgComponentStore(ComponentStore):
 
     dialect = "postgresql"
 
+    _conn: Any  # a PgConnection: sqlite3-like execute/executemany/close over psycopg
+
     def __init__(
         self,
         url: str,

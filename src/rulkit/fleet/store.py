@@ -572,6 +572,7 @@ class ComponentStore:
     BLOCK_ROWS = 500_000
     """Acquisitions per block of components run together (bounds the buffered outputs, ~80
     bytes each; fewer, larger blocks mean fewer vectorised tracker calls)."""
+    hi_model: HealthIndexModel | None
 
     def __init__(
         self,
@@ -937,7 +938,7 @@ class ComponentStore:
                         "large for float64 arithmetic); use a smaller time unit or offset")
                 valid_buf[j] = out.valid[li]
                 level_buf[j] = out.level[li]
-                for q in np.flatnonzero(out.level[li] > lvl[li]):
+                for q in np.flatnonzero(out.level[li] > lvl[li]).tolist():
                     i, g = int(li[q]), int(ci_b[j[q]])
                     alerts.append((r, int(idx[q]), Alert(
                         component=names[g], t=float(sub.t[i]), level=int(out.level[i]),

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -475,7 +475,7 @@ def crps(model: DegradationModel, state: UnitState, y: FloatArray, cap: float,
     rr = np.broadcast_to(r, (len(state), n_grid))
     f = rul_cdf(model, state, rr)
     step = (f - (rr >= np.asarray(y)[:, None])) ** 2
-    return np.trapezoid(step, r, axis=1)
+    return cast(FloatArray, np.trapezoid(step, r, axis=1))
 
 
 # ------------------------------------------------------------------------------ learning

@@ -209,10 +209,10 @@ def summarise(pred: pd.DataFrame, kind: str = "model") -> pd.DataFrame:
         ph = []
         for _, g in p.groupby("unit", sort=False):
             tf, t0 = float(g["t_fail"].iloc[0]), float(g["t_first"].iloc[0])
-            res = prognostic_horizon(g["t"].to_numpy(), np.nan_to_num(g[m].to_numpy(),
-                                                                       nan=np.inf),
-                                     tf, alpha=0.2, bounds="relative", stay=True)
-            ph.append(0.0 if math.isnan(res.horizon) else res.horizon / (tf - t0))
+            ph_res = prognostic_horizon(g["t"].to_numpy(), np.nan_to_num(g[m].to_numpy(),
+                                                                          nan=np.inf),
+                                        tf, alpha=0.2, bounds="relative", stay=True)
+            ph.append(0.0 if math.isnan(ph_res.horizon) else ph_res.horizon / (tf - t0))
         row["prognostic_horizon_frac"] = float(np.mean(ph))
         if m == "model":
             cov = (p["model_low"] <= p["true_rul"]) & (p["true_rul"] <= p["model_high"])

@@ -637,7 +637,7 @@ def estimate_temperature(
 
 
 #: Temperatures the wheel model describes (C): the viscous coefficient b_v(T) is positive
-#: from below -30 C up to 215 C (docs/systems/reaction-wheel.md, viscous friction).
+#: from below -30 C up to 215 C (docs/systems/reaction-wheel.md, (RW-7)).
 MODEL_RANGE_C = (-30.0, 215.0)
 ABSOLUTE_ZERO_C = -273.15
 

@@ -1,5 +1,5 @@
-"""The Table 5 study of the temperature estimators (seed 001 Table 5; docs/systems/
-reaction-wheel.md, sections 3 and 6) and its figures (like seed 001 Figs 9-11).
+"""The Table 5 study of the temperature estimators (seed 001 Table 5;
+docs/systems/reaction-wheel.md section 3) and its figures (like seed 001 Figs 9-11).
 
 :func:`run_table5` runs every (variant, design, noise, N, run) cell of the grid with
 :func:`rulkit.systems.reaction_wheel.temperature.filter_temperature` (the Rao-Blackwellised PF
@@ -37,7 +37,7 @@ TABLE5_N: tuple[int, ...] = (50, 100, 150, 200, 250, 300, 350)
 
 
 # --------------------------------------------------------------------------------------------
-# Table 5 experiment (spec section 6)
+# Table 5 experiment (docs/systems/reaction-wheel.md section 6)
 
 _NOISES = ("low", "high")
 
@@ -129,8 +129,9 @@ def _scores(
     band: tuple[FloatArray, FloatArray] | None = None,
 ) -> dict[str, float]:
     """RMSPE of T over all estimates of a run (samples 1..K-1; row 0 is the prior) and over
-    t >= t_burn (spec section 6); with ``band = (lo, hi)`` also the fraction of those samples
-    whose true T lies in [lo, hi] (interval coverage; ~0.90 for a calibrated 90 % interval)."""
+    t >= t_burn (docs/systems/reaction-wheel.md section 6); with ``band = (lo, hi)`` also the
+    fraction of those samples whose true T lies in [lo, hi] (interval coverage; ~0.90 for a
+    calibrated 90 % interval)."""
     from rulkit.metrics import rmspe
 
     late = t >= t_burn
@@ -160,7 +161,8 @@ def run_table5(
     coverage: bool = False,
 ) -> Any:
     """Seed 001 Table 5: RMSPE of T (%) over the Table 3 path (500 s at dt = 0.05 s) for
-    N = 50..350, low and high noise, ``runs`` seeded runs each (spec sections 2, 3, 6).
+    N = 50..350, low and high noise, ``runs`` seeded runs each
+    (docs/systems/reaction-wheel.md sections 2, 3, 6).
 
     ``methods``: (variant, design) pairs; default the paper's two methods, PF + adaptive
     resampling and APF (eq. 28), in each of ``designs`` (default the seed-faithful F1: 560
@@ -172,7 +174,7 @@ def run_table5(
     ``SeedSequence([seed, noise, r])``); each filter run's generator is seeded from its identity
     ``SeedSequence([seed, 1, variant, design, noise, N, r])``, so a cell does not change when
     rows are added, and results are identical serially, with ``workers`` or on a Dask
-    ``scheduler`` (the runner only distributes). ``initial``: "rest" (spec [R]) or
+    ``scheduler`` (the runner only distributes). ``initial``: "rest" ([R]) or
     "equilibrium" start of the truth; ``overrides``: TemperatureConfig fields for every seed-PF run.
     Beyond the seeds: a design named in
     :data:`rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS` ("RB", "RB05", "RBJ", "RBJ0") adds the
