@@ -155,7 +155,10 @@ class ToyDegradation(StateSpaceModel):
         self, x: FloatArray, y: float | FloatArray, u: FloatArray | None = None
     ) -> FloatArray:
         """``log N(y; damage_i, sigma_y^2)`` per particle, shape (N,) (no input: ``u`` unused)."""
-        yy = float(np.asarray(y, dtype=np.float64).reshape(-1)[0])
+        if isinstance(y, np.ndarray) and y.dtype == np.float64 and y.size:
+            yy = y.item(0)  # the first element as a Python float (no converted copy)
+        else:
+            yy = float(np.asarray(y, dtype=np.float64).reshape(-1)[0])
         xa = np.asarray(x, dtype=np.float64)
         if xa.ndim != 2 or xa.shape[1] < 1:
             raise ValueError(f"x: expected shape (N, 2), got {xa.shape}")
