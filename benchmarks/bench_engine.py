@@ -73,7 +73,7 @@ def fmt(s: float) -> str:
 def bench_kf(B: int, T: int, loop_units: int, repeats: int, rng: np.random.Generator) -> str:
     model = ToyDegradation()
     x0 = np.tile([0.0, 0.01], (B, 1))
-    _, _, ys = model.simulate(np.tile([0.0, 0.012], (B, 1)), T, rng)  # (T, B, 1)
+    _, _, ys = model.simulate_units(np.tile([0.0, 0.012], (B, 1)), T, rng)  # (T, B, 1)
     P0 = np.diag([0.02, 0.004]) ** 2
     kf = KalmanFilter(model.transition_matrix(), model.observation_matrix(),
                       model.noise.Q, model.noise.R)
@@ -129,7 +129,7 @@ def minimal_sir(transition: Callable, loglik: Callable, ys: np.ndarray, x0: np.n
 def bench_pf(N: int, T: int, repeats: int, seed: int) -> list[str]:
     model = ToyDegradation()
     rng = np.random.default_rng(seed)
-    _, _, ys = model.simulate(np.array([0.0, 0.012]), T, rng)
+    _, _, ys = model.simulate_units(np.array([0.0, 0.012]), T, rng)
     ys = ys[:, 0, :]
     x0 = np.array([0.0, 0.01]) + np.array([0.02, 0.004]) * rng.standard_normal((N, 2))
 

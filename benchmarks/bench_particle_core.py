@@ -13,8 +13,9 @@ the ratio new / old (below 1: faster now). Cases:
 - the engine: ``resampling.systematic`` and ``particle.log_normalise`` at N = 1000 (per call).
 
 Each process compiles (or loads from numba's cache) first, then times ``--repeats`` calls per
-case and reports the median. Needs the baseline worktree (``--baseline``, default
-/work/baseline); without it the script says so and exits 0.
+case and reports the median. The pre-change code comes from ``--baseline DIR`` (a checkout of
+0445c9b) or, by default, from ``git archive 0445c9b src`` of this repository into a temporary
+directory; without git history the script says so and exits 0.
 
     .venv/bin/python benchmarks/bench_particle_core.py [--rounds 3] [--repeats 5]
 """
@@ -27,6 +28,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 WORKER = r'''
@@ -109,15 +111,38 @@ def run_side(src: Path, which: str, repeats: int) -> dict[str, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--baseline", type=Path, default=Path("/work/baseline"))
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a checkout of 0445c9b (default: extracted from this repository)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
-    new_src = Path(__file__).resolve().parents[1] / "src"
-    old_src = args.baseline / "src"
-    if not (old_src / "rulkit" / "experiments" / "rw_step1.py").exists():
-        print(f"bench_particle_core: no pre-change code at {old_src}; skipped")
-        return
+    repo = Path(__file__).resolve().parents[1]
+    new_src = repo / "src"
+    with tempfile.TemporaryDirectory() as tmp:
+        base = args.baseline or _extract_baseline(repo, Path(tmp))
+        old_src = base / "src" if base is not None else Path(tmp) / "missing"
+        if not (old_src / "rulkit" / "experiments" / "rw_step1.py").exists():
+            print(f"bench_particle_core: no pre-change code ({BASELINE_COMMIT}); skipped")
+            return
+        _compare(old_src, new_src, args.rounds, args.repeats)
+
+
+BASELINE_COMMIT = "0445c9b"
+
+
+def _extract_baseline(repo: Path, into: Path) -> Path | None:
+    """``git archive BASELINE_COMMIT src`` of ``repo`` unpacked into ``into`` (None if absent)."""
+    archive = subprocess.run(["git", "-C", str(repo), "archive", BASELINE_COMMIT, "src"],
+                             capture_output=True)
+    if archive.returncode != 0:
+        return None
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    return into
+
+
+def _compare(old_src: Path, new_src: Path, rounds: int, repeats: int) -> None:
+    """Alternate the two sides ``rounds`` times and print the medians and ratios."""
+    args = argparse.Namespace(rounds=rounds, repeats=repeats)
     runs: dict[str, list[dict[str, float]]] = {"old": [], "new": []}
     for _ in range(args.rounds):  # alternate: both sides see the same machine load
         for which, src in (("old", old_src), ("new", new_src)):

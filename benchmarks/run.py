@@ -173,7 +173,7 @@ def naive_monte_carlo(x0: np.ndarray, dt: float, horizon: float,
 # ----------------------------------------------------------------------------- the benchmarks
 def make_data(seed: int) -> tuple[ToyDegradation, np.ndarray]:
     model = ToyDegradation(sigma_d=SIGMA_D, sigma_r=SIGMA_R, sigma_y=SIGMA_Y, dt=1.0)
-    _, _, ys = model.simulate(np.array(X0_TRUE), T_STEPS, np.random.default_rng(seed))
+    _, _, ys = model.simulate_units(np.array(X0_TRUE), T_STEPS, np.random.default_rng(seed))
     return model, ys[:, 0, 0]
 
 

@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> None:
     prior_cov = np.diag([0.02, 0.004]) ** 2
 
     # one simulated unit; ys[k] measures the state after the k-th transition
-    _, xs, ys = model.simulate(np.array([0.0, 0.012]), args.steps, rng)
+    _, xs, ys = model.simulate_units(np.array([0.0, 0.012]), args.steps, rng)
     ys = ys[:, 0, :]  # (T, 1)
 
     # --- the oracle: exact Kalman filter (B = 1 unit) ---

@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> None:
     B = 50
     x0 = np.tile([0.0, 0.01], (B, 1))
     P0 = np.diag([0.02, 0.004]) ** 2
-    _, _, ys = model.simulate(np.tile([0.0, 0.012], (B, 1)), 60, rng)
+    _, _, ys = model.simulate_units(np.tile([0.0, 0.012], (B, 1)), 60, rng)
     kr = KalmanFilter(F, H, model.noise.Q, model.noise.R).filter(ys, x0, P0)
     ukf_lin = UnscentedKalmanFilter(lambda x, u, k: x @ F.T, lambda x, u, k: x @ H.T,
                                     model.noise.Q, model.noise.R)

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> None:
     # 3b. a prognosis scored against the truth
     model = ToyDegradation()  # with process noise
     T_obs = 60
-    _, xs, ys = model.simulate(np.array([0.0, 0.012]), 200, rng)
+    _, xs, ys = model.simulate_units(np.array([0.0, 0.012]), 200, rng)
     d = xs[:, 0, 0]
     k = int(np.flatnonzero(d >= 1.0)[0])
     t_eol = (k - 1) + (1.0 - d[k - 1]) / (d[k] - d[k - 1])  # dt = 1, interpolated

@@ -86,7 +86,8 @@ def test_rejected_ingest_does_not_store_the_baseline_model(tmp_path):
 def _ingest_worker(db, k, q):
     try:
         df = acq(comps=[f"p{k}-{i}" for i in range(100)], n=10)
-        res, created = ingest_into(db, df, config=TrackerConfig(dt=1.0), source=f"w{k}")
+        res, created = ingest_into(db, df, config=TrackerConfig(dt=1.0), source=f"w{k}",
+                                   timeout=120.0)
         q.put(("ok", created, res.n_rows))
     except Exception as err:  # reported to the parent
         q.put(("err", type(err).__name__, str(err)))

@@ -122,7 +122,7 @@ def simulate_truth(
     :func:`propagate_to_threshold`). Raises ``RuntimeError`` if no crossing occurs within
     ``max_steps`` steps.
     """
-    t, xs, ys = model.simulate(np.asarray(x0, dtype=np.float64), n_steps, rng)
+    t, xs, ys = model.simulate_units(np.asarray(x0, dtype=np.float64), n_steps, rng)
     x = xs[:, 0, :]
     d = x[:, 0]
     hit = np.flatnonzero(d >= model.threshold)

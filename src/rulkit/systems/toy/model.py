@@ -180,9 +180,9 @@ class ToyDegradation(StateSpaceModel):
         out[ok] = (self.threshold - d[ok]) / r[ok]
         return out
 
-    # The toy keeps its batch-always tuple (its example's numbers are drawn this way); the
-    # contract's simulate returns a Simulation (same draws order not guaranteed), hence ignore.
-    def simulate(  # type: ignore[override]
+    # The contract's simulate (a Simulation, one unit without a batch axis) is inherited as
+    # is; this batch-always tuple keeps the example's and the benchmarks' draws unchanged.
+    def simulate_units(
         self, x0: FloatArray, n_steps: int, rng: np.random.Generator, dt: float | None = None
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Simulate one or more units: returns ``t (T+1,)``, states ``X (T+1, N, 2)`` and noisy
