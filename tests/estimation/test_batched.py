@@ -210,3 +210,33 @@ def test_normalise_weights_and_systematic_indices_match_the_row_functions() -> N
     assert lsd == -np.inf and np.isnan(wd).all()
     assert np.isnan(bt.normalise_weights(np.array([0.0, np.nan]))[1])
     np.testing.assert_array_equal(bt.systematic_indices(w, 0.3), _systematic_oracle(w, 0.3))
+
+
+@pytest.mark.parametrize("N", [1, 2, 7, 1000])
+def test_branch_free_systematic_equals_the_merge_and_the_oracle(N: int) -> None:
+    """systematic_counts_row (counts of per-particle boundaries) gives exactly the ancestors
+    of the merge (systematic_row) and of the searchsorted oracle, including zero weights at
+    either end, a single non-zero weight, equal weights, u = 0 and u just below 1."""
+    rng = np.random.default_rng(40 + N)
+    for t in range(60):
+        w = rng.random(N) ** rng.integers(1, 6)
+        if t % 3 == 0:
+            w[rng.random(N) < 0.5] = 0.0
+        if t % 5 == 0:
+            w[-(N // 3):] = 0.0
+        if t % 7 == 0:
+            w[:] = 1.0
+        if t % 11 == 0:
+            w[:] = 0.0
+            w[rng.integers(N)] = 1.0
+        if w.sum() == 0:
+            w[0] = 1.0
+        w /= w.sum()
+        u = 0.0 if t % 13 == 0 else np.nextafter(1.0, 0.0) if t % 17 == 0 else rng.random()
+        merge, cw = np.empty(N, dtype=np.int64), np.empty(N)
+        bt.systematic_row(w, u, merge, cw)
+        idx, cnt = np.full(N, -1, dtype=np.int64), np.full(N + 1, 99, dtype=np.int64)
+        bt.systematic_counts_row(w, u, idx, cw, cnt)
+        np.testing.assert_array_equal(idx, merge)
+        np.testing.assert_array_equal(idx, _systematic_oracle(w, u))
+        np.testing.assert_array_equal(bt.systematic_indices(w, u), merge)

@@ -40,7 +40,7 @@ from typing import Any, Literal, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.estimation.batched import ess_rows, normalise_weights
+from rulkit.estimation.batched import ess_rows, normalise_weights, systematic_indices
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
 from rulkit.model import (
     InputLike,
@@ -453,6 +453,8 @@ class ParticleFilter:
         self._resample_kernel = (
             _KERNELS[resampler] if isinstance(resampler, str) else self.resampler
         )
+        # the compiled kernel called directly (same draw: one rng.random() per resampling)
+        self._systematic = isinstance(resampler, str) and resampler == "systematic"
         self.ess_threshold = thr
         self.trigger = trigger
         self.weight_update = weight_update
@@ -620,7 +622,10 @@ class ParticleFilter:
     def resample(self, state: ParticleState) -> ParticleState:
         """Resample ``state`` now with the configured scheme; weights become 1/N."""
         n = state.logw.shape[0]
-        idx = self._resample_kernel(state.weights, state.rng)
+        if self._systematic:
+            idx = systematic_indices(state.weights, state.rng.random())
+        else:
+            idx = self._resample_kernel(state.weights, state.rng)
         if getattr(idx, "shape", None) != (n,):
             raise ValueError(f"resampler returned shape {np.shape(idx)}, expected ({n},)")
         state.particles = state.particles.take(idx, axis=0)  # = [idx], without fancy indexing
@@ -695,22 +700,12 @@ class ParticleFilter:
         w_hist = np.empty((t_len, n)) if keep_particles else None
 
         missing_list = nan_rows.tolist()
-        for k in range(t_len):
-            self.update(state, y_arr[k], missing=missing_list[k])
-            x = state.particles
-            w = state.weights
-            mean[k], cov[k] = _mean_cov(x, w)
-            if qs is not None and q_levels is not None:
-                qs[k] = _weighted_quantile(x, w, q_levels)
-            if p_hist is not None and w_hist is not None:
-                p_hist[k] = x
-                w_hist[k] = w
-            ess[k] = state.ess
-            skipped[k] = state.skipped
-            reset[k] = state.reset
-            incs[k] = state.loglik_increment
-            self.resample_if_needed(state)
-            resampled[k] = state.resampled
+        if self.weight_update is None and self.trigger is None:
+            self._filter_loop(state, y_arr, missing_list, mean, cov, qs, q_levels, ess,
+                              resampled, skipped, reset, incs, p_hist, w_hist)
+        else:
+            self._filter_loop_plugins(state, y_arr, missing_list, mean, cov, qs, q_levels,
+                                      ess, resampled, skipped, reset, incs, p_hist, w_hist)
 
         if np.ptp(state.weights) > 0:
             _register_weighted(state.particles, state.weights)
@@ -732,6 +727,133 @@ class ParticleFilter:
             particle_history=p_hist,
             weight_history=w_hist,
         )
+
+    def _filter_loop_plugins(
+        self, state: ParticleState, y_arr: FloatArray, missing_list: list[bool],
+        mean: FloatArray, cov: FloatArray, qs: FloatArray | None, q_levels: FloatArray | None,
+        ess: FloatArray, resampled: NDArray[np.bool_], skipped: NDArray[np.bool_],
+        reset: NDArray[np.bool_], incs: FloatArray, p_hist: FloatArray | None,
+        w_hist: FloatArray | None,
+    ) -> None:
+        """``filter``'s loop through the per-step API (a trigger or weight update sees the
+        state as documented on :class:`ParticleState`)."""
+        for k in range(len(missing_list)):
+            self.update(state, y_arr[k], missing=missing_list[k])
+            x = state.particles
+            w = state.weights
+            mean[k], cov[k] = _mean_cov(x, w)
+            if qs is not None and q_levels is not None:
+                qs[k] = _weighted_quantile(x, w, q_levels)
+            if p_hist is not None and w_hist is not None:
+                p_hist[k] = x
+                w_hist[k] = w
+            ess[k] = state.ess
+            skipped[k] = state.skipped
+            reset[k] = state.reset
+            incs[k] = state.loglik_increment
+            self.resample_if_needed(state)
+            resampled[k] = state.resampled
+
+
+    def _filter_loop(
+        self, state: ParticleState, y_arr: FloatArray, missing_list: list[bool],
+        mean: FloatArray, cov: FloatArray, qs: FloatArray | None, q_levels: FloatArray | None,
+        ess: FloatArray, resampled: NDArray[np.bool_], skipped: NDArray[np.bool_],
+        reset: NDArray[np.bool_], incs: FloatArray, p_hist: FloatArray | None,
+        w_hist: FloatArray | None,
+    ) -> None:
+        """``filter``'s loop without plug-ins: ``update``, ``_weight`` and
+        ``resample_if_needed`` inlined (the same numpy operations on the same arrays in the same
+        order, hence the same numbers, with fewer Python calls per step); after a resampling
+        the equal weights are two read-only arrays made once per run (the state never leaves
+        ``filter``; writable copies are put back at the end)."""
+        transition, log_likelihood, rng = self.transition, self.log_likelihood, state.rng
+        n, n_x = state.particles.shape
+        shape = (n, n_x)
+        every = self.ess_threshold >= 1.0
+        n_thr = self.ess_threshold * n
+        systematic, kernel = self._systematic, self._resample_kernel
+        u_logw, u_w = np.full(n, -math.log(n)), np.full(n, 1.0 / n)
+        u_logw.flags.writeable = False
+        u_w.flags.writeable = False
+        for k in range(len(missing_list)):
+            y = y_arr[k]
+            x = transition(state.particles, k, rng)
+            if getattr(x, "shape", None) != shape:
+                raise ValueError(
+                    f"transition at step {k}: returned shape {np.shape(x)}, expected {shape}"
+                )
+            if not math.isfinite(x.sum()) and not np.isfinite(x).all():
+                i, j = np.argwhere(~np.isfinite(x))[0]
+                raise ValueError(
+                    f"transition at step {k}: non-finite value {x[i, j]} at particle {i}, "
+                    f"state {j} (the filter state is left at step {state.k})"
+                )
+            if missing_list[k]:
+                state.particles, state.k, state.y = x, k, y
+                state.resampled = state.reset = False
+                state.skipped = True
+                state.loglik_increment = 0.0
+            else:
+                ll = log_likelihood(x, y, k)
+                if getattr(ll, "shape", None) != (n,):
+                    raise ValueError(
+                        f"log_likelihood at step {k}: returned shape {np.shape(ll)}, "
+                        f"expected ({n},)"
+                    )
+                new = state.logw + ll
+                m = new.max()
+                if not math.isfinite(m):
+                    prev = (state.particles, state.k, state.y)
+                    state.particles, state.k, state.y = x, k, y
+                    try:
+                        self._degenerate(state, new, ll, k)
+                    except BaseException:
+                        state.particles, state.k, state.y = prev
+                        raise
+                else:
+                    state.particles, state.k, state.y = x, k, y
+                    w = np.subtract(new, m)
+                    np.exp(w, out=w)
+                    s = w.sum()
+                    w /= s
+                    lse = m + math.log(s)
+                    new -= lse
+                    state.logw = new
+                    state.weights = w
+                    state.ess = 1.0 / float(np.dot(w, w))
+                    state.loglik_increment = lse
+                    state.loglik += lse
+                    state.resampled = state.reset = state.skipped = False
+            w = state.weights
+            mean[k], cov[k] = _mean_cov(x, w)
+            if qs is not None and q_levels is not None:
+                qs[k] = _weighted_quantile(x, w, q_levels)
+            if p_hist is not None and w_hist is not None:
+                p_hist[k] = x
+                w_hist[k] = w
+            ess[k] = state.ess
+            skipped[k] = state.skipped
+            reset[k] = state.reset
+            incs[k] = state.loglik_increment
+            if every or state.ess < n_thr:
+                if systematic:
+                    idx = systematic_indices(w, rng.random())
+                else:
+                    idx = kernel(w, rng)
+                    if getattr(idx, "shape", None) != (n,):
+                        raise ValueError(
+                            f"resampler returned shape {np.shape(idx)}, expected ({n},)"
+                        )
+                state.particles = x.take(idx, axis=0)
+                state.logw = u_logw
+                state.weights = u_w
+                state.ess = float(n)
+                state.resampled = True
+            resampled[k] = state.resampled
+        if state.weights is u_w:
+            state.logw = np.full(n, -math.log(n))
+            state.weights = np.full(n, 1.0 / n)
 
     # -- internals ----------------------------------------------------------------------------
 

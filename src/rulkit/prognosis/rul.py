@@ -556,7 +556,10 @@ def propagate_to_threshold(
 
 
 def _indicator(indicator: IndicatorFn, x: FloatArray, n: int, k: int) -> FloatArray:
-    g = indicator(x)
+    return _as_indicator(indicator(x), n, k)
+
+
+def _as_indicator(g: Any, n: int, k: int) -> FloatArray:
     if not (isinstance(g, np.ndarray) and g.dtype == np.float64):
         g = np.asarray(g, dtype=np.float64)
     if g.shape != (n,):
@@ -615,19 +618,28 @@ class _Run:
         # finds the new crossings among the running samples; until the first crossing one
         # reduction (max / min) shows that no sample has crossed.
         thr = np.where(active, thr0, np.nan)
-        frozen = ~active[:, None] if hold and n_active < n else None
+        # Held rows: their indices and frozen states, written back into each step's output
+        # (the same values as ``np.where(frozen, x, x_new)``, without an (N, n) pass + copy).
+        fidx = np.flatnonzero(~active) if hold and n_active < n else None
+        xf = None if fidx is None else x[fidx]
         n_run0 = n_active
-        for k in range(self.n_steps):
+        step, indicator, rng, t0, dt = self.step, self.indicator, self.rng, self.t0, self.dt
+        n_steps = self.n_steps
+        for k in range(n_steps):
             if n_active == 0:
                 break
-            tau = k * self.dt
-            h = self._h(k)
-            x_new = self.step(x, self.t0 + tau, h, self.rng)
-            _check_step(x_new, n, k)
-            if frozen is not None:
-                x_new = np.where(frozen, x, x_new)
+            tau = k * dt
+            h = dt if k < n_steps - 1 else self.horizon - k * dt
+            x_new = step(x, t0 + tau, h, rng)
+            if not isinstance(x_new, np.ndarray) or x_new.ndim != 2 or x_new.shape[0] != n:
+                _check_step(x_new, n, k)
+            if fidx is not None:
+                x_new[fidx] = xf
             x = x_new
-            g_new = _indicator(self.indicator, x, n, k + 1)
+            g_new = indicator(x)
+            if not (isinstance(g_new, np.ndarray) and g_new.dtype == np.float64
+                    and g_new.shape == (n,)):
+                g_new = _as_indicator(g_new, n, k + 1)
             if not math.isfinite(g_new.sum()):  # one cheap test; details only when it fails
                 self._diverged(g_new, active, k, tau, h)
             if n_active == n_run0 and (g_new.max() < thr0 if up else g_new.min() > thr0):
@@ -644,7 +656,8 @@ class _Run:
                 thr[idx] = np.nan
                 n_active -= idx.size
                 if hold:
-                    frozen = ~active[:, None]
+                    fidx = np.flatnonzero(~active)
+                    xf = x[fidx]
             g_old = g_new
         return rul, active
 
@@ -665,8 +678,12 @@ class _Run:
             tau = k * self.dt
             h = self._h(k)
             x = self.step(x, self.t0 + tau, h, self.rng)
-            _check_step(x, m, k)
-            g_new = _indicator(self.indicator, x, m, k + 1)
+            if not isinstance(x, np.ndarray) or x.ndim != 2 or x.shape[0] != m:
+                _check_step(x, m, k)
+            g_new = self.indicator(x)
+            if not (isinstance(g_new, np.ndarray) and g_new.dtype == np.float64
+                    and g_new.shape == (m,)):
+                g_new = _as_indicator(g_new, m, k + 1)
             if not math.isfinite(g_new.sum()):
                 self._diverged(g_new, True, k, tau, h)
             if g_new.max() < thr0 if up else g_new.min() > thr0:

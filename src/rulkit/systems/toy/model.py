@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
@@ -28,6 +29,32 @@ from rulkit.model import GaussianNoise, StateSpaceModel, as_batch
 FloatArray = NDArray[np.float64]
 
 __all__ = ["ToyDegradation"]
+
+
+@nb.njit(cache=True)
+def _advance(z, x, csd, csr, dt):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """In place: ``z[:, 0] = z0 csd + damage + rate dt``, ``z[:, 1] = z1 csr + rate`` (the
+    module docstring's transition; each product and sum rounded separately, in this order)."""
+    for i in range(z.shape[0]):
+        rate = x[i, 1]
+        d = z[i, 0] * csd
+        d += x[i, 0]
+        d += rate if dt == 1.0 else rate * dt
+        z[i, 0] = d
+        z[i, 1] = z[i, 1] * csr + rate
+    return z
+
+
+@nb.njit(cache=True)
+def _gauss_loglik(x, y, sigma, log_norm):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``-0.5 r r - log_norm`` with ``r = (y - x[:, 0]) / sigma``, rounded as numpy's
+    ``((r * -0.5) * r) - log_norm``."""
+    n = x.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        r = (y - x[i, 0]) / sigma
+        out[i] = r * -0.5 * r - log_norm
+    return out
 
 
 @dataclass(frozen=True)
@@ -108,19 +135,12 @@ class ToyDegradation(StateSpaceModel):
             out[:, 0] = xb[:, 0] + xb[:, 1] * dt
             out[:, 1] = xb[:, 1]
             return out
-        # Column by column: an (N, 2) op broadcast against a (2,) row runs numpy's inner loop
-        # over 2 elements N times (several times slower than these strided 1-D ops). Same
-        # draws, same floating-point operations in the same order as
-        # ``z * (sd, sr) sqrt(dt) + x`` then ``damage += rate dt``.
+        # One compiled pass over the standard normals (same draws, same floating-point
+        # operations in the same order as ``z * (sd, sr) sqrt(dt) + x`` then
+        # ``damage += rate dt``, each rounded as numpy rounds it; no fused multiply-add).
         out = rng.standard_normal(xb.shape)
         s = math.sqrt(dt)
-        d, r = out[:, 0], out[:, 1]
-        d *= self.sigma_d * s
-        d += xb[:, 0]
-        rate = xb[:, 1]
-        d += rate if dt == 1.0 else rate * dt
-        r *= self.sigma_r * s
-        r += rate
+        _advance(out, xb, self.sigma_d * s, self.sigma_r * s, dt)
         return out
 
     def output(self, x: FloatArray, u: FloatArray | None = None) -> FloatArray:
@@ -135,13 +155,16 @@ class ToyDegradation(StateSpaceModel):
         self, x: FloatArray, y: float | FloatArray, u: FloatArray | None = None
     ) -> FloatArray:
         """``log N(y; damage_i, sigma_y^2)`` per particle, shape (N,) (no input: ``u`` unused)."""
-        yy = float(np.asarray(y, dtype=np.float64).reshape(-1)[0])
-        r = np.subtract(yy, x[:, 0])
-        r /= self.sigma_y
-        out = np.multiply(r, -0.5)  # -0.5 r r - log(sigma_y sqrt(2 pi)), two temporaries
-        out *= r
-        out -= math.log(self.sigma_y * math.sqrt(2.0 * math.pi))
-        return out
+        if isinstance(y, np.ndarray) and y.dtype == np.float64 and y.size:
+            yy = y.item(0)  # the first element as a Python float (no converted copy)
+        else:
+            yy = float(np.asarray(y, dtype=np.float64).reshape(-1)[0])
+        xa = np.asarray(x, dtype=np.float64)
+        if xa.ndim != 2 or xa.shape[1] < 1:
+            raise ValueError(f"x: expected shape (N, 2), got {xa.shape}")
+        # -0.5 r r - log(sigma_y sqrt(2 pi)) with r = (y - damage) / sigma_y, in one pass
+        return _gauss_loglik(xa, yy, self.sigma_y,  # type: ignore[no-any-return]
+                             math.log(self.sigma_y * math.sqrt(2.0 * math.pi)))
 
     def rul_noise_free(self, x: FloatArray) -> FloatArray:
         """Closed-form time to failure without process noise: ``(1 - damage) / rate``.
