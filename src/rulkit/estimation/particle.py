@@ -40,7 +40,12 @@ from typing import Any, Literal, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.estimation.batched import ess_rows, normalise_weights, systematic_indices
+from rulkit.estimation.batched import (
+    ess_rows,
+    normalise_rows,
+    normalise_weights,
+    systematic_indices,
+)
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
 from rulkit.model import (
     InputLike,
@@ -49,6 +54,25 @@ from rulkit.model import (
     loglik_from_model,
     transition_from_model,
 )
+
+
+def _record_step(
+    k: int, x: FloatArray, w: FloatArray, state: ParticleState, mean: FloatArray,
+    cov: FloatArray, qs: FloatArray | None, q_levels: FloatArray | None, ess: FloatArray,
+    skipped: NDArray[np.bool_], reset: NDArray[np.bool_], incs: FloatArray,
+    p_hist: FloatArray | None, w_hist: FloatArray | None,
+) -> None:
+    """Write step ``k``'s summaries (both loops of ``ParticleFilter.filter``)."""
+    mean[k], cov[k] = _mean_cov(x, w)
+    if qs is not None and q_levels is not None:
+        qs[k] = _weighted_quantile(x, w, q_levels)
+    if p_hist is not None and w_hist is not None:
+        p_hist[k] = x
+        w_hist[k] = w
+    ess[k] = state.ess
+    skipped[k] = state.skipped
+    reset[k] = state.reset
+    incs[k] = state.loglik_increment
 
 __all__ = [
     "DegenerateWeightsError",
@@ -739,18 +763,8 @@ class ParticleFilter:
         state as documented on :class:`ParticleState`)."""
         for k in range(len(missing_list)):
             self.update(state, y_arr[k], missing=missing_list[k])
-            x = state.particles
-            w = state.weights
-            mean[k], cov[k] = _mean_cov(x, w)
-            if qs is not None and q_levels is not None:
-                qs[k] = _weighted_quantile(x, w, q_levels)
-            if p_hist is not None and w_hist is not None:
-                p_hist[k] = x
-                w_hist[k] = w
-            ess[k] = state.ess
-            skipped[k] = state.skipped
-            reset[k] = state.reset
-            incs[k] = state.loglik_increment
+            _record_step(k, state.particles, state.weights, state, mean, cov, qs, q_levels, ess,
+                         skipped, reset, incs, p_hist, w_hist)
             self.resample_if_needed(state)
             resampled[k] = state.resampled
 
@@ -813,29 +827,17 @@ class ParticleFilter:
                         raise
                 else:
                     state.particles, state.k, state.y = x, k, y
-                    w = np.subtract(new, m)
-                    np.exp(w, out=w)
-                    s = w.sum()
-                    w /= s
-                    lse = m + math.log(s)
-                    new -= lse
-                    state.logw = new
+                    lwn, w, ls = normalise_rows(new)  # one row: the shared particle core
+                    lse = float(ls)
+                    state.logw = lwn
                     state.weights = w
                     state.ess = 1.0 / float(np.dot(w, w))
                     state.loglik_increment = lse
                     state.loglik += lse
                     state.resampled = state.reset = state.skipped = False
             w = state.weights
-            mean[k], cov[k] = _mean_cov(x, w)
-            if qs is not None and q_levels is not None:
-                qs[k] = _weighted_quantile(x, w, q_levels)
-            if p_hist is not None and w_hist is not None:
-                p_hist[k] = x
-                w_hist[k] = w
-            ess[k] = state.ess
-            skipped[k] = state.skipped
-            reset[k] = state.reset
-            incs[k] = state.loglik_increment
+            _record_step(k, x, w, state, mean, cov, qs, q_levels, ess, skipped, reset, incs,
+                         p_hist, w_hist)
             if every or state.ess < n_thr:
                 if systematic:
                     idx = systematic_indices(w, rng.random())
