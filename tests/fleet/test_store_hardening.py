@@ -3,8 +3,10 @@
 columns (1). Each test failed on the code before the fix."""
 
 import hashlib
-import multiprocessing as mp
+import json
 import sqlite3
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -83,27 +85,32 @@ def test_rejected_ingest_does_not_store_the_baseline_model(tmp_path):
 
 
 # ------------------------------------------------------------------ item 4
-def _ingest_worker(db, k, q):
-    try:
-        df = acq(comps=[f"p{k}-{i}" for i in range(100)], n=10)
-        res, created = ingest_into(db, df, config=TrackerConfig(dt=1.0), source=f"w{k}",
-                                   timeout=120.0)
-        q.put(("ok", created, res.n_rows))
-    except Exception as err:  # reported to the parent
-        q.put(("err", type(err).__name__, str(err)))
+_WORKER = """
+import json, sys
+import pandas as pd
+from rulkit.fleet.store import ingest_into
+from rulkit.fleet.tracker_chain import TrackerConfig
+db, k = sys.argv[1], int(sys.argv[2])
+rows = [(f"p{k}-{i}", float(t), 0.3) for i in range(100) for t in range(10)]
+df = pd.DataFrame(rows, columns=["component", "time", "hi"])
+try:
+    res, created = ingest_into(db, df, config=TrackerConfig(dt=1.0), source=f"w{k}",
+                               timeout=120.0)
+    print(json.dumps(["ok", bool(created), res.n_rows]))
+except Exception as err:
+    print(json.dumps(["err", type(err).__name__, str(err)]))
+"""
 
 
 def test_concurrent_first_ingests_create_one_complete_database(tmp_path):
-    ctx = mp.get_context("fork")
+    # Fresh interpreters, not fork: forking a test process that already runs threads (the
+    # service tests' servers, pyarrow's pools) can deadlock a child.
     for trial in range(3):
         db = tmp_path / f"c{trial}.db"
-        q = ctx.Queue()
-        procs = [ctx.Process(target=_ingest_worker, args=(db, k, q)) for k in range(4)]
-        for p in procs:
-            p.start()
-        out = [q.get(timeout=120) for _ in procs]
-        for p in procs:
-            p.join(timeout=60)
+        procs = [subprocess.Popen([sys.executable, "-c", _WORKER, str(db), str(k)],
+                                  stdout=subprocess.PIPE, text=True) for k in range(4)]
+        out = [json.loads(p.communicate(timeout=300)[0].strip().splitlines()[-1])
+               for p in procs]
         assert all(o[0] == "ok" for o in out), out
         assert sum(o[1] for o in out) == 1  # exactly one process created the database
         with ComponentStore(db, readonly=True) as s:
