@@ -88,7 +88,7 @@ def read_acquisitions(path: str | Path) -> pd.DataFrame:
     :class:`IngestError` (see :func:`rulkit.tables.read_table`)."""
     return read_table(path, error=IngestError, csv_suffixes=(".csv", ".csv.gz", ".txt"),
                       expected_columns=("component", "time", "hi"),
-                      csv_dtype={"component": str}, text_columns=("component",))
+                      csv_dtype={"component": "category"}, text_columns=("component",))
 
 
 def check_component_ids(comp: pd.Series) -> pd.Series:

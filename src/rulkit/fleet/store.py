@@ -157,8 +157,12 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             raise StoreError(f"{path}: cannot create the database in {path.parent}: {err}"
                              ) from err
         try:
-            conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute("PRAGMA synchronous=FULL")
+            # The file is private until linked into place (and deleted on any failure), so
+            # it is built without a write-ahead log or syncs: an in-memory rollback journal
+            # (ROLLBACK still works) and one fsync below. Writing the first batch through the
+            # WAL wrote every page twice (log, then checkpoint): 1.1 s of 2M rows.
+            conn.execute("PRAGMA journal_mode=MEMORY")
+            conn.execute("PRAGMA synchronous=OFF")
             conn.execute("BEGIN IMMEDIATE")
             for stmt in _SCHEMA.split(";"):
                 if stmt.strip():
@@ -170,7 +174,9 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
                 store._attach(tmp, conn, config, hi_model, timeout=0.0)
                 with store._transaction("IMMEDIATE"):
                     result = store._apply(acq, source)
-            conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            # WAL mode is recorded in the file: every later connection uses the log
+            if conn.execute("PRAGMA journal_mode=WAL").fetchone()[0] != "wal":
+                raise sqlite3.OperationalError("cannot switch the new database to WAL mode")
         except sqlite3.OperationalError as err:
             raise StoreError(f"{path}: cannot create the database in {path.parent}: {err}"
                              ) from err
