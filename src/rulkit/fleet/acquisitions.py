@@ -138,7 +138,14 @@ def check_component_ids(comp: pd.Series) -> pd.Series:
 
 
 def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
-    """``df[col]`` as finite float64; the error names row (1-based), component and column."""
+    """``df[col]`` as finite float64; the error names row (1-based), component and column.
+
+    A float64 column that is all finite (what a CSV of numbers gives) is returned without a
+    copy (read-only use: 16 MB less per column of 2M rows)."""
+    if df[col].dtype == np.float64:
+        a = df[col].to_numpy()
+        if np.isfinite(a).all():
+            return a
     return numeric_columns(
         df, [col], error=IngestError,
         row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")[col]

@@ -90,7 +90,7 @@ from rulkit.fleet.tracker_chain import (
     TrackerConfig,
     TrackerState,
     tracker_outputs,
-    tracker_update,
+    tracker_run,
 )
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
@@ -124,16 +124,13 @@ CREATE TABLE IF NOT EXISTS ingests (
 """
 
 
-def _check_spacing(config: TrackerConfig, acq: pd.DataFrame, last_t: np.ndarray,
-                   first: np.ndarray) -> None:
+def _check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
     """The batch's acquisition spacing against ``design_life`` (time-unit check,
-    :func:`rulkit.fleet.tracker_chain.check_time_unit`), as an :class:`IngestError`."""
+    :func:`rulkit.fleet.tracker_chain.check_time_unit`), as an :class:`IngestError`.
+    ``gaps``: each acquisition's interval since the previous one of its component (NaN for a
+    component's first ever), in batch order."""
     from rulkit.fleet.tracker_chain import check_time_unit
 
-    t = acq["t"].to_numpy()
-    prev = acq.groupby("component", sort=False)["t"].shift(1).to_numpy()
-    prev = np.where(first, last_t, prev)
-    gaps = t - prev
     gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
     try:
         check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column")
@@ -265,11 +262,11 @@ class ComponentStore:
     :class:`StoreError` and is not modified. Use as a context manager or call :meth:`close`.
     """
 
-    HISTORY_CHUNK = 50_000
+    HISTORY_CHUNK = 10_000
     """History rows per ``executemany`` call (bounds the Python tuples alive at once)."""
-    BLOCK_ROWS = 500_000
-    """Acquisitions per block of components run together (bounds the buffered outputs, ~80
-    bytes each; fewer, larger blocks mean fewer vectorised tracker calls)."""
+    BLOCK_ROWS = 100_000
+    """Acquisitions per block of components run together (bounds the per-acquisition outputs
+    held at once, ~150 bytes each)."""
     hi_model: HealthIndexModel | None
 
     def __init__(
@@ -484,11 +481,11 @@ class ComponentStore:
     def ingest(self, df: pd.DataFrame, source: str = "<dataframe>") -> IngestResult:
         """Validate and apply a batch of acquisitions in one transaction.
 
-        Acquisitions of the same component are applied in time order; all components with a
-        k-th acquisition in the batch are updated in one vectorised
-        :func:`~rulkit.fleet.tracker_chain.tracker_update` call. Returns the committed result with
-        the new alerts (:class:`Alert`). Raises :class:`IngestError` (database unchanged) on
-        bad input.
+        Acquisitions of the same component are applied in time order
+        (:func:`~rulkit.fleet.tracker_chain.tracker_run`: the same numbers as one
+        :func:`~rulkit.fleet.tracker_chain.tracker_update` per acquisition). Returns the
+        committed result with the new alerts (:class:`Alert`). Raises :class:`IngestError`
+        (database unchanged) on bad input.
         """
         acq = validate_acquisitions(df, self.config, self.hi_model)
         return self._ingest_validated(acq, source)
@@ -508,14 +505,18 @@ class ComponentStore:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction).
 
-        Memory and time are linear in the batch: the tracker outputs are kept in float64
-        arrays (8 per acquisition), then the history rows are inserted in primary-key order
-        (component, t) in chunks of :attr:`HISTORY_CHUNK` rows, so SQLite appends to its
-        B-tree instead of visiting every component's page once per acquisition rank (that
-        order cost 3.5x the time on 200k rows).
+        Components are processed in blocks of consecutive names in SQLite's key order (BINARY
+        collation: UTF-8 byte order = code point order = Python's str order) of at most
+        :attr:`BLOCK_ROWS` acquisitions. Each block runs
+        :func:`~rulkit.fleet.tracker_chain.tracker_run` over every component's acquisitions
+        (equal to one vectorised update per acquisition rank) and writes its history sorted
+        by (component, t) in chunks of :attr:`HISTORY_CHUNK` rows, so SQLite appends to its
+        B-tree (rank order visited every component's page once per rank: 3.5x the time on
+        200k rows) and only one block's outputs are held. Memory and time are linear in the
+        batch.
         """
         codes_raw, uniq = pd.factorize(acq["component"], sort=False)
-        codes = codes_raw.astype(np.int64)
+        codes = np.asarray(codes_raw, dtype=np.int64)
         names = [str(u) for u in uniq]
         stored = self._load_states(names)
         pos = {name: i for i, name in enumerate(names)}
@@ -533,29 +534,43 @@ class ComponentStore:
         t = acq["t"].to_numpy(dtype=np.float64)
         hi = acq["hi"].to_numpy(dtype=np.float64)
         rows_all = acq["row"].to_numpy()
-        rank = pd.Series(codes).groupby(codes, sort=False).cumcount().to_numpy()
-        # first acquisition of each component in this batch must follow its stored last one
-        first = rank == 0
-        last_t = state.t[codes]
-        back = first & np.isfinite(last_t) & ~(t > last_t)
-        with np.errstate(over="ignore", invalid="ignore"):
-            huge = first & np.isfinite(last_t) & ~np.isfinite(t - last_t)
-        if huge.any():
-            i = int(np.flatnonzero(huge)[0])
-            raise IngestError(
-                f"row {rows_all[i]} (component {names[codes[i]]!r}), column 'time': "
-                f"the interval from the last stored acquisition at {_fmt(last_t[i])} to "
-                f"{_fmt(t[i])} overflows float64; use a smaller time unit or offset")
-        if back.any():
-            i = int(np.flatnonzero(back)[0])
-            raise IngestError(
-                f"row {rows_all[i]} (component {names[codes[i]]!r}): time "
-                f"{_fmt(t[i])} is not after the component's last stored acquisition at "
-                f"{_fmt(last_t[i])}"
-            )
-        _check_spacing(self.config, acq, last_t, first)
-        del last_t, back, first
         n = len(acq)
+        # rows grouped by component in key order, batch order (= time order) inside
+        sorted_pos = np.argsort(np.array(names, dtype=object), kind="stable")
+        name_order = np.empty(b, dtype=np.int64)
+        name_order[sorted_pos] = np.arange(b)
+        key = name_order[codes]
+        del codes
+        by_comp = np.argsort(key, kind="stable")
+        counts = np.bincount(key, minlength=b)
+        del key
+        comp_start = np.concatenate([[0], np.cumsum(counts)])
+        # the first acquisition of each component in this batch must follow its stored last
+        first = by_comp[comp_start[:-1]]  # batch position of each component's first row
+        last_t = state.t[sorted_pos]
+        with np.errstate(over="ignore", invalid="ignore"):
+            huge = np.isfinite(last_t) & ~np.isfinite(t[first] - last_t)
+        back = np.isfinite(last_t) & ~(t[first] > last_t)
+        for bad, what in ((huge, "huge"), (back, "back")):
+            if bad.any():
+                k = int(np.argmin(np.where(bad, first, n)))  # first in batch order
+                i, g = int(first[k]), int(sorted_pos[k])
+                raise IngestError(
+                    f"row {rows_all[i]} (component {names[g]!r}), column 'time': the interval "
+                    f"from the last stored acquisition at {_fmt(last_t[k])} to {_fmt(t[i])} "
+                    "overflows float64; use a smaller time unit or offset" if what == "huge"
+                    else f"row {rows_all[i]} (component {names[g]!r}): time {_fmt(t[i])} is "
+                    f"not after the component's last stored acquisition at {_fmt(last_t[k])}")
+        # the spacing check sees every interval, in batch order
+        ts = t[by_comp]
+        prev = np.empty(n)
+        prev[1:] = ts[:-1]
+        prev[comp_start[:-1]] = last_t
+        gaps = np.empty(n)
+        gaps[by_comp] = ts - prev
+        del ts, prev, first, last_t
+        _check_spacing(self.config, gaps)
+        del gaps
         ingest_id = self._insert_ingest(source, n, b)
         # rulkit fit: the learned model's RUL median and 90 % interval per acquisition, in its
         # own pass over the ranks (it does not depend on the trackers); the history then holds
@@ -565,29 +580,20 @@ class ComponentStore:
         if getattr(self, "degradation", None) is not None:
             from rulkit.fleet.models.store_support import LearnedPass
 
+            fcodes = np.asarray(codes_raw, dtype=np.int64)
+            rank = pd.Series(fcodes).groupby(fcodes, sort=False).cumcount().to_numpy()
             learned = LearnedPass(self._conn, self.degradation, names)
             learned_cols = np.full((3, n), np.nan)
             for r in range(int(rank.max()) + 1):
                 sel = np.flatnonzero(rank == r)
-                ci = codes[sel]
+                ci = fcodes[sel]
                 t_r = np.full(b, np.nan)
                 h_r = np.full(b, np.nan)
                 t_r[ci] = t[sel]
                 h_r[ci] = hi[sel]
                 learned_cols[:, sel] = np.asarray(learned.step(ci, t_r, h_r))
-        # Components are processed in blocks of consecutive names in SQLite's key order
-        # (BINARY collation: UTF-8 byte order = code point order = Python's str order); each
-        # block runs the trackers rank by rank (one vectorised update per k-th acquisition)
-        # and writes its history sorted by (component, t), so SQLite appends to its B-tree
-        # (rank order visited every component's page once per rank: 3.5x the time on 200k
-        # rows) and only one block's outputs are held (~HISTORY_CHUNK rows).
-        sorted_pos = np.argsort(np.array(names, dtype=object), kind="stable")
-        name_order = np.empty(b, dtype=np.int64)
-        name_order[sorted_pos] = np.arange(b)
-        key = name_order[codes]
-        by_comp = np.lexsort((rows_all, key))  # rows grouped by component, file order inside
-        counts = np.bincount(key, minlength=b)
-        comp_start = np.concatenate([[0], np.cumsum(counts)])
+            del rank, fcodes
+        del codes_raw
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
         alerts: list[tuple[int, int, Alert]] = []
@@ -597,67 +603,58 @@ class ComponentStore:
             while k1 < b and comp_start[k1 + 1] - comp_start[k0] <= self.BLOCK_ROWS:
                 k1 += 1
             rows_b = by_comp[comp_start[k0]:comp_start[k1]]  # block rows, key order
-            ci_b = sorted_pos[key[rows_b]]  # component index (into names / state)
-            rank_b = np.arange(rows_b.size) - comp_start[key[rows_b]] + comp_start[k0]
-            m = rows_b.size
-            buf = {f: np.empty(m) for f in out_fields}
-            valid_buf = np.empty(m, dtype=bool)
-            level_buf = np.empty(m, dtype=np.int8)
-            comps = sorted_pos[k0:k1]
-            sub = state.take(comps)
-            local = np.empty(b, dtype=np.int64)
-            local[comps] = np.arange(k1 - k0)
-            lvl = level[comps].copy()
-            by_rank = np.argsort(rank_b, kind="stable")
-            bounds = np.concatenate([[0], np.cumsum(np.bincount(rank_b))])
-            for r in range(len(bounds) - 1):
-                j = by_rank[bounds[r]:bounds[r + 1]]  # positions in the block
-                idx = rows_b[j]
-                li = local[ci_b[j]]
-                t_r = np.full(k1 - k0, np.nan)  # fresh: the new state may hold these arrays
-                h_r = np.full(k1 - k0, np.nan)
-                t_r[li] = t[idx]
-                h_r[li] = hi[idx]
-                sub, out = tracker_update(sub, t_r, h_r, self.config, self.gains)
-                assert out is not None
-                cols = {**sub.columns(), "rul_low": out.rul_low, "rul_high": out.rul_high}
-                finite = np.ones(li.size, dtype=bool)
-                for f in out_fields:
-                    v = cols[f][li]
-                    buf[f][j] = v
-                    finite &= np.isfinite(v)
-                if not finite.all():
-                    q = int(np.flatnonzero(~finite)[0])
-                    f = next(f for f in out_fields if not np.isfinite(cols[f][li[q]]))
-                    raise IngestError(
-                        f"row {rows_all[idx[q]]} (component {names[ci_b[j[q]]]!r}), column "
-                        f"'time' = {_fmt(t[idx[q]])}: the tracker's {f} is not finite (the "
-                        "interval since the previous acquisition or the time itself is too "
-                        "large for float64 arithmetic); use a smaller time unit or offset")
-                valid_buf[j] = out.valid[li]
-                level_buf[j] = out.level[li]
-                for q in np.flatnonzero(out.level[li] > lvl[li]).tolist():
-                    i, g = int(li[q]), int(ci_b[j[q]])
-                    alerts.append((r, int(idx[q]), Alert(
-                        component=names[g], t=float(sub.t[i]), level=int(out.level[i]),
-                        previous=int(lvl[i]), hi=float(sub.hi[i]), fhi=float(sub.fhi[i]),
-                        frul=float(sub.frul[i]), valid=bool(out.valid[i]),
-                        rul_low=float(out.rul_low[i]), rul_high=float(out.rul_high[i]),
-                    )))
-                lvl[li] = np.maximum(lvl[li], out.level[li])
-            level[comps] = lvl
+            comps = sorted_pos[k0:k1]  # component indices (into names / state)
+            seg = comp_start[k0:k1 + 1] - comp_start[k0]
+            cidx = np.repeat(np.arange(k1 - k0), counts[k0:k1])  # block-local component
+            t_b, hi_b = t[rows_b], hi[rows_b]
+            sub, out = tracker_run(state.take(comps), seg, t_b, hi_b, self.config, self.gains)
+            finite = np.ones(rows_b.size, dtype=bool)
+            for f in out_fields:
+                finite &= np.isfinite(out[f])
+            rank_b = np.arange(rows_b.size) - seg[cidx]
+            if not finite.all():  # the first by acquisition rank, then key order
+                bad = np.flatnonzero(~finite)
+                q = int(bad[np.argsort(rank_b[bad], kind="stable")[0]])
+                f = next(f for f in out_fields if not np.isfinite(out[f][q]))
+                raise IngestError(
+                    f"row {rows_all[rows_b[q]]} (component {names[comps[cidx[q]]]!r}), column "
+                    f"'time' = {_fmt(t_b[q])}: the tracker's {f} is not finite (the "
+                    "interval since the previous acquisition or the time itself is too "
+                    "large for float64 arithmetic); use a smaller time unit or offset")
+            del finite
+            # alerts: a level above the highest the component reached before (latched); the
+            # running maximum per component is one accumulate over (component, level) keys
+            lv = out["level"]
+            lvl0 = level[comps]
+            run = np.maximum.accumulate(cidx * 4 + lv) - cidx * 4  # max level up to the row
+            before = np.empty_like(run)
+            before[1:] = run[:-1]
+            before[seg[:-1]] = -1
+            before = np.maximum(before, lvl0[cidx])
+            for q in np.flatnonzero(lv > before).tolist():
+                alerts.append((int(rank_b[q]), int(rows_b[q]), Alert(
+                    component=names[comps[cidx[q]]], t=float(t_b[q]), level=int(lv[q]),
+                    previous=int(before[q]), hi=float(hi_b[q]), fhi=float(out["fhi"][q]),
+                    frul=float(out["frul"][q]), valid=bool(out["valid"][q]),
+                    rul_low=float(out["rul_low"][q]), rul_high=float(out["rul_high"][q]),
+                )))
+            level[comps] = np.maximum(lvl0, run[seg[1:] - 1])
+            del run, before, rank_b
             for f in ("t", "n", "hi", "ab", "rul", "abg"):
                 getattr(state, f)[comps] = getattr(sub, f)
+            comp_b = names_arr[comps][cidx]
+            del cidx
+            m = rows_b.size
             for c0 in range(0, m, self.HISTORY_CHUNK):
                 sl = slice(c0, c0 + self.HISTORY_CHUNK)
-                rb = rows_b[sl]
-                cols_out = [names_arr[ci_b[sl]].tolist(), t[rb].tolist(), hi[rb].tolist()]
-                cols_out += [buf[f][sl].tolist() for f in out_fields[:6]]  # fhi .. d2rul
-                cols_out += [valid_buf[sl].tolist(), level_buf[sl].tolist()]
+                cols_out = [comp_b[sl].tolist(), t_b[sl].tolist(), hi_b[sl].tolist()]
+                cols_out += [out[f][sl].tolist() for f in out_fields[:6]]  # fhi .. d2rul
+                cols_out += [out["valid"][sl].tolist(), out["level"][sl].tolist()]
                 if learned_cols is None:
-                    cols_out += [buf["rul_low"][sl].tolist(), buf["rul_high"][sl].tolist()]
+                    cols_out += [out["rul_low"][sl].tolist(), out["rul_high"][sl].tolist()]
                     extra_cols: tuple[str, ...] = ()
                 else:  # low, high, then the extra column rul_median
+                    rb = rows_b[sl]
                     cols_out += [learned_cols[1, rb].tolist(), learned_cols[2, rb].tolist(),
                                  learned_cols[0, rb].tolist()]
                     extra_cols = ("rul_median",)
@@ -666,13 +663,13 @@ class ComponentStore:
                     self._write_history(rows_h, extra_cols=extra_cols)
                 else:
                     self._write_history(rows_h)
-                del cols_out
-            del buf
+                del cols_out, rows_h
+            del out, comp_b, t_b, hi_b
             k0 = k1
-        alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then file row
-        out = tracker_outputs(state, self.config)
-        final = {**state.columns(), "valid": out.valid, "level": out.level,
-                 "rul_low": out.rul_low, "rul_high": out.rul_high}
+        alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
+        fin = tracker_outputs(state, self.config)
+        final = {**state.columns(), "valid": fin.valid, "level": fin.level,
+                 "rul_low": fin.rul_low, "rul_high": fin.rul_high}
         if learned is not None:
             _, final["rul_low"], final["rul_high"] = learned.finish()
         rows = [names] + [np.asarray(final[f]).tolist() for f in ROW_FIELDS]
