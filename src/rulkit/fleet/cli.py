@@ -19,6 +19,37 @@ def _fmt(v: float, spec: str = ".3g") -> str:
     return format(v + 0.0, spec)  # + 0.0 turns -0.0 into 0.0
 
 
+def _format_all(spec: str, values: list) -> list[str]:
+    """``[spec % v for v in values]`` in one %-operation (``"%.3f"``, ``"%.3g"``, ``"%g"``,
+    ``"%d"``; the same text as :func:`format` with that spec), ~5x faster for 10^5 values."""
+    if not values:
+        return []
+    return ((spec + "\n") * len(values) % tuple(values)).split("\n")[:-1]
+
+
+def _format_rul(values) -> list[str]:  # type: ignore[no-untyped-def]
+    """:func:`_fmt` (``.3g``, NaN as ``-``, -0.0 as 0) of a float column, vectorised."""
+    import numpy as np
+
+    a = np.asarray(values, dtype=np.float64) + 0.0  # + 0.0 turns -0.0 into 0.0
+    out = _format_all("%.3g", a.tolist())
+    for i in np.flatnonzero(np.isnan(a)).tolist():
+        out[i] = "-"
+    return out
+
+
+def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> str:
+    """:func:`rulkit.tables.text_table` (same text) with one %-format per row instead of a
+    justify call per cell (10^5 rows: 0.5 -> 0.1 s). Cells must already be terminal-safe."""
+    names = list(columns)
+    widths = [max(len(n), max(map(len, columns[n]), default=0)) for n in names]
+    spec = "  ".join(f"%-{w}s" if n in left else f"%{w}s" for n, w in zip(names, widths,
+                                                                           strict=True))
+    lines = [(spec % tuple(names)).rstrip(), "  ".join("-" * w for w in widths)]
+    lines += [(spec % row).rstrip() for row in zip(*columns.values(), strict=True)]
+    return "\n".join(lines) + "\n"
+
+
 def _tracker_options(given: dict[str, float | str]):
     """The tracker settings from the options, each refused value naming its option (exit 2)."""
     from rulkit.cli.errors import bad_option
@@ -180,7 +211,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store import ComponentStore, StoreError
         from rulkit.fleet.tracker_chain import LEVEL_NAMES
-        from rulkit.tables import safe_text, text_table
+        from rulkit.tables import safe_text
 
         if fmt not in ("table", "csv", "json"):
             bad_option("--format", f"expected table, csv or json, got {fmt!r}")
@@ -213,20 +244,20 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             typer.echo(df.to_json(orient="records", double_precision=15))
             return
         shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
-        g = lambda col: [_fmt(v) for v in df[col].tolist()]  # noqa: E731
+        g = lambda col: _format_rul(df[col].to_numpy())  # noqa: E731
         cols = {
             "component": [safe_text(c, 40) for c in df["component"].tolist()],
             "level": df["level"].tolist(),
-            "HI": [f"{v:.3f}" for v in df["hi"].tolist()],
-            "fHI": [f"{v:.3f}" for v in df["fhi"].tolist()],
+            "HI": _format_all("%.3f", df["hi"].tolist()),
+            "fHI": _format_all("%.3f", df["fhi"].tolist()),
             "RUL": g("rul"), "RUL low": g("rul_low"), "RUL high": g("rul_high"),
             "valid": ["yes" if v else "no" for v in df["valid"].tolist()],
             "dRUL/dt": g("drul"), "d2RUL/dt2": g("d2rul"),
-            "n": [str(v) for v in df["n"].tolist()],
-            "last t": [f"{v:g}" for v in df["t"].tolist()],
+            "n": _format_all("%d", df["n"].tolist()),
+            "last t": _format_all("%g", df["t"].tolist()),
         }
         typer.echo(f"{safe_text(db)}: {n_all} components, worst first{shown}")
-        typer.echo(text_table(cols, left=("component", "level")), nl=False)
+        typer.echo(_aligned_table(cols, left=("component", "level")), nl=False)
         typer.echo("RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
                    "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
                    "load +- load_factor")
