@@ -31,7 +31,7 @@ from rulkit.estimation.batched import (
     ess_row,
     normalise_row,
     systematic_row,
-    weighted_quantile_select_row,
+    weighted_quantile_pair_row,
 )
 from rulkit.systems.reaction_wheel.wheel import IthacoParams
 
@@ -269,10 +269,9 @@ def _resample(T, I, W, idx, wn, u, design, T2, I2, W2, cw):  # type: ignore[no-u
 
 
 @nb.njit(cache=True)
-def _interval(T, wn, s, ibuf):  # type: ignore[no-untyped-def]
-    """Weighted (q_lo, q_hi) quantiles of T by selection (expected O(N), no sort)."""
-    return (weighted_quantile_select_row(T, wn, s.q_lo, ibuf),
-            weighted_quantile_select_row(T, wn, s.q_hi, ibuf))
+def _interval(T, wn, s, ibuf, fbuf):  # type: ignore[no-untyped-def]
+    """Weighted (q_lo, q_hi) quantiles of T by one histogram pass (O(N), no sort)."""
+    return weighted_quantile_pair_row(T, wn, s.q_lo, s.q_hi, ibuf, fbuf)
 
 
 @nb.njit(cache=True)
@@ -305,6 +304,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
     cw = np.empty(N)
     idx = np.empty(N, dtype=np.int64)
     ibuf = np.empty(N, dtype=np.int64)
+    fbuf = np.empty(3 * N)
     out_mean = np.full(K, np.nan)
     out_std = np.full(K, np.nan)
     out_qlo = np.full(K, np.nan)
@@ -341,7 +341,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
     out_mean[0], out_std[0] = _mean_std(T, wn)
     out_ess[0] = N
     if s.want_quantiles:
-        out_qlo[0], out_qhi[0] = _interval(T, wn, s, ibuf)
+        out_qlo[0], out_qhi[0] = _interval(T, wn, s, ibuf, fbuf)
     win_sum = 0.0
     win_cnt = 0
     n_bad = 0
@@ -403,7 +403,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
                 act = 5
             out_mean[k], out_std[k] = _mean_std(T, wn)
             if s.want_quantiles:
-                out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
+                out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf, fbuf)
             out_ess[k] = ess_row(wn)
             out_act[k] = act
             continue
@@ -421,7 +421,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
         out_mean[k] = m
         out_std[k] = sd
         if s.want_quantiles:
-            out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
+            out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf, fbuf)
         ess = ess_row(wn)
         out_ess[k] = ess
         # --- resampling / adaptive spread
