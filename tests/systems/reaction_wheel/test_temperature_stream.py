@@ -158,3 +158,37 @@ def test_cli_streams_the_same_numbers_and_leaves_nothing_on_failure(tmp_path: Pa
     assert dest.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e.parquet", "e100000.csv", "e7.csv",
                                                            "t.csv"]
+
+
+def test_a_filter_failure_names_the_file_row_and_time(record, monkeypatch) -> None:
+    """Issue 13: "innovation covariance ..." from inside the EKF becomes a message naming the
+    source, the record row and its time (the step index mapped through the chunking)."""
+    from rulkit.estimation.kalman import FilterStepError
+    from rulkit.systems.reaction_wheel import temperature_estimate as te
+
+    real = te.ekf_setup
+
+    def failing(*a, **kw):
+        ekf, x0, P0, clock = real(*a, **kw)
+
+        class Failing:
+            def filter(self, ys, x, P, us):
+                if len(ys) > 3:
+                    raise FilterStepError(3, ValueError("innovation covariance S = H P H^T + R "
+                                                        "is not positive definite for unit 0"))
+                return ekf.filter(ys, x, P, us=us)
+
+        return Failing(), x0, P0, clock
+
+    monkeypatch.setattr(te, "ekf_setup", failing)
+    clean = read_clean(record)
+    est = TemperatureEstimator("ekf", dt=clean.attrs["dt"], source="wheel.csv")
+    with pytest.raises(EstimationError, match=r"^wheel.csv: row 4 \(time_s = 0.2\): the ekf "
+                                              r"filter failed \(step 3: innovation covariance"):
+        est.update(clean.iloc[:10])
+    est = TemperatureEstimator("ekf", dt=clean.attrs["dt"], source="wheel.csv")
+    est.update(clean.iloc[:3])
+    later = clean.iloc[3:13]
+    later.attrs["row0"] = 3
+    with pytest.raises(EstimationError, match=r"^wheel.csv: row 6 \(time_s = 0.3\)"):
+        est.update(later)

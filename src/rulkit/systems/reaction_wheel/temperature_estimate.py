@@ -150,8 +150,10 @@ class TemperatureEstimator:
         except EstimationError:
             raise
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as err:
-            step = getattr(err, "step", None)
-            where = (self._where(row0 + step, t[0]) if step is not None
+            step = getattr(err, "step", None)  # FilterStepError: the index into ys
+            first = self.method == "ekf" and row0 == 0  # ys starts at row 1 (row 0: prior)
+            r = None if step is None else int(step) + first
+            where = (f"row {row0 + r} (time_s = {t[r]:g})" if r is not None and r < len(t)
                      else f"rows {row0}..{row0 + len(t) - 1}")
             raise EstimationError(f"{self.source}: {where}: the {self.method} filter failed "
                                   f"({err}); the telemetry does not follow the wheel model "
@@ -162,9 +164,6 @@ class TemperatureEstimator:
                             "untrusted": flag.astype(bool)})
         self._check(est, row0)
         return est
-
-    def _where(self, row: int, t0: float) -> str:
-        return f"row {row} (time_s = {t0 + (row - self.rows) * self.dt:g})"
 
     def _pf(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
         cfg = self.config
