@@ -200,7 +200,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         level: Annotated[float, typer.Option(help="Interval level.")] = 0.95,
         chunk_rows: Annotated[int, typer.Option(
             help="Rows read, filtered and written at a time (bounds the memory; the rbpf "
-                 "method reads the whole record).")] = 200_000,
+                 "method reads the whole record).")] = 100_000,
     ) -> None:
         """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
         import os
