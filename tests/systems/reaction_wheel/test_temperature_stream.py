@@ -192,3 +192,21 @@ def test_a_filter_failure_names_the_file_row_and_time(record, monkeypatch) -> No
     later.attrs["row0"] = 3
     with pytest.raises(EstimationError, match=r"^wheel.csv: row 6 \(time_s = 0.3\)"):
         est.update(later)
+
+
+def test_a_record_the_model_cannot_explain_is_refused(tmp_path: Path) -> None:
+    """Full command, full speed and full negative current all along: no wheel does that. The
+    gated PF trusts no sample (its output would be the prior) and the EKF runs to millions of
+    degrees: both exit 1 with a message, and nothing is written."""
+    K = 400
+    f = tmp_path / "t.csv"
+    pd.DataFrame({"time_s": 0.05 * np.arange(K), "v_comm_V": np.full(K, 5.0),
+                  "speed_rad_s": np.full(K, 999.0), "current_A": np.full(K, -5.0)}).to_csv(
+        f, index=False)
+    for method, match in (("adaptive", "trusted only 1 of 400 samples"),
+                          ("ekf", "399 of 400 estimates are outside -30..215 C")):
+        res = runner.invoke(app, ["rw", "estimate-temperature", str(f), "--out",
+                                  str(tmp_path / "e.csv"), "--method", method,
+                                  "--particles", "40"])
+        assert res.exit_code == 1 and match in res.output, res.output
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]

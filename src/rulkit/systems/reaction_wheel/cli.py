@@ -271,7 +271,6 @@ def stream_temperature(file: Path, dest: Path, *, method: str, particles: int, s
     tmp = dest.with_name(f".{dest.name}.{os.getpid()}.partial")
     summary = StreamSummary()
     est: TemperatureEstimator | None = None
-    n_bad, first_bad = 0, 0.0
     try:
         with TableWriter(tmp, fmt=table_format(dest)) as writer:
             for chunk in iter_wheel_telemetry(file, chunk_rows=chunk_rows):
@@ -281,22 +280,20 @@ def stream_temperature(file: Path, dest: Path, *, method: str, particles: int, s
                                                level=level, source=str(file))
                 part = est.update(chunk)
                 writer.write(part)
-                bad = part["untrusted"].to_numpy()
-                if bad.any() and not n_bad:
-                    first_bad = float(part["time_s"].to_numpy()[bad][0])
-                n_bad += int(bad.sum())
                 summary.last = {c: float(part[c].iloc[-1])
                                 for c in ("time_s", "T_mean", "T_lo", "T_hi")}
+        assert est is not None  # iter_wheel_telemetry yields at least one chunk or raises
+        est.finish()
         os.replace(tmp, dest)
     finally:
         tmp.unlink(missing_ok=True)
-    assert est is not None  # iter_wheel_telemetry yields at least one chunk or raises
     summary.rows = est.rows
     if est.note:
         summary.notes.append(f"note: {est.note}")
     if est.warning:
         summary.notes.append(f"warning: {est.warning}")
-    if n_bad:
-        summary.notes.append(f"warning: {n_bad} samples not trusted (outlier gate; column "
-                             f"'untrusted'), the first at time_s = {first_bad:g}")
+    if est.n_untrusted:
+        summary.notes.append(f"warning: {est.n_untrusted} samples not trusted (outlier gate; "
+                             f"column 'untrusted'), the first at time_s = "
+                             f"{est.first_untrusted:g}")
     return summary

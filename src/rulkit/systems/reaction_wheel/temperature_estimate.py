@@ -99,6 +99,8 @@ class TemperatureEstimator:
         self.note: str | None = None
         self.warning: str | None = None
         self._n_out, self._first_out = 0, ""
+        self.n_untrusted = 0  # samples the outlier gate did not trust, so far
+        self.first_untrusted: float | None = None  # the time of the first
         self._last: Any = None  # the previous chunk's last row (y, V, t)
         q = (0.5 - level / 2, 0.5 + level / 2)
         if method == "rbpf":
@@ -163,7 +165,30 @@ class TemperatureEstimator:
         est = pd.DataFrame({"time_s": t, "T_mean": m, "T_lo": lo, "T_hi": hi,
                             "untrusted": flag.astype(bool)})
         self._check(est, row0)
+        bad = est["untrusted"].to_numpy()
+        if bad.any() and self.first_untrusted is None:
+            self.first_untrusted = float(t[bad][0])
+        self.n_untrusted += int(bad.sum())
         return est
+
+    def finish(self) -> None:
+        """The verdict on the whole run: raises :class:`ImplausibleEstimateError` when most
+        samples (more than half) were not trusted by the outlier gate or have estimates
+        outside the range the wheel model describes: the output would then be the prior or
+        a number with no physical meaning, so none is given."""
+        half = self.rows / 2
+        if self.n_untrusted > half:
+            raise ImplausibleEstimateError(
+                f"{self.source}: the outlier gate trusted only {self.rows - self.n_untrusted} "
+                f"of {self.rows} samples (the estimate would be the prior): the telemetry does "
+                "not follow the wheel model (wrong units, wrong --noise level, or not this "
+                "wheel); nothing written")
+        if self._n_out > half:
+            raise ImplausibleEstimateError(
+                f"{self.source}: {self._n_out} of {self.rows} estimates are outside "
+                f"{MODEL_RANGE_C[0]:g}..{MODEL_RANGE_C[1]:g} C, the range the wheel model "
+                f"describes (first: {self._first_out}): the telemetry does not follow the "
+                "wheel model; nothing written")
 
     def _pf(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
         cfg = self.config
@@ -266,7 +291,10 @@ def estimate_temperature(
     :data:`rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS`, "RBJ" when ``design`` is left at
     "F2"; ``config`` may be an :class:`RBPFConfig`) or ``"ekf"`` (deterministic).
     ``noise``: the measurement-noise level assumed ("low", "high" of seed Table 5, or
-    ``(sigma_w, sigma_I)``). ``config`` overrides every PF setting. Returns a DataFrame
+    ``(sigma_w, sigma_I)``). ``config`` overrides every PF setting. Raises
+    :class:`ImplausibleEstimateError` for an estimate below absolute zero and when most samples
+    are untrusted or out of the model's range (:meth:`TemperatureEstimator.finish`). Returns a
+    DataFrame
     (:data:`OUTPUT_COLUMNS`) with the ``level`` interval (weighted particle quantiles; for the
     EKF mean +- z sd) and ``untrusted`` the samples the outlier gate did not trust; ``attrs``
     ``"note"`` / ``"warning"`` when there is something to say.
@@ -289,6 +317,7 @@ def estimate_temperature(
     est = TemperatureEstimator(method, n_particles, rng, dt=float(clean.attrs["dt"]),
                                design=design, noise=noise, config=config, level=level)
     out = est.update(clean)
+    est.finish()
     for key in ("note", "warning"):
         if getattr(est, key):
             out.attrs[key] = getattr(est, key)
