@@ -23,7 +23,7 @@ row, and what was expected):
 from __future__ import annotations
 
 import difflib
-from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +33,12 @@ from numpy.typing import NDArray
 __all__ = [
     "CSV_SUFFIXES",
     "PARQUET_SUFFIXES",
+    "TableWriter",
     "cell_repr",
     "did_you_mean",
     "numeric_columns",
     "read_table",
+    "read_table_chunks",
     "safe_text",
     "suggest_column",
     "table_format",
@@ -110,23 +112,11 @@ def read_table(
     """
     import pandas as pd
 
-    p = Path(path)
-    if not p.exists():
-        raise error(f"{p}: file not found (no such file or directory)")
-    if p.is_dir():
-        raise error(f"{p}: is a directory, expected a CSV or Parquet file")
-    fmt = table_format(p, error=error, csv_suffixes=csv_suffixes,
-                       parquet_suffixes=parquet_suffixes)
-    header = (f"; expected a header with columns {list(expected_columns)}"
-              if expected_columns else "")
-    empty = f"{p}: empty file (no header, no rows{header})"
-    if p.stat().st_size == 0:
-        raise error(empty)
+    p, fmt, empty = _usable_path(path, error, csv_suffixes, parquet_suffixes, expected_columns)
     try:
         if fmt == "csv":
             kw: dict[str, Any] = {}
-            raw = pd.read_csv(p, nrows=1, header=None, dtype=str, keep_default_na=False)
-            header_cols = [str(c) for c in raw.iloc[0].tolist()] if len(raw) else []
+            header_cols = _csv_header(p)
             _check_unique_columns(p, header_cols, error)
             if text_columns:
                 from pandas._libs.parsers import STR_NA_VALUES
@@ -151,6 +141,150 @@ def read_table(
     df.attrs["source"] = str(path)
     df.attrs["format"] = fmt
     return df
+
+
+def _usable_path(
+    path: str | Path, error: ErrorType, csv_suffixes: Sequence[str],
+    parquet_suffixes: Sequence[str], expected_columns: Sequence[str] | None,
+) -> tuple[Path, str, str]:
+    """(path, format, the empty-file message) of a file that exists, is not a directory, has
+    a known ending and is not 0 bytes; else ``error``."""
+    p = Path(path)
+    if not p.exists():
+        raise error(f"{p}: file not found (no such file or directory)")
+    if p.is_dir():
+        raise error(f"{p}: is a directory, expected a CSV or Parquet file")
+    fmt = table_format(p, error=error, csv_suffixes=csv_suffixes,
+                       parquet_suffixes=parquet_suffixes)
+    header = (f"; expected a header with columns {list(expected_columns)}"
+              if expected_columns else "")
+    empty = f"{p}: empty file (no header, no rows{header})"
+    if p.stat().st_size == 0:
+        raise error(empty)
+    return p, fmt, empty
+
+
+def _csv_header(p: Path) -> list[str]:
+    """The names in a CSV file's first line, verbatim."""
+    import pandas as pd
+
+    raw = pd.read_csv(p, nrows=1, header=None, dtype=str, keep_default_na=False)
+    return [str(c) for c in raw.iloc[0].tolist()] if len(raw) else []
+
+
+def read_table_chunks(
+    path: str | Path,
+    columns: Sequence[str],
+    *,
+    chunk_rows: int = 200_000,
+    error: ErrorType = ValueError,
+    csv_suffixes: Sequence[str] = CSV_SUFFIXES,
+    parquet_suffixes: Sequence[str] = PARQUET_SUFFIXES,
+) -> Iterator[Any]:
+    """Read a CSV or Parquet file ``chunk_rows`` rows at a time (memory bounded by the chunk,
+    not the file): yields ``pandas.DataFrame`` chunks holding those of ``columns`` the file
+    has (other columns are not read), with ``attrs`` ``"source"``, ``"format"``, ``"row0"``
+    (the file row of the chunk's first row, 0-based over the data rows) and ``"header"`` (all
+    column names of the file). The file-level refusals of :func:`read_table` apply (missing,
+    directory, empty, unknown ending, duplicated column name, parser errors, header only);
+    a parser error in a later chunk is raised when that chunk is reached. Each chunk's types
+    are inferred on their own, so a bad cell is reported by the caller's column checks with
+    ``row0`` added.
+    """
+    import pandas as pd
+
+    if chunk_rows < 1:
+        raise ValueError(f"chunk_rows: expected >= 1, got {chunk_rows}")
+    p, fmt, empty = _usable_path(path, error, csv_suffixes, parquet_suffixes, columns)
+    what = "CSV" if fmt == "csv" else "Parquet"
+    row0 = 0
+    try:
+        if fmt == "csv":
+            header = _csv_header(p)
+            _check_unique_columns(p, header, error)
+            wanted = [c for c in columns if c in header]
+            batches: Iterator[Any] = iter(pd.read_csv(p, usecols=wanted, chunksize=chunk_rows))
+        else:
+            import pyarrow.parquet as pq
+
+            pf = pq.ParquetFile(p)
+            header = [str(c) for c in pf.schema_arrow.names]
+            _check_unique_columns(p, header, error)
+            wanted = [c for c in columns if c in header]
+            batches = (b.to_pandas() for b in pf.iter_batches(batch_size=chunk_rows,
+                                                              columns=wanted))
+        while True:
+            try:
+                df = next(batches)
+            except StopIteration:
+                break
+            df.attrs.update(source=str(path), format=fmt, row0=row0, header=header)
+            row0 += len(df)
+            yield df
+    except pd.errors.EmptyDataError as err:
+        raise error(empty) from err
+    except error:
+        raise
+    except Exception as err:  # parser errors of pandas / pyarrow, unreadable file
+        raise error(f"{p}: cannot be read as {what} (after data row {row0}): "
+                    f"{safe_text(str(err), 300)}") from err
+    if row0 == 0:
+        raise error(f"{p}: no data rows (header only)")
+
+
+class TableWriter:
+    """Write a table chunk by chunk (frames with the same columns) to a CSV or Parquet file,
+    without holding it in memory: ``with TableWriter(path) as w: w.write(df)``.
+
+    The format is ``fmt`` (``"csv"`` / ``"parquet"``) or, when ``None``, the path's ending
+    (:func:`table_format`). CSV: a plain header line, then rows by pyarrow's CSV writer
+    (numbers in shortest round-trip form, booleans ``true``/``false``, which
+    :func:`pandas.read_csv` reads back as booleans). The file is created at the first
+    ``write``; nothing is created when nothing is written.
+    """
+
+    def __init__(self, path: str | Path, fmt: str | None = None) -> None:
+        self.path = Path(path)
+        self.fmt = fmt or table_format(self.path)
+        if self.fmt not in ("csv", "parquet"):
+            raise ValueError(f"fmt: expected 'csv' or 'parquet', got {fmt!r}")
+        self._writer: Any = None
+        self._file: Any = None
+
+    def write(self, df: Any) -> None:
+        """Append the rows of ``df`` (a ``pandas.DataFrame``; its index is not written)."""
+        import pyarrow as pa
+
+        table = pa.Table.from_pandas(df, preserve_index=False)
+        if self._writer is None:
+            if self.fmt == "csv":
+                import pyarrow.csv as pcsv
+
+                self._file = open(self.path, "wb")  # closed in close()
+                self._file.write((",".join(table.schema.names) + "\n").encode())
+                self._writer = pcsv.CSVWriter(
+                    self._file, table.schema,
+                    write_options=pcsv.WriteOptions(include_header=False))
+            else:
+                import pyarrow.parquet as pq
+
+                self._writer = pq.ParquetWriter(self.path, table.schema)
+        self._writer.write_table(table)
+
+    def close(self) -> None:
+        """Finish the file (idempotent)."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def __enter__(self) -> TableWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def _check_unique_columns(path: Path, cols: Sequence[str], error: ErrorType) -> None:

@@ -240,3 +240,28 @@ def test_branch_free_systematic_equals_the_merge_and_the_oracle(N: int) -> None:
         np.testing.assert_array_equal(idx, merge)
         np.testing.assert_array_equal(idx, _systematic_oracle(w, u))
         np.testing.assert_array_equal(bt.systematic_indices(w, u), merge)
+
+
+def test_weighted_quantile_pair_by_histogram_equals_inverted_cdf() -> None:
+    """The histogram pair (the filter loops' interval bounds) equals np.quantile's inverted CDF
+    for both bounds: ties, zero weights, resampled copies, far outliers (a crowded bin takes
+    the selection), equal weights (the sorted path), q = 1 and a single particle."""
+    rng = np.random.default_rng(6)
+    for N in (1, 2, 3, 50, 350, 1000):
+        ibuf, fbuf = np.empty(N, np.int64), np.empty(3 * N)
+        for trial in range(30):
+            x = np.round(rng.normal(size=N), 1 if trial % 2 else 6)
+            if trial % 3 == 0:  # resampled cloud: many copies
+                x = x[rng.integers(0, max(1, N // 10), N)]
+            if trial % 5 == 1 and N > 2:  # far outliers: most values in one bin
+                x[:2] = (1e6, -1e6)
+            w = rng.dirichlet(np.full(N, 0.3))
+            w[rng.random(N) < 0.2] = 0.0
+            if trial % 7 == 3:
+                w[:] = 1.0 / N
+            if not w.sum() > 0:
+                w[0] = 1.0
+            for qa, qb in ((0.025, 0.975), (0.05, 0.95), (0.5, 0.5), (0.1, 1.0)):
+                ref = np.quantile(x, [qa, qb], weights=w, method="inverted_cdf")
+                got = bt.weighted_quantile_pair_row(x, w, qa, qb, ibuf, fbuf)
+                assert got == (ref[0], ref[1]), (N, trial, qa, qb, got, ref)

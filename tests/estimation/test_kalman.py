@@ -546,8 +546,23 @@ def test_ekf_error_names_f_when_prediction_is_nan():
     ekf = ExtendedKalmanFilter(
         lambda x, u, k: x * np.nan, lambda x, u, k: x[:, :1], np.eye(2) * 1e-3, np.eye(1)
     )
-    with pytest.raises(ValueError, match=r"^f \(predicted state"):
+    with pytest.raises(ValueError, match=r"^step 0: f \(predicted state"):
         ekf.filter(np.zeros((5, 1, 1)), np.zeros((1, 2)), np.eye(2))
+
+
+def test_filter_errors_name_the_step():
+    """A failure inside the loop says which step of ys it was (FilterStepError.step)."""
+    from rulkit.estimation.kalman import FilterStepError
+
+    ekf = ExtendedKalmanFilter(lambda x, u, k: x * (np.nan if k == 3 else 1.0),
+                               lambda x, u, k: x[:, :1], np.eye(2) * 1e-3, np.eye(1))
+    with pytest.raises(FilterStepError, match=r"^step 3: f \(predicted state") as info:
+        ekf.filter(np.zeros((5, 1, 1)), np.zeros((1, 2)), np.eye(2))
+    assert info.value.step == 3
+    kf = KalmanFilter(F_CV, H_2[:1], Q_CV * 0, lambda k: np.eye(1) * (-1.0 if k == 2 else 1.0))
+    with pytest.raises(FilterStepError, match=r"^step 2: ") as info:
+        kf.filter(np.zeros((4, 1, 1)), np.zeros((1, 2)), np.eye(2))
+    assert info.value.step == 2
 
 
 # -- continuous EKF: where the Jacobian of Phi = expm(J dt) is evaluated -----------------------

@@ -52,6 +52,7 @@ _LOG_2PI = float(np.log(2.0 * np.pi))
 
 __all__ = [
     "ExtendedKalmanFilter",
+    "FilterStepError",
     "Innovation",
     "KalmanFilter",
     "KalmanResult",
@@ -61,6 +62,16 @@ __all__ = [
     "kf_update",
     "numerical_jacobian",
 ]
+
+
+class FilterStepError(ValueError):
+    """A filter's ``filter`` loop failed at step ``step`` (the index into ``ys``): the
+    message is ``"step k: <what failed>"``, so a caller that knows which record row step
+    k is (a file reader) can name it."""
+
+    def __init__(self, step: int, err: Exception) -> None:
+        super().__init__(f"step {step}: {err}")
+        self.step = step
 
 
 # ----------------------------------------------------------------------------------------------
@@ -580,13 +591,16 @@ class KalmanFilter:
         out = _Stacker(T, B, n, m)
         for k in range(T):
             bu = None
-            if self.G is not None:
-                u = np.asarray(_input_at(us, k, T), dtype=np.float64)
-                _check_finite(u, f"us[{k}]")
-                bu = _matvec(cast(FloatArray, self.G.value),  # G is constant
-                             np.broadcast_to(u, (B, u.shape[-1])))
-            xp, Pp = _predict(x, P, self.F.at(k, B), self.Q.at(k, B), bu)
-            x, P, inn = _update(xp, Pp, ys[k], self.H.at(k, B), self.R.at(k, B), None)
+            try:
+                if self.G is not None:
+                    u = np.asarray(_input_at(us, k, T), dtype=np.float64)
+                    _check_finite(u, f"us[{k}]")
+                    bu = _matvec(cast(FloatArray, self.G.value),  # G is constant
+                                 np.broadcast_to(u, (B, u.shape[-1])))
+                xp, Pp = _predict(x, P, self.F.at(k, B), self.Q.at(k, B), bu)
+                x, P, inn = _update(xp, Pp, ys[k], self.H.at(k, B), self.R.at(k, B), None)
+            except (ValueError, np.linalg.LinAlgError) as err:
+                raise FilterStepError(k, err) from err
             out.put(k, xp, Pp, x, P, inn)
         return out.result()
 
@@ -648,8 +662,11 @@ class _SigmaOrJacobianFilter:
         out = _Stacker(T, B, n, m)
         for k in range(T):
             u = _input_at(us, k, T)
-            xp, Pp = self.predict(x, P, k, u)
-            x, P, inn = self.update(xp, Pp, ys_arr[k], k, u)
+            try:
+                xp, Pp = self.predict(x, P, k, u)
+                x, P, inn = self.update(xp, Pp, ys_arr[k], k, u)
+            except (ValueError, np.linalg.LinAlgError) as err:
+                raise FilterStepError(k, err) from err
             out.put(k, xp, Pp, x, P, inn)
         return out.result()
 

@@ -158,11 +158,17 @@ def test_estimate_temperature_refuses_to_overwrite_its_input(tmp_path) -> None:
 
 
 def test_estimate_below_absolute_zero_is_refused() -> None:
-    from rulkit.systems.reaction_wheel.temperature import ImplausibleEstimateError, _checked
+    from rulkit.systems.reaction_wheel.temperature_estimate import (
+        ImplausibleEstimateError,
+        TemperatureEstimator,
+    )
 
     est = pd.DataFrame({"time_s": [0.0, 0.05], "T_mean": [20.0, -300.0], "T_lo": [19, -301],
                         "T_hi": [21, -299], "untrusted": [False, False]})
-    with pytest.raises(ImplausibleEstimateError, match="absolute zero"):
-        _checked(est)
-    ok = _checked(est.assign(T_mean=[20.0, 250.0]))
-    assert "outside -30..215 C" in ok.attrs["warning"]
+    check = TemperatureEstimator("ekf", dt=0.05, source="f.csv")
+    with pytest.raises(ImplausibleEstimateError, match=r"f.csv: .*row 11.*absolute zero"):
+        check._check(est, 10)
+    check._check(est.assign(T_mean=[20.0, 250.0]), 0)
+    check._check(est.assign(T_mean=[-40.0, 20.0]), 2)
+    assert check.warning is not None
+    assert "2 estimates outside -30..215 C" in check.warning and "first: 250 C" in check.warning

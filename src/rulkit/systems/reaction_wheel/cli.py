@@ -198,16 +198,15 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         seed: Annotated[int, typer.Option(min=0, help="Seed of the particle filter.")] = 0,
         noise: Annotated[str, typer.Option(help="Assumed noise level: low or high.")] = "low",
         level: Annotated[float, typer.Option(help="Interval level.")] = 0.95,
+        chunk_rows: Annotated[int, typer.Option(
+            help="Rows read, filtered and written at a time (bounds the memory; the rbpf "
+                 "method reads the whole record).")] = 100_000,
     ) -> None:
         """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
         import os
 
-        import numpy as np
-
         from rulkit.cli.errors import EXIT_USAGE
         from rulkit.cli.errors import fail as _fail
-        from rulkit.systems.reaction_wheel.telemetry import TelemetryError, read_wheel_telemetry
-        from rulkit.systems.reaction_wheel.temperature import estimate_temperature
 
         def fail(msg: str, code: int = 1) -> None:  # 1: the input; 2: an option (usage)
             _fail(msg, code=code)
@@ -220,6 +219,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             fail(f"--noise: expected 'low' or 'high', got {noise!r}", EXIT_USAGE)
         if not 0 < level < 1:
             fail(f"--level: expected a value in (0, 1), got {level}", EXIT_USAGE)
+        if chunk_rows < 2:
+            fail(f"--chunk-rows: need at least 2, got {chunk_rows}", EXIT_USAGE)
         dest = out or file.with_name(file.stem + "_temperature.csv")
         if dest.exists() and file.exists() and os.path.samefile(dest, file):
             fail(f"--out {dest} is the input file; refusing to overwrite it (choose another "
@@ -227,32 +228,72 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if dest.suffix.lower() not in (".csv", ".parquet", ".pq"):
             fail(f"--out: expected a .csv, .parquet or .pq file name, got {dest.name!r}",
                  EXIT_USAGE)
+        if method == "rbpf":
+            chunk_rows = 2**62
         try:
-            df = read_wheel_telemetry(file)
-        except TelemetryError as err:
+            summary = stream_temperature(file, dest, method=method, particles=particles,
+                                         seed=seed, noise=noise, level=level,
+                                         chunk_rows=chunk_rows)
+        except ValueError as err:  # the telemetry, or the filter on it: named in the message
             fail(str(err))
-        try:
-            est = estimate_temperature(df, method=method, n_particles=particles,
-                                       rng=np.random.default_rng(seed), noise=noise, level=level)
-        except ValueError as err:  # e.g. a too-short file for the filter
-            fail(f"{file}: {err}")
-        try:
-            if dest.suffix.lower() == ".csv":
-                est.to_csv(dest, index=False)
-            else:
-                est.to_parquet(dest, index=False)
         except OSError as err:
             fail(f"cannot write {dest}: {err}")
-        if "note" in est.attrs:
-            typer.echo(f"note: {est.attrs['note']}", err=True)
-        if "warning" in est.attrs:
-            typer.echo(f"warning: {est.attrs['warning']}", err=True)
-        n_bad = int(est["untrusted"].sum())
-        if n_bad:
-            typer.echo(f"warning: {n_bad} samples not trusted (outlier gate; column "
-                       "'untrusted'), the first at time_s = "
-                       f"{est['time_s'][est['untrusted']].iloc[0]:g}", err=True)
-        m = est["T_mean"].to_numpy()
-        typer.echo(f"{len(est)} samples, T_lub {m[-1]:.2f} C at t = {est['time_s'].iloc[-1]:g} s "
-                   f"({level:.0%} interval {est['T_lo'].iloc[-1]:.2f} .. "
-                   f"{est['T_hi'].iloc[-1]:.2f} C); wrote {dest}")
+        for line in summary.notes:
+            typer.echo(line, err=True)
+        typer.echo(f"{summary.rows} samples, T_lub {summary.last['T_mean']:.2f} C at t = "
+                   f"{summary.last['time_s']:g} s ({level:.0%} interval "
+                   f"{summary.last['T_lo']:.2f} .. {summary.last['T_hi']:.2f} C); wrote {dest}")
+
+
+class StreamSummary:
+    """What ``rw estimate-temperature`` reports: rows, the last estimate, notes for stderr."""
+
+    def __init__(self) -> None:
+        self.rows = 0
+        self.last: dict[str, float] = {}
+        self.notes: list[str] = []
+
+
+def stream_temperature(file: Path, dest: Path, *, method: str, particles: int, seed: int,
+                       noise: str, level: float, chunk_rows: int) -> StreamSummary:
+    """Read ``file`` chunk by chunk, filter each chunk, and append its estimates to a
+    temporary file beside ``dest`` that replaces ``dest`` only when the whole record has been
+    read, checked and filtered (an error leaves ``dest`` as it was). Memory is bounded by
+    ``chunk_rows``, not the record's length."""
+    import os
+
+    import numpy as np
+
+    from rulkit.systems.reaction_wheel.telemetry import iter_wheel_telemetry
+    from rulkit.systems.reaction_wheel.temperature_estimate import TemperatureEstimator
+    from rulkit.tables import TableWriter, table_format
+
+    tmp = dest.with_name(f".{dest.name}.{os.getpid()}.partial")
+    summary = StreamSummary()
+    est: TemperatureEstimator | None = None
+    try:
+        with TableWriter(tmp, fmt=table_format(dest)) as writer:
+            for chunk in iter_wheel_telemetry(file, chunk_rows=chunk_rows):
+                if est is None:
+                    est = TemperatureEstimator(method, particles, np.random.default_rng(seed),
+                                               dt=float(chunk.attrs["dt"]), noise=noise,
+                                               level=level, source=str(file))
+                part = est.update(chunk)
+                writer.write(part)
+                summary.last = {c: float(part[c].iloc[-1])
+                                for c in ("time_s", "T_mean", "T_lo", "T_hi")}
+        assert est is not None  # iter_wheel_telemetry yields at least one chunk or raises
+        est.finish()
+        os.replace(tmp, dest)
+    finally:
+        tmp.unlink(missing_ok=True)
+    summary.rows = est.rows
+    if est.note:
+        summary.notes.append(f"note: {est.note}")
+    if est.warning:
+        summary.notes.append(f"warning: {est.warning}")
+    if est.n_untrusted:
+        summary.notes.append(f"warning: {est.n_untrusted} samples not trusted (outlier gate; "
+                             f"column 'untrusted'), the first at time_s = "
+                             f"{est.first_untrusted:g}")
+    return summary

@@ -31,7 +31,7 @@ from rulkit.estimation.batched import (
     ess_row,
     normalise_row,
     systematic_row,
-    weighted_quantile_select_row,
+    weighted_quantile_pair_row,
 )
 from rulkit.systems.reaction_wheel.wheel import IthacoParams
 
@@ -269,15 +269,84 @@ def _resample(T, I, W, idx, wn, u, design, T2, I2, W2, cw):  # type: ignore[no-u
 
 
 @nb.njit(cache=True)
-def _interval(T, wn, s, ibuf):  # type: ignore[no-untyped-def]
-    """Weighted (q_lo, q_hi) quantiles of T by selection (expected O(N), no sort)."""
-    return (weighted_quantile_select_row(T, wn, s.q_lo, ibuf),
-            weighted_quantile_select_row(T, wn, s.q_hi, ibuf))
+def _interval(T, wn, s, ibuf, fbuf):  # type: ignore[no-untyped-def]
+    """Weighted (q_lo, q_hi) quantiles of T by one histogram pass (O(N), no sort)."""
+    return weighted_quantile_pair_row(T, wn, s.q_lo, s.q_hi, ibuf, fbuf)
+
+
+class PFState(NamedTuple):
+    """The cloud between two calls of :func:`pf_steps` (a record filtered in chunks): the
+    particles ``T``, ``I``, ``W``, log-weights ``lw`` and weights ``wn`` (N,), the rollback
+    ring ``ring_T``, ``ring_lw`` (R, N) and ``sc`` = [adaptive window sum, window count,
+    untrusted samples in a row]."""
+
+    T: np.ndarray
+    I: np.ndarray
+    W: np.ndarray
+    lw: np.ndarray
+    wn: np.ndarray
+    ring_T: np.ndarray
+    ring_lw: np.ndarray
+    sc: np.ndarray
+
+
+@nb.njit(cache=True)
+def _ring_size(s):  # type: ignore[no-untyped-def]
+    gated = -0.5 * s.gate_d2 - s.log_norm > -np.inf
+    return s.rollback + s.reanchor_after + 2 if gated and s.rollback > 0 else 1
+
+
+@nb.njit(cache=True)
+def pf_start(y0, init_sd, s, rng):  # type: ignore[no-untyped-def]
+    """The prior cloud from the first sample ``y0`` = [w, I_m]: T ~ U(T_lo, T_hi); for F2
+    [I, w] = y0 + init_sd * normal. Returns (:class:`PFState`, row-0 estimates (mean, sd,
+    q_lo, q_hi))."""
+    N = s.n
+    R = _ring_size(s)
+    st = PFState(np.empty(N), np.empty(N), np.empty(N), np.empty(N), np.empty(N),
+                 np.empty((R, N)), np.empty((R, N)), np.zeros(3))
+    T, I, W, lw, wn = st.T, st.I, st.W, st.lw, st.wn
+    for i in range(N):
+        T[i] = s.T_lo + (s.T_hi - s.T_lo) * rng.random()
+    if s.design == 1:
+        for i in range(N):
+            I[i] = y0[1] + init_sd[0] * rng.standard_normal()
+            W[i] = y0[0] + init_sd[1] * rng.standard_normal()
+    else:
+        I[:] = 0.0
+        W[:] = 0.0
+    for i in range(N):
+        lw[i] = -math.log(N)
+        wn[i] = 1.0 / N
+    m, sd = _mean_std(T, wn)
+    qlo = np.nan
+    qhi = np.nan
+    if s.want_quantiles:
+        qlo, qhi = _interval(T, wn, s, np.empty(N, dtype=np.int64), np.empty(3 * N))
+    return st, m, sd, qlo, qhi
 
 
 @nb.njit(cache=True)
 def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
-    """Run one temperature particle filter over ``inp.y`` (K, 2) = [w, I_m].
+    """Run one temperature particle filter over ``inp.y`` (K, 2) = [w, I_m]:
+    :func:`pf_start` on ``y[0]`` then :func:`pf_steps` over the record. Row 0 is the prior.
+    Returns what :func:`pf_steps` returns."""
+    st, m, sd, qlo, qhi = pf_start(inp.y[0], inp.init_sd, s, rng)
+    out = pf_steps(inp, s, rng, st, 0)
+    out[0][0] = m
+    out[1][0] = sd
+    out[2][0] = qlo
+    out[3][0] = qhi
+    out[4][0] = s.n
+    return out
+
+
+@nb.njit(cache=True)
+def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
+    """Advance the cloud ``st`` (a :class:`PFState`, updated in place) over ``inp.y`` (K, 2) =
+    [w, I_m]: row 0 is the sample the cloud is at (global index ``k0``), rows 1..K-1 the new
+    ones (global ``k0 + 1 ..``). A record filtered in chunks that overlap by one row gives
+    the numbers of one call over the whole record.
 
     ``inp`` a :class:`KernelInputs`, ``s`` a :class:`KernelSettings`. ``V[k-1]`` is held over
     the step ending at t_k = t0 + k dt (and sets the APF gain c = c0 / (c0 - V)). Design F1:
@@ -285,26 +354,23 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
     [I, w], initialised at y_0 + init_sd * normal. Likelihood log p = -d^2/2 - log_norm.
 
     Returns (T_mean, T_std, T_qlo, T_qhi, ess, action, n_clipped, gamma, loglik, untrusted),
-    each (K,). Row 0 is the prior. ``action``: 0 none, 1 ESS resampling, 2 adaptive spread,
-    3 all weights zero (reset to equal weights), 4 untrusted sample (gated: weights kept),
-    5 untrusted and the F2 [I, w] redrawn around the measurement. ``untrusted`` (int8) is 1
-    for a gated sample.
+    each (K,), row 0 not filled (NaN / 0). ``action``: 0 none, 1 ESS resampling, 2 adaptive
+    spread, 3 all weights zero (reset to equal weights), 4 untrusted sample (gated: weights
+    kept), 5 untrusted and the F2 [I, w] redrawn around the measurement. ``untrusted`` (int8)
+    is 1 for a gated sample.
     """
     y, V, S_inv, init_sd, P = inp
     K = y.shape[0]
     N = s.n
-    T = np.empty(N)
-    I = np.empty(N)
-    W = np.empty(N)
-    lw = np.empty(N)
+    T, I, W, lw, wn, ring_T, ring_lw, sc = st
     ll = np.empty(N)
-    wn = np.empty(N)
     T2 = np.empty(N)
     I2 = np.empty(N)
     W2 = np.empty(N)
     cw = np.empty(N)
     idx = np.empty(N, dtype=np.int64)
     ibuf = np.empty(N, dtype=np.int64)
+    fbuf = np.empty(3 * N)
     out_mean = np.full(K, np.nan)
     out_std = np.full(K, np.nan)
     out_qlo = np.full(K, np.nan)
@@ -324,39 +390,23 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
     tn_amp = P[7] * P[10] * P[11] * P[11]
     w_a = P[11]
     ll_gate = -0.5 * s.gate_d2 - s.log_norm
-    gated = ll_gate > -np.inf
-    R = s.rollback + s.reanchor_after + 2 if gated and s.rollback > 0 else 1
-    ring_T = np.empty((R, N))
-    ring_lw = np.empty((R, N))
+    R = ring_T.shape[0]
+    win_sum = sc[0]
+    win_cnt = int(sc[1])
+    n_bad = int(sc[2])
 
-    for i in range(N):
-        T[i] = s.T_lo + (s.T_hi - s.T_lo) * rng.random()
-    if s.design == 1:
-        for i in range(N):
-            I[i] = y[0, 1] + init_sd[0] * rng.standard_normal()
-            W[i] = y[0, 0] + init_sd[1] * rng.standard_normal()
-    for i in range(N):
-        lw[i] = -logN
-        wn[i] = 1.0 / N
-    out_mean[0], out_std[0] = _mean_std(T, wn)
-    out_ess[0] = N
-    if s.want_quantiles:
-        out_qlo[0], out_qhi[0] = _interval(T, wn, s, ibuf)
-    win_sum = 0.0
-    win_cnt = 0
-    n_bad = 0
-
-    for k in range(1, K):
+    for kk in range(1, K):
+        k = k0 + kk  # the global sample index
         if R > 1:  # the cloud after step k - 1, for a rollback
             ring_T[(k - 1) % R] = T
             ring_lw[(k - 1) % R] = lw
         t = s.t0 + (k - 1) * s.dt
-        Vk = V[k - 1]
+        Vk = V[kk - 1]
         tn0 = tn_amp * math.sin(w_a * t)
         tn1 = tn_amp * math.sin(w_a * (t + 0.5 * s.dt))
         tn2 = tn_amp * math.sin(w_a * (t + s.dt))
-        yw = y[k, 0]
-        yI = y[k, 1]
+        yw = y[kk, 0]
+        yI = y[kk, 1]
         # --- prediction: T random walk, then RK4 per particle with its own T
         for i in range(N):
             T[i] += s.q_T * rng.standard_normal()
@@ -366,8 +416,8 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
         if s.design == 1 and s.q_w > 0.0:
             for i in range(N):
                 W2[i] = s.q_w * rng.standard_normal()
-        _predict_loglik(I, W, T, ll, N, s.design, y[k - 1, 0], y[k - 1, 1], yw, yI, Vk, tn0,
-                        tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
+        _predict_loglik(I, W, T, ll, N, s.design, y[kk - 1, 0], y[kk - 1, 1], yw, yI, Vk,
+                        tn0, tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
         if s.design == 1 and (s.q_I > 0.0 or s.q_w > 0.0):
             for i in range(N):
                 if s.q_I > 0.0:
@@ -387,7 +437,7 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
         act = 0
         if llmax < ll_gate:
             # --- untrusted sample: no particle explains it; keep the weights
-            out_flag[k] = 1
+            out_flag[kk] = 1
             n_bad += 1
             act = 4
             if s.design == 1 and n_bad >= s.reanchor_after:
@@ -401,29 +451,29 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
                     normalise_row(lw, wn)
                 n_bad = 0
                 act = 5
-            out_mean[k], out_std[k] = _mean_std(T, wn)
+            out_mean[kk], out_std[kk] = _mean_std(T, wn)
             if s.want_quantiles:
-                out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
-            out_ess[k] = ess_row(wn)
-            out_act[k] = act
+                out_qlo[kk], out_qhi[kk] = _interval(T, wn, s, ibuf, fbuf)
+            out_ess[kk] = ess_row(wn)
+            out_act[kk] = act
             continue
         n_bad = 0
         # --- weight update; ls_data = log sum_i exp(lw_i + ll_i), the data log-likelihood
-        ls, ls_data, out_clip[k], out_gamma[k] = _weight_update(lw, wn, ll, Vk, s, T2, cw)
+        ls, ls_data, out_clip[kk], out_gamma[kk] = _weight_update(lw, wn, ll, Vk, s, T2, cw)
         if not ls > -np.inf:  # every weight zero: documented reset to equal weights
             for i in range(N):
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             act = 3
-        out_ll[k] = ls_data
+        out_ll[kk] = ls_data
         # --- estimates
         m, sd = _mean_std(T, wn)
-        out_mean[k] = m
-        out_std[k] = sd
+        out_mean[kk] = m
+        out_std[kk] = sd
         if s.want_quantiles:
-            out_qlo[k], out_qhi[k] = _interval(T, wn, s, ibuf)
+            out_qlo[kk], out_qhi[kk] = _interval(T, wn, s, ibuf, fbuf)
         ess = ess_row(wn)
-        out_ess[k] = ess
+        out_ess[kk] = ess
         # --- resampling / adaptive spread
         spread = False
         if s.variant == 1:
@@ -445,6 +495,9 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             act = 1
-        out_act[k] = act
+        out_act[kk] = act
+    sc[0] = win_sum
+    sc[1] = win_cnt
+    sc[2] = n_bad
     return (out_mean, out_std, out_qlo, out_qhi, out_ess, out_act, out_clip, out_gamma, out_ll,
             out_flag)

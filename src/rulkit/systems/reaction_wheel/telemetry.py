@@ -20,12 +20,13 @@ row + 2, the header being line 1); both are given in CSV messages.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rulkit.tables import did_you_mean, numeric_columns, read_table
+from rulkit.tables import did_you_mean, numeric_columns, read_table, read_table_chunks
 
 TIME, VOLT, SPEED, CURRENT = "time_s", "v_comm_V", "speed_rad_s", "current_A"
 COLUMNS: tuple[str, ...] = (TIME, VOLT, SPEED, CURRENT)
@@ -55,6 +56,11 @@ JUMP_SLACK_RAD_S = 1.0
 MIN_PEAK_SPEED_RAD_S = 0.5
 
 
+#: The sampling step is the median of the first DT_WINDOW steps (all of them in a shorter
+#: record): the same step whether a record is read whole or in chunks.
+DT_WINDOW = 1000
+
+
 class TelemetryError(ValueError):
     """A telemetry file or frame that cannot be used; the message names field and row."""
 
@@ -72,11 +78,52 @@ def read_wheel_telemetry(path: str | Path, *, dt_tolerance: float = 0.01) -> Any
     """Read and validate a wheel telemetry file (``.csv``, ``.parquet`` or ``.pq``).
 
     Returns a ``pandas.DataFrame`` with exactly the columns :data:`COLUMNS` (float64) and
-    ``df.attrs["dt"]`` the sampling step. See :func:`validate_wheel_telemetry`.
+    ``df.attrs["dt"]`` the sampling step. See :func:`validate_wheel_telemetry`; for a record
+    too large to hold at once, :func:`iter_wheel_telemetry`.
     """
     df = read_table(path, error=TelemetryError, expected_columns=COLUMNS)
     return validate_wheel_telemetry(df, source=str(path), dt_tolerance=dt_tolerance,
                                     csv=df.attrs["format"] == "csv")
+
+
+def iter_wheel_telemetry(
+    path: str | Path, *, chunk_rows: int = 200_000, dt_tolerance: float = 0.01
+) -> Iterator[Any]:
+    """Read and validate a wheel telemetry file ``chunk_rows`` rows at a time (memory bounded
+    by the chunk): yields clean float64 frames (columns :data:`COLUMNS`, ``attrs`` ``"dt"``,
+    ``"row0"`` the file row of the chunk's first row, ``"source"``).
+
+    The checks are those of :func:`validate_wheel_telemetry`, carried across chunks (a
+    repeated, decreasing or irregular time, or a speed jump, at a chunk boundary is found as
+    anywhere else); the first chunk is extended to hold the :data:`DT_WINDOW` steps that set
+    the sampling step, so the step (and every estimate) does not depend on ``chunk_rows``. The
+    no-information check (peak speed) needs the whole record and is made after the last chunk
+    has been yielded, so a caller writing results as it goes must write them to a temporary
+    file and keep it only when the iteration ends without an error.
+    """
+    import pandas as pd
+
+    if chunk_rows < 2:
+        raise ValueError(f"chunk_rows: expected >= 2, got {chunk_rows}")
+    check: _TelemetryCheck | None = None
+    head: list[Any] = []  # the first chunks, until they hold the sampling-step window
+    for raw in read_table_chunks(path, COLUMNS, chunk_rows=chunk_rows, error=TelemetryError):
+        if check is None:
+            head.append(raw)
+            if sum(len(h) for h in head) <= DT_WINDOW:
+                continue
+            check = _TelemetryCheck(str(path), raw.attrs["format"] == "csv", dt_tolerance,
+                                    raw.attrs["header"])
+            yield check.chunk(pd.concat(head) if len(head) > 1 else head[0], 0)
+            head = []
+            continue
+        yield check.chunk(raw, raw.attrs["row0"])
+    if check is None and head:  # a record shorter than the window
+        check = _TelemetryCheck(str(path), head[0].attrs["format"] == "csv", dt_tolerance,
+                                head[0].attrs["header"])
+        yield check.chunk(pd.concat(head) if len(head) > 1 else head[0], 0)
+    if check is not None:
+        check.finish()
 
 
 def validate_wheel_telemetry(
@@ -87,69 +134,117 @@ def validate_wheel_telemetry(
     Checks, in order: not empty; the four columns present (close names suggested); values
     numeric; no NaN/inf (first bad row); ``time_s`` strictly increasing (first repeated or
     decreasing row); regular sampling (every step within ``dt_tolerance`` (relative) of the
-    median step; first offending row); plausible units (speed ``<= 1000`` rad/s, current
-    ``<= 5`` A, ``|voltage| <= 5`` V; first offending row). At least 2 rows.
+    median of the first :data:`DT_WINDOW` steps; first offending row); plausible units (speed
+    ``<= 1000`` rad/s, current ``<= 5`` A, ``|voltage| <= 5`` V; first offending row);
+    physics (sampling step, speed jumps, some speed at all: :class:`ImplausibleTelemetryError`).
+    At least 2 rows.
     """
     import pandas as pd
 
     if not isinstance(df, pd.DataFrame):
         raise TelemetryError(f"{source}: expected a pandas DataFrame, got {type(df).__name__}")
-    if TIME in df.columns:
-        df = _time_in_seconds(df, source)
-    present = [str(c) for c in df.columns]
-    missing = [c for c in COLUMNS if c not in present]
-    if missing:
-        msgs = [f"missing column {m!r}{did_you_mean(m, present, _ALIASES[m])}" for m in missing]
-        raise TelemetryError(f"{source}: " + "; ".join(msgs) + f" (columns found: {present})")
-    if len(df) == 0:
-        raise TelemetryError(f"{source}: no data rows (header only)")
-    if len(df) < 2:
-        raise TelemetryError(f"{source}: need at least 2 rows, got {len(df)}")
-    cols = numeric_columns(df, COLUMNS, error=TelemetryError, source=source,
-                           row_label=lambda r: _where(r, csv))
-    out = pd.DataFrame(cols, index=pd.RangeIndex(len(df)))
-    t = out[TIME].to_numpy()
-    d = np.diff(t)
-    if (d == 0).any():
-        r = int(np.flatnonzero(d == 0)[0]) + 1
-        raise TelemetryError(
-            f"{source}: column {TIME!r}, {_where(r, csv)}: repeated time {t[r]} (same as the "
-            f"previous row)"
-        )
-    if (d < 0).any():
-        r = int(np.flatnonzero(d < 0)[0]) + 1
-        raise TelemetryError(
-            f"{source}: column {TIME!r}, {_where(r, csv)}: time {t[r]} is before the previous "
-            f"row's {t[r - 1]} (times must be sorted, strictly increasing)"
-        )
-    dt = float(np.median(d))
-    if not dt_tolerance >= 0:
-        raise ValueError(f"dt_tolerance: must be >= 0, got {dt_tolerance}")
-    irregular = np.abs(d - dt) > dt_tolerance * dt
-    if irregular.any():
-        r = int(np.flatnonzero(irregular)[0]) + 1
-        raise TelemetryError(
-            f"{source}: column {TIME!r}, {_where(r, csv)}: step {d[r - 1]:.6g} s differs from "
-            f"the median step {dt:.6g} s by more than {100 * dt_tolerance:g} % (irregular "
-            f"sampling; resample to a fixed step first)"
-        )
-    checks = (
-        (SPEED, MAX_SPEED_RAD_S, "rad/s", "looks like rpm? rad/s = rpm * 2 pi / 60"),
-        (CURRENT, MAX_CURRENT_A, "A", "looks like mA? A = mA / 1000"),
-        (VOLT, MAX_VOLTAGE_V, "V", "the wheel model's command range is 0-5 V (seed Table 2)"),
-    )
-    for c, lim, unit, hint in checks:
-        v = np.abs(out[c].to_numpy())
-        if (v > lim).any():
-            r = int(np.flatnonzero(v > lim)[0])
-            raise TelemetryError(
-                f"{source}: column {c!r}, {_where(r, csv)}: |value| {v[r]:.6g} {unit} exceeds "
-                f"{lim:g} {unit} ({hint})"
-            )
-    _check_physics(out, dt, source, csv)
-    out.attrs["dt"] = dt
-    out.attrs["source"] = source
+    check = _TelemetryCheck(source, csv, dt_tolerance, [str(c) for c in df.columns])
+    out = check.chunk(df, 0)
+    check.finish()
     return out
+
+
+class _TelemetryCheck:
+    """The checks of :func:`validate_wheel_telemetry` over a record given in one or more
+    consecutive chunks (state: the last time and speed seen, the sampling step, the peak
+    speed, the row count)."""
+
+    def __init__(self, source: str, csv: bool, dt_tolerance: float, header: list[str]) -> None:
+        if not dt_tolerance >= 0:
+            raise ValueError(f"dt_tolerance: must be >= 0, got {dt_tolerance}")
+        self.source, self.csv, self.tol = source, csv, dt_tolerance
+        missing = [c for c in COLUMNS if c not in header]
+        if missing:
+            msgs = [f"missing column {m!r}{did_you_mean(m, header, _ALIASES[m])}"
+                    for m in missing]
+            raise TelemetryError(f"{source}: " + "; ".join(msgs) + f" (columns found: {header})")
+        self.dt: float | None = None
+        self.last_t = self.last_w = np.nan
+        self.peak = 0.0
+        self.rows = 0
+
+    def where(self, r: int) -> str:
+        return _where(r, self.csv)
+
+    def chunk(self, df: Any, row0: int) -> Any:
+        """The clean float64 frame of rows ``row0 ..`` of the record (``attrs`` dt, row0)."""
+        import pandas as pd
+
+        src = self.source
+        if TIME in df.columns:
+            df = _time_in_seconds(df, src)
+        if len(df) == 0:
+            raise TelemetryError(f"{src}: no data rows (header only)")
+        if row0 == 0 and len(df) < 2:
+            raise TelemetryError(f"{src}: need at least 2 rows, got {len(df)}")
+        cols = numeric_columns(df, COLUMNS, error=TelemetryError, source=src,
+                               row_label=lambda r: self.where(row0 + r))
+        out = pd.DataFrame(cols, index=pd.RangeIndex(row0, row0 + len(df)))
+        t = out[TIME].to_numpy()
+        first = row0 == 0
+        # steps from the previous chunk's last row on (d[j] ends at row row0 + j + first)
+        d = np.diff(t) if first else np.diff(t, prepend=self.last_t)
+        at = row0 + (1 if first else 0)  # the file row d[0] ends at
+        tprev = t[:-1] if first else np.concatenate([[self.last_t], t[:-1]])
+        if (d == 0).any():
+            j = int(np.flatnonzero(d == 0)[0])
+            raise TelemetryError(
+                f"{src}: column {TIME!r}, {self.where(at + j)}: repeated time {tprev[j]} (same "
+                "as the previous row)")
+        if (d < 0).any():
+            j = int(np.flatnonzero(d < 0)[0])
+            raise TelemetryError(
+                f"{src}: column {TIME!r}, {self.where(at + j)}: time {tprev[j] + d[j]} is "
+                f"before the previous row's {tprev[j]} (times must be sorted, strictly "
+                "increasing)")
+        if self.dt is None:
+            self.dt = float(np.median(d[:DT_WINDOW]))
+        dt = self.dt
+        irregular = np.abs(d - dt) > self.tol * dt
+        if irregular.any():
+            j = int(np.flatnonzero(irregular)[0])
+            raise TelemetryError(
+                f"{src}: column {TIME!r}, {self.where(at + j)}: step {d[j]:.6g} s differs from "
+                f"the median step {dt:.6g} s by more than {100 * self.tol:g} % (irregular "
+                "sampling; resample to a fixed step first)")
+        checks = (
+            (SPEED, MAX_SPEED_RAD_S, "rad/s", "looks like rpm? rad/s = rpm * 2 pi / 60"),
+            (CURRENT, MAX_CURRENT_A, "A", "looks like mA? A = mA / 1000"),
+            (VOLT, MAX_VOLTAGE_V, "V", "the wheel model's command range is 0-5 V (seed Table 2)"),
+        )
+        for c, lim, unit, hint in checks:
+            v = np.abs(out[c].to_numpy())
+            if (v > lim).any():
+                r = int(np.flatnonzero(v > lim)[0])
+                raise TelemetryError(
+                    f"{src}: column {c!r}, {self.where(row0 + r)}: |value| {v[r]:.6g} {unit} "
+                    f"exceeds {lim:g} {unit} ({hint})")
+        if first:
+            _check_step(dt, src)
+        w = out[SPEED].to_numpy()
+        _check_jumps(w if first else np.concatenate([[self.last_w], w]), dt, src,
+                     lambda j: self.where(at + j - 1), self.csv)
+        self.peak = max(self.peak, float(np.max(np.abs(w))))
+        self.last_t, self.last_w = float(t[-1]), float(w[-1])
+        self.rows += len(out)
+        out.attrs.update(dt=dt, source=src, row0=row0)
+        return out
+
+    def finish(self) -> None:
+        """The checks that need the whole record (raises :class:`TelemetryError`)."""
+        if self.rows == 0:
+            raise TelemetryError(f"{self.source}: no data rows (header only)")
+        if self.peak < MIN_PEAK_SPEED_RAD_S:
+            raise ImplausibleTelemetryError(
+                f"{self.source}: column {SPEED!r}: the wheel never exceeds "
+                f"{MIN_PEAK_SPEED_RAD_S:g} rad/s (all-zero or standing-still record); the "
+                "lubricant temperature acts only through the viscous torque b_v(T) w, so this "
+                "record carries no temperature information")
 
 
 def _time_in_seconds(df: Any, source: str) -> Any:
@@ -177,27 +272,25 @@ def _time_in_seconds(df: Any, source: str) -> Any:
     return df
 
 
-def _check_physics(out: Any, dt: float, source: str, csv: bool) -> None:
-    """Physical plausibility of a well-formed record (raises :class:`ImplausibleTelemetryError`)."""
+def _check_step(dt: float, source: str) -> None:
+    """A sampling step the wheel model can integrate (:class:`ImplausibleTelemetryError`)."""
     if not MIN_DT_S <= dt <= MAX_DT_S:
         raise ImplausibleTelemetryError(
             f"{source}: column {TIME!r}: sampling step {dt:.6g} s is outside "
             f"[{MIN_DT_S:g}, {MAX_DT_S:g}] s, the steps the wheel model can be integrated with "
             "(is time in seconds?)"
         )
-    w = out[SPEED].to_numpy()
+
+
+def _check_jumps(w: Any, dt: float, source: str, where: Any, csv: bool) -> None:
+    """No speed change between consecutive samples of ``w`` that no wheel can make;
+    ``where(j)`` names the row of ``w[j]``."""
     jump = np.abs(np.diff(w)) > MAX_ACCEL_RAD_S2 * dt + JUMP_SLACK_RAD_S
     if jump.any():
         r = int(np.flatnonzero(jump)[0]) + 1
         raise ImplausibleTelemetryError(
-            f"{source}: column {SPEED!r}, {_where(r, csv)}: speed jumps from {w[r - 1]:.6g} to "
+            f"{source}: column {SPEED!r}, {where(r)}: speed jumps from {w[r - 1]:.6g} to "
             f"{w[r]:.6g} rad/s in one {dt:.6g} s step; no wheel accelerates that fast "
             f"(> {MAX_ACCEL_RAD_S2:g} rad/s^2): records spliced or tiled together? Give one "
             "continuous record"
-        )
-    if np.max(np.abs(w)) < MIN_PEAK_SPEED_RAD_S:
-        raise ImplausibleTelemetryError(
-            f"{source}: column {SPEED!r}: the wheel never exceeds {MIN_PEAK_SPEED_RAD_S:g} rad/s "
-            "(all-zero or standing-still record); the lubricant temperature acts only through "
-            "the viscous torque b_v(T) w, so this record carries no temperature information"
         )

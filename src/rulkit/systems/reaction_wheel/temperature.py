@@ -37,7 +37,7 @@ Beyond the seeds: the Rao-Blackwellised PF over T with a Kalman filter on [I, w]
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -243,7 +243,16 @@ def filter_temperature(
     if backend != "numba":
         raise ValueError(f"backend: expected 'numba' or 'numpy', got {backend!r}")
     inp = kern.KernelInputs(d["y"], d["V"], d["S_inv"], d["init_sd"], kern.pack_params(p))
-    settings = kern.KernelSettings(
+    settings = kernel_settings(cfg, d, t0, dt, quantiles)
+    out = kern.pf_kernel(inp, settings, rng)
+    t = t0 + dt * np.arange(d["y"].shape[0])
+    return TemperatureResult(t, *out, config=cfg)
+
+
+def kernel_settings(cfg: TemperatureConfig, d: dict[str, Any], t0: float, dt: float,
+                    quantiles: bool = True) -> kern.KernelSettings:
+    """The fused kernel's scalar settings for ``cfg`` (``d`` from :func:`_prepare`)."""
+    return kern.KernelSettings(
         t0=float(t0), dt=float(dt), design=kern.DESIGNS[cfg.design],
         variant=kern.VARIANTS[cfg.variant], n=int(cfg.n_particles), T_lo=float(cfg.T_prior[0]),
         T_hi=float(cfg.T_prior[1]), q_T=float(cfg.q_T), q_I=float(cfg.q_I), q_w=float(cfg.q_w),
@@ -256,9 +265,6 @@ def filter_temperature(
         gate_d2=float(cfg.gate_d2), reanchor_after=int(cfg.reanchor_after),
         rollback=int(cfg.rollback),
     )
-    out = kern.pf_kernel(inp, settings, rng)
-    t = t0 + dt * np.arange(d["y"].shape[0])
-    return TemperatureResult(t, *out, config=cfg)
 
 
 # --------------------------------------------------------------------------------------------
@@ -476,25 +482,59 @@ def run_ekf(
     with the tangent-linear RK4 Jacobian (:func:`rk4_wheel_step_jacobian`; finite differences
     when ``analytic_jacobian=False``).
     """
-    from rulkit.estimation.kalman import ExtendedKalmanFilter
-
-    p = params or IthacoParams()
     Y = np.asarray(ys, dtype=np.float64)
     if Y.ndim == 2:
         Y = Y[:, None, :]
     if Y.ndim != 3 or Y.shape[2] != 2 or Y.shape[0] < 2:
         raise ValueError(f"ys: expected shape (K, 2) or (K, B, 2), got {np.shape(ys)}")
     V = np.asarray(V, dtype=np.float64)
-    K, B = Y.shape[:2]
+    K = Y.shape[0]
     if V.shape != (K,):
         raise ValueError(f"V: expected shape ({K},), got {V.shape}")
+    ekf, x0, P0, clock = ekf_setup(Y[0], sigma, params, q_T=q_T, q_Iw=q_Iw, T_prior=T_prior,
+                                   analytic_jacobian=analytic_jacobian)
+    clock.t0, clock.dt = t0, dt
+    res = ekf.filter(Y[1:], x0, P0, us=V[:-1])
+    T_mean = np.vstack([x0[None, :, 2], res.x[:, :, 2]])
+    T_std = np.vstack([np.sqrt(P0[None, :, 2, 2]), np.sqrt(res.P[:, :, 2, 2])])
+    return EKFResult(t0 + dt * np.arange(K), T_mean, T_std)
+
+
+@dataclass
+class StepClock:
+    """Time of step ``j`` of an EKF run: ``t0 + j dt`` (mutable, so one filter object can
+    continue a record chunk after chunk)."""
+
+    t0: float = 0.0
+    dt: float = 0.05
+
+
+def ekf_setup(
+    y0: FloatArray,
+    sigma: tuple[float, float] | FloatArray,
+    params: IthacoParams | None = None,
+    *,
+    q_T: float = 0.02,
+    q_Iw: tuple[float, float] = (1e-6, 1e-6),
+    T_prior: tuple[float, float] = (15.0, 45.0),
+    analytic_jacobian: bool = True,
+) -> tuple[Any, FloatArray, FloatArray, StepClock]:
+    """The wheel EKF of :func:`run_ekf` for B units whose first sample is ``y0`` (B, 2) =
+    [w, I_m]: (filter, prior mean x0 (B, 3), prior covariance P0 (B, 3, 3), its
+    :class:`StepClock`)."""
+    from rulkit.estimation.kalman import ExtendedKalmanFilter
+
+    p = params or IthacoParams()
+    y0 = np.asarray(y0, dtype=np.float64)
+    B = y0.shape[0]
+    clock = StepClock()
 
     def f(x: FloatArray, u: float, j: int) -> FloatArray:
-        X = rk4_wheel_step(x[:, :2], u, x[:, 2], t0 + j * dt, dt, p)
+        X = rk4_wheel_step(x[:, :2], u, x[:, 2], clock.t0 + j * clock.dt, clock.dt, p)
         return np.column_stack([X, x[:, 2]])
 
     def jac_f(x: FloatArray, u: float, j: int) -> FloatArray:
-        return rk4_wheel_step_jacobian(x, u, x[:, 2], t0 + j * dt, dt, p)
+        return rk4_wheel_step_jacobian(x, u, x[:, 2], clock.t0 + j * clock.dt, clock.dt, p)
 
     def h(x: FloatArray, u: float, j: int) -> FloatArray:
         return np.column_stack([x[:, 1], x[:, 0]])
@@ -511,13 +551,10 @@ def run_ekf(
     ekf = ExtendedKalmanFilter(f, h, Q, R, jac_f=jac_f if analytic_jacobian else None,
                                jac_h=lambda x, u, j: H)
     lo, hi = T_prior
-    x0 = np.column_stack([Y[0, :, 1], Y[0, :, 0], np.full(B, 0.5 * (lo + hi))])
+    x0 = np.column_stack([y0[:, 1], y0[:, 0], np.full(B, 0.5 * (lo + hi))])
     P0 = np.zeros((B, 3, 3))
     P0[:, 0, 0], P0[:, 1, 1], P0[:, 2, 2] = sI**2, sw**2, (hi - lo) ** 2 / 12.0
-    res = ekf.filter(Y[1:], x0, P0, us=V[:-1])
-    T_mean = np.vstack([x0[None, :, 2], res.x[:, :, 2]])
-    T_std = np.vstack([np.sqrt(P0[None, :, 2, 2]), np.sqrt(res.P[:, :, 2, 2])])
-    return EKFResult(t0 + dt * np.arange(K), T_mean, T_std)
+    return ekf, x0, P0, clock
 
 
 # --------------------------------------------------------------------------------------------
@@ -539,138 +576,12 @@ def table3_telemetry(
                         | {"T_lub_C": d.T})
 
 
-def estimate_temperature(
-    df: Any,
-    method: str = "adaptive",
-    n_particles: int = 350,
-    rng: np.random.Generator | None = None,
-    *,
-    design: str = "F2",
-    noise: str | tuple[float, float] = "low",
-    config: Any = None,
-    level: float = 0.95,
-) -> Any:
-    """Estimate the lubricant temperature from wheel telemetry (docs/systems/reaction-wheel.md §3).
-
-    ``df``: a frame with columns time_s, v_comm_V, speed_rad_s, current_A (validated with
-    :func:`rulkit.systems.reaction_wheel.telemetry.validate_wheel_telemetry`; regular sampling, its
-    step is dt).
-    ``method``: ``"pf"``, ``"adaptive"``, ``"apf_eq28"``, ``"apf_tempered"`` (particle filters,
-    need ``rng``), ``"rbpf"`` (Rao-Blackwellised PF, beyond the seeds: ``design`` one of
-    :data:`rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS`, "RBJ" when ``design`` is left at
-    "F2"; ``config`` may be an :class:`RBPFConfig`) or ``"ekf"`` (deterministic).
-    ``noise``: the measurement-noise level assumed
-    ("low", "high" of seed Table 5, or ``(sigma_w, sigma_I)``). ``config`` overrides every PF
-    setting. Returns a DataFrame (time_s, T_mean, T_lo, T_hi) with the ``level`` interval
-    (weighted particle quantiles; for the EKF mean +- z sd).
-
-    Which method: on the simulated Table 3 path the EKF reference is the most accurate and the
-    F2 particle filters beat the seed-faithful F1 (compare the rows of
-    ``run_table5(designs=("F1", "F2"), extra=True)``); the seed particle filters' intervals
-    are overconfident after the 50 s temperature step (see :func:`plot_temperature_estimates`).
-    Among particle filters use ``"rbpf"``: with q_T = 0.02 C per sample the Gaussian random
-    walk gives the 8 C step at 50 s no prior mass, the cloud lags and then overshoots (its
-    speeds can only be corrected through T), so every q_T = 0.02 PF is poor for ~200 s. With
-    [I, w] marginalised, "RB05" (q_T = 0.05) matches the EKF run with the same q_T, and "RBJ"
-    (q_T = 0.01 plus proposed jumps; the default) matches the q_T = 0.02 EKF after 100 s and
-    beats it over 0-500 s at N >= 100 (``run_table5(designs=("RB05", "RBJ"),
-    coverage=True)``).
-    """
-    import pandas as pd
-    from scipy.stats import norm
-
-    from rulkit.systems.reaction_wheel.telemetry import (
-        CURRENT,
-        SPEED,
-        TIME,
-        VOLT,
-        validate_wheel_telemetry,
-    )
-
-    clean = validate_wheel_telemetry(df, source="telemetry")
-    dt = float(clean.attrs["dt"])
-    t = clean[TIME].to_numpy()
-    y = np.column_stack([clean[SPEED].to_numpy(), clean[CURRENT].to_numpy()])
-    V = clean[VOLT].to_numpy()
-    sigma = NOISE_LEVELS[noise] if isinstance(noise, str) else tuple(float(s) for s in noise)
-    if isinstance(noise, str) and noise not in NOISE_LEVELS:
-        raise ValueError(f"noise: expected one of {sorted(NOISE_LEVELS)} or (sigma_w, sigma_I)")
-    if not 0 < level < 1:
-        raise ValueError(f"level: expected 0 < level < 1, got {level}")
-    if method == "ekf":
-        r = run_ekf(y, V, sigma=sigma, dt=dt, t0=float(t[0]))
-        z = float(norm.ppf(0.5 + level / 2))
-        m, s = r.T_mean[:, 0], r.T_std[:, 0]
-        return _checked(pd.DataFrame({"time_s": t, "T_mean": m, "T_lo": m - z * s,
-                                      "T_hi": m + z * s,
-                                      "untrusted": np.zeros(t.size, dtype=bool)}))
-    if method not in kern.VARIANTS and method != "rbpf":
-        raise ValueError(
-            f"method: expected 'ekf', 'rbpf' or one of {sorted(kern.VARIANTS)}, got {method!r}"
-        )
-    if rng is None:
-        raise ValueError("a particle-filter method needs rng (a numpy.random.Generator)")
-    q = (0.5 - level / 2, 0.5 + level / 2)
-    if method == "rbpf":
-        from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, RBPFConfig, run_rbpf
-
-        if config is None:
-            name = "RBJ" if design == "F2" else design
-            if name not in RBPF_DESIGNS:
-                raise ValueError(f"design: method 'rbpf' takes one of {sorted(RBPF_DESIGNS)}, "
-                                 f"got {design!r}")
-            config = replace(RBPF_DESIGNS[name], n_particles=n_particles, quantiles=q)
-        elif not isinstance(config, RBPFConfig):
-            raise ValueError("config: method 'rbpf' needs an RBPFConfig")
-        rb = run_rbpf(y, V, rng, config, sigma=sigma, dt=dt, t0=float(t[0]))
-        est = pd.DataFrame({"time_s": t, "T_mean": rb.T_mean, "T_lo": rb.T_lo,
-                            "T_hi": rb.T_hi, "untrusted": np.zeros(t.size, dtype=bool)})
-        est.attrs["note"] = RBPF_INTERVAL_NOTE
-        return _checked(est)
-    if design not in kern.DESIGNS:
-        raise ValueError(f"design: expected one of {sorted(kern.DESIGNS)}, got {design!r}")
-    cfg = config or TemperatureConfig(design=design, variant=method,  # type: ignore[arg-type]
-                                n_particles=n_particles, quantiles=q, gate_d2=DEFAULT_GATE_D2)
-    res = filter_temperature(y, V, rng, cfg, sigma=sigma, dt=dt, t0=float(t[0]))
-    return _checked(pd.DataFrame({"time_s": t, "T_mean": res.T_mean, "T_lo": res.T_lo,
-                                  "T_hi": res.T_hi, "untrusted": res.untrusted.astype(bool)}))
-
-
-#: Temperatures the wheel model describes (C): the viscous coefficient b_v(T) is positive
-#: from below -30 C up to 215 C (docs/systems/reaction-wheel.md, (RW-7)).
-MODEL_RANGE_C = (-30.0, 215.0)
-ABSOLUTE_ZERO_C = -273.15
-
-
-class ImplausibleEstimateError(ValueError):
-    """The filter's estimate left physics (non-finite or below absolute zero)."""
-
-
-def _checked(est: Any) -> Any:
-    """Refuse a physically impossible estimate; note samples outside the model's range."""
-    m = est["T_mean"].to_numpy()
-    bad = ~np.isfinite(m) | (m < ABSOLUTE_ZERO_C)
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise ImplausibleEstimateError(
-            f"the temperature estimate is {m[r]:.6g} C at time_s = {est['time_s'].iloc[r]:g} "
-            f"(row {r}), below absolute zero or not finite: the telemetry does not follow the "
-            "wheel model (wrong units, wrong noise level, or not this wheel); nothing written"
-        )
-    lo, hi = MODEL_RANGE_C
-    out = (m < lo) | (m > hi)
-    if out.any():
-        r = int(np.flatnonzero(out)[0])
-        est.attrs["warning"] = (
-            f"{int(out.sum())} estimates outside {lo:g}..{hi:g} C, the range the wheel model "
-            f"describes (first: {m[r]:.4g} C at time_s = {est['time_s'].iloc[r]:g}); treat them "
-            "as a sign the telemetry does not fit the model")
-    return est
-
-
 # The Table 5 study and its figures live in temperature_study (names kept importable here).
 _STUDY = ("PAPER_TABLE5", "TABLE5_N", "COVERAGE_QUANTILES", "run_table5", "format_table5",
           "plot_temperature_estimates")
+# ... and the user-telemetry estimate in temperature_estimate
+_ESTIMATE = ("estimate_temperature", "ImplausibleEstimateError", "MODEL_RANGE_C",
+             "ABSOLUTE_ZERO_C", "TemperatureEstimator")
 
 
 def __getattr__(name: str) -> Any:
@@ -678,4 +589,8 @@ def __getattr__(name: str) -> Any:
         from rulkit.systems.reaction_wheel import temperature_study
 
         return getattr(temperature_study, name)
+    if name in _ESTIMATE:
+        from rulkit.systems.reaction_wheel import temperature_estimate
+
+        return getattr(temperature_estimate, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
