@@ -46,12 +46,11 @@ def reference(state, seg, t, hi, cfg):
     return state, rows
 
 
-@pytest.mark.parametrize("jit", [False, True])
+@pytest.mark.parametrize("strategy", ["python", "jit", "ranks"])
 @pytest.mark.parametrize("initiation,clip,m", [("floor", False, 2.0), ("two-point", False, 2.0),
                                                ("measured", True, 2.0), ("floor", True, 3.0),
                                                ("measured", False, 2.4)])
-def test_tracker_run_equals_rank_by_rank_updates(monkeypatch, jit, initiation, clip, m):
-    monkeypatch.setattr(tc, "JIT_MIN_ROWS", 0 if jit else 10**9)
+def test_tracker_run_equals_rank_by_rank_updates(strategy, initiation, clip, m):
     rng = np.random.default_rng(11)
     cfg = TrackerConfig(dt=1.0, lambda_hi=0.1, lambda_rul=0.1, design_life=1e4,
                         warn_rul=60.0, hi_sigma=0.02, initiation=initiation, rul_clip=clip,
@@ -64,7 +63,7 @@ def test_tracker_run_equals_rank_by_rank_updates(monkeypatch, jit, initiation, c
     last = np.where(np.isfinite(start.t), start.t, 0.0)
     t2 = t2 + np.repeat(last, np.diff(seg2))  # after each component's stored time
     exp_state, exp = reference(start, seg2, t2, h2, cfg)
-    got_state, got = tracker_run(start, seg2, t2, h2, cfg)
+    got_state, got = tracker_run(start, seg2, t2, h2, cfg, strategy=strategy)
     assert exp["valid"].any() and exp["level"].max() == 2, "the fixture must alert"
     for k in exp:
         np.testing.assert_array_equal(got[k], exp[k], err_msg=k)
@@ -72,8 +71,20 @@ def test_tracker_run_equals_rank_by_rank_updates(monkeypatch, jit, initiation, c
         np.testing.assert_array_equal(got_state.columns()[k], v, err_msg=k)
 
 
+def test_strategy_follows_the_shape_of_the_batch(monkeypatch):
+    monkeypatch.setattr(tc, "_JITTED", {})
+    assert tc.tracker_strategy(1, 100_000) == "ranks"  # a fleet's periodic batch
+    assert tc.tracker_strategy(50, 200) == "python"  # a short history
+    assert tc.tracker_strategy(20 * 1000, 2_000_000) == "jit"  # 20 blocks of 1000 ranks
+    assert tc.tracker_strategy(2_000_000, 2_000_000) == "jit"  # one long series
+    monkeypatch.setattr(tc, "_JITTED", {"hi": None})
+    assert tc.tracker_strategy(20, 500) == "jit"  # once loaded, compiled loops are the cheapest
+
+
+@pytest.mark.parametrize("strategy", ["python", "jit", "ranks"])
 @pytest.mark.parametrize("block", [3, 250_000])
-def test_ingest_history_and_alerts_equal_the_rank_by_rank_reference(tmp_path, monkeypatch, block):
+def test_ingest_history_and_alerts_equal_the_rank_by_rank_reference(tmp_path, monkeypatch, block,
+                                                                    strategy):
     """The store's blocked ingestion (tracker_run per block of components, history in key
     order, alerts from a running maximum) against tracker_update per rank: exact equality of
     every stored number and the same alerts in the same order, over two batches."""
@@ -82,6 +93,9 @@ def test_ingest_history_and_alerts_equal_the_rank_by_rank_reference(tmp_path, mo
     from rulkit.fleet.store import ComponentStore, ingest_into
 
     monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", block)
+    import rulkit.fleet.store as store_module
+
+    monkeypatch.setattr(store_module, "tracker_strategy", lambda n_ranks, n_rows: strategy)
     rng = np.random.default_rng(5)
     cfg = TrackerConfig(dt=1.0, lambda_hi=0.1, lambda_rul=0.1, design_life=1e4, warn_rul=60.0,
                         hi_sigma=0.02, initiation="two-point")

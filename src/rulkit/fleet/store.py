@@ -90,6 +90,7 @@ from rulkit.fleet.tracker_chain import (
     TrackerState,
     tracker_outputs,
     tracker_run,
+    tracker_strategy,
 )
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
@@ -612,17 +613,25 @@ class ComponentStore:
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
         alerts: list[tuple[int, int, Alert]] = []
+        blocks = []  # components k0 .. k1-1 (in key order) form a block
         k0 = 0
         while k0 < b:
-            k1 = k0 + 1  # components k0 .. k1-1 (in key order) form the block
+            k1 = k0 + 1
             while k1 < b and comp_start[k1 + 1] - comp_start[k0] <= self.BLOCK_ROWS:
                 k1 += 1
+            blocks.append((k0, k1))
+            k0 = k1
+        # one way to run the trackers for the whole batch (tracker_run's cost model, with the
+        # rank loops of all blocks against loading the compiled passes once)
+        strategy = tracker_strategy(sum(int(counts[k0:k1].max()) for k0, k1 in blocks), n)
+        for k0, k1 in blocks:
             rows_b = by_comp[comp_start[k0]:comp_start[k1]]  # block rows, key order
             comps = sorted_pos[k0:k1]  # component indices (into names / state)
             seg = comp_start[k0:k1 + 1] - comp_start[k0]
             cidx = np.repeat(np.arange(k1 - k0), counts[k0:k1])  # block-local component
             t_b, hi_b = t[rows_b], hi[rows_b]
-            sub, out = tracker_run(state.take(comps), seg, t_b, hi_b, self.config, self.gains)
+            sub, out = tracker_run(state.take(comps), seg, t_b, hi_b, self.config, self.gains,
+                                   strategy=strategy)
             finite = np.ones(rows_b.size, dtype=bool)
             for f in out_fields:
                 finite &= np.isfinite(out[f])
@@ -675,7 +684,6 @@ class ComponentStore:
                 self._write_history(HistoryChunk(cols_out, ingest_id, extra_cols))
                 del cols_out
             del out, comp_b, t_b, hi_b
-            k0 = k1
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
         fin = tracker_outputs(state, self.config)
         final = {**state.columns(), "valid": fin.valid, "level": fin.level,

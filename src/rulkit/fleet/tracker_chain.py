@@ -662,9 +662,27 @@ def tracker_update_loop(
 # Many acquisitions per component: the chain as two sequential passes (ingestion of a batch)
 # --------------------------------------------------------------------------------------------
 
-JIT_MIN_ROWS = 20_000
-""":func:`tracker_run` compiles its two passes with numba (cached on disk) from this many rows
-on; smaller batches run the same functions as plain Python (no numba import, no JIT)."""
+# Cost model of :func:`tracker_run`'s three equal-result strategies, in seconds, measured on
+# the 2-core development machine (`benchmarks/bench_scale.py` shows the outcome):
+# one vectorised tracker_update per acquisition rank (~0.12 ms a call: few ranks, many
+# components, e.g. a fleet's periodic batch), the per-component passes as plain Python
+# (~3 us an acquisition: small batches) or compiled by numba (~0.15 us an acquisition, but
+# loading numba and its cache costs ~0.55 s and ~100 MB once per process: long series).
+_COST_PER_RANK = 1.2e-4
+_COST_PER_RANK_ROW = 2.5e-7
+_COST_PER_PYTHON_ROW = 3e-6
+_COST_PER_JIT_ROW = 1.5e-7
+_COST_JIT_LOAD = 0.55
+
+
+def tracker_strategy(n_ranks: int, n_rows: int) -> str:
+    """``"ranks"``, ``"python"`` or ``"jit"``: the cheapest way for :func:`tracker_run` to
+    run ``n_rows`` acquisitions that take ``n_ranks`` rank steps (the most acquisitions of
+    one component, summed over the calls)."""
+    costs = {"ranks": n_ranks * _COST_PER_RANK + n_rows * _COST_PER_RANK_ROW,
+             "python": n_rows * _COST_PER_PYTHON_ROW,
+             "jit": n_rows * _COST_PER_JIT_ROW + (0.0 if _JITTED else _COST_JIT_LOAD)}
+    return min(costs, key=costs.__getitem__)
 
 
 def _hi_pass(seg, t, z, t0, n0, hi0, fhi0, dhi0, dt_fresh, a1, b1, dhi_min,  # type: ignore[no-untyped-def]
@@ -759,9 +777,9 @@ def _rul_pass(seg, rul, dt, fhi, dhi, n0, rul0, frul0, drul0, d2rul0, fhi0, dhi0
 _JITTED: dict[str, Any] = {}
 
 
-def _passes(n_rows: int) -> tuple[Any, Any]:
-    """The two passes, compiled (numba, on-disk cache) for large batches."""
-    if n_rows < JIT_MIN_ROWS:
+def _passes(strategy: str) -> tuple[Any, Any]:
+    """The two passes, as Python or compiled (numba, on-disk cache)."""
+    if strategy == "python":
         return _hi_pass, _rul_pass
     if not _JITTED:
         import numba
@@ -771,6 +789,38 @@ def _passes(n_rows: int) -> tuple[Any, Any]:
     return _JITTED["hi"], _JITTED["rul"]
 
 
+def _run_by_rank(state: TrackerState, seg: np.ndarray, t: np.ndarray, z: np.ndarray,
+                 config: TrackerConfig, gains: TrackerGains
+                 ) -> tuple[TrackerState, dict[str, np.ndarray]]:
+    """:func:`tracker_run` as one :func:`tracker_update` per acquisition rank over the
+    components that have one (the reference the passes are tested against)."""
+    m = t.shape[0]
+    b = len(state)
+    counts = np.diff(seg)
+    rows: dict[str, np.ndarray] = {k: np.empty(m) for k in (
+        "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")}
+    rows["n"] = np.empty(m, dtype=np.int64)
+    rows["valid"] = np.empty(m, dtype=bool)
+    rows["level"] = np.empty(m, dtype=np.int8)
+    for r in range(int(counts.max(initial=0))):
+        have = np.flatnonzero(counts > r)
+        idx = seg[have] + r
+        t_r = np.full(b, np.nan)  # fresh: the new state may hold these arrays
+        z_r = np.full(b, np.nan)
+        t_r[have] = t[idx]
+        z_r[have] = z[idx]
+        state, out = tracker_update(state, t_r, z_r, config, gains)
+        assert out is not None
+        cols = state.columns()
+        for k in ("fhi", "dhi", "rul", "frul", "drul", "d2rul", "n"):
+            rows[k][idx] = cols[k][have]
+        rows["rul_low"][idx] = out.rul_low[have]
+        rows["rul_high"][idx] = out.rul_high[have]
+        rows["valid"][idx] = out.valid[have]
+        rows["level"][idx] = out.level[have]
+    return state, rows
+
+
 def tracker_run(
     state: TrackerState,
     seg: np.ndarray,
@@ -778,6 +828,7 @@ def tracker_run(
     hi: np.ndarray,
     config: TrackerConfig,
     gains: TrackerGains | None = None,
+    strategy: str | None = None,
 ) -> tuple[TrackerState, dict[str, np.ndarray]]:
     """Run the chain of :func:`tracker_update` over many acquisitions per component.
 
@@ -785,10 +836,13 @@ def tracker_run(
     ``t[seg[c]:seg[c + 1]]``, ``hi[...]`` in that order (``seg`` (B + 1,) nondecreasing
     offsets; every ``t`` and ``hi`` finite and the times increasing per component: the
     ingestion validates them). The result equals one :func:`tracker_update` call per
-    acquisition (same operations, same rounding; tested) without a call per acquisition
-    rank: the sequential alpha-beta (step 1) and alpha-beta-gamma (step 3) recursions run as
-    compiled loops, the Paris-law RUL (step 2) and the outputs (validity, level, confidence
-    limits, docs/systems/embedded-rul.md §3) as numpy over all rows.
+    acquisition rank (same operations, same rounding; tested), which is one of the three
+    ``strategy`` choices, the cheapest by default: ``"ranks"`` does exactly that (few
+    acquisitions per component); ``"python"`` and ``"jit"`` (numba) run the sequential
+    alpha-beta (step 1) and alpha-beta-gamma (step 3) recursions as loops over each
+    component's acquisitions and the Paris-law RUL (step 2) and the outputs (validity, level,
+    confidence limits, docs/systems/embedded-rul.md §3) as numpy over all rows (long series:
+    no call per rank).
 
     Returns the state after the last acquisition of each component and the per-acquisition
     history: ``fhi, dhi, rul, frul, drul, d2rul, rul_low, rul_high`` (float64), ``n``
@@ -803,11 +857,16 @@ def tracker_run(
     m = t.shape[0]
     if seg.shape != (b + 1,) or z.shape != (m,) or seg[0] != 0 or seg[-1] != m:
         raise ValueError(f"seg: expected {b + 1} offsets from 0 to {m}, got {seg.shape}")
+    counts = np.diff(seg)
+    if strategy is None:
+        strategy = tracker_strategy(int(counts.max(initial=0)), m)
+    if strategy == "ranks":
+        return _run_by_rank(state, seg, t, z, config, gains)
     two_point = config.initiation in ("two-point", "measured")
     measured = config.initiation == "measured"
     n_init = 3 if config.initiation == "two-point" else (2 if measured else 1)
     dhi_min = 1.0 / config.design_life
-    hi_pass, rul_pass = _passes(m)
+    hi_pass, rul_pass = _passes(strategy)
     f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     n0 = np.ascontiguousarray(state.n, dtype=np.int64)
     fhi0, dhi0 = f(state.ab[:, 0]), f(state.ab[:, 1])
@@ -821,7 +880,6 @@ def tracker_run(
              float(gains.gamma2), n_init, config.initiation == "two-point", measured, dhi_min,
              float(config.hi_floor), bool(config.rul_clip), frul, drul, d2rul)
     del dt
-    counts = np.diff(seg)
     n = np.repeat(n0 - seg[:-1], counts) + np.arange(1, m + 1)  # n0[c] + rank + 1
     valid = rul_validity(drul, d2rul, config) & (n >= MIN_UPDATES_VALID)
     level = alert_level(fhi, frul, valid, config)
@@ -962,6 +1020,7 @@ __all__ = [
     "track_series",
     "tracker_outputs",
     "tracker_run",
+    "tracker_strategy",
     "tracker_update",
     "tracker_update_loop",
 ]
