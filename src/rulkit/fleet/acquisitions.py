@@ -227,7 +227,9 @@ def validate_acquisitions(
         )
     comp = df["component"]
     out = pd.DataFrame({"component": comp.array, "t": t, "hi": hi,
-                        "row": np.arange(1, len(df) + 1)}, copy=False)  # no 2M-row copies
+                        "row": np.arange(1, len(df) + 1,
+                                         dtype=np.int32 if len(df) < 2**31 - 1 else np.int64)},
+                       copy=False)  # no 2M-row copies
     # time strictly increasing per component, in file order
     codes = np.asarray(comp.cat.codes)
     prev_t = pd.Series(t).groupby(codes, sort=False).shift(1).to_numpy()

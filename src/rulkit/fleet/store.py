@@ -532,7 +532,8 @@ class ComponentStore:
         batch.
         """
         codes_raw, uniq = pd.factorize(acq["component"], sort=False)
-        codes = np.asarray(codes_raw, dtype=np.int64)
+        codes = codes_raw.astype(np.int32)  # 8 bytes less per acquisition
+        del codes_raw
         names = [str(u) for u in uniq]
         stored = self._load_states(names)
         pos = {name: i for i, name in enumerate(names)}
@@ -553,10 +554,9 @@ class ComponentStore:
         n = len(acq)
         # rows grouped by component in key order, batch order (= time order) inside
         sorted_pos = np.argsort(np.array(names, dtype=object), kind="stable")
-        name_order = np.empty(b, dtype=np.int64)
-        name_order[sorted_pos] = np.arange(b)
+        name_order = np.empty(b, dtype=np.int32)
+        name_order[sorted_pos] = np.arange(b, dtype=np.int32)
         key = name_order[codes]
-        del codes
         by_comp = np.argsort(key, kind="stable")
         counts = np.bincount(key, minlength=b)
         del key
@@ -596,7 +596,7 @@ class ComponentStore:
         if getattr(self, "degradation", None) is not None:
             from rulkit.fleet.models.store_support import LearnedPass
 
-            fcodes = np.asarray(codes_raw, dtype=np.int64)
+            fcodes = codes.astype(np.int64)
             rank = pd.Series(fcodes).groupby(fcodes, sort=False).cumcount().to_numpy()
             learned = LearnedPass(self._conn, self.degradation, names)
             learned_cols = np.full((3, n), np.nan)
@@ -609,7 +609,7 @@ class ComponentStore:
                 h_r[ci] = hi[sel]
                 learned_cols[:, sel] = np.asarray(learned.step(ci, t_r, h_r))
             del rank, fcodes
-        del codes_raw
+        del codes
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
         alerts: list[tuple[int, int, Alert]] = []
