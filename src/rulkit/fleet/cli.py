@@ -238,7 +238,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             buf = io.BytesIO()  # pyarrow: shortest round-trip floats, 5x pandas' to_csv
             pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), buf,
                             pacsv.WriteOptions(quoting_style="needed"))
-            typer.echo(buf.getvalue().decode(), nl=False)
+            typer.echo(buf.getvalue(), nl=False)  # UTF-8 bytes, written as they are
             return
         if fmt == "json":
             typer.echo(df.to_json(orient="records", double_precision=15))

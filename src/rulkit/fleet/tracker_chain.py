@@ -974,7 +974,7 @@ def fit_tracker_config(hist: Any, **overrides: Any) -> TrackerConfig:
 
 
 def check_time_unit(config: TrackerConfig, t: np.ndarray, *, max_floor_step: float = 0.01,
-                    source: str = "acquisitions") -> None:
+                    source: str = "acquisitions", assume_sorted: bool = False) -> None:
     """Reject a ``design_life`` that is not in the acquisitions' time unit.
 
     The dHI floor 1/design_life times the median acquisition interval is the HI the floor alone
@@ -982,9 +982,11 @@ def check_time_unit(config: TrackerConfig, t: np.ndarray, *, max_floor_step: flo
     component from healthy to the alarm without any measured degradation) the settings cannot
     be meant for this time unit. Example: the default design_life = 1e5 (hours) with hourly
     acquisitions stamped in epoch seconds (3600 apart) adds 0.036 per acquisition: a false
-    ALARM after ~28 hours. ``t`` are acquisition times (only positive differences used).
+    ALARM after ~28 hours. ``t`` are acquisition times (only positive differences used);
+    ``assume_sorted``: they are already nondecreasing (the sort is skipped).
     """
-    d = np.diff(np.sort(np.asarray(t, dtype=np.float64)))
+    t = np.asarray(t, dtype=np.float64)
+    d = np.diff(t if assume_sorted else np.sort(t))
     d = d[d > 0]
     if d.size == 0:
         return
