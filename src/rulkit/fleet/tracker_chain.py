@@ -784,8 +784,11 @@ def _passes(strategy: str) -> tuple[Any, Any]:
     if not _JITTED:
         import numba
 
-        _JITTED["hi"] = numba.njit(cache=True)(_hi_pass)
-        _JITTED["rul"] = numba.njit(cache=True)(_rul_pass)
+        try:  # compiled once, then loaded from numba's on-disk cache
+            jitted = numba.njit(cache=True)(_hi_pass), numba.njit(cache=True)(_rul_pass)
+        except RuntimeError:  # no writable cache location: compile in memory
+            jitted = numba.njit(_hi_pass), numba.njit(_rul_pass)
+        _JITTED["hi"], _JITTED["rul"] = jitted
     return _JITTED["hi"], _JITTED["rul"]
 
 
