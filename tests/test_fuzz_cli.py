@@ -8,7 +8,8 @@ code (docs/guide.md, "Exit codes": 1 the input was refused, 2 a usage error) and
 ``error:`` line naming the file; never raise, never print a control character, and never
 change a file it was not asked to write (the input, an existing database on rejection).
 
-Default run: 30 examples per command, no deadline (a few seconds each);
+Default run: 30 examples per command, no deadline (a few seconds each; the wheel telemetry
+with the EKF or the default particle filter, streamed in 3-row chunks or whole);
 ``RULKIT_FUZZ_EXAMPLES=500`` for a longer randomised search.
 """
 
@@ -220,8 +221,9 @@ def telemetry_file(draw):
 
 
 @FUZZ
-@given(case=telemetry_file())
-def test_fuzz_estimate_temperature(case):
+@given(case=telemetry_file(), method=st.sampled_from(["ekf", "adaptive"]),
+       chunk=st.sampled_from(["3", "100000"]))
+def test_fuzz_estimate_temperature(case, method, chunk):
     df, ext = case
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -229,7 +231,8 @@ def test_fuzz_estimate_temperature(case):
         out = tmp / "est.csv"
         before = tree(tmp)
         r = runner.invoke(app, ["rw", "estimate-temperature", str(src), "--out", str(out),
-                                "--method", "ekf"])
+                                "--method", method, "--particles", "30", "--chunk-rows",
+                                chunk])
         assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
         assert printable(r.output), repr(r.output)
         after = tree(tmp)
@@ -241,6 +244,13 @@ def test_fuzz_estimate_temperature(case):
         assert set(after) - set(before) == {"est.csv"}
         est = pd.read_csv(out)
         assert len(est) > 0 and np.isfinite(est["T_mean"]).all()
+        # physically plausible: above absolute zero, mostly in the model's range, ordered
+        # intervals (a weighted mean may leave a quantile interval of a skewed cloud), the
+        # flag a boolean
+        m = est["T_mean"].to_numpy()
+        assert (m > -273.15).all() and np.mean((m >= -30) & (m <= 215)) >= 0.5
+        assert (est["T_lo"] <= est["T_hi"]).all()
+        assert est["untrusted"].dtype == bool and est["untrusted"].mean() <= 0.5
 
 
 @pytest.mark.parametrize("ext", [".csv", ".parquet"])

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -113,7 +114,7 @@ def read_table(
     import pandas as pd
 
     p, fmt, empty = _usable_path(path, error, csv_suffixes, parquet_suffixes, expected_columns)
-    try:
+    with _parser_errors(p, fmt, empty, error):
         if fmt == "csv":
             kw: dict[str, Any] = {}
             header_cols = _csv_header(p)
@@ -128,13 +129,6 @@ def read_table(
             df = pd.read_csv(p, dtype=dict(csv_dtype) if csv_dtype else None, **kw)
         else:
             df = pd.read_parquet(p)
-    except pd.errors.EmptyDataError as err:  # e.g. only blank lines
-        raise error(empty) from err
-    except error:
-        raise
-    except Exception as err:  # parser errors of pandas / pyarrow, unreadable file
-        raise error(f"{p}: cannot be read as {fmt.upper() if fmt == 'csv' else 'Parquet'}: "
-                    f"{safe_text(str(err), 300)}") from err
     _check_unique_columns(p, [str(c) for c in df.columns], error)
     if len(df) == 0 and not allow_no_rows:
         raise error(f"{p}: no data rows (header only)")
@@ -162,6 +156,25 @@ def _usable_path(
     if p.stat().st_size == 0:
         raise error(empty)
     return p, fmt, empty
+
+
+@contextmanager
+def _parser_errors(p: Path, fmt: str, empty: str, error: ErrorType,
+                   where: Callable[[], str] = lambda: "") -> Iterator[None]:
+    """Turn what pandas / pyarrow raise while reading ``p`` into ``error``: an empty file
+    (only blank lines) into ``empty``, any other parser error into ``"<p>: cannot be read as
+    CSV<where()>: <their message>"``."""
+    import pandas as pd
+
+    try:
+        yield
+    except pd.errors.EmptyDataError as err:
+        raise error(empty) from err
+    except error:
+        raise
+    except Exception as err:  # parser errors of pandas / pyarrow, unreadable file
+        raise error(f"{p}: cannot be read as {'CSV' if fmt == 'csv' else 'Parquet'}{where()}: "
+                    f"{safe_text(str(err), 300)}") from err
 
 
 def _csv_header(p: Path) -> list[str]:
@@ -196,9 +209,8 @@ def read_table_chunks(
     if chunk_rows < 1:
         raise ValueError(f"chunk_rows: expected >= 1, got {chunk_rows}")
     p, fmt, empty = _usable_path(path, error, csv_suffixes, parquet_suffixes, columns)
-    what = "CSV" if fmt == "csv" else "Parquet"
     row0 = 0
-    try:
+    with _parser_errors(p, fmt, empty, error, lambda: f" (after data row {row0})"):
         if fmt == "csv":
             header = _csv_header(p)
             _check_unique_columns(p, header, error)
@@ -221,13 +233,6 @@ def read_table_chunks(
             df.attrs.update(source=str(path), format=fmt, row0=row0, header=header)
             row0 += len(df)
             yield df
-    except pd.errors.EmptyDataError as err:
-        raise error(empty) from err
-    except error:
-        raise
-    except Exception as err:  # parser errors of pandas / pyarrow, unreadable file
-        raise error(f"{p}: cannot be read as {what} (after data row {row0}): "
-                    f"{safe_text(str(err), 300)}") from err
     if row0 == 0:
         raise error(f"{p}: no data rows (header only)")
 

@@ -56,7 +56,8 @@ def read_clean(df: pd.DataFrame) -> pd.DataFrame:
 
 
 @pytest.mark.parametrize(("method", "design"), [
-    ("adaptive", "F2"), ("pf", "F1"), ("apf_eq28", "F2"), ("apf_tempered", "F1"), ("ekf", "F2")])
+    ("adaptive", "F2"), ("pf", "F1"), ("apf_eq28", "F2"), ("apf_tempered", "F1"), ("ekf", "F2"),
+    ("rbpf", "F2")])
 def test_chunks_give_the_numbers_of_one_pass(record, method: str, design: str) -> None:
     whole = estimate_temperature(record, method, 40, np.random.default_rng(7), design=design)
     # boundaries at the glitch, inside the gate's run of untrusted samples, and 1-row chunks
@@ -65,16 +66,6 @@ def test_chunks_give_the_numbers_of_one_pass(record, method: str, design: str) -
     pd.testing.assert_frame_equal(parts, whole, check_exact=True)
     if method == "adaptive":
         assert whole["untrusted"].any()  # the gate did act in this record
-
-
-def test_rbpf_is_one_piece_only(record) -> None:
-    est = TemperatureEstimator("rbpf", 20, np.random.default_rng(0), dt=0.05)
-    clean = read_clean(record)
-    est.update(clean.iloc[:10])
-    nxt = clean.iloc[10:20]
-    nxt.attrs["row0"] = 10
-    with pytest.raises(EstimationError, match="one piece"):
-        est.update(nxt)
 
 
 def test_chunks_must_follow_each_other(record) -> None:

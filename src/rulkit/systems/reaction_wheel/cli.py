@@ -199,8 +199,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         noise: Annotated[str, typer.Option(help="Assumed noise level: low or high.")] = "low",
         level: Annotated[float, typer.Option(help="Interval level.")] = 0.95,
         chunk_rows: Annotated[int, typer.Option(
-            help="Rows read, filtered and written at a time (bounds the memory; the rbpf "
-                 "method reads the whole record).")] = 100_000,
+            help="Rows read, filtered and written at a time (bounds the memory).")] = 100_000,
     ) -> None:
         """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
         import os
@@ -228,8 +227,6 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if dest.suffix.lower() not in (".csv", ".parquet", ".pq"):
             fail(f"--out: expected a .csv, .parquet or .pq file name, got {dest.name!r}",
                  EXIT_USAGE)
-        if method == "rbpf":
-            chunk_rows = 2**62
         try:
             summary = stream_temperature(file, dest, method=method, particles=particles,
                                          seed=seed, noise=noise, level=level,

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numba as nb
 import numpy as np
@@ -46,7 +46,7 @@ from rulkit.estimation.batched import (
     normalise_rows,
     systematic_row,
     systematic_rows,
-    weighted_quantile_row,
+    weighted_quantile_pair_row,
     weighted_quantile_rows,
 )
 from rulkit.systems.reaction_wheel import kernels as kern
@@ -192,6 +192,46 @@ def run_rbpf(
     )
     t = t0 + dt * np.arange(y.shape[0])
     return RBPFResult(t, *out, config=cfg)
+
+
+class RBPFStream:
+    """The fused RBPF over a record given in consecutive chunks of (y, V) (the numbers of one
+    :func:`run_rbpf` call over the whole record, tested). ``update(y, V)`` returns
+    (T_mean, T_lo, T_hi) for the chunk's rows."""
+
+    def __init__(self, rng: np.random.Generator, config: RBPFConfig | None = None, *,
+                 sigma: tuple[float, float] = NOISE_LEVELS["low"], dt: float = 0.05,
+                 t0: float = 0.0, params: IthacoParams | None = None) -> None:
+        self.cfg = config or RBPFConfig()
+        self.rng, self.sigma, self.dt, self.t0 = rng, sigma, float(dt), float(t0)
+        self.P = kern.pack_params(params or IthacoParams())
+        self.rows = 0
+        self._state: RBPFState | None = None
+        self._last: tuple[FloatArray, float] | None = None
+
+    def update(self, y: FloatArray, V: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Filter the next rows ``y`` (K, 2) = [w, I_m] with command ``V`` (K,)."""
+        cfg = self.cfg
+        y, V, sw, sI = check_measurements(y, V, self.sigma, self.dt, min_rows=1)
+        first = self._state is None
+        if first:
+            self._state = _rbpf_start(y[0], int(cfg.n_particles), float(cfg.T_prior[0]),
+                                      float(cfg.T_prior[1]), sw, sI, self.rng)
+        else:
+            assert self._last is not None
+            y = np.vstack([self._last[0][None], y])
+            V = np.concatenate([[self._last[1]], V])
+        rho, reweight = _proposal(cfg)
+        out = _rbpf_steps(
+            y, V, max(self.rows - 1, 0), first, self._state, self.t0, self.dt,
+            int(cfg.n_particles), float(cfg.q_T), float(cfg.p_jump), float(cfg.jump_sd),
+            float(rho), bool(reweight), float(cfg.q_I), float(cfg.q_w), sw, sI,
+            float(cfg.ess_threshold), True, float(cfg.quantiles[0]), float(cfg.quantiles[1]),
+            self.P, self.rng)
+        self._last = (y[-1].copy(), float(V[-1]))
+        self.rows += y.shape[0] - (0 if first else 1)
+        cut = 0 if first else 1
+        return out[0][cut:], out[2][cut:], out[3][cut:]
 
 
 # --------------------------------------------------------------------------------------------
@@ -352,34 +392,66 @@ def _log_mix1(d, p, sd_j, sd):  # type: ignore[no-untyped-def]
     return max(a, b) + math.log1p(math.exp(-abs(a - b)))
 
 
+class RBPFState(NamedTuple):
+    """The RBPF's particles between two calls of :func:`_rbpf_steps` (a record filtered in
+    chunks): T, the Kalman means ``mI``, ``mw`` and covariances ``P11``, ``P12``, ``P22`` of
+    [I, w], log-weights ``lw`` and weights ``wn``, each (N,)."""
+
+    T: np.ndarray
+    mI: np.ndarray
+    mw: np.ndarray
+    P11: np.ndarray
+    P12: np.ndarray
+    P22: np.ndarray
+    lw: np.ndarray
+    wn: np.ndarray
+
+
+@nb.njit(cache=True)
+def _rbpf_start(y0, N, T_lo, T_hi, sw, sI, rng):  # type: ignore[no-untyped-def]
+    """The prior: T ~ U(T_lo, T_hi) (N uniforms), [I, w] = y0 with covariance diag(sI^2, sw^2)."""
+    T = np.empty(N)
+    for i in range(N):
+        T[i] = T_lo + (T_hi - T_lo) * rng.random()
+    return RBPFState(T, np.full(N, y0[1]), np.full(N, y0[0]), np.full(N, sI * sI),
+                     np.zeros(N), np.full(N, sw * sw), np.full(N, -math.log(N)),
+                     np.full(N, 1.0 / N))
+
+
 @nb.njit(cache=True)
 def _rbpf_kernel(  # type: ignore[no-untyped-def]
     y, V, t0, dt, N, T_lo, T_hi, q_T, p_jump, jump_sd, rho, reweight, q_I, q_w, sw, sI, ess_thr,
     want_q,
     q0, q1, Pp, rng,
 ):
+    """The whole record: :func:`_rbpf_start` on ``y[0]``, then :func:`_rbpf_steps`."""
+    st = _rbpf_start(y[0], N, T_lo, T_hi, sw, sI, rng)
+    return _rbpf_steps(y, V, 0, True, st, t0, dt, N, q_T, p_jump, jump_sd, rho, reweight, q_I,
+                       q_w, sw, sI, ess_thr, want_q, q0, q1, Pp, rng)
+
+
+@nb.njit(cache=True)
+def _rbpf_steps(  # type: ignore[no-untyped-def]
+    y, V, k0, first, st, t0, dt, N, q_T, p_jump, jump_sd, rho, reweight, q_I, q_w, sw, sI,
+    ess_thr, want_q, q0, q1, Pp, rng,
+):
+    """Advance ``st`` (:class:`RBPFState`, in place) over ``y`` (K, 2): row 0 is the sample
+    the particles are at (global index ``k0``; its estimates are output only when ``first``),
+    rows 1.. the new ones. Chunks overlapping by one row give the numbers of one call."""
     K = y.shape[0]
     C = kern._consts(Pp)
     law = Pp[15]
     b0 = 1e-3 * (0.049 - 0.0002 * 30.0) if law == 0.0 else 0.0049 - 0.0002 * 30.0
     b1 = -1e-3 * 0.0002 if law == 0.0 else -0.0002
     J, th_a, w_a = Pp[7], Pp[10], Pp[11]
-    T = np.empty(N)
-    for i in range(N):
-        T[i] = T_lo + (T_hi - T_lo) * rng.random()
-    mI = np.full(N, y[0, 1])
-    mw = np.full(N, y[0, 0])
-    P11 = np.full(N, sI * sI)
-    P12 = np.zeros(N)
-    P22 = np.full(N, sw * sw)
+    T, mI, mw, P11, P12, P22, lw, wn = st
     QI, Qw, RI, Rw = q_I * q_I, q_w * q_w, sI * sI, sw * sw
-    lw = np.full(N, -math.log(N))
-    wn = np.full(N, 1.0 / N)
     ll = np.empty(N)
     s = np.empty(N)
     idx = np.empty(N, dtype=np.int64)
     cw = np.empty(N)
     order = np.empty(N, dtype=np.int64)
+    qbuf = np.empty(3 * N)
     bufs = (np.empty(N), np.empty(N), np.empty(N), np.empty(N), np.empty(N), np.empty(N))
     o_mean = np.full(K, np.nan)
     o_std = np.full(K, np.nan)
@@ -390,10 +462,11 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
     o_ll = np.zeros(K)
     o_Iw = np.empty((K, 2))
     log2pi = math.log(2.0 * math.pi)
-    for k in range(K):
-        if k > 0:
+    for kk in range(0 if first else 1, K):
+        k = k0 + kk  # the global sample index
+        if kk > 0:
             tk = t0 + (k - 1) * dt
-            Vk = V[k - 1]
+            Vk = V[kk - 1]
             tn0 = J * th_a * w_a * w_a * math.sin(w_a * tk)
             tn1 = J * th_a * w_a * w_a * math.sin(w_a * (tk + 0.5 * dt))
             tn2 = J * th_a * w_a * w_a * math.sin(w_a * (tk + dt))
@@ -409,7 +482,7 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
                 for i in range(N):
                     lw[i] += _log_mix1(s[i], p_jump, jump_sd, q_T) - _log_mix1(
                         s[i], rho, jump_sd, q_T)
-            yI, yw = y[k, 1], y[k, 0]
+            yI, yw = y[kk, 1], y[kk, 0]
             for i in range(N):
                 T[i] += s[i]
                 b = b0 + b1 * T[i]
@@ -442,7 +515,7 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
                 P11[i], P12[i], P22[i] = n11, 0.5 * (n12 + n21), n22
             for i in range(N):
                 lw[i] += ll[i]
-            o_ll[k] = normalise_row(lw, wn)
+            o_ll[kk] = normalise_row(lw, wn)
         mu = 0.0
         mI_ = 0.0
         mw_ = 0.0
@@ -453,15 +526,14 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
         var = 0.0
         for i in range(N):
             var += wn[i] * (T[i] - mu) ** 2
-        o_mean[k] = mu
-        o_std[k] = math.sqrt(max(var, 0.0))
-        o_Iw[k, 0] = mI_
-        o_Iw[k, 1] = mw_
-        o_ess[k] = ess_row(wn)
+        o_mean[kk] = mu
+        o_std[kk] = math.sqrt(max(var, 0.0))
+        o_Iw[kk, 0] = mI_
+        o_Iw[kk, 1] = mw_
+        o_ess[kk] = ess_row(wn)
         if want_q:
-            o_lo[k] = weighted_quantile_row(T, wn, q0, order, cw)
-            o_hi[k] = weighted_quantile_row(T, wn, q1, order, cw)
-        if k > 0 and o_ess[k] < ess_thr * N:
+            o_lo[kk], o_hi[kk] = weighted_quantile_pair_row(T, wn, q0, q1, order, qbuf)
+        if k > 0 and o_ess[kk] < ess_thr * N:
             systematic_row(wn, rng.random(), idx, cw)
             b_T, b_I, b_w, b_11, b_12, b_22 = bufs
             for i in range(N):
@@ -473,5 +545,5 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
                 P11[i], P12[i], P22[i] = b_11[i], b_12[i], b_22[i]
                 lw[i] = -math.log(N)
                 wn[i] = 1.0 / N
-            o_act[k] = 1.0
+            o_act[kk] = 1.0
     return o_mean, o_std, o_lo, o_hi, o_ess, o_act, o_ll, o_Iw

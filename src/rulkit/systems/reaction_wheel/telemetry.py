@@ -275,8 +275,11 @@ def _time_in_seconds(df: Any, source: str) -> Any:
 def _check_step(dt: float, source: str) -> None:
     """A sampling step the wheel model can integrate (:class:`ImplausibleTelemetryError`)."""
     if not MIN_DT_S <= dt <= MAX_DT_S:
+        shown = f"{dt:.6g}"
+        if shown in (f"{MIN_DT_S:g}", f"{MAX_DT_S:g}"):  # just outside: show every digit
+            shown = repr(dt)
         raise ImplausibleTelemetryError(
-            f"{source}: column {TIME!r}: sampling step {dt:.6g} s is outside "
+            f"{source}: column {TIME!r}: sampling step {shown} s is outside "
             f"[{MIN_DT_S:g}, {MAX_DT_S:g}] s, the steps the wheel model can be integrated with "
             "(is time in seconds?)"
         )

@@ -4,8 +4,8 @@ any length chunk by chunk in bounded memory (docs/systems/reaction-wheel.md §3)
 :class:`TemperatureEstimator` holds one filter's state between chunks: ``update(chunk)``
 returns the estimates of that chunk's rows, and a record filtered in chunks gives the numbers
 of one pass over the whole record (tested). The particle filters carry their cloud
-(:func:`rulkit.systems.reaction_wheel.kernels.pf_steps`), the EKF its mean and covariance;
-the RBPF filters a record in one piece only. :func:`estimate_temperature` is the one-frame
+(:func:`rulkit.systems.reaction_wheel.kernels.pf_steps`), the EKF its mean and covariance,
+the RBPF its particles' Kalman filters. :func:`estimate_temperature` is the one-frame
 form; ``rulkit rw estimate-temperature`` streams a file through
 :func:`rulkit.systems.reaction_wheel.telemetry.iter_wheel_telemetry`.
 
@@ -54,7 +54,7 @@ class TemperatureEstimator:
     """One temperature filter run over a record given in consecutive chunks.
 
     ``method``: ``"pf"``, ``"adaptive"`` (the default), ``"apf_eq28"``, ``"apf_tempered"``
-    (particle filters; need ``rng``), ``"rbpf"`` (one chunk only) or ``"ekf"``; ``design``,
+    (particle filters; need ``rng``), ``"rbpf"`` or ``"ekf"``; ``design``,
     ``noise``, ``config`` and ``level`` as in :func:`estimate_temperature`. ``dt`` the
     sampling step (s). ``source`` names the record in messages.
 
@@ -234,14 +234,14 @@ class TemperatureEstimator:
         return m, m - z * s, m + z * s, np.zeros(len(t), dtype=bool)
 
     def _rbpf(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
-        from rulkit.systems.reaction_wheel.rbpf import run_rbpf
+        from rulkit.systems.reaction_wheel.rbpf import RBPFStream
 
-        if self.rows:
-            raise ValueError("method 'rbpf' filters a record in one piece, not in chunks")
-        assert self.rng is not None  # checked in __init__
-        rb = run_rbpf(y, V, self.rng, self.config, sigma=self.sigma, dt=self.dt, t0=float(t[0]),
-                      params=self.params)
-        return rb.T_mean, rb.T_lo, rb.T_hi, np.zeros(len(t), dtype=bool)
+        if self._state is None:
+            assert self.rng is not None  # checked in __init__
+            self._state = RBPFStream(self.rng, self.config, sigma=self.sigma, dt=self.dt,
+                                     t0=float(t[0]), params=self.params)
+        m, lo, hi = self._state.update(y, V)
+        return m, lo, hi, np.zeros(len(t), dtype=bool)
 
     # ------------------------------------------------------------------ the checks
     def _check(self, est: Any, row0: int) -> None:

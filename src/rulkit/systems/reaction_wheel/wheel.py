@@ -75,19 +75,20 @@ class IthacoParams:
 
 
 def check_measurements(
-    y: FloatArray, V: FloatArray, sigma: tuple[float, float], dt: float
+    y: FloatArray, V: FloatArray, sigma: tuple[float, float], dt: float, *, min_rows: int = 2
 ) -> tuple[FloatArray, FloatArray, float, float]:
-    """Validate step-1 filter inputs (docs/systems/reaction-wheel.md §3): ``y`` (K >= 2, 2) = [w
-    (rad/s), I_m (A)],
-    ``V`` (K,) commanded voltage, ``sigma`` = (sigma_w, sigma_I) > 0, ``dt`` > 0.
+    """Validate step-1 filter inputs (docs/systems/reaction-wheel.md §3): ``y`` (K >=
+    ``min_rows``, 2) = [w (rad/s), I_m (A)], ``V`` (K,) commanded voltage, ``sigma`` =
+    (sigma_w, sigma_I) > 0, ``dt`` > 0.
 
     Returns contiguous float64 ``y``, ``V`` and the two noise levels; raises ``ValueError``
     naming the argument (and the first non-finite row).
     """
     y = np.ascontiguousarray(y, dtype=np.float64)
     V = np.ascontiguousarray(V, dtype=np.float64)
-    if y.ndim != 2 or y.shape[1] != 2 or y.shape[0] < 2:
-        raise ValueError(f"y: expected shape (K >= 2, 2) holding [w, I_m], got {y.shape}")
+    if y.ndim != 2 or y.shape[1] != 2 or y.shape[0] < min_rows:
+        raise ValueError(f"y: expected shape (K >= {min_rows}, 2) holding [w, I_m], got "
+                         f"{y.shape}")
     if V.shape != (y.shape[0],):
         raise ValueError(f"V: expected shape ({y.shape[0]},), got {V.shape}")
     finite = np.isfinite(y).all(axis=1) & np.isfinite(V)
