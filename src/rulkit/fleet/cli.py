@@ -19,12 +19,13 @@ def _fmt(v: float, spec: str = ".3g") -> str:
     return format(v + 0.0, spec)  # + 0.0 turns -0.0 into 0.0
 
 
-def _format_all(spec: str, values: list) -> list[str]:
-    """``[spec % v for v in values]`` in one %-operation (``"%.3f"``, ``"%.3g"``, ``"%g"``,
-    ``"%d"``; the same text as :func:`format` with that spec), ~5x faster for 10^5 values."""
+def _format_all(pattern: str, values: list) -> list[str]:
+    """``[pattern % v for v in values]`` in one %-operation (``"%.3f"``, ``"%.3g"``,
+    ``"%g"``, ``"%d"``: the same text as :func:`format` with ``.3f`` ...), no Python call per
+    value."""
     if not values:
         return []
-    return ((spec + "\n") * len(values) % tuple(values)).split("\n")[:-1]
+    return ((pattern + "\n") * len(values) % tuple(values)).split("\n")[:-1]
 
 
 def _format_rul(values) -> list[str]:  # type: ignore[no-untyped-def]
@@ -43,10 +44,10 @@ def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> str:
     justify call per cell (10^5 rows: 0.5 -> 0.1 s). Cells must already be terminal-safe."""
     names = list(columns)
     widths = [max(len(n), max(map(len, columns[n]), default=0)) for n in names]
-    spec = "  ".join(f"%-{w}s" if n in left else f"%{w}s" for n, w in zip(names, widths,
-                                                                           strict=True))
-    lines = [(spec % tuple(names)).rstrip(), "  ".join("-" * w for w in widths)]
-    lines += [(spec % row).rstrip() for row in zip(*columns.values(), strict=True)]
+    row_fmt = "  ".join(f"%-{w}s" if n in left else f"%{w}s"
+                        for n, w in zip(names, widths, strict=True))
+    lines = [(row_fmt % tuple(names)).rstrip(), "  ".join("-" * w for w in widths)]
+    lines += [(row_fmt % row).rstrip() for row in zip(*columns.values(), strict=True)]
     return "\n".join(lines) + "\n"
 
 
