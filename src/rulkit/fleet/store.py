@@ -30,7 +30,9 @@ Guarantees (tested in tests/fleet/test_store.py):
   before touching the database; a new database is built beside its final name (schema,
   settings and first batch in a temporary file) and linked into place only once complete, so
   a rejected batch creates nothing and concurrent first ingests never see a half-made file
-  (the loser of the race applies its batch to the winner's database).
+  (the loser of the race applies its batch to the winner's database). The private temporary
+  file is written without the write-ahead log and without syncs (one ``fsync`` before it is
+  linked; WAL mode is switched on last), which nothing can observe.
 * **Foreign files are never modified.** An existing file is checked read-only (SQLite header,
   ``meta`` table, schema version) before it is opened for writing; a 0-byte file, a
   non-SQLite file or an SQLite file of another application raises :class:`StoreError` and
