@@ -214,7 +214,8 @@ def read_table_chunks(
         if fmt == "csv":
             header = _csv_header(p)
             _check_unique_columns(p, header, error)
-            wanted = [c for c in columns if c in header]
+            # none of the columns: read the first one anyway, so the rows still count
+            wanted = [c for c in columns if c in header] or header[:1]
             batches: Iterator[Any] = iter(pd.read_csv(p, usecols=wanted, chunksize=chunk_rows))
         else:
             import pyarrow.parquet as pq

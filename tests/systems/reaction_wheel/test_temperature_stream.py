@@ -201,3 +201,14 @@ def test_a_record_the_model_cannot_explain_is_refused(tmp_path: Path) -> None:
                                   "--particles", "40"])
         assert res.exit_code == 1 and match in res.output, res.output
         assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]
+
+
+def test_a_file_without_any_wanted_column_says_so(tmp_path: Path) -> None:
+    """Not "no data rows": the rows are there, the columns are not (CSV and Parquet)."""
+    for name in ("m.csv", "m.parquet"):
+        f = tmp_path / name
+        df = pd.DataFrame({"a": [1.0, 3.0], "b": [2.0, 4.0]})
+        df.to_csv(f, index=False) if name.endswith(".csv") else df.to_parquet(f)
+        with pytest.raises(TelemetryError, match="missing column 'time_s'.*columns found: "
+                                                 r"\['a', 'b'\]"):
+            list(iter_wheel_telemetry(f))
