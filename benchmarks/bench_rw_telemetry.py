@@ -8,7 +8,7 @@
    20 Hz; the wheel at equilibrium at 2 V and 30 C, 500 s segments tiled, fresh measurement
    noise), written into a temporary directory (deleted afterwards, never committed), then the
    CLI command (which streams the file in chunks of 100k rows) in a subprocess: wall and CPU
-   time and peak resident memory of that process (``ru_maxrss``, from ``os.wait4``).
+   time and the peak resident memory of that process (its VmHWM, see ``bench_scale.py``).
 
     .venv/bin/python benchmarks/bench_rw_telemetry.py [--rows 2000000] [--repeats 3]
 """
@@ -16,10 +16,7 @@
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -80,34 +77,28 @@ def write_record(path: Path, rows: int) -> None:
     df.to_csv(path, index=False, float_format="%.9g")
 
 
-def cli_at_scale(rows: int) -> None:
-    """The command on ``rows`` / 10 and on ``rows`` rows: wall time and peak memory of each
-    (bounded memory: the peak must not grow with the record)."""
+def cli_at_scale(rows: int, repeats: int) -> None:
+    """The command on ``rows`` / 10 and on ``rows`` rows: wall and CPU time and the process's
+    own peak memory (``bench_scale.measure``: VmHWM at exit), medians of ``repeats``. Bounded
+    memory: the peak must not grow with the record."""
+    from bench_scale import RULKIT, measure, median3
+
     with tempfile.TemporaryDirectory() as tmp:
-        exe = Path(sys.executable).with_name("rulkit")
         for n in (rows // 10, rows):
             f = Path(tmp) / f"telemetry{n}.csv"
             t = time.perf_counter()
             write_record(f, n)
             print(f"wrote a {n:,}-row telemetry CSV ({f.stat().st_size / 1e6:.0f} MB) in "
                   f"{time.perf_counter() - t:.1f} s")
-            cmd = [str(exe), "rw", "estimate-temperature", str(f), "--out",
-                   str(Path(tmp) / "e.csv")]
-            t = time.perf_counter()
-            with open(os.devnull, "wb") as null:
-                proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=null,
-                                        env=dict(os.environ, OMP_NUM_THREADS="1"))
-                out = proc.stdout.read().decode() if proc.stdout else ""
-                _, status, ru = os.wait4(proc.pid, 0)
-            wall = time.perf_counter() - t
-            if os.waitstatus_to_exitcode(status) != 0:
-                print(f"rw estimate-temperature failed: {out[-2000:]}")
-                return
-            print(f"rw estimate-temperature on {n:,} rows: wall {wall:.1f} s, CPU "
-                  f"{ru.ru_utime + ru.ru_stime:.1f} s, peak RSS {ru.ru_maxrss / 1024:.0f} MB "
-                  "(goals for 2M rows: <= 25 s and bounded memory; issue 13 measured 81 s and "
-                  "728 MB before)")
-            print("  " + out.strip().splitlines()[-1])
+            out = Path(tmp) / "e.csv"
+            cmd = [*RULKIT, "rw", "estimate-temperature", str(f), "--out", str(out)]
+            wall, cpu, peak = median3([measure(cmd) for _ in range(repeats)])
+            with open(out, "rb") as fh:
+                lines = sum(block.count(b"\n") for block in iter(lambda: fh.read(1 << 20), b""))
+            assert lines == n + 1, (lines, n)  # header + one row per sample
+            print(f"rw estimate-temperature on {n:,} rows (median of {repeats}): wall "
+                  f"{wall:.1f} s, CPU {cpu:.1f} s, peak RSS {peak:.0f} MB (goals for 2M rows: "
+                  "<= 25 s and bounded memory; issue 13 measured 81 s and 728 MB before)")
             f.unlink()
 
 
@@ -117,7 +108,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     interval_cost(args.repeats)
-    cli_at_scale(args.rows)
+    cli_at_scale(args.rows, max(1, args.repeats // 2 + 1))
 
 
 if __name__ == "__main__":
