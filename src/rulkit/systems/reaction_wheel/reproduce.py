@@ -332,21 +332,11 @@ def _plot_paths(path: Path) -> Path:
 # ---------------------------------------------------------------------------------------------
 
 
-def _md(df: Any, floatfmt: str = ".3f") -> str:
-    """A DataFrame as a markdown table (no tabulate dependency)."""
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(str(c) for c in cols) + " |",
-             "| " + " | ".join("---" for _ in cols) + " |"]
-    for _, row in df.iterrows():
-        cells = []
-        for c in cols:
-            v = row[c]
-            if isinstance(v, float | np.floating):
-                cells.append("" if np.isnan(v) else format(v, floatfmt))
-            else:
-                cells.append(str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+def _md(df: Any) -> str:
+    """A table of the report: :func:`rulkit.reporting.markdown_table`, 3 decimals."""
+    from rulkit.reporting import markdown_table
+
+    return markdown_table(df, ".3f")
 
 
 def render_report(rep: Reproduction) -> str:
