@@ -5,9 +5,7 @@
   the component state held as a struct of arrays (:class:`TrackerState`);
 * the validity rule, the warning and alarm levels and the confidence limits
   (:func:`rul_confidence_limits`, derivation in its docstring).
-
-Many acquisitions per component at once (a batch's ingestion) run through
-:mod:`rulkit.fleet.tracker_run`, with the same numbers.
+Many acquisitions per component at once: :mod:`rulkit.fleet.tracker_run` (same numbers).
 
 The alpha-beta / alpha-beta-gamma gains and updates come from
 :mod:`rulkit.estimation.trackers`; this module knows no physics beyond the seed's Paris-law
@@ -792,8 +790,7 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    """:func:`tracker_run` and :func:`tracker_strategy` (many acquisitions per component) live
-    in :mod:`rulkit.fleet.tracker_run`; importable from here too."""
+    """``tracker_run`` and ``tracker_strategy`` live in :mod:`rulkit.fleet.tracker_run`."""
     if name in ("tracker_run", "tracker_strategy"):
         from rulkit.fleet import tracker_run as module
 
