@@ -139,7 +139,11 @@ class TemperatureEstimator:
         t = chunk[TIME].to_numpy(dtype=np.float64)
         y = np.column_stack([chunk[SPEED].to_numpy(dtype=np.float64),
                              chunk[CURRENT].to_numpy(dtype=np.float64)])
-        V = chunk[VOLT].to_numpy(dtype=np.float64)
+        # a fresh writable copy: pandas (copy-on-write) hands out read-only views, and numba
+        # compiles a read-only array as another type: the first chunk and the later ones
+        # (writable, from np.concatenate) would run two separately compiled kernels, which
+        # may differ in the last digit (one from the cache, one compiled in this process)
+        V = np.array(chunk[VOLT].to_numpy(dtype=np.float64))
         if len(t) == 0:
             return pd.DataFrame({c: np.empty(0) for c in OUTPUT_COLUMNS})
         try:
