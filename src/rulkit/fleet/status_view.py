@@ -75,6 +75,7 @@ def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str,
         _config_from_meta(path, meta)  # unreadable settings: the same error as the store's
         _degradation_from_meta(path, meta)
         try:
+            conn.execute("PRAGMA mmap_size = 1073741824")  # reads pages in place, no copies
             conn.execute("BEGIN DEFERRED")
             rows = conn.execute(
                 f"SELECT {', '.join(_SQL_COLUMNS)} FROM components").fetchall()
@@ -87,24 +88,28 @@ def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str,
     if n == 0:
         return 0, {c: [] if c == "component" else np.zeros(
             0, dtype=np.float64 if c in FLOAT_COLUMNS else np.int64) for c in STATUS_COLUMNS}
-    cols = dict(zip(STATUS_COLUMNS, zip(*rows, strict=True), strict=True))
+    # one object per value already exists; a column-major copy of the references is the
+    # cheapest way to columns (zip(*rows) builds 13 tuples: ~2x slower)
+    by_col = np.array(rows, dtype=object).T.copy()
     del rows
-    if not _canonical(cols):
+    lists = dict(zip(STATUS_COLUMNS, (c.tolist() for c in by_col), strict=True))
+    if not _canonical(lists):
         return None
+    arrays = {c: by_col[j].astype(np.float64 if c in FLOAT_COLUMNS else np.int64)
+              for j, c in enumerate(STATUS_COLUMNS) if j > 0}
+    del by_col
     # worst first: level, then fHI, descending; ties by id (stable as pandas' sort_values)
-    comp = cols["component"]
-    arrays = {c: np.array(cols[c], dtype=np.float64 if c in FLOAT_COLUMNS else np.int64)
-              for c in STATUS_COLUMNS[1:]}
+    comp = lists["component"]
     rank = np.empty(n, dtype=np.int64)
     rank[sorted(range(n), key=comp.__getitem__)] = np.arange(n)
     order = np.lexsort((rank, -arrays["fhi"], -arrays["level"]))
     out: dict[str, Any] = {"component": list(itemgetter(*order.tolist())(comp)) if n > 1
-                           else list(comp)}
+                           else comp}
     out.update({c: a[order] for c, a in arrays.items()})
     return n, out
 
 
-def _canonical(cols: dict[str, tuple]) -> bool:
+def _canonical(cols: dict[str, list]) -> bool:
     """Every value of the type rulkit writes (what the pandas path accepts unchanged)."""
     if set(map(type, cols["component"])) != {str}:
         return False
