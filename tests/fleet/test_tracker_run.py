@@ -6,8 +6,9 @@ without clipping, from fresh and from stored states, with irregular intervals.""
 import numpy as np
 import pytest
 
-from rulkit.fleet import tracker_chain as tc
-from rulkit.fleet.tracker_chain import TrackerConfig, TrackerState, tracker_run, tracker_update
+from rulkit.fleet import tracker_run as tc
+from rulkit.fleet.tracker_chain import TrackerConfig, TrackerState, tracker_update
+from rulkit.fleet.tracker_run import tracker_run
 
 
 def random_fleet(rng, b, max_k):

@@ -92,9 +92,8 @@ from rulkit.fleet.tracker_chain import (
     TrackerConfig,
     TrackerState,
     tracker_outputs,
-    tracker_run,
-    tracker_strategy,
 )
+from rulkit.fleet.tracker_run import tracker_run, tracker_strategy
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
 
@@ -487,7 +486,7 @@ class ComponentStore:
         """Validate and apply a batch of acquisitions in one transaction.
 
         Acquisitions of the same component are applied in time order
-        (:func:`~rulkit.fleet.tracker_chain.tracker_run`: the same numbers as one
+        (:func:`~rulkit.fleet.tracker_run.tracker_run`: the same numbers as one
         :func:`~rulkit.fleet.tracker_chain.tracker_update` per acquisition). Returns the
         committed result with the new alerts (:class:`Alert`). Raises :class:`IngestError`
         (database unchanged) on bad input.
@@ -513,7 +512,7 @@ class ComponentStore:
         Components are processed in blocks of consecutive names in SQLite's key order (BINARY
         collation: UTF-8 byte order = code point order = Python's str order) of at most
         :attr:`BLOCK_ROWS` acquisitions. Each block runs
-        :func:`~rulkit.fleet.tracker_chain.tracker_run` over every component's acquisitions
+        :func:`~rulkit.fleet.tracker_run.tracker_run` over every component's acquisitions
         (equal to one vectorised update per acquisition rank) and writes its history sorted
         by (component, t) in chunks of :attr:`HISTORY_CHUNK` rows, so SQLite appends to its
         B-tree (rank order visited every component's page once per rank: 3.5x the time on

@@ -183,12 +183,13 @@ def _np_normalise(logw: FloatArray) -> tuple[FloatArray, FloatArray]:
     if bad.any():
         raise FloatingPointError(f"degenerate weights in unit {int(np.flatnonzero(bad)[0])}")
     logw[:] = lwn
-    return w, ess_rows(w)
+    return w, np.asarray(ess_rows(w), dtype=np.float64)  # (U, N) with U >= 1: an array
 
 
 def _np_resample(logw: FloatArray, ess: FloatArray, states: list[FloatArray], u: FloatArray,
-                 thr: float) -> FloatArray:
-    """numpy path: systematic resampling (in place) of the units whose ESS < thr N."""
+                 thr: float) -> NDArray[np.bool_]:
+    """numpy path: systematic resampling (in place) of the units whose ESS < thr N; returns
+    which units were resampled."""
     N = logw.shape[1]
     do = ess < thr * N
     if do.any():

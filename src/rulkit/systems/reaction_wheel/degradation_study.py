@@ -117,7 +117,7 @@ def truth_increments(scenario_id: int, n_windows: int) -> FloatArray:
 
 def truth_parameters(scenario_id: int, n_windows: int) -> tuple[FloatArray, FloatArray]:
     """Piecewise-constant truth per window, taken at the window's end (159 min -> window 39)."""
-    t_end = (np.arange(n_windows) + 1.0) * WINDOW_S
+    t_end = (np.arange(n_windows, dtype=np.float64) + 1.0) * WINDOW_S
     b, beta0 = SCENARIOS[scenario_id].parameters(t_end)
     return np.asarray(b, dtype=np.float64), np.asarray(beta0, dtype=np.float64)
 
@@ -163,7 +163,8 @@ def run_case(task: CaseTask, rng: np.random.Generator | None = None) -> CaseResu
     def rr(stream: str) -> list[np.random.Generator]:
         return [unit_rng(task.seed, stream, sid, si, r) for r in task.runs]
 
-    kw = dict(beta_ref=beta_ref, snapshot_windows=task.snapshot_windows, backend=task.backend)
+    kw: dict[str, Any] = dict(beta_ref=beta_ref, snapshot_windows=task.snapshot_windows,
+                              backend=task.backend)
     from rulkit.metrics import rmspe
 
     for meth in methods:
@@ -294,7 +295,8 @@ def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
         raise ValueError(f"source: expected one of {SOURCES}, got {source!r}")
     from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
 
-    cfg = TemperatureConfig(variant=STEP1_VARIANTS[source], n_particles=n_particles)
+    variant: Any = STEP1_VARIANTS[source]  # a TemperatureConfig variant for the PF sources
+    cfg = TemperatureConfig(variant=variant, n_particles=n_particles)
     return filter_temperature(y, V, rng, cfg, sigma=sigma, dt=dt, quantiles=False).T_mean
 
 
@@ -379,8 +381,8 @@ def simulate_wheel_on_path(path: Any, hours: float, v_comm: float = 2.0, dt: flo
 
     model = ReactionWheel()
     n = round(hours * 3600.0 / dt)
-    t = np.arange(n) * dt
-    T = np.asarray(path(t))
+    t = np.arange(n, dtype=np.float64) * dt
+    T = np.asarray(path(t), dtype=np.float64)
     V = np.full(n, v_comm)
     x = np.empty((n, model.n_x))
     x[0] = model.steady_state(v_comm, float(T[0]))
@@ -454,7 +456,8 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
                                           axis=1))
         del name
     win_err_real = float(err.reshape(n_runs, W, WINDOW_SAMPLES).mean(axis=2).std())
-    d = 1.0 / q_syn.center - np.asarray(path((np.arange(W) + 0.5) * WINDOW_S))
+    d = 1.0 / q_syn.center - np.asarray(path((np.arange(W, dtype=np.float64) + 0.5) * WINDOW_S),
+                                        dtype=np.float64)
     return ShortcutValidation(hours, n_runs, win_err_real, float(d.std()), out_real, out_syn,
                               fitted, time.perf_counter() - t0)
 

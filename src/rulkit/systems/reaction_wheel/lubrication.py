@@ -483,8 +483,8 @@ class EstimateErrorProcess:
             state = self.std_c * np.stack([g.standard_normal() for g in rngs])
         eta = np.stack([g.standard_normal(n_blocks) for g in rngs])
         d = _ar1(eta * innov, rho, np.asarray(state, dtype=np.float64))
-        t_block = (k0 * WINDOW_SAMPLES
-                   + (np.arange(n_blocks) + 0.5) * self.hold_samples) * SAMPLE_DT
+        t_block = np.asarray((k0 * WINDOW_SAMPLES + (np.arange(n_blocks) + 0.5)
+                              * self.hold_samples) * SAMPLE_DT, dtype=np.float64)
         T_hat = path(t_block)[None, :] + self.bias_c + d
         return T_hat.reshape(R, n_windows, m), d[:, -1].copy()
 
@@ -580,8 +580,8 @@ def path_quadrature(path: TemperaturePath, t0: float, n_windows: int, window_s: 
     per window, the distribution of ``u`` is taken at ``points_per_window`` midpoints.
     """
     dt_pt = window_s / points_per_window
-    t = t0 + (np.arange(n_windows)[:, None] * points_per_window
-              + np.arange(points_per_window) + 0.5) * dt_pt
+    t = np.asarray(t0 + (np.arange(n_windows)[:, None] * points_per_window
+                         + np.arange(points_per_window) + 0.5) * dt_pt, dtype=np.float64)
     T = path(t)
     _check_temperature(T, "temperature path")
     return window_quadrature(1.0 / T, n_nodes, count=window_s / SAMPLE_DT)

@@ -191,7 +191,8 @@ def run_rbpf(
         float(cfg.quantiles[0]), float(cfg.quantiles[1]), kern.pack_params(p), rng,
     )
     t = t0 + dt * np.arange(y.shape[0])
-    return RBPFResult(t, *out, config=cfg)
+    (T_mean, T_std, T_lo, T_hi, ess, action, loglik, Iw_mean) = out
+    return RBPFResult(t, T_mean, T_std, T_lo, T_hi, ess, action, loglik, Iw_mean, config=cfg)
 
 
 class RBPFStream:
@@ -290,6 +291,7 @@ def _run_numpy(
     for k in range(1, K):
         tk = t0 + (k - 1) * dt
         xi = rng.standard_normal(N)
+        s: FloatArray | float
         if rho > 0:
             s = np.where(rng.random(N) < rho, cfg.jump_sd, cfg.q_T)
         else:

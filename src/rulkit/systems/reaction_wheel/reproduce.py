@@ -188,15 +188,17 @@ def _measure_errors(cfg: ReproductionConfig, log: Callable[[str], None]
     ``table6_alt``)."""
     errors: dict[str, EstimateErrorProcess] = {}
     errors_alt: dict[str, EstimateErrorProcess] = {}
+
+    def measure(src: str, on: str) -> EstimateErrorProcess:
+        return measure_temperature_errors(
+            src, cfg.step1_error_runs, cfg.seed, on=on, n_particles=cfg.step1_particles,
+            hold_samples=cfg.step2.hold_samples, hours=cfg.error_hours)
+
     for src in SOURCES:
         log(f"step 1 -> 2: error statistics of {src} ({STEP1_VARIANTS[src]})")
-        kw = dict(n_particles=cfg.step1_particles, hold_samples=cfg.step2.hold_samples,
-                  hours=cfg.error_hours)
-        errors[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
-                                                 on=cfg.error_on, **kw)
+        errors[src] = measure(src, cfg.error_on)
         if cfg.table6_alt:
-            errors_alt[src] = measure_temperature_errors(src, cfg.step1_error_runs, cfg.seed,
-                                                         on=_alt_error_on(cfg), **kw)
+            errors_alt[src] = measure(src, _alt_error_on(cfg))
     return errors, errors_alt
 
 
@@ -330,21 +332,11 @@ def _plot_paths(path: Path) -> Path:
 # ---------------------------------------------------------------------------------------------
 
 
-def _md(df: Any, floatfmt: str = ".3f") -> str:
-    """A DataFrame as a markdown table (no tabulate dependency)."""
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(str(c) for c in cols) + " |",
-             "| " + " | ".join("---" for _ in cols) + " |"]
-    for _, row in df.iterrows():
-        cells = []
-        for c in cols:
-            v = row[c]
-            if isinstance(v, float | np.floating):
-                cells.append("" if np.isnan(v) else format(v, floatfmt))
-            else:
-                cells.append(str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+def _md(df: Any) -> str:
+    """A table of the report: :func:`rulkit.reporting.markdown_table`, 3 decimals."""
+    from rulkit.reporting import markdown_table
+
+    return markdown_table(df, ".3f")
 
 
 def render_report(rep: Reproduction) -> str:

@@ -246,7 +246,9 @@ def filter_temperature(
     settings = kernel_settings(cfg, d, t0, dt, quantiles)
     out = kern.pf_kernel(inp, settings, rng)
     t = t0 + dt * np.arange(d["y"].shape[0])
-    return TemperatureResult(t, *out, config=cfg)
+    T_mean, T_std, T_lo, T_hi, ess, action, n_clipped, gamma, loglik, untrusted = out
+    return TemperatureResult(t, T_mean, T_std, T_lo, T_hi, ess, action, n_clipped, gamma, loglik,
+                             untrusted, config=cfg)
 
 
 def kernel_settings(cfg: TemperatureConfig, d: dict[str, Any], t0: float, dt: float,

@@ -135,7 +135,8 @@ def _scores(
     from rulkit.metrics import rmspe
 
     late = t >= t_burn
-    out = {"rmspe": rmspe(T_hat[1:], T[1:]), "rmspe_late": rmspe(T_hat[late], T[late])}
+    out = {"rmspe": float(rmspe(T_hat[1:], T[1:])),
+           "rmspe_late": float(rmspe(T_hat[late], T[late]))}
     if band is not None:
         inside = (band[0] <= T) & (T <= band[1])
         out |= {"cover": float(inside[1:].mean()), "cover_late": float(inside[late].mean())}

@@ -361,7 +361,7 @@ def table3_trajectory(
     if not (dt > 0 and t_end > dt):
         raise ValueError(f"need 0 < dt < t_end, got dt={dt}, t_end={t_end}")
     n = round(t_end / dt) + 1
-    t = np.arange(n) * dt
+    t = np.arange(n, dtype=np.float64) * dt
     V = table3_voltage(t)
     T = table3_temperature(t)
     x = np.zeros((n, model.n_x))
