@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -51,7 +51,7 @@ def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _echo_table(db: Path, n_all: int, cols: dict[str, list]) -> None:
+def _echo_table(db: Path, n_all: int, cols: dict[str, Any]) -> None:
     """The ``rulkit status`` table of the columns of
     :func:`rulkit.fleet.status_view.read_status` (every id through :func:`safe_text`)."""
     from rulkit.fleet.tracker_chain import LEVEL_NAMES

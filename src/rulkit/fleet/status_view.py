@@ -53,10 +53,11 @@ FLOAT_COLUMNS = ("hi", "fhi", "rul", "rul_low", "rul_high", "dhi", "drul", "d2ru
 INT_COLUMNS = ("level", "valid", "n")
 
 
-def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str, list]] | None:
-    """``(number of components, columns)`` of the database at ``path``, worst first, each
-    column a sequence of Python values in :data:`STATUS_COLUMNS` order (``level`` the level
-    number); ``None`` when a row is not as rulkit writes it (a text or NULL among numbers, an
+def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str, Any]] | None:
+    """``(number of components, columns)`` of the database at ``path``, worst first:
+    ``component`` a list of str, the others numpy arrays (float64; int64 for ``level``,
+    ``valid`` and ``n``), keyed by :data:`STATUS_COLUMNS`; ``None`` when a row is not as
+    rulkit writes it (a text or NULL among numbers, an
     unknown level): the caller then reads through
     :meth:`~rulkit.fleet.store.ComponentStore.status`, which names the row.
 
@@ -122,7 +123,7 @@ def _canonical(cols: dict[str, list]) -> bool:
     return set(cols["level"]) <= set(LEVEL_NAMES)
 
 
-def limited(cols: dict[str, list], limit: int) -> dict[str, list]:
+def limited(cols: dict[str, Any], limit: int) -> dict[str, Any]:
     """The first ``limit`` rows (all for 0)."""
     return {c: v[:limit] for c, v in cols.items()} if limit else cols
 
