@@ -314,7 +314,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if fmt == "csv":  # UTF-8 bytes, written as they are
             typer.echo(format_csv(cols), nl=False)
         elif fmt == "json":  # ASCII (non-ASCII and control characters escaped)
-            typer.echo(format_json(cols) + b"\n", nl=False)
+            for chunk in [*format_json(cols), b"\n"]:
+                typer.echo(chunk, nl=False)
         else:
             _echo_table(db, n_all, cols)
 

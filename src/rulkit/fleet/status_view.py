@@ -258,16 +258,17 @@ def _ujson_floats(a: np.ndarray) -> Any:
     return out
 
 
-def format_json(cols: dict[str, Any]) -> bytes:
-    """The JSON bytes of ``rulkit status --format json`` (what pandas'
-    ``to_json(orient="records", double_precision=15)`` wrote), without the final newline."""
+def format_json(cols: dict[str, Any]) -> list[bytes]:
+    """The JSON text of ``rulkit status --format json`` (what pandas'
+    ``to_json(orient="records", double_precision=15)`` wrote), without the final newline, as
+    byte chunks to write one after the other (no copy of the whole text to join them)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
     comps = cols["component"]
     n = len(comps)
     if n == 0:
-        return b"[]"
+        return [b"[]"]
     text = "".join(comps)
     if text.isascii() and text.isprintable() and not any(c in text for c in '"\\/'):
         parts: list[Any] = ['{"component":"', _strs(comps), '","level":"']
@@ -293,4 +294,4 @@ def format_json(cols: dict[str, Any]) -> bytes:
         *[_const(p, n) if isinstance(p, str) else p for p in merged], _const("", n))
     off = np.frombuffer(rows.buffers()[1], dtype=np.int64)[rows.offset:rows.offset + n + 1]
     body = memoryview(rows.buffers()[2])[int(off[0]):int(off[-1]) - 1]  # without the last ","
-    return b"[" + bytes(body) + b"]"
+    return [b"[", bytes(body), b"]"]
