@@ -16,7 +16,6 @@ The engine's API is documented once in docs/engine-api.md.
 from __future__ import annotations
 
 import importlib
-from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -76,6 +75,15 @@ _EXPORTS = {
 
 
 def __getattr__(name: str) -> Any:
+    if name == "__version__":  # lazily: importlib.metadata costs ~40 ms of every CLI start
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            value = version("rulkit")
+        except PackageNotFoundError:  # pragma: no cover - a source tree without install
+            value = "0.0.0+unknown"
+        globals()[name] = value
+        return value
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'rulkit' has no attribute {name!r}")
@@ -87,11 +95,6 @@ def __getattr__(name: str) -> Any:
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_EXPORTS))
 
-
-try:
-    __version__ = version("rulkit")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
-    __version__ = "0.0.0+unknown"
 
 __all__ = [
     "ExtendedKalmanFilter",

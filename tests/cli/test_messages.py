@@ -186,9 +186,9 @@ def test_help_text_is_not_eaten_by_markup():
 
 
 def test_an_unexpected_exception_is_exit_70_without_traceback(tmp_path):
-    code = ("import sys, rulkit.fleet.store as s\n"
+    code = ("import sys, rulkit.fleet.status_view as s\n"  # what `rulkit status` reads with
             "def boom(*a, **k): raise RuntimeError('injected bug')\n"
-            "s.ComponentStore.status = boom\n"
+            "s.read_status = boom\n"
             "from rulkit.cli import main\n"
             f"sys.argv = ['rulkit', 'status', '--db', {str(tmp_path / 'x.db')!r}]\n"
             "main()\n")

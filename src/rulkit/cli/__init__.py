@@ -13,8 +13,6 @@ from pathlib import Path
 
 import typer
 
-from rulkit import __version__
-
 app = typer.Typer(
     name="rulkit",
     pretty_exceptions_enable=False,
@@ -40,6 +38,8 @@ COMMAND_MODULES = (
 
 def _version_callback(value: bool) -> None:
     if value:
+        from rulkit import __version__
+
         typer.echo(f"rulkit {__version__}")
         raise typer.Exit()
 

@@ -16,6 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+# defined beside the database file code (pandas-free, for `rulkit status`); re-exported here
+from rulkit.fleet.database_file import StoreBusyError as StoreBusyError
+from rulkit.fleet.database_file import StoreError as StoreError
 from rulkit.fleet.health_index import HealthIndexModel
 from rulkit.fleet.tracker_chain import (
     LEVEL_NAMES,
@@ -34,16 +37,6 @@ class IngestError(ValueError):
 
 class ComponentIdError(IngestError):
     """A component id outside the accepted alphabet or length (:func:`check_component_ids`)."""
-
-
-class StoreError(ValueError):
-    """The database file cannot be used as a rulkit component database (missing directory,
-    not a rulkit database, corrupt, other settings); the file is left as it was."""
-
-
-class StoreBusyError(StoreError):
-    """Another writer held the database longer than the timeout; nothing was written and the
-    same call can be retried."""
 
 
 @dataclass(frozen=True)

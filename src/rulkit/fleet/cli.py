@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -49,6 +49,93 @@ def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> str:
     lines = [(row_fmt % tuple(names)).rstrip(), "  ".join("-" * w for w in widths)]
     lines += [(row_fmt % row).rstrip() for row in zip(*columns.values(), strict=True)]
     return "\n".join(lines) + "\n"
+
+
+def _echo_table(db: Path, n_all: int, cols: dict[str, Any]) -> None:
+    """The ``rulkit status`` table of the columns of
+    :func:`rulkit.fleet.status_view.read_status` (every id through :func:`safe_text`)."""
+    from rulkit.fleet.tracker_chain import LEVEL_NAMES
+    from rulkit.tables import safe_text
+
+    n = len(cols["component"])
+    shown = f", the worst {n} shown" if n < n_all else ""
+    ids = cols["component"]
+    text = "".join(ids)
+    table = {
+        "component": (ids if text.isprintable() and max(map(len, ids), default=0) <= 40
+                      else [safe_text(c, 40) for c in ids]),  # safe_text changes nothing
+        "level": [LEVEL_NAMES[v] for v in cols["level"].tolist()],
+        "HI": _format_all("%.3f", cols["hi"].tolist()),
+        "fHI": _format_all("%.3f", cols["fhi"].tolist()),
+        "RUL": _format_rul(cols["rul"]), "RUL low": _format_rul(cols["rul_low"]),
+        "RUL high": _format_rul(cols["rul_high"]),
+        "valid": ["yes" if v else "no" for v in cols["valid"].tolist()],
+        "dRUL/dt": _format_rul(cols["drul"]), "d2RUL/dt2": _format_rul(cols["d2rul"]),
+        "n": _format_all("%d", cols["n"].tolist()),
+        "last t": _format_all("%g", cols["t"].tolist()),
+    }
+    typer.echo(f"{safe_text(db)}: {n_all} components, worst first{shown}")
+    typer.echo(_aligned_table(table, left=("component", "level")), nl=False)
+    typer.echo("RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
+               "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
+               "load +- load_factor")
+
+
+def _status_from_frame(db: Path, limit: int, fmt: str) -> None:
+    """``rulkit status`` through :meth:`ComponentStore.status` (pandas) and pyarrow: the
+    implementation before :mod:`rulkit.fleet.status_view`, kept for a components table
+    rulkit cannot have written (it names the bad row, or coerces as it always did)."""
+    from rulkit.cli.errors import fail
+    from rulkit.fleet.store import ComponentStore, StoreError
+    from rulkit.fleet.tracker_chain import LEVEL_NAMES
+    from rulkit.tables import safe_text
+
+    try:
+        with ComponentStore(db, readonly=True) as store:
+            df = store.status()
+    except FileNotFoundError as err:
+        fail(str(err))
+    except StoreError as err:
+        fail(str(err))
+    n_all = len(df)
+    if limit:
+        df = df.head(limit)
+    df = df.drop(columns="rul").rename(columns={"frul": "rul"}).assign(
+        level=df["level"].map(LEVEL_NAMES))
+    df = df[["component", "level", "hi", "fhi", "rul", "rul_low", "rul_high", "valid",
+             "dhi", "drul", "d2rul", "n", "t"]]
+    if fmt == "csv":
+        import io
+
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+
+        buf = io.BytesIO()  # pyarrow: shortest round-trip floats, 5x pandas' to_csv
+        pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), buf,
+                        pacsv.WriteOptions(quoting_style="needed"))
+        typer.echo(buf.getvalue(), nl=False)  # UTF-8 bytes, written as they are
+        return
+    if fmt == "json":
+        typer.echo(df.to_json(orient="records", double_precision=15))
+        return
+    shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
+    g = lambda col: _format_rul(df[col].to_numpy())  # noqa: E731
+    cols = {
+        "component": [safe_text(c, 40) for c in df["component"].tolist()],
+        "level": df["level"].tolist(),
+        "HI": _format_all("%.3f", df["hi"].tolist()),
+        "fHI": _format_all("%.3f", df["fhi"].tolist()),
+        "RUL": g("rul"), "RUL low": g("rul_low"), "RUL high": g("rul_high"),
+        "valid": ["yes" if v else "no" for v in df["valid"].tolist()],
+        "dRUL/dt": g("drul"), "d2RUL/dt2": g("d2rul"),
+        "n": _format_all("%d", df["n"].tolist()),
+        "last t": _format_all("%g", df["t"].tolist()),
+    }
+    typer.echo(f"{safe_text(db)}: {n_all} components, worst first{shown}")
+    typer.echo(_aligned_table(cols, left=("component", "level")), nl=False)
+    typer.echo("RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
+               "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
+               "load +- load_factor")
 
 
 def _tracker_options(given: dict[str, float | str]):
@@ -210,58 +297,27 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         Exit codes: 0 done; 1 the database was refused; 2 a bad option.
         """
         from rulkit.cli.errors import bad_option, fail
-        from rulkit.fleet.store import ComponentStore, StoreError
-        from rulkit.fleet.tracker_chain import LEVEL_NAMES
-        from rulkit.tables import safe_text
+        from rulkit.fleet.database_file import StoreError
+        from rulkit.fleet.status_view import format_csv, format_json, limited, read_status
 
         if fmt not in ("table", "csv", "json"):
             bad_option("--format", f"expected table, csv or json, got {fmt!r}")
         try:
-            with ComponentStore(db, readonly=True) as store:
-                df = store.status()
-        except FileNotFoundError as err:
+            got = read_status(db)  # sqlite3 only; None: a row rulkit cannot have written
+        except (FileNotFoundError, StoreError) as err:
             fail(str(err))
-        except StoreError as err:
-            fail(str(err))
-        n_all = len(df)
-        if limit:
-            df = df.head(limit)
-        df = df.drop(columns="rul").rename(columns={"frul": "rul"}).assign(
-            level=df["level"].map(LEVEL_NAMES))
-        df = df[["component", "level", "hi", "fhi", "rul", "rul_low", "rul_high", "valid",
-                 "dhi", "drul", "d2rul", "n", "t"]]
-        if fmt == "csv":
-            import io
-
-            import pyarrow as pa
-            import pyarrow.csv as pacsv
-
-            buf = io.BytesIO()  # pyarrow: shortest round-trip floats, 5x pandas' to_csv
-            pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), buf,
-                            pacsv.WriteOptions(quoting_style="needed"))
-            typer.echo(buf.getvalue(), nl=False)  # UTF-8 bytes, written as they are
+        if got is None:
+            _status_from_frame(db, limit, fmt)
             return
-        if fmt == "json":
-            typer.echo(df.to_json(orient="records", double_precision=15))
-            return
-        shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
-        g = lambda col: _format_rul(df[col].to_numpy())  # noqa: E731
-        cols = {
-            "component": [safe_text(c, 40) for c in df["component"].tolist()],
-            "level": df["level"].tolist(),
-            "HI": _format_all("%.3f", df["hi"].tolist()),
-            "fHI": _format_all("%.3f", df["fhi"].tolist()),
-            "RUL": g("rul"), "RUL low": g("rul_low"), "RUL high": g("rul_high"),
-            "valid": ["yes" if v else "no" for v in df["valid"].tolist()],
-            "dRUL/dt": g("drul"), "d2RUL/dt2": g("d2rul"),
-            "n": _format_all("%d", df["n"].tolist()),
-            "last t": _format_all("%g", df["t"].tolist()),
-        }
-        typer.echo(f"{safe_text(db)}: {n_all} components, worst first{shown}")
-        typer.echo(_aligned_table(cols, left=("component", "level")), nl=False)
-        typer.echo("RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
-                   "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
-                   "load +- load_factor")
+        n_all, cols = got
+        cols = limited(cols, limit)
+        if fmt == "csv":  # UTF-8 bytes, written as they are
+            typer.echo(format_csv(cols), nl=False)
+        elif fmt == "json":  # ASCII (non-ASCII and control characters escaped)
+            for chunk in [*format_json(cols), b"\n"]:
+                typer.echo(chunk, nl=False)
+        else:
+            _echo_table(db, n_all, cols)
 
     @reproduce.command("embedded-rul")
     def reproduce_embedded_rul(

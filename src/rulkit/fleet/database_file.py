@@ -3,7 +3,7 @@
 Helpers of :mod:`rulkit.fleet.store` that look at a database before it is opened for writing:
 :func:`_probe` checks an existing file read-only (SQLite header, ``meta`` table, schema
 version) so a foreign, empty or corrupt file keeps its bytes and gets a named
-:class:`~rulkit.fleet.acquisitions.StoreError`; the tracker settings, HI model and learned
+:class:`StoreError`; the tracker settings, HI model and learned
 model are read from ``meta``; :func:`_fsync_dir` makes a published file durable.
 """
 
@@ -15,13 +15,22 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
-from rulkit.fleet.acquisitions import StoreError
 from rulkit.fleet.health_index import HealthIndexModel
 from rulkit.fleet.tracker_chain import TrackerConfig
 from rulkit.tables import safe_text
 
 SCHEMA_VERSION = 1
 SQLITE_HEADER = b"SQLite format 3\x00"
+
+
+class StoreError(ValueError):
+    """The database file cannot be used as a rulkit component database (missing directory,
+    not a rulkit database, corrupt, other settings); the file is left as it was."""
+
+
+class StoreBusyError(StoreError):
+    """Another writer held the database longer than the timeout; nothing was written and the
+    same call can be retried."""
 
 
 def _uri(path: Path, mode: str) -> str:
@@ -87,6 +96,36 @@ def _db_error_message(path: Path, err: sqlite3.Error) -> str:
         return f"{path}: cannot be written (read-only file or directory): {text}"
     return (f"{path}: corrupt or truncated database ({text}); restore it from a backup "
             "(SQLite's .recover can salvage rows)")
+
+
+def _connect(path: Path, timeout: float, readonly: bool) -> sqlite3.Connection:
+    """A connection to the rulkit database at ``path`` (already checked by :func:`_probe`);
+    ``readonly``: SQLite's ``mode=ro`` when the file or its directory is not writable (it may
+    leave -shm/-wal), ``query_only`` always. SQLite errors raise :class:`StoreError`."""
+    try:
+        writable = os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)
+        if readonly and not writable:  # SQLite's read-only mode (may leave -shm/-wal)
+            conn = sqlite3.connect(_uri(path, "ro"), uri=True, timeout=timeout,
+                                   isolation_level=None, check_same_thread=False)
+        else:  # the last connection to close removes -wal/-shm
+            conn = sqlite3.connect(str(path), timeout=timeout, isolation_level=None,
+                                   check_same_thread=False)
+            conn.execute("PRAGMA synchronous=FULL")
+        if readonly:
+            conn.execute("PRAGMA query_only=1")
+    except sqlite3.Error as err:
+        raise StoreError(_db_error_message(path, err)) from err
+    return conn
+
+
+def _store_error(path: Path, err: sqlite3.Error, timeout: float) -> StoreError:
+    """``err`` as :class:`StoreBusyError` (another writer held the lock past ``timeout``) or
+    :class:`StoreError`, with the path."""
+    msg = _db_error_message(path, err)
+    if isinstance(err, sqlite3.OperationalError) and (
+            "locked" in str(err) or "busy" in str(err)):
+        return StoreBusyError(f"{msg} (waited {timeout:g} s)")
+    return StoreError(msg)
 
 
 def _config_from_meta(path: Path, meta: dict[str, str]

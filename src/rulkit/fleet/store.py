@@ -67,23 +67,24 @@ from rulkit.fleet.acquisitions import (
     Alert,
     IngestError,
     IngestResult,
-    StoreBusyError,
     StoreError,
     read_acquisitions,
     validate_acquisitions,
 )
 from rulkit.fleet.acquisitions import ComponentIdError as ComponentIdError
+from rulkit.fleet.acquisitions import StoreBusyError as StoreBusyError
 from rulkit.fleet.acquisitions import check_component_ids as check_component_ids
 from rulkit.fleet.database_file import SCHEMA_VERSION as SCHEMA_VERSION
 from rulkit.fleet.database_file import (
     _config_from_meta,
+    _connect,
     _db_error_message,
     _degradation_from_meta,
     _fsync_dir,
     _meta_rows,
     _probe,
     _read_meta,
-    _uri,
+    _store_error,
 )
 from rulkit.fleet.health_index import HealthIndexModel
 from rulkit.fleet.tracker_chain import (
@@ -307,19 +308,7 @@ class ComponentStore:
             _build_and_publish(self.path, config or TrackerConfig(), hi_model, None, "")
             meta = _probe(self.path)
             assert meta is not None
-        try:
-            writable = os.access(self.path, os.W_OK) and os.access(self.path.parent, os.W_OK)
-            if readonly and not writable:  # SQLite's read-only mode (may leave -shm/-wal)
-                conn = sqlite3.connect(_uri(self.path, "ro"), uri=True, timeout=timeout,
-                                       isolation_level=None, check_same_thread=False)
-            else:  # the last connection to close removes -wal/-shm
-                conn = sqlite3.connect(str(self.path), timeout=timeout, isolation_level=None,
-                                       check_same_thread=False)
-                conn.execute("PRAGMA synchronous=FULL")
-            if readonly:
-                conn.execute("PRAGMA query_only=1")
-        except sqlite3.Error as err:
-            raise StoreError(_db_error_message(self.path, err)) from err
+        conn = _connect(self.path, timeout, readonly)
         try:
             meta = _read_meta(conn)  # through this connection: sees the write-ahead log
             stored_cfg, stored_model = _config_from_meta(self.path, meta)
@@ -397,11 +386,7 @@ class ComponentStore:
                 raise self._error(err) from err
 
     def _error(self, err: sqlite3.Error) -> StoreError:
-        msg = _db_error_message(self.path, err)
-        if isinstance(err, sqlite3.OperationalError) and (
-                "locked" in str(err) or "busy" in str(err)):
-            return StoreBusyError(f"{msg} (waited {self.timeout:g} s)")
-        return StoreError(msg)
+        return _store_error(self.path, err, self.timeout)
 
     @contextmanager
     def snapshot(self) -> Iterator[sqlite3.Connection]:
