@@ -65,9 +65,18 @@ def limit_blas_threads(n: int) -> None:
     such call took ~0.8 ms with OpenBLAS threads against ~0.06 ms with one thread. Independent
     runs are parallelised by processes instead (``--workers``).
     """
-    from threadpoolctl import threadpool_limits
+    import os
+    import sys
 
-    threadpool_limits(limits=n, user_api="blas")
+    # BLAS libraries loaded later (most commands import numpy only when they run) read their
+    # thread count from the environment when they load; threadpoolctl caps the loaded ones
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS",
+                "VECLIB_MAXIMUM_THREADS"):
+        os.environ[var] = str(n)
+    if "numpy" in sys.modules or "scipy" in sys.modules:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=n, user_api="blas")
 
 
 @app.command()

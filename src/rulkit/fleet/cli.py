@@ -86,6 +86,7 @@ def _status_from_frame(db: Path, limit: int, fmt: str) -> None:
     implementation before :mod:`rulkit.fleet.status_view`, kept for a components table
     rulkit cannot have written (it names the bad row, or coerces as it always did)."""
     from rulkit.cli.errors import fail
+    from rulkit.fleet.status_view import printable_id
     from rulkit.fleet.store import ComponentStore, StoreError
     from rulkit.fleet.tracker_chain import LEVEL_NAMES
     from rulkit.tables import safe_text
@@ -111,6 +112,7 @@ def _status_from_frame(db: Path, limit: int, fmt: str) -> None:
         import pyarrow.csv as pacsv
 
         buf = io.BytesIO()  # pyarrow: shortest round-trip floats, 5x pandas' to_csv
+        df = df.assign(component=df["component"].map(printable_id))
         pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), buf,
                         pacsv.WriteOptions(quoting_style="needed"))
         typer.echo(buf.getvalue(), nl=False)  # UTF-8 bytes, written as they are

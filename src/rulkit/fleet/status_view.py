@@ -186,6 +186,17 @@ def _pa_type(name: str) -> Any:
 
 
 # --------------------------------------------------------------------------- CSV
+def printable_id(component: str) -> str:
+    """A component id as the CSV prints it: unchanged when printable (every id rulkit
+    ingests is), else through :func:`rulkit.tables.safe_text` (a hand-made database's ESC
+    or newline must not reach a terminal)."""
+    if component.isprintable():
+        return component
+    from rulkit.tables import safe_text
+
+    return safe_text(component)
+
+
 def format_csv(cols: dict[str, Any]) -> bytes:
     """The CSV bytes of ``rulkit status --format csv``: pyarrow's CSV writer with
     ``quoting_style="needed"`` (strings quoted, shortest round-trip floats, booleans
@@ -195,7 +206,7 @@ def format_csv(cols: dict[str, Any]) -> bytes:
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
-    arrays = [_strs(cols["component"]), _levels(cols["level"])]
+    arrays = [_strs([printable_id(c) for c in cols["component"]]), _levels(cols["level"])]
     for c in STATUS_COLUMNS[2:]:
         if c == "valid":
             arrays.append(_bools(cols[c] != 0))
