@@ -51,10 +51,10 @@ def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _echo_table(db: Path, n_all: int, cols: dict[str, Any]) -> None:
+def _echo_table(db: Path, n_all: int, cols: dict[str, Any], levels: list[str]) -> None:
     """The ``rulkit status`` table of the columns of
-    :func:`rulkit.fleet.status_view.read_status` (every id through :func:`safe_text`)."""
-    from rulkit.fleet.tracker_chain import LEVEL_NAMES
+    :func:`rulkit.fleet.status_view.read_status` (every id through :func:`safe_text`) with the
+    level names ``levels``."""
     from rulkit.tables import safe_text
 
     n = len(cols["component"])
@@ -64,7 +64,7 @@ def _echo_table(db: Path, n_all: int, cols: dict[str, Any]) -> None:
     table = {
         "component": (ids if text.isprintable() and max(map(len, ids), default=0) <= 40
                       else [safe_text(c, 40) for c in ids]),  # safe_text changes nothing
-        "level": [LEVEL_NAMES[v] for v in cols["level"].tolist()],
+        "level": levels,
         "HI": _format_all("%.3f", cols["hi"].tolist()),
         "fHI": _format_all("%.3f", cols["fhi"].tolist()),
         "RUL": _format_rul(cols["rul"]), "RUL low": _format_rul(cols["rul_low"]),
@@ -89,7 +89,6 @@ def _status_from_frame(db: Path, limit: int, fmt: str) -> None:
     from rulkit.fleet.status_view import printable_id
     from rulkit.fleet.store import ComponentStore, StoreError
     from rulkit.fleet.tracker_chain import LEVEL_NAMES
-    from rulkit.tables import safe_text
 
     try:
         with ComponentStore(db, readonly=True) as store:
@@ -120,24 +119,9 @@ def _status_from_frame(db: Path, limit: int, fmt: str) -> None:
     if fmt == "json":
         typer.echo(df.to_json(orient="records", double_precision=15))
         return
-    shown = f", the worst {len(df)} shown" if len(df) < n_all else ""
-    g = lambda col: _format_rul(df[col].to_numpy())  # noqa: E731
-    cols = {
-        "component": [safe_text(c, 40) for c in df["component"].tolist()],
-        "level": df["level"].tolist(),
-        "HI": _format_all("%.3f", df["hi"].tolist()),
-        "fHI": _format_all("%.3f", df["fhi"].tolist()),
-        "RUL": g("rul"), "RUL low": g("rul_low"), "RUL high": g("rul_high"),
-        "valid": ["yes" if v else "no" for v in df["valid"].tolist()],
-        "dRUL/dt": g("drul"), "d2RUL/dt2": g("d2rul"),
-        "n": _format_all("%d", df["n"].tolist()),
-        "last t": _format_all("%g", df["t"].tolist()),
-    }
-    typer.echo(f"{safe_text(db)}: {n_all} components, worst first{shown}")
-    typer.echo(_aligned_table(cols, left=("component", "level")), nl=False)
-    typer.echo("RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
-               "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
-               "load +- load_factor")
+    cols: dict[str, Any] = {c: df[c].to_numpy() for c in df.columns}
+    cols["component"] = [str(c) for c in df["component"].tolist()]
+    _echo_table(db, n_all, cols, [str(v) for v in df["level"].tolist()])
 
 
 def _tracker_options(given: dict[str, float | str]):
@@ -301,6 +285,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.database_file import StoreError
         from rulkit.fleet.status_view import format_csv, format_json, limited, read_status
+        from rulkit.fleet.tracker_chain import LEVEL_NAMES
 
         if fmt not in ("table", "csv", "json"):
             bad_option("--format", f"expected table, csv or json, got {fmt!r}")
@@ -319,7 +304,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             for chunk in [*format_json(cols), b"\n"]:
                 typer.echo(chunk, nl=False)
         else:
-            _echo_table(db, n_all, cols)
+            _echo_table(db, n_all, cols, [LEVEL_NAMES[v] for v in cols["level"].tolist()])
 
     @reproduce.command("embedded-rul")
     def reproduce_embedded_rul(
