@@ -59,16 +59,21 @@ def synthetic_paris_fleet(
         h = np.power(np.maximum(base, 1e-12), 1.0 / (1.0 - p))
         hi = np.maximum(h + noise_sd * rng.standard_normal(t.size), 0.0)
         if not censored[u]:
-            # the run ends at the first measured hi >= 1 (a run-to-failure test)
-            k = np.flatnonzero(hi >= 1.0)
-            if k.size:
-                t, hi = t[: k[0] + 1], hi[: k[0] + 1]
-            else:
-                t = np.append(t, t_fail[u] * 1.1)
-                hi = np.append(hi, 1.0 + abs(noise_sd * rng.standard_normal()))
+            t, hi = _to_failure(t, hi, t_fail[u], noise_sd, rng)
             truth[u] = t_fail[u]
         rows.append(pd.DataFrame({"component": f"p{u:04d}", "time": t, "hi": hi}))
     return pd.concat(rows, ignore_index=True), truth
+
+
+def _to_failure(t: np.ndarray, hi: np.ndarray, t_fail: float, noise_sd: float,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A run-to-failure test ends at the first measured hi >= 1; a unit that never measured
+    it gets one last acquisition past its failure time (hi just above 1)."""
+    k = np.flatnonzero(hi >= 1.0)
+    if k.size:
+        return t[: k[0] + 1], hi[: k[0] + 1]
+    return (np.append(t, t_fail * 1.1),
+            np.append(hi, 1.0 + abs(noise_sd * rng.standard_normal())))
 
 
 def synthetic_linear_fleet(
@@ -87,12 +92,7 @@ def synthetic_linear_fleet(
         t = _sample_times(rng, t_end, n_acq)
         hi = np.maximum(a[u] + b[u] * t + noise_sd * rng.standard_normal(t.size), 0.0)
         if not censored[u]:
-            k = np.flatnonzero(hi >= 1.0)
-            if k.size:
-                t, hi = t[: k[0] + 1], hi[: k[0] + 1]
-            else:
-                t = np.append(t, t_fail[u] * 1.1)
-                hi = np.append(hi, 1.0 + abs(noise_sd * rng.standard_normal()))
+            t, hi = _to_failure(t, hi, t_fail[u], noise_sd, rng)
             truth[u] = t_fail[u]
         rows.append(pd.DataFrame({"component": f"l{u:04d}", "time": t, "hi": hi}))
     return pd.concat(rows, ignore_index=True), truth
