@@ -21,13 +21,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
-import statistics
-import time
 
 import numpy as np
 
 from rulkit.fleet.models.degradation import DegradationModel, UnitState, update_state
 from rulkit.fleet.tracker_chain import TrackerConfig, TrackerState, tracker_update
+from timing import median_time
 
 MODELS = {
     "linear": DegradationModel(kind="linear", shape=0.0, mean=(0.1, 0.8),
@@ -40,15 +39,6 @@ MODELS = {
                               cov=(1e-3, 0.0, 0.1), noise_sd=0.03, walk_sd=0.05,
                               time_scale=1000.0),
 }
-
-
-def _median_time(fn, repeats: int) -> float:
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
 
 
 def main() -> None:
@@ -65,15 +55,15 @@ def main() -> None:
     hi2 = hi1 + rng.uniform(0.0, 0.1, b)
     cfg = TrackerConfig(dt=10.0)
     ts = tracker_update(TrackerState.empty(b), t1, hi1, cfg, outputs=False)[0]
-    t_tr = _median_time(lambda: tracker_update(ts, t2, hi2, cfg, outputs=False), a.repeats)
+    t_tr = median_time(lambda: tracker_update(ts, t2, hi2, cfg, outputs=False), a.repeats)
     print(f"B = {b} components, {a.repeats} repeats (median), seed {a.seed}, one core")
     print(f"{'model':12s} {'update s':>9s} {'updates/s':>11s} {'quantiles s':>12s} "
           f"{'triples/s':>10s} {'tracker/update':>15s}")
     for name, m in MODELS.items():
         st = update_state(UnitState.empty(m, b), m, t1, hi1)
-        t_up = _median_time(lambda m=m, st=st: update_state(st, m, t2, hi2), a.repeats)
+        t_up = median_time(lambda m=m, st=st: update_state(st, m, t2, hi2), a.repeats)
         st2 = update_state(st, m, t2, hi2)
-        t_q = _median_time(lambda m=m, st2=st2: m.rul_quantiles(st2), max(1, a.repeats // 2))
+        t_q = median_time(lambda m=m, st2=st2: m.rul_quantiles(st2), max(1, a.repeats // 2))
         print(f"{name:12s} {t_up:9.3f} {b / t_up:11.3g} {t_q:12.3f} {b / t_q:10.3g} "
               f"{t_tr / t_up:15.2f}")
     print(f"{'seed tracker':12s} {t_tr:9.3f} {b / t_tr:11.3g}  (tracker_update, state only)")

@@ -19,14 +19,7 @@ import time
 
 import numpy as np
 
-
-def _median_time(fn, repeats: int) -> float:
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
+from timing import median_time
 
 
 def bench_window_sums(n_particles: int = 150, n_windows: int = 20, n_nodes: int = 4,
@@ -54,10 +47,10 @@ def bench_window_sums(n_particles: int = 150, n_windows: int = 20, n_nodes: int 
         return np.stack([q.log_sums(b, k) for k in range(n_windows)])
 
     ref, got = direct(), quad()
-    t_direct = _median_time(direct, repeats)
-    t_quad = _median_time(quad, repeats)
+    t_direct = median_time(direct, repeats)
+    t_quad = median_time(quad, repeats)
     q = window_quadrature(u, n_nodes)
-    t_eval = _median_time(lambda: [q.log_sums(b, k) for k in range(n_windows)], repeats)
+    t_eval = median_time(lambda: [q.log_sums(b, k) for k in range(n_windows)], repeats)
     return {"t_direct_per_window": t_direct / n_windows, "t_quad_per_window": t_quad / n_windows,
             "t_eval_per_window": t_eval / n_windows, "speedup": t_direct / t_quad,
             "max_rel_err": float(np.max(np.abs(np.expm1(got - ref)))),
