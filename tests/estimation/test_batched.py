@@ -135,25 +135,40 @@ def test_weighted_quantile_equals_numpy_inverted_cdf(seed: int) -> None:
 
 
 _CACHE_SCRIPT = textwrap.dedent("""
+    import hashlib
     import numpy as np
     from rulkit.estimation import batched
-    from rulkit.systems.reaction_wheel import kernels
+    from rulkit.systems.reaction_wheel import lubrication
     from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
     from rulkit.systems.reaction_wheel.wheel import simulate_table3
-    d = simulate_table3(np.random.default_rng(0), "low", t_end=5.0)
-    r = filter_temperature(d.y, d.V, np.random.default_rng(1),
-                                  TemperatureConfig(n_particles=40), sigma=(d.sigma_w, d.sigma_I))
+    h = hashlib.sha256()
+    for speed in ("low", "high"):
+        d = simulate_table3(np.random.default_rng(0), speed, t_end=5.0)
+        for design in ("F1", "F2"):
+            for variant in ("pf", "adaptive", "apf_eq28", "apf_tempered"):
+                cfg = TemperatureConfig(design=design, variant=variant, n_particles=20)
+                r = filter_temperature(d.y, d.V, np.random.default_rng(1), cfg,
+                                       sigma=(d.sigma_w, d.sigma_I))
+                h.update(np.ascontiguousarray(r.T_mean).tobytes())
     lw = np.random.default_rng(2).normal(size=(3, 9))
-    print(repr(float(r.T_mean[-1])), repr(float(batched.normalise_rows_numba(lw)[2][1])))
+    h.update(batched.normalise_rows_numba(lw)[2].tobytes())
+    u = np.random.default_rng(3).normal(20.0, 3.0, size=(50, 200))
+    for a in lubrication._stieltjes_kernel(u, 12):
+        h.update(np.ascontiguousarray(a).tobytes())
+    print(h.hexdigest())
 """)
 
 
-def test_numba_cache_is_reused_across_modules(tmp_path: Path) -> None:
-    """Second fresh process: cache index files exist for batched's row functions and for the
-    kernel that calls them, and the numbers are identical."""
+def test_numba_kernels_compiled_or_cached_give_the_same_bits(tmp_path: Path) -> None:
+    """Two fresh processes on an empty numba cache: the first compiles the step-1 kernel (every
+    design and variant), batched's row functions and the lubrication windows' Stieltjes kernel
+    (fastmath), the second loads them from the cache.
+    Same seed, same machine, same bits: the outputs are identical (fastmath reassociation broke
+    this: the in-process and the cached machine code rounded differently). The cache holds
+    index files for batched's row functions and for the kernel that calls them."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     outs = [subprocess.run([sys.executable, "-c", _CACHE_SCRIPT], env=env, check=True,
-                           capture_output=True, text=True, timeout=300).stdout
+                           capture_output=True, text=True, timeout=600).stdout
             for _ in range(2)]
     assert outs[0] == outs[1] and outs[0].strip()
     idx = [p.name for p in (tmp_path / "cache").rglob("*.nbi")]

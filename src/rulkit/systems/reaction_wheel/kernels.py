@@ -52,10 +52,15 @@ def pack_params(p: IthacoParams) -> np.ndarray:
     )
 
 
-_FM = {"nsz", "arcp", "contract", "reassoc"}  # no nnan/ninf: NaN and -inf are handled
+# No fastmath: with reassociation the kernel compiled in this process and the same kernel loaded
+# from numba's on-disk cache rounded differently, so a command's first run on a machine (cold
+# cache) and its later runs wrote different last digits. FMA contraction alone is deterministic
+# but gains only ~6% here. Strict IEEE order costs about a tenth of the kernel's speed
+# (benchmarks/bench_rw_temperature.py, numba F2 and F1 rows) and keeps the golden tables far
+# inside their tolerance on other processors (tests/test_golden_tables.py).
 
 
-@nb.njit(cache=True, inline="always", fastmath=_FM)
+@nb.njit(cache=True, inline="always")
 def _deriv(I, w, V, b, tn, C):  # type: ignore[no-untyped-def]
     """Wheel derivatives for one particle: the algebra of ``wheel_derivatives`` written
     branch-free (comparisons as 0/1 factors, docs/systems/reaction-wheel.md §1: Heavisides are exact
@@ -80,7 +85,7 @@ def _consts(P):  # type: ignore[no-untyped-def]
             P[14], 1.0 / P[12])
 
 
-@nb.njit(cache=True, inline="always", fastmath=_FM)
+@nb.njit(cache=True, inline="always")
 def _rk4(I, w, V, b, tn0, tn1, tn2, dt, C):  # type: ignore[no-untyped-def]
     """Classical RK4 step; tn0/tn1/tn2: torque noise at t, t + dt/2, t + dt."""
     k1I, k1w = _deriv(I, w, V, b, tn0, C)
@@ -91,7 +96,7 @@ def _rk4(I, w, V, b, tn0, tn1, tn2, dt, C):  # type: ignore[no-untyped-def]
             w + dt / 6.0 * (k1w + 2.0 * k2w + 2.0 * k3w + k4w))
 
 
-@nb.njit(cache=True, fastmath=_FM)
+@nb.njit(cache=True)
 def _predict_loglik(I, W, T, ll, N, design, yprev_w, yprev_I, yw, yI, Vk, tn0, tn1, tn2, dt,
                     b0, b1, a11, a12, a22, log_norm, C):  # type: ignore[no-untyped-def]
     """RK4 per particle with b_v = b0 + b1 T and the Gaussian log-likelihood (hot loop)."""
