@@ -24,8 +24,8 @@ import argparse
 
 import numpy as np
 
-from rulkit.fleet.models.degradation import DegradationModel, UnitState, update_state
-from rulkit.fleet.tracker_chain import TrackerConfig, TrackerState, tracker_update
+from rulkit.fleet.learned.degradation import DegradationModel, UnitState, update_state
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig, TrackerState, tracker_update
 from timing import median_time
 
 MODELS = {

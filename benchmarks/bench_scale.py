@@ -13,7 +13,7 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
   for 10^4 with the rich table).
 * the interpreter start with ``import rulkit.cli`` and the fleet store (pandas), the floor
   under ``track``, and the floor under ``status`` (typer's pydantic adapters, numpy,
-  pyarrow; no pandas since rulkit.fleet.status_view).
+  pyarrow; no pandas since rulkit.fleet.store.status_view).
 
     .venv/bin/python benchmarks/bench_scale.py              # the defaults above (~2 min)
     .venv/bin/python benchmarks/bench_scale.py --components 200 --repeats 1   # quick look
@@ -98,16 +98,16 @@ def main() -> None:
         print(f"rulkit bench_scale: {os.cpu_count()} cores, load average "
               f"{os.getloadavg()[0]:.1f}, seed {args.seed}, medians of {args.repeats} runs")
         floor = median3([measure([sys.executable, "-c",
-                                  _PEAK + "import rulkit.cli, rulkit.fleet.store"])
+                                  _PEAK + "import rulkit.cli, rulkit.fleet.store.sqlite"])
                          for _ in range(args.repeats)])
-        print(f"import rulkit.cli, rulkit.fleet.store (start-up floor, pandas included): "
+        print(f"import rulkit.cli, rulkit.fleet.store.sqlite (start-up floor, pandas included): "
               f"wall {floor[0]:.2f} s, CPU {floor[1]:.2f} s, peak {floor[2]:.0f} MB")
-        status_imports = ("import rulkit.cli, typer._adapters, rulkit.fleet.status_view, "
+        status_imports = ("import rulkit.cli, typer._adapters, rulkit.fleet.store.status_view, "
                           "pyarrow.compute, pyarrow.csv")
         sfloor = median3([measure([sys.executable, "-c", _PEAK + status_imports])
                           for _ in range(args.repeats)])
-        print(f"import rulkit.cli, rulkit.fleet.status_view, pyarrow (start-up floor of status, "
-              f"no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
+        print(f"import rulkit.cli, rulkit.fleet.store.status_view, pyarrow (start-up floor of "
+              f"status, no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
 
         n_rows = args.components * args.acquisitions
         src = tmp / "acquisitions.csv"
@@ -130,7 +130,7 @@ def main() -> None:
             "component": np.repeat([f"c{i:07d}" for i in range(n)], 3),
             "time": np.tile([0.0, 1.0, 2.0], n),
             "hi": np.repeat(rng.uniform(0.05, 1.2, n), 3)})
-        from rulkit.fleet.store import ingest_into
+        from rulkit.fleet.store.sqlite import ingest_into
 
         ingest_into(sdb, frame)
         for fmt in ("table", "csv", "json"):

@@ -32,7 +32,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from rulkit.fleet.tracker_chain import (
+from rulkit.fleet.tracking.tracker_chain import (
     TrackerConfig,
     TrackerState,
     tracker_update,

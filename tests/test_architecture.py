@@ -111,8 +111,8 @@ def test_no_system_imports_another_system() -> None:
         ("from ..systems.toy import model\n", "rulkit.estimation.particle",
          "rulkit.systems.toy.model"),
         ("from . import kernels\n", "rulkit.systems.toy.model", "rulkit.systems.toy.kernels"),
-        ("import importlib\nimportlib.import_module('rulkit.fleet.cli')\n", "rulkit.plot",
-         "rulkit.fleet.cli"),
+        ("import importlib\nimportlib.import_module('rulkit.fleet.store.cli')\n", "rulkit.plot",
+         "rulkit.fleet.store.cli"),
     ],
 )
 def test_import_reader_sees_lazy_relative_and_dynamic_imports(

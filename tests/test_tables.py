@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rulkit.fleet.store import IngestError, read_acquisitions
+from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
 from rulkit.systems.motor_damping.pullup import PullupDataError, read_pullup
 from rulkit.systems.reaction_wheel.telemetry import TelemetryError, read_wheel_telemetry
 from rulkit.tables import (

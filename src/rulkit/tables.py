@@ -3,7 +3,7 @@ float64 with row-level messages, and suggesting the intended name of a misnamed 
 
 Used by :mod:`rulkit.systems.reaction_wheel.telemetry` (reaction-wheel telemetry),
 :mod:`rulkit.systems.motor_damping.pullup`
-(motor pull-up tests) and :mod:`rulkit.fleet.store` (``rulkit track`` acquisitions).
+(motor pull-up tests) and :mod:`rulkit.fleet.store.sqlite` (``rulkit track`` acquisitions).
 Each reader passes its own exception class (``error=``, a ``ValueError`` subclass), so callers
 keep catching the reader's error; the helpers only decide *what* is wrong and say it in one
 consistent form (CONTRIBUTING.md, "Habits": bad input gets a specific error, which file, column,

@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from rulkit.cli import app
 from rulkit.cli.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_USAGE
-from rulkit.fleet.store import ingest_into
+from rulkit.fleet.store.sqlite import ingest_into
 
 runner = CliRunner()
 
@@ -186,7 +186,7 @@ def test_help_text_is_not_eaten_by_markup():
 
 
 def test_an_unexpected_exception_is_exit_70_without_traceback(tmp_path):
-    code = ("import sys, rulkit.fleet.status_view as s\n"  # what `rulkit status` reads with
+    code = ("import sys, rulkit.fleet.store.status_view as s\n"  # what `rulkit status` reads with
             "def boom(*a, **k): raise RuntimeError('injected bug')\n"
             "s.read_status = boom\n"
             "from rulkit.cli import main\n"

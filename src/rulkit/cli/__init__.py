@@ -30,7 +30,9 @@ COMMAND_MODULES = (
     "rulkit.systems.reaction_wheel.cli",
     "rulkit.systems.motor_damping.cli",
     "rulkit.systems.friction_drive.cli",
-    "rulkit.fleet.cli",
+    "rulkit.systems.embedded_rul.cli",
+    "rulkit.fleet.store.cli",
+    "rulkit.fleet.learned.cli",
     "rulkit.fleet.service.cli",
     "rulkit.systems.toy.cli",
 )

@@ -26,8 +26,8 @@ Update conventions
 Missing data: a NaN measurement skips the correction for that unit (prediction only), like the
 Kalman filters; an infinite measurement raises ``ValueError``. The state itself is not scanned
 (the per-update path stays at the seed's operation count): a NaN state row stays NaN for that
-unit only, which :func:`rulkit.fleet.tracker_chain.tracker_update` uses for components without
-an acquisition yet (it overwrites those rows at their first one).
+unit only, which :func:`rulkit.fleet.tracking.tracker_chain.tracker_update` uses for components
+without an acquisition yet (it overwrites those rows at their first one).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rulkit.fleet.store import ComponentStore
+from rulkit.fleet.store.sqlite import ComponentStore
 
 
 def auth(token):
@@ -196,7 +196,7 @@ def clone_component(sdb, source, new_ids):
     """Copy a stored component's row under other ids, bypassing the ingest validation: the
     API and the page must cope with whatever a database holds (older versions, other
     writers), whatever id alphabet ingestion accepts today."""
-    from rulkit.fleet.store import ROW_FIELDS
+    from rulkit.fleet.store.sqlite import ROW_FIELDS
 
     cols = ", ".join((*ROW_FIELDS, "max_level"))
     with sdb.store() as s, s._transaction("IMMEDIATE") as conn:

@@ -45,7 +45,7 @@ def test_dashboard_in_headless_chromium(tmp_path, live_server, need):
 
     from rulkit.fleet.service.app import create_app
     from rulkit.fleet.service.db import ServiceDB
-    from rulkit.fleet.store import ROW_FIELDS
+    from rulkit.fleet.store.sqlite import ROW_FIELDS
 
     sdb = ServiceDB(tmp_path / "fleet.db")
     _, token = sdb.create_token("write", "browser")

@@ -45,7 +45,7 @@ def test_serve_help_lists_options():
 
 
 def test_unreachable_postgres_is_a_message_without_the_password():
-    from rulkit.fleet.backends import _redact
+    from rulkit.fleet.store.postgres import _redact
 
     assert _redact("postgresql://ops:s3cret@db.local:5432/fleet") == (
         "postgresql://ops:***@db.local:5432/fleet")

@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pandas as pd
 
-from rulkit.fleet.backends import open_store
 from rulkit.fleet.service.db import ServiceDB
 from rulkit.fleet.service.loadgen import request, run_load, start_server, verify_exactly_once
+from rulkit.fleet.store.postgres import open_store
 
 
 def test_short_load_stores_every_acquisition_once(db_url):

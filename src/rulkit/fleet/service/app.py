@@ -34,7 +34,8 @@ from pydantic import BaseModel, Field
 
 from rulkit import __version__
 from rulkit.fleet.service.db import ConflictError, NotFound, ServiceDB, Token
-from rulkit.fleet.store import IngestError, StoreError
+from rulkit.fleet.store.acquisitions import IngestError
+from rulkit.fleet.store.database_file import StoreError
 
 log = logging.getLogger("rulkit.service")
 

@@ -33,9 +33,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from rulkit.fleet.backends import open_store, store_dialect
-from rulkit.fleet.store import ComponentStore, IngestError, IngestResult, validate_acquisitions
-from rulkit.fleet.tracker_chain import LEVEL_NAMES
+from rulkit.fleet.store.acquisitions import IngestError, IngestResult, validate_acquisitions
+from rulkit.fleet.store.postgres import open_store, store_dialect
+from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
 from rulkit.tables import cell_repr as _fmt
 
 ROLES = ("read", "write")

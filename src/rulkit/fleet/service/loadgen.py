@@ -213,7 +213,7 @@ def run_load(port: int, token: str, *, writers: int = 8, readers: int = 8, batch
 def verify_exactly_once(db: str, writers: int, batches: int, batch_size: int,
                         first_batch: int = 0) -> None:
     """Every acquisition of :func:`run_load` stored exactly once (AssertionError if not)."""
-    from rulkit.fleet.backends import open_store
+    from rulkit.fleet.store.postgres import open_store
 
     with open_store(db, create=False) as store:
         hist = store.history()

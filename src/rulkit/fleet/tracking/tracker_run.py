@@ -1,0 +1,262 @@
+"""Many acquisitions per component: the embedded RUL tracker chain of
+:mod:`rulkit.fleet.tracking.tracker_chain` run as two sequential passes per component (the
+ingestion of a batch, docs/systems/embedded-rul.md sections 2-3), with the same numbers as one
+:func:`~rulkit.fleet.tracking.tracker_chain.tracker_update` per acquisition rank (tested).
+
+:func:`tracker_strategy` picks the cheapest of three equal-result ways from a cost model;
+:func:`tracker_run` runs it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rulkit.fleet.tracking.tracker_chain import (
+    MIN_UPDATES_VALID,
+    TrackerConfig,
+    TrackerGains,
+    TrackerState,
+    alert_level,
+    paris_rul,
+    rul_confidence_limits,
+    rul_validity,
+    tracker_update,
+)
+
+# Cost model of :func:`tracker_run`'s three equal-result strategies, in seconds, measured on
+# the 2-core development machine (`benchmarks/bench_scale.py` shows the outcome):
+# one vectorised tracker_update per acquisition rank (~0.12 ms a call: few ranks, many
+# components, e.g. a fleet's periodic batch), the per-component passes as plain Python
+# (~3 us an acquisition: small batches) or compiled by numba (~0.15 us an acquisition, but
+# loading numba and its cache costs ~0.55 s and ~100 MB once per process: long series).
+_COST_PER_RANK = 1.2e-4
+_COST_PER_RANK_ROW = 2.5e-7
+_COST_PER_PYTHON_ROW = 3e-6
+_COST_PER_JIT_ROW = 1.5e-7
+_COST_JIT_LOAD = 0.55
+
+
+def tracker_strategy(n_ranks: int, n_rows: int) -> str:
+    """``"ranks"``, ``"python"`` or ``"jit"``: the cheapest way for :func:`tracker_run` to
+    run ``n_rows`` acquisitions that take ``n_ranks`` rank steps (the most acquisitions of
+    one component, summed over the calls)."""
+    costs = {"ranks": n_ranks * _COST_PER_RANK + n_rows * _COST_PER_RANK_ROW,
+             "python": n_rows * _COST_PER_PYTHON_ROW,
+             "jit": n_rows * _COST_PER_JIT_ROW + (0.0 if _JITTED else _COST_JIT_LOAD)}
+    return min(costs, key=costs.__getitem__)
+
+
+def _hi_pass(seg, t, z, t0, n0, hi0, fhi0, dhi0, dt_fresh, a1, b1, dhi_min,  # type: ignore[no-untyped-def]
+             two_point, fhi_out, dhi_out, dt_out):
+    """Step 1 of :func:`tracker_update` (alpha-beta on HI, dHI floor, initiation) for the rows
+    ``seg[c]:seg[c + 1]`` of each component c, in order; the same IEEE operations in the same
+    order as the vectorised update (numpy's ``maximum``: NaN propagates)."""
+    for c in range(seg.shape[0] - 1):
+        tp = t0[c]
+        n = n0[c]
+        hp = hi0[c]
+        x = fhi0[c]
+        v = dhi0[c]
+        for i in range(seg[c], seg[c + 1]):
+            ti = t[i]
+            zi = z[i]
+            dt = dt_fresh if n == 0 else ti - tp
+            xp = x + v * dt
+            r = zi - xp
+            x1 = xp + a1 * r
+            v1 = v + b1 * r / dt
+            if v1 < dhi_min:
+                v1 = dhi_min
+            if n == 0:
+                x1 = zi
+                v1 = dhi_min
+            elif two_point and n == 1:
+                s = (zi - hp) / dt
+                x1 = zi
+                v1 = dhi_min if s < dhi_min else s
+            fhi_out[i] = x1
+            dhi_out[i] = v1
+            dt_out[i] = dt
+            x = x1
+            v = v1
+            tp = ti
+            hp = zi
+            n += 1
+
+
+def _rul_pass(seg, rul, dt, fhi, dhi, n0, rul0, frul0, drul0, d2rul0, fhi0, dhi0,  # type: ignore[no-untyped-def]
+              a2, b2, g2, n_init, slope_start, measured, dhi_min, hi_floor, clip,
+              x_out, v_out, a_out):
+    """Step 3 of :func:`tracker_update` (alpha-beta-gamma on the Paris-law RUL ``rul`` from
+    step 2, (re)starts, clip) for the rows of each component, in order (NaN RUL: predict
+    only, as a missing measurement)."""
+    for c in range(seg.shape[0] - 1):
+        n = n0[c]
+        rp = rul0[c]
+        x = frul0[c]
+        v = drul0[c]
+        a = d2rul0[c]
+        fp = fhi0[c]
+        dp = dhi0[c]
+        for i in range(seg[c], seg[c + 1]):
+            d = dt[i]
+            zi = rul[i]
+            adt = a * d
+            xp = x + (v + 0.5 * adt) * d
+            r = zi - xp
+            if zi != zi:
+                r = 0.0
+            rdt = r / d
+            x1 = xp + a2 * r
+            v1 = v + adt + b2 * rdt
+            a1 = a + g2 * rdt / d
+            if n < n_init:
+                x1 = zi
+                v1 = (zi - rp) / d if (slope_start and n == 2) else 0.0
+                a1 = 0.0
+            f1 = fhi[i]
+            d1 = dhi[i]
+            if measured and (d1 <= dhi_min or f1 <= hi_floor or dp <= dhi_min
+                             or fp <= hi_floor):
+                x1 = zi
+                v1 = 0.0
+                a1 = 0.0
+            if clip and x1 < 0.0:
+                x1 = 0.0
+            x_out[i] = x1
+            v_out[i] = v1
+            a_out[i] = a1
+            x = x1
+            v = v1
+            a = a1
+            rp = zi
+            fp = f1
+            dp = d1
+            n += 1
+
+
+_JITTED: dict[str, Any] = {}
+
+
+def _passes(strategy: str) -> tuple[Any, Any]:
+    """The two passes, as Python or compiled (numba, on-disk cache)."""
+    if strategy == "python":
+        return _hi_pass, _rul_pass
+    if not _JITTED:
+        import numba
+
+        try:  # compiled once, then loaded from numba's on-disk cache
+            jitted = numba.njit(cache=True)(_hi_pass), numba.njit(cache=True)(_rul_pass)
+        except RuntimeError:  # no writable cache location: compile in memory
+            jitted = numba.njit(_hi_pass), numba.njit(_rul_pass)
+        _JITTED["hi"], _JITTED["rul"] = jitted
+    return _JITTED["hi"], _JITTED["rul"]
+
+
+def _run_by_rank(state: TrackerState, seg: np.ndarray, t: np.ndarray, z: np.ndarray,
+                 config: TrackerConfig, gains: TrackerGains
+                 ) -> tuple[TrackerState, dict[str, np.ndarray]]:
+    """:func:`tracker_run` as one :func:`tracker_update` per acquisition rank over the
+    components that have one (the reference the passes are tested against)."""
+    m = t.shape[0]
+    b = len(state)
+    counts = np.diff(seg)
+    rows: dict[str, np.ndarray] = {k: np.empty(m) for k in (
+        "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")}
+    rows["n"] = np.empty(m, dtype=np.int64)
+    rows["valid"] = np.empty(m, dtype=bool)
+    rows["level"] = np.empty(m, dtype=np.int8)
+    for r in range(int(counts.max(initial=0))):
+        have = np.flatnonzero(counts > r)
+        idx = seg[have] + r
+        t_r = np.full(b, np.nan)  # fresh: the new state may hold these arrays
+        z_r = np.full(b, np.nan)
+        t_r[have] = t[idx]
+        z_r[have] = z[idx]
+        state, out = tracker_update(state, t_r, z_r, config, gains)
+        assert out is not None
+        cols = state.columns()
+        for k in ("fhi", "dhi", "rul", "frul", "drul", "d2rul", "n"):
+            rows[k][idx] = cols[k][have]
+        rows["rul_low"][idx] = out.rul_low[have]
+        rows["rul_high"][idx] = out.rul_high[have]
+        rows["valid"][idx] = out.valid[have]
+        rows["level"][idx] = out.level[have]
+    return state, rows
+
+
+def tracker_run(
+    state: TrackerState,
+    seg: np.ndarray,
+    t: np.ndarray,
+    hi: np.ndarray,
+    config: TrackerConfig,
+    gains: TrackerGains | None = None,
+    strategy: str | None = None,
+) -> tuple[TrackerState, dict[str, np.ndarray]]:
+    """Run the chain of :func:`tracker_update` over many acquisitions per component.
+
+    Component c of ``state`` (B components) assimilates the acquisitions
+    ``t[seg[c]:seg[c + 1]]``, ``hi[...]`` in that order (``seg`` (B + 1,) nondecreasing
+    offsets; every ``t`` and ``hi`` finite and the times increasing per component: the
+    ingestion validates them). The result equals one :func:`tracker_update` call per
+    acquisition rank (same operations, same rounding; tested), which is one of the three
+    ``strategy`` choices, the cheapest by default: ``"ranks"`` does exactly that (few
+    acquisitions per component); ``"python"`` and ``"jit"`` (numba) run the sequential
+    alpha-beta (step 1) and alpha-beta-gamma (step 3) recursions as loops over each
+    component's acquisitions and the Paris-law RUL (step 2) and the outputs (validity, level,
+    confidence limits, docs/systems/embedded-rul.md §3) as numpy over all rows (long series:
+    no call per rank).
+
+    Returns the state after the last acquisition of each component and the per-acquisition
+    history: ``fhi, dhi, rul, frul, drul, d2rul, rul_low, rul_high`` (float64), ``n``
+    (acquisitions assimilated so far), ``valid`` and ``level`` (int8), each aligned with ``t``.
+    """
+    if gains is None:
+        gains = config.gains()
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    z = np.ascontiguousarray(hi, dtype=np.float64)
+    seg = np.ascontiguousarray(seg, dtype=np.int64)
+    b = len(state)
+    m = t.shape[0]
+    if seg.shape != (b + 1,) or z.shape != (m,) or seg[0] != 0 or seg[-1] != m:
+        raise ValueError(f"seg: expected {b + 1} offsets from 0 to {m}, got {seg.shape}")
+    counts = np.diff(seg)
+    if strategy is None:
+        strategy = tracker_strategy(int(counts.max(initial=0)), m)
+    if strategy == "ranks":
+        return _run_by_rank(state, seg, t, z, config, gains)
+    two_point = config.initiation in ("two-point", "measured")
+    measured = config.initiation == "measured"
+    n_init = 3 if config.initiation == "two-point" else (2 if measured else 1)
+    dhi_min = 1.0 / config.design_life
+    hi_pass, rul_pass = _passes(strategy)
+    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    n0 = np.ascontiguousarray(state.n, dtype=np.int64)
+    fhi0, dhi0 = f(state.ab[:, 0]), f(state.ab[:, 1])
+    fhi, dhi, dt = np.empty(m), np.empty(m), np.empty(m)
+    hi_pass(seg, t, z, f(state.t), n0, f(state.hi), fhi0, dhi0, float(config.dt),
+            float(gains.alpha1), float(gains.beta1), dhi_min, two_point, fhi, dhi, dt)
+    rul = paris_rul(fhi, dhi, config.hi_floor, config.paris_exponent)
+    frul, drul, d2rul = np.empty(m), np.empty(m), np.empty(m)
+    rul_pass(seg, rul, dt, fhi, dhi, n0, f(state.rul), f(state.abg[:, 0]), f(state.abg[:, 1]),
+             f(state.abg[:, 2]), fhi0, dhi0, float(gains.alpha2), float(gains.beta2),
+             float(gains.gamma2), n_init, config.initiation == "two-point", measured, dhi_min,
+             float(config.hi_floor), bool(config.rul_clip), frul, drul, d2rul)
+    del dt
+    n = np.repeat(n0 - seg[:-1], counts) + np.arange(1, m + 1)  # n0[c] + rank + 1
+    valid = rul_validity(drul, d2rul, config) & (n >= MIN_UPDATES_VALID)
+    level = alert_level(fhi, frul, valid, config)
+    with np.errstate(invalid="ignore"):
+        lo, hi_lim = rul_confidence_limits(fhi, dhi, config)
+    rows = {"fhi": fhi, "dhi": dhi, "rul": rul, "frul": frul, "drul": drul, "d2rul": d2rul,
+            "rul_low": lo, "rul_high": hi_lim, "n": n, "valid": valid, "level": level}
+    new = state.take(np.arange(b))
+    last = seg[1:][counts > 0] - 1
+    upd = np.flatnonzero(counts > 0)
+    new.t[upd], new.n[upd], new.hi[upd], new.rul[upd] = t[last], n[last], z[last], rul[last]
+    new.ab[upd, 0], new.ab[upd, 1] = fhi[last], dhi[last]
+    new.abg[upd, 0], new.abg[upd, 1], new.abg[upd, 2] = frul[last], drul[last], d2rul[last]
+    return new, rows

@@ -1,0 +1,116 @@
+"""rulkit fit / track / evaluate end to end from files (issue 11)."""
+
+from __future__ import annotations
+
+import sqlite3
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from rulkit.cli import app
+from rulkit.fleet.learned.datasets import synthetic_linear_fleet
+from rulkit.fleet.store.sqlite import ComponentStore
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fleet")
+    df, _ = synthetic_linear_fleet(np.random.default_rng(0), 10, n_acq=6)
+    df.to_csv(d / "hist.csv", index=False)
+    new, _ = synthetic_linear_fleet(np.random.default_rng(1), 2, n_acq=6, censor_frac=0.0)
+    new = new.groupby("component").head(4)
+    new["component"] = "new-" + new["component"]
+    new.to_csv(d / "acq.csv", index=False)
+    return d
+
+
+def test_fit_then_track_writes_the_learned_rul(files):
+    db = files / "a.db"
+    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
+                            "linear", "--time-unit", "h"])
+    assert r.exit_code == 0, r.output
+    assert "linear model" in r.output and "per h" in r.output
+    r = runner.invoke(app, ["track", "--db", str(db), str(files / "acq.csv")])
+    assert r.exit_code == 0, r.output
+    with ComponentStore(db, readonly=True) as s:
+        h = s.history()
+    assert len(h) == 8
+    assert (h["rul_low"] <= h["rul_median"]).all() and (h["rul_median"] <= h["rul_high"]).all()
+    assert (h["rul_median"] >= 0).all() and np.isfinite(h["rul_median"]).any()
+
+
+def test_fit_into_an_older_database_migrates_and_rebuilds(files):
+    db = files / "old.db"
+    r = runner.invoke(app, ["track", "--db", str(db), str(files / "acq.csv")])
+    assert r.exit_code == 0, r.output
+    cols = [c[1] for c in sqlite3.connect(db).execute("PRAGMA table_info(history)")]
+    assert "rul_median" not in cols  # today's schema without a learned model
+    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
+                            "linear"])
+    assert r.exit_code == 0, r.output
+    assert "2 components' state rebuilt" in r.output
+    more = pd.read_csv(files / "acq.csv").assign(time=lambda d: d["time"] + 1000.0)
+    more.to_csv(files / "more.csv", index=False)
+    r = runner.invoke(app, ["track", "--db", str(db), str(files / "more.csv")])
+    assert r.exit_code == 0, r.output
+    with ComponentStore(db, readonly=True) as s:
+        h = s.history()
+    assert h["rul_median"].isna().sum() == 8  # rows written before the model: NULL
+    assert h["rul_median"].notna().sum() == 8
+
+
+def test_evaluate_prints_and_writes_the_table(files, tmp_path):
+    out = tmp_path / "ev"
+    r = runner.invoke(app, ["evaluate", str(files / "hist.csv"), "--model", "linear",
+                            "--out", str(out), "--folds", "3"])
+    assert r.exit_code == 0, r.output
+    for name in ("summary.csv", "predictions.csv", "alpha_lambda.png", "summary.md"):
+        assert (out / name).exists()
+    s = pd.read_csv(out / "summary.csv")
+    assert list(s["method"]) == ["linear", "origin", "last2"]
+    assert "90 % coverage" in r.output and "median rel. error" in r.output
+
+
+@pytest.mark.parametrize(("edit", "match"), [
+    (lambda d: d[d["component"] == d["component"].iloc[0]], "1 unit"),
+    (lambda d: d.assign(hi=d["hi"].clip(upper=0.5)), "no unit has failed"),
+    (lambda d: d.assign(hi=-d["hi"]), "< 0"),
+])
+def test_bad_histories_are_named(files, tmp_path, edit, match):
+    bad = edit(pd.read_csv(files / "hist.csv"))
+    bad.to_csv(tmp_path / "bad.csv", index=False)
+    for cmd in (["fit", "--db", str(tmp_path / "x.db")], ["evaluate"]):
+        r = runner.invoke(app, [*cmd, str(tmp_path / "bad.csv"), "--model", "linear"])
+        assert r.exit_code == 1
+        assert match in r.output and "bad.csv" in r.output
+    assert not (tmp_path / "x.db").exists()
+
+
+def test_fit_tracker_creates_a_database_with_fitted_settings(files, tmp_path):
+    db = tmp_path / "t.db"
+    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
+                            "tracker"])
+    assert r.exit_code == 0, r.output
+    with ComponentStore(db, readonly=True) as s:
+        assert s.config.initiation == "measured" and s.config.rul_clip
+    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
+                            "tracker"])
+    assert r.exit_code == 1 and "new database" in r.output
+
+
+@pytest.mark.slow
+def test_evaluate_on_a_local_dask_cluster_from_partitioned_parquet(tmp_path):
+    r = runner.invoke(app, ["fleet-data", str(tmp_path), "--units", "12"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["evaluate", str(tmp_path / "synthetic_paris_parquet"), "--model",
+                            "linear", "--scheduler", "local", "--out", str(tmp_path / "ev")])
+    assert r.exit_code == 0, r.output
+    local = pd.read_csv(tmp_path / "ev" / "summary.csv")
+    r = runner.invoke(app, ["evaluate", str(tmp_path / "synthetic_paris_parquet"), "--model",
+                            "linear", "--out", str(tmp_path / "ev1")])
+    one = pd.read_csv(tmp_path / "ev1" / "summary.csv")
+    pd.testing.assert_frame_equal(local, one)  # same numbers in-process and on Dask

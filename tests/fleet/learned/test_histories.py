@@ -1,0 +1,47 @@
+"""Bad histories get named errors (issue 11); good ones are grouped per unit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rulkit.fleet.learned.histories import HistoryError, histories_from_frame, read_histories
+
+
+def _frame():
+    return pd.DataFrame({"component": ["a", "a", "a", "b", "b"],
+                         "time": [0.0, 1.0, 2.0, 0.5, 1.5], "hi": [0.1, 0.5, 1.1, 0.2, 0.4]})
+
+
+def test_groups_units_and_failure_times():
+    h = histories_from_frame(_frame())
+    assert list(h.names) == ["a", "b"] and list(h.failed) == [True, False]
+    assert h.failure_time()[0] == pytest.approx(1.0 + 0.5 / 0.6)
+    assert np.isnan(h.failure_time()[1])
+
+
+@pytest.mark.parametrize(("edit", "match"), [
+    (lambda d: d[d.component == "a"], "1 unit"),
+    (lambda d: d.assign(hi=d.hi.clip(upper=0.9)), "no unit has failed"),
+    (lambda d: d.assign(time=[0.0, 2.0, 1.0, 0.5, 1.5]), r"row 3 \(component 'a'\): time 1"),
+    (lambda d: d.assign(hi=[0.1, np.nan, 1.1, 0.2, 0.4]), r"row 2 .*'hi'.*not a finite"),
+    (lambda d: d.assign(hi=[0.1, 0.5, 1.1, -0.2, 0.4]), r"row 4 .*hi = -0.2 < 0"),
+    (lambda d: d.drop(columns="time"), "missing column"),
+    (lambda d: d.assign(time=pd.to_datetime(d.time, unit="h")), "dates"),
+    (lambda d: d.assign(failed=["x", "x", "x", 0, 0]), "failed = 'x'"),
+])
+def test_named_errors(edit, match):
+    with pytest.raises(HistoryError, match=match):
+        histories_from_frame(edit(_frame()), "h.csv")
+
+
+def test_failed_column_overrides_the_threshold(tmp_path):
+    d = _frame().assign(failed=[0, 0, 0, 1, 1])
+    p = tmp_path / "h.csv"
+    d.to_csv(p, index=False)
+    h = read_histories(p)
+    assert list(h.failed) == [False, True]
+    assert h.failure_time()[1] == 1.5  # flagged failed without reaching 1: last time
+    with pytest.raises(HistoryError, match="no such file"):
+        read_histories(tmp_path / "missing.csv")

@@ -1,0 +1,269 @@
+"""Persistent component state in SQLite (embedded-rul.md section 4)."""
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rulkit.fleet.store.acquisitions import IngestError
+from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.tracking.health_index import HealthIndexModel
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig, TrackerState, tracker_update
+
+CFG = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e4, warn_rul=30.0)
+
+
+def batch(components, t0, steps, rng, k=0.02):
+    rows = []
+    for j, c in enumerate(components):
+        h0 = 0.2 + 0.05 * j
+        for s in range(steps):
+            t = t0 + s
+            rows.append((c, float(t), h0 * np.exp(k * t) + rng.normal(0, 0.005)))
+    return pd.DataFrame(rows, columns=["component", "time", "hi"])
+
+
+def snapshot_tables(path):
+    con = sqlite3.connect(path)
+    try:
+        comps = con.execute("SELECT * FROM components ORDER BY component").fetchall()
+        hist = con.execute("SELECT * FROM history ORDER BY component, t").fetchall()
+        ing = con.execute("SELECT * FROM ingests ORDER BY id").fetchall()
+    finally:
+        con.close()
+    return comps, hist, ing
+
+
+def test_ingest_matches_direct_tracker_run_and_persists(tmp_path):
+    db = tmp_path / "c.db"
+    rng = np.random.default_rng(0)
+    df = batch(["a", "b", "c"], 0, 20, rng)
+    # split in two files, interleaved rows: state must carry over between ingests
+    first, second = df[df.time < 8].sample(frac=1, random_state=1), df[df.time >= 8]
+    first = first.sort_values("time", kind="stable")
+    with ComponentStore(db, config=CFG) as store:
+        r1 = store.ingest(first)
+        assert r1.n_new_components == 3 and r1.n_rows == len(first)
+    with ComponentStore(db) as store:  # reopened: config read from the database
+        assert store.config == CFG
+        store.ingest(second)
+        status = store.status().set_index("component")
+        hist = store.history("b")
+    # oracle: the same acquisitions through tracker_update directly, one component per column
+    wide_t = df.pivot(index="time", columns="component", values="time")
+    wide_h = df.pivot(index="time", columns="component", values="hi")
+    state = TrackerState.empty(3)
+    for k in range(len(wide_t)):
+        state, _ = tracker_update(state, wide_t.iloc[k].to_numpy(), wide_h.iloc[k].to_numpy(), CFG)
+    for j, c in enumerate(["a", "b", "c"]):
+        for name, col in state.columns().items():
+            assert status.loc[c, name] == pytest.approx(col[j], rel=1e-12, abs=1e-12), name
+    assert len(hist) == 20 and np.all(np.diff(hist["t"]) > 0)
+    assert status["n"].tolist() == [20, 20, 20]
+
+
+def test_alerts_reported_once_per_upward_change(tmp_path):
+    rng = np.random.default_rng(1)
+    t = np.arange(0.0, 120.0)
+    hi = 0.3 * np.exp(0.012 * t)  # crosses 1 at t = 100.3
+    df = pd.DataFrame({"component": "gear", "time": t, "hi": hi + rng.normal(0, 1e-4, t.size)})
+    with ComponentStore(tmp_path / "a.db", config=CFG) as store:
+        res = store.ingest(df.iloc[:60])
+        assert res.alerts == []
+        res = store.ingest(df.iloc[60:])
+        names = [a.name for a in res.alerts]
+        assert names == ["warning", "alarm"]
+        warn, alarm = res.alerts
+        assert warn.fhi >= 0.75 and warn.valid and warn.frul < 30.0
+        assert alarm.fhi >= 1.0 and alarm.t >= 100.0
+        assert store.status()["level"].iloc[0] == 2
+
+
+def test_hi_from_ci_columns(tmp_path):
+    rng = np.random.default_rng(2)
+    base = rng.rayleigh(1.5, size=(500, 2))
+    model = HealthIndexModel.fit(base, pfa=1e-6, names=["so1", "so2"], offset="none")
+    ci = rng.rayleigh(1.5, size=(5, 2))
+    df = pd.DataFrame({"component": "shaft", "time": np.arange(5.0),
+                       "so1": ci[:, 0], "so2": ci[:, 1]})
+    with ComponentStore(tmp_path / "ci.db", config=CFG, hi_model=model) as store:
+        store.ingest(df)
+        hist = store.history("shaft")
+    np.testing.assert_allclose(hist["hi"], model.health_index(ci), rtol=1e-12)
+    with ComponentStore(tmp_path / "ci.db") as store:
+        assert store.hi_model is not None and store.hi_model.names == ("so1", "so2")
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (lambda d: d.assign(extra=1.0), r"unknown column\(s\) \['extra'\]"),
+        (lambda d: d.drop(columns="time"), r"missing required column\(s\) \['time'\]"),
+        (lambda d: d.assign(hi=d.hi.where(d.index != 4, np.nan)),
+         r"column 'hi', row 5 \(component 'a'\): NaN \(an empty or NaN cell\) is not allowed: "
+         r"every value must be a finite number, no NaN/inf \(1 non-finite value\(s\)"),
+        (lambda d: d.assign(hi=d.hi.where(d.index != 3, 12.0)),
+         r"row 4 \(component 'a'\): hi = 12.0 is outside \[0, 10.0\]"),
+        (lambda d: d.assign(hi=d.hi.where(d.index != 2, -0.1)), r"row 3 .* outside"),
+        (lambda d: d.assign(time=d.time.where(d.index != 6, 102.0)),
+         r"row 7 \(component 'a'\): time 102.0 goes backwards from the previous acquisition "
+         r"of that component at 105.0"),
+        (lambda d: d.assign(time=d.time.where(d.index != 6, 105.0)),
+         r"row 7 .* time 105.0 repeats"),
+        (lambda d: d.assign(time=d.time - 100.0),
+         r"row 1 \(component 'a'\): time 0.0 is not after the component's last stored "
+         r"acquisition at 4.0"),
+        (lambda d: d.iloc[:0], r"no acquisitions \(0 rows\)"),
+        (lambda d: d.assign(time=d.time.astype(object).where(d.index != 1, "soon")),
+         r"column 'time', row 2 \(component 'a'\): 'soon' is not a number \(1 non-numeric"),
+    ],
+)
+def test_bad_batches_are_rejected_and_leave_db_unchanged(tmp_path, mutate, message):
+    db = tmp_path / "bad.db"
+    rng = np.random.default_rng(3)
+    with ComponentStore(db, config=CFG) as store:
+        store.ingest(batch(["a", "b"], 0, 5, rng))
+    before = snapshot_tables(db)
+    good = batch(["a"], 100, 10, rng)  # times 100 .. 109
+    bad = mutate(good)
+    with ComponentStore(db) as store:
+        with pytest.raises(IngestError, match=message):
+            store.ingest(bad)
+    assert snapshot_tables(db) == before
+
+
+def test_exception_mid_batch_rolls_back(tmp_path, monkeypatch):
+    db = tmp_path / "x.db"
+    rng = np.random.default_rng(4)
+    with ComponentStore(db, config=CFG) as store:
+        store.ingest(batch(["a", "b"], 0, 5, rng))
+    before = snapshot_tables(db)
+
+    def boom(self, rows):
+        raise RuntimeError("injected failure after the history rows were written")
+
+    with ComponentStore(db) as store:
+        monkeypatch.setattr(ComponentStore, "_write_states", boom)
+        with pytest.raises(RuntimeError, match="injected"):
+            store.ingest(batch(["a", "b", "c"], 5, 5, rng))
+        monkeypatch.undo()
+        assert snapshot_tables(db) == before
+        # the store is still usable and the same batch now goes in
+        store.ingest(batch(["a", "b", "c"], 5, 5, rng))
+    comps, hist, _ = snapshot_tables(db)
+    assert len(comps) == 3 and len(hist) == 2 * 10 + 5
+
+
+CHILD = r"""
+import sys, time, pathlib
+import numpy as np, pandas as pd
+from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+
+class Slow(ComponentStore):
+    def _write_history(self, rows):
+        super()._write_history(rows)
+        pathlib.Path(sys.argv[2]).write_text("in transaction")
+        time.sleep(60)  # killed here, mid-transaction
+
+cfg = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e4, warn_rul=30.0)
+n = 2000
+df = pd.DataFrame({"component": [f"u{i}" for i in range(n)], "time": 50.0,
+                   "hi": np.linspace(0.2, 0.9, n)})
+with Slow(sys.argv[1], config=cfg) as store:
+    store.ingest(df)
+"""
+
+
+def test_killed_mid_ingest_keeps_last_committed_state(tmp_path):
+    db = tmp_path / "k.db"
+    flag = tmp_path / "flag"
+    rng = np.random.default_rng(5)
+    with ComponentStore(db, config=CFG) as store:
+        store.ingest(batch(["u0", "u1"], 0, 5, rng))
+    before = snapshot_tables(db)
+    script = tmp_path / "child.py"
+    script.write_text(CHILD)
+    proc = subprocess.Popen([sys.executable, str(script), str(db), str(flag)])
+    try:
+        deadline = time.monotonic() + 30
+        while not flag.exists():
+            assert proc.poll() is None, "child exited before reaching the transaction"
+            assert time.monotonic() < deadline, "child never reached the transaction"
+            time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    con.close()
+    assert snapshot_tables(db) == before
+    with ComponentStore(db) as store:  # no stale lock; the database takes new batches
+        store.ingest(batch(["u0", "u1"], 5, 2, rng))
+        assert store.counts() == (2, 14, 14)
+
+
+def test_reader_sees_a_consistent_snapshot_while_writer_commits(tmp_path):
+    db = tmp_path / "r.db"
+    rng = np.random.default_rng(6)
+    with ComponentStore(db, config=CFG) as w:
+        w.ingest(batch(["a", "b"], 0, 3, rng))
+    reader = ComponentStore(db, create=False)
+    writer = ComponentStore(db)
+    try:
+        with reader.snapshot() as conn:
+            n_before = conn.execute("SELECT SUM(n) FROM components").fetchone()[0]
+            writer.ingest(batch(["a", "b", "c"], 3, 4, rng))  # commits while the reader reads
+            n_inside = conn.execute("SELECT SUM(n) FROM components").fetchone()[0]
+            h_inside = conn.execute("SELECT COUNT(*) FROM history").fetchone()[0]
+        assert n_before == n_inside == h_inside == 6
+        assert reader.counts() == (3, 18, 18)
+
+        # a reader thread checking the invariant sum(n) == history rows in every snapshot
+        errors: list[str] = []
+        stop = threading.Event()
+
+        def read_loop():
+            r = ComponentStore(db, create=False)
+            try:
+                while not stop.is_set():
+                    _, n_sum, n_hist = r.counts()
+                    if n_sum != n_hist:
+                        errors.append(f"{n_sum} != {n_hist}")
+            finally:
+                r.close()
+
+        th = threading.Thread(target=read_loop)
+        th.start()
+        for s in range(7, 27):
+            writer.ingest(batch([f"u{i}" for i in range(50)] + ["a"], s, 1, rng))
+        stop.set()
+        th.join(timeout=30)
+        assert errors == []
+    finally:
+        reader.close()
+        writer.close()
+
+
+def test_open_checks(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        ComponentStore(tmp_path / "missing.db", create=False)
+    with ComponentStore(tmp_path / "o.db", config=CFG):
+        pass
+    with pytest.raises(ValueError, match="refusing to continue with a different"):
+        ComponentStore(tmp_path / "o.db", config=TrackerConfig(dt=2.0))
+    (tmp_path / "empty.csv").write_text("")
+    with ComponentStore(tmp_path / "o.db") as store:
+        with pytest.raises(IngestError, match="empty"):
+            store.ingest_file(tmp_path / "empty.csv")
+        with pytest.raises(IngestError, match="unknown file type"):
+            (tmp_path / "a.xlsx").write_text("x")
+            store.ingest_file(tmp_path / "a.xlsx")

@@ -1,0 +1,53 @@
+"""The vectorised formatting of `rulkit status --format table` gives the same text as the
+per-cell reference (format(), rulkit.tables.text_table) it replaced."""
+
+import math
+
+import numpy as np
+
+from rulkit.fleet.store.cli import _aligned_table, _fmt, _format_all, _format_rul
+from rulkit.tables import safe_text, text_table
+
+EDGES = [0.0, -0.0, 1e-300, 5e-324, -1.5, 0.0005, 0.9995, 123456.789, 1e16, -2.5e-7, 1e308,
+         math.inf, -math.inf, 0.1 + 0.2, 2.675, 999.5, 1e-5]
+
+
+def values(rng):
+    return EDGES + rng.normal(0, 10.0 ** rng.integers(-8, 9, 300)).tolist()
+
+
+def test_format_all_equals_format_for_every_spec():
+    rng = np.random.default_rng(1)
+    vals = values(rng)
+    for spec in (".3f", ".3g", "g"):
+        assert _format_all("%" + spec, vals) == [format(v, spec) for v in vals], spec
+    ints = [0, 1, -7, 2**62, 12345]
+    assert _format_all("%d", ints) == [str(v) for v in ints]
+    assert _format_all("%g", []) == []
+
+
+def test_format_rul_equals_fmt_with_nan_and_negative_zero():
+    rng = np.random.default_rng(2)
+    vals = [*values(rng), math.nan, -0.0, math.nan]
+    assert _format_rul(np.array(vals)) == [_fmt(v) for v in vals]
+
+
+def test_aligned_table_equals_text_table():
+    rng = np.random.default_rng(3)
+    n = 50
+    ids = [safe_text(s, 40) for s in
+           ["a", "x\x1b[2Jy", "long-" * 20, "ünï", "tab\tid", *[f"c{i}" for i in range(n - 5)]]]
+    cols = {
+        "component": ids,
+        "level": rng.choice(["ok", "warning", "alarm"], n).tolist(),
+        "HI": _format_all("%.3f", rng.uniform(0, 2, n).tolist()),
+        "RUL": _format_rul(np.where(rng.random(n) < 0.2, np.nan, rng.normal(0, 1e3, n))),
+        "valid": rng.choice(["yes", "no"], n).tolist(),
+        "last t": _format_all("%g", rng.uniform(0, 1e7, n).tolist()),
+    }
+    left = ("component", "level")
+    assert _aligned_table(cols, left) == text_table(cols, left=left)
+    # a left-aligned last column: trailing blanks are stripped as in text_table
+    cols2 = {"x": ["1", "22"], "name": ["a", "bbbbb"]}
+    assert _aligned_table(cols2, ("name",)) == text_table(cols2, left=("name",))
+    assert _aligned_table({"a": [], "b": []}, ()) == text_table({"a": [], "b": []})

@@ -1,0 +1,148 @@
+"""`rulkit status` through rulkit.fleet.store.status_view (sqlite3, numpy, pyarrow without pandas)
+prints the same bytes as the implementation it replaced (ComponentStore.status() with pandas'
+to_json and pyarrow.Table.from_pandas, kept in rulkit.fleet.store.cli._status_from_frame as the
+fallback), for every format, with hostile ids, extreme floats and an empty database."""
+
+import math
+import sqlite3
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+import rulkit.fleet.store.status_view as sv
+from rulkit.cli import app
+from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+
+runner = CliRunner()
+
+HOSTILE_IDS = ["x\x1b[2Jy", "line\nbreak", 'q"uote', "com,ma", "sl/ash", "back\\slash",
+               "del\x7fete", "ünïcødé", "bidi\u202eevil", "tab\tid", "😀 astral", "a" * 100,
+               "", " blank ", "NUL\x00inside", "c/\"\\,\n\x7f\x01"]
+EDGE = [0.0, -0.0, 1e-300, 5e-324, -1.5, 0.0005, 0.9995, 123456.789, 1e16, 1e16 - 1,
+        9999999999999998.0, -2.5e-7, 1e308, math.inf, -math.inf, 0.1 + 0.2, 2.675, 999.5,
+        1e-4, 1e-5, 1e-6, 1e-7, 1.5e-7, 1e9, 1e10, 1e15, 1e21, 1e-15, 9.99e-16, 0.5e-15,
+        1.5e-15, 4503599627370497.0, 0.05, 2.0, -3.0, 1e15 + 0.5]
+EDGE += [np.nextafter(x, s) for x in (1e-4, 1e-6, 1e10, 1e16, 1e-15) for s in (0.0, np.inf)]
+FLOAT_COLS = ("t", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")
+
+
+def _random_db(path, rng, n=60):
+    t = np.arange(6.0)
+    frame = pd.DataFrame({
+        "component": np.repeat([f"u{i:03d}" for i in range(n)], len(t)),
+        "time": np.tile(t, n),
+        "hi": np.clip(np.repeat(rng.uniform(0.05, 1.1, n), len(t))
+                      * np.exp(0.05 * np.tile(t, n)) + rng.normal(0, 0.01, n * len(t)), 0, 5)})
+    ingest_into(path, frame)
+    con = sqlite3.connect(path)
+    ids = [r[0] for r in con.execute("SELECT component FROM components ORDER BY component")]
+    with con:
+        for new, old in zip(HOSTILE_IDS, ids, strict=False):  # ids rulkit refuses to ingest
+            con.execute("UPDATE components SET component = ? WHERE component = ?", (new, old))
+        values = EDGE + rng.normal(0, 10.0 ** rng.integers(-20, 22, 200)).tolist()
+        for i, comp in enumerate(r[0] for r in con.execute("SELECT component FROM components")
+                                 .fetchall()):
+            sets = {c: values[(7 * i + 3 * j) % len(values)] for j, c in enumerate(FLOAT_COLS)
+                    if rng.random() < 0.5}
+            sets["level"] = int(rng.integers(0, 3))
+            sets["valid"] = int(rng.integers(0, 2))
+            sets["n"] = int(rng.integers(0, 10**12))
+            if i % 9 == 0:  # ties on level and fHI: the id decides
+                sets["fhi"], sets["level"] = 0.5, 1
+            con.execute(f"UPDATE components SET {', '.join(f'{c} = ?' for c in sets)} "
+                        "WHERE component = ?", (*sets.values(), comp))
+    con.close()
+
+
+def _both(db, args, monkeypatch):
+    new = runner.invoke(app, ["status", "--db", str(db), *args])
+    with monkeypatch.context() as m:  # force the pandas implementation
+        m.setattr(sv, "read_status", lambda *a, **k: None)
+        old = runner.invoke(app, ["status", "--db", str(db), *args])
+    return new, old
+
+
+@pytest.mark.parametrize("fmt", ["table", "csv", "json"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_same_output_as_the_pandas_implementation(tmp_path, monkeypatch, fmt, seed):
+    db = tmp_path / "s.db"
+    _random_db(db, np.random.default_rng(seed))
+    assert sv.read_status(db) is not None  # the fast path is the one compared
+    for extra in ([], ["--limit", "7"], ["--limit", "1"]):
+        new, old = _both(db, ["--format", fmt, *extra], monkeypatch)
+        assert old.exit_code == 0, old.output
+        assert new.exit_code == 0, new.output
+        assert new.stdout_bytes == old.stdout_bytes, (fmt, extra)
+        if fmt in ("table", "csv") and not extra:  # a non-printable id escaped: no raw ESC
+            assert "\x1b" not in new.output and "\\x1b[2Jy" in new.output
+            assert "line\nbreak" not in new.output and "line\\nbreak" in new.output
+
+
+@pytest.mark.parametrize("fmt", ["table", "csv", "json"])
+def test_empty_database_same_output(tmp_path, monkeypatch, fmt):
+    db = tmp_path / "e.db"
+    ComponentStore(db).close()
+    new, old = _both(db, ["--format", fmt], monkeypatch)
+    assert new.exit_code == old.exit_code == 0, (new.output, old.output)
+    assert new.stdout_bytes == old.stdout_bytes
+
+
+@pytest.mark.parametrize("bad", ["NULL", "'abc'", "'1.5'", "3"])
+def test_row_rulkit_cannot_have_written_takes_the_pandas_path(tmp_path, monkeypatch, bad):
+    """A NULL (how SQLite stores NaN), text among numbers or an unknown level: read_status
+    declines and the command names the row as before."""
+    db = tmp_path / "b.db"
+    _random_db(db, np.random.default_rng(3), n=5)
+    con = sqlite3.connect(db)
+    with con:  # the same table without its NOT NULL constraints, then one bad value
+        con.execute("CREATE TABLE c2 AS SELECT * FROM components")
+        con.execute("DROP TABLE components")
+        con.execute("ALTER TABLE c2 RENAME TO components")
+        col = "level" if bad == "3" else "hi"
+        con.execute(f"UPDATE components SET {col} = {bad} WHERE rowid = 2")
+    con.close()
+    # '1.5' in a REAL column is stored as the number 1.5 (SQLite's type affinity)
+    assert (sv.read_status(db) is None) == (bad != "'1.5'")
+    new, old = _both(db, ["--format", "json"], monkeypatch)
+    assert (new.exit_code, new.output) == (old.exit_code, old.output)
+    if bad != "'1.5'":
+        assert new.exit_code == 1 and "table components" in new.output
+
+
+def test_json_floats_equal_pandas_to_json():
+    rng = np.random.default_rng(5)
+    vals = np.array(EDGE + [math.nan] + rng.normal(0, 10.0 ** rng.integers(-22, 24, 20000))
+                    .tolist() + [k * 0.5e-15 for k in range(-40, 40)]
+                    + (rng.integers(-10**6, 10**6, 5000) / 10.0 ** rng.integers(0, 17, 5000))
+                    .tolist())
+    ours = sv._ujson_floats(vals).to_pylist()
+    text = pd.DataFrame({"x": vals}).to_json(orient="records", double_precision=15)
+    theirs = [r.split(":", 1)[1] for r in text[2:-2].split("},{")]
+    assert ours == theirs
+
+
+def test_json_strings_equal_pandas_to_json():
+    ids = HOSTILE_IDS + ["".join(map(chr, range(c, c + 200))) for c in range(0, 0x3000, 200)]
+    text = pd.DataFrame({"s": ids}).to_json(orient="records")
+    theirs = text[len('[{"s":'):-len("}]")].split('},{"s":')
+    assert [sv._json_str(s) for s in ids] == theirs
+
+
+@pytest.mark.parametrize("fmt", ["table", "csv", "json"])
+def test_status_imports_no_pandas(tmp_path, fmt):
+    db = tmp_path / "p.db"
+    _random_db(db, np.random.default_rng(4), n=5)
+    code = ("import atexit, sys\n"
+            "atexit.register(lambda: sys.stderr.write(' '.join(m for m in ('pandas', 'scipy', "
+            "'rich', 'numba') if m in sys.modules)))\n"
+            "from rulkit.cli import main\n"
+            f"sys.argv = ['rulkit', 'status', '--db', {str(db)!r}, '--format', {fmt!r}]\n"
+            "main()\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr == ""
