@@ -23,9 +23,37 @@ from rulkit.systems.motor_damping.macro import (
 )
 from rulkit.systems.motor_damping.micro import MicroEKFSettings, micro_ekf
 from rulkit.systems.motor_damping.motor import MotorConstants, failure_damping
-from rulkit.systems.motor_damping.pullup import PullupData, estimate_noise_sd
+from rulkit.systems.motor_damping.pullup import PullupData, PullupDataError, estimate_noise_sd
 
-__all__ = ["PullupAnalysis", "analyse_pullup", "steady_current"]
+__all__ = ["IMPOSSIBLE_SDS", "NegativeDampingError", "PullupAnalysis", "analyse_pullup",
+           "check_damping_physical", "steady_current"]
+
+IMPOSSIBLE_SDS = 5.0
+"""A cycle's damping estimate more than this many of its standard deviations below zero is
+physically impossible (viscous damping dissipates energy: c >= 0), not a chance draw."""
+
+
+class NegativeDampingError(PullupDataError):
+    """The micro EKF found a clearly negative damping: the record and the machine file
+    disagree with the physics (MD-1), usually through a unit (speed in rpm, time in ms) or a
+    wrong motor constant."""
+
+
+def check_damping_physical(cycles: np.ndarray, c: np.ndarray, c_var: np.ndarray,
+                           source: str = "") -> None:
+    """Raise :class:`NegativeDampingError` when some cycle's damping ``c`` lies more than
+    :data:`IMPOSSIBLE_SDS` standard deviations below zero (docs/systems/motor-damping.md §8),
+    naming the first such cycle, how many there are and what to check."""
+    sd = np.sqrt(np.maximum(c_var, 0.0))
+    bad = np.flatnonzero(c + IMPOSSIBLE_SDS * sd < 0)
+    if bad.size:
+        k = int(bad[0])
+        where = f"{source}: " if source else ""
+        raise NegativeDampingError(
+            f"{where}cycle {cycles[k]:g}: estimated damping c = {c[k]:.4g} N m s (sd "
+            f"{sd[k]:.2g}) is negative, which is physically impossible ({bad.size} of "
+            f"{c.size} cycles); check the units (speed in rad/s, not rpm; time in s; current "
+            "in A) and the motor constants K, J, T_L ([motor] of the machine file)")
 
 
 @dataclass(frozen=True)
@@ -74,6 +102,9 @@ def analyse_pullup(
     micro: MicroEKFSettings | None = None,
 ) -> PullupAnalysis:
     """Run the multi-scale EKF on validated pull-up data.
+
+    A clearly negative damping in any cycle raises :class:`NegativeDampingError`
+    (:func:`check_damping_physical`) before any trend or RUL is computed.
 
     Motor constants default to :class:`MotorConstants` (the synthetic motor: pass your own).
     ``c_fail`` defaults to the design-point algebra with the steady current measured in the
@@ -125,6 +156,7 @@ def analyse_pullup(
         data.time, data.current, data.speed,
         data.acceleration if settings.use_acceleration else None, consts, settings,
     )
+    check_damping_physical(data.cycle, res.c, res.c_var, data.source)
     z = res.c[None, :]
     r = res.c_var[None, :]
     macro = MacroSettings(q_a=q_a, model=macro_model)
