@@ -399,8 +399,11 @@ def numeric_columns(
     error: ErrorType = ValueError,
     source: str = "",
     row_label: Callable[[int], str] = _row_1_based,
+    missing_ok: Iterable[str] = (),
 ) -> dict[str, NDArray[np.float64]]:
     """Coerce columns of ``df`` to finite float64 arrays, or raise ``error`` at the first bad cell.
+    In the columns named in ``missing_ok`` an empty (NaN) cell is allowed and stays NaN (a
+    missing measurement); +-inf is refused there too.
 
     ``names`` lists the columns, in the order they are checked; a mapping ``{name: key}``
     names a column in the messages by ``name`` while reading ``df[key]`` (e.g. a
@@ -423,6 +426,7 @@ def numeric_columns(
 
     items = list(names.items()) if isinstance(names, Mapping) else [(n, n) for n in names]
     prefix = f"{source}: " if source else ""
+    allowed = set(missing_ok)
     out: dict[str, NDArray[np.float64]] = {}
     for name, key in items:
         col = df[key]
@@ -436,7 +440,7 @@ def numeric_columns(
                 f"number ({int(bad.sum())} non-numeric value(s) in this column)"
             )
         a = np.array(num.to_numpy(dtype=np.float64), dtype=np.float64, copy=True)
-        nonfinite = ~np.isfinite(a)
+        nonfinite = np.isinf(a) if name in allowed else ~np.isfinite(a)
         if nonfinite.any():
             i = int(np.flatnonzero(nonfinite)[0])
             what = "NaN (an empty or NaN cell)" if np.isnan(a[i]) else f"{a[i]}"

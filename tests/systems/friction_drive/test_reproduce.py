@@ -300,3 +300,22 @@ def test_full_study_reproduces_the_spec_measurements():
     for key in (("tuned-consistent", "jump"), ("tuned-consistent", "constant"),
                 ("tuned-consistent-realistic", "jump")):
         assert by[key].max_nees_switch < 30.0 and by[key].max_nees_other < 30.0
+
+
+def test_tuning_study_rows_and_the_jump_burst() -> None:
+    from dataclasses import replace
+
+    from rulkit.systems.friction_drive.reproduce import SCENARIOS, simulate_truth, tuning_study
+
+    truths = {s: simulate_truth(replace(SCENARIOS[s], duration=2.0, t_jump=1.0), 1e-3, 5)
+              for s in ("constant", "jump")}
+    rows = tuning_study(truths, (1e-8, 1e-6), 2, np.random.default_rng(0))
+    assert len(rows) == 2 * 2 * 2
+    by = {(r.scenario, r.q_m, r.run): r for r in rows}
+    for q in (1e-8, 1e-6):
+        # the unmodelled jump of m: a burst of large innovations, tracked within a second
+        assert by["jump", q, 0].max_nis > 1.5 * by["constant", q, 0].max_nis
+        assert 0 < by["jump", q, 0].jump_tracking_s < 1.0
+        assert by["constant", q, 0].consistent_excl_jump is None
+    # a larger rate follows the jump faster and with a smaller burst
+    assert by["jump", 1e-6, 0].max_nis < by["jump", 1e-8, 0].max_nis

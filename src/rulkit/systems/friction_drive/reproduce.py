@@ -28,6 +28,7 @@ from rulkit.estimation.consistency import (
 from rulkit.estimation.kalman import ExtendedKalmanFilter
 from rulkit.model import FloatArray
 from rulkit.systems.friction_drive import drive as fd
+from rulkit.systems.friction_drive.deterioration import DriveTrack, EKFSettings, track
 from rulkit.systems.friction_drive.drive import (
     REALISTIC_R,
     SEED_P0,
@@ -51,6 +52,9 @@ ADDED_CONFIGS = ("tuned-consistent", "tuned-consistent-realistic")
 # of the whitened innovations, white when every component's p > WHITENESS_ALPHA / m.
 MAX_LAG = 20
 WHITENESS_ALPHA = 0.01
+# The tuning study of ``rulkit drive``'s filter: process-noise rates on m and scenarios.
+TUNING_Q_M = (1e-9, 1e-8, 3e-8, 1e-7, 3e-7, 1e-6, 1e-5)
+TUNING_SCENARIOS = ("constant", "drift", "jump")
 
 # Seed values quoted in the report (seed sections 4.3, 6 and Fig. 8).
 SEED_VALUES = {
@@ -294,12 +298,14 @@ def make_ekf(
     params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
     q_speed: FloatArray | None = None,
     midpoint: FloatArray | None = None,
+    substeps: int = 1,
 ) -> ExtendedKalmanFilter:
     """The augmented EKF of seed 4.2 for B units (continuous model, Q as spectral density).
 
     ``q_m`` (B,) process-noise rates on m, ``f44`` (B,) Jacobian-only (4,4) entries, ``R``
-    (B, 2, 2), ``q_speed`` (B, 2) rates on (w1, w2) (default 0, as in the seed). Inputs are
-    passed as ``u`` (B, 1) currents.
+    (B, 2, 2), ``q_speed`` (B, 2) rates on (w1, w2) (default 0, as in the seed), ``substeps``
+    RK4 sub-steps of the mean prediction per sample. Inputs are passed as ``u`` (B, 1)
+    currents.
 
     ``midpoint`` (B,) bool (default all False): evaluate the Jacobian of ``Phi = expm(F t_s)``
     at the mean after half an RK4 step under the step's current instead of at the prior mean
@@ -340,6 +346,7 @@ def make_ekf(
         continuous=True,
         dt=dt,
         jacobian_at=mid,
+        substeps=substeps,
     )
 
 
@@ -488,6 +495,7 @@ class FrictionDriveResult:
     rul_truth_h: float
     filter_seconds: float
     settings: dict
+    tuning: list[TuningRow] = field(default_factory=list)
 
 
 def _time_within(t: FloatArray, est: FloatArray, target: FloatArray,
@@ -504,14 +512,16 @@ def _time_within(t: FloatArray, est: FloatArray, target: FloatArray,
 
 @dataclass(frozen=True)
 class FrictionDriveConfig:
-    """Settings of the seed-003 study (defaults: the full run; the CLI's ``--quick`` uses
-    ``n_runs=1, n_validate=3``).
+    """Settings of the seed-003 study (defaults: the full run without the tuning study; the CLI
+    runs it with ``tuning_runs=8``, and ``--quick`` uses ``n_runs=1, n_validate=3,
+    tuning_runs=2``).
 
     ``n_runs`` runs per (filter config, scenario) pair of ``pairs``, filtered over ``duration``
     s at ``dt``; the Monte Carlo RUL (``n_rul`` trajectories, ``n_validate`` of them checked
     against LSODA) for ``rul_configs`` on the jump scenario; ``truth_substeps`` RK4 sub-steps
     of the truth per filter step; ``converge``: also the convergence study from wrong initial
-    estimates. ``seed`` drives every draw."""
+    estimates; ``tuning_runs`` runs per (q_m of ``tuning_q_m``, scenario) of the tuning study of
+    ``rulkit drive``'s filter (:func:`tuning_study`; 0: none). ``seed`` drives every draw."""
 
     n_runs: int = 1
     seed: int = 0
@@ -523,6 +533,8 @@ class FrictionDriveConfig:
     n_validate: int = 5
     truth_substeps: int = 10
     converge: bool = True
+    tuning_q_m: tuple[float, ...] = TUNING_Q_M
+    tuning_runs: int = 0
 
     def __post_init__(self) -> None:
         if self.n_runs < 1:
@@ -593,6 +605,8 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
     rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:])[0] / HOUR)
     conv = (convergence_study(truths["jump"], rng, duration=min(3.0, duration))
             if cfg.converge else [])
+    tuning = (tuning_study(_tuning_truths(cfg, truths), cfg.tuning_q_m, cfg.tuning_runs,
+                           np.random.default_rng([cfg.seed, 2])) if cfg.tuning_runs else [])
     return FrictionDriveResult(
         dt=dt, n_runs=cfg.n_runs, seed=cfg.seed, pairs=tuple(cfg.pairs), truths=truths,
         runs=runs, summaries=summaries, observability=obs, rul=rul, convergence=conv,
@@ -600,6 +614,7 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
         settings={"dt": dt, "duration": duration, "n_rul": cfg.n_rul,
                   "truth_substeps": cfg.truth_substeps, "n_validate": cfg.n_validate,
                   "B": len(units), "transient": 10.0, "transient_dt": TRANSIENT_DT},
+        tuning=tuning,
     )
 
 
@@ -691,3 +706,78 @@ def _first_run(res: FilterRun, b: int) -> FilterRun:
         P_final=res.P_final[b : b + 1], nu=res.nu[:, b][:, None], S=res.S[:, b][:, None],
         nees=res.nees[:, b : b + 1], seconds=res.seconds,
     )
+
+
+# ------------------------------------------------------------------------------------------
+# Tuning of the command's filter: q_m against consistency (docs/systems/friction-drive.md §4)
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TuningRow:
+    """One run of the tuning study: the innovation checks of the whole run and (jump
+    scenario) without the second after the jump, the largest per-step NIS, the error of m at
+    the end in its standard deviations and the time to track a jump of m within 5 %."""
+
+    q_m: float
+    scenario: str
+    run: int
+    mean_nis: float
+    nis_ok: bool
+    white: bool
+    consistent: bool
+    consistent_excl_jump: bool | None
+    ljung_box_p_min: float
+    max_nis: float
+    m_error_sd: float
+    jump_tracking_s: float
+
+
+def _tuning_truths(cfg: FrictionDriveConfig, truths: dict[str, Truth]) -> dict[str, Truth]:
+    out = {}
+    for s in TUNING_SCENARIOS:
+        sc = Scenario(**{**SCENARIOS[s].__dict__, "duration": cfg.duration})
+        out[s] = truths[s] if s in truths else simulate_truth(sc, cfg.dt, cfg.truth_substeps)
+    return out
+
+
+def tuning_study(truths: dict[str, Truth], q_ms: tuple[float, ...], runs: int,
+                 rng: np.random.Generator) -> list[TuningRow]:
+    """``rulkit drive``'s filter (the compiled kernel of
+    :mod:`rulkit.systems.friction_drive.deterioration`: midpoint Jacobian, ``SPEED_Q_RATE`` on
+    the speeds, no gate) with each process-noise rate ``q_m`` on each scenario of ``truths``,
+    ``runs`` noise draws each (the same draws for every q_m): which tuning is consistent where
+    (docs/systems/friction-drive.md §4). The prior is the first measured speeds (variance R)
+    and alpha, m drawn from the seed's P0 around the truth."""
+    rows = []
+    for name, tr in truths.items():
+        T = tr.t.size
+        cur = np.append(tr.currents, tr.currents[-1])
+        for r in range(runs):
+            ys = tr.X[:, :2] + rng.standard_normal((T, 2)) * np.sqrt(np.diag(SEED_R))
+            x0 = tr.X[0] + rng.standard_normal(4) * np.sqrt(np.diag(SEED_P0))
+            x0[:2] = ys[0]
+            P0 = SEED_P0.copy()
+            P0[0, 0], P0[1, 1] = SEED_R[0, 0], SEED_R[1, 1]
+            for q in q_ms:
+                run = track(ys, cur, x0, P0, EKFSettings(tr.dt, 1, 0.0, 0.0, True),
+                            fd.DEFAULT_PARAMS, np.array([*SPEED_Q_RATE, 0.0, q]), SEED_R)
+                rows.append(_tuning_row(run, tr, q, name, r))
+    return rows
+
+
+def _tuning_row(run: DriveTrack, tr: Truth, q: float, name: str, r: int) -> TuningRow:
+    sc = tr.scenario
+    nu, S = run.nu[1:], run.S[1:]
+    full = check_innovations(nu, S, max_lag=MAX_LAG, whiteness_alpha=WHITENESS_ALPHA)
+    excl = None
+    track_s = float("nan")
+    if sc.m_kind == "jump" and sc.t_jump < tr.t[-1]:
+        cut = (tr.t[1:] >= sc.t_jump) & (tr.t[1:] < sc.t_jump + 1.0)
+        excl = check_innovations(np.where(cut[:, None], np.nan, nu), S, max_lag=MAX_LAG,
+                                 whiteness_alpha=WHITENESS_ALPHA).consistent
+        track_s = _time_within(tr.t, run.x[:, 3], tr.X[:, 3], 0.05 * sc.m_jump, sc.t_jump)
+    return TuningRow(
+        q_m=q, scenario=name, run=r, mean_nis=full.mean_nis, nis_ok=full.nis_ok,
+        white=full.white, consistent=full.consistent, consistent_excl_jump=excl,
+        ljung_box_p_min=float(min(full.ljung_box_p)), max_nis=float(np.nanmax(run.nis)),
+        m_error_sd=float((run.x[-1, 3] - tr.X[-1, 3]) / run.sd[-1, 3]),
+        jump_tracking_s=track_s)
