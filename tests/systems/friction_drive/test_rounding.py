@@ -35,7 +35,7 @@ if mode == "kernel":
     q = np.array([*drive.SPEED_Q_RATE, 0.0, 3e-8])
     t = track(ys, np.append(truth.currents, 0.0), x0, drive.SEED_P0,
               EKFSettings(1e-3, 1, 0.0, 0.0, True), drive.DEFAULT_PARAMS, q, drive.SEED_R)
-    np.savez(out, x=t.x, nees=np.ones(1))
+    np.savez(out, x=t.x, nees=np.ones(1), P=t.P)
 else:
     drv = mode == "drive"
     ekf = fr.make_ekf(np.array([3e-8 if drv else drive.TUNED_Q_RATE]), np.zeros(1),
@@ -44,7 +44,7 @@ else:
                       midpoint=np.array([drv]))
     r = fr.run_filter(ekf, ys[1:, None, :], truth.currents[:, None], x0[None], drive.SEED_P0,
                       truth.X[:, None, :])
-    np.savez(out, x=r.x[:, 0], nees=r.nees[:, 0])
+    np.savez(out, x=r.x[:, 0], nees=r.nees[:, 0], P=r.P_final[0])
 """
 
 
@@ -72,7 +72,11 @@ def test_rounding_amplification_by_tuning(tmp_path: Path) -> None:
         x = float(np.max(np.abs(a["x"] - b["x"]) / np.abs(a["x"]).clip(1e-300)))
         nees = float(np.nanmax(np.abs(a["nees"] - b["nees"]) / np.abs(a["nees"])))
         moved[mode] = (x, nees)
-        print(f"{mode}: states move by {x:.2g} relative, NEES by {nees:.2g}")
+        cond = float(np.linalg.cond(a["P"]))
+        print(f"{mode}: states move by {x:.2g} relative, NEES by {nees:.2g}; condition "
+              f"number of the last P {cond:.2g}")
+        moved[mode + " cond"] = (cond, cond)
     assert moved["kernel"] == (0.0, 0.0)  # no BLAS: the same bits on every kernel
     assert moved["drive"][0] < 1e-13 and moved["drive"][1] < 1e-9
     assert moved["drive"][1] <= moved["tuned"][1]
+    assert moved["drive cond"][0] < moved["tuned cond"][0] / 5

@@ -74,32 +74,24 @@ def reproduce_motor_damping(
     k58 = int((lin.cycles == n_ref).nonzero()[0][0])
     a58 = lin.track.x[k58, :, 1]
     console.print(f"[bold]Seed 002 vs ours[/bold] ({cfg.runs} runs, seed {cfg.seed}):")
-    console.print(
-        f"  slope per cycle after cycle {n_ref}: seed 2.67e-6, ours {a58.mean():.4g} "
-        f"(true {cfg.life.slope:.3g}, synthetic motor)"
-    )
-    console.print(
-        f"  failure damping c_fail: seed 0.000147, ours {res.c_fail:.4g} (design-point algebra), "
-        f"{res.c_fail_from_curves:.4g} (from characteristic curves)"
-    )
+    _say(console, f"  slope per cycle after cycle {n_ref}: seed 2.67e-6, ours {a58.mean():.4g} "
+                  f"(true {cfg.life.slope:.3g}, synthetic motor)")
+    _say(console, f"  failure damping c_fail: seed 0.000147, ours {res.c_fail:.4g} (design-point "
+                  f"algebra), {res.c_fail_from_curves:.4g} (from characteristic curves)")
     met = res.tables["rul_metrics"]
     for _, row in met.iterrows():
-        console.print(
-            f"  {row['scenario']:<22} {row['method']:<11} cover90 {row['coverage_90']:.3f} "
-            f"a-l(0.5) {row['alpha_lambda_pass_0.5']:.2f}"
-        )
+        _say(console, f"  {row['scenario']:<22} {row['method']:<11} cover90 "
+                      f"{row['coverage_90']:.3f} a-l(0.5) {row['alpha_lambda_pass_0.5']:.2f}")
     console.print("[bold]Macro law comparison[/bold] (coverage of 90 % intervals, alpha-lambda "
                   "pass at lambda 0.5, RA, median interval width in cycles):")
     for _, row in res.tables["macro_models"].iterrows():
-        console.print(
-            f"  truth {row['truth']:<12} model {row['macro_model']:<9} {row['method']:<11} "
-            f"cover90 {row['coverage_90']:.3f} (1st half {row['coverage_90_first_half']:.3f}, "
-            f"2nd {row['coverage_90_second_half']:.3f}) a-l(0.5) "
-            f"{row['alpha_lambda_pass_0.5']:.2f} RA {row['ra_0.5_median']:.3f} width "
-            f"{_fmt(float(row['median_width']), '.3g')}", highlight=False,
-        )
-    console.print(f"wrote tables, figures and {escape(str(report))} "
-                  f"({time.perf_counter() - t0:.1f} s)", highlight=False)
+        _say(console,
+             f"  truth {row['truth']:<12} model {row['macro_model']:<9} {row['method']:<11} "
+             f"cover90 {row['coverage_90']:.3f} (1st half {row['coverage_90_first_half']:.3f}, "
+             f"2nd {row['coverage_90_second_half']:.3f}) a-l(0.5) "
+             f"{row['alpha_lambda_pass_0.5']:.2f} RA {row['ra_0.5_median']:.3f} width "
+             f"{_fmt(float(row['median_width']), '.3g')}")
+    _say(console, f"wrote tables, figures and {report} ({time.perf_counter() - t0:.1f} s)")
     return report
 
 
