@@ -1,0 +1,252 @@
+"""Compile an export with the system C compiler and run it beside the Python reference
+(docs/rul-on-the-device.md section 4).
+
+:func:`build` writes the generated sources and a PC harness (``templates/harness.c.j2``) into a
+directory and compiles them into a shared library with the strict flags of
+:data:`STRICT_FLAGS`; :class:`DeviceLibrary` drives it through ``ctypes`` over many components'
+acquisitions in one call; :func:`python_reference` computes the same outputs with
+:func:`~rulkit.fleet.tracking.tracker_run.tracker_run` and the learned model of
+:mod:`rulkit.fleet.learned.degradation`; :func:`compare` reports the largest differences.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import subprocess
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from rulkit.fleet.export.device_spec import DeviceSpec, ExportError
+from rulkit.fleet.export.generator import template_environment, generate_c
+
+FloatArray = NDArray[np.float64]
+STRICT_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2")
+SANITIZE_FLAGS = ("-fsanitize=undefined,address", "-fno-sanitize-recover=all",
+                  "-fno-omit-frame-pointer", "-g")
+REAL_COLUMNS = ("hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")
+LEARNED_COLUMNS = ("rul_median", "rul_p05", "rul_p95")
+FLAG_COLUMNS = ("valid", "level", "new_alert", "status")
+
+
+def compiler() -> str | None:
+    """The C compiler: ``$CC``, else ``cc``, ``gcc`` or ``clang`` on the PATH (None if none)."""
+    cc = os.environ.get("CC")
+    if cc:
+        return shutil.which(cc)
+    for name in ("cc", "gcc", "clang"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return None
+
+
+def output_columns(spec: DeviceSpec) -> tuple[str, ...]:
+    """The columns of :meth:`DeviceLibrary.run`, in the harness's order."""
+    return (*REAL_COLUMNS, *(LEARNED_COLUMNS if spec.learned is not None else ()),
+            *FLAG_COLUMNS)
+
+
+def harness_source(spec: DeviceSpec, number: str, prefix: str, ctx_files: dict[str, str]
+                   ) -> str:
+    """The PC harness of an export (not for the device)."""
+    from rulkit.fleet.export.generator import template_context
+
+    ctx = template_context(spec, number, prefix)
+    if number == "fixed":
+        from rulkit.fleet.export.fixed_point import fixed_context
+
+        ctx.update(fixed_context(spec))
+    ctx["n_out"] = len(output_columns(spec))
+    ctx["n_in"] = spec.hi_model.n if spec.hi_model is not None else 1
+    ctx["dt_double"] = repr(float(spec.config.dt))
+    return str(template_environment().get_template("harness.c.j2").render(**ctx))
+
+
+def build(spec: DeviceSpec, workdir: str | Path, number: str = "double", prefix: str = "rk",
+          sanitize: bool = False) -> DeviceLibrary:
+    """Generate, compile (:data:`STRICT_FLAGS`, plus :data:`SANITIZE_FLAGS` if ``sanitize``)
+    and load the export with its harness. :class:`ExportError` without a compiler or when the
+    compiler refuses the code (its messages included)."""
+    cc = compiler()
+    if cc is None:
+        raise ExportError("no C compiler found (set CC, or install gcc: apt-get install gcc)")
+    d = Path(workdir)
+    d.mkdir(parents=True, exist_ok=True)
+    files = generate_c(spec, number, prefix)
+    files[f"{prefix}_harness.c"] = harness_source(spec, number, prefix, files)
+    for name, text in files.items():
+        (d / name).write_text(text)
+    # a name per content: the dynamic loader returns an already loaded library by its path
+    digest = zlib.crc32("".join(files.values()).encode())
+    lib = d / f"lib{prefix}_{number}{'_san' if sanitize else ''}_{digest:08x}.so"
+    sources = [str(d / f"{prefix}.c"), str(d / f"{prefix}_harness.c")]
+    cmd = [cc, *STRICT_FLAGS, *(SANITIZE_FLAGS if sanitize else ()), "-fPIC", "-shared",
+           "-o", str(lib), *sources, "-lm"]
+    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if res.returncode != 0:
+        raise ExportError(f"{' '.join(cmd)} failed:\n{res.stderr}")
+    return DeviceLibrary(lib, spec, prefix)
+
+
+@dataclass
+class DeviceLibrary:
+    """A compiled export with its harness, loaded by ``ctypes``."""
+
+    path: Path
+    spec: DeviceSpec
+    prefix: str
+
+    def __post_init__(self) -> None:
+        self._lib = ctypes.CDLL(str(self.path))
+        dbl = ctypes.POINTER(ctypes.c_double)
+        u32 = ctypes.POINTER(ctypes.c_uint32)
+        u8 = ctypes.POINTER(ctypes.c_uint8)
+        f = getattr(self._lib, f"{self.prefix}_run_series")
+        f.argtypes = [ctypes.c_uint32, u32, dbl, dbl, ctypes.c_int, dbl]
+        f.restype = ctypes.c_int
+        g = getattr(self._lib, f"{self.prefix}_state_after")
+        g.argtypes = [ctypes.c_uint32, dbl, dbl, u8]
+        g.restype = ctypes.c_int
+        h = getattr(self._lib, f"{self.prefix}_resume")
+        h.argtypes = [u8, ctypes.c_uint32, ctypes.c_double, dbl, u8, dbl]
+        h.restype = ctypes.c_int
+        c = getattr(self._lib, f"{self.prefix}_crc32")
+        c.argtypes = [u8, ctypes.c_uint32]
+        c.restype = ctypes.c_uint32
+        self._run, self._after, self._resume, self._crc = f, g, h, c
+        self.columns = output_columns(self.spec)
+        self.n_in = self.spec.hi_model.n if self.spec.hi_model is not None else 1
+
+    def _inputs(self, x: np.ndarray) -> FloatArray:
+        return np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, self.n_in))
+
+    def run(self, start: np.ndarray, t: np.ndarray, x: np.ndarray,
+            through_bytes: bool = False) -> dict[str, np.ndarray]:
+        """Outputs per acquisition (:func:`output_columns`) of components whose rows are
+        ``start[u]:start[u+1]`` of ``t`` (time) and ``x`` (HI, or one row of CIs)."""
+        st = np.ascontiguousarray(start, dtype=np.uint32)
+        tt = np.ascontiguousarray(t, dtype=np.float64)
+        xx = self._inputs(x)
+        out = np.empty((tt.size, len(self.columns)))
+        ptr = ctypes.POINTER(ctypes.c_double)
+        rc = self._run(st.size - 1, st.ctypes.data_as(ctypes.POINTER(ctypes.c_uint32)),
+                       tt.ctypes.data_as(ptr), xx.ctypes.data_as(ptr), int(through_bytes),
+                       out.ctypes.data_as(ptr))
+        if rc < 0:
+            raise ExportError("the state did not survive save / restore")
+        return {c: out[:, j] for j, c in enumerate(self.columns)}
+
+    def state_bytes(self, t: np.ndarray, x: np.ndarray, size: int) -> tuple[int, bytes]:
+        """(status, saved state) of one component after the acquisitions ``t``, ``x``."""
+        tt = np.ascontiguousarray(t, dtype=np.float64)
+        xx = self._inputs(x)
+        buf = (ctypes.c_uint8 * size)()
+        ptr = ctypes.POINTER(ctypes.c_double)
+        rc = self._after(tt.size, tt.ctypes.data_as(ptr), xx.ctypes.data_as(ptr), buf)
+        return int(rc), bytes(buf)
+
+    def resume(self, saved: bytes, t: float, x: np.ndarray) -> tuple[int, bytes, FloatArray]:
+        """Restore ``saved``, assimilate one acquisition, save: (status, new bytes, outputs)."""
+        src = (ctypes.c_uint8 * max(len(saved), 1)).from_buffer_copy(saved or b"\0")
+        dst = (ctypes.c_uint8 * 4096)()
+        row = np.full(len(self.columns), np.nan)
+        xx = self._inputs(x)
+        ptr = ctypes.POINTER(ctypes.c_double)
+        rc = self._resume(src, len(saved), float(t), xx.ctypes.data_as(ptr), dst,
+                          row.ctypes.data_as(ptr))
+        return int(rc), bytes(dst), row
+
+    def crc32(self, data: bytes) -> int:
+        """The export's CRC-32 of ``data``."""
+        buf = (ctypes.c_uint8 * max(len(data), 1)).from_buffer_copy(data or b"\0")
+        return int(self._crc(buf, len(data)))
+
+
+def segments(frame: pd.DataFrame) -> tuple[np.ndarray, pd.DataFrame]:
+    """Acquisitions grouped by component (first-appearance order, time order inside) and the
+    row offsets of each component: (start, sorted frame)."""
+    codes, _ = pd.factorize(frame["component"], sort=False)
+    order = np.lexsort((frame["time"].to_numpy(), codes))
+    df = frame.iloc[order].reset_index(drop=True)
+    counts = np.bincount(codes[order])
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), df
+
+
+def python_reference(spec: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: np.ndarray
+                     ) -> dict[str, np.ndarray]:
+    """The outputs of the Python implementation for the same acquisitions (same columns as
+    :meth:`DeviceLibrary.run`, without ``status``)."""
+    from rulkit.fleet.learned.histories import Histories
+    from rulkit.fleet.tracking.tracker_chain import TrackerState
+    from rulkit.fleet.tracking.tracker_run import tracker_run
+
+    b = start.size - 1
+    _, rows = tracker_run(TrackerState.empty(b), start, t, hi, spec.config)
+    out = {"hi": np.asarray(hi, dtype=np.float64), **{k: rows[k] for k in (
+        "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")}}
+    out["valid"] = rows["valid"].astype(np.float64)
+    out["level"] = rows["level"].astype(np.float64)
+    out["new_alert"] = _new_alerts(start, rows["level"])
+    if spec.learned is not None:
+        from rulkit.fleet.learned.degradation import filtered_states
+        from rulkit.fleet.store.learned_state import LEVELS
+
+        unit = np.repeat(np.arange(b), np.diff(start))
+        hist = Histories(unit=unit, t=np.asarray(t, dtype=np.float64),
+                         hi=np.asarray(hi, dtype=np.float64),
+                         names=np.arange(b).astype(object), start=start.astype(np.int64),
+                         failed=np.zeros(b, dtype=bool), source="reference")
+        q = spec.learned.rul_quantiles(filtered_states(spec.learned, hist), LEVELS)
+        out.update(dict(zip(LEARNED_COLUMNS, q, strict=True)))
+    return out
+
+
+def _new_alerts(start: np.ndarray, level: np.ndarray) -> FloatArray:
+    """1 where the level exceeds every earlier level of the component (the latched alert)."""
+    new = np.zeros(level.size)
+    for u in range(start.size - 1):
+        top = 0
+        for k in range(start[u], start[u + 1]):
+            if level[k] > top:
+                new[k], top = 1.0, int(level[k])
+    return new
+
+
+def relative_error(got: np.ndarray, ref: np.ndarray, floor: float = 0.0) -> FloatArray:
+    """|got - ref| / max(|ref|, floor) per element; 0 where both are equal (inf = inf, NaN =
+    NaN), inf where only one of them is NaN or infinite."""
+    got = np.asarray(got, dtype=np.float64)
+    ref = np.asarray(ref, dtype=np.float64)
+    same = (got == ref) | (np.isnan(got) & np.isnan(ref))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        err = np.abs(got - ref) / np.maximum(np.abs(ref), floor)
+    err = np.where(same, 0.0, err)
+    return np.where(np.isnan(err), np.inf, err)
+
+
+def compare(got: dict[str, np.ndarray], ref: dict[str, np.ndarray],
+            floors: dict[str, float] | None = None) -> dict[str, Any]:
+    """Largest relative difference per real column (relative to max(|ref|, floor)) and the
+    number of differing flags (``valid``, ``level``, ``new_alert``)."""
+    floors = floors or {}
+    report: dict[str, Any] = {}
+    for col in ref:
+        if col in ("valid", "level", "new_alert"):
+            report[col] = int(np.sum(got[col] != ref[col]))
+        else:
+            err = relative_error(got[col], ref[col], floors.get(col, 0.0))
+            report[col] = float(err.max(initial=0.0))
+    return report
+
+
+__all__ = ["LEARNED_COLUMNS", "REAL_COLUMNS", "SANITIZE_FLAGS", "STRICT_FLAGS",
+           "DeviceLibrary", "build", "compare", "compiler", "output_columns",
+           "python_reference", "relative_error", "segments"]
