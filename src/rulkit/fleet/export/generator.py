@@ -144,7 +144,8 @@ def template_context(spec: DeviceSpec, number: str, prefix: str) -> dict[str, An
         consts = {k: (v if isinstance(v, bool) else
                       [lit(x) for x in v] if isinstance(v, list) else lit(v))
                   for k, v in dev.constants.items()}
-        learned = {**consts, "kind": dev.kind, "template": dev.template,
+        learned = {**consts, "kind": dev.kind, "tau_time": c_literal(spec.learned.time_scale,
+                                                                     "double"), "template": dev.template,
                    "state_fields": dev.state_fields,
                    "levels_text": "0.5, 0.05, 0.95"}
         learned_fields = [f for f, _ in dev.state_fields]
@@ -164,6 +165,8 @@ def template_context(spec: DeviceSpec, number: str, prefix: str) -> dict[str, An
         "pfa": f"{hm.pfa:g}" if hm is not None else "",
         "time_unit_text": unit or "the database's time unit",
         "hi_max_text": f"{spec.config.hi_max:g}",
+        # an interval whose float64 arithmetic would overflow (the store refuses it too)
+        "dt_max": c_literal(1e300, "double"),
         "hi_sigma_text": f"{spec.config.hi_sigma:g}",
         "load_text": f"{100 * spec.config.load_factor:g} %",
         "format_version": FORMAT_VERSION, "number_code": _NUMBER_CODE[number],

@@ -12,6 +12,7 @@ acquisitions in one call; :func:`python_reference` computes the same outputs wit
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import shutil
 import subprocess
@@ -25,7 +26,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from rulkit.fleet.export.device_spec import DeviceSpec, ExportError
-from rulkit.fleet.export.generator import template_environment, generate_c
+from rulkit.fleet.export.generator import generate_c, template_environment
 
 FloatArray = NDArray[np.float64]
 STRICT_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2")
@@ -54,9 +55,7 @@ def output_columns(spec: DeviceSpec) -> tuple[str, ...]:
             *FLAG_COLUMNS)
 
 
-def harness_source(spec: DeviceSpec, number: str, prefix: str, ctx_files: dict[str, str]
-                   ) -> str:
-    """The PC harness of an export (not for the device)."""
+def _harness_context(spec: DeviceSpec, number: str, prefix: str) -> dict[str, Any]:
     from rulkit.fleet.export.generator import template_context
 
     ctx = template_context(spec, number, prefix)
@@ -67,32 +66,76 @@ def harness_source(spec: DeviceSpec, number: str, prefix: str, ctx_files: dict[s
     ctx["n_out"] = len(output_columns(spec))
     ctx["n_in"] = spec.hi_model.n if spec.hi_model is not None else 1
     ctx["dt_double"] = repr(float(spec.config.dt))
-    return str(template_environment().get_template("harness.c.j2").render(**ctx))
+    return ctx
 
 
-def build(spec: DeviceSpec, workdir: str | Path, number: str = "double", prefix: str = "rk",
-          sanitize: bool = False) -> DeviceLibrary:
-    """Generate, compile (:data:`STRICT_FLAGS`, plus :data:`SANITIZE_FLAGS` if ``sanitize``)
-    and load the export with its harness. :class:`ExportError` without a compiler or when the
-    compiler refuses the code (its messages included)."""
-    cc = compiler()
-    if cc is None:
-        raise ExportError("no C compiler found (set CC, or install gcc: apt-get install gcc)")
-    d = Path(workdir)
-    d.mkdir(parents=True, exist_ok=True)
-    files = generate_c(spec, number, prefix)
-    files[f"{prefix}_harness.c"] = harness_source(spec, number, prefix, files)
-    for name, text in files.items():
-        (d / name).write_text(text)
-    # a name per content: the dynamic loader returns an already loaded library by its path
-    digest = zlib.crc32("".join(files.values()).encode())
-    lib = d / f"lib{prefix}_{number}{'_san' if sanitize else ''}_{digest:08x}.so"
-    sources = [str(d / f"{prefix}.c"), str(d / f"{prefix}_harness.c")]
-    cmd = [cc, *STRICT_FLAGS, *(SANITIZE_FLAGS if sanitize else ()), "-fPIC", "-shared",
-           "-o", str(lib), *sources, "-lm"]
+def _compile(cmd: list[str]) -> None:
     res = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if res.returncode != 0:
         raise ExportError(f"{' '.join(cmd)} failed:\n{res.stderr}")
+
+
+def _write_sources(spec: DeviceSpec, d: Path, number: str, prefix: str) -> dict[str, str]:
+    cc = compiler()
+    if cc is None:
+        raise ExportError("no C compiler found (set CC, or install gcc: apt-get install gcc)")
+    d.mkdir(parents=True, exist_ok=True)
+    files = generate_c(spec, number, prefix)
+    ctx = _harness_context(spec, number, prefix)
+    env = template_environment()
+    files[f"{prefix}_harness.c"] = env.get_template("harness.c.j2").render(**ctx)
+    files[f"{prefix}_driver.c"] = env.get_template("driver.c.j2").render(**ctx)
+    for name, text in files.items():
+        (d / name).write_text(text)
+    return files
+
+
+def run_sanitized(spec: DeviceSpec, workdir: str | Path, start: np.ndarray, t: np.ndarray,
+                  x: np.ndarray, number: str = "double", prefix: str = "rk"
+                  ) -> dict[str, np.ndarray]:
+    """The export and its harness compiled as one program under
+    ``-fsanitize=undefined,address`` (:data:`SANITIZE_FLAGS`), run over the acquisitions with
+    every state kept as saved bytes; any sanitizer report fails the run
+    (:class:`ExportError` with the report). Returns the outputs as :meth:`DeviceLibrary.run`."""
+    d = Path(workdir)
+    _write_sources(spec, d, number, prefix)
+    exe = d / f"{prefix}_{number}_sanitized"
+    cc = compiler()
+    assert cc is not None
+    _compile([cc, *STRICT_FLAGS, *SANITIZE_FLAGS, "-o", str(exe),
+              *(str(d / f"{prefix}{s}.c") for s in ("", "_harness", "_driver")), "-lm"])
+    n_in = spec.hi_model.n if spec.hi_model is not None else 1
+    st = np.ascontiguousarray(start, dtype=np.uint32)
+    blob = (np.array([st.size - 1, len(t)], dtype=np.uint32).tobytes() + st.tobytes()
+            + np.ascontiguousarray(t, dtype=np.float64).tobytes()
+            + np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, n_in)).tobytes())
+    (d / "in.bin").write_bytes(blob)
+    res = subprocess.run([str(exe), str(d / "in.bin"), str(d / "out.bin")],
+                         capture_output=True, text=True, check=False)
+    if res.returncode != 0 or res.stderr:
+        raise ExportError(f"{exe} exited {res.returncode}:\n{res.stderr}")
+    cols = output_columns(spec)
+    out = np.fromfile(d / "out.bin", dtype=np.float64).reshape(len(t), len(cols))
+    return {c: out[:, j] for j, c in enumerate(cols)}
+
+
+def build(spec: DeviceSpec, workdir: str | Path, number: str = "double", prefix: str = "rk"
+          ) -> DeviceLibrary:
+    """Generate, compile (:data:`STRICT_FLAGS`) and load the export with its harness as a
+    shared library (the sanitized run is :func:`run_sanitized`: a sanitizer runtime must be
+    loaded first, which a library inside Python cannot). :class:`ExportError` without a compiler or when the
+    compiler refuses the code (its messages included)."""
+    d = Path(workdir)
+    files = _write_sources(spec, d, number, prefix)
+    cc = compiler()
+    assert cc is not None
+    # a name per content: the dynamic loader returns an already loaded library by its path
+    digest = zlib.crc32("".join(files.values()).encode())
+    lib = d / f"lib{prefix}_{number}_{digest:08x}.so"
+    sources = [str(d / f"{prefix}.c"), str(d / f"{prefix}_harness.c")]
+    cmd = [cc, *STRICT_FLAGS, "-fPIC", "-shared",
+           "-o", str(lib), *sources, "-lm"]
+    _compile(cmd)
     return DeviceLibrary(lib, spec, prefix)
 
 
@@ -220,6 +263,36 @@ def _new_alerts(start: np.ndarray, level: np.ndarray) -> FloatArray:
     return new
 
 
+def long_records(rng: np.random.Generator, n_units: int = 4, n_acq: int = 20_000,
+                 noise_sd: float = 0.01, irregular: bool = True
+                 ) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """Long run-to-failure records for the number-format errors: HI = h0 exp(k t) + noise
+    (the Paris law with m = 2 of docs/systems/embedded-rul.md (EI-9)), h0 in [0.05, 0.3], the
+    unit reaching HI = 1 after about ``n_acq`` acquisitions of mean interval 1 (exponential
+    gaps of at least 0.1 if ``irregular``), HI clipped at 0. Returns (start, t, hi)."""
+    ts, his = [], []
+    for _ in range(n_units):
+        gaps = rng.exponential(1.0, n_acq) if irregular else np.ones(n_acq)
+        t = np.cumsum(np.maximum(gaps, 0.1))
+        h0 = rng.uniform(0.05, 0.3)
+        k = -np.log(h0) / t[-1]
+        ts.append(t)
+        his.append(np.maximum(h0 * np.exp(k * t) + noise_sd * rng.standard_normal(n_acq), 0.0))
+    start = np.arange(n_units + 1, dtype=np.int64) * n_acq
+    return start, np.concatenate(ts), np.concatenate(his)
+
+
+def scaled_error(got: np.ndarray, ref: np.ndarray) -> float:
+    """max |got - ref| / max |ref| over the finite reference values (0 if all are 0): the
+    error of a number format relative to the range of the quantity."""
+    ok = np.isfinite(ref)
+    scale = float(np.max(np.abs(ref[ok]), initial=0.0))
+    diff = np.abs(np.asarray(got)[ok] - ref[ok])
+    if not np.all(np.isfinite(diff)):
+        return math.inf
+    return float(diff.max(initial=0.0)) / scale if scale > 0 else float(diff.max(initial=0.0))
+
+
 def relative_error(got: np.ndarray, ref: np.ndarray, floor: float = 0.0) -> FloatArray:
     """|got - ref| / max(|ref|, floor) per element; 0 where both are equal (inf = inf, NaN =
     NaN), inf where only one of them is NaN or infinite."""
@@ -249,4 +322,5 @@ def compare(got: dict[str, np.ndarray], ref: dict[str, np.ndarray],
 
 __all__ = ["LEARNED_COLUMNS", "REAL_COLUMNS", "SANITIZE_FLAGS", "STRICT_FLAGS",
            "DeviceLibrary", "build", "compare", "compiler", "output_columns",
-           "python_reference", "relative_error", "segments"]
+           "long_records", "python_reference", "relative_error", "run_sanitized", "scaled_error",
+           "segments"]
