@@ -11,10 +11,8 @@ database only). The generator (:mod:`rulkit.fleet.export.generator`) turns a spe
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from rulkit.fleet.learned.degradation import DegradationModel
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -63,28 +61,30 @@ def spec_from_database(path: str | Path, name: str | None = None) -> DeviceSpec:
 
 
 _DEFAULT = TrackerConfig()
-_POS = {"low": 0.0, "low_open": True}
+
+
+def _positive(name: str, unit: str, default: float, doc: str) -> Field:
+    return Field(name, unit, default, doc, low=0.0, low_open=True)
+
 
 CONFIG_SCHEMA: dict[str, tuple[Field, ...]] = {
     "component": (
         Field("name", "", "component", doc="label written into the generated sources"),
     ),
     "tracker": (
-        Field("dt", "time unit", _DEFAULT.dt, "nominal acquisition interval", **_POS),
-        Field("lambda_hi", "", _DEFAULT.lambda_hi, "tracking index of the HI tracker", **_POS),
-        Field("lambda_rul", "", _DEFAULT.lambda_rul, "tracking index of the RUL tracker",
-              **_POS),
-        Field("design_life", "time unit", _DEFAULT.design_life, "dHI floor = 1/design_life",
-              **_POS),
+        _positive("dt", "time unit", _DEFAULT.dt, "nominal acquisition interval"),
+        _positive("lambda_hi", "", _DEFAULT.lambda_hi, "tracking index of the HI tracker"),
+        _positive("lambda_rul", "", _DEFAULT.lambda_rul, "tracking index of the RUL tracker"),
+        _positive("design_life", "time unit", _DEFAULT.design_life, "dHI floor = 1/design_life"),
         Field("hi_floor", "", _DEFAULT.hi_floor, "RUL evaluated at max(fHI, hi_floor)",
-              **_POS),
+              low=0.0, low_open=True),
         Field("hi_sigma", "", _DEFAULT.hi_sigma, "HI standard deviation of the limits",
               low=0.0),
         Field("load_factor", "", _DEFAULT.load_factor, "load +- of the limits", low=0.0,
               high=1.0, high_open=True),
         Field("load_exponent", "", -1.0, "growth rate ~ load^q; -1: the Paris exponent",
               low=-1.0),
-        Field("paris_exponent", "", _DEFAULT.paris_exponent, "Paris exponent m", **_POS),
+        _positive("paris_exponent", "", _DEFAULT.paris_exponent, "Paris exponent m"),
         Field("initiation", "", _DEFAULT.initiation, "track start",
               choices=("floor", "two-point", "measured")),
         Field("rul_clip", "", _DEFAULT.rul_clip, "clip fRUL at 0"),
@@ -96,7 +96,7 @@ CONFIG_SCHEMA: dict[str, tuple[Field, ...]] = {
         Field("warn_rul", "time unit", _DEFAULT.warn_rul, "warning when a valid RUL is below",
               low=0.0),
         Field("alarm_hi", "", _DEFAULT.alarm_hi, "alarm HI level"),
-        Field("hi_max", "", _DEFAULT.hi_max, "largest accepted HI", **_POS),
+        _positive("hi_max", "", _DEFAULT.hi_max, "largest accepted HI"),
     ),
     "learned": (
         Field("kind", "", "none", "learned model", choices=("none", "linear", "exponential",
@@ -104,12 +104,12 @@ CONFIG_SCHEMA: dict[str, tuple[Field, ...]] = {
         Field("shape", "", 0.0, "phi (exponential) or lam = 1 - m/2 (paris)"),
         Field("mean_a", "", 0.0, "prior mean of the intercept (transformed HI)"),
         Field("mean_b", "1/scaled time", 0.0, "prior mean of the rate"),
-        Field("cov_aa", "", 1.0, "prior variance of the intercept", **_POS),
+        _positive("cov_aa", "", 1.0, "prior variance of the intercept"),
         Field("cov_ab", "", 0.0, "prior covariance"),
-        Field("cov_bb", "", 1.0, "prior variance of the rate", **_POS),
-        Field("noise_sd", "", 0.01, "measurement noise sd (transformed HI)", **_POS),
+        _positive("cov_bb", "", 1.0, "prior variance of the rate"),
+        _positive("noise_sd", "", 0.01, "measurement noise sd (transformed HI)"),
         Field("walk_sd", "", 0.0, "random-walk sd per sqrt(scaled time)", low=0.0),
-        Field("time_scale", "time unit", 1.0, "tau: scaled time x = t / tau", **_POS),
+        _positive("time_scale", "time unit", 1.0, "tau: scaled time x = t / tau"),
         Field("time_unit", "", "", "label of the time unit"),
     ),
 }
@@ -139,13 +139,6 @@ def spec_from_file(path: str | Path) -> DeviceSpec:
             raise MachineFileError(f"{path}: [learned] {err}") from err
     return DeviceSpec(name=values["component"]["name"], source=str(path), config=config,
                       learned=learned)
-
-
-def finite_constants(values: dict[str, Any], where: str) -> None:
-    """Refuse a constant that is not finite (a C literal must be a number)."""
-    for key, v in values.items():
-        if isinstance(v, float) and not math.isfinite(v):
-            raise ExportError(f"{where}: {key} = {v!r} is not a finite number")
 
 
 __all__ = ["CONFIG_SCHEMA", "DeviceSpec", "ExportError", "spec_from_database", "spec_from_file"]

@@ -38,8 +38,7 @@ RUL_MARGIN = 4.0
 
 
 def int_bits(max_abs: float) -> int:
-    """Integer bits (sign excluded) that hold ``max_abs``: ceil(log2(max_abs)) for max_abs
-    >= 1, 0 below."""
+    """Integer bits b (sign excluded) with ``max_abs < 2^b``."""
     if not math.isfinite(max_abs) or max_abs <= 0:
         raise ExportError(f"fixed point: no Q format holds {max_abs!r}")
     return max(0, math.ceil(math.log2(max_abs * (1 + 1e-12))))

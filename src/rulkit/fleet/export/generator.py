@@ -144,8 +144,8 @@ def template_context(spec: DeviceSpec, number: str, prefix: str) -> dict[str, An
         consts = {k: (v if isinstance(v, bool) else
                       [lit(x) for x in v] if isinstance(v, list) else lit(v))
                   for k, v in dev.constants.items()}
-        learned = {**consts, "kind": dev.kind, "tau_time": c_literal(spec.learned.time_scale,
-                                                                     "double"), "template": dev.template,
+        learned = {**consts, "kind": dev.kind, "template": dev.template,
+                   "tau_time": c_literal(spec.learned.time_scale, "double"),
                    "state_fields": dev.state_fields,
                    "levels_text": "0.5, 0.05, 0.95"}
         learned_fields = [f for f, _ in dev.state_fields]

@@ -35,6 +35,17 @@ SANITIZE_FLAGS = ("-fsanitize=undefined,address", "-fno-sanitize-recover=all",
 REAL_COLUMNS = ("hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")
 LEARNED_COLUMNS = ("rul_median", "rul_p05", "rul_p95")
 FLAG_COLUMNS = ("valid", "level", "new_alert", "status")
+_RUL_COLUMNS = ("rul", "frul", "drul", "d2rul", "rul_low", "rul_high", *LEARNED_COLUMNS)
+ERROR_BOUNDS: dict[str, dict[str, float]] = {
+    "float": {"hi": 1e-6, "fhi": 1e-5, "dhi": 1e-3, **dict.fromkeys(_RUL_COLUMNS, 1e-2)},
+    "fixed": {"hi": 1e-7, "fhi": 1e-6, "dhi": 1e-4, **dict.fromkeys(_RUL_COLUMNS, 2e-3)},
+}
+"""The largest :func:`scaled_error` (max |C - Python| / max |Python| over a record) the tests
+accept per output and number format (docs/rul-on-the-device.md section 4). Float: a 24-bit
+significand (6e-8) per operation, amplified in the RUL by the division by the small rate dHI
+and by the trackers' recursions; fixed: the resolutions of section 3 (HI 7.5e-9, dHI 3e-5 of
+the floor) with the same amplification. The flags (validity, level) may differ only where the
+reference lies within the bound of a decision threshold."""
 
 
 def compiler() -> str | None:
@@ -123,8 +134,8 @@ def build(spec: DeviceSpec, workdir: str | Path, number: str = "double", prefix:
           ) -> DeviceLibrary:
     """Generate, compile (:data:`STRICT_FLAGS`) and load the export with its harness as a
     shared library (the sanitized run is :func:`run_sanitized`: a sanitizer runtime must be
-    loaded first, which a library inside Python cannot). :class:`ExportError` without a compiler or when the
-    compiler refuses the code (its messages included)."""
+    loaded first, which a library inside Python cannot). :class:`ExportError` without a
+    compiler or when the compiler refuses the code (its messages included)."""
     d = Path(workdir)
     files = _write_sources(spec, d, number, prefix)
     cc = compiler()
@@ -320,7 +331,21 @@ def compare(got: dict[str, np.ndarray], ref: dict[str, np.ndarray],
     return report
 
 
-__all__ = ["LEARNED_COLUMNS", "REAL_COLUMNS", "SANITIZE_FLAGS", "STRICT_FLAGS",
-           "DeviceLibrary", "build", "compare", "compiler", "output_columns",
-           "long_records", "python_reference", "relative_error", "run_sanitized", "scaled_error",
-           "segments"]
+__all__ = [
+    "ERROR_BOUNDS",
+    "LEARNED_COLUMNS",
+    "REAL_COLUMNS",
+    "SANITIZE_FLAGS",
+    "STRICT_FLAGS",
+    "DeviceLibrary",
+    "build",
+    "compare",
+    "compiler",
+    "long_records",
+    "output_columns",
+    "python_reference",
+    "relative_error",
+    "run_sanitized",
+    "scaled_error",
+    "segments",
+]
