@@ -9,7 +9,7 @@ import pytest
 from rulkit.fleet.export.device_spec import DeviceSpec, spec_from_database
 from rulkit.fleet.export.verify import (
     build,
-    long_records,
+    long_record_case,
     python_reference,
     relative_error,
     run_sanitized,
@@ -21,7 +21,7 @@ from rulkit.fleet.learned.datasets import (
     synthetic_linear_fleet,
     synthetic_paris_fleet,
 )
-from rulkit.fleet.learned.degradation import DegradationModel, fit_model
+from rulkit.fleet.learned.degradation import fit_model
 from rulkit.fleet.learned.histories import histories_from_frame
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -125,14 +125,6 @@ def test_double_from_condition_indicators(cc, tmp_path):
     assert ref["level"].max() >= 1  # the comparison covers alerts
 
 
-def _long_case():
-    cfg = TrackerConfig.safe(dt=1.0, design_life=2e6, hi_sigma=0.01, warn_rul=2000.0,
-                             valid_d2rul=5e-4, lambda_hi=1e-4, lambda_rul=1e-3)
-    model = DegradationModel("paris", 0.0, (-1.5, 1.5), (0.3, 0.0, 0.1), 0.02, 0.01, 2e4)
-    start, t, hi = long_records(np.random.default_rng(1), 2, 20_000, irregular=False)
-    return cfg, model, start, t, hi
-
-
 def _near_threshold(ref, cfg, rows, tol):
     """Rows where a flag may differ: the reference lies within tol of a decision threshold."""
     lo, hi = cfg.valid_drul
@@ -150,8 +142,10 @@ def _near_threshold(ref, cfg, rows, tol):
 def test_number_formats_within_their_bounds_over_long_records(cc, tmp_path, number):
     from rulkit.fleet.export.verify import ERROR_BOUNDS
 
-    cfg, model, start, t, hi = _long_case()
-    spec = DeviceSpec("long", "test", cfg, None, model if number == "float" else None)
+    spec, start, t, hi = long_record_case()
+    cfg = spec.config
+    if number == "fixed":
+        spec = DeviceSpec("long", "test", cfg)
     ref = python_reference(spec, start, t, hi)
     got = build(spec, tmp_path / number, number).run(start, t, hi, through_bytes=True)
     assert (got["status"] == 0).all()

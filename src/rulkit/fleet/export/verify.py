@@ -86,7 +86,9 @@ def _compile(cmd: list[str]) -> None:
         raise ExportError(f"{' '.join(cmd)} failed:\n{res.stderr}")
 
 
-def _write_sources(spec: DeviceSpec, d: Path, number: str, prefix: str) -> dict[str, str]:
+def write_sources(spec: DeviceSpec, d: Path, number: str, prefix: str) -> dict[str, str]:
+    """The export, its harness and its driver written into ``d`` (:class:`ExportError` when
+    there is no C compiler to build them)."""
     cc = compiler()
     if cc is None:
         raise ExportError("no C compiler found (set CC, or install gcc: apt-get install gcc)")
@@ -109,7 +111,7 @@ def run_sanitized(spec: DeviceSpec, workdir: str | Path, start: np.ndarray, t: n
     every state kept as saved bytes; any sanitizer report fails the run
     (:class:`ExportError` with the report). Returns the outputs as :meth:`DeviceLibrary.run`."""
     d = Path(workdir)
-    _write_sources(spec, d, number, prefix)
+    write_sources(spec, d, number, prefix)
     exe = d / f"{prefix}_{number}_sanitized"
     cc = compiler()
     assert cc is not None
@@ -137,7 +139,7 @@ def build(spec: DeviceSpec, workdir: str | Path, number: str = "double", prefix:
     loaded first, which a library inside Python cannot). :class:`ExportError` without a
     compiler or when the compiler refuses the code (its messages included)."""
     d = Path(workdir)
-    files = _write_sources(spec, d, number, prefix)
+    files = write_sources(spec, d, number, prefix)
     cc = compiler()
     assert cc is not None
     # a name per content: the dynamic loader returns an already loaded library by its path
@@ -176,6 +178,9 @@ class DeviceLibrary:
         c.argtypes = [u8, ctypes.c_uint32]
         c.restype = ctypes.c_uint32
         self._run, self._after, self._resume, self._crc = f, g, h, c
+        size = getattr(self._lib, f"{self.prefix}_state_struct_bytes")
+        size.restype = ctypes.c_uint32
+        self.state_struct_bytes = int(size())  # sizeof, as this compiler lays the struct out
         self.columns = output_columns(self.spec)
         self.n_in = self.spec.hi_model.n if self.spec.hi_model is not None else 1
 
@@ -293,6 +298,22 @@ def long_records(rng: np.random.Generator, n_units: int = 4, n_acq: int = 20_000
     return start, np.concatenate(ts), np.concatenate(his)
 
 
+def long_record_case(n_units: int = 2, n_acq: int = 20_000, seed: int = 1
+                     ) -> tuple[DeviceSpec, np.ndarray, FloatArray, FloatArray]:
+    """The long-record case of the number-format errors: :func:`long_records` (regular
+    sampling) with the safe chain set for its time scale (life ~2e4 intervals: design life
+    100 lives, warning 10 % of a life, validity 10 / life) and a learned Paris model (m = 2)
+    of the same scale. Returns (spec, start, t, hi)."""
+    from rulkit.fleet.learned.degradation import DegradationModel
+    from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+
+    cfg = TrackerConfig.safe(dt=1.0, design_life=2e6, hi_sigma=0.01, warn_rul=2000.0,
+                             valid_d2rul=5e-4, lambda_hi=1e-4, lambda_rul=1e-3)
+    model = DegradationModel("paris", 0.0, (-1.5, 1.5), (0.3, 0.0, 0.1), 0.02, 0.01, 2e4)
+    start, t, hi = long_records(np.random.default_rng(seed), n_units, n_acq, irregular=False)
+    return DeviceSpec("long", "long_record_case", cfg, None, model), start, t, hi
+
+
 def scaled_error(got: np.ndarray, ref: np.ndarray) -> float:
     """max |got - ref| / max |ref| over the finite reference values (0 if all are 0): the
     error of a number format relative to the range of the quantity."""
@@ -341,6 +362,7 @@ __all__ = [
     "build",
     "compare",
     "compiler",
+    "long_record_case",
     "long_records",
     "output_columns",
     "python_reference",
