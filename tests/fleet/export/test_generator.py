@@ -10,7 +10,6 @@ import pytest
 
 from rulkit.fleet.export.device_spec import DeviceSpec, ExportError
 from rulkit.fleet.export.generator import c_literal, generate_c
-from rulkit.fleet.export.learned_device import learned_device
 from rulkit.fleet.export.verify import build
 from rulkit.fleet.learned.degradation import DegradationModel
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -40,14 +39,6 @@ def test_sources_need_only_math_and_stdint_and_no_heap(number):
         for line in text.splitlines():
             if re.match(r"static (?!const)[a-z0-9_]+ [A-Za-z_0-9]+\s*(=|;|\[)", line):
                 pytest.fail(f"mutable file-scope state: {line}")
-
-
-def test_unknown_learned_model_type_is_refused_by_name():
-    class Similarity:
-        kind = "similarity"
-
-    with pytest.raises(ExportError, match="'similarity' has no C export"):
-        learned_device(Similarity())  # type: ignore[arg-type]
 
 
 def test_fixed_point_refuses_what_it_does_not_cover():
@@ -143,3 +134,43 @@ def test_bad_buffers_are_refused_with_their_error(libs):
     assert lib.resume(buf, 30.0, hi[-1:])[0] == -4  # time not after the last acquisition
     assert lib.resume(buf, float("nan"), hi[-1:])[0] == -2
     assert lib.resume(buf, 31.0, np.array([11.0]))[0] == -3  # HI above hi_max
+
+
+def test_the_worked_main_loop_of_the_docs_compiles_and_survives_a_power_cut(cc, tmp_path):
+    """docs/rul-on-the-device.md section 6: the loop compiled as printed against an export
+    with CIs, run with a power cut half-way; its alerts are those of the Python reference."""
+    import subprocess
+    from pathlib import Path
+
+    from rulkit.fleet.export.verify import python_reference
+
+    page = (Path(__file__).parents[3] / "docs" / "rul-on-the-device.md").read_text()
+    loop = next(b for b in re.findall(r"```c\n(.*?)```", page, flags=re.S)
+                if "int monitor(void)" in b)
+    rng = np.random.default_rng(4)
+    cfg = TrackerConfig.safe(hi_sigma=0.05)
+    spec = DeviceSpec("bearing", "docs", cfg, HI_MODEL, None)
+    for name, text in generate_c(spec, "double", "bearing").items():
+        (tmp_path / name).write_text(text)
+    (tmp_path / "monitor.c").write_text(loop)
+    n = 80
+    t = np.arange(1.0, n + 1)
+    ci = rng.rayleigh(size=(n, 2)) + 0.05 * np.exp(0.07 * t)[:, None]
+    np.savetxt(tmp_path / "acq.txt", np.column_stack([t, ci]), fmt="%.17g")
+    stub = Path(__file__).parent / "c" / "platform_stub.c"
+    strict = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+    for src in ("monitor.c", "bearing.c"):
+        subprocess.run([cc, *strict, "-c", src], cwd=tmp_path, check=True)
+    subprocess.run([cc, "-O2", "-I", str(tmp_path), "-o", "loop", str(stub), "monitor.o",
+                    "bearing.o", "-lm"], cwd=tmp_path, check=True)
+    out = subprocess.run(["./loop", "acq.txt", "37"], cwd=tmp_path, capture_output=True,
+                         text=True, check=True).stdout.split("\n")
+    assert out[-2] == f"n {n}"
+    alerts = np.array([[float(v) for v in line.split()[1:]] for line in out[:-2]])
+    hi = HI_MODEL.health_index(ci)
+    ref = python_reference(spec, np.array([0, n]), t, hi)
+    new = ref["new_alert"] == 1
+    assert new.any() and np.flatnonzero(new).min() > 37  # raised by the restored state
+    np.testing.assert_array_equal(alerts[:, 0], ref["level"][new])
+    np.testing.assert_allclose(alerts[:, 1:], np.column_stack(
+        [ref["rul_low"][new], ref["rul_high"][new]]), rtol=1e-12)

@@ -57,21 +57,21 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             bad_option("--number", f"expected one of {', '.join(NUMBER_FORMATS)}, got "
                                    f"{number!r}")
         try:
-            spec = spec_from_database(db, name) if db is not None else spec_from_file(
+            device = spec_from_database(db, name) if db is not None else spec_from_file(
                 config)  # type: ignore[arg-type]
             if name:
-                spec = replace(spec, name=name)
+                device = replace(device, name=name)
             if no_learned:
-                spec = replace(spec, learned=None)
+                device = replace(device, learned=None)
             if no_ci:
-                spec = replace(spec, hi_model=None)
-            paths = write_c(spec, out, number, prefix)
+                device = replace(device, hi_model=None)
+            paths = write_c(device, out, number, prefix)
         except (ExportError, MachineFileError) as err:
             fail(f"{err} (nothing written)")
         parts = ["tracker chain"]
-        if spec.hi_model is not None:
-            parts.insert(0, f"HI from {spec.hi_model.n} CIs")
-        if spec.learned is not None:
-            parts.append(f"learned {spec.learned.kind} model")
+        if device.hi_model is not None:
+            parts.insert(0, f"HI from {device.hi_model.n} CIs")
+        if device.learned is not None:
+            parts.append(f"learned {device.learned.kind} model")
         typer.echo(f"wrote {', '.join(str(p) for p in paths)}: {', '.join(parts)} "
-                   f"({number}) of {spec.name!r} from {spec.source}")
+                   f"({number}) of {device.name!r} from {device.source}")

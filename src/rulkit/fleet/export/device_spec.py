@@ -6,7 +6,7 @@ A :class:`DeviceSpec` is read from a fleet database (:func:`spec_from_database`:
 :class:`~rulkit.fleet.tracking.tracker_chain.TrackerConfig` and the learned model of
 ``rulkit fit``) or from a TOML configuration file (:func:`spec_from_file`: tracker settings
 and, optionally, a learned model; the CI -> HI map needs a fitted baseline, so it comes from a
-database only). The generator (:mod:`rulkit.fleet.export.generator`) turns a spec into C.
+database only). The generator (:mod:`rulkit.fleet.export.generator`) turns a device into C.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ class ExportError(ValueError):
 class DeviceSpec:
     """One component type as the device runs it.
 
-    ``name``: a label written into the sources; ``source``: where the spec came from (the
+    ``name``: a label written into the sources; ``source``: where the description came from (the
     database or file path); ``config``: the tracker chain; ``hi_model``: CI -> HI (None: the
     device is given the HI); ``learned``: the learned degradation model (None: tracker only).
     """
@@ -41,7 +41,7 @@ class DeviceSpec:
 
 
 def spec_from_database(path: str | Path, name: str | None = None) -> DeviceSpec:
-    """The spec stored in the fleet database at ``path`` (read-only; nothing is written)."""
+    """The device stored in the fleet database at ``path`` (read-only; nothing is written)."""
     from rulkit.fleet.store.database_file import StoreError
     from rulkit.fleet.store.sqlite import ComponentStore
 
@@ -117,7 +117,7 @@ CONFIG_SCHEMA: dict[str, tuple[Field, ...]] = {
 
 
 def spec_from_file(path: str | Path) -> DeviceSpec:
-    """The spec described by the TOML file at ``path`` (:data:`CONFIG_SCHEMA`)."""
+    """The device described by the TOML file at ``path`` (:data:`CONFIG_SCHEMA`)."""
     values = read_machine_file(path, CONFIG_SCHEMA)
     tr = dict(values["tracker"])
     tr["valid_drul"] = (tr.pop("valid_drul_low"), tr.pop("valid_drul_high"))

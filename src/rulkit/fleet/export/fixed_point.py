@@ -50,9 +50,9 @@ def q(value: float, frac: int) -> int:
     return max(-(2**31), min(2**31 - 1, v))
 
 
-def q_formats(spec: DeviceSpec) -> dict[str, int]:
+def q_formats(device: DeviceSpec) -> dict[str, int]:
     """Fractional bits of each quantity from the settings (module docstring)."""
-    cfg = spec.config
+    cfg = device.config
     hi_frac = 31 - int_bits(cfg.hi_max + 1.0)
     floor = cfg.dt / cfg.design_life
     dhi_frac = 31 + max(0, -math.ceil(math.log2(min(1.0, DHI_HEADROOM * floor))))
@@ -65,22 +65,22 @@ def q_formats(spec: DeviceSpec) -> dict[str, int]:
             "gain_frac": GAIN_FRAC, "tick_frac": TICK_FRAC}
 
 
-def fixed_context(spec: DeviceSpec) -> dict[str, Any]:
+def fixed_context(device: DeviceSpec) -> dict[str, Any]:
     """The fixed-point constants of the template ``device_fixed.c.j2``; :class:`ExportError`
     for what fixed point does not cover (module docstring)."""
-    cfg = spec.config
-    if spec.learned is not None:
+    cfg = device.config
+    if device.learned is not None:
         raise ExportError(
             f"fixed point covers the tracker chain only; this export holds the learned "
-            f"{spec.learned.kind} model (erfc and the normal quantile need floating point): "
+            f"{device.learned.kind} model (erfc and the normal quantile need floating point): "
             "use --number float, or --no-learned")
-    if spec.hi_model is not None:
+    if device.hi_model is not None:
         raise ExportError("fixed point takes the HI as input; this export holds a CI -> HI "
                           "map (use --number float, or --no-ci to give the device the HI)")
     if cfg.paris_exponent != 2.0:
         raise ExportError(f"fixed point supports the Paris exponent m = 2 only, got "
                           f"m = {cfg.paris_exponent:g} (use --number float)")
-    f = q_formats(spec)
+    f = q_formats(device)
     g = cfg.gains()
     dt = cfg.dt
     qexp = cfg.paris_exponent if cfg.load_exponent is None else cfg.load_exponent
@@ -105,7 +105,7 @@ def fixed_context(spec: DeviceSpec) -> dict[str, Any]:
         raise ExportError(f"fixed point: design_life / dt = {cfg.design_life / cfg.dt:g} and "
                           f"hi_max = {cfg.hi_max:g} need more than 32 bits")
     return {"fx": {**f, **consts, "ticks_per_dt": 1 << TICK_FRAC},
-            "dt_text": f"{dt:g} {'time units' if not spec.learned else spec.learned.time_unit}"}
+            "dt_text": f"{dt:g} {'time units' if not device.learned else device.learned.time_unit}"}
 
 
 __all__ = ["DHI_HEADROOM", "GAIN_FRAC", "TICK_FRAC", "fixed_context", "int_bits", "q", "q_formats"]

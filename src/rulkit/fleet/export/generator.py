@@ -58,8 +58,8 @@ def template_environment() -> Any:
         keep_trailing_newline=True, autoescape=False)
 
 
-def _tracker_constants(spec: DeviceSpec, lit: Any) -> dict[str, Any]:
-    cfg = spec.config
+def _tracker_constants(device: DeviceSpec, lit: Any) -> dict[str, Any]:
+    cfg = device.config
     g = cfg.gains()
     q = cfg.paris_exponent if cfg.load_exponent is None else cfg.load_exponent
     p = 0.5 * cfg.paris_exponent
@@ -131,7 +131,7 @@ def check_prefix(prefix: str) -> str:
     return prefix
 
 
-def template_context(spec: DeviceSpec, number: str, prefix: str) -> dict[str, Any]:
+def template_context(device: DeviceSpec, number: str, prefix: str) -> dict[str, Any]:
     from rulkit import __version__
 
     def lit(x: float) -> str:
@@ -139,36 +139,36 @@ def template_context(spec: DeviceSpec, number: str, prefix: str) -> dict[str, An
 
     learned = None
     learned_fields: list[str] = []
-    if spec.learned is not None:
-        dev = learned_device(spec.learned)
+    if device.learned is not None:
+        dev = learned_device(device.learned)
         consts = {k: (v if isinstance(v, bool) else
                       [lit(x) for x in v] if isinstance(v, list) else lit(v))
                   for k, v in dev.constants.items()}
         learned = {**consts, "kind": dev.kind, "template": dev.template,
-                   "tau_time": c_literal(spec.learned.time_scale, "double"),
+                   "tau_time": c_literal(device.learned.time_scale, "double"),
                    "state_fields": dev.state_fields,
                    "levels_text": "0.5, 0.05, 0.95"}
         learned_fields = [f for f, _ in dev.state_fields]
     fields, crc_offset = _state_layout(number, learned_fields)
-    hm = spec.hi_model
-    unit = spec.learned.time_unit if spec.learned is not None and spec.learned.time_unit else ""
+    hm = device.hi_model
+    unit = device.learned.time_unit if device.learned is not None else ""
     ctx: dict[str, Any] = {
-        "p": prefix, "P": prefix.upper(), "name": spec.name, "source": spec.source,
+        "p": prefix, "P": prefix.upper(), "name": device.name, "source": device.source,
         "version": __version__, "number": number,
         "real": {"double": "double", "float": "float", "fixed": "int32_t"}[number],
         "fn": (lambda f: f + "f") if number == "float" else (lambda f: f),
-        "c": _tracker_constants(spec, lit), "learned": learned,
+        "c": _tracker_constants(device, lit), "learned": learned,
         "n_ci": hm.n if hm is not None else 0,
         "ci_names": list(hm.names) if hm is not None else [],
         "ci_offset": [lit(v) for v in hm.offset] if hm is not None else [],
         "hi_scale": [[lit(v) for v in row] for row in hm.scale] if hm is not None else [],
         "pfa": f"{hm.pfa:g}" if hm is not None else "",
         "time_unit_text": unit or "the database's time unit",
-        "hi_max_text": f"{spec.config.hi_max:g}",
+        "hi_max_text": f"{device.config.hi_max:g}",
         # an interval whose float64 arithmetic would overflow (the store refuses it too)
         "dt_max": c_literal(1e300, "double"),
-        "hi_sigma_text": f"{spec.config.hi_sigma:g}",
-        "load_text": f"{100 * spec.config.load_factor:g} %",
+        "hi_sigma_text": f"{device.config.hi_sigma:g}",
+        "load_text": f"{100 * device.config.load_factor:g} %",
         "format_version": FORMAT_VERSION, "number_code": _NUMBER_CODE[number],
         "flags": (1 if learned else 0) | (2 if hm is not None else 0),
         "fields": fields, "crc_offset": crc_offset, "state_bytes": crc_offset + 4,
@@ -186,8 +186,8 @@ def _model_id(ctx: dict[str, Any]) -> str:
     return f"0x{zlib.crc32(text.encode()):08X}"
 
 
-def generate_c(spec: DeviceSpec, number: str = "double", prefix: str = "rk") -> dict[str, str]:
-    """The C99 header and source of ``spec`` as ``{"<prefix>.h": ..., "<prefix>.c": ...}``.
+def generate_c(device: DeviceSpec, number: str = "double", prefix: str = "rk") -> dict[str, str]:
+    """The C99 header and source of ``device`` as ``{"<prefix>.h": ..., "<prefix>.c": ...}``.
 
     ``number``: ``double``, ``float`` or ``fixed`` (the tracker chain only: a learned model or
     a CI -> HI map raises :class:`ExportError`, see
@@ -197,12 +197,12 @@ def generate_c(spec: DeviceSpec, number: str = "double", prefix: str = "rk") -> 
     if number not in NUMBER_FORMATS:
         raise ExportError(f"number format {number!r}: expected one of {NUMBER_FORMATS}")
     check_prefix(prefix)
-    ctx = template_context(spec, number, prefix)
+    ctx = template_context(device, number, prefix)
     template = "device.c.j2"
     if number == "fixed":
         from rulkit.fleet.export.fixed_point import fixed_context
 
-        ctx.update(fixed_context(spec))
+        ctx.update(fixed_context(device))
         template = "device_fixed.c.j2"
     ctx["model_id"] = _model_id(ctx)
     env = template_environment()
@@ -210,10 +210,10 @@ def generate_c(spec: DeviceSpec, number: str = "double", prefix: str = "rk") -> 
             f"{prefix}.c": env.get_template(template).render(**ctx)}
 
 
-def write_c(spec: DeviceSpec, out: str | Path, number: str = "double",
+def write_c(device: DeviceSpec, out: str | Path, number: str = "double",
             prefix: str = "rk") -> list[Path]:
     """:func:`generate_c` written into the directory ``out`` (created); returns the paths."""
-    files = generate_c(spec, number, prefix)
+    files = generate_c(device, number, prefix)
     d = Path(out)
     d.mkdir(parents=True, exist_ok=True)
     paths = []

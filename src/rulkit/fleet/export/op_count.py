@@ -107,7 +107,7 @@ def _gcov_counts(workdir: Path, source: str) -> dict[int, int]:
 _FUNCTION = re.compile(r"^(?:static\s+)?[A-Za-z_][\w ]*?\**\s*\b([A-Za-z_]\w*)\(")
 
 
-def steady_state_operations(spec: DeviceSpec, workdir: str | Path, number: str = "double",
+def steady_state_operations(device: DeviceSpec, workdir: str | Path, number: str = "double",
                             prefix: str = "rk", n: int = 2000) -> dict[str, dict[str, float]]:
     """Operations per update (:data:`CATEGORIES`) of the export in steady state, per C
     function and in ``"total"``: a regular record of HI growing from 0.2 to 0.6 (module
@@ -116,7 +116,7 @@ def steady_state_operations(spec: DeviceSpec, workdir: str | Path, number: str =
     from rulkit.fleet.export.verify import compiler, write_sources
 
     d = Path(workdir)
-    files = write_sources(spec, d, number, prefix)
+    files = write_sources(device, d, number, prefix)
     cc = compiler()
     assert cc is not None
     objs = []
@@ -126,12 +126,12 @@ def steady_state_operations(spec: DeviceSpec, workdir: str | Path, number: str =
                        cwd=d, check=True)
         objs.append(f"{name}.o")
     subprocess.run([cc, "--coverage", "-o", "count", *objs, "-lm"], cwd=d, check=True)
-    n_in = spec.hi_model.n if spec.hi_model is not None else 1
+    n_in = device.hi_model.n if device.hi_model is not None else 1
     totals = []
     for m in (n, 2 * n):
         for f in d.glob("*.gcda"):
             f.unlink()
-        t = spec.config.dt * np.arange(1.0, m + 1)
+        t = device.config.dt * np.arange(1.0, m + 1)
         hi = np.linspace(0.2, 0.6, m)
         x = np.repeat(hi[:, None], n_in, axis=1) / np.sqrt(n_in)
         blob = (np.array([1, m], dtype=np.uint32).tobytes()
@@ -145,7 +145,7 @@ def steady_state_operations(spec: DeviceSpec, workdir: str | Path, number: str =
                        prefix)
     floats = number != "fixed"
     types = {f"{prefix}_state", f"{prefix}_output", f"{prefix}_real", f"{prefix}_time"}
-    per_update: dict[str, Counter[str]] = {"total": Counter()}
+    per_update: dict[str, dict[str, float]] = {"total": {}}
     function = ""
     for lineno, text in enumerate(source, start=1):
         head = _FUNCTION.match(text)
@@ -158,8 +158,9 @@ def steady_state_operations(spec: DeviceSpec, workdir: str | Path, number: str =
         if floats and not (toks & reals or any(_is_float_literal(t) for t in toks)):
             continue
         for k, v in line_operations(text, types).items():
-            per_update["total"][k] += runs * v
-            per_update.setdefault(function, Counter())[k] += runs * v
+            for key in ("total", function):
+                counts = per_update.setdefault(key, {})
+                counts[k] = counts.get(k, 0.0) + runs * v
     return {f: {k: round(float(c.get(k, 0.0)), 3) for k in CATEGORIES}
             for f, c in per_update.items()}
 

@@ -60,23 +60,23 @@ def compiler() -> str | None:
     return None
 
 
-def output_columns(spec: DeviceSpec) -> tuple[str, ...]:
+def output_columns(device: DeviceSpec) -> tuple[str, ...]:
     """The columns of :meth:`DeviceLibrary.run`, in the harness's order."""
-    return (*REAL_COLUMNS, *(LEARNED_COLUMNS if spec.learned is not None else ()),
+    return (*REAL_COLUMNS, *(LEARNED_COLUMNS if device.learned is not None else ()),
             *FLAG_COLUMNS)
 
 
-def _harness_context(spec: DeviceSpec, number: str, prefix: str) -> dict[str, Any]:
+def _harness_context(device: DeviceSpec, number: str, prefix: str) -> dict[str, Any]:
     from rulkit.fleet.export.generator import template_context
 
-    ctx = template_context(spec, number, prefix)
+    ctx = template_context(device, number, prefix)
     if number == "fixed":
         from rulkit.fleet.export.fixed_point import fixed_context
 
-        ctx.update(fixed_context(spec))
-    ctx["n_out"] = len(output_columns(spec))
-    ctx["n_in"] = spec.hi_model.n if spec.hi_model is not None else 1
-    ctx["dt_double"] = repr(float(spec.config.dt))
+        ctx.update(fixed_context(device))
+    ctx["n_out"] = len(output_columns(device))
+    ctx["n_in"] = device.hi_model.n if device.hi_model is not None else 1
+    ctx["dt_double"] = repr(float(device.config.dt))
     return ctx
 
 
@@ -86,15 +86,15 @@ def _compile(cmd: list[str]) -> None:
         raise ExportError(f"{' '.join(cmd)} failed:\n{res.stderr}")
 
 
-def write_sources(spec: DeviceSpec, d: Path, number: str, prefix: str) -> dict[str, str]:
+def write_sources(device: DeviceSpec, d: Path, number: str, prefix: str) -> dict[str, str]:
     """The export, its harness and its driver written into ``d`` (:class:`ExportError` when
     there is no C compiler to build them)."""
     cc = compiler()
     if cc is None:
         raise ExportError("no C compiler found (set CC, or install gcc: apt-get install gcc)")
     d.mkdir(parents=True, exist_ok=True)
-    files = generate_c(spec, number, prefix)
-    ctx = _harness_context(spec, number, prefix)
+    files = generate_c(device, number, prefix)
+    ctx = _harness_context(device, number, prefix)
     env = template_environment()
     files[f"{prefix}_harness.c"] = env.get_template("harness.c.j2").render(**ctx)
     files[f"{prefix}_driver.c"] = env.get_template("driver.c.j2").render(**ctx)
@@ -103,7 +103,7 @@ def write_sources(spec: DeviceSpec, d: Path, number: str, prefix: str) -> dict[s
     return files
 
 
-def run_sanitized(spec: DeviceSpec, workdir: str | Path, start: np.ndarray, t: np.ndarray,
+def run_sanitized(device: DeviceSpec, workdir: str | Path, start: np.ndarray, t: np.ndarray,
                   x: np.ndarray, number: str = "double", prefix: str = "rk"
                   ) -> dict[str, np.ndarray]:
     """The export and its harness compiled as one program under
@@ -111,13 +111,13 @@ def run_sanitized(spec: DeviceSpec, workdir: str | Path, start: np.ndarray, t: n
     every state kept as saved bytes; any sanitizer report fails the run
     (:class:`ExportError` with the report). Returns the outputs as :meth:`DeviceLibrary.run`."""
     d = Path(workdir)
-    write_sources(spec, d, number, prefix)
+    write_sources(device, d, number, prefix)
     exe = d / f"{prefix}_{number}_sanitized"
     cc = compiler()
     assert cc is not None
     _compile([cc, *STRICT_FLAGS, *SANITIZE_FLAGS, "-o", str(exe),
               *(str(d / f"{prefix}{s}.c") for s in ("", "_harness", "_driver")), "-lm"])
-    n_in = spec.hi_model.n if spec.hi_model is not None else 1
+    n_in = device.hi_model.n if device.hi_model is not None else 1
     st = np.ascontiguousarray(start, dtype=np.uint32)
     blob = (np.array([st.size - 1, len(t)], dtype=np.uint32).tobytes() + st.tobytes()
             + np.ascontiguousarray(t, dtype=np.float64).tobytes()
@@ -127,19 +127,19 @@ def run_sanitized(spec: DeviceSpec, workdir: str | Path, start: np.ndarray, t: n
                          capture_output=True, text=True, check=False)
     if res.returncode != 0 or res.stderr:
         raise ExportError(f"{exe} exited {res.returncode}:\n{res.stderr}")
-    cols = output_columns(spec)
+    cols = output_columns(device)
     out = np.fromfile(d / "out.bin", dtype=np.float64).reshape(len(t), len(cols))
     return {c: out[:, j] for j, c in enumerate(cols)}
 
 
-def build(spec: DeviceSpec, workdir: str | Path, number: str = "double", prefix: str = "rk"
+def build(device: DeviceSpec, workdir: str | Path, number: str = "double", prefix: str = "rk"
           ) -> DeviceLibrary:
     """Generate, compile (:data:`STRICT_FLAGS`) and load the export with its harness as a
     shared library (the sanitized run is :func:`run_sanitized`: a sanitizer runtime must be
     loaded first, which a library inside Python cannot). :class:`ExportError` without a
     compiler or when the compiler refuses the code (its messages included)."""
     d = Path(workdir)
-    files = write_sources(spec, d, number, prefix)
+    files = write_sources(device, d, number, prefix)
     cc = compiler()
     assert cc is not None
     # a name per content: the dynamic loader returns an already loaded library by its path
@@ -149,7 +149,7 @@ def build(spec: DeviceSpec, workdir: str | Path, number: str = "double", prefix:
     cmd = [cc, *STRICT_FLAGS, "-fPIC", "-shared",
            "-o", str(lib), *sources, "-lm"]
     _compile(cmd)
-    return DeviceLibrary(lib, spec, prefix)
+    return DeviceLibrary(lib, device, prefix)
 
 
 @dataclass
@@ -157,7 +157,7 @@ class DeviceLibrary:
     """A compiled export with its harness, loaded by ``ctypes``."""
 
     path: Path
-    spec: DeviceSpec
+    device: DeviceSpec
     prefix: str
 
     def __post_init__(self) -> None:
@@ -181,8 +181,8 @@ class DeviceLibrary:
         size = getattr(self._lib, f"{self.prefix}_state_struct_bytes")
         size.restype = ctypes.c_uint32
         self.state_struct_bytes = int(size())  # sizeof, as this compiler lays the struct out
-        self.columns = output_columns(self.spec)
-        self.n_in = self.spec.hi_model.n if self.spec.hi_model is not None else 1
+        self.columns = output_columns(self.device)
+        self.n_in = self.device.hi_model.n if self.device.hi_model is not None else 1
 
     def _inputs(self, x: np.ndarray) -> FloatArray:
         return np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, self.n_in))
@@ -239,7 +239,7 @@ def segments(frame: pd.DataFrame) -> tuple[np.ndarray, pd.DataFrame]:
     return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), df
 
 
-def python_reference(spec: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: np.ndarray
+def python_reference(device: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: np.ndarray
                      ) -> dict[str, np.ndarray]:
     """The outputs of the Python implementation for the same acquisitions (same columns as
     :meth:`DeviceLibrary.run`, without ``status``)."""
@@ -248,13 +248,13 @@ def python_reference(spec: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: np.
     from rulkit.fleet.tracking.tracker_run import tracker_run
 
     b = start.size - 1
-    _, rows = tracker_run(TrackerState.empty(b), start, t, hi, spec.config)
+    _, rows = tracker_run(TrackerState.empty(b), start, t, hi, device.config)
     out = {"hi": np.asarray(hi, dtype=np.float64), **{k: rows[k] for k in (
         "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")}}
     out["valid"] = rows["valid"].astype(np.float64)
     out["level"] = rows["level"].astype(np.float64)
     out["new_alert"] = _new_alerts(start, rows["level"])
-    if spec.learned is not None:
+    if device.learned is not None:
         from rulkit.fleet.learned.degradation import filtered_states
         from rulkit.fleet.store.learned_state import LEVELS
 
@@ -263,7 +263,7 @@ def python_reference(spec: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: np.
                          hi=np.asarray(hi, dtype=np.float64),
                          names=np.arange(b).astype(object), start=start.astype(np.int64),
                          failed=np.zeros(b, dtype=bool), source="reference")
-        q = spec.learned.rul_quantiles(filtered_states(spec.learned, hist), LEVELS)
+        q = device.learned.rul_quantiles(filtered_states(device.learned, hist), LEVELS)
         out.update(dict(zip(LEARNED_COLUMNS, q, strict=True)))
     return out
 
@@ -303,7 +303,7 @@ def long_record_case(n_units: int = 2, n_acq: int = 20_000, seed: int = 1
     """The long-record case of the number-format errors: :func:`long_records` (regular
     sampling) with the safe chain set for its time scale (life ~2e4 intervals: design life
     100 lives, warning 10 % of a life, validity 10 / life) and a learned Paris model (m = 2)
-    of the same scale. Returns (spec, start, t, hi)."""
+    of the same scale. Returns (device, start, t, hi)."""
     from rulkit.fleet.learned.degradation import DegradationModel
     from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
