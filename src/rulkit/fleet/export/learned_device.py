@@ -19,6 +19,7 @@ the transform g only. Any other model type is refused by :func:`learned_device` 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,8 +40,28 @@ class LearnedDevice:
     constants: dict[str, Any]
 
 
+_KNOWN_FIELDS = {"kind", "shape", "mean", "cov", "noise_sd", "walk_sd", "time_scale",
+                 "time_unit", "n_units", "n_failed", "log_likelihood"}
+
+
+def _check_known_fields(model: DegradationModel) -> None:
+    """Refuse a model with a setting the template does not implement (a field added to the
+    model class after this exporter, set to other than its default), instead of writing C
+    that silently ignores it."""
+    for f in dataclasses.fields(model):
+        if f.name in _KNOWN_FIELDS:
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else None
+        if getattr(model, f.name) != default:
+            raise ExportError(
+                f"learned {model.kind} model: its setting {f.name} = "
+                f"{getattr(model, f.name)!r} has no C export yet (rulkit.fleet.export."
+                "learned_device); export the tracker chain alone with --no-learned")
+
+
 def _random_effects(model: DegradationModel) -> LearnedDevice:
     """linear / exponential / paris: the Kalman posterior of (level, rate) (eq. (2))."""
+    _check_known_fields(model)
     return LearnedDevice(
         kind=model.kind,
         template="learned_random_effects.c.j2",

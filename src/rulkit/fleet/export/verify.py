@@ -6,7 +6,8 @@ directory and compiles them into a shared library with the strict flags of
 :data:`STRICT_FLAGS`; :class:`DeviceLibrary` drives it through ``ctypes`` over many components'
 acquisitions in one call; :func:`python_reference` computes the same outputs with
 :func:`~rulkit.fleet.tracking.tracker_run.tracker_run` and the learned model of
-:mod:`rulkit.fleet.learned.degradation`; :func:`compare` reports the largest differences.
+:mod:`rulkit.fleet.learned.degradation`; :func:`relative_error` and :func:`scaled_error`
+measure how far apart they are.
 """
 
 from __future__ import annotations
@@ -337,21 +338,6 @@ def relative_error(got: np.ndarray, ref: np.ndarray, floor: float = 0.0) -> Floa
     return np.where(np.isnan(err), np.inf, err)
 
 
-def compare(got: dict[str, np.ndarray], ref: dict[str, np.ndarray],
-            floors: dict[str, float] | None = None) -> dict[str, Any]:
-    """Largest relative difference per real column (relative to max(|ref|, floor)) and the
-    number of differing flags (``valid``, ``level``, ``new_alert``)."""
-    floors = floors or {}
-    report: dict[str, Any] = {}
-    for col in ref:
-        if col in ("valid", "level", "new_alert"):
-            report[col] = int(np.sum(got[col] != ref[col]))
-        else:
-            err = relative_error(got[col], ref[col], floors.get(col, 0.0))
-            report[col] = float(err.max(initial=0.0))
-    return report
-
-
 __all__ = [
     "ERROR_BOUNDS",
     "LEARNED_COLUMNS",
@@ -360,7 +346,6 @@ __all__ = [
     "STRICT_FLAGS",
     "DeviceLibrary",
     "build",
-    "compare",
     "compiler",
     "long_record_case",
     "long_records",
