@@ -52,6 +52,7 @@ def test_refusals_write_nothing(tmp_path, fleet_db):
     assert _run("export", "c", "--db", fleet_db, "--out", out, "--number", "half"
                 ).exit_code == 2
     assert _run("export", "c", "--out", out).exit_code == 2  # neither --db nor --config
+    assert _run("export", "c", "--db", fleet_db, "--out", out, "--prefix", "Bad").exit_code == 2
     missing = _run("export", "c", "--db", tmp_path / "none.db", "--out", out)
     assert missing.exit_code == 1 and "no such database" in missing.output
 

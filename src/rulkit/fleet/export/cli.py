@@ -48,7 +48,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             spec_from_database,
             spec_from_file,
         )
-        from rulkit.fleet.export.generator import NUMBER_FORMATS, write_c
+        from rulkit.fleet.export.generator import NUMBER_FORMATS, check_prefix, write_c
         from rulkit.machine_file import MachineFileError
 
         if (db is None) == (config is None):
@@ -56,6 +56,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if number not in NUMBER_FORMATS:
             bad_option("--number", f"expected one of {', '.join(NUMBER_FORMATS)}, got "
                                    f"{number!r}")
+        try:
+            check_prefix(prefix)
+        except ExportError as err:
+            bad_option("--prefix", str(err).split(": ", 1)[-1])
         try:
             device = spec_from_database(db, name) if db is not None else spec_from_file(
                 config)  # type: ignore[arg-type]
