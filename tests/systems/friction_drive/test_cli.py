@@ -127,3 +127,12 @@ def test_drive_print_machine_reads_back(tmp_path) -> None:
     from rulkit.systems.friction_drive.machine import read_drive_machine
 
     assert read_drive_machine(p).values["rul"]["current"] == 15.0
+
+
+def test_reproduce_friction_drive_refuses_a_bad_machine_file(tmp_path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text("[drive]\nr2 = 'big'\n")
+    res = CliRunner().invoke(app, ["reproduce", "friction-drive", "--machine", str(machine),
+                                   "--out", str(tmp_path / "o")])
+    assert res.exit_code == 1 and "[drive] r2 = 'big' (m): expected a number" in res.output
+    assert not (tmp_path / "o").exists()

@@ -1,11 +1,12 @@
 """How much the friction drive's EKF amplifies rounding, measured with two OpenBLAS kernels
 (``OPENBLAS_CORETYPE``: Haswell and Sandybridge round small matrix products differently).
 
-On the seed's jump scenario (20 s, m jumping at 10 s) the reproduction's ``tuned`` filter (Jacobian at the start of the
-step, no process noise on the speeds) moves its states by ~1e-11 relative and its NEES by
-~1e-7 between the two kernels (the golden tables' tolerances come from this). ``rulkit
-drive``'s tuning (midpoint Jacobian, process noise on the speeds: a far better conditioned P)
-moves them by ~1e-15 and ~1e-11, and the compiled filter, which calls no BLAS, not at all.
+On the seed's jump scenario (20 s, m jumping at 10 s) the reproduction's ``tuned`` filter
+(Jacobian at the start of the step, no process noise on the speeds) moves its states by ~1e-11
+relative and its NEES by ~1e-7 between the two kernels (the golden tables' tolerances come from
+this). ``rulkit drive``'s tuning (midpoint Jacobian, process noise on the speeds: a far better
+conditioned P) moves them by ~1e-15 and ~1e-11, and the compiled filter, which calls no BLAS,
+not at all.
 Slow: six runs of the filter in subprocesses."""
 
 from __future__ import annotations

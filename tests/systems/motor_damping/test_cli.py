@@ -281,3 +281,13 @@ def test_motor_damping_machine_file_and_print_machine(pullup_csv, tmp_path: Path
     assert res.exit_code == 1 and "[motor] J = -1 (kg m^2): outside its range" in res.output
     res = runner.invoke(app, ["motor", "damping"])
     assert res.exit_code == 2 and "missing argument FILE" in res.output
+
+
+def test_reproduce_motor_damping_refuses_a_bad_machine_file(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text("[motor]\nK = 0.001\n")  # too weak to reach the design point
+    res = runner.invoke(app, ["reproduce", "motor-damping", "--machine", str(machine),
+                              "--out", str(tmp_path / "o")])
+    assert res.exit_code == 1
+    assert "the design point (300.0 rad/s, 0.016 N m) is above the undamped curve" in res.output
+    assert not (tmp_path / "o").exists()

@@ -33,21 +33,33 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         duration: float = typer.Option(
             20.0, "--duration", min=3.0, help="Filtered seconds; the RUL is predicted at its end."
         ),
+        machine: Annotated[Path | None, typer.Option(
+            "--machine", help="Drive machine file (TOML): its [drive] constants and [failure] "
+                              "level replace the seed's drive in the study.")] = None,
     ) -> None:
         """Augmented EKF on the roller-on-tire drive, consistency, observability, MC RUL."""
+        from rulkit.cli.errors import fail
+        from rulkit.machine_file import MachineFileError
+        from rulkit.systems.friction_drive.machine import read_drive_machine
         from rulkit.systems.friction_drive.report import tables, write_report
         from rulkit.systems.friction_drive.reproduce import FrictionDriveConfig, run
+
+        try:
+            params = read_drive_machine(machine).params
+        except MachineFileError as err:
+            fail(str(err))
 
         n_runs = runs if runs is not None else (1 if quick else 5)
         cmd = (
             "rulkit reproduce friction-drive"
             + (" --quick" if quick else "")
             + f" --runs {n_runs} --seed {seed} --n-rul {n_rul} --duration {duration:g}"
+            + (f" --machine {machine}" if machine is not None else "")
         )
         typer.echo(f"friction-drive: {n_runs} run(s) per filter/scenario, seed {seed} ...")
         res = run(FrictionDriveConfig(
             n_runs=n_runs, seed=seed, n_rul=n_rul, duration=duration,
-            n_validate=3 if quick else 10, tuning_runs=2 if quick else 8,
+            n_validate=3 if quick else 10, tuning_runs=2 if quick else 8, params=params,
         ))
         rep = write_report(res, out, command=cmd)
         tabs = tables(res)

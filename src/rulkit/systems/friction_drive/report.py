@@ -228,7 +228,7 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
             t_end = 300.0
         grid = np.linspace(0.0, t_end, 400)
         n_show = min(100, r.samples.shape[0])
-        Db = deterioration_bundle(r.samples[:n_show], grid)
+        Db = deterioration_bundle(r.samples[:n_show], grid, params=res.params)
         ext = np.repeat(r.x_hat[None, :], 3, axis=0)
         sa, sm = np.sqrt(r.P[2, 2]), np.sqrt(r.P[3, 3])
         ext[1, 2] += 3 * sa
@@ -237,14 +237,14 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
         ext[2, 3] += 3 * sm
         never = ext[1, 3] <= 0
         ext[:, 3] = np.maximum(ext[:, 3], 0.0)
-        De = deterioration_bundle(ext, grid)
+        De = deterioration_bundle(ext, grid, params=res.params)
         fig, ax = plt.subplots(figsize=(8, 4))
         ax.plot(grid, Db.T, color="0.7", lw=0.5)
         ax.plot(grid, De[0], "k-", lw=2, label="nominal (x_hat)")
         ax.plot(grid, De[1], "g--", label="optimistic (alpha+3s, m-3s)"
                 + (": m <= 0, never fails" if never else ""))
         ax.plot(grid, De[2], "r--", label="pessimistic (alpha-3s, m+3s)")
-        d_f = DEFAULT_PARAMS.failure_level  # the level predict_rul and the bundle use
+        d_f = res.params.failure_level  # the level predict_rul and the bundle use
         ax.axhline(d_f, color="b", lw=0.8, label=f"D_f = {d_f:g}")
         ax.set_xlabel(f"hours after t = {r.t_pred:g} s")
         ax.set_ylabel("D")
@@ -476,6 +476,18 @@ def _tuning_section(tabs: dict) -> list[str]:
     return lines
 
 
+def _machine_lines(res: FrictionDriveResult) -> list[str]:
+    """A note when the drive is not the seed's (a machine file): its constants, and that the
+    seed's numbers beside ours are for the seed's drive."""
+    if res.params == DEFAULT_PARAMS:
+        return []
+    p = res.params
+    consts = ", ".join(f"{k} = {getattr(p, k):g}" for k in
+                       ("r1", "r2", "B1", "B2", "J1", "J2", "Km", "alpha0", "failure_level"))
+    return [f"**The drive is not the seed's** (from a machine file: {consts}); the seed's "
+            "numbers quoted beside ours are for the seed's drive.", ""]
+
+
 def _frac_excl(t: pd.DataFrame) -> str:
     v = t["frac_consistent_excl_jump"].dropna()
     return f"{v.max():.0%}" if v.size else "none"
@@ -530,6 +542,7 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         f"Runs per (filter, scenario): {res.n_runs}; seed {res.seed}; filter step {res.dt} s; "
         f"settings {res.settings}. Filter wall time {res.filter_seconds:.1f} s.",
         "",
+        *_machine_lines(res),
         "## RUL at t = {:g} s (seed section 6, Figs. 7-8)".format(
             next(iter(res.rul.values())).t_pred if res.rul else float("nan")),
         "",
@@ -559,7 +572,7 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         f"{SEED_VALUES['rul_std_h']} h on {SEED_VALUES['rul_mean_h']} h implies sigma_m / m ~ "
         f"{seed_ratio:.1%}; the seed does not print the sigma_m it used, so this cannot be "
         f"matched, only compared. {never_text}",
-        f"- RUL uses D_f = {DEFAULT_PARAMS.failure_level:g} (D = 1 is never reached, "
+        f"- RUL uses D_f = {res.params.failure_level:g} (D = 1 is never reached, "
         "docs/systems/friction-drive.md §2). "
         f"Fast propagation: {res.settings.get('transient', 10.0):g} s of the full model (RK4, "
         f"{res.settings.get('transient_dt', float('nan')) * 1e3:g} ms, numba) then the "

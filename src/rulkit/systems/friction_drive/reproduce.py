@@ -219,16 +219,18 @@ DEFAULT_PAIRS = (
 @dataclass(frozen=True)
 class Truth:
     """A simulated truth: times ``t`` (K+1,), states ``X`` (K+1, 4) at the sample times,
-    ``currents`` (K,) held over each step."""
+    ``currents`` (K,) held over each step, of the drive ``params``."""
 
     scenario: Scenario
     dt: float
     t: FloatArray
     X: FloatArray
     currents: FloatArray
+    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
 
 
-def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10) -> Truth:
+def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10,
+                   params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS) -> Truth:
     """Integrate the full model with ``n_sub`` RK4 sub-steps per sample
     (docs/systems/friction-drive.md §4: the truth uses finer sub-steps than the filter). m follows
     the scenario's schedule, evaluated at the middle of each sample interval (exact for constant m
@@ -240,9 +242,9 @@ def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10) -> Tru
     if scenario.m_kind == "jump":  # the jump falls on a sample time: use the step-start value
         m_path = scenario.m_of_t(t[:-1])
     x0 = np.array([[0.0, 0.0, scenario.alpha0, scenario.m0]])
-    X = fd.integrate_path(x0, currents, dt, n_sub=n_sub, m_path=m_path)[:, 0, :]
+    X = fd.integrate_path(x0, currents, dt, n_sub=n_sub, m_path=m_path, params=params)[:, 0, :]
     X[:, 3] = scenario.m_of_t(t)
-    return Truth(scenario, dt, t, X, currents)
+    return Truth(scenario, dt, t, X, currents, params)
 
 
 def one_step_discretisation_error(truth: Truth, n_sub: int = 1) -> FloatArray:
@@ -250,7 +252,7 @@ def one_step_discretisation_error(truth: Truth, n_sub: int = 1) -> FloatArray:
     RK4 sub-steps from ``truth.X[k]`` under the truth's held current, shape (K, 4) (the
     discretisation mismatch between a fine truth and the filter; sizes ``SPEED_Q_RATE``)."""
     m_fixed = truth.X[:-1].copy()
-    pred = fd.rk4_step(m_fixed, truth.currents, truth.dt, n_sub=n_sub)
+    pred = fd.rk4_step(m_fixed, truth.currents, truth.dt, truth.params, n_sub=n_sub)
     pred[:, 3] = truth.X[1:, 3]  # m follows the scenario's schedule, not the model
     return truth.X[1:] - pred
 
@@ -432,7 +434,8 @@ def convergence_study(
     ys = truth.X[1 : K + 1, None, :2] + rng.standard_normal((K, B, 2)) * np.sqrt(np.diag(SEED_R))
     cur = np.repeat(truth.currents[:K, None], B, axis=1)
     x0 = np.array([[0.0, 0.0, a, m] for a, m in combos])
-    ekf = make_ekf(np.full(B, q_m), np.zeros(B), np.broadcast_to(SEED_R, (B, 2, 2)), truth.dt)
+    ekf = make_ekf(np.full(B, q_m), np.zeros(B), np.broadcast_to(SEED_R, (B, 2, 2)), truth.dt,
+                   truth.params)
     run = run_filter(ekf, ys, cur, x0, SEED_P0)
     t = run.t
     tx = truth.X[: K + 1]
@@ -496,6 +499,7 @@ class FrictionDriveResult:
     filter_seconds: float
     settings: dict
     tuning: list[TuningRow] = field(default_factory=list)
+    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
 
 
 def _time_within(t: FloatArray, est: FloatArray, target: FloatArray,
@@ -521,7 +525,10 @@ class FrictionDriveConfig:
     against LSODA) for ``rul_configs`` on the jump scenario; ``truth_substeps`` RK4 sub-steps
     of the truth per filter step; ``converge``: also the convergence study from wrong initial
     estimates; ``tuning_runs`` runs per (q_m of ``tuning_q_m``, scenario) of the tuning study of
-    ``rulkit drive``'s filter (:func:`tuning_study`; 0: none). ``seed`` drives every draw."""
+    ``rulkit drive``'s filter (:func:`tuning_study`; 0: none). ``params``: the drive (the seed's
+    by default; another one from a machine file: its constants and failure level for the truth,
+    every filter and the RUL; the scenarios start at its ``alpha0``). ``seed`` drives every
+    draw."""
 
     n_runs: int = 1
     seed: int = 0
@@ -535,6 +542,7 @@ class FrictionDriveConfig:
     converge: bool = True
     tuning_q_m: tuple[float, ...] = TUNING_Q_M
     tuning_runs: int = 0
+    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
 
     def __post_init__(self) -> None:
         if self.n_runs < 1:
@@ -583,6 +591,7 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
         np.array([configs[c].f44 for c, _, _ in units]),
         np.stack([configs[c].R_filter for c, _, _ in units]),
         cfg.dt,
+        cfg.params,
         q_speed=np.array([configs[c].q_speed for c, _, _ in units]),
         midpoint=np.array([configs[c].jacobian_at == "midpoint" for c, _, _ in units]),
     )
@@ -601,8 +610,9 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
         if b is None:
             continue
         rul[c] = predict_rul(res.x[-1, b], res.P_final[b], rng, t_pred=duration,
-                             n_samples=cfg.n_rul, n_validate=cfg.n_validate)
-    rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:])[0] / HOUR)
+                             n_samples=cfg.n_rul, n_validate=cfg.n_validate, params=cfg.params)
+    rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:], params=cfg.params)[0]
+                      / HOUR)
     conv = (convergence_study(truths["jump"], rng, duration=min(3.0, duration))
             if cfg.converge else [])
     tuning = (tuning_study(_tuning_truths(cfg, truths), cfg.tuning_q_m, cfg.tuning_runs,
@@ -614,7 +624,7 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
         settings={"dt": dt, "duration": duration, "n_rul": cfg.n_rul,
                   "truth_substeps": cfg.truth_substeps, "n_validate": cfg.n_validate,
                   "B": len(units), "transient": 10.0, "transient_dt": TRANSIENT_DT},
-        tuning=tuning,
+        tuning=tuning, params=cfg.params,
     )
 
 
@@ -624,9 +634,9 @@ def _simulate_truths(cfg: FrictionDriveConfig) -> dict[str, Truth]:
     scen_names = sorted({s for _, s in cfg.pairs} | {"jump", "constant-current"})
     truths = {}
     for s in scen_names:
-        sc = SCENARIOS[s]
-        sc = Scenario(**{**sc.__dict__, "duration": cfg.duration})
-        truths[s] = simulate_truth(sc, cfg.dt, cfg.truth_substeps)
+        sc = Scenario(**{**SCENARIOS[s].__dict__, "duration": cfg.duration,
+                         "alpha0": cfg.params.alpha0})
+        truths[s] = simulate_truth(sc, cfg.dt, cfg.truth_substeps, cfg.params)
     return truths
 
 
@@ -734,8 +744,10 @@ class TuningRow:
 def _tuning_truths(cfg: FrictionDriveConfig, truths: dict[str, Truth]) -> dict[str, Truth]:
     out = {}
     for s in TUNING_SCENARIOS:
-        sc = Scenario(**{**SCENARIOS[s].__dict__, "duration": cfg.duration})
-        out[s] = truths[s] if s in truths else simulate_truth(sc, cfg.dt, cfg.truth_substeps)
+        sc = Scenario(**{**SCENARIOS[s].__dict__, "duration": cfg.duration,
+                         "alpha0": cfg.params.alpha0})
+        out[s] = (truths[s] if s in truths
+                  else simulate_truth(sc, cfg.dt, cfg.truth_substeps, cfg.params))
     return out
 
 
@@ -759,7 +771,7 @@ def tuning_study(truths: dict[str, Truth], q_ms: tuple[float, ...], runs: int,
             P0[0, 0], P0[1, 1] = SEED_R[0, 0], SEED_R[1, 1]
             for q in q_ms:
                 run = track(ys, cur, x0, P0, EKFSettings(tr.dt, 1, 0.0, 0.0, True),
-                            fd.DEFAULT_PARAMS, np.array([*SPEED_Q_RATE, 0.0, q]), SEED_R)
+                            tr.params, np.array([*SPEED_Q_RATE, 0.0, q]), SEED_R)
                 rows.append(_tuning_row(run, tr, q, name, r))
     return rows
 

@@ -45,18 +45,22 @@ def _check_macro_model(value: str) -> str:
 
 def reproduce_motor_damping(
     out: Path, runs: int | None, seed: int, quick: bool, command: str = "",
-    macro_model: str = "linear",
+    macro_model: str = "linear", machine: MotorMachine | None = None,
 ) -> Path:
-    """Run the reproduction and write its outputs; returns the report path."""
+    """Run the reproduction and write its outputs; returns the report path. With ``machine``
+    the synthetic motor is replaced by the machine's constants (its damping trend scaled to
+    its failure damping: :func:`rulkit.systems.motor_damping.reproduce.study_for_motor`)."""
     from rich.console import Console
     from rich.markup import escape
 
     from rulkit.systems.motor_damping.macro import MacroSettings
     from rulkit.systems.motor_damping.report import write_report
-    from rulkit.systems.motor_damping.reproduce import MotorDampingConfig, run
+    from rulkit.systems.motor_damping.reproduce import MotorDampingConfig, run, study_for_motor
 
     console = Console()
     kw: dict = {"seed": seed, "macro": MacroSettings(model=_check_macro_model(macro_model))}
+    if machine is not None:
+        kw.update(study_for_motor(machine.constants))
     if runs is not None:
         if runs < 1:
             raise typer.BadParameter(f"--runs: expected >= 1, got {runs}")
@@ -202,8 +206,23 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             help="Macro law of the main scenarios: linear (seed eq. 4, [c, a]) or quadratic "
                  "([c, a, j], constant acceleration). The macro_models table has both.")
         ] = "linear",
+        machine: Annotated[Path | None, typer.Option(
+            "--machine", help="Motor machine file (TOML): its [motor] constants replace the "
+                              "synthetic motor (the damping trend scaled to its failure "
+                              "damping).")] = None,
     ) -> None:
         """Seed 002: multi-scale EKF (micro per cycle, macro across cycles), RUL and metrics."""
+        from rulkit.cli.errors import fail
+        from rulkit.machine_file import MachineFileError
+        from rulkit.systems.motor_damping.machine import read_motor_machine
+        from rulkit.systems.motor_damping.motor import failure_damping
+
+        try:
+            motor = read_motor_machine(machine) if machine is not None else None
+            if motor is not None:
+                failure_damping(motor.constants)  # the design point must lie under its curve
+        except (MachineFileError, ValueError) as err:
+            fail(f"{machine}: {err}" if not str(err).startswith(str(machine)) else str(err))
         parts = ["rulkit", "reproduce", "motor-damping"]
         if quick:
             parts.append("--quick")
@@ -212,8 +231,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         parts += ["--seed", str(seed), "--out", str(out)]
         if macro_model != "linear":
             parts += ["--macro-model", macro_model]
+        if machine is not None:
+            parts += ["--machine", str(machine)]
         reproduce_motor_damping(out, runs, seed, quick, command=shlex.join(parts),
-                                macro_model=macro_model)
+                                macro_model=macro_model, machine=motor)
 
     @motor.command("damping")
     def _damping(
