@@ -57,3 +57,10 @@ def test_bad_values_named(tmp_path: Path, text: str, message: str) -> None:
     p.write_text(text)
     with pytest.raises(MachineFileError, match=message):
         read_drive_machine(p)
+
+
+def test_the_command_page_shows_the_schema() -> None:
+    from rulkit.machine_file import schema_table
+
+    page = Path(__file__).resolve().parents[3] / "docs" / "commands" / "drive.md"
+    assert schema_table(DRIVE_SCHEMA) in page.read_text()

@@ -55,3 +55,28 @@ def test_negative_within_its_uncertainty_is_not_an_error() -> None:
     check_damping_physical(np.array([1.0, 2.0, 3.0]), c, np.full(3, 1e-18))  # 2 sd: chance
     with pytest.raises(NegativeDampingError, match=r"cycle 2: .*1 of 3 cycles"):
         check_damping_physical(np.array([1.0, 2.0, 3.0]), c, np.full(3, 1e-20))  # 20 sd
+
+
+@pytest.mark.parametrize(("column", "offset"), [("current", 3.0), ("speed", 50.0),
+                                                ("acceleration", 100.0)])
+def test_a_corrupted_sample_costs_one_sample_not_the_cycles_damping(column: str,
+                                                                    offset: float) -> None:
+    from rulkit.systems.motor_damping.machine import read_motor_machine
+
+    df, truth = _life_test_frame()
+    kw = read_motor_machine(None).analysis_kwargs()  # the command's settings: gate 100
+    kw["mc_samples"] = 10
+    clean = analyse_pullup(from_frame(df), **kw)
+    t = len(df) // 5
+    bad = df.copy()
+    bad.loc[2 * t + 150, column] += offset  # one sample in cycle 3
+    got = analyse_pullup(from_frame(bad), **kw)
+    shift = np.abs(got.table["damping"] - clean.table["damping"]) / clean.table["damping_sd"]
+    assert shift[2] < 3.0 and got.table["gated"].iloc[2] >= 1
+    assert np.all(np.abs(got.table["damping"] - truth) < 5 * got.table["damping_sd"])
+    if column == "current":  # without the gate the glitch moves that cycle by far more
+        kw["micro"] = read_motor_machine(None).with_overrides(
+            {"--gate": ("micro", "gate", 0.0)}).micro
+        off = analyse_pullup(from_frame(bad), **kw)
+        assert abs(off.table["damping"][2] - clean.table["damping"][2]) > 50 * clean.table[
+            "damping_sd"][2]

@@ -20,7 +20,7 @@ def test_defaults_are_the_synthetic_motor() -> None:
     synthetic = MotorConstants()
     assert (m.constants.K, m.constants.J, m.constants.T_L) == (synthetic.K, synthetic.J,
                                                                synthetic.T_L)
-    assert m.micro == MicroEKFSettings()
+    assert m.micro == MicroEKFSettings(gate=100.0)  # the reproduction runs without the gate
     assert m.limits == PullupLimits()
     kw = m.analysis_kwargs()
     # 0 in the file means "estimate" / "from the design point"
@@ -63,3 +63,10 @@ def test_overrides_take_precedence_and_name_their_label() -> None:
     assert m.constants.J == 2e-3 and m.constants.K == MotorConstants().K
     with pytest.raises(MachineFileError, match=r"--j = 0 \(kg m\^2\): outside its range"):
         m.with_overrides({"--j": ("motor", "J", 0)})
+
+
+def test_the_command_page_shows_the_schema() -> None:
+    from rulkit.machine_file import schema_table
+
+    page = Path(__file__).resolve().parents[3] / "docs" / "commands" / "motor-damping.md"
+    assert schema_table(MOTOR_SCHEMA) in page.read_text()

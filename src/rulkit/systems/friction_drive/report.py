@@ -102,6 +102,21 @@ def tables(res: FrictionDriveResult) -> dict:
          "sigma_m": o.sigma[3], "pointwise_rank": o.pointwise_rank}
         for o in res.observability
     ])
+    rul = _rul_table(res)
+    conv = pd.DataFrame([c.__dict__ for c in res.convergence])
+    out = {"consistency": consistency, "verdicts": verdicts, "ellipsoid": ellipsoid,
+           "observability": obs, "rul": rul, "convergence": conv}
+    if res.tuning:
+        out["tuning"] = pd.DataFrame([r.__dict__ for r in res.tuning])
+        out["tuning_summary"] = tuning_summary(out["tuning"])
+    return out
+
+
+def _rul_table(res: FrictionDriveResult) -> pd.DataFrame:
+    """One row per RUL configuration: the distribution's summaries beside the seed's and
+    scored against the true RUL (:func:`tables`)."""
+    import pandas as pd
+
     from rulkit.metrics import crps_samples, relative_accuracy
 
     rul_rows = []
@@ -129,14 +144,7 @@ def tables(res: FrictionDriveResult) -> dict:
             "CRPS_h": float(crps_samples(r.rul.samples, truth, r.rul.weights)),
             "mc_seconds": r.seconds,
         })
-    rul = pd.DataFrame(rul_rows)
-    conv = pd.DataFrame([c.__dict__ for c in res.convergence])
-    out = {"consistency": consistency, "verdicts": verdicts, "ellipsoid": ellipsoid,
-           "observability": obs, "rul": rul, "convergence": conv}
-    if res.tuning:
-        out["tuning"] = pd.DataFrame([r.__dict__ for r in res.tuning])
-        out["tuning_summary"] = tuning_summary(out["tuning"])
-    return out
+    return pd.DataFrame(rul_rows)
 
 
 def tuning_summary(tuning: pd.DataFrame) -> pd.DataFrame:

@@ -21,7 +21,7 @@ from rulkit.systems.motor_damping.macro import (
     rul_covariance_quantiles,
     rul_monte_carlo,
 )
-from rulkit.systems.motor_damping.micro import MicroEKFSettings, micro_ekf
+from rulkit.systems.motor_damping.micro import MicroEKFResult, MicroEKFSettings, micro_ekf
 from rulkit.systems.motor_damping.motor import MotorConstants, failure_damping
 from rulkit.systems.motor_damping.pullup import PullupData, PullupDataError, estimate_noise_sd
 
@@ -161,6 +161,23 @@ def analyse_pullup(
     r = res.c_var[None, :]
     macro = MacroSettings(q_a=q_a, model=macro_model)
     track = macro_track(data.cycle, z, r, macro)
+    rows, last_s, last_c = _cycle_rows(data, res, track, macro, cf, rng,
+                                       (q_a, mc_samples, horizon, n_min))
+    return PullupAnalysis(
+        table=pd.DataFrame(rows), track=track, c_fail=cf, sigma_w=sw, sigma_dw=sdw,
+        steady_current=i_s, acceleration_source=data.acceleration_source,
+        last_rul_samples=last_s, last_rul_censored=last_c, horizon=horizon,
+    )
+
+
+def _cycle_rows(data: PullupData, res: MicroEKFResult, track: MacroTrack, macro: MacroSettings,
+                cf: float, rng: np.random.Generator, rul: tuple[float, int, float, int]
+                ) -> tuple[list[dict[str, Any]], np.ndarray, np.ndarray]:
+    """One row per cycle of :func:`analyse_pullup`'s table (the damping, the trend after the
+    cycle and, from cycle ``n_min`` on, the RUL quantiles from the covariance and by Monte
+    Carlo), and the Monte Carlo samples after the last cycle. ``rul``: ``(q_a, mc_samples,
+    horizon, n_min)``."""
+    q_a, mc_samples, horizon, n_min = rul
     n = data.n_cycles
     rows = []
     last_s = np.array([])
@@ -181,6 +198,7 @@ def analyse_pullup(
                 x[0, 0], x[0, 1], x[0, 2] if macro.dim == 3 else 0.0, cf
             )),
             "scatter_sd": float(np.sqrt(track.scatter_var[k, 0])),
+            "gated": int(res.n_gated[k]) if res.n_gated is not None else 0,
         }
         if k + 1 >= n_min:
             q = rul_covariance_quantiles(
@@ -203,8 +221,4 @@ def analyse_pullup(
                 "rul_median", "rul_p05", "rul_p95", "rul_mc_median", "rul_mc_p05",
                 "rul_mc_p95", "rul_mc_fraction_censored")})
         rows.append(row)
-    return PullupAnalysis(
-        table=pd.DataFrame(rows), track=track, c_fail=cf, sigma_w=sw, sigma_dw=sdw,
-        steady_current=i_s, acceleration_source=data.acceleration_source,
-        last_rul_samples=last_s, last_rul_censored=last_c, horizon=horizon,
-    )
+    return rows, last_s, last_c

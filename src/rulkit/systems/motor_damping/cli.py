@@ -150,6 +150,11 @@ def analyse_file(
     design = (f"design point {kw['design_speed']:g} rad/s, {kw['design_torque'] * 1e3:g} mN m"
               if kw["c_fail"] is None else "given")
     _say(console, f"failure damping c_fail = {res.c_fail:.4g} N m s ({design})")
+    gated = int(res.table["gated"].sum())
+    if gated:
+        cycles = ", ".join(f"{c:g}" for c in res.table.loc[res.table["gated"] > 0, "cycle"])
+        _say(console, f"{gated} sample(s) outside the gate (NIS > {machine.micro.gate:g}; not "
+                      f"used for the damping) in cycle(s) {cycles}")
     quad = kw["macro_model"] == "quadratic"
     _say(console, "macro law: " + ("quadratic c + a n + j n^2/2 (state [c, a, j])" if quad
                                    else "linear c + a n (seed eq. 4, state [c, a])"))
@@ -193,6 +198,12 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     motor = typer.Typer(help="Reaction-wheel motor (seed 002): damping and life from pull-ups.",
                         no_args_is_help=True)
     app.add_typer(motor, name="motor")
+    _register_reproduce(reproduce)
+    _register_damping(motor)
+
+
+def _register_reproduce(reproduce: typer.Typer) -> None:
+    """``rulkit reproduce motor-damping``."""
 
     @reproduce.command("motor-damping")
     def _reproduce(
@@ -235,6 +246,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             parts += ["--machine", str(machine)]
         reproduce_motor_damping(out, runs, seed, quick, command=shlex.join(parts),
                                 macro_model=macro_model, machine=motor)
+
+
+def _register_damping(motor: typer.Typer) -> None:
+    """``rulkit motor damping FILE``."""
 
     @motor.command("damping")
     def _damping(

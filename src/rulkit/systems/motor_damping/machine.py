@@ -75,6 +75,9 @@ MOTOR_SCHEMA: dict[str, tuple[Field, ...]] = {
               doc="process variance of the speed per sample"),
         Field("q_c", "(N m s)^2", _MICRO.q_c, low=0.0, high=1.0,
               doc="random-walk variance of the damping per sample"),
+        Field("gate", "", 100.0, low=0.0, high=1e12,
+              doc="NIS above which a sample is not used for the damping (100: a 10-sigma "
+                  "innovation; 0: off)"),
     ),
     "macro": (
         Field("model", "", "linear", choices=MACRO_MODELS,
