@@ -1,7 +1,8 @@
 """The default RUL estimator (rulkit.fleet.monitoring.unit_trend) against independent oracles:
 the posterior against weighted least squares by numpy's lstsq, the quantiles against a
-brute-force search of scipy's Student-t CDF, the interval's coverage on fleets drawn from the
-model, the band against the interval, and the compiled pass against the per-row update."""
+brute-force search of scipy's Student-t CDF, the closed-form t CDF and quantiles against
+scipy, the interval's coverage on fleets drawn from the model, the band against the
+interval, and the three ways of running it against one update per row."""
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from rulkit.fleet.monitoring.unit_trend import (
     first_crossing,
     hi_quantiles,
     rul_quantiles,
+    t_cdf,
     t_quantile,
     trend_posterior,
     trend_run,
@@ -35,8 +37,8 @@ def fleet(rng, b, k, sd=0.01):
     return seg, np.concatenate(t), np.concatenate(hi)
 
 
-@pytest.mark.parametrize("compiled", [False, True])
-def test_run_equals_one_update_per_row(compiled):
+@pytest.mark.parametrize("strategy", ["python", "jit", "ranks", None])
+def test_run_equals_one_update_per_row(strategy):
     rng = np.random.default_rng(0)
     cfg = TrendConfig(forgetting=0.9)
     seg, t, hi = fleet(rng, 30, 25)
@@ -59,7 +61,7 @@ def test_run_equals_one_update_per_row(compiled):
         lo, hi_end = (seg[:-1], cut) if part == 0 else (cut, seg[1:])
         idx = np.concatenate([np.arange(a, e) for a, e in zip(lo, hi_end, strict=True)])
         sub_seg = np.concatenate([[0], np.cumsum(hi_end - lo)])
-        state, rows = trend_run(state, sub_seg, t[idx], hi[idx], cfg, compiled=compiled)
+        state, rows = trend_run(state, sub_seg, t[idx], hi[idx], cfg, strategy=strategy)
         got[idx] = rows.s
     for i, s in rows_ref:
         np.testing.assert_array_equal(got[i], s)
@@ -158,12 +160,16 @@ def test_first_crossing_cases():
     assert (-1.0 + 0.2 * r) / np.sqrt(0.01 + 0.01 * r * r) == pytest.approx(1.5)
 
 
-def test_t_quantile_table():
-    nu = np.array([1.0, 2.0, 7.0, 200.0, 201.0, 1e6, np.nan])
-    got = t_quantile(nu, 0.95)
-    np.testing.assert_allclose(got[:4], stats.t.ppf(0.95, nu[:4]), rtol=1e-12)
-    assert got[4] == got[5] == pytest.approx(stats.norm.ppf(0.95), rel=1e-12)
-    assert np.isnan(got[6])
+def test_t_cdf_and_quantiles_against_scipy():
+    nu = np.arange(1.0, 201.0)
+    for x in (-40.0, -2.5, -0.3, 0.0, 0.7, 3.0, 25.0):
+        np.testing.assert_allclose(t_cdf(x, nu), stats.t.cdf(x, nu), rtol=1e-12, atol=1e-15)
+    for p in (0.005, 0.05, 0.5, 0.9, 0.975):
+        np.testing.assert_allclose(t_quantile(nu, p), stats.t.ppf(p, nu), rtol=1e-12,
+                                   atol=1e-14, err_msg=str(p))
+    got = t_quantile(np.array([201.0, 1e6, np.nan]), 0.95)
+    assert got[0] == got[1] == pytest.approx(stats.norm.ppf(0.95), rel=1e-12)
+    assert np.isnan(got[2])
 
 
 def test_band_reaches_the_threshold_at_the_interval():

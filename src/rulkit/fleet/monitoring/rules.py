@@ -118,7 +118,7 @@ class MonitoringRules:
     @property
     def levels(self) -> tuple[float, float, float]:
         """The RUL quantiles shown: (median, low, high)."""
-        tail = 0.5 * (1.0 - self.interval)
+        tail = round(0.5 * (1.0 - self.interval), 12)  # 0.05, not 0.04999999999999999
         return 0.5, tail, 1.0 - tail
 
     def to_dict(self) -> dict[str, Any]:

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -197,8 +196,21 @@ def _trend_pass(seg, t, z, w, lam, t0, n0, s_in, s_out):  # type: ignore[no-unty
 
 
 _COMPILED: dict[str, Any] = {}
-JIT_MIN_ROWS = 200_000
-"""Rows of one :func:`trend_run` from which the compiled pass pays for loading numba."""
+# Cost model of trend_run's three equal-result ways, in seconds (measured on the 2-core
+# development machine): one vectorised trend_update per acquisition rank (~60 us a call:
+# many components, few acquisitions each), the per-unit pass as Python (~5 us a row: small
+# batches) or compiled by numba (~0.05 us a row, but ~0.5 s to load numba once per process).
+_COST_PER_RANK, _COST_PER_RANK_ROW = 6e-5, 2e-7
+_COST_PER_PYTHON_ROW, _COST_PER_JIT_ROW, _COST_JIT_LOAD = 5e-6, 5e-8, 0.5
+
+
+def trend_strategy(n_ranks: int, n_rows: int) -> str:
+    """``"ranks"``, ``"python"`` or ``"jit"``: the cheapest way for :func:`trend_run` to run
+    ``n_rows`` acquisitions that take ``n_ranks`` rank steps (the most rows of one unit)."""
+    costs = {"ranks": n_ranks * _COST_PER_RANK + n_rows * _COST_PER_RANK_ROW,
+             "python": n_rows * _COST_PER_PYTHON_ROW,
+             "jit": n_rows * _COST_PER_JIT_ROW + (0.0 if _COMPILED else _COST_JIT_LOAD)}
+    return min(costs, key=costs.__getitem__)
 
 
 def _pass(compiled: bool) -> Any:
@@ -214,14 +226,32 @@ def _pass(compiled: bool) -> Any:
     return _COMPILED["pass"]
 
 
+def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArray,
+                 config: TrendConfig) -> FloatArray:
+    """The sums after each row by one :func:`trend_update` per acquisition rank (the
+    reference the passes are tested against)."""
+    counts = np.diff(seg)
+    b = counts.size
+    rows_s = np.empty((t.size, len(SUM_NAMES)))
+    for r in range(int(counts.max(initial=0))):
+        have = np.flatnonzero(counts > r)
+        idx = seg[have] + r
+        tt, hh = np.full(b, np.nan), np.full(b, np.nan)
+        tt[have], hh[have] = t[idx], hi[idx]
+        state = trend_update(state, tt, hh, config)
+        rows_s[idx] = state.s[have]
+    return rows_s
+
+
 def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
-              config: TrendConfig, *, compiled: bool | None = None
+              config: TrendConfig, *, strategy: str | None = None
               ) -> tuple[TrendState, TrendState]:
     """Many acquisitions per unit: unit c assimilates ``t[seg[c]:seg[c + 1]]``, ``hi[...]``
     in order (``seg`` (B + 1,) offsets from 0 to len(t); finite values, times increasing per
     unit). Returns (the state after each unit's last row, the state after every row), equal
-    to one :func:`trend_update` per row (tested). ``compiled``: run the pass compiled by numba
-    (default: from :data:`JIT_MIN_ROWS` rows) or as Python."""
+    to one :func:`trend_update` per row (tested). ``strategy``: ``"ranks"`` (one vectorised
+    update per acquisition rank), ``"python"`` or ``"jit"`` (the per-unit pass, as Python or
+    compiled by numba); default the cheapest (:func:`trend_strategy`)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     hi = np.ascontiguousarray(hi, dtype=np.float64)
     seg = np.ascontiguousarray(seg, dtype=np.int64)
@@ -229,12 +259,18 @@ def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
     if seg.shape != (b + 1,) or hi.shape != (m,) or seg[0] != 0 or seg[-1] != m:
         raise ValueError(f"seg: expected {b + 1} offsets from 0 to {m}, got {seg.shape}")
     counts = np.diff(seg)
-    z, w = _weights(hi, config.hi_floor)
-    rows_s = np.empty((m, len(SUM_NAMES)))
-    if compiled is None:
-        compiled = m >= JIT_MIN_ROWS
-    _pass(compiled)(seg, t, z, w, float(config.forgetting), np.ascontiguousarray(state.t),
-                    np.ascontiguousarray(state.n), np.ascontiguousarray(state.s), rows_s)
+    if strategy is None:
+        strategy = trend_strategy(int(counts.max(initial=0)), m)
+    if strategy == "ranks":
+        rows_s = _run_by_rank(state, seg, t, hi, config)
+    elif strategy in ("python", "jit"):
+        z, w = _weights(hi, config.hi_floor)
+        rows_s = np.empty((m, len(SUM_NAMES)))
+        _pass(strategy == "jit")(seg, t, z, w, float(config.forgetting),
+                                 np.ascontiguousarray(state.t), np.ascontiguousarray(state.n),
+                                 np.ascontiguousarray(state.s), rows_s)
+    else:
+        raise ValueError(f"strategy: expected ranks, python or jit, got {strategy!r}")
     unit = np.repeat(np.arange(b), counts)
     rank = np.arange(m) - seg[:-1][unit]
     rows = TrendState(t=t.copy(), hi=hi.copy(), n=state.n[unit] + rank + 1, s=rows_s)
@@ -266,22 +302,64 @@ def trend_posterior(state: TrendState, config: TrendConfig) -> TrendPosterior:
     return TrendPosterior(*(np.where(ok, v, nan) for v in (a, b, vaa, vab, vbb, nu)))
 
 
-@lru_cache(maxsize=16)
-def _t_table(p: float) -> FloatArray:
-    """t_nu^-1(p) for nu = 0 (unused), 1 .. NU_TABLE, then the normal quantile."""
-    from scipy.special import ndtri, stdtrit
+def t_cdf(x: FloatArray, nu: FloatArray) -> FloatArray:
+    """Student-t CDF for integer degrees of freedom ``nu`` >= 1 in closed form: with
+    theta = atan(x / sqrt(nu)), P(|T| < x) is (2/pi)(theta + sin(theta) S) for odd nu and
+    sin(theta) S for even nu, S the finite series cos + (2/3) cos^3 + (2.4)/(3.5) cos^5 ...
+    (odd) or 1 + (1/2) cos^2 + (1.3)/(2.4) cos^4 ... (even) up to the power nu - 2
+    (Abramowitz & Stegun 26.7.3-26.7.4; no scipy at run time)."""
+    x, nu = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
+                                np.asarray(nu, dtype=np.float64))
+    theta = np.arctan(x / np.sqrt(nu))
+    c2 = np.cos(theta) ** 2
+    odd = nu % 2 == 1
+    term = np.where(odd, np.cos(theta), 1.0)
+    total = np.where(odd & (nu < 3), 0.0, term)
+    for k in range(1, int(nu.max(initial=1)) // 2 + 1):
+        term = term * c2 * np.where(odd, 2 * k / (2 * k + 1), (2 * k - 1) / (2 * k))
+        total = total + np.where(np.where(odd, 2 * k + 1, 2 * k) <= nu - 2, term, 0.0)
+    s = np.sin(theta)
+    return 0.5 + 0.5 * np.where(odd, (2.0 / np.pi) * (theta + s * total), s * total)
 
-    nus = np.arange(1, NU_TABLE + 1, dtype=np.float64)
-    return np.concatenate([[np.nan], stdtrit(nus, p), [ndtri(p)]])
+
+_T_QUANTILES: dict[tuple[int, float], float] = {}
+
+
+def _t_quantiles(nus: np.ndarray, p: float) -> FloatArray:
+    """t_nu^-1(p) for the integers ``nus`` by bisection of :func:`t_cdf` (to the last bit;
+    tested against scipy's stdtrit); the normal quantile above :data:`NU_TABLE`."""
+    if p == 0.5:  # the centre of a symmetric law, exactly
+        return np.zeros(nus.size)
+    normal = nus > NU_TABLE
+    nu = np.where(normal, 1.0, nus)
+    lo, hi = np.full(nus.size, -1e12), np.full(nus.size, 1e12)
+    for _ in range(90):
+        mid = 0.5 * (lo + hi)
+        below = np.where(normal, _normal_cdf(mid), t_cdf(mid, nu)) < p
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _normal_cdf(x: FloatArray) -> FloatArray:
+    return np.array([0.5 * math.erfc(-v / math.sqrt(2.0)) for v in np.ravel(x)]).reshape(
+        np.shape(x))
 
 
 def t_quantile(nu: FloatArray, p: float) -> FloatArray:
-    """Student-t quantile t_nu^-1(p) for integer ``nu`` >= 1 (a table; normal above
-    :data:`NU_TABLE`); NaN where ``nu`` is NaN."""
-    table = _t_table(float(p))
+    """Student-t quantile t_nu^-1(p) for integer ``nu`` >= 1 (computed once per degree of
+    freedom and level; the normal quantile above :data:`NU_TABLE`); NaN where ``nu`` is
+    NaN."""
     nu = np.asarray(nu, dtype=np.float64)
-    idx = np.where(np.isfinite(nu), np.clip(nu, 1, NU_TABLE + 1), 0).astype(np.int64)
-    return table[idx]
+    key = np.where(np.isfinite(nu), np.clip(nu, 1, NU_TABLE + 1), 0).astype(np.int64)
+    need = [int(k) for k in np.unique(key) if k > 0 and (int(k), p) not in _T_QUANTILES]
+    if need:
+        arr = np.array(need, dtype=np.float64)
+        for k, v in zip(need, _t_quantiles(arr, p).tolist(), strict=True):
+            _T_QUANTILES[(k, p)] = v
+    table = np.full(NU_TABLE + 2, np.nan)
+    for k in np.unique(key[key > 0]).tolist():
+        table[k] = _T_QUANTILES[(int(k), p)]
+    return table[key]
 
 
 def first_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
@@ -358,8 +436,10 @@ __all__ = [
     "first_crossing",
     "hi_quantiles",
     "rul_quantiles",
+    "t_cdf",
     "t_quantile",
     "trend_posterior",
     "trend_run",
+    "trend_strategy",
     "trend_update",
 ]

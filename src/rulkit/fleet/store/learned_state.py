@@ -23,8 +23,11 @@ from rulkit.fleet.learned.degradation import (
     update_state,
 )
 from rulkit.fleet.learned.histories import Histories
+from rulkit.fleet.monitoring.rules import MonitoringRules
 
 STATE_COLS = ("m_z", "m_b", "p_zz", "p_zb", "p_bb", "t", "hi", "n")
+LEVELS = MonitoringRules().levels
+"""The RUL quantiles the store keeps by default: the median, 5 % and 95 %."""
 _TABLE = """CREATE TABLE IF NOT EXISTS model_state (
     component TEXT PRIMARY KEY, m_z REAL NOT NULL, m_b REAL NOT NULL, p_zz REAL NOT NULL,
     p_zb REAL NOT NULL, p_bb REAL NOT NULL, t REAL NOT NULL, hi REAL NOT NULL,
@@ -124,4 +127,5 @@ def model_states(conn: Any, model: DegradationModel, names: list[str]) -> UnitSt
     return LearnedPass(conn, model, names).state
 
 
-__all__ = ["STATE_COLS", "LearnedPass", "ensure_model_state", "model_states", "store_model"]
+__all__ = ["LEVELS", "STATE_COLS", "LearnedPass", "ensure_model_state", "model_states",
+           "store_model"]

@@ -182,6 +182,7 @@ class BatchPrognosis:
             self.learned = LearnedPass(store._conn, store.degradation, names)
         self.final = {k: np.full(b, np.nan) for k in ("rul_median", "rul_low", "rul_high")}
         self.level = np.zeros(b, dtype=np.int8)
+        self.strategy: str | None = None  # trend_run's way (None: the cheapest per block)
 
     def _load(self, names: list[str]) -> None:
         cols = ("component", "hits", "failed_at", "max_level", "seen", *TREND_COLUMNS)
@@ -205,7 +206,8 @@ class BatchPrognosis:
         ``seg[c]:seg[c + 1]`` of each, in time order): the estimator's RUL per row, then the
         rules (RUL 0 once failed)."""
         est, levels = self.est, self.est.rules.levels
-        new, rows = trend_run(self.trend.take(comps), seg, t, hi, est.trend)
+        new, rows = trend_run(self.trend.take(comps), seg, t, hi, est.trend,
+                              strategy=self.strategy)
         for f in ("t", "hi", "n", "s"):
             getattr(self.trend, f)[comps] = getattr(new, f)
         learned = None

@@ -63,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
-from rulkit.fleet.monitoring.unit_trend import TrendConfig
+from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
 from rulkit.fleet.store.acquisitions import (
     Alert,
     IngestError,
@@ -649,7 +649,9 @@ class ComponentStore:
             k0 = k1
         # one way to run the trackers for the whole batch (tracker_run's cost model, with the
         # rank loops of all blocks against loading the compiled passes once)
-        strategy = tracker_strategy(sum(int(counts[k0:k1].max()) for k0, k1 in blocks), n)
+        n_ranks = sum(int(counts[k0:k1].max()) for k0, k1 in blocks)
+        strategy = tracker_strategy(n_ranks, n)
+        prog.strategy = trend_strategy(n_ranks, n)  # the same choice for the trend's pass
         for k0, k1 in blocks:
             rows_b = by_comp[comp_start[k0]:comp_start[k1]]  # block rows, key order
             comps = sorted_pos[k0:k1]  # component indices (into names / state)
