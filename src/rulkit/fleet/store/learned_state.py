@@ -24,6 +24,7 @@ from rulkit.fleet.learned.degradation import (
 )
 from rulkit.fleet.learned.histories import Histories
 from rulkit.fleet.monitoring.rules import MonitoringRules
+from rulkit.fleet.store.database_file import rows_of_components
 
 STATE_COLS = ("m_z", "m_b", "p_zz", "p_zb", "p_bb", "t", "hi", "n")
 LEVELS = MonitoringRules().levels
@@ -62,17 +63,11 @@ class LearnedPass:
         ensure_model_state(conn)
         self.state = UnitState.empty(model, len(names))
         self.fresh = False
-        pos = {n: i for i, n in enumerate(names)}
-        for i0 in range(0, len(names), 500):
-            chunk = names[i0:i0 + 500]
-            q = (f"SELECT component, {', '.join(STATE_COLS)} FROM model_state "
-                 f"WHERE component IN ({','.join('?' * len(chunk))})")
-            for row in conn.execute(q, chunk).fetchall():
-                i = pos[row[0]]
-                v = dict(zip(STATE_COLS, row[1:], strict=True))
-                self.state.m[i] = (v["m_z"], v["m_b"])
-                self.state.p[i] = (v["p_zz"], v["p_zb"], v["p_bb"])
-                self.state.t[i], self.state.hi[i], self.state.n[i] = v["t"], v["hi"], v["n"]
+        for i, row in rows_of_components(conn, "model_state", STATE_COLS, names):
+            v = dict(zip(STATE_COLS, row, strict=True))
+            self.state.m[i] = (v["m_z"], v["m_b"])
+            self.state.p[i] = (v["p_zz"], v["p_zb"], v["p_bb"])
+            self.state.t[i], self.state.hi[i], self.state.n[i] = v["t"], v["hi"], v["n"]
 
     def reset(self) -> None:
         """Every component back to the prior (a replay from its first acquisition)."""

@@ -42,6 +42,7 @@ from rulkit.fleet.monitoring.unit_trend import (
     trend_posterior,
     trend_run,
 )
+from rulkit.fleet.store.database_file import rows_of_components
 from rulkit.fleet.tracking.tracker_chain import LEVEL_ALARM, tracker_rul_interval
 
 if TYPE_CHECKING:
@@ -185,20 +186,13 @@ class BatchPrognosis:
         self.strategy: str | None = None  # trend_run's way (None: the cheapest per block)
 
     def _load(self, names: list[str]) -> None:
-        cols = ("component", "hits", "failed_at", "max_level", "seen", *TREND_COLUMNS)
-        pos = {n: i for i, n in enumerate(names)}
-        conn = self.store._conn
-        for i0 in range(0, len(names), 500):
-            chunk = names[i0:i0 + 500]
-            q = (f"SELECT {', '.join(cols)} FROM components WHERE component IN "
-                 f"({','.join('?' * len(chunk))})")
-            for row in conn.execute(q, chunk).fetchall():
-                i = pos[row[0]]
-                self.rule_state.hits[i] = row[1] or 0
-                self.rule_state.failed_at[i] = np.nan if row[2] is None else row[2]
-                self.rule_state.max_level[i] = row[3]
-                self.seen[i] = np.nan if row[4] is None else row[4]
-                self.trend.s[i] = [np.nan if v is None else v for v in row[5:]]
+        cols = ("hits", "failed_at", "max_level", "seen", *TREND_COLUMNS)
+        for i, row in rows_of_components(self.store._conn, "components", cols, names):
+            self.rule_state.hits[i] = row[0] or 0
+            self.rule_state.failed_at[i] = np.nan if row[1] is None else row[1]
+            self.rule_state.max_level[i] = row[2]
+            self.seen[i] = np.nan if row[3] is None else row[3]
+            self.trend.s[i] = [np.nan if v is None else v for v in row[4:]]
 
     def block(self, comps: np.ndarray, seg: np.ndarray, t: FloatArray, hi: FloatArray,
               tracker_rows: dict[str, np.ndarray]) -> BlockRows:
