@@ -43,9 +43,9 @@ _P = DEFAULT_PARAMS
 _SEED_SD = math.sqrt(SEED_SIGMA_M2)  # seed 5.2: P0 = sigma_m^2 I, sigma_m^2 = 0.02^2 / 12
 DRIVE_Q_RATE = 3e-8
 """Default process-noise rate on m (per second) of ``rulkit drive``: with the midpoint Jacobian
-and the speed noise of the reproduction's ``tuned-consistent`` filter, consistent where m is
-constant or drifts slowly (docs/systems/friction-drive.md §4, the tuning table of the
-reproduction); no random-walk rate is consistent through an abrupt jump of m."""
+and the speed noise of the reproduction's ``tuned-consistent`` filter, the rate that does best
+where m is constant and where it drifts slowly (docs/systems/friction-drive.md §4, the tuning
+table of the reproduction); no random-walk rate is consistent through an abrupt jump of m."""
 
 DRIVE_SCHEMA: dict[str, tuple[Field, ...]] = {
     "drive": (
