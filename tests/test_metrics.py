@@ -256,3 +256,4 @@ def test_crps_rul_with_censored_forecast_and_truth_against_brute_force() -> None
         upper = min(10.0, y if tc else math.inf)
         assert crps_rul(d, y, truth_censored=tc) == pytest.approx(
             _grid_crps(d, y, upper, tc), rel=1e-4, abs=1e-6)
+

@@ -7,8 +7,11 @@ Useful Life (RUL) distribution, with metrics and alerts. Physics lives in models
 
     import rulkit
     sim = model.simulate(x0, n_steps=60, rng=rng)
-    pf = rulkit.ParticleFilter.from_model(model)
-    profile = rulkit.prognosis_profile(model, sim.y, pf, particles0, times=[20, 30], rng=rng)
+    prior = rulkit.Posterior(mean0, cov0)             # every filter's prior and posterior
+    res = rulkit.ExtendedKalmanFilter.from_model(model).filter(sim.y, prior)
+    rul = rulkit.monte_carlo_rul(res.posterior(), model, horizon=100.0, rng=rng)
+    profile = rulkit.prognosis_profile(model, sim.y, "pf", prior.with_samples(2000, rng),
+                                       times=[20, 30], horizon=100.0, rng=rng)
 
 The engine's API is documented once in docs/engine-api.md.
 """
@@ -19,6 +22,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from rulkit.estimation.base import Posterior
     from rulkit.estimation.ekf import ExtendedKalmanFilter
     from rulkit.estimation.kalman import KalmanFilter, KalmanResult
     from rulkit.estimation.particle import ParticleFilter, ParticleFilterResult
@@ -43,6 +47,7 @@ if TYPE_CHECKING:
 # The engine's names are imported on first use (PEP 562): the command line and the fleet
 # commands, which need none of them, start without loading scipy and the filters.
 _EXPORTS = {
+    "Posterior": "rulkit.estimation.base",
     "ExtendedKalmanFilter": "rulkit.estimation.ekf",
     "KalmanFilter": "rulkit.estimation.kalman",
     "KalmanResult": "rulkit.estimation.kalman",
@@ -104,6 +109,7 @@ __all__ = [
     "ParameterFit",
     "ParticleFilter",
     "ParticleFilterResult",
+    "Posterior",
     "PrognosisProfile",
     "RULDistribution",
     "Simulation",

@@ -36,11 +36,11 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rulkit.estimation.base import gaussian_samples
 from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.estimation.particle import ParticleFilter
 from rulkit.estimation.ukf import UnscentedKalmanFilter
 from rulkit.model import check_measurements
-from rulkit.prognosis.predictors import gaussian_samples
 
 FloatArray = NDArray[np.float64]
 
