@@ -61,6 +61,12 @@ def _propagate(**kw: Any) -> Any:
     return rulkit.propagate_to_threshold(kw.pop("x0", X2), **{**args, **kw})
 
 
+def _fit(**kw: Any) -> Any:
+    args = dict(x0=[0.0, 0.01], P0=np.eye(2) * 1e-4)
+    return rulkit.fit_parameters(lambda r: Ramp(), [YS], kw.pop("params", {"r": 1.0}),
+                                 **{**args, **kw})
+
+
 CASES: list[tuple[str, Callable[[], Any]]] = [
     ("mean", lambda: _post(mean=np.array([0.0, NAN]))),
     ("cov", lambda: _post(cov=np.array([[1.0, 0.0], [0.0, INF]]))),
@@ -99,6 +105,14 @@ CASES: list[tuple[str, Callable[[], Any]]] = [
     ("prior", lambda: rulkit.prognosis_profile(M, YS, "ekf", np.array([NAN, 0.0]),
                                                P0=np.eye(2), times=[5.0], horizon=5.0,
                                                rng=RNG)),
+    ("params", lambda: _fit(params={"r": NAN})),
+    ("params", lambda: _fit(params={"r": np.float64(-2.0)})),
+    ("x0", lambda: _fit(x0=[INF, 0.0])),
+    ("P0", lambda: _fit(P0=np.eye(2) * NAN)),
+    ("n_particles", lambda: _fit(method="pf", n_particles=0)),
+    ("bounds", lambda: _fit(bounds={"r": (2.0, 1.0)})),
+    ("records[0]", lambda: rulkit.fit_parameters(lambda r: Ramp(), [np.full((4, 1), NAN)],
+                                                 {"r": 1.0}, x0=[0.0, 0.01], P0=np.eye(2))),
     ("t_eol", lambda: rulkit.alpha_lambda([1.0, 2.0], DISTS, np.float64(NAN))),
     ("alpha", lambda: rulkit.alpha_lambda([1.0, 2.0], DISTS, 10.0, alpha=NAN)),
     ("lam", lambda: rulkit.alpha_lambda([1.0, 2.0], DISTS, 10.0, lam=np.float64(2.0))),

@@ -39,7 +39,7 @@ if TYPE_CHECKING:
         relative_accuracy,
     )
     from rulkit.model import GaussianNoise, Simulation, StateSpaceModel
-    from rulkit.prognosis.learning import ParameterFit, fit_parameters
+    from rulkit.prognosis.learning import FitError, FitWarning, ParameterFit, fit_parameters
     from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
     from rulkit.prognosis.profile import PrognosisProfile, prognosis_profile
     from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
@@ -68,6 +68,8 @@ _EXPORTS = {
     "GaussianNoise": "rulkit.model",
     "Simulation": "rulkit.model",
     "StateSpaceModel": "rulkit.model",
+    "FitError": "rulkit.prognosis.learning",
+    "FitWarning": "rulkit.prognosis.learning",
     "ParameterFit": "rulkit.prognosis.learning",
     "fit_parameters": "rulkit.prognosis.learning",
     "monte_carlo_rul": "rulkit.prognosis.predictors",
@@ -103,6 +105,8 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "ExtendedKalmanFilter",
+    "FitError",
+    "FitWarning",
     "GaussianNoise",
     "KalmanFilter",
     "KalmanResult",
