@@ -13,6 +13,7 @@ the prediction is early, i.e. conservative).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, cast
@@ -24,6 +25,11 @@ from rulkit.model import plain
 from rulkit.prognosis.rul import RULDistribution
 
 FloatArray = NDArray[np.float64]
+
+
+class UninformativeForecastWarning(UserWarning):
+    """A forecast carries no information a metric could score (e.g. every sample censored):
+    the metric is NaN, never a perfect score."""
 
 
 def _first(mask: np.ndarray) -> tuple[int, ...] | None:
@@ -426,10 +432,19 @@ def crps_rul(dist: RULDistribution, rul_true: float, *, truth_censored: bool = F
     the threshold weight ``1{z < U}`` ([GR2007] section 4.2), a proper score for censored data;
     with nothing censored and an infinite horizon it is the ordinary CRPS
     (:func:`crps_samples`). Computed exactly from the step CDF, O(N log N).
+
+    A forecast whose every sample is censored says only "beyond the horizon": it scores NaN
+    with a :class:`UninformativeForecastWarning` (extend the horizon), never a perfect 0.
     """
     y = float(rul_true)
     if not math.isfinite(y):
         raise ValueError(f"rul_true: expected a finite value, got {plain(rul_true)}")
+    if not np.any(dist.weights[~dist.censored] > 0):  # every (weighted) sample censored
+        warnings.warn(UninformativeForecastWarning(
+            f"crps_rul: every sample of the forecast is censored at the horizon "
+            f"{dist.horizon:g}: it only says RUL > {dist.horizon:g}, so no score is given "
+            "(NaN); predict with a longer horizon"), stacklevel=2)
+        return math.nan
     upper = min(dist.horizon, y if truth_censored else math.inf)
     y_ind = math.inf if truth_censored else y
     keep = ~dist.censored
