@@ -345,12 +345,7 @@ def state_estimates(
     lo, hi, band = _band(m, std, lower, upper, n_sigma, T)
     tr = _columns(truth, T, "truth")
     ys = _columns(measurements, T, "measurements")
-    for arr, nm in ((lo, "lower"), (hi, "upper"), (tr, "truth")):
-        if arr is not None and arr.shape[1] != n:
-            raise ValueError(f"{nm}: expected {n} columns like the estimate, got {arr.shape[1]}")
-    labels = list(names) if names is not None else [f"x[{i}]" for i in range(n)]
-    if len(labels) != n:
-        raise ValueError(f"names: expected {n} names, got {len(labels)}")
+    labels = _check_columns(n, names, lower=lo, upper=hi, truth=tr)
     panels, h = ([], None) if ys is None else _measurement_panels(output, m, ys.shape[1],
                                                                    measured, n)
     own = [j for j, pnl in enumerate(panels) if pnl is None]
@@ -363,8 +358,7 @@ def state_estimates(
         if lo is not None and hi is not None:
             ax.fill_between(tt, lo[:, i], hi[:, i], color="C0", alpha=0.25, lw=0, label=band)
         for j in (j for j, pnl in enumerate(panels) if pnl == i):
-            assert ys is not None
-            ax.plot(tt, ys[:, j], ".", color="0.5", ms=3, label="measured", gid="measurements")
+            _measured(ax, tt, ys, j)
         if tr is not None:
             ax.plot(tt, tr[:, i], "k--", lw=1, label="truth", gid="truth")
         ax.plot(tt, m[:, i], color="C0", lw=1.5, label="estimate", gid="estimate")
@@ -372,8 +366,7 @@ def state_estimates(
         ax.legend(loc="best", fontsize="small")
     out_names = list(getattr(output, "output_names", ()) or [])
     for ax, j in zip(axes[n:], own, strict=True):
-        assert ys is not None
-        ax.plot(tt, ys[:, j], ".", color="0.5", ms=3, label="measured", gid="measurements")
+        _measured(ax, tt, ys, j)
         if h is not None:
             ax.plot(tt, np.asarray(h(m), dtype=np.float64).reshape(T, -1)[:, j], color="C0",
                     lw=1.5, label="h(estimate)", gid="predicted-measurement")
@@ -381,6 +374,24 @@ def state_estimates(
         ax.legend(loc="best", fontsize="small")
     axes[-1].set_xlabel("time")
     return fig
+
+
+def _measured(ax: Axes, t: FloatArray, ys: FloatArray | None, j: int) -> None:
+    """Measurement column ``j`` as grey dots."""
+    assert ys is not None
+    ax.plot(t, ys[:, j], ".", color="0.5", ms=3, label="measured", gid="measurements")
+
+
+def _check_columns(n: int, names: Sequence[str] | None, **arrays: FloatArray | None
+                   ) -> list[str]:
+    """The panel labels; every array given must have ``n`` columns like the estimate."""
+    for nm, arr in arrays.items():
+        if arr is not None and arr.shape[1] != n:
+            raise ValueError(f"{nm}: expected {n} columns like the estimate, got {arr.shape[1]}")
+    labels = list(names) if names is not None else [f"x[{i}]" for i in range(n)]
+    if len(labels) != n:
+        raise ValueError(f"names: expected {n} names, got {len(labels)}")
+    return labels
 
 
 def _band(m: FloatArray, std: ArrayLike | None, lower: ArrayLike | None,
