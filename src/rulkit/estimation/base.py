@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rulkit.model import StateSpaceModel, as_batch, check_covariance, psd_sqrt
+from rulkit.model import StateSpaceModel, as_batch, check_covariance, plain, psd_sqrt
 
 FloatArray = NDArray[np.float64]
 
@@ -97,8 +97,7 @@ class Posterior:
     def __post_init__(self) -> None:
         m = np.atleast_1d(np.asarray(self.mean, dtype=np.float64))
         if m.ndim != 1 or m.size == 0 or not np.all(np.isfinite(m)):
-            raise ValueError(f"mean: expected a finite 1-D state (n_x,), got "
-                             f"{np.asarray(self.mean).tolist()!s:.80}")
+            raise ValueError(f"mean: expected a finite 1-D state (n_x,), got {plain(self.mean)}")
         c = check_covariance(self.cov, m.size, "cov")
         s = w = None
         if self.samples is not None:
