@@ -12,9 +12,9 @@ import typer
 DB_HELP = "Component database: a SQLite path (created if new) or a postgresql:// URL."
 
 
-def _fail(msg: str) -> None:
+def _fail(msg: str, code: int = 1) -> None:
     typer.echo(f"error: {msg}", err=True)
-    raise typer.Exit(code=1)
+    raise typer.Exit(code=code)
 
 
 def _open(db: str, create: bool = True):
@@ -25,7 +25,7 @@ def _open(db: str, create: bool = True):
     try:
         return ServiceDB(db, pool_size=1, create=create)
     except (ValueError, FileNotFoundError, ConnectionError, RuntimeError) as err:
-        _fail(str(err))
+        _fail(str(err), getattr(err, "exit_code", 1))
     raise AssertionError  # unreachable
 
 

@@ -97,7 +97,7 @@ def _status_from_frame(db: Path, limit: int, fmt: str) -> None:
     except FileNotFoundError as err:
         fail(str(err))
     except StoreError as err:
-        fail(str(err))
+        fail(str(err), code=err.exit_code)
     n_all = len(df)
     if limit:
         df = df.head(limit)
@@ -202,9 +202,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         """Ingest acquisitions (one transaction) and print new warnings and alarms.
 
         Exit codes: 0 done; 1 the file or database was refused (nothing written); 2 a bad
-        option; 75 the database stayed busy (retry).
+        option; 65 the database is damaged; 74 disk full or I/O error; 75 the database stayed
+        busy (retry); 77 the database or its directory cannot be written.
         """
-        from rulkit.cli.errors import EXIT_BUSY, bad_option, fail
+        from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
         from rulkit.fleet.store.database_file import StoreBusyError, StoreError
         from rulkit.fleet.store.sqlite import ingest_into, read_settings
@@ -228,7 +229,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         except IngestError as err:
             fail(f"{err} ({nothing})")
         except StoreError as err:
-            fail(str(err))
+            fail(str(err), code=err.exit_code)
         if settings is None:
             cfg = new_cfg
         else:
@@ -246,9 +247,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "
             fail(f"{where}{msg} ({nothing})")
         except StoreBusyError as err:
-            fail(f"{err}; retry the same command", code=EXIT_BUSY)
+            fail(f"{err}; retry the same command", code=err.exit_code)
         except StoreError as err:
-            fail(f"{err} ({nothing})")
+            fail(f"{err} ({nothing})", code=err.exit_code)
         typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
                    f"({res.n_new_components} new) into {safe_text(db)}"
                    + (" (new database)" if created else ""))
@@ -271,7 +272,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     ) -> None:
         """Components with HI, RUL, validity and alert level, worst first (read-only).
 
-        Exit codes: 0 done; 1 the database was refused; 2 a bad option.
+        Exit codes: 0 done; 1 the database was refused; 2 a bad option; 65 the database is
+        damaged; 74 I/O error; 75 busy (retry); 77 it cannot be read by this user.
         """
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.database_file import StoreError
@@ -282,8 +284,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             bad_option("--format", f"expected table, csv or json, got {fmt!r}")
         try:
             got = read_status(db)  # sqlite3 only; None: a row rulkit cannot have written
-        except (FileNotFoundError, StoreError) as err:
+        except FileNotFoundError as err:
             fail(str(err))
+        except StoreError as err:
+            fail(str(err), code=err.exit_code)
         if got is None:
             _status_from_frame(db, limit, fmt)
             return

@@ -49,6 +49,7 @@ terminal output; printing still goes through :func:`rulkit.tables.safe_text`.
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import sqlite3
@@ -71,14 +72,12 @@ from rulkit.fleet.store.acquisitions import (
 from rulkit.fleet.store.database_file import (
     StoreError,
     _config_from_meta,
-    _connect,
-    _db_error_message,
     _degradation_from_meta,
     _fsync_dir,
     _meta_rows,
     _probe,
-    _read_meta,
-    _store_error,
+    open_database,
+    store_error,
 )
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
@@ -143,6 +142,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     ``path`` appeared meanwhile. Returns the batch's result, or ``None`` when another process
     created ``path`` first (then nothing of ours is kept and the caller applies the batch to
     that database)."""
+    _remove_stale_creations(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
     result: IngestResult | None = None
     try:
@@ -179,8 +179,11 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             conn.close()
         for side in ("-wal", "-shm"):
             Path(f"{tmp}{side}").unlink(missing_ok=True)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
+        fd = os.open(tmp, os.O_RDWR)  # no SQLite connection holds this private file
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         try:
             os.link(tmp, path)
         except FileExistsError:
@@ -194,6 +197,23 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     finally:
         for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm"), Path(f"{tmp}-journal")):
             p.unlink(missing_ok=True)
+
+
+def _remove_stale_creations(path: Path) -> None:
+    """Delete the temporary files of creations of ``path`` whose process is gone (a first
+    ingest killed before it published its database leaves ``.NAME.PID.XXXXXXXX.creating``
+    and its journals; the PID in the name tells whether it is still running)."""
+    for tmp in path.parent.glob(f".{glob.escape(path.name)}.*.creating*"):
+        parts = tmp.name[len(path.name) + 2:].split(".")
+        if len(parts) < 3 or not parts[0].isdigit():
+            continue
+        pid = int(parts[0])
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            tmp.unlink(missing_ok=True)
+        except PermissionError:  # another user's process: alive
+            continue
 
 
 def read_settings(path: str | Path) -> tuple[TrackerConfig, HealthIndexModel | None] | None:
@@ -295,16 +315,15 @@ class ComponentStore:
     ) -> None:
         self.path = Path(path)
         create = create and not readonly
-        meta = _probe(self.path)
-        if meta is None:
+        opened = open_database(self.path, timeout=timeout, readonly=readonly)
+        if opened is None:
             if not create:
                 raise FileNotFoundError(f"{self.path}: no such database")
             _build_and_publish(self.path, config or TrackerConfig(), hi_model, None, "")
-            meta = _probe(self.path)
-            assert meta is not None
-        conn = _connect(self.path, timeout, readonly)
+            opened = open_database(self.path, timeout=timeout, readonly=readonly)
+            assert opened is not None
+        conn, meta = opened  # meta read through this connection: sees the write-ahead log
         try:
-            meta = _read_meta(conn)  # through this connection: sees the write-ahead log
             stored_cfg, stored_model = _config_from_meta(self.path, meta)
             if config is not None and config != stored_cfg:
                 raise StoreError(
@@ -314,9 +333,6 @@ class ComponentStore:
             if hi_model is not None and stored_model is not None and (
                     hi_model.to_dict() != stored_model.to_dict()):
                 raise StoreError(f"{self.path} already holds a different HI model")
-        except sqlite3.Error as err:
-            conn.close()
-            raise StoreError(_db_error_message(self.path, err)) from err
         except BaseException:
             conn.close()
             raise
@@ -380,7 +396,7 @@ class ComponentStore:
                 raise self._error(err) from err
 
     def _error(self, err: sqlite3.Error) -> StoreError:
-        return _store_error(self.path, err, self.timeout)
+        return store_error(self.path, err, self.timeout)
 
     @contextmanager
     def snapshot(self) -> Iterator[sqlite3.Connection]:

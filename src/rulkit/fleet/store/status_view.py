@@ -18,8 +18,9 @@ tests/fleet/store/test_status_view.py):
   rounding, trailing zeros cut, ``%.15g`` beyond 1e16 and below 1e-15, non-finite as
   ``null``; :func:`_ujson_floats`), strings quoted as Arrow and ujson quote them.
 * **Read-only.** The database is opened as :class:`~rulkit.fleet.store.sqlite.ComponentStore`
-  opens it with ``readonly=True`` (:func:`~rulkit.fleet.store.database_file._probe` first,
-  ``query_only``) and read in one read transaction.
+  opens it with ``readonly=True``
+  (:func:`~rulkit.fleet.store.database_file.read_verified`: through SQLite, ``query_only``)
+  and read in one read transaction.
 """
 
 from __future__ import annotations
@@ -33,14 +34,11 @@ from typing import Any
 import numpy as np
 
 from rulkit.fleet.store.database_file import (
-    StoreError,
     _config_from_meta,
-    _connect,
-    _db_error_message,
     _degradation_from_meta,
-    _probe,
     _read_meta,
-    _store_error,
+    read_verified,
+    store_error,
 )
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
 
@@ -65,14 +63,9 @@ def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str,
     ``ComponentStore(path, readonly=True)`` does.
     """
     path = Path(path)
-    if _probe(path) is None:
-        raise FileNotFoundError(f"{path}: no such database")
-    conn = _connect(path, timeout, readonly=True)
-    try:
-        try:
-            meta = _read_meta(conn)  # through this connection: sees the write-ahead log
-        except sqlite3.Error as err:
-            raise StoreError(_db_error_message(path, err)) from err
+
+    def read(conn: sqlite3.Connection) -> list[tuple]:
+        meta = _read_meta(conn)
         _config_from_meta(path, meta)  # unreadable settings: the same error as the store's
         _degradation_from_meta(path, meta)
         try:
@@ -82,9 +75,10 @@ def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str,
                 f"SELECT {', '.join(_SQL_COLUMNS)} FROM components").fetchall()
             conn.execute("COMMIT")
         except sqlite3.Error as err:
-            raise _store_error(path, err, timeout) from err
-    finally:
-        conn.close()
+            raise store_error(path, err, timeout) from err
+        return rows
+
+    rows = read_verified(path, timeout, read)
     n = len(rows)
     if n == 0:
         return 0, {c: [] if c == "component" else np.zeros(
