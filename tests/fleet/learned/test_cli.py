@@ -47,8 +47,13 @@ def test_fit_into_an_older_database_migrates_and_rebuilds(files):
     db = files / "old.db"
     r = runner.invoke(app, ["track", "--db", str(db), str(files / "acq.csv")])
     assert r.exit_code == 0, r.output
-    cols = [c[1] for c in sqlite3.connect(db).execute("PRAGMA table_info(history)")]
-    assert "rul_median" not in cols  # today's schema without a learned model
+    con = sqlite3.connect(db)  # as a database from before the learned models
+    con.execute("ALTER TABLE history DROP COLUMN rul_median")
+    con.execute("DROP TABLE model_state")
+    con.commit()
+    cols = [c[1] for c in con.execute("PRAGMA table_info(history)")]
+    con.close()
+    assert "rul_median" not in cols
     r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
                             "linear"])
     assert r.exit_code == 0, r.output

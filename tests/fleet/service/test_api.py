@@ -125,7 +125,7 @@ def test_conflicts_and_invalid_batches_change_nothing(client, sdb, tokens):
         ({"rows": [{"component": "x", "time": 2.0, "hi": 0.2},
                    {"component": "x", "time": 1.0, "hi": 0.2}]}, "row 2"),
         ({"rows": []}, "0 rows"),
-        ({"rows": [{"component": "a\x00b", "time": 1.0, "hi": 0.2}]}, "NUL"),
+        ({"rows": [{"component": "a\x00b", "time": 1.0, "hi": 0.2}]}, "non-printable"),
         ({"nope": 1}, "rows"),
     ]
     for body, needle in bad_rows:

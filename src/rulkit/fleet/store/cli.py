@@ -252,7 +252,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             fail(f"{err} ({nothing})", code=err.exit_code)
         typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
                    f"({res.n_new_components} new) into {safe_text(db)}"
-                   + (" (new database)" if created else ""))
+                   + (" (new database)" if created else "")
+                   + (f"; {res.n_duplicates} already stored, skipped" if res.n_duplicates
+                      else ""))
         if not res.alerts:
             typer.echo("no new warnings or alarms")
         for a in res.alerts:

@@ -25,21 +25,15 @@ from rulkit.fleet.learned.degradation import (
     update_state,
 )
 from rulkit.fleet.learned.histories import Histories
+from rulkit.fleet.store.schema import migrate
 
 STATE_COLS = ("m_z", "m_b", "p_zz", "p_zb", "p_bb", "t", "hi", "n")
-_TABLE = """CREATE TABLE IF NOT EXISTS model_state (
-    component TEXT PRIMARY KEY, m_z REAL NOT NULL, m_b REAL NOT NULL, p_zz REAL NOT NULL,
-    p_zb REAL NOT NULL, p_bb REAL NOT NULL, t REAL NOT NULL, hi REAL NOT NULL,
-    n INTEGER NOT NULL
-)"""
 LEVELS = (0.5, 0.05, 0.95)
 
 
 def _migrate(conn: sqlite3.Connection) -> None:
-    cols = [r[1] for r in conn.execute("PRAGMA table_info(history)")]
-    if "rul_median" not in cols:
-        conn.execute("ALTER TABLE history ADD COLUMN rul_median REAL")
-    conn.execute(_TABLE)
+    """Additive migration (history column ``rul_median``, table ``model_state``)."""
+    migrate(conn, getattr(conn, "dialect", "sqlite"))
 
 
 def _write(conn: sqlite3.Connection, names: list[str], st: UnitState) -> None:

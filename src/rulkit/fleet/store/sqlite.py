@@ -40,7 +40,7 @@ Guarantees (tested in tests/fleet/store/test_sqlite.py):
 * **Busy, not broken.** A writer waits up to ``timeout`` seconds for another one to commit,
   then raises :class:`StoreBusyError` (nothing written; retry), never a raw ``sqlite3`` error.
 
-Component ids (:func:`check_component_ids`): 1 to :data:`COMPONENT_ID_MAX_LEN` printable
+Component ids (:func:`rulkit.fleet.rows.check_component_ids`): 1 to 128 printable
 characters (:meth:`str.isprintable`: no control characters such as ESC, newline, tab, no
 Unicode format characters such as bidirectional overrides), surrounding blanks stripped.
 Anything else raises :class:`ComponentIdError` naming the row, so a crafted id cannot forge
@@ -51,11 +51,14 @@ from __future__ import annotations
 
 import glob
 import json
+import math
 import os
 import sqlite3
+import time
 import uuid
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +67,7 @@ import pandas as pd
 
 from rulkit.fleet.store.acquisitions import (
     Alert,
+    ConflictError,
     IngestError,
     IngestResult,
     read_acquisitions,
@@ -79,6 +83,7 @@ from rulkit.fleet.store.database_file import (
     open_database,
     store_error,
 )
+from rulkit.fleet.store.schema import create_statements, migrate, needs_migration
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
@@ -94,29 +99,14 @@ STATE_FIELDS = ("t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul")
 OUTPUT_FIELDS = ("valid", "level", "rul_low", "rul_high")
 ROW_FIELDS = (*STATE_FIELDS, *OUTPUT_FIELDS)
 HISTORY_FIELDS = tuple(f for f in ROW_FIELDS if f != "n")
+SAME_HI_RTOL = 1e-12
+"""Relative tolerance under which a re-sent acquisition's HI equals the stored one."""
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS components (
-    component TEXT PRIMARY KEY,
-    t REAL NOT NULL, n INTEGER NOT NULL, hi REAL NOT NULL, fhi REAL NOT NULL, dhi REAL NOT NULL,
-    rul REAL NOT NULL, frul REAL NOT NULL, drul REAL NOT NULL, d2rul REAL NOT NULL,
-    valid INTEGER NOT NULL, level INTEGER NOT NULL, rul_low REAL NOT NULL, rul_high REAL NOT NULL,
-    max_level INTEGER NOT NULL
-);
-CREATE TABLE IF NOT EXISTS history (
-    component TEXT NOT NULL, t REAL NOT NULL,
-    hi REAL NOT NULL, fhi REAL NOT NULL, dhi REAL NOT NULL,
-    rul REAL NOT NULL, frul REAL NOT NULL, drul REAL NOT NULL, d2rul REAL NOT NULL,
-    valid INTEGER NOT NULL, level INTEGER NOT NULL, rul_low REAL NOT NULL, rul_high REAL NOT NULL,
-    ingest INTEGER NOT NULL,
-    PRIMARY KEY (component, t)
-) WITHOUT ROWID;
-CREATE TABLE IF NOT EXISTS ingests (
-    id INTEGER PRIMARY KEY, source TEXT NOT NULL, n_rows INTEGER NOT NULL,
-    n_components INTEGER NOT NULL
-);
-"""
+
+def _finite(v: float) -> float | None:
+    """``v``, or ``None`` (SQL NULL) when it is NaN or infinite."""
+    return v if math.isfinite(v) else None
+
 
 
 def _check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
@@ -159,9 +149,8 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             conn.execute("PRAGMA journal_mode=MEMORY")
             conn.execute("PRAGMA synchronous=OFF")
             conn.execute("BEGIN IMMEDIATE")
-            for stmt in _SCHEMA.split(";"):
-                if stmt.strip():
-                    conn.execute(stmt)
+            for stmt in create_statements("sqlite"):
+                conn.execute(stmt)
             conn.executemany("INSERT INTO meta VALUES (?, ?)", _meta_rows(config, hi_model))
             conn.execute("COMMIT")
             if acq is not None:
@@ -338,6 +327,13 @@ class ComponentStore:
             raise
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
+        if not readonly and needs_migration(conn, "sqlite"):
+            try:
+                with self._transaction("IMMEDIATE"):
+                    migrate(conn, "sqlite")
+            except BaseException:
+                conn.close()
+                raise
         self.degradation = _degradation_from_meta(self.path, meta)
         if hi_model is not None and stored_model is None:
             try:
@@ -506,14 +502,86 @@ class ComponentStore:
 
     def _ingest_validated(self, acq: pd.DataFrame, source: str,
                           new_model: HealthIndexModel | None = None) -> IngestResult:
+        """The one ingestion path (``rulkit track`` and the service): in one write
+        transaction, skip the rows already stored (:meth:`_split_duplicates`; a contradiction
+        raises :class:`ConflictError`), run and store the trackers (:meth:`_apply`) and record
+        the new alerts in table ``alerts`` with their ids."""
         with self._transaction("IMMEDIATE"):
             if new_model is not None:
                 self._conn.execute("INSERT INTO meta VALUES ('hi_model', ?)",
                                    (json.dumps(new_model.to_dict()),))
-            res = self._apply(acq, source)
+            acq, n_dup = self._split_duplicates(acq)
+            if len(acq):
+                res = self._apply(acq.reset_index(drop=True), source)
+            else:
+                res = IngestResult(n_rows=0, n_components=0, n_new_components=0)
+            alerts = self._record_alerts(res.alerts)
         if new_model is not None:
             self.hi_model = new_model
-        return res
+        return replace(res, alerts=alerts, n_duplicates=n_dup)
+
+    def _record_alerts(self, alerts: list[Alert]) -> list[Alert]:
+        """Insert ``alerts`` into table ``alerts`` (inside the caller's transaction); the
+        same alerts with their ids and the time they were raised."""
+        now = time.time()
+        out = []
+        for a in alerts:
+            vals = (a.component, a.t, a.level, a.previous, _finite(a.hi), _finite(a.fhi),
+                    _finite(a.frul), bool(a.valid), _finite(a.rul_low), _finite(a.rul_high),
+                    now)
+            aid = self._conn.execute(
+                "INSERT INTO alerts (component, t, level, previous, hi, fhi, frul, valid, "
+                "rul_low, rul_high, raised) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+                "RETURNING id", vals).fetchone()[0]
+            out.append(replace(a, id=int(aid), raised=now))
+        return out
+
+    def _split_duplicates(self, acq: pd.DataFrame) -> tuple[pd.DataFrame, int]:
+        """Split off rows at or before a component's stored last time (inside the write
+        transaction): rows stored with the same HI (to :data:`SAME_HI_RTOL`) are
+        duplicates, skipped and counted; anything else raises :class:`ConflictError`
+        naming the row (acquisitions are appended in time order)."""
+        comp = acq["component"]
+        names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
+                                  else pd.unique(comp))]
+        last = self._last_times(names)
+        if not last:
+            return acq, 0
+        codes = (comp.cat.codes.to_numpy() if hasattr(comp, "cat")
+                 else pd.factorize(comp)[0])
+        last_t = np.array([last.get(c, np.nan) for c in names])[codes]  # NaN: new
+        old = np.flatnonzero(acq["t"].to_numpy() <= last_t)
+        if old.size == 0:
+            return acq, 0
+        sub = acq.iloc[old]
+        for name, grp in sub.groupby("component", sort=False, observed=True):
+            stored = dict(self._conn.execute(
+                "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
+                (str(name), float(grp["t"].min()), float(grp["t"].max()))).fetchall())
+            for row, t, hi in zip(grp["row"], grp["t"], grp["hi"], strict=True):
+                if float(t) not in stored:
+                    raise ConflictError(
+                        f"row {row} (component {str(name)!r}): time {_fmt(t)} is before the "
+                        f"component's last stored acquisition at {_fmt(last[str(name)])} and "
+                        "is not stored (acquisitions are appended in time order)")
+                h = float(stored[float(t)])
+                if abs(h - hi) > SAME_HI_RTOL * max(1.0, abs(h), abs(hi)):
+                    raise ConflictError(
+                        f"row {row} (component {str(name)!r}): time {_fmt(t)} is already "
+                        f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
+        keep = np.ones(len(acq), dtype=bool)
+        keep[old] = False
+        return acq[keep], int(old.size)
+
+    def _last_times(self, names: list[str]) -> dict[str, float]:
+        """The stored last acquisition time of each of ``names`` that is stored."""
+        last: dict[str, float] = {}
+        for i in range(0, len(names), 500):
+            chunk = names[i:i + 500]
+            q = ("SELECT component, t FROM components WHERE component IN "
+                 f"({','.join('?' * len(chunk))})")
+            last.update({str(c): float(t) for c, t in self._conn.execute(q, chunk).fetchall()})
+        return last
 
     def _apply(self, acq: pd.DataFrame, source: str) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
