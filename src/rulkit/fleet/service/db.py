@@ -32,7 +32,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from rulkit.fleet.store.acquisitions import Alert, ConflictError
+from rulkit.fleet.store.acquisitions import (
+    Alert,
+    ConflictError,
+    IngestResult,
+    validate_acquisitions,
+)
 from rulkit.fleet.store.postgres import open_store, store_dialect
 from rulkit.fleet.store.schema import migrate
 from rulkit.fleet.store.sqlite import ComponentStore
@@ -110,7 +115,9 @@ class ServiceDB:
         self._pool.put(first)
         self._opened = 1
         self._lock = threading.Lock()
-        self._write_lock = threading.Lock()
+        self._write_lock = threading.Lock()  # one group being written at a time
+        self._queue_lock = threading.Lock()
+        self._queue: list[_Pending] = []
         self._writes = 0  # ingestions by this process: invalidate the counts
         self._counts: tuple[float, int, dict[int, int]] | None = None
 
@@ -208,14 +215,39 @@ class ServiceDB:
     # ------------------------------------------------------------------ ingestion
     def ingest(self, df: pd.DataFrame, source: str) -> dict[str, Any]:
         """Validate and apply one batch through the store's one ingestion path
-        (:meth:`~rulkit.fleet.store.sqlite.ComponentStore.ingest`: duplicates skipped,
-        conflicts refused, alerts recorded, one transaction); JSON-ready result."""
-        with self.writing() as s:
-            res = s.ingest(df, source)
-        self._writes += 1
+        (:meth:`~rulkit.fleet.store.sqlite.ComponentStore.ingest_many`: duplicates skipped,
+        conflicts refused, alerts recorded), with group commit: batches that arrive while
+        another is being written wait, then go together in one transaction (each under its
+        own savepoint, so each is still all or nothing) with one commit. The call returns
+        once its batch is committed (durable); JSON-ready result."""
+        with self.store() as s:  # validation needs no lock: it runs beside the writer
+            acq = validate_acquisitions(df, s.config, s.hi_model)
+        req = _Pending(acq, source)
+        with self._queue_lock:
+            self._queue.append(req)
+        with self._write_lock:
+            if not req.done:
+                with self._queue_lock:
+                    group, self._queue = self._queue, []
+                self._commit(group)
+        if isinstance(req.outcome, BaseException):
+            raise req.outcome
+        res = req.outcome
+        assert res is not None
         return {"ingested": res.n_rows, "duplicates": res.n_duplicates,
                 "components": res.n_components, "new_components": res.n_new_components,
                 "alerts": [alert_json(a) for a in res.alerts]}
+
+    def _commit(self, group: list[_Pending]) -> None:
+        """Write ``group`` in one transaction; every request gets its result or error."""
+        try:
+            with self.store() as s:
+                outcomes: list[Any] = list(s.ingest_many([(r.acq, r.source) for r in group]))
+            self._writes += 1
+        except BaseException as err:  # the commit failed: nothing of the group is stored
+            outcomes = [err] * len(group)
+        for r, o in zip(group, outcomes, strict=True):
+            r.outcome, r.done = o, True
 
     # ------------------------------------------------------------------ reading
     def components(self, *, limit: int, offset: int = 0, level: str | None = None,
@@ -327,6 +359,17 @@ class ServiceDB:
             row = conn.execute(f"SELECT {', '.join(ALERT_FIELDS)} FROM alerts WHERE id = ?",
                                (alert_id,)).fetchone()
         return _alert_dict(row)
+
+
+class _Pending:
+    """A validated batch waiting for its group's commit."""
+
+    __slots__ = ("acq", "done", "outcome", "source")
+
+    def __init__(self, acq: pd.DataFrame, source: str) -> None:
+        self.acq, self.source = acq, source
+        self.done = False
+        self.outcome: IngestResult | BaseException | None = None
 
 
 @dataclass(frozen=True)

@@ -502,22 +502,51 @@ class ComponentStore:
 
     def _ingest_validated(self, acq: pd.DataFrame, source: str,
                           new_model: HealthIndexModel | None = None) -> IngestResult:
-        """The one ingestion path (``rulkit track`` and the service): in one write
-        transaction, skip the rows already stored (:meth:`_split_duplicates`; a contradiction
-        raises :class:`ConflictError`), run and store the trackers (:meth:`_apply`) and record
-        the new alerts in table ``alerts`` with their ids."""
+        """The one ingestion path (``rulkit track`` and the service): one validated batch in
+        one write transaction (:meth:`_ingest_in_transaction`)."""
         with self._transaction("IMMEDIATE"):
             if new_model is not None:
                 self._conn.execute("INSERT INTO meta VALUES ('hi_model', ?)",
                                    (json.dumps(new_model.to_dict()),))
-            acq, n_dup = self._split_duplicates(acq)
-            if len(acq):
-                res = self._apply(acq.reset_index(drop=True), source)
-            else:
-                res = IngestResult(n_rows=0, n_components=0, n_new_components=0)
-            alerts = self._record_alerts(res.alerts)
+            res = self._ingest_in_transaction(acq, source)
         if new_model is not None:
             self.hi_model = new_model
+        return res
+
+    def ingest_many(self, batches: list[tuple[pd.DataFrame, str]]
+                    ) -> list[IngestResult | IngestError]:
+        """Validated batches (:func:`validate_acquisitions` frames and their sources) in one
+        write transaction, each under its own savepoint: a batch that fails (conflict, a
+        non-finite tracker output) is rolled back alone and gets its error, the others are
+        committed together (one commit, one sync: group commit). A failing commit raises
+        for all of them; nothing is then stored."""
+        out: list[IngestResult | IngestError] = []
+        with self._transaction("IMMEDIATE"):
+            for acq, source in batches:
+                self._conn.execute("SAVEPOINT batch")
+                try:
+                    out.append(self._ingest_in_transaction(acq, source))
+                except IngestError as err:
+                    self._conn.execute("ROLLBACK TO SAVEPOINT batch")
+                    out.append(err)
+                self._conn.execute("RELEASE SAVEPOINT batch")
+        return out
+
+    def _ingest_in_transaction(self, acq: pd.DataFrame, source: str) -> IngestResult:
+        """Inside the caller's write transaction: skip the rows already stored
+        (:meth:`_split_duplicates`; a contradiction raises :class:`ConflictError`), run and
+        store the trackers (:meth:`_apply`) and record the new alerts in table ``alerts``
+        with their ids."""
+        comp = acq["component"]
+        names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
+                                  else pd.unique(comp))]
+        stored = self._load_states(names)
+        acq, n_dup = self._split_duplicates(acq, {k: float(v[0]) for k, v in stored.items()})
+        if len(acq):
+            res = self._apply(acq.reset_index(drop=True), source, stored)
+        else:
+            res = IngestResult(n_rows=0, n_components=0, n_new_components=0)
+        alerts = self._record_alerts(res.alerts)
         return replace(res, alerts=alerts, n_duplicates=n_dup)
 
     def _record_alerts(self, alerts: list[Alert]) -> list[Alert]:
@@ -536,15 +565,16 @@ class ComponentStore:
             out.append(replace(a, id=int(aid), raised=now))
         return out
 
-    def _split_duplicates(self, acq: pd.DataFrame) -> tuple[pd.DataFrame, int]:
+    def _split_duplicates(self, acq: pd.DataFrame, last: dict[str, float]
+                          ) -> tuple[pd.DataFrame, int]:
         """Split off rows at or before a component's stored last time (inside the write
         transaction): rows stored with the same HI (to :data:`SAME_HI_RTOL`) are
         duplicates, skipped and counted; anything else raises :class:`ConflictError`
-        naming the row (acquisitions are appended in time order)."""
+        naming the row (acquisitions are appended in time order). ``last``: the stored last
+        time of each stored component of the batch."""
         comp = acq["component"]
         names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
                                   else pd.unique(comp))]
-        last = self._last_times(names)
         if not last:
             return acq, 0
         codes = (comp.cat.codes.to_numpy() if hasattr(comp, "cat")
@@ -573,17 +603,8 @@ class ComponentStore:
         keep[old] = False
         return acq[keep], int(old.size)
 
-    def _last_times(self, names: list[str]) -> dict[str, float]:
-        """The stored last acquisition time of each of ``names`` that is stored."""
-        last: dict[str, float] = {}
-        for i in range(0, len(names), 500):
-            chunk = names[i:i + 500]
-            q = ("SELECT component, t FROM components WHERE component IN "
-                 f"({','.join('?' * len(chunk))})")
-            last.update({str(c): float(t) for c, t in self._conn.execute(q, chunk).fetchall()})
-        return last
-
-    def _apply(self, acq: pd.DataFrame, source: str) -> IngestResult:
+    def _apply(self, acq: pd.DataFrame, source: str,
+               stored: dict[str, tuple] | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction).
 
@@ -601,19 +622,20 @@ class ComponentStore:
         codes = codes_raw.astype(np.int32)  # 8 bytes less per acquisition
         del codes_raw
         names = [str(u) for u in uniq]
-        stored = self._load_states(names)
-        pos = {name: i for i, name in enumerate(names)}
+        if stored is None:
+            stored = self._load_states(names)
         b = len(names)
         state = TrackerState.empty(b)
         level = np.zeros(b, dtype=np.int8)  # highest level reached so far (latched)
-        for name, row in stored.items():
-            i = pos[name]
-            vals = dict(zip(ROW_FIELDS, row[:-1], strict=True))
-            state.t[i], state.n[i], state.hi[i], state.rul[i] = (
-                vals["t"], vals["n"], vals["hi"], vals["rul"])
-            state.ab[i] = (vals["fhi"], vals["dhi"])
-            state.abg[i] = (vals["frul"], vals["drul"], vals["d2rul"])
-            level[i] = row[-1]
+        known = [i for i, name in enumerate(names) if name in stored]
+        if known:  # one array of the stored rows, columns ROW_FIELDS + max_level
+            vals = np.array([stored[names[i]] for i in known], dtype=np.float64)
+            col = {f: vals[:, j] for j, f in enumerate(ROW_FIELDS)}
+            state.t[known], state.n[known] = col["t"], col["n"]
+            state.hi[known], state.rul[known] = col["hi"], col["rul"]
+            state.ab[known] = np.column_stack([col["fhi"], col["dhi"]])
+            state.abg[known] = np.column_stack([col["frul"], col["drul"], col["d2rul"]])
+            level[known] = vals[:, -1]
         t = acq["t"].to_numpy(dtype=np.float64)
         hi = acq["hi"].to_numpy(dtype=np.float64)
         rows_all = acq["row"].to_numpy()
@@ -679,8 +701,8 @@ class ComponentStore:
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
         alerts: list[tuple[int, int, Alert]] = []
-        blocks = []  # components k0 .. k1-1 (in key order) form a block
-        k0 = 0
+        blocks = [] if n > self.BLOCK_ROWS else [(0, b)]  # components k0 .. k1-1 (key order)
+        k0 = 0 if blocks == [] else b
         while k0 < b:
             k1 = k0 + 1
             while k1 < b and comp_start[k1 + 1] - comp_start[k0] <= self.BLOCK_ROWS:
@@ -759,7 +781,7 @@ class ComponentStore:
         rows = [names] + [np.asarray(final[f]).tolist() for f in ROW_FIELDS]
         rows.append(level.tolist())
         self._write_states(list(zip(*rows, strict=True)))
-        return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(stored),
+        return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
