@@ -1,4 +1,5 @@
-"""The learned model inside the component database (used by :mod:`rulkit.fleet.store.sqlite`).
+"""The learned model inside the component database, on SQLite and PostgreSQL alike (used by
+:mod:`rulkit.fleet.store.sqlite` and :mod:`rulkit.fleet.store.postgres`).
 
 ``rulkit fit`` stores a :class:`~rulkit.fleet.learned.degradation.DegradationModel` in the
 ``meta`` table (key ``degradation_model``) and each component's model state (the Kalman
@@ -40,20 +41,22 @@ def _write(conn: sqlite3.Connection, names: list[str], st: UnitState) -> None:
     cols = st.columns()
     rows = zip(names, *(np.asarray(cols[c]).tolist() for c in STATE_COLS), strict=True)
     ph = ", ".join("?" * (len(STATE_COLS) + 1))
-    conn.executemany(f"INSERT OR REPLACE INTO model_state (component, {', '.join(STATE_COLS)}) "
-                     f"VALUES ({ph})", rows)
+    update = ", ".join(f"{c} = excluded.{c}" for c in STATE_COLS)
+    conn.executemany(f"INSERT INTO model_state (component, {', '.join(STATE_COLS)}) "
+                     f"VALUES ({ph}) ON CONFLICT (component) DO UPDATE SET {update}", rows)
 
 
 def install_model(conn: sqlite3.Connection, model: DegradationModel) -> int:
     """Inside the caller's transaction: migrate, store the model, rebuild every component's
     state from its stored history (t, hi). Returns the number of components rebuilt."""
     _migrate(conn)
-    conn.execute("INSERT OR REPLACE INTO meta VALUES ('degradation_model', ?)",
-                 (json.dumps(model.to_dict()),))
+    conn.execute("INSERT INTO meta VALUES ('degradation_model', ?) ON CONFLICT (key) DO "
+                 "UPDATE SET value = excluded.value", (json.dumps(model.to_dict()),))
     conn.execute("DELETE FROM model_state")
-    df = pd.read_sql_query("SELECT component, t, hi FROM history ORDER BY component, t", conn)
-    if df.empty:
+    rows = conn.execute("SELECT component, t, hi FROM history ORDER BY component, t").fetchall()
+    if not rows:
         return 0
+    df = pd.DataFrame(rows, columns=["component", "t", "hi"])
     codes, names = pd.factorize(df["component"], sort=False)
     counts = np.bincount(codes)
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

@@ -32,7 +32,7 @@ from typing import Any
 
 import pandas as pd
 
-from rulkit.fleet.store.database_file import SCHEMA_VERSION, StoreError
+from rulkit.fleet.store.database_file import SCHEMA_VERSION, StoreError, _degradation_from_meta
 from rulkit.fleet.store.schema import create_statements, migrate, needs_migration
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -138,10 +138,7 @@ class PgComponentStore(ComponentStore):
             self.config = TrackerConfig.from_dict(json.loads(meta["tracker_config"]))
             self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
                              if "hi_model" in meta else None)
-            self.degradation = None
-            if "degradation_model" in meta:
-                raise StoreError(f"{self.path}: holds a learned degradation model (rulkit "
-                                 "fit), which the PostgreSQL backend does not support yet")
+            self.degradation = _degradation_from_meta(Path(self.path), meta)
             if config is not None and config != self.config:
                 raise StoreError(
                     f"{self.path} was created with tracker config {self.config.to_dict()}; "
@@ -191,11 +188,6 @@ class PgComponentStore(ComponentStore):
             rows = cur.fetchall()
         return pd.DataFrame(rows, columns=cols) if rows else pd.DataFrame(
             {c: pd.Series(dtype=object if c == "component" else float) for c in cols})
-
-    def set_degradation_model(self, model: Any) -> int:
-        """Not supported on PostgreSQL yet (the learned models' migration is SQLite's)."""
-        raise StoreError(f"{self.path}: learned degradation models (rulkit fit) are not "
-                         "supported on the PostgreSQL backend yet; use a SQLite database")
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return int(self._conn.execute(
