@@ -168,8 +168,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     @app.command("track")
     def track(
         acquisitions: Annotated[Path, typer.Argument(
-            help="CSV or Parquet with columns component, time and hi (or the CI columns "
-                 "of the database's HI model); see docs/file-formats.md.")],
+            help="CSV or Parquet file (or a directory of Parquet partitions) with columns "
+                 "component, time and hi (or the CI columns of the database's HI model); "
+                 "see docs/file-formats.md.")],
         db: Annotated[Path, typer.Option(
             "--db", help="SQLite component database (created with the first accepted batch).")],
         baseline: Annotated[Path | None, typer.Option(
@@ -198,6 +199,12 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         wait: float = typer.Option(60.0, "--wait", min=0.0,
                                    help="Seconds to wait for another writer before giving up "
                                         "(exit code 75, retry)."),
+        scheduler: str | None = typer.Option(
+            None, "--scheduler", help="Dask scheduler address (tcp://host:port): track a "
+                                      "directory of Parquet partitions on its workers."),
+        buckets: int = typer.Option(0, "--buckets", min=0,
+                                    help="Tasks to split the components into with "
+                                         "--scheduler (0: 4 per worker)."),
     ) -> None:
         """Ingest acquisitions (one transaction) and print new warnings and alarms.
 
@@ -223,8 +230,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         new_cfg = _tracker_options(given)
         hi_model = _fit_baseline(baseline, pfa, offset) if baseline is not None else None
         nothing = f"nothing was written to {db}"
+        if scheduler is not None and not acquisitions.is_dir():
+            bad_option("--scheduler", "needs a directory of Parquet partitions")
         try:
-            df = read_acquisitions(acquisitions)
+            df = None if acquisitions.is_dir() else read_acquisitions(acquisitions)
             settings = read_settings(db)
         except IngestError as err:
             fail(f"{err} ({nothing})")
@@ -240,8 +249,15 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 fail(f"{db} was created with other tracker settings (stored, given): {diff}; "
                      "the state is only meaningful with its own settings")
         try:
-            res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
-                                       source=str(acquisitions), timeout=wait)
+            if df is None:  # a directory of partitions, serially or on Dask workers
+                from rulkit.fleet.store.partitions import track_directory
+
+                res, created = track_directory(db, acquisitions, config=cfg, hi_model=hi_model,
+                                               scheduler=scheduler, buckets=buckets,
+                                               timeout=wait)
+            else:
+                res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
+                                           source=str(acquisitions), timeout=wait)
         except IngestError as err:
             msg = str(err)  # file-level errors already start with the path
             where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "

@@ -1,0 +1,261 @@
+"""``rulkit track`` over a directory of Parquet partitions, serially or on Dask workers.
+
+docs/systems/embedded-rul.md §4; cost model in docs/service.md ("Fleet batch on Dask"). A
+component's trackers run in time order, but components are independent: the work splits by
+component. :func:`track_directory` without a scheduler reads the whole directory (every
+``*.parquet`` / ``*.pq`` file under it, in name order) as one batch and ingests it like a file.
+With a scheduler, the components are hashed into ``buckets``; each Dask task reads the rows of
+its bucket from every partition (a pyarrow filter, so no task holds the whole fleet), runs the
+store's one ingestion path on a private SQLite database seeded with those components' stored
+state (tracker state, learned-model state, the stored history they overlap, the settings),
+and returns that database's bytes. The client then copies each bucket's new history rows,
+states and alerts into the database in one transaction. Every bucket ran exactly the code of
+the serial run on exactly its rows, so the stored numbers are the same (tested).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import tempfile
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
+from rulkit.fleet.store.schema import ALERTS, COMPONENTS, HISTORY, MODEL_STATE
+from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.tracking.health_index import HealthIndexModel
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+
+
+def partition_files(directory: str | Path) -> list[Path]:
+    """The Parquet files under ``directory`` (recursively), in name order; IngestError if
+    there are none."""
+    d = Path(directory)
+    files = sorted(p for p in d.rglob("*") if p.suffix.lower() in (".parquet", ".pq")
+                   and p.is_file())
+    if not files:
+        raise IngestError(f"{d}: no .parquet / .pq files in this directory")
+    return files
+
+
+def read_directory(directory: str | Path, components: list[str] | None = None
+                   ) -> pd.DataFrame:
+    """The rows of every partition (file order, then row order), optionally only those of
+    ``components``; the columns of the first partition."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+
+    files = partition_files(directory)
+    try:
+        dataset = ds.dataset([str(f) for f in files], format="parquet")
+        flt = None if components is None else pc.field("component").isin(components)
+        table = dataset.to_table(filter=flt)
+    except Exception as err:  # pyarrow raises many kinds on bad partitions
+        raise IngestError(f"{directory}: cannot be read as Parquet partitions "
+                          f"({type(err).__name__}: {str(err).strip()[:200]})") from None
+    return table.to_pandas()
+
+
+def _bucket_of(names: np.ndarray, buckets: int) -> np.ndarray:
+    """A stable bucket per component id (CRC-32 of its UTF-8 bytes)."""
+    return np.array([zlib.crc32(str(n).encode("utf-8")) % buckets for n in names])
+
+
+def track_directory(db: str | Path, directory: str | Path, *, config: TrackerConfig,
+                    hi_model: HealthIndexModel | None = None, scheduler: Any = None,
+                    buckets: int = 0, timeout: float = 30.0) -> tuple[IngestResult, bool]:
+    """Ingest the partitions under ``directory`` into the SQLite database ``db`` (created if
+    missing); ``(result, created)`` as :func:`~rulkit.fleet.store.sqlite.ingest_into`.
+    ``scheduler``: a Dask scheduler address or ``distributed.Client`` (module docstring);
+    ``buckets``: tasks to split the components into (default: 4 per worker). Nothing is
+    written (or created) when a bucket's rows are refused."""
+    source = str(directory)
+    if scheduler is None:
+        return ingest_into(db, read_directory(directory), config=config, hi_model=hi_model,
+                           source=source, timeout=timeout)
+    import pyarrow.dataset as ds
+    from distributed import Client
+
+    path = Path(db)
+    client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+    try:
+        files = [str(f) for f in partition_files(directory)]
+        comp = ds.dataset(files, format="parquet").to_table(columns=["component"])
+        names = pd.unique(comp.column("component").to_pandas().astype(str))
+        n_buckets = buckets or 4 * max(1, len(client.scheduler_info()["workers"]))
+        bucket = _bucket_of(names, n_buckets)
+        groups = [names[bucket == b].tolist() for b in range(n_buckets) if (bucket == b).any()]
+        seeds = _seeds(path, groups, config, hi_model, timeout)
+        parts = client.gather(client.map(_run_bucket, [files] * len(groups), groups, seeds,
+                                         pure=False))
+    finally:
+        if not isinstance(scheduler, Client):
+            client.close()
+    created = not path.exists()
+    with ComponentStore(path, config=config, hi_model=hi_model, timeout=timeout) as store:
+        return _merge(store, parts, seeds, source), created
+
+
+def _seeds(path: Path, groups: list[list[str]], config: TrackerConfig,
+           hi_model: HealthIndexModel | None, timeout: float) -> list[dict[str, Any]]:
+    """Each bucket's starting point: the settings (``meta``) and, for an existing database,
+    the stored rows of its components (states, learned states, history)."""
+    from rulkit.fleet.store.database_file import _meta_rows
+
+    if not path.exists():
+        return [{"meta": _meta_rows(config, hi_model), "components": [], "model_state": [],
+                 "history": []} for _ in groups]
+    with ComponentStore(path, config=config, readonly=True, timeout=timeout) as store:
+        meta = store._conn.execute("SELECT key, value FROM meta").fetchall()
+        if hi_model is not None and store.hi_model is None:
+            meta.append(("hi_model", json.dumps(hi_model.to_dict())))
+        return [{"meta": meta, **{t.name: _rows(store, t.name, t.names, g)
+                                  for t in (COMPONENTS, MODEL_STATE, HISTORY)}}
+                for g in groups]
+
+
+def _rows(store: ComponentStore, table: str, cols: tuple[str, ...], names: list[str]
+          ) -> list[tuple]:
+    conn = store._conn
+    have = {r[1] for r in conn.execute(f"PRAGMA table_info({table})").fetchall()}
+    # stored history keeps ingest 0 in a bucket: only the bucket's own rows are copied back
+    use = ["0" if table == "history" and c == "ingest" else c if c in have else "NULL"
+           for c in cols]
+    out: list[tuple] = []
+    for i in range(0, len(names), 500):
+        chunk = names[i:i + 500]
+        out += conn.execute(f"SELECT {', '.join(use)} FROM {table} WHERE component IN "
+                            f"({','.join('?' * len(chunk))})", chunk).fetchall()
+    return out
+
+
+def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any]
+                ) -> tuple[bytes, int]:
+    """On a worker: the bucket's rows through the one ingestion path, on a private database
+    seeded with ``seed``; the database's bytes and the number of rows already stored."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+
+    df = ds.dataset(files, format="parquet").to_table(
+        filter=pc.field("component").isin(names)).to_pandas()
+    with tempfile.TemporaryDirectory(prefix="rulkit-bucket-") as tmp:
+        path = Path(tmp) / "bucket.db"
+        _write_seed(path, seed)
+        with ComponentStore(path, create=False) as store:
+            res = store.ingest(df, "bucket")
+            store._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        return path.read_bytes(), res.n_duplicates
+
+
+def _write_seed(path: Path, seed: dict[str, Any]) -> None:
+    from rulkit.fleet.store.schema import create_statements
+
+    conn = sqlite3.connect(str(path), isolation_level=None)
+    try:
+        conn.execute("BEGIN")
+        for stmt in create_statements("sqlite"):
+            conn.execute(stmt)
+        conn.executemany("INSERT INTO meta VALUES (?, ?)", seed["meta"])
+        for table in (COMPONENTS, MODEL_STATE, HISTORY):
+            if seed[table.name]:
+                conn.executemany(f"INSERT INTO {table.name} ({', '.join(table.names)}) VALUES "
+                                 f"({', '.join('?' * len(table.names))})", seed[table.name])
+        conn.execute("COMMIT")
+        conn.execute("PRAGMA journal_mode=WAL")
+    finally:
+        conn.close()
+
+
+def _combine(parts: list[tuple[bytes, int]], tmp: Path) -> tuple[Path, int, int]:
+    """One private database of every bucket's new rows (history of its ingestion, final
+    states, learned states, alerts); (its path, acquisitions, components)."""
+    from rulkit.fleet.store.schema import create_statements
+
+    path = tmp / "all.db"
+    conn = sqlite3.connect(str(path), isolation_level=None)
+    n_rows = n_comp = 0
+    try:
+        conn.execute("PRAGMA journal_mode=OFF")
+        for stmt in create_statements("sqlite"):
+            conn.execute(stmt)
+        for k, (data, _) in enumerate(parts):
+            f = tmp / f"b{k}.db"
+            f.write_bytes(data)
+            conn.execute("ATTACH DATABASE ? AS part", (str(f),))
+            (bid,) = conn.execute("SELECT MAX(id) FROM part.ingests").fetchone()
+            got = conn.execute("SELECT n_rows, n_components FROM part.ingests WHERE id = ?",
+                               (bid,)).fetchone()
+            n, c = got if got is not None else (0, 0)  # every row already stored
+            n_rows, n_comp = n_rows + n, n_comp + c
+            cols = ", ".join(c for c in HISTORY.names if c != "ingest")
+            conn.execute(f"INSERT INTO history ({cols}, ingest) SELECT {cols}, 1 FROM "
+                         "part.history WHERE ingest = ?", (bid,))
+            for table in (COMPONENTS, MODEL_STATE):
+                cc = ", ".join(table.names)
+                conn.execute(f"INSERT INTO {table.name} ({cc}) SELECT {cc} FROM "
+                             f"part.{table.name}")
+            acols = ", ".join(c for c in ALERTS.names if c != "id")
+            conn.execute(f"INSERT INTO alerts ({acols}) SELECT {acols} FROM part.alerts "
+                         "ORDER BY id")
+            conn.execute("DETACH DATABASE part")
+            f.unlink()
+    finally:
+        conn.close()
+    return path, n_rows, n_comp
+
+
+def _merge(store: ComponentStore, parts: list[tuple[bytes, int]], seeds: list[dict[str, Any]],
+           source: str) -> IngestResult:
+    """Copy the buckets' new rows (:func:`_combine`) into the store in one transaction.
+    Refused (nothing written) when a seeded component changed meanwhile (another writer):
+    retry."""
+    from rulkit.fleet.store.database_file import StoreBusyError
+
+    with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
+        path, n_rows, n_comp = _combine(parts, Path(tmp))
+        conn = store._conn
+        conn.execute("ATTACH DATABASE ? AS part", (str(path),))
+        try:
+            with store._transaction("IMMEDIATE"):
+                for seed in seeds:
+                    for row in seed["components"]:
+                        now = conn.execute("SELECT t FROM components WHERE component = ?",
+                                           (row[0],)).fetchone()
+                        if now is None or now[0] != row[1]:
+                            raise StoreBusyError(
+                                f"{store.path}: component {row[0]!r} changed while the "
+                                "partitions were tracked; nothing was written, retry")
+                ingest_id = store._insert_ingest(source, n_rows, n_comp)
+                cols = ", ".join(c for c in HISTORY.names if c != "ingest")
+                conn.execute(f"INSERT INTO history ({cols}, ingest) SELECT {cols}, ? FROM "
+                             "part.history", (ingest_id,))
+                for table in (COMPONENTS, MODEL_STATE):
+                    cc = ", ".join(table.names)
+                    conn.execute(f"INSERT OR REPLACE INTO {table.name} ({cc}) SELECT {cc} "
+                                 f"FROM part.{table.name}")
+                acols = ", ".join(c for c in ALERTS.names if c != "id")
+                alerts = [_alert(r) for r in conn.execute(
+                    f"INSERT INTO alerts ({acols}) SELECT {acols} FROM part.alerts ORDER BY id "
+                    "RETURNING id, component, t, level, previous, hi, fhi, frul, valid, "
+                    "rul_low, rul_high, raised").fetchall()]
+        finally:
+            conn.execute("DETACH DATABASE part")
+    n_new = n_comp - sum(len(seed["components"]) for seed in seeds)
+    return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=max(n_new, 0),
+                        alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
+                        n_duplicates=sum(d for _, d in parts))
+
+
+def _alert(row: tuple) -> Alert:
+    aid, comp, t, level, prev, hi, fhi, frul, valid, low, high, raised = row
+    nan = float("nan")
+    return Alert(component=comp, t=t, level=int(level), previous=int(prev),
+                 hi=nan if hi is None else hi, fhi=nan if fhi is None else fhi,
+                 frul=nan if frul is None else frul, valid=bool(valid),
+                 rul_low=nan if low is None else low, rul_high=nan if high is None else high,
+                 id=int(aid), raised=raised)
