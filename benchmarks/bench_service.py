@@ -35,6 +35,7 @@ import tempfile
 import threading
 import time
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 from urllib.parse import quote
 
@@ -84,12 +85,12 @@ def fill(db: str, n: int, steps: int = 1, chunk: int = 200_000) -> float:
 
 def _cursor_at(db: str, offset: int, sort: str) -> str:
     """The keyset cursor of the row at ``offset`` (what the page before it returns)."""
-    from rulkit.fleet.service.db import _ORDERS, COMPONENT_FIELDS, _encode_cursor
+    from rulkit.fleet.service.db import encode_cursor, page_query
 
+    sql, params = page_query(sort, None, None, 1, offset)
     with open_store(db, create=False) as store, store.snapshot() as conn:
-        row = conn.execute(f"SELECT {', '.join(COMPONENT_FIELDS)} FROM components ORDER BY "
-                           f"{_ORDERS[sort].sql} LIMIT 1 OFFSET ?", (offset,)).fetchone()
-    return _encode_cursor(row, sort)
+        row = conn.execute(sql, params).fetchone()
+    return encode_cursor(row, sort)
 
 
 def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
@@ -164,6 +165,10 @@ def _reads(port: int, token: str, path: str, threads: int, per_thread: int) -> l
     return lat
 
 
+def _sqlite_path(tmp: Path, name: str) -> str:
+    return str(tmp / f"{name}.db")
+
+
 def _print_write(backend: str, size: int, w: dict[str, float]) -> None:
     n = w["acquisitions"]
     print(f"{backend} batch={size}: {int(n)} acquisitions in {w['seconds']:.1f} s = "
@@ -201,8 +206,7 @@ def main() -> None:
             tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-"))
             stack.callback(shutil.rmtree, tmp, True)
             if backend == "sqlite":
-                def new_db(name: str) -> str:
-                    return str(tmp / f"{name}.db")
+                new_db = partial(_sqlite_path, tmp)
             else:
                 reason = unavailable_reason()
                 if reason:

@@ -118,8 +118,7 @@ class ServiceDB:
         self._write_lock = threading.Lock()  # one group being written at a time
         self._queue_lock = threading.Lock()
         self._queue: list[_Pending] = []
-        self._writes = 0  # ingestions by this process: invalidate the counts
-        self._counts: tuple[float, int, dict[int, int]] | None = None
+        self._writes = 0  # committed groups (tests count them)
 
     @contextmanager
     def store(self) -> Iterator[ComponentStore]:
@@ -259,36 +258,21 @@ class ServiceDB:
         ascending, then id). ``after`` (a cursor this method returned) continues after the
         previous page's last row by keyset (an index range scan: every page costs what the
         first does); ``offset`` skips rows (cost grows with it). ``total`` counts by level,
-        from a count refreshed at most every :data:`TOTAL_TTL` s and after each ingestion."""
-        order = _ORDERS[sort]
-        conds, params = [], []
-        if level is not None:
-            conds.append("level = ?")
-            params.append(LEVEL_CODES[level])
-        if after is not None:
-            key = _decode_cursor(after, sort)
-            conds.append(order.after)
-            params += key
-        where = (" WHERE " + " AND ".join(conds)) if conds else ""
+        from table ``level_counts``, which every ingestion keeps."""
+        code = LEVEL_CODES[level] if level is not None else None
+        key = _decode_cursor(after, sort) if after is not None else None
+        sql, params = page_query(sort, code, key, limit, offset)
         with self.store() as s, s.snapshot() as conn:
-            rows = conn.execute(
-                f"SELECT {', '.join(COMPONENT_FIELDS)} FROM components{where} "
-                f"ORDER BY {order.sql} LIMIT ? OFFSET ?",
-                [*params, limit, offset]).fetchall()
+            rows = conn.execute(sql, params).fetchall()
             counts = self._level_counts(conn)
         total = counts.get(LEVEL_CODES[level], 0) if level is not None else sum(counts.values())
-        nxt = _encode_cursor(rows[-1], sort) if len(rows) == limit else None
+        nxt = encode_cursor(rows[-1], sort) if len(rows) == limit else None
         return int(total), [_component_dict(r) for r in rows], nxt
 
     def _level_counts(self, conn: Any) -> dict[int, int]:
-        now = time.monotonic()
-        cached = self._counts
-        if cached is not None and now - cached[0] < TOTAL_TTL and cached[1] == self._writes:
-            return cached[2]
-        counts = {int(lv): int(n) for lv, n in conn.execute(
-            "SELECT level, COUNT(*) FROM components GROUP BY level").fetchall()}
-        self._counts = (now, self._writes, counts)
-        return counts
+        """Components per level from table ``level_counts`` (kept by every ingestion)."""
+        return {int(lv): int(n) for lv, n in conn.execute(
+            "SELECT level, n FROM level_counts").fetchall()}
 
     def component(self, component: str) -> dict[str, Any]:
         with self.store() as s, s.snapshot() as conn:
@@ -372,48 +356,61 @@ class _Pending:
         self.outcome: IngestResult | BaseException | None = None
 
 
-@dataclass(frozen=True)
-class _Order:
-    sql: str
-    after: str
-    key: tuple[int, ...]  # positions in COMPONENT_FIELDS of the sort key
+SORTS = {"worst": ("level DESC, fhi DESC, component", ("level", "fhi", "component")),
+         "rul": ("frul, component", ("frul", "component"))}
+"""Orders of the component list: ``(ORDER BY, the key columns a cursor holds)``."""
+
+def page_query(sort: str, level: int | None, key: list[Any] | None, limit: int,
+               offset: int = 0) -> tuple[str, list[Any]]:
+    """SQL and parameters of one page of components in ``sort`` order (:data:`SORTS`),
+    optionally of one ``level`` code, after the row whose key is ``key`` (keyset). Every part
+    is an index range scan on either backend: ``rul`` compares the row value (frul,
+    component); ``worst`` mixes directions, so it is the union of three ranges (same level
+    and fHI with a later id, same level with a lower fHI, a lower level), each limited."""
+    cols = ", ".join(COMPONENT_FIELDS)
+    order = SORTS[sort][0]
+    lv, lvp = ("level = ? AND ", [level]) if level is not None else ("", [])
+    n = limit + offset
+    if key is None:
+        return (f"SELECT {cols} FROM components WHERE {lv}1 = 1 ORDER BY {order} "
+                "LIMIT ? OFFSET ?", [*lvp, limit, offset])
+    if sort == "rul":
+        return (f"SELECT {cols} FROM components WHERE {lv}(frul, component) > (?, ?) "
+                f"ORDER BY {order} LIMIT ? OFFSET ?", [*lvp, *key, limit, offset])
+    lvl, fhi, comp = key
+    parts = [("level = ? AND fhi = ? AND component > ?", [lvl, fhi, comp]),
+             ("level = ? AND fhi < ?", [lvl, fhi]), ("level < ?", [lvl])]
+    sql = " UNION ALL ".join(
+        f"SELECT {cols} FROM (SELECT {cols} FROM components WHERE {lv}{cond} ORDER BY "
+        f"{order} LIMIT {n}) AS p{i}" for i, (cond, _) in enumerate(parts))
+    params = [v for _, ps in parts for v in (*lvp, *ps)]
+    return (f"SELECT {cols} FROM ({sql}) AS page ORDER BY {order} LIMIT ? OFFSET ?",
+            [*params, limit, offset])
 
 
-_ORDERS = {
-    "worst": _Order("level DESC, fhi DESC, component",
-                    "(level < ? OR (level = ? AND (fhi < ? OR (fhi = ? AND component > ?))))",
-                    (10, 10, 4, 4, 0)),
-    "rul": _Order("frul, component", "(frul > ? OR (frul = ? AND component > ?))", (6, 6, 0)),
-}
-TOTAL_TTL = 1.0
-"""Seconds a count of components by level is reused (writes by this process refresh it)."""
-
-
-def _encode_cursor(row: tuple, sort: str) -> str:
+def encode_cursor(row: tuple, sort: str) -> str:
+    """The cursor of the page after ``row`` (a row of :data:`COMPONENT_FIELDS`)."""
     import base64
 
-    key = [row[i] for i in dict.fromkeys(_ORDERS[sort].key)]
+    key = [row[COMPONENT_FIELDS.index(c)] for c in SORTS[sort][1]]
     return base64.urlsafe_b64encode(json.dumps(key).encode()).decode().rstrip("=")
 
 
 def _decode_cursor(cursor: str, sort: str) -> list[Any]:
-    """The parameters of ``_ORDERS[sort].after`` from a cursor; ValueError if it is not one
-    of this sort's cursors."""
+    """The key of a cursor of ``sort``; ValueError if it is not one."""
     import base64
 
     try:
         key = json.loads(base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)))
     except (ValueError, TypeError):
         raise ValueError("after: not a cursor returned by this API") from None
-    order = _ORDERS[sort]
-    uniq = list(dict.fromkeys(order.key))
-    types = [str if i == 0 else (int if i == 10 else float) for i in uniq]
-    if not isinstance(key, list) or len(key) != len(uniq) or not all(
-            (isinstance(v, t) and not isinstance(v, bool)) or (t is float and isinstance(
-                v, int) and not isinstance(v, bool)) for v, t in zip(key, types, strict=True)):
+    want = [str if c == "component" else int if c == "level" else (int, float)
+            for c in SORTS[sort][1]]
+    if not isinstance(key, list) or len(key) != len(want) or not all(
+            isinstance(v, t) and not isinstance(v, bool)
+            for v, t in zip(key, want, strict=True)):
         raise ValueError(f"after: not a cursor of sort={sort}")
-    by_pos = dict(zip(uniq, key, strict=True))
-    return [by_pos[i] for i in order.key]
+    return key
 
 
 def _in_transaction(store: ComponentStore) -> bool:

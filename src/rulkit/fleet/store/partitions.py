@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
-from rulkit.fleet.store.schema import ALERTS, COMPONENTS, HISTORY, MODEL_STATE
+from rulkit.fleet.store.schema import ALERTS, COMPONENTS, HISTORY, MODEL_STATE, recount_levels
 from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -239,6 +239,7 @@ def _merge(store: ComponentStore, parts: list[tuple[bytes, int]], seeds: list[di
                     conn.execute(f"INSERT OR REPLACE INTO {table.name} ({cc}) SELECT {cc} "
                                  f"FROM part.{table.name}")
                 acols = ", ".join(c for c in ALERTS.names if c != "id")
+                recount_levels(conn)  # states were copied, not counted one by one
                 alerts = [_alert(r) for r in conn.execute(
                     f"INSERT INTO alerts ({acols}) SELECT {acols} FROM part.alerts ORDER BY id "
                     "RETURNING id, component, t, level, previous, hi, fhi, frul, valid, "

@@ -14,7 +14,9 @@ Tables:
 * ``ingests``: one row per committed ingestion (audit);
 * ``alerts``: every alert an ingestion raised, with its acknowledgement;
 * ``api_tokens``: the service's tokens (SHA-256 only);
-* ``model_state``: the learned model's per-component state (``rulkit fit``).
+* ``model_state``: the learned model's per-component state (``rulkit fit``);
+* ``level_counts``: components per alert level, kept by every ingestion (so a page's total
+  needs no count over the whole table).
 
 Text keys compare in code-point order on both backends (``COLLATE "C"`` on PostgreSQL,
 SQLite's ``BINARY``), so pages and blocks come out in the same order.
@@ -98,7 +100,8 @@ COMPONENTS = Table(
      Column("max_level", "small")),
     ("component",),
     indexes=(("components_rank", "level DESC, fhi DESC, component"),
-             ("components_rul", "frul, component")),
+             ("components_rul", "frul, component"),
+             ("components_level_rul", "level, frul, component")),
 )
 HISTORY = Table(
     "history",
@@ -129,7 +132,8 @@ MODEL_STATE = Table(
     (Column("component", "key"), *_cols("m_z m_b p_zz p_zb p_bb t hi"), Column("n", "int")),
     ("component",),
 )
-TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE)
+LEVEL_COUNTS = Table("level_counts", (Column("level", "small"), Column("n", "int")), ("level",))
+TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE, LEVEL_COUNTS)
 
 
 def create_statements(dialect: str) -> list[str]:
@@ -151,6 +155,10 @@ def migrate(conn: Any, dialect: str) -> None:
     this runs)."""
     for table in TABLES:
         have = _existing_columns(conn, dialect, table.name)
+        if not have and table is LEVEL_COUNTS:  # counted once from the states
+            for stmt in table.create(dialect):
+                conn.execute(stmt)
+            recount_levels(conn)
         if have:
             for col in table.columns:
                 if col.name not in have:
@@ -160,6 +168,13 @@ def migrate(conn: Any, dialect: str) -> None:
                     conn.execute(f"ALTER TABLE {table.name} ADD COLUMN {col.sql(dialect)}")
         for stmt in table.create(dialect):
             conn.execute(stmt)
+
+
+def recount_levels(conn: Any) -> None:
+    """Rebuild ``level_counts`` from ``components`` (inside the caller's transaction)."""
+    conn.execute("DELETE FROM level_counts")
+    conn.execute("INSERT INTO level_counts (level, n) SELECT level, COUNT(*) FROM components "
+                 "GROUP BY level")
 
 
 def needs_migration(conn: Any, dialect: str) -> bool:

@@ -781,8 +781,24 @@ class ComponentStore:
         rows = [names] + [np.asarray(final[f]).tolist() for f in ROW_FIELDS]
         rows.append(level.tolist())
         self._write_states(list(zip(*rows, strict=True)))
+        old_level = np.full(b, -1)
+        if known:
+            old_level[known] = vals[:, ROW_FIELDS.index("level")]
+        self._count_levels(old_level, np.asarray(fin.level))
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
+
+    def _count_levels(self, old: np.ndarray, new: np.ndarray) -> None:
+        """Keep table ``level_counts`` (components per alert level, what the service's
+        ``total`` reads without counting 10^6 rows) equal to the states just written: ``old``
+        the level each component had (-1: new), ``new`` the level it has."""
+        delta = np.bincount(new.astype(np.int64), minlength=3)[:3].astype(np.int64)
+        delta -= np.bincount(old[old >= 0].astype(np.int64), minlength=3)[:3]
+        rows = [(lv, int(d)) for lv, d in enumerate(delta.tolist()) if d]
+        if rows:
+            self._conn.executemany("INSERT INTO level_counts (level, n) VALUES (?, ?) ON "
+                                   "CONFLICT (level) DO UPDATE SET n = level_counts.n + "
+                                   "excluded.n", rows)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         """Record one ingestion (audit row) and return its id (backend hook)."""
