@@ -71,6 +71,14 @@ def test_dask_run_stores_what_the_serial_run_stores(tmp_path, cluster):
     # re-running is a no-op: every row already stored
     res, _ = track_directory(tmp_path / "dask.db", d, config=CFG, scheduler=cluster)
     assert res.n_rows == 0 and res.n_duplicates == len(rest)
+    # a new database (the buckets become it) as the serial run makes it
+    for name, scheduler in (("new-serial", None), ("new-dask", cluster)):
+        res, created = track_directory(tmp_path / f"{name}.db", d, config=CFG,
+                                       scheduler=scheduler)
+        assert created and res.n_rows == len(rest) and res.n_new_components == 40
+    serial, dask = tables(tmp_path / "new-serial.db"), tables(tmp_path / "new-dask.db")
+    for t in serial:
+        pd.testing.assert_frame_equal(dask[t], serial[t], check_exact=True)
 
 
 def test_a_bad_partition_writes_and_creates_nothing(tmp_path, cluster):

@@ -96,9 +96,59 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
     finally:
         if not isinstance(scheduler, Client):
             client.close()
-    created = not path.exists()
+    if not path.exists():  # the combined buckets become the new database
+        res = _publish(path, parts, seeds[0]["meta"] if seeds else [], source)
+        if res is not None:
+            return res, True
     with ComponentStore(path, config=config, hi_model=hi_model, timeout=timeout) as store:
-        return _merge(store, parts, seeds, source), created
+        return _merge(store, parts, seeds, source), False
+
+
+def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, str]],
+             source: str) -> IngestResult | None:
+    """A new database at ``path`` from the buckets (:func:`_combine` written beside it, the
+    settings and the ingestion's audit row added, then linked into place as
+    :func:`~rulkit.fleet.store.sqlite.ingest_into` publishes one: complete or absent).
+    ``None`` when another process created ``path`` meanwhile (then the caller merges)."""
+    import os
+    import uuid
+
+    from rulkit.fleet.store.database_file import _fsync_dir
+
+    tmp_db = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
+    try:
+        with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
+            _, n_rows, n_comp = _combine(parts, Path(tmp), tmp_db)
+        conn = sqlite3.connect(str(tmp_db), isolation_level=None)
+        try:
+            conn.execute("BEGIN")
+            conn.executemany("INSERT INTO meta VALUES (?, ?)", meta)
+            conn.execute("INSERT INTO ingests (id, source, n_rows, n_components) VALUES "
+                         "(1, ?, ?, ?)", (source, n_rows, n_comp))
+            recount_levels(conn)
+            alerts = [_alert(r) for r in conn.execute(
+                "SELECT id, component, t, level, previous, hi, fhi, frul, valid, rul_low, "
+                "rul_high, raised FROM alerts ORDER BY id").fetchall()]
+            conn.execute("COMMIT")
+            conn.execute("PRAGMA journal_mode=WAL")
+        finally:
+            conn.close()
+        fd = os.open(tmp_db, os.O_RDWR)  # private until linked: no SQLite connection holds it
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        try:
+            os.link(tmp_db, path)
+        except FileExistsError:
+            return None
+        _fsync_dir(path.parent)
+    finally:
+        for side in ("", "-wal", "-shm", "-journal"):
+            Path(f"{tmp_db}{side}").unlink(missing_ok=True)
+    return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=n_comp,
+                        alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
+                        n_duplicates=sum(d for _, d in parts))
 
 
 def _seeds(path: Path, groups: list[list[str]], config: TrackerConfig,
@@ -147,8 +197,8 @@ def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any]
         path = Path(tmp) / "bucket.db"
         _write_seed(path, seed)
         with ComponentStore(path, create=False) as store:
+            store._conn.execute("PRAGMA synchronous=OFF")  # a private scratch file
             res = store.ingest(df, "bucket")
-            store._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
         return path.read_bytes(), res.n_duplicates
 
 
@@ -166,21 +216,23 @@ def _write_seed(path: Path, seed: dict[str, Any]) -> None:
                 conn.executemany(f"INSERT INTO {table.name} ({', '.join(table.names)}) VALUES "
                                  f"({', '.join('?' * len(table.names))})", seed[table.name])
         conn.execute("COMMIT")
-        conn.execute("PRAGMA journal_mode=WAL")
     finally:
         conn.close()
 
 
-def _combine(parts: list[tuple[bytes, int]], tmp: Path) -> tuple[Path, int, int]:
-    """One private database of every bucket's new rows (history of its ingestion, final
-    states, learned states, alerts); (its path, acquisitions, components)."""
+def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
+             ) -> tuple[Path, int, int]:
+    """One private database (``path``, default in ``tmp``) of every bucket's new rows
+    (history of its ingestion, final states, learned states, alerts); (its path,
+    acquisitions, components)."""
     from rulkit.fleet.store.schema import create_statements
 
-    path = tmp / "all.db"
+    path = path or tmp / "all.db"
     conn = sqlite3.connect(str(path), isolation_level=None)
     n_rows = n_comp = 0
     try:
         conn.execute("PRAGMA journal_mode=OFF")
+        conn.execute("PRAGMA synchronous=OFF")
         for stmt in create_statements("sqlite"):
             conn.execute(stmt)
         for k, (data, _) in enumerate(parts):
@@ -214,42 +266,51 @@ def _merge(store: ComponentStore, parts: list[tuple[bytes, int]], seeds: list[di
     """Copy the buckets' new rows (:func:`_combine`) into the store in one transaction.
     Refused (nothing written) when a seeded component changed meanwhile (another writer):
     retry."""
-    from rulkit.fleet.store.database_file import StoreBusyError
-
     with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
         path, n_rows, n_comp = _combine(parts, Path(tmp))
         conn = store._conn
         conn.execute("ATTACH DATABASE ? AS part", (str(path),))
         try:
             with store._transaction("IMMEDIATE"):
-                for seed in seeds:
-                    for row in seed["components"]:
-                        now = conn.execute("SELECT t FROM components WHERE component = ?",
-                                           (row[0],)).fetchone()
-                        if now is None or now[0] != row[1]:
-                            raise StoreBusyError(
-                                f"{store.path}: component {row[0]!r} changed while the "
-                                "partitions were tracked; nothing was written, retry")
+                _check_unchanged(store, seeds)
                 ingest_id = store._insert_ingest(source, n_rows, n_comp)
-                cols = ", ".join(c for c in HISTORY.names if c != "ingest")
-                conn.execute(f"INSERT INTO history ({cols}, ingest) SELECT {cols}, ? FROM "
-                             "part.history", (ingest_id,))
-                for table in (COMPONENTS, MODEL_STATE):
-                    cc = ", ".join(table.names)
-                    conn.execute(f"INSERT OR REPLACE INTO {table.name} ({cc}) SELECT {cc} "
-                                 f"FROM part.{table.name}")
-                acols = ", ".join(c for c in ALERTS.names if c != "id")
-                recount_levels(conn)  # states were copied, not counted one by one
-                alerts = [_alert(r) for r in conn.execute(
-                    f"INSERT INTO alerts ({acols}) SELECT {acols} FROM part.alerts ORDER BY id "
-                    "RETURNING id, component, t, level, previous, hi, fhi, frul, valid, "
-                    "rul_low, rul_high, raised").fetchall()]
+                alerts = _copy_part(conn, ingest_id)
         finally:
             conn.execute("DETACH DATABASE part")
     n_new = n_comp - sum(len(seed["components"]) for seed in seeds)
     return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=max(n_new, 0),
                         alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
                         n_duplicates=sum(d for _, d in parts))
+
+
+def _check_unchanged(store: ComponentStore, seeds: list[dict[str, Any]]) -> None:
+    """StoreBusyError when a seeded component's stored state changed since it was read."""
+    from rulkit.fleet.store.database_file import StoreBusyError
+
+    for seed in seeds:
+        for row in seed["components"]:
+            now = store._conn.execute("SELECT t FROM components WHERE component = ?",
+                                      (row[0],)).fetchone()
+            if now is None or now[0] != row[1]:
+                raise StoreBusyError(f"{store.path}: component {row[0]!r} changed while the "
+                                     "partitions were tracked; nothing was written, retry")
+
+
+def _copy_part(conn: sqlite3.Connection, ingest_id: int) -> list[Alert]:
+    """Inside the caller's transaction: the attached ``part``'s rows into the store."""
+    cols = ", ".join(c for c in HISTORY.names if c != "ingest")
+    conn.execute(f"INSERT INTO history ({cols}, ingest) SELECT {cols}, ? FROM part.history",
+                 (ingest_id,))
+    for table in (COMPONENTS, MODEL_STATE):
+        cc = ", ".join(table.names)
+        conn.execute(f"INSERT OR REPLACE INTO {table.name} ({cc}) SELECT {cc} FROM "
+                     f"part.{table.name}")
+    recount_levels(conn)  # states were copied, not counted one by one
+    acols = ", ".join(c for c in ALERTS.names if c != "id")
+    return [_alert(r) for r in conn.execute(
+        f"INSERT INTO alerts ({acols}) SELECT {acols} FROM part.alerts ORDER BY id RETURNING "
+        "id, component, t, level, previous, hi, fhi, frul, valid, rul_low, rul_high, raised"
+    ).fetchall()]
 
 
 def _alert(row: tuple) -> Alert:

@@ -86,8 +86,8 @@ class Table:
         return out
 
 
-def _cols(spec: str, kind: str = "real", null: bool = False) -> tuple[Column, ...]:
-    return tuple(Column(n, kind, null) for n in spec.split())
+def _cols(names: str, kind: str = "real", null: bool = False) -> tuple[Column, ...]:
+    return tuple(Column(n, kind, null) for n in names.split())
 
 
 _STATE = _cols("hi fhi dhi rul frul drul d2rul")
