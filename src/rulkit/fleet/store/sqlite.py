@@ -157,7 +157,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
                 store = ComponentStore.__new__(ComponentStore)
                 store._attach(tmp, conn, config, hi_model, timeout=0.0)
                 with store._transaction("IMMEDIATE"):
-                    result = store._apply(acq, source)
+                    result = store._ingest_in_transaction(acq, source)
             # WAL mode is recorded in the file: every later connection uses the log
             if conn.execute("PRAGMA journal_mode=WAL").fetchone()[0] != "wal":
                 raise sqlite3.OperationalError("cannot switch the new database to WAL mode")
