@@ -33,13 +33,15 @@ def test_a_csv_row_with_an_extra_field_is_refused_with_its_line(tmp_path):
         read_acquisitions(f)
 
 
-@pytest.mark.parametrize("value", ["True", "False", "true"])
-def test_a_boolean_in_a_csv_number_column_is_refused(tmp_path, value):
+@pytest.mark.parametrize(("first", "value", "row"), [("True", "True", 1), ("False", "True", 1),
+                                                    ("0.1", "True", 2), ("0.1", "false", 2)])
+def test_a_boolean_in_a_csv_number_column_is_refused(tmp_path, first, value, row):
+    # a column of booleans only was read as 1/0 (hi=True an ALARM)
     f = tmp_path / "b.csv"
-    f.write_text(f"component,time,hi\nc0,0,0.1\nc0,1,{value}\n")
+    f.write_text(f"component,time,hi\nc0,0,{first}\nc0,1,{value}\n")
     r = runner.invoke(app, ["track", "--db", str(tmp_path / "b.db"), str(f)])
     assert r.exit_code == 1, r.output
-    assert "column 'hi', row 2" in r.output and value in r.output
+    assert f"column 'hi', row {row}" in r.output and "ALARM" not in r.output
     assert not (tmp_path / "b.db").exists()
 
 

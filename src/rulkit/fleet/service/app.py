@@ -6,7 +6,8 @@
   answers), ``GET /metrics`` (Prometheus text format, :mod:`.metrics`), ``GET /openapi.json``,
   the dashboard at ``/`` (static files of this package);
 * ``/api/v1``: ``POST acquisitions``, ``GET components``, ``GET components/{id}``,
-  ``GET components/{id}/history``, ``GET alerts``, ``POST alerts/{id}/ack``.
+  ``GET components/{id}/history`` (also ``GET history?component=id``), ``GET alerts``,
+  ``POST alerts/{id}/ack``.
 
 Every ``/api/v1`` endpoint requires ``Authorization: Bearer <token>`` (401 without a valid one);
 ``POST`` endpoints require a write token (403 with a read token). Bodies are read with bounded
@@ -292,6 +293,21 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         """One component's state and its number of open alerts."""
         try:
             return sdb.component(_component_id(unquote(_raw_tail(request))))
+        except NotFound as err:
+            raise http_error(404, str(err)) from None
+
+    @app.get("/api/v1/history", tags=["components"], responses=_responses(401, 404, 422, 503))
+    def history_by_query(
+        component: Annotated[str, Query(min_length=1, max_length=512,
+                                        description="Component id (any, also '.' or '..')")],
+        _tok: Annotated[Token, Depends(authenticated)],
+        limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000,
+    ) -> dict[str, Any]:
+        """As ``GET /api/v1/components/{id}/history``, the id in the query: browsers rewrite
+        the path segments ``.`` and ``..`` (also percent-encoded), so a component named so
+        is only reachable this way."""
+        try:
+            return sdb.history(_component_id(component), limit=limit)
         except NotFound as err:
             raise http_error(404, str(err)) from None
 

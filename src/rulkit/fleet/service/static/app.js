@@ -202,7 +202,8 @@ function chart(svg, xs, series, marks, focus) {
 
 async function loadDetail(name) {
   state.selected = name;
-  const h = await api("/api/v1/components/" + encodeURIComponent(name) + "/history");
+  // the id in the query: a browser rewrites the path segments "." and ".."
+  const h = await api("/api/v1/history?component=" + encodeURIComponent(name));
   $("detail").hidden = false;
   $("detail-name").textContent = visible(name);
   $("detail-summary").textContent = h.n + " acquisitions (" + h.returned + " shown), " +
