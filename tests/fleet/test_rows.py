@@ -108,3 +108,24 @@ def test_fit_and_evaluate_refuse_booleans(tmp_path, cmd):
     r = runner.invoke(app, args)
     assert r.exit_code == 1, r.output
     assert "column 'hi', row 4" in r.output and "True" in r.output
+
+
+def test_a_typo_in_a_later_block_is_named_by_row(tmp_path, monkeypatch):
+    """The CSV is read in blocks; a text cell in a block after the one that typed the column
+    as numbers is still named by column and row (and a bad field count anywhere)."""
+    from rulkit.fleet import rows
+
+    monkeypatch.setattr(rows, "CSV_BLOCK_BYTES", 256)
+    lines = ["component,time,hi"] + [f"c{i % 7},{i // 7},0.3" for i in range(400)]
+    lines[300] = f"c{299 % 7},{299 // 7},0.3x"
+    f = tmp_path / "t.csv"
+    f.write_text("\n".join(lines) + "\n")
+    with pytest.raises(IngestError, match=r"column 'hi', row 300 .*'0.3x' is not a number"):
+        ingest_into(tmp_path / "t.db", read_acquisitions(f))
+    lines[300] = "c0,1,0.3,7"
+    f.write_text("\n".join(lines) + "\n")
+    with pytest.raises(IngestError, match=r"line 301 \(data row 300\) has 4 fields"):
+        read_acquisitions(f)
+    lines[300] = "c0,1,0.3"
+    f.write_text("\n".join(lines) + "\n")
+    assert len(read_csv_rows(f)) == 400

@@ -34,6 +34,8 @@ COMPONENT_ID_MAX_LEN = 128
 """Longest accepted component id, in characters (ids are names, not payloads)."""
 
 ErrorType = type[Exception]
+CSV_BLOCK_BYTES = 1 << 22
+"""Bytes of CSV text parsed at a time (the text is never held whole beside the table)."""
 
 
 def _row_1_based(i: int) -> str:
@@ -232,9 +234,23 @@ def read_csv_rows(
     convert = pacsv.ConvertOptions(
         column_types={c: text for c in text_columns if c in seen},
         null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True)
+    parse = pacsv.ParseOptions(invalid_row_handler=invalid)
     try:
-        table = pacsv.read_csv(_csv_input(source), convert_options=convert,
-                               parse_options=pacsv.ParseOptions(invalid_row_handler=invalid))
+        try:  # streamed in blocks: the text is not held whole beside the table
+            reader = pacsv.open_csv(_csv_input(source), convert_options=convert,
+                                    read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES),
+                                    parse_options=parse)
+            batches = list(reader)
+            table = pa.Table.from_batches(batches, schema=reader.schema).unify_dictionaries()
+            del batches
+        except pa.ArrowInvalid as err:
+            if "conversion error" not in str(err):
+                raise
+            # a later block holds text in a column the first typed as numbers: read the
+            # whole file, typed over all rows, so the cell is named by numeric_values
+            bad.clear()
+            table = pacsv.read_csv(_csv_input(source), convert_options=convert,
+                                   parse_options=parse)
     except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as err:
         raise error(f"{where}: cannot be read as CSV: {safe_text(err, 300)}") from None
     if bad:
