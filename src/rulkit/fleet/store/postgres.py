@@ -24,17 +24,18 @@ Guarantees, as for SQLite (tested against both in tests/fleet/store/test_postgre
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from rulkit.fleet.store.database_file import SCHEMA_VERSION, StoreError, _degradation_from_meta
 from rulkit.fleet.store.schema import create_statements, migrate, needs_migration
-from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.store.sqlite import HISTORY_FIELDS, ComponentStore, HistoryChunk
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
@@ -188,6 +189,21 @@ class PgComponentStore(ComponentStore):
             rows = cur.fetchall()
         return pd.DataFrame(rows, columns=cols) if rows else pd.DataFrame(
             {c: pd.Series(dtype=object if c == "component" else float) for c in cols})
+
+    def _write_history(self, rows: HistoryChunk | Iterable[tuple],
+                       extra_cols: tuple[str, ...] = ()) -> None:
+        """History rows of an ingestion by ``COPY ... FROM STDIN`` (the server parses no
+        statement per row); row tuples as the base class writes them."""
+        if not isinstance(rows, HistoryChunk):
+            super()._write_history(rows, extra_cols)
+            return
+        cols = ("component", *HISTORY_FIELDS, *rows.extra_cols, "ingest")
+        values = [np.asarray(c).tolist() for c in rows.columns]
+        values.append([rows.ingest] * len(values[0]))
+        with self._conn.raw.cursor() as cur, cur.copy(
+                f"COPY history ({', '.join(cols)}) FROM STDIN") as copy:
+            for row in zip(*values, strict=True):
+                copy.write_row(row)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return int(self._conn.execute(
