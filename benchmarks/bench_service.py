@@ -10,8 +10,7 @@ For each backend (SQLite file; PostgreSQL: a throwaway server from the installed
    machine), p50/p99 latencies, then checks every acquisition is stored exactly once.
 2. **Pages at scale.** A database of ``--components`` components (filled through the store),
    then ``--readers`` threads x ``--reads`` requests of each page kind: the first page, a
-   middle page by keyset cursor (``after=``), a middle page by ``offset``, a page filtered by
-   level, a page sorted by RUL. Prints p50/p99 and service CPU per request.
+   middle page by ``offset``, a page filtered by level, a page sorted by RUL. Prints p50/p99 and service CPU per request.
 3. **History reads.** ``GET /api/v1/components/{id}/history?limit=1000`` on a database of
    ``--history-rows`` rows and on one of 1 % of them: p50 of each and their ratio (flat = 1).
 
@@ -37,7 +36,6 @@ import time
 from contextlib import ExitStack
 from functools import partial
 from pathlib import Path
-from urllib.parse import quote
 
 import numpy as np
 import pandas as pd
@@ -83,25 +81,13 @@ def fill(db: str, n: int, steps: int = 1, chunk: int = 200_000) -> float:
     return time.perf_counter() - t0
 
 
-def _cursor_at(db: str, offset: int, sort: str) -> str:
-    """The keyset cursor of the row at ``offset`` (what the page before it returns)."""
-    from rulkit.fleet.service.db import encode_cursor, page_query
-
-    sql, params = page_query(sort, None, None, 1, offset)
-    with open_store(db, create=False) as store, store.snapshot() as conn:
-        row = conn.execute(sql, params).fetchone()
-    return encode_cursor(row, sort)
-
-
 def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
     n = args.components
     out: dict[str, float] = {"components": n, "fill_s": fill(db, n)}
     sdb = ServiceDB(db)
     _, token = sdb.create_token("read", "bench")
     sdb.close()
-    mid = quote(_cursor_at(db, n // 2, "worst"))
     kinds = [("first", "/api/v1/components?limit=50"),
-             ("middle_keyset", f"/api/v1/components?limit=50&after={mid}"),
              ("middle_offset", f"/api/v1/components?limit=50&offset={n // 2}"),
              ("level_alarm", "/api/v1/components?limit=50&level=alarm"),
              ("sort_rul", "/api/v1/components?limit=50&sort=rul")]
@@ -222,8 +208,7 @@ def main() -> None:
                 r = pages_phase(new_db("pages"), args)
                 print(f"pages at {int(r['components'])} components (filled in "
                       f"{r['fill_s']:.0f} s), {args.readers} readers x {args.reads} each:")
-                for kind in ("first", "middle_keyset", "middle_offset", "level_alarm",
-                             "sort_rul"):
+                for kind in ("first", "middle_offset", "level_alarm", "sort_rul"):
                     print(f"  {kind:14s} p50 {r[f'{kind}_p50_ms']:7.1f} ms  p99 "
                           f"{r[f'{kind}_p99_ms']:7.1f} ms  service CPU "
                           f"{r[f'{kind}_cpu_ms']:.1f} ms per request")

@@ -5,6 +5,15 @@ The service reads and writes the store's tables (:mod:`rulkit.fleet.store.schema
 alerts in ``alerts`` (what every committed batch raised, and, once acknowledged, who
 acknowledged it, why, when and with which token name).
 
+* ``api_tokens``: id, name, role (``read`` | ``write``), the SHA-256 of the token (the token
+  itself is never stored), creation and revocation times;
+* ``alerts``: every alert the store reported for a committed batch (component, time, level,
+  the level before, HI, the RUL median and interval then, the rule that raised it), when it
+  was raised and, once acknowledged, who acknowledged it, why, when and with which token name.
+
+What the reads return (one RUL per component, counts, the HI forecast) is
+:mod:`rulkit.fleet.service.fleet_view`.
+
 :meth:`ServiceDB.ingest` goes through the store's one ingestion path, the one ``rulkit track``
 takes: rows already stored (same component and time, same HI within 1e-12 relative) are
 skipped and counted as duplicates; a stored time with another HI, or a time before the
@@ -17,7 +26,6 @@ or nothing and two clients sending the same batch at once store it once.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import secrets
 import threading
@@ -29,9 +37,11 @@ from pathlib import Path
 from queue import Empty, LifoQueue
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
+from rulkit.fleet.monitoring.rules import unit_seconds
+from rulkit.fleet.service import fleet_view
+from rulkit.fleet.service.fleet_view import num as _num
 from rulkit.fleet.store.acquisitions import (
     Alert,
     ConflictError,
@@ -39,16 +49,17 @@ from rulkit.fleet.store.acquisitions import (
     validate_acquisitions,
 )
 from rulkit.fleet.store.postgres import open_store, store_dialect
+from rulkit.fleet.store.prognosis import ALERT_COLUMNS, current_estimator, ensure_columns
 from rulkit.fleet.store.schema import migrate
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
 
 ROLES = ("read", "write")
-LEVEL_CODES = {name: code for code, name in LEVEL_NAMES.items()}
-COMPONENT_FIELDS = ("component", "t", "n", "hi", "fhi", "dhi", "frul", "drul", "d2rul",
-                    "valid", "level", "rul_low", "rul_high")
-ALERT_FIELDS = ("id", "component", "t", "level", "previous", "hi", "fhi", "frul", "valid",
-                "rul_low", "rul_high", "raised", "ack_by", "ack_reason", "ack_at", "ack_token")
+ALERT_FIELDS = ("id", "component", "t", "level", "previous", "hi", "fhi", "rul", "valid",
+                "rul_low", "rul_high", "reason", "raised", "ack_by", "ack_reason", "ack_at",
+                "ack_token")
+_ALERT_NOW = ("level", "rul_median", "rul_low", "rul_high", "failed_at", "seen")
+"""The alerted component's current columns, read with each alert (the table's values)."""
 SAME_HI_RTOL = 1e-12
 
 class NotFound(LookupError):
@@ -71,24 +82,16 @@ def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode("utf-8", "surrogatepass")).hexdigest()
 
 
-def _num(v: Any) -> Any:
-    """JSON-safe number: NaN and infinities become None."""
-    if v is None:
-        return None
-    if isinstance(v, (bool, np.bool_)):
-        return bool(v)
-    if isinstance(v, (int, np.integer)):
-        return int(v)
-    f = float(v)
-    return f if math.isfinite(f) else None
-
-
 def ensure_service_tables(store: ComponentStore) -> None:
     """Create the tables and indexes the service reads if missing (idempotent;
-    :func:`rulkit.fleet.store.schema.migrate`)."""
+    :func:`rulkit.fleet.store.schema.migrate`, the alert columns of the rules and the
+    indexes of the fleet view's orders)."""
     dialect = store_dialect(store)
     with store._transaction("IMMEDIATE") as conn:
         migrate(conn, dialect)
+        ensure_columns(conn, "alerts", ALERT_COLUMNS)
+        for stmt in fleet_view.INDEXES:
+            conn.execute(stmt)
 
 
 class ServiceDB:
@@ -212,16 +215,19 @@ class ServiceDB:
         return Token(int(row[0]), str(row[1]), str(row[2])) if row else None
 
     # ------------------------------------------------------------------ ingestion
-    def ingest(self, df: pd.DataFrame, source: str) -> dict[str, Any]:
+    def ingest(self, df: pd.DataFrame, source: str, *, now: float | None = None
+               ) -> dict[str, Any]:
         """Validate and apply one batch through the store's one ingestion path
         (:meth:`~rulkit.fleet.store.sqlite.ComponentStore.ingest_many`: duplicates skipped,
         conflicts refused, alerts recorded), with group commit: batches that arrive while
         another is being written wait, then go together in one transaction (each under its
         own savepoint, so each is still all or nothing) with one commit. The call returns
-        once its batch is committed (durable); JSON-ready result."""
+        once its batch is committed (durable); JSON-ready result. ``now``: the calendar time
+        of the ingestion (seconds since 1970; default the clock), the time a batch of ages
+        was acquired at."""
         with self.store() as s:  # validation needs no lock: it runs beside the writer
             acq = validate_acquisitions(df, s.config, s.hi_model)
-        req = _Pending(acq, source)
+        req = _Pending(acq, source, now)
         with self._queue_lock:
             self._queue.append(req)
         with self._write_lock:
@@ -241,7 +247,8 @@ class ServiceDB:
         """Write ``group`` in one transaction; every request gets its result or error."""
         try:
             with self.store() as s:
-                outcomes: list[Any] = list(s.ingest_many([(r.acq, r.source) for r in group]))
+                outcomes: list[Any] = list(s.ingest_many(
+                    [(r.acq, r.source, r.now) for r in group]))
             self._writes += 1
         except BaseException as err:  # the commit failed: nothing of the group is stored
             outcomes = [err] * len(group)
@@ -249,82 +256,98 @@ class ServiceDB:
             r.outcome, r.done = o, True
 
     # ------------------------------------------------------------------ reading
-    def components(self, *, limit: int, offset: int = 0, level: str | None = None,
-                   sort: str = "worst", after: str | None = None
-                   ) -> tuple[int, list[dict[str, Any]], str | None]:
-        """(total matching, one page, the cursor of the next page or None).
-
-        ``sort``: ``worst`` (level, then fHI descending, then id) or ``rul`` (filtered RUL
-        ascending, then id). ``after`` (a cursor this method returned) continues after the
-        previous page's last row by keyset (an index range scan: every page costs what the
-        first does); ``offset`` skips rows (cost grows with it). ``total`` counts by level,
-        from table ``level_counts``, which every ingestion keeps."""
-        code = LEVEL_CODES[level] if level is not None else None
-        key = _decode_cursor(after, sort) if after is not None else None
-        sql, params = page_query(sort, code, key, limit, offset)
+    def summary(self, *, now: float | None = None) -> dict[str, Any]:
+        """Counts per level and of stale components, the estimator, the rules
+        (:func:`rulkit.fleet.service.fleet_view.summary`)."""
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            rows = conn.execute(sql, params).fetchall()
-            counts = self._level_counts(conn)
-        total = counts.get(LEVEL_CODES[level], 0) if level is not None else sum(counts.values())
-        nxt = encode_cursor(rows[-1], sort) if len(rows) == limit else None
-        return int(total), [_component_dict(r) for r in rows], nxt
+            return fleet_view.summary(conn, current_estimator(s), now)
 
-    def _level_counts(self, conn: Any) -> dict[int, int]:
-        """Components per level from table ``level_counts`` (kept by every ingestion)."""
-        return {int(lv): int(n) for lv, n in conn.execute(
-            "SELECT level, n FROM level_counts").fetchall()}
-
-    def component(self, component: str) -> dict[str, Any]:
+    def components(self, *, limit: int, offset: int, level: str | None = None,
+                   sort: str = "worst", now: float | None = None
+                   ) -> tuple[int, list[dict[str, Any]]]:
+        """(total matching, one page: worst first (level, then RUL median ascending,
+        unknown last, then id), or by ``sort`` rul or due)."""
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            row = conn.execute(f"SELECT {', '.join(COMPONENT_FIELDS)} FROM components "
+            return fleet_view.list_components(conn, current_estimator(s), limit=limit,
+                                              offset=offset, level=level, sort=sort, now=now)
+
+    def component(self, component: str, *, now: float | None = None) -> dict[str, Any]:
+        now = time.time() if now is None else now
+        with self.store() as s, s.snapshot() as conn:
+            row = conn.execute(f"SELECT {', '.join(fleet_view.FIELDS)} FROM components "
                                "WHERE component = ?", (component,)).fetchone()
             if row is None:
                 raise NotFound(f"no component {component!r}")
             n_open = conn.execute("SELECT COUNT(*) FROM alerts WHERE component = ? AND "
                                   "ack_at IS NULL", (component,)).fetchone()[0]
-        out = _component_dict(row)
+            out = fleet_view.component_item(row, current_estimator(s), now)
         out["open_alerts"] = int(n_open)
         return out
 
-    def history(self, component: str, *, limit: int) -> dict[str, Any]:
-        """The last ``limit`` acquisitions (time ascending) and the component's alerts."""
-        fields = ("t", "hi", "fhi", "frul", "rul_low", "rul_high", "valid", "level")
+    def history(self, component: str, *, limit: int, now: float | None = None
+                ) -> dict[str, Any]:
+        """The last ``limit`` acquisitions (time ascending: HI, fHI, the RUL median and
+        interval, level), the component now, its HI forecast to the threshold and its
+        alerts."""
+        fields = ("t", "hi", "fhi", "rul_median", "rul_low", "rul_high", "valid", "level")
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            known = conn.execute("SELECT n FROM components WHERE component = ?",
-                                 (component,)).fetchone()
-            if known is None:
+            est = current_estimator(s)
+            row = conn.execute(f"SELECT {', '.join(fleet_view.FIELDS)} FROM components "
+                               "WHERE component = ?", (component,)).fetchone()
+            if row is None:
                 raise NotFound(f"no component {component!r}")
+            item = fleet_view.component_item(row, est, now)
             rows = conn.execute(
                 f"SELECT {', '.join(fields)} FROM history WHERE component = ? "
                 "ORDER BY t DESC LIMIT ?", (component, limit)).fetchall()
-            alerts = conn.execute(f"SELECT {', '.join(ALERT_FIELDS)} FROM alerts WHERE "
-                                  "component = ? ORDER BY t, id", (component,)).fetchall()
-        rows.reverse()
+            rows.reverse()
+            fc = fleet_view.forecast(conn, est, component, item,
+                                     float(rows[0][0]) if rows else math.nan)
+            alerts = self._alert_rows(conn, " WHERE a.component = ?", [component],
+                                      "a.t, a.id")
         cols = {f: [_num(r[i]) for r in rows] for i, f in enumerate(fields)}
         cols["valid"] = [bool(v) for v in cols["valid"]]
         cols["level"] = [LEVEL_NAMES[int(v)] for v in cols["level"]]
-        cols["rul"] = cols.pop("frul")  # the filtered RUL, named as in the components list
-        return {"component": component, "n": int(known[0]), "returned": len(rows),
-                "history": cols, "alerts": [_alert_dict(a) for a in alerts]}
+        cols["rul"] = cols.pop("rul_median")  # the RUL median, as in the components list
+        return {"component": component, "n": item["n"], "returned": len(rows),
+                "now": item, "history": cols, "forecast": fc, "threshold": 1.0,
+                "alarm_hi": est.rules.alarm_hi, "time_unit": est.time_unit,
+                "unit_seconds": unit_seconds(est.time_unit),
+                "time_origin": fleet_view.time_origin(item, est),
+                "alerts": [_alert_dict(a, est, now) for a in alerts]}
 
-    def alerts(self, *, state: str, component: str | None, limit: int, offset: int
-               ) -> tuple[int, list[dict[str, Any]]]:
+    def _alert_rows(self, conn: Any, where: str, params: list[Any], order: str,
+                    limit: int | None = None, offset: int = 0) -> list[tuple]:
+        cols = ", ".join([f"a.{f}" for f in ALERT_FIELDS] + [f"c.{f}" for f in _ALERT_NOW])
+        tail = "" if limit is None else " LIMIT ? OFFSET ?"
+        return list(conn.execute(
+            f"SELECT {cols} FROM alerts a LEFT JOIN components c ON c.component = a.component"
+            f"{where} ORDER BY {order}{tail}",
+            [*params, *([] if limit is None else [limit, offset])]).fetchall())
+
+    def alerts(self, *, state: str, component: str | None, limit: int, offset: int,
+               now: float | None = None) -> tuple[int, list[dict[str, Any]]]:
+        """Alerts, highest level then newest first, each with its component's current level
+        and RUL (as the fleet table shows them)."""
         conds, params = [], []
         if state == "open":
-            conds.append("ack_at IS NULL")
+            conds.append("a.ack_at IS NULL")
         elif state == "acknowledged":
-            conds.append("ack_at IS NOT NULL")
+            conds.append("a.ack_at IS NOT NULL")
         if component is not None:
-            conds.append("component = ?")
+            conds.append("a.component = ?")
             params.append(component)
         where = (" WHERE " + " AND ".join(conds)) if conds else ""
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            total = conn.execute(f"SELECT COUNT(*) FROM alerts{where}", params).fetchone()[0]
-            rows = conn.execute(
-                f"SELECT {', '.join(ALERT_FIELDS)} FROM alerts{where} "
-                "ORDER BY level DESC, id DESC LIMIT ? OFFSET ?",
-                [*params, limit, offset]).fetchall()
-        return int(total), [_alert_dict(r) for r in rows]
+            total = conn.execute(f"SELECT COUNT(*) FROM alerts a{where}", params).fetchone()[0]
+            rows = self._alert_rows(conn, where, params, "a.level DESC, a.id DESC", limit,
+                                    offset)
+            est = current_estimator(s)
+        return int(total), [_alert_dict(r, est, now) for r in rows]
 
     def ack(self, alert_id: int, *, by: str, reason: str, token_name: str) -> dict[str, Any]:
         """Acknowledge an open alert; raises NotFound, or ConflictError if already done."""
@@ -348,69 +371,12 @@ class ServiceDB:
 class _Pending:
     """A validated batch waiting for its group's commit."""
 
-    __slots__ = ("acq", "done", "outcome", "source")
+    __slots__ = ("acq", "done", "now", "outcome", "source")
 
-    def __init__(self, acq: pd.DataFrame, source: str) -> None:
-        self.acq, self.source = acq, source
+    def __init__(self, acq: pd.DataFrame, source: str, now: float | None) -> None:
+        self.acq, self.source, self.now = acq, source, now
         self.done = False
         self.outcome: IngestResult | BaseException | None = None
-
-
-SORTS = {"worst": ("level DESC, fhi DESC, component", ("level", "fhi", "component")),
-         "rul": ("frul, component", ("frul", "component"))}
-"""Orders of the component list: ``(ORDER BY, the key columns a cursor holds)``."""
-
-def page_query(sort: str, level: int | None, key: list[Any] | None, limit: int,
-               offset: int = 0) -> tuple[str, list[Any]]:
-    """SQL and parameters of one page of components in ``sort`` order (:data:`SORTS`),
-    optionally of one ``level`` code, after the row whose key is ``key`` (keyset). Every part
-    is an index range scan on either backend: ``rul`` compares the row value (frul,
-    component); ``worst`` mixes directions, so it is the union of three ranges (same level
-    and fHI with a later id, same level with a lower fHI, a lower level), each limited."""
-    cols = ", ".join(COMPONENT_FIELDS)
-    order = SORTS[sort][0]
-    lv, lvp = ("level = ? AND ", [level]) if level is not None else ("", [])
-    n = limit + offset
-    if key is None:
-        return (f"SELECT {cols} FROM components WHERE {lv}1 = 1 ORDER BY {order} "
-                "LIMIT ? OFFSET ?", [*lvp, limit, offset])
-    if sort == "rul":
-        return (f"SELECT {cols} FROM components WHERE {lv}(frul, component) > (?, ?) "
-                f"ORDER BY {order} LIMIT ? OFFSET ?", [*lvp, *key, limit, offset])
-    lvl, fhi, comp = key
-    parts = [("level = ? AND fhi = ? AND component > ?", [lvl, fhi, comp]),
-             ("level = ? AND fhi < ?", [lvl, fhi]), ("level < ?", [lvl])]
-    sql = " UNION ALL ".join(
-        f"SELECT {cols} FROM (SELECT {cols} FROM components WHERE {lv}{cond} ORDER BY "
-        f"{order} LIMIT {n}) AS p{i}" for i, (cond, _) in enumerate(parts))
-    params = [v for _, ps in parts for v in (*lvp, *ps)]
-    return (f"SELECT {cols} FROM ({sql}) AS page ORDER BY {order} LIMIT ? OFFSET ?",
-            [*params, limit, offset])
-
-
-def encode_cursor(row: tuple, sort: str) -> str:
-    """The cursor of the page after ``row`` (a row of :data:`COMPONENT_FIELDS`)."""
-    import base64
-
-    key = [row[COMPONENT_FIELDS.index(c)] for c in SORTS[sort][1]]
-    return base64.urlsafe_b64encode(json.dumps(key).encode()).decode().rstrip("=")
-
-
-def _decode_cursor(cursor: str, sort: str) -> list[Any]:
-    """The key of a cursor of ``sort``; ValueError if it is not one."""
-    import base64
-
-    try:
-        key = json.loads(base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)))
-    except (ValueError, TypeError):
-        raise ValueError("after: not a cursor returned by this API") from None
-    want = [str if c == "component" else int if c == "level" else (int, float)
-            for c in SORTS[sort][1]]
-    if not isinstance(key, list) or len(key) != len(want) or not all(
-            isinstance(v, t) and not isinstance(v, bool)
-            for v, t in zip(key, want, strict=True)):
-        raise ValueError(f"after: not a cursor of sort={sort}")
-    return key
 
 
 def _in_transaction(store: ComponentStore) -> bool:
@@ -425,36 +391,33 @@ def _in_transaction(store: ComponentStore) -> bool:
     return bool(raw.info.transaction_status != psycopg.pq.TransactionStatus.IDLE)
 
 
-def _component_dict(r: tuple) -> dict[str, Any]:
-    d = dict(zip(COMPONENT_FIELDS, r, strict=True))
-    out: dict[str, Any] = {"component": d["component"], "level": LEVEL_NAMES[int(d["level"])]}
-    for k in ("hi", "fhi", "dhi"):
-        out[k] = _num(d[k])
-    out["rul"] = _num(d["frul"])
-    out["rul_low"] = _num(d["rul_low"])
-    out["rul_high"] = _num(d["rul_high"])
-    out["drul"] = _num(d["drul"])
-    out["d2rul"] = _num(d["d2rul"])
-    out["valid"] = bool(d["valid"])
-    out["last_time"] = _num(d["t"])
-    out["n"] = int(d["n"])
-    return out
-
-
 def alert_json(a: Alert) -> dict[str, Any]:
     """A newly recorded alert as the API returns it."""
-    return _alert_dict((a.id, a.component, a.t, a.level, a.previous, a.hi, a.fhi, a.frul,
-                        a.valid, a.rul_low, a.rul_high, a.raised, None, None, None, None))
+    valid = a.rul == a.rul and abs(a.rul) != float("inf")  # the RUL is estimated
+    return _alert_dict((a.id, a.component, a.t, a.level, a.previous, a.hi, a.fhi, a.rul,
+                        valid, a.rul_low, a.rul_high, a.reason, a.raised, None, None, None,
+                        None))
 
 
-def _alert_dict(r: tuple) -> dict[str, Any]:
-    d = dict(zip(ALERT_FIELDS, r, strict=True))
+def _alert_dict(r: tuple, est: Any = None, now: float = 0.0) -> dict[str, Any]:
+    """An alert as the API returns it; with the estimator, the row's trailing
+    current-component columns become ``current`` (level and RUL as the fleet table shows)."""
+    d = dict(zip(ALERT_FIELDS, r[:len(ALERT_FIELDS)], strict=True))
     ack = None
     if d["ack_at"] is not None:
         ack = {"by": d["ack_by"], "reason": d["ack_reason"], "at": _num(d["ack_at"]),
                "token_name": d["ack_token"]}
-    return {"id": int(d["id"]), "component": d["component"], "time": _num(d["t"]),
-            "level": LEVEL_NAMES[int(d["level"])], "previous": LEVEL_NAMES[int(d["previous"])],
-            "hi": _num(d["hi"]), "fhi": _num(d["fhi"]), "rul": _num(d["frul"]),
-            "rul_low": _num(d["rul_low"]), "rul_high": _num(d["rul_high"]),
-            "valid": bool(d["valid"]), "raised": _num(d["raised"]), "acknowledged": ack}
+    out = {"id": int(d["id"]), "component": d["component"], "time": _num(d["t"]),
+           "level": LEVEL_NAMES[int(d["level"])], "previous": LEVEL_NAMES[int(d["previous"])],
+           "hi": _num(d["hi"]), "fhi": _num(d["fhi"]), "rul": _num(d["rul"]),
+           "rul_low": _num(d["rul_low"]), "rul_high": _num(d["rul_high"]),
+           "reason": d["reason"], "valid": bool(d["valid"]), "raised": _num(d["raised"]),
+           "acknowledged": ack}
+    now_cols = dict(zip(_ALERT_NOW, r[len(ALERT_FIELDS):], strict=False))
+    if est is not None and now_cols.get("level") is not None:
+        row = tuple({"component": d["component"], "t": None, "n": 0, "hi": None, "fhi": None,
+                     "frul": None, "valid": 0, **now_cols}[f] for f in fleet_view.FIELDS)
+        cur = fleet_view.component_item(row, est, now)
+        out["current"] = {k: cur[k] for k in ("level", "rul_state", "rul", "rul_low",
+                                              "rul_high", "due", "failed", "stale")}
+    return out

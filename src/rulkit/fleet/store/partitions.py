@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
-from rulkit.fleet.store.schema import ALERTS, COMPONENTS, HISTORY, MODEL_STATE, recount_levels
+from rulkit.fleet.store.schema import COMPONENTS, HISTORY, MODEL_STATE
 from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -125,10 +125,9 @@ def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, s
             conn.executemany("INSERT INTO meta VALUES (?, ?)", meta)
             conn.execute("INSERT INTO ingests (id, source, n_rows, n_components) VALUES "
                          "(1, ?, ?, ?)", (source, n_rows, n_comp))
-            recount_levels(conn)
             alerts = [_alert(r) for r in conn.execute(
-                "SELECT id, component, t, level, previous, hi, fhi, frul, valid, rul_low, "
-                "rul_high, raised FROM alerts ORDER BY id").fetchall()]
+                "SELECT id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
+                "reason, raised FROM alerts ORDER BY id").fetchall()]
             conn.execute("COMMIT")
             conn.execute("PRAGMA journal_mode=WAL")
         finally:
@@ -154,34 +153,42 @@ def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, s
 def _seeds(path: Path, groups: list[list[str]], config: TrackerConfig,
            hi_model: HealthIndexModel | None, timeout: float) -> list[dict[str, Any]]:
     """Each bucket's starting point: the settings (``meta``) and, for an existing database,
-    the stored rows of its components (states, learned states, history)."""
+    the stored rows of its components (states, learned states, history), every column."""
+    from rulkit.fleet.monitoring.rules import MonitoringRules
+    from rulkit.fleet.monitoring.unit_trend import TrendConfig
     from rulkit.fleet.store.database_file import _meta_rows
+    from rulkit.fleet.store.prognosis import monitoring_meta
 
+    empty: dict[str, Any] = {t.name: ([], []) for t in (COMPONENTS, MODEL_STATE, HISTORY)}
     if not path.exists():
-        return [{"meta": _meta_rows(config, hi_model), "components": [], "model_state": [],
-                 "history": []} for _ in groups]
+        meta = [*_meta_rows(config, hi_model), monitoring_meta(MonitoringRules(), TrendConfig())]
+        return [{"meta": meta, **empty} for _ in groups]
     with ComponentStore(path, config=config, readonly=True, timeout=timeout) as store:
         meta = store._conn.execute("SELECT key, value FROM meta").fetchall()
         if hi_model is not None and store.hi_model is None:
             meta.append(("hi_model", json.dumps(hi_model.to_dict())))
-        return [{"meta": meta, **{t.name: _rows(store, t.name, t.names, g)
+        return [{"meta": meta, **{t.name: _rows(store._conn, t.name, g)
                                   for t in (COMPONENTS, MODEL_STATE, HISTORY)}}
                 for g in groups]
 
 
-def _rows(store: ComponentStore, table: str, cols: tuple[str, ...], names: list[str]
-          ) -> list[tuple]:
-    conn = store._conn
-    have = {r[1] for r in conn.execute(f"PRAGMA table_info({table})").fetchall()}
-    # stored history keeps ingest 0 in a bucket: only the bucket's own rows are copied back
-    use = ["0" if table == "history" and c == "ingest" else c if c in have else "NULL"
-           for c in cols]
+def _columns(conn: Any, table: str, schema: str = "main") -> list[str]:
+    return [r[1] for r in conn.execute(f"PRAGMA {schema}.table_info({table})").fetchall()]
+
+
+def _rows(conn: Any, table: str, names: list[str]) -> tuple[list[str], list[tuple]]:
+    """(columns, rows) of ``names`` in ``table``; stored history keeps ingest 0 in a bucket,
+    so only the bucket's own rows are copied back."""
+    cols = _columns(conn, table)
+    if not cols:
+        return [], []
+    use = ["0" if table == "history" and c == "ingest" else c for c in cols]
     out: list[tuple] = []
     for i in range(0, len(names), 500):
         chunk = names[i:i + 500]
         out += conn.execute(f"SELECT {', '.join(use)} FROM {table} WHERE component IN "
                             f"({','.join('?' * len(chunk))})", chunk).fetchall()
-    return out
+    return cols, out
 
 
 def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any]
@@ -203,6 +210,7 @@ def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any]
 
 
 def _write_seed(path: Path, seed: dict[str, Any]) -> None:
+    from rulkit.fleet.store.prognosis import COMPONENT_COLUMNS, HISTORY_COLUMNS, ensure_columns
     from rulkit.fleet.store.schema import create_statements
 
     conn = sqlite3.connect(str(path), isolation_level=None)
@@ -210,14 +218,31 @@ def _write_seed(path: Path, seed: dict[str, Any]) -> None:
         conn.execute("BEGIN")
         for stmt in create_statements("sqlite"):
             conn.execute(stmt)
+        ensure_columns(conn, "components", COMPONENT_COLUMNS)
+        ensure_columns(conn, "history", HISTORY_COLUMNS)
         conn.executemany("INSERT INTO meta VALUES (?, ?)", seed["meta"])
         for table in (COMPONENTS, MODEL_STATE, HISTORY):
-            if seed[table.name]:
-                conn.executemany(f"INSERT INTO {table.name} ({', '.join(table.names)}) VALUES "
-                                 f"({', '.join('?' * len(table.names))})", seed[table.name])
+            cols, rows = seed[table.name]
+            if rows:
+                conn.executemany(f"INSERT INTO {table.name} ({', '.join(cols)}) VALUES "
+                                 f"({', '.join('?' * len(cols))})", rows)
         conn.execute("COMMIT")
     finally:
         conn.close()
+
+
+def _copy(conn: Any, table: str, where: str = "", params: tuple = (), *,
+          replace: bool = False, skip: tuple[str, ...] = (), set_ingest: bool = False,
+          returning: str = "") -> list[tuple]:
+    """``INSERT INTO main.table SELECT ... FROM part.table`` over the columns both have."""
+    have = set(_columns(conn, table, "main"))
+    cols = [c for c in _columns(conn, table, "part") if c in have and c not in skip]
+    target = ", ".join(cols + (["ingest"] if set_ingest else []))
+    source = ", ".join(cols + (["?"] if set_ingest else []))
+    verb = "INSERT OR REPLACE" if replace else "INSERT"
+    sql = (f"{verb} INTO main.{table} ({target}) SELECT {source} FROM part.{table} {where}"
+           + (f" RETURNING {returning}" if returning else ""))
+    return conn.execute(sql, params).fetchall()
 
 
 def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
@@ -225,6 +250,7 @@ def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
     """One private database (``path``, default in ``tmp``) of every bucket's new rows
     (history of its ingestion, final states, learned states, alerts); (its path,
     acquisitions, components)."""
+    from rulkit.fleet.store.prognosis import COMPONENT_COLUMNS, HISTORY_COLUMNS, ensure_columns
     from rulkit.fleet.store.schema import create_statements
 
     path = path or tmp / "all.db"
@@ -235,6 +261,8 @@ def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
         conn.execute("PRAGMA synchronous=OFF")
         for stmt in create_statements("sqlite"):
             conn.execute(stmt)
+        ensure_columns(conn, "components", COMPONENT_COLUMNS)
+        ensure_columns(conn, "history", HISTORY_COLUMNS)
         for k, (data, _) in enumerate(parts):
             f = tmp / f"b{k}.db"
             f.write_bytes(data)
@@ -244,16 +272,11 @@ def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
                                (bid,)).fetchone()
             n, c = got if got is not None else (0, 0)  # every row already stored
             n_rows, n_comp = n_rows + n, n_comp + c
-            cols = ", ".join(c for c in HISTORY.names if c != "ingest")
-            conn.execute(f"INSERT INTO history ({cols}, ingest) SELECT {cols}, 1 FROM "
-                         "part.history WHERE ingest = ?", (bid,))
-            for table in (COMPONENTS, MODEL_STATE):
-                cc = ", ".join(table.names)
-                conn.execute(f"INSERT INTO {table.name} ({cc}) SELECT {cc} FROM "
-                             f"part.{table.name}")
-            acols = ", ".join(c for c in ALERTS.names if c != "id")
-            conn.execute(f"INSERT INTO alerts ({acols}) SELECT {acols} FROM part.alerts "
-                         "ORDER BY id")
+            _copy(conn, "history", "WHERE ingest = ?", (1, bid), skip=("ingest",),
+                  set_ingest=True)
+            _copy(conn, "components")
+            _copy(conn, "model_state")
+            _copy(conn, "alerts", "ORDER BY id", skip=("id",))
             conn.execute("DETACH DATABASE part")
             f.unlink()
     finally:
@@ -277,7 +300,7 @@ def _merge(store: ComponentStore, parts: list[tuple[bytes, int]], seeds: list[di
                 alerts = _copy_part(conn, ingest_id)
         finally:
             conn.execute("DETACH DATABASE part")
-    n_new = n_comp - sum(len(seed["components"]) for seed in seeds)
+    n_new = n_comp - sum(len(seed["components"][1]) for seed in seeds)
     return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=max(n_new, 0),
                         alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
                         n_duplicates=sum(d for _, d in parts))
@@ -288,36 +311,33 @@ def _check_unchanged(store: ComponentStore, seeds: list[dict[str, Any]]) -> None
     from rulkit.fleet.store.database_file import StoreBusyError
 
     for seed in seeds:
-        for row in seed["components"]:
+        cols, rows = seed["components"]
+        for row in rows:
             now = store._conn.execute("SELECT t FROM components WHERE component = ?",
                                       (row[0],)).fetchone()
-            if now is None or now[0] != row[1]:
+            if now is None or now[0] != row[cols.index("t")]:
                 raise StoreBusyError(f"{store.path}: component {row[0]!r} changed while the "
                                      "partitions were tracked; nothing was written, retry")
 
 
 def _copy_part(conn: sqlite3.Connection, ingest_id: int) -> list[Alert]:
     """Inside the caller's transaction: the attached ``part``'s rows into the store."""
-    cols = ", ".join(c for c in HISTORY.names if c != "ingest")
-    conn.execute(f"INSERT INTO history ({cols}, ingest) SELECT {cols}, ? FROM part.history",
-                 (ingest_id,))
-    for table in (COMPONENTS, MODEL_STATE):
-        cc = ", ".join(table.names)
-        conn.execute(f"INSERT OR REPLACE INTO {table.name} ({cc}) SELECT {cc} FROM "
-                     f"part.{table.name}")
-    recount_levels(conn)  # states were copied, not counted one by one
-    acols = ", ".join(c for c in ALERTS.names if c != "id")
-    return [_alert(r) for r in conn.execute(
-        f"INSERT INTO alerts ({acols}) SELECT {acols} FROM part.alerts ORDER BY id RETURNING "
-        "id, component, t, level, previous, hi, fhi, frul, valid, rul_low, rul_high, raised"
-    ).fetchall()]
+    _copy(conn, "history", "", (ingest_id,), skip=("ingest",), set_ingest=True)
+    _copy(conn, "components", replace=True)
+    _copy(conn, "model_state", replace=True)
+    return [_alert(r) for r in _copy(
+        conn, "alerts", "ORDER BY id", skip=("id",),
+        returning="id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
+                  "reason, raised")]
 
 
 def _alert(row: tuple) -> Alert:
-    aid, comp, t, level, prev, hi, fhi, frul, valid, low, high, raised = row
+    aid, comp, t, level, prev, hi, fhi, rul, low, high, reason, raised = row
     nan = float("nan")
     return Alert(component=comp, t=t, level=int(level), previous=int(prev),
                  hi=nan if hi is None else hi, fhi=nan if fhi is None else fhi,
-                 frul=nan if frul is None else frul, valid=bool(valid),
-                 rul_low=nan if low is None else low, rul_high=nan if high is None else high,
+                 rul=nan if rul is None else rul, rul_low=nan if low is None else low,
+                 rul_high=nan if high is None else high, reason=reason or "",
                  id=int(aid), raised=raised)
+
+

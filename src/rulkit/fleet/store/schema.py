@@ -14,9 +14,11 @@ Tables:
 * ``ingests``: one row per committed ingestion (audit);
 * ``alerts``: every alert an ingestion raised, with its acknowledgement;
 * ``api_tokens``: the service's tokens (SHA-256 only);
-* ``model_state``: the learned model's per-component state (``rulkit fit``);
-* ``level_counts``: components per alert level, kept by every ingestion (so a page's total
-  needs no count over the whole table).
+* ``model_state``: the learned model's per-component state (``rulkit fit``).
+
+The columns of one RUL per component and of the alert rules (``rul_median``, ``failed_at``,
+``seen``, the trend sums; the alerts' ``rul`` and ``reason``) are added by
+:mod:`rulkit.fleet.store.prognosis` (``ensure_columns``).
 
 Text keys compare in code-point order on both backends (``COLLATE "C"`` on PostgreSQL,
 SQLite's ``BINARY``), so pages and blocks come out in the same order.
@@ -99,9 +101,7 @@ COMPONENTS = Table(
     (Column("component", "key"), Column("t", "real"), Column("n", "int"), *_STATE, *_OUTPUTS,
      Column("max_level", "small")),
     ("component",),
-    indexes=(("components_rank", "level DESC, fhi DESC, component"),
-             ("components_rul", "frul, component"),
-             ("components_level_rul", "level, frul, component")),
+    # the list's order indexes are the fleet view's (rulkit.fleet.service.fleet_view.INDEXES)
 )
 HISTORY = Table(
     "history",
@@ -115,8 +115,9 @@ ALERTS = Table(
     "alerts",
     (Column("id", "id"), Column("component", "key"), Column("t", "real"),
      Column("level", "small"), Column("previous", "small"),
-     *_cols("hi fhi frul", null=True), Column("valid", "bool"),
-     *_cols("rul_low rul_high", null=True), Column("raised", "real"),
+     *_cols("hi fhi frul rul", null=True), Column("valid", "bool"),
+     *_cols("rul_low rul_high", null=True), Column("reason", "text", True),
+     Column("raised", "real"),
      Column("ack_by", "text", True), Column("ack_reason", "text", True),
      Column("ack_at", "real", True), Column("ack_token", "text", True)),
     indexes=(("alerts_component", "component, t"),),
@@ -132,8 +133,7 @@ MODEL_STATE = Table(
     (Column("component", "key"), *_cols("m_z m_b p_zz p_zb p_bb t hi"), Column("n", "int")),
     ("component",),
 )
-LEVEL_COUNTS = Table("level_counts", (Column("level", "small"), Column("n", "int")), ("level",))
-TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE, LEVEL_COUNTS)
+TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE)
 
 
 def create_statements(dialect: str) -> list[str]:
@@ -155,10 +155,6 @@ def migrate(conn: Any, dialect: str) -> None:
     this runs)."""
     for table in TABLES:
         have = _existing_columns(conn, dialect, table.name)
-        if not have and table is LEVEL_COUNTS:  # counted once from the states
-            for stmt in table.create(dialect):
-                conn.execute(stmt)
-            recount_levels(conn)
         if have:
             for col in table.columns:
                 if col.name not in have:
@@ -168,13 +164,6 @@ def migrate(conn: Any, dialect: str) -> None:
                     conn.execute(f"ALTER TABLE {table.name} ADD COLUMN {col.sql(dialect)}")
         for stmt in table.create(dialect):
             conn.execute(stmt)
-
-
-def recount_levels(conn: Any) -> None:
-    """Rebuild ``level_counts`` from ``components`` (inside the caller's transaction)."""
-    conn.execute("DELETE FROM level_counts")
-    conn.execute("INSERT INTO level_counts (level, n) SELECT level, COUNT(*) FROM components "
-                 "GROUP BY level")
 
 
 def needs_migration(conn: Any, dialect: str) -> bool:
