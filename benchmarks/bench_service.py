@@ -10,7 +10,8 @@ For each backend (SQLite file; PostgreSQL: a throwaway server from the installed
    machine), p50/p99 latencies, then checks every acquisition is stored exactly once.
 2. **Pages at scale.** A database of ``--components`` components (filled through the store),
    then ``--readers`` threads x ``--reads`` requests of each page kind: the first page, a
-   middle page by ``offset``, a page filtered by level, a page sorted by RUL. Prints p50/p99 and service CPU per request.
+   middle page by ``offset``, a page filtered by level, a page sorted by RUL. Prints p50/p99
+   and service CPU per request.
 3. **History reads.** ``GET /api/v1/components/{id}/history?limit=1000`` on a database of
    ``--history-rows`` rows and on one of 1 % of them: p50 of each and their ratio (flat = 1).
 

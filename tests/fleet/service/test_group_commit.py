@@ -4,10 +4,7 @@ paid its own commit."""
 
 import threading
 
-import numpy as np
 import pandas as pd
-import pytest
-
 
 
 def test_concurrent_batches_share_one_commit(sdb):
