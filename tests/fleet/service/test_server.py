@@ -77,7 +77,7 @@ def test_shutdown_finishes_the_batch_in_flight(tmp_path):
     assert out["r"][0] == 200 and out["r"][1]["ingested"] == 500
     sdb.close()
     reopened = ServiceDB(db)
-    assert reopened.components(limit=1)[0] == 500
+    assert reopened.components(limit=1, offset=0)[0] == 500
     reopened.close()
 
 

@@ -40,7 +40,9 @@ def tables(db):
     out = {
         "history": pd.read_sql("SELECT * FROM history ORDER BY component, t", con)
         .drop(columns="ingest"),
-        "components": pd.read_sql("SELECT * FROM components ORDER BY component", con),
+        # seen: the calendar time of the ingestion (each run has its own)
+        "components": pd.read_sql("SELECT * FROM components ORDER BY component", con)
+        .drop(columns="seen"),
         "alerts": pd.read_sql("SELECT component, t, level, previous, hi, fhi, frul, valid, "
                               "rul_low, rul_high FROM alerts ORDER BY component, t", con)}
     con.close()

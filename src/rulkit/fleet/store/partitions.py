@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import tempfile
+import time
 import zlib
 from pathlib import Path
 from typing import Any
@@ -91,8 +92,9 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
         bucket = _bucket_of(names, n_buckets)
         groups = [names[bucket == b].tolist() for b in range(n_buckets) if (bucket == b).any()]
         seeds = _seeds(path, groups, config, hi_model, timeout)
+        now = time.time()  # one calendar time of ingestion for every bucket
         parts = client.gather(client.map(_run_bucket, [files] * len(groups), groups, seeds,
-                                         pure=False))
+                                         [now] * len(groups), pure=False))
     finally:
         if not isinstance(scheduler, Client):
             client.close()
@@ -191,7 +193,7 @@ def _rows(conn: Any, table: str, names: list[str]) -> tuple[list[str], list[tupl
     return cols, out
 
 
-def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any]
+def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any], now: float
                 ) -> tuple[bytes, int]:
     """On a worker: the bucket's rows through the one ingestion path, on a private database
     seeded with ``seed``; the database's bytes and the number of rows already stored."""
@@ -205,6 +207,7 @@ def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any]
         _write_seed(path, seed)
         with ComponentStore(path, create=False) as store:
             store._conn.execute("PRAGMA synchronous=OFF")  # a private scratch file
+            store.now = now
             res = store.ingest(df, "bucket")
         return path.read_bytes(), res.n_duplicates
 
