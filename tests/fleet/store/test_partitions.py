@@ -44,8 +44,13 @@ def tables(db):
         "components": pd.read_sql("SELECT * FROM components ORDER BY component", con)
         .drop(columns="seen"),
         "alerts": pd.read_sql("SELECT component, t, level, previous, hi, fhi, frul, valid, "
-                              "rul_low, rul_high FROM alerts ORDER BY component, t", con)}
+                              "rul_low, rul_high FROM alerts ORDER BY component, t", con),
+        "level_counts": pd.read_sql("SELECT level, n FROM level_counts WHERE n > 0 ORDER BY "
+                                    "level", con)}
+    counted = pd.read_sql("SELECT level, COUNT(*) AS n FROM components GROUP BY level "
+                          "ORDER BY level", con)
     con.close()
+    pd.testing.assert_frame_equal(out["level_counts"], counted)  # kept by every write
     return out
 
 

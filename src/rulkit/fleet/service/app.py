@@ -38,6 +38,7 @@ from pydantic import BaseModel, Field
 from rulkit import __version__
 from rulkit.fleet.service.bodies import batch_frame, http_error, read_body
 from rulkit.fleet.service.db import NotFound, ServiceDB, Token
+from rulkit.fleet.service.fleet_view import CursorError
 from rulkit.fleet.service.metrics import CONTENT_TYPE, Metrics
 from rulkit.fleet.store.acquisitions import ConflictError, IngestError
 from rulkit.fleet.store.database_file import StoreError
@@ -246,13 +247,20 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
         level: Annotated[Literal["ok", "warning", "alarm", "stale"] | None, Query()] = None,
         sort: Annotated[Literal["worst", "rul", "due"], Query()] = "worst",
+        after: Annotated[str | None, Query(max_length=2000)] = None,
     ) -> dict[str, Any]:
         """Components worst first (alert level, then RUL median ascending, unknown last), or
         by RUL median or due date; each with its RUL median and interval, due date, level,
-        failed and stale flags."""
-        total, items = sdb.components(limit=limit, offset=offset, level=level, sort=sort)
+        failed and stale flags. ``next`` is the cursor of the following page (``null``
+        after the last): pass it as ``after`` with the same sort and level, and every page
+        costs what the first does (``offset`` skips rows, at a cost that grows with it)."""
+        try:
+            total, items, nxt = sdb.components(limit=limit, offset=offset, level=level,
+                                               sort=sort, after=after)
+        except CursorError as err:
+            raise http_error(422, str(err)) from None
         return {"total": total, "limit": limit, "offset": offset, "sort": sort,
-                "items": items}
+                "items": items, "next": nxt}
 
     def _component_id(component: str) -> str:
         if "\x00" in component:

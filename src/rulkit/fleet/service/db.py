@@ -49,7 +49,7 @@ from rulkit.fleet.store.acquisitions import (
     validate_acquisitions,
 )
 from rulkit.fleet.store.postgres import open_store, store_dialect
-from rulkit.fleet.store.prognosis import ALERT_COLUMNS, current_estimator, ensure_columns
+from rulkit.fleet.store.prognosis import current_estimator
 from rulkit.fleet.store.schema import migrate
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
@@ -84,14 +84,10 @@ def hash_token(token: str) -> str:
 
 def ensure_service_tables(store: ComponentStore) -> None:
     """Create the tables and indexes the service reads if missing (idempotent;
-    :func:`rulkit.fleet.store.schema.migrate`, the alert columns of the rules and the
-    indexes of the fleet view's orders)."""
+    :func:`rulkit.fleet.store.schema.migrate`)."""
     dialect = store_dialect(store)
     with store._transaction("IMMEDIATE") as conn:
         migrate(conn, dialect)
-        ensure_columns(conn, "alerts", ALERT_COLUMNS)
-        for stmt in fleet_view.INDEXES:
-            conn.execute(stmt)
 
 
 class ServiceDB:
@@ -263,15 +259,17 @@ class ServiceDB:
         with self.store() as s, s.snapshot() as conn:
             return fleet_view.summary(conn, current_estimator(s), now)
 
-    def components(self, *, limit: int, offset: int, level: str | None = None,
-                   sort: str = "worst", now: float | None = None
-                   ) -> tuple[int, list[dict[str, Any]]]:
+    def components(self, *, limit: int, offset: int = 0, level: str | None = None,
+                   sort: str = "worst", after: str | None = None, now: float | None = None
+                   ) -> tuple[int, list[dict[str, Any]], str | None]:
         """(total matching, one page: worst first (level, then RUL median ascending,
-        unknown last, then id), or by ``sort`` rul or due)."""
+        unknown last, then id), or by ``sort`` rul or due, the next page's cursor;
+        :func:`rulkit.fleet.service.fleet_view.list_components`)."""
         now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
             return fleet_view.list_components(conn, current_estimator(s), limit=limit,
-                                              offset=offset, level=level, sort=sort, now=now)
+                                              offset=offset, level=level, sort=sort, now=now,
+                                              after=after)
 
     def component(self, component: str, *, now: float | None = None) -> dict[str, Any]:
         now = time.time() if now is None else now

@@ -24,21 +24,18 @@ from rulkit.fleet.monitoring.estimators import (
 )
 from rulkit.fleet.monitoring.rules import due_time, stale, unit_seconds
 from rulkit.fleet.monitoring.unit_trend import TrendState
-from rulkit.fleet.store.prognosis import TREND_COLUMNS
+from rulkit.fleet.store.schema import DUE_KEY, RUL_KEY, TREND_COLUMNS
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
 
 FIELDS = ("component", "t", "n", "hi", "fhi", "frul", "valid", "level", "rul_median",
           "rul_low", "rul_high", "failed_at", "seen")
 """The ``components`` columns a component item is made of."""
 LEVEL_CODES = {name: code for code, name in LEVEL_NAMES.items()}
-_KEY = "COALESCE(rul_median, 1e308)"  # unknown RULs last; the indexed expression
-ORDERS = {"worst": f"level DESC, {_KEY}, component", "rul": f"{_KEY}, component"}
-SORTS = ("worst", "rul", "due")
-INDEXES = (f"CREATE INDEX IF NOT EXISTS components_worst ON components (level DESC, {_KEY}, "
-           "component)",
-           f"CREATE INDEX IF NOT EXISTS components_rul ON components ({_KEY}, component)",
-           "DROP INDEX IF EXISTS components_rank")
-"""The indexes of the orders above (the same expressions; both dialects)."""
+SORTS = {"worst": (RUL_KEY, "component"), "rul": (RUL_KEY, "component"),
+         "due": (DUE_KEY, "component")}
+"""The list's orders: the key after the level (``worst``: level first, descending; unknown
+RULs and due dates last, as 1e308). Each order, alone or under a level filter, is a range of
+one index of :data:`rulkit.fleet.store.schema.COMPONENTS`."""
 
 
 def num(v: Any) -> Any:
@@ -73,48 +70,120 @@ def component_item(row: tuple, est: Estimator, now: float) -> dict[str, Any]:
             "n": int(d["n"])}
 
 
-def _where(level: str | None, est: Estimator, now: float) -> tuple[str, list[Any]]:
+def _filter(level: str | None, est: Estimator, now: float) -> tuple[str, list[Any]]:
+    """The condition of a level filter (``stale``: no acquisition for ``stale_after``)."""
     if level is None:
-        return "", []
+        return "1 = 1", []
     if level == "stale":
         after = est.rules.stale_after
-        if after is None:
-            return " WHERE 1 = 0", []
-        return " WHERE seen < ?", [now - after]
-    return " WHERE level = ?", [LEVEL_CODES[level]]
+        return ("1 = 0", []) if after is None else ("seen < ?", [now - after])
+    return "level = ?", [LEVEL_CODES[level]]
 
 
-def _order(sort: str, est: Estimator) -> str:
-    if sort != "due":
-        return ORDERS[sort]
-    scale = unit_seconds(est.time_unit)
-    if scale is None:  # no calendar: no due dates, the id decides
-        return "component"
-    return f"COALESCE(seen + rul_median * {scale!r}, 1e308), component"
+def page_query(sort: str, level: str | None, est: Estimator, now: float,
+               key: list[Any] | None, n: int) -> tuple[str, list[Any]]:
+    """SQL and parameters of the first ``n`` components in ``sort`` order (:data:`SORTS`)
+    after the row whose key is ``key`` (keyset: ``[level, sort key, id]``; ``None`` from the
+    start), under the ``level`` filter. The page is the union of index ranges that each stop
+    after ``n`` rows, so a deep page costs what the first does: per level (``worst`` is level
+    descending, then the key ascending: one level at a time), the rest of the cursor's key
+    (same key, later id) and the keys after it."""
+    cols = ", ".join((*FIELDS, "due"))
+    cond, params = _filter(level, est, now)
+    k, order = SORTS[sort][0], ", ".join(SORTS[sort])
+    levels = [None] if sort != "worst" or level in LEVEL_CODES else [2, 1, 0]
+    ranges: list[tuple[str, list[Any]]] = []
+    for lv in levels:
+        if key is not None and lv is not None and lv > key[0]:
+            continue
+        where, p = cond, list(params)
+        if lv is not None:
+            where, p = f"{where} AND level = ?", [*p, lv]
+        if key is None or (lv is not None and lv < key[0]):
+            ranges.append((where, p))
+        else:
+            ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]]),
+                       (f"{where} AND {k} > ?", [*p, key[1]])]
+    parts = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {order} LIMIT {int(n)}"
+             for w, _ in ranges]
+    args = [v for _, p in ranges for v in p]
+    if len(parts) == 1:
+        return parts[0], args
+    union = " UNION ALL ".join(f"SELECT * FROM ({q}) AS p{i}" for i, q in enumerate(parts))
+    lead = "level DESC, " if sort == "worst" else ""
+    return f"SELECT * FROM ({union}) AS page ORDER BY {lead}{order} LIMIT {int(n)}", args
+
+
+def cursor_of(row: tuple, sort: str) -> str:
+    """The cursor of the page after ``row`` (a row of :func:`page_query`)."""
+    import base64
+    import json
+
+    d = dict(zip((*FIELDS, "due"), row, strict=True))
+    k = d["due"] if sort == "due" else d["rul_median"]
+    key = [sort, int(d["level"]), 1e308 if k is None else float(k), d["component"]]
+    return base64.urlsafe_b64encode(json.dumps(key).encode()).decode().rstrip("=")
+
+
+class CursorError(ValueError):
+    """``after`` is not a cursor of this sort returned by the API."""
+
+
+def decode_cursor(cursor: str, sort: str) -> list[Any]:
+    """``[level, sort key, id]`` of a cursor of ``sort``; :class:`CursorError` if it is not
+    one."""
+    import base64
+    import binascii
+    import json
+
+    try:
+        key = json.loads(base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)))
+    except (ValueError, TypeError, binascii.Error, RecursionError):
+        raise CursorError("after: not a cursor returned by this API") from None
+    ok = (isinstance(key, list) and len(key) == 4 and key[0] == sort
+          and type(key[1]) is int and key[1] in LEVEL_NAMES
+          and type(key[2]) in (int, float) and math.isfinite(key[2])
+          and isinstance(key[3], str))
+    if not ok:
+        raise CursorError(f"after: not a cursor of sort={sort} returned by this API")
+    return [key[1], float(key[2]), key[3]]
+
+
+def level_total(conn: Any, level: str | None, est: Estimator, now: float) -> int:
+    """Components under the ``level`` filter: from table ``level_counts`` (kept by every
+    write), stale ones by a range of the ``seen`` index."""
+    if level == "stale":
+        cond, params = _filter(level, est, now)
+        return int(conn.execute(f"SELECT COUNT(*) FROM components WHERE {cond}",
+                                params).fetchone()[0])
+    counts = dict(conn.execute("SELECT level, n FROM level_counts").fetchall())
+    if level is None:
+        return int(sum(counts.values()))
+    return int(counts.get(LEVEL_CODES[level], 0))
 
 
 def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
-                    level: str | None, sort: str, now: float
-                    ) -> tuple[int, list[dict[str, Any]]]:
-    """(total matching, one page in the order ``sort`` of :data:`SORTS`); ``level`` one of
-    ok, warning, alarm or stale (``None``: all)."""
-    where, params = _where(level, est, now)
-    total = conn.execute(f"SELECT COUNT(*) FROM components{where}", params).fetchone()[0]
-    rows = conn.execute(
-        f"SELECT {', '.join(FIELDS)} FROM components{where} ORDER BY {_order(sort, est)} "
-        "LIMIT ? OFFSET ?", [*params, limit, offset]).fetchall()
-    return int(total), [component_item(r, est, now) for r in rows]
+                    level: str | None, sort: str, now: float, after: str | None = None
+                    ) -> tuple[int, list[dict[str, Any]], str | None]:
+    """(total matching, one page in the order ``sort`` of :data:`SORTS`, the cursor of the
+    next page or ``None`` after the last); ``level`` one of ok, warning, alarm or stale
+    (``None``: all). ``after``: a cursor this function returned (keyset: any page costs what
+    the first does); ``offset`` then skips rows (its cost grows with it)."""
+    key = None if after is None else decode_cursor(after, sort)
+    sql, params = page_query(sort, level, est, now, key, offset + limit)
+    rows = conn.execute(sql, params).fetchall()[offset:]
+    nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
+    items = [component_item(r[:len(FIELDS)], est, now) for r in rows]
+    return level_total(conn, level, est, now), items, nxt
 
 
 def summary(conn: Any, est: Estimator, now: float) -> dict[str, Any]:
     """Counts per level (and of stale components), what gives the RUL, the rules, the fitted
     model's warnings and the calendar time ``now`` the staleness is judged at."""
     counts = {name: 0 for name in LEVEL_NAMES.values()}
-    for level, n in conn.execute("SELECT level, COUNT(*) FROM components GROUP BY level"):
+    for level, n in conn.execute("SELECT level, n FROM level_counts"):
         counts[LEVEL_NAMES[int(level)]] = int(n)
-    where, params = _where("stale", est, now)
-    counts["stale"] = int(conn.execute(f"SELECT COUNT(*) FROM components{where}",
-                                       params).fetchone()[0])
+    counts["stale"] = level_total(conn, "stale", est, now)
     rules = est.rules
     return {"total": sum(counts[n] for n in LEVEL_NAMES.values()), "counts": counts,
             "estimator": est.kind, "estimator_label": est.label, "time_unit": est.time_unit,
@@ -175,5 +244,6 @@ def time_origin(item: dict[str, Any], est: Estimator) -> float | None:
     return float(item["last_seen"] - item["last_time"] * scale)
 
 
-__all__ = ["FIELDS", "INDEXES", "ORDERS", "SORTS", "component_item", "forecast",
-           "list_components", "num", "summary", "time_origin"]
+__all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "cursor_of", "decode_cursor",
+           "forecast", "level_total", "list_components", "num", "page_query", "summary",
+           "time_origin"]

@@ -27,7 +27,13 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
-from rulkit.fleet.store.schema import COMPONENTS, HISTORY, MODEL_STATE
+from rulkit.fleet.store.schema import (
+    COMPONENTS,
+    HISTORY,
+    MODEL_STATE,
+    create_schema,
+    recount_levels,
+)
 from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -130,6 +136,7 @@ def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, s
             alerts = [_alert(r) for r in conn.execute(
                 "SELECT id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
                 "reason, raised FROM alerts ORDER BY id").fetchall()]
+            recount_levels(conn)
             conn.execute("COMMIT")
             conn.execute("PRAGMA journal_mode=WAL")
         finally:
@@ -213,22 +220,17 @@ def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any], now: f
 
 
 def _write_seed(path: Path, seed: dict[str, Any]) -> None:
-    from rulkit.fleet.store.prognosis import COMPONENT_COLUMNS, HISTORY_COLUMNS, ensure_columns
-    from rulkit.fleet.store.schema import create_statements
-
     conn = sqlite3.connect(str(path), isolation_level=None)
     try:
         conn.execute("BEGIN")
-        for stmt in create_statements("sqlite"):
-            conn.execute(stmt)
-        ensure_columns(conn, "components", COMPONENT_COLUMNS)
-        ensure_columns(conn, "history", HISTORY_COLUMNS)
+        create_schema(conn, "sqlite")
         conn.executemany("INSERT INTO meta VALUES (?, ?)", seed["meta"])
         for table in (COMPONENTS, MODEL_STATE, HISTORY):
             cols, rows = seed[table.name]
             if rows:
                 conn.executemany(f"INSERT INTO {table.name} ({', '.join(cols)}) VALUES "
                                  f"({', '.join('?' * len(cols))})", rows)
+        recount_levels(conn)
         conn.execute("COMMIT")
     finally:
         conn.close()
@@ -253,19 +255,13 @@ def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
     """One private database (``path``, default in ``tmp``) of every bucket's new rows
     (history of its ingestion, final states, learned states, alerts); (its path,
     acquisitions, components)."""
-    from rulkit.fleet.store.prognosis import COMPONENT_COLUMNS, HISTORY_COLUMNS, ensure_columns
-    from rulkit.fleet.store.schema import create_statements
-
     path = path or tmp / "all.db"
     conn = sqlite3.connect(str(path), isolation_level=None)
     n_rows = n_comp = 0
     try:
         conn.execute("PRAGMA journal_mode=OFF")
         conn.execute("PRAGMA synchronous=OFF")
-        for stmt in create_statements("sqlite"):
-            conn.execute(stmt)
-        ensure_columns(conn, "components", COMPONENT_COLUMNS)
-        ensure_columns(conn, "history", HISTORY_COLUMNS)
+        create_schema(conn, "sqlite")
         for k, (data, _) in enumerate(parts):
             f = tmp / f"b{k}.db"
             f.write_bytes(data)
@@ -328,6 +324,7 @@ def _copy_part(conn: sqlite3.Connection, ingest_id: int) -> list[Alert]:
     _copy(conn, "history", "", (ingest_id,), skip=("ingest",), set_ingest=True)
     _copy(conn, "components", replace=True)
     _copy(conn, "model_state", replace=True)
+    recount_levels(conn)
     return [_alert(r) for r in _copy(
         conn, "alerts", "ORDER BY id", skip=("id",),
         returning="id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "

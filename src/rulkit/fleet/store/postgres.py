@@ -36,16 +36,8 @@ import pandas as pd
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig
 from rulkit.fleet.store.database_file import SCHEMA_VERSION, StoreError
-from rulkit.fleet.store.prognosis import (
-    COMPONENT_COLUMNS,
-    HISTORY_COLUMNS,
-    ensure_columns,
-    monitoring_meta,
-    needs_upgrade,
-    read_monitoring,
-    upgrade,
-)
-from rulkit.fleet.store.schema import create_statements, migrate, needs_migration
+from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
+from rulkit.fleet.store.schema import create_schema, needs_migration
 from rulkit.fleet.store.sqlite import HISTORY_FIELDS, ComponentStore, HistoryChunk
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -134,10 +126,7 @@ class PgComponentStore(ComponentStore):
                 if "schema_version" not in meta:
                     if not create:
                         raise FileNotFoundError(f"{self.path}: not a rulkit component database")
-                    for stmt in create_statements("postgresql"):
-                        self._conn.execute(stmt)
-                    ensure_columns(self._conn, "components", COMPONENT_COLUMNS)
-                    ensure_columns(self._conn, "history", HISTORY_COLUMNS)
+                    create_schema(self._conn, "postgresql")
                     cfg = config or TrackerConfig()
                     rows = [("schema_version", str(SCHEMA_VERSION)),
                             ("tracker_config", json.dumps(cfg.to_dict())),
@@ -146,8 +135,6 @@ class PgComponentStore(ComponentStore):
                         rows.append(("hi_model", json.dumps(hi_model.to_dict())))
                     self._conn.executemany("INSERT INTO meta VALUES (?, ?)", rows)
                     meta = dict(rows)
-                elif needs_migration(self._conn, "postgresql"):
-                    migrate(self._conn, "postgresql")
             if int(meta["schema_version"]) != SCHEMA_VERSION:
                 raise StoreError(f"{self.path}: schema version {meta['schema_version']}, "
                                  f"this rulkit reads {SCHEMA_VERSION}")
@@ -175,7 +162,7 @@ class PgComponentStore(ComponentStore):
                                        (json.dumps(hi_model.to_dict()),))
                 self.hi_model = hi_model
             self.gains = self.config.gains()
-            if needs_upgrade(self._conn):  # a database written before the one-RUL columns
+            if needs_migration(self._conn, "postgresql"):  # written by an older rulkit
                 with self._transaction():
                     upgrade(self)
             if rules is not None and rules != self.rules:

@@ -16,7 +16,8 @@ The store keeps, beside the tracker chain's state (its 7 numbers, unchanged):
 A RUL not estimated yet is stored as median NULL with the vacuous interval [0, inf) (the
 columns ``rul_low`` / ``rul_high`` are NOT NULL); a failed component as 0 [0, 0].
 
-Every column here is added to a database written before them, in one transaction, with the
+The columns are defined with every other in :mod:`rulkit.fleet.store.schema`
+(``RUL_COLUMNS``); a database written before them gains them in one transaction, with the
 RUL columns of every component and history row replayed from the stored acquisitions
 (:func:`upgrade`, :func:`replay`); :func:`replay` also runs when a model is fitted or the rules
 change, so the table, the history and the charts always show one estimator.
@@ -33,7 +34,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rulkit.fleet.monitoring.estimators import Estimator, estimator_in_force
-from rulkit.fleet.monitoring.rules import MonitoringRules, RuleRows, RuleState, apply_rules
+from rulkit.fleet.monitoring.rules import (
+    MonitoringRules,
+    RuleRows,
+    RuleState,
+    apply_rules,
+    due_time,
+)
 from rulkit.fleet.monitoring.unit_trend import (
     SUM_NAMES,
     TrendConfig,
@@ -43,20 +50,13 @@ from rulkit.fleet.monitoring.unit_trend import (
     trend_run,
 )
 from rulkit.fleet.store.database_file import rows_of_components
+from rulkit.fleet.store.schema import RUL_COLUMNS, TREND_COLUMNS, migrate, recount_levels
 from rulkit.fleet.tracking.tracker_chain import LEVEL_ALARM, tracker_rul_interval
 
 if TYPE_CHECKING:
     from rulkit.fleet.store.acquisitions import Alert
 
 FloatArray = NDArray[np.float64]
-TREND_COLUMNS = tuple(f"tr_{k.lower()}" for k in SUM_NAMES)
-COMPONENT_COLUMNS = (("rul_median", "REAL"), ("hits", "INTEGER"), ("failed_at", "REAL"),
-                     ("seen", "REAL"), *((c, "REAL") for c in TREND_COLUMNS))
-"""Columns of ``components`` added for one RUL per component (name, SQLite type)."""
-HISTORY_COLUMNS = (("rul_median", "REAL"),)
-ALERT_COLUMNS = (("rul", "REAL"), ("reason", "TEXT"))
-"""Columns of the service's ``alerts`` table: the RUL median at the alert and why."""
-_PG_TYPES = {"REAL": "DOUBLE PRECISION", "INTEGER": "BIGINT", "TEXT": "TEXT"}
 META_KEY = "monitoring"
 REPLAY_ROWS = 200_000
 """History rows replayed at once (bounds the memory of :func:`replay`)."""
@@ -75,19 +75,6 @@ def table_columns(conn: Any, table: str) -> list[str]:
                             (table,)).fetchall()
         return [str(r[0]) for r in rows]
     return [str(r[1]) for r in conn.execute(f"PRAGMA table_info({table})").fetchall()]
-
-
-def ensure_columns(conn: Any, table: str, columns: tuple[tuple[str, str], ...]) -> list[str]:
-    """Add the missing ``columns`` (all nullable) to ``table``; returns the names added."""
-    have = set(table_columns(conn, table))
-    pg = _dialect(conn) == "postgresql"
-    added = []
-    for name, typ in columns:
-        if name not in have:
-            conn.execute(f"ALTER TABLE {table} ADD COLUMN {name} "
-                         f"{_PG_TYPES[typ] if pg else typ}")
-            added.append(name)
-    return added
 
 
 def read_monitoring(meta: dict[str, str]) -> tuple[MonitoringRules, TrendConfig]:
@@ -112,19 +99,20 @@ def write_monitoring(conn: Any, rules: MonitoringRules, trend: TrendConfig) -> N
 
 
 def needs_upgrade(conn: Any) -> bool:
-    """Whether the database lacks a column of this module (read, no lock taken)."""
+    """Whether the database lacks a column of one RUL per component
+    (:data:`~rulkit.fleet.store.schema.RUL_COLUMNS`; read, no lock taken)."""
     have = set(table_columns(conn, "components"))
-    return any(name not in have for name, _ in COMPONENT_COLUMNS) or any(
-        name not in set(table_columns(conn, "history")) for name, _ in HISTORY_COLUMNS)
+    return any(c.name not in have for c in RUL_COLUMNS)
 
 
 def upgrade(store: Any) -> bool:
-    """Inside the caller's transaction: add the columns of this module to a database written
-    without them, store the rules in force (the defaults) and replay its RUL columns
-    (:func:`replay`); returns whether it did."""
+    """Inside the caller's transaction: bring the database to the schema
+    (:func:`~rulkit.fleet.store.schema.migrate`); when that added the columns of one RUL per
+    component, store the rules in force (the defaults) and replay them (:func:`replay`).
+    Returns whether it replayed."""
     conn = store._conn
-    added = ensure_columns(conn, "components", COMPONENT_COLUMNS)
-    added += ensure_columns(conn, "history", HISTORY_COLUMNS)
+    added = needs_upgrade(conn)
+    migrate(conn, _dialect(conn))
     if added:
         if conn.execute("SELECT 1 FROM meta WHERE key = ?", (META_KEY,)).fetchone() is None:
             write_monitoring(conn, store.rules, store.trend)
@@ -229,18 +217,21 @@ class BatchPrognosis:
         self.seen[comps] = t[last] if self.calendar else self.now
         return BlockRows(rules=out, fhi=np.asarray(tracker_rows["fhi"]))
 
-    def finish(self) -> dict[str, Any]:
-        """The columns of :data:`COMPONENT_COLUMNS` plus ``rul_low``, ``rul_high``, ``level``
-        and ``max_level`` per component of the batch (lists, NaN as None, ready for SQL);
-        stores the fitted model's states."""
+    def finish(self, seen: FloatArray | None = None) -> dict[str, Any]:
+        """The columns of :data:`~rulkit.fleet.store.schema.RUL_COLUMNS` plus ``rul_low``,
+        ``rul_high``, ``level`` and ``max_level`` per component of the batch (lists, NaN as
+        None, ready for SQL); stores the fitted model's states. ``seen``: the calendar times
+        of the last acquisitions (default: this batch's)."""
         if self.learned is not None:
             self.learned.finish()
         med, low, high = stored_interval(self.final["rul_median"], self.final["rul_low"],
                                          self.final["rul_high"])
+        seen = self.seen if seen is None else seen
         cols: dict[str, Any] = {"rul_median": med, "rul_low": low, "rul_high": high,
                                 "level": self.level, "max_level": self.rule_state.max_level,
                                 "hits": self.rule_state.hits,
-                                "failed_at": self.rule_state.failed_at, "seen": self.seen}
+                                "failed_at": self.rule_state.failed_at, "seen": seen,
+                                "due": due_time(seen, med, self.est.time_unit)}
         for j, c in enumerate(TREND_COLUMNS):
             cols[c] = self.trend.s[:, j]
         return {k: _sql_list(v) for k, v in cols.items()}
@@ -315,6 +306,7 @@ def replay(store: Any) -> int:
         ensure_model_state(conn)
     for chunk in _chunks(names):
         _replay_chunk(store, chunk)
+    recount_levels(conn)
     return len(names)
 
 
@@ -340,8 +332,7 @@ def _replay_chunk(store: Any, names: list[str]) -> None:
         prog.learned.reset()
     seen = prog.seen.copy()
     out = prog.block(np.arange(b), seg, t, hi, {"fhi": fhi, "frul": frul}).rules
-    final = prog.finish()
-    final["seen"] = _sql_list(seen)
+    final = prog.finish(seen)
     med, low, high = stored_interval(out.median, out.low, out.high)
     conn.executemany(
         "UPDATE history SET rul_median = ?, rul_low = ?, rul_high = ?, level = ? "
@@ -355,15 +346,11 @@ def _replay_chunk(store: Any, names: list[str]) -> None:
 
 
 __all__ = [
-    "ALERT_COLUMNS",
-    "COMPONENT_COLUMNS",
-    "HISTORY_COLUMNS",
     "META_KEY",
     "BatchPrognosis",
     "BlockRows",
     "block_alerts",
     "current_estimator",
-    "ensure_columns",
     "monitoring_meta",
     "needs_upgrade",
     "read_monitoring",

@@ -14,11 +14,14 @@ Tables:
 * ``ingests``: one row per committed ingestion (audit);
 * ``alerts``: every alert an ingestion raised, with its acknowledgement;
 * ``api_tokens``: the service's tokens (SHA-256 only);
-* ``model_state``: the learned model's per-component state (``rulkit fit``).
+* ``model_state``: the learned model's per-component state (``rulkit fit``);
+* ``level_counts``: components per alert level (the totals of the fleet view's pages).
 
-The columns of one RUL per component and of the alert rules (``rul_median``, ``failed_at``,
-``seen``, the trend sums; the alerts' ``rul`` and ``reason``) are added by
-:mod:`rulkit.fleet.store.prognosis` (``ensure_columns``).
+The columns of one RUL per component and of the alert rules (:data:`RUL_COLUMNS`:
+``rul_median``, ``hits``, ``failed_at``, ``seen``, the trend sums; the history's
+``rul_median``; the alerts' ``rul`` and ``reason``) are nullable, so a database written before
+them gains them by :func:`migrate` (:func:`rulkit.fleet.store.prognosis.upgrade` then replays
+their values).
 
 Text keys compare in code-point order on both backends (``COLLATE "C"`` on PostgreSQL,
 SQLite's ``BINARY``), so pages and blocks come out in the same order.
@@ -28,6 +31,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
+
+from rulkit.fleet.monitoring.unit_trend import SUM_NAMES
 
 _TYPES = {
     # kind: (SQLite, PostgreSQL)
@@ -95,14 +102,38 @@ def _cols(names: str, kind: str = "real", null: bool = False) -> tuple[Column, .
 _STATE = _cols("hi fhi dhi rul frul drul d2rul")
 _OUTPUTS = (Column("valid", "bool"), Column("level", "small"), *_cols("rul_low rul_high"))
 
+TREND_COLUMNS = tuple(f"tr_{k.lower()}" for k in SUM_NAMES)
+"""The trend estimator's sums per component (:mod:`rulkit.fleet.monitoring.unit_trend`)."""
+RUL_COLUMNS = (Column("rul_median", "real", True), Column("hits", "int", True),
+               Column("failed_at", "real", True), Column("seen", "real", True),
+               *_cols(" ".join(TREND_COLUMNS), null=True), Column("due", "real", True))
+"""The columns of ``components`` for one RUL per component and the alert rules
+(:mod:`rulkit.fleet.store.prognosis`, docs/systems/embedded-rul.md §6-7): ``due`` is the
+calendar time the RUL median runs out (NULL when unknown or when the time unit is not a
+duration)."""
+RUL_KEY = "COALESCE(rul_median, 1e308)"
+"""The RUL order's key (unknown last), as the list's queries and indexes write it."""
+DUE_KEY = "COALESCE(due, 1e308)"
+"""The due-date order's key (unknown last)."""
+
 META = Table("meta", (Column("key", "key"), Column("value", "text")), ("key",))
 COMPONENTS = Table(
     "components",
     (Column("component", "key"), Column("t", "real"), Column("n", "int"), *_STATE, *_OUTPUTS,
-     Column("max_level", "small")),
+     Column("max_level", "small"), *RUL_COLUMNS),
     ("component",),
-    # the list's order indexes are the fleet view's (rulkit.fleet.service.fleet_view.INDEXES)
+    # the orders and filters of the fleet view's pages, each an index range
+    # (rulkit.fleet.service.fleet_view); the level filter of the RUL order uses the first
+    indexes=(("components_worst", f"level DESC, {RUL_KEY}, component"),
+             ("components_rul", f"{RUL_KEY}, component"),
+             ("components_due", f"{DUE_KEY}, component"),
+             ("components_level_due", f"level, {DUE_KEY}, component"),
+             ("components_seen", "seen, component")),
 )
+LEVEL_COUNTS = Table("level_counts", (Column("level", "small"), Column("n", "int")),
+                     ("level",))
+"""Components per alert level, kept by every write of ``components`` (a page's total without
+counting the table)."""
 HISTORY = Table(
     "history",
     (Column("component", "key"), Column("t", "real"), *_STATE, *_OUTPUTS,
@@ -133,12 +164,18 @@ MODEL_STATE = Table(
     (Column("component", "key"), *_cols("m_z m_b p_zz p_zb p_bb t hi"), Column("n", "int")),
     ("component",),
 )
-TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE)
+TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE, LEVEL_COUNTS)
+DROPPED_INDEXES = ("components_rank",)
+"""Indexes of older versions that no read uses any more (dropped by :func:`migrate`)."""
 
 
-def create_statements(dialect: str) -> list[str]:
-    """Every ``CREATE`` of a new database in ``dialect``."""
-    return [stmt for table in TABLES for stmt in table.create(dialect)]
+def create_schema(conn: Any, dialect: str) -> None:
+    """Inside the caller's transaction: every table and index of a new database in
+    ``dialect``, and its (zero) counts per level."""
+    for table in TABLES:
+        for stmt in table.create(dialect):
+            conn.execute(stmt)
+    recount_levels(conn)
 
 
 def _existing_columns(conn: Any, dialect: str, table: str) -> list[str]:
@@ -164,6 +201,35 @@ def migrate(conn: Any, dialect: str) -> None:
                     conn.execute(f"ALTER TABLE {table.name} ADD COLUMN {col.sql(dialect)}")
         for stmt in table.create(dialect):
             conn.execute(stmt)
+    for name in DROPPED_INDEXES:
+        conn.execute(f"DROP INDEX IF EXISTS {name}")
+    if not level_counts_valid(conn):
+        recount_levels(conn)
+
+
+def level_counts_valid(conn: Any) -> bool:
+    """Whether table ``level_counts`` holds one row per level (it is filled at creation;
+    an older database gains it by :func:`migrate`)."""
+    return int(conn.execute("SELECT COUNT(*) FROM level_counts").fetchone()[0]) == 3
+
+
+def recount_levels(conn: Any) -> None:
+    """Inside the caller's write transaction: table ``level_counts`` counted from
+    ``components`` (after a replay or a merge rewrote many levels)."""
+    counts = dict.fromkeys(range(3), 0)
+    for level, n in conn.execute("SELECT level, COUNT(*) FROM components GROUP BY level"):
+        counts[int(level)] = int(n)
+    conn.execute("DELETE FROM level_counts")
+    conn.executemany("INSERT INTO level_counts (level, n) VALUES (?, ?)", list(counts.items()))
+
+
+def add_level_counts(conn: Any, old: Any, new: Any) -> None:
+    """Inside the caller's write transaction: ``level_counts`` moved by components leaving
+    the levels ``old`` (their stored levels; new components have none) for ``new``."""
+    delta = (np.bincount(np.asarray(new, dtype=np.int64), minlength=3)
+             - np.bincount(np.asarray(old, dtype=np.int64), minlength=3))
+    conn.executemany("UPDATE level_counts SET n = n + ? WHERE level = ?",
+                     [(int(d), lv) for lv, d in enumerate(delta.tolist()) if d])
 
 
 def needs_migration(conn: Any, dialect: str) -> bool:
@@ -172,4 +238,4 @@ def needs_migration(conn: Any, dialect: str) -> bool:
         have = _existing_columns(conn, dialect, table.name)
         if not have or any(c.name not in have for c in table.columns):
             return True
-    return False
+    return not level_counts_valid(conn)

@@ -87,20 +87,16 @@ from rulkit.fleet.store.database_file import (
     store_error,
 )
 from rulkit.fleet.store.prognosis import (
-    COMPONENT_COLUMNS,
-    HISTORY_COLUMNS,
     BatchPrognosis,
     block_alerts,
-    ensure_columns,
     monitoring_meta,
-    needs_upgrade,
     read_monitoring,
     replay,
     stored_interval,
     upgrade,
     write_monitoring,
 )
-from rulkit.fleet.store.schema import create_statements, migrate, needs_migration
+from rulkit.fleet.store.schema import add_level_counts, create_schema, needs_migration
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
@@ -167,11 +163,8 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             conn.execute("PRAGMA journal_mode=MEMORY")
             conn.execute("PRAGMA synchronous=OFF")
             conn.execute("BEGIN IMMEDIATE")
-            for stmt in create_statements("sqlite"):
-                conn.execute(stmt)
+            create_schema(conn, "sqlite")
             conn.executemany("INSERT INTO meta VALUES (?, ?)", _meta_rows(config, hi_model))
-            ensure_columns(conn, "components", COMPONENT_COLUMNS)
-            ensure_columns(conn, "history", HISTORY_COLUMNS)
             conn.execute("INSERT INTO meta VALUES (?, ?)",
                          monitoring_meta(rules or MonitoringRules(), TrendConfig()))
             conn.execute("COMMIT")
@@ -367,26 +360,22 @@ class ComponentStore:
             raise
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
-        if not readonly and needs_migration(conn, "sqlite"):
-            try:
-                with self._transaction("IMMEDIATE"):
-                    migrate(conn, "sqlite")
-            except BaseException:
-                conn.close()
-                raise
-        self.degradation = _degradation_from_meta(self.path, meta)
         try:
+            self.degradation = _degradation_from_meta(self.path, meta)
             self.rules, self.trend = read_monitoring(meta)
         except (ValueError, TypeError, KeyError) as err:
             conn.close()
             raise StoreError(f"{self.path}: unreadable monitoring rules in table meta: "
                              f"{safe_text(err)}") from err
-        if not readonly and needs_upgrade(self._conn):
-            try:  # a database written before the one-RUL columns
-                with self._transaction():
+        except BaseException:
+            conn.close()
+            raise
+        if not readonly and needs_migration(conn, "sqlite"):
+            try:  # a database written by an older rulkit: new tables, columns, replayed RULs
+                with self._transaction("IMMEDIATE"):
                     upgrade(self)
             except BaseException:
-                self._conn.close()
+                conn.close()
                 raise
         if rules is not None and rules != self.rules and not readonly:
             self.set_rules(rules)
@@ -816,6 +805,8 @@ class ComponentStore:
         rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
         rows += list(extra.values())
         self._write_states(list(zip(*rows, strict=True)), tuple(extra))
+        lv = ROW_FIELDS.index("level")
+        add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
 

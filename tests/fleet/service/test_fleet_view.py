@@ -1,0 +1,135 @@
+"""Pages of the component list by keyset cursor, on both backends: walking the cursors visits
+every component once, in the order a Python sort of the whole table gives, for every sort and
+level filter the API offers; each part of a page's query is an index range; the totals kept
+in ``level_counts`` equal a count of the table."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rulkit.fleet.monitoring.rules import MonitoringRules, due_time
+from rulkit.fleet.service.fleet_view import SORTS, CursorError, page_query
+from rulkit.fleet.store.prognosis import current_estimator
+
+NOW = 1.8e9  # calendar time of the second batch (seconds since 1970)
+
+
+def fleet(sdb, n=90):
+    """``n`` components with every level, unknown RULs and failed ones (ties on the key), two ingestion
+    times (the first batch's components stale at ``NOW``), hours as the time unit."""
+    with sdb.store() as s:
+        s.set_rules(MonitoringRules(time_unit="h", lead_time=30.0, alarm_hi=0.9,
+                                    stale_after=3600.0))
+    rng = np.random.default_rng(5)
+    t = np.arange(12.0)
+    rate = rng.uniform(0.0, 0.2, n)
+    hi = np.minimum(0.2 + np.outer(rate, t), 1.2)
+    names = [f"c{i:03d}" for i in range(n)]
+    df = pd.DataFrame({"component": np.repeat(names, t.size), "time": np.tile(t, n),
+                       "hi": hi.ravel()})
+    df = df[~df["component"].isin(names[3::11]) | (df["time"] == 0.0)]  # one: RUL unknown
+    half = df["component"] < f"c{n // 2:03d}"
+    sdb.ingest(df[half], "old", now=NOW - 7200.0)
+    sdb.ingest(df[~half], "new", now=NOW)
+
+
+def table(sdb):
+    with sdb.store() as s, s.snapshot() as conn:
+        cols = ["component", "level", "rul_median", "seen", "due"]
+        rows = conn.execute(f"SELECT {', '.join(cols)} FROM components").fetchall()
+        return pd.DataFrame(rows, columns=cols), current_estimator(s)
+
+
+def expected(df, sort, level):
+    """The order by a Python sort of every row (unknown keys last, then the id)."""
+    if level == "stale":
+        df = df[df["seen"] < NOW - 3600.0]
+    elif level is not None:
+        df = df[df["level"] == {"ok": 0, "warning": 1, "alarm": 2}[level]]
+    due = due_time(df["seen"].to_numpy(), df["rul_median"].to_numpy(dtype=float), "h")
+    rul = df["rul_median"].to_numpy(dtype=float)
+    rows = list(zip(df["level"], np.where(np.isnan(rul), np.inf, rul),
+                    np.where(np.isnan(due), np.inf, due), df["component"], strict=True))
+    if sort == "worst":
+        rows.sort(key=lambda r: (-r[0], r[1], r[3]))
+    else:
+        rows.sort(key=lambda r: (r[1] if sort == "rul" else r[2], r[3]))
+    return [r[3] for r in rows]
+
+
+@pytest.mark.parametrize("level", [None, "ok", "alarm", "stale"])
+def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level):
+    fleet(sdb)
+    df, _ = table(sdb)
+    assert set(df["level"]) == {0, 1, 2} and df["rul_median"].isna().any()
+    assert np.array_equal(df["due"].isna(), df["rul_median"].isna())  # the stored due
+    for sort in SORTS:
+        want = expected(df, sort, level)
+        got, after = [], None
+        while True:
+            total, items, after = sdb.components(limit=8, level=level, sort=sort,
+                                                 after=after, now=NOW)
+            assert total == len(want)
+            got += [i["component"] for i in items]
+            if after is None:
+                break
+        assert got == want, (sort, level)
+        # offset after a cursor skips rows of the same order
+        _, first, cur = sdb.components(limit=3, level=level, sort=sort, now=NOW)
+        if cur is not None:
+            _, skipped, _ = sdb.components(limit=2, offset=2, level=level, sort=sort,
+                                           after=cur, now=NOW)
+            assert [i["component"] for i in skipped] == want[5:7]
+
+
+def test_a_cursor_of_another_sort_or_forged_is_refused(sdb):
+    fleet(sdb, 20)
+    _, _, cur = sdb.components(limit=5, sort="rul", now=NOW)
+    for bad in (cur, "bm90IGEgY3Vyc29y", "!!", ""):
+        with pytest.raises(CursorError, match="cursor"):
+            sdb.components(limit=5, sort="due", after=bad, now=NOW)
+
+
+@pytest.mark.parametrize("level", [None, "ok", "stale"])
+@pytest.mark.parametrize("sort", list(SORTS))
+def test_a_keyset_page_seeks_an_index(sdb, sort, level):
+    """Every part of a page's query reads an index range (SQLite: SEARCH or a walk of an
+    order's index that stops after the page; PostgreSQL: an index scan), never a sort of
+    the table."""
+    fleet(sdb, 30)
+    _, est = table(sdb)
+    sql, params = page_query(sort, level, est, NOW, [1, 5.0, "c010"], 50)
+    with sdb.store() as s, s.snapshot() as conn:
+        if sdb.dialect == "sqlite":
+            plan = [r[3] for r in conn.execute("EXPLAIN QUERY PLAN " + sql, params)]
+            reads = [p for p in plan if p.startswith(("SCAN components", "SEARCH components"))]
+            assert reads and all("INDEX" in p for p in reads), plan
+            assert level == "stale" or all(p.startswith("SEARCH") for p in reads), plan
+        else:
+            conn.execute("SET LOCAL enable_seqscan = off")
+            plan = " ".join(r[0] for r in conn.execute("EXPLAIN " + sql, params).fetchall())
+            assert "Index" in plan and "Seq Scan" not in plan, plan
+
+
+def test_level_counts_follow_every_write(sdb):
+    fleet(sdb, 40)
+
+    def counts():
+        with sdb.store() as s, s.snapshot() as conn:
+            kept = dict(conn.execute("SELECT level, n FROM level_counts").fetchall())
+            real = dict(conn.execute("SELECT level, COUNT(*) FROM components "
+                                     "GROUP BY level").fetchall())
+        return {k: v for k, v in kept.items() if v}, real
+
+    kept, real = counts()
+    assert kept == real and len(real) == 3
+    # more acquisitions move components between levels; a rules change replays them all
+    more = pd.DataFrame({"component": [f"c{i:03d}" for i in range(40)], "time": 20.0,
+                         "hi": np.linspace(0.1, 1.1, 40)})
+    sdb.ingest(more, "more", now=NOW)
+    kept2, real2 = counts()
+    assert kept2 == real2 and real2 != real
+    with sdb.store() as s:
+        s.set_rules(MonitoringRules(time_unit="h", alarm_hi=0.5))
+    kept3, real3 = counts()
+    assert kept3 == real3 and real3 != real2
