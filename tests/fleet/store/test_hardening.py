@@ -83,20 +83,30 @@ def test_rejected_ingest_does_not_store_the_baseline_model(tmp_path):
 
 
 # ------------------------------------------------------------------ item 4
+# A writer that finds the database busy past its timeout is told "nothing was written,
+# retry" (StoreBusyError): a legal outcome on a loaded machine, so the worker retries as a user
+# would; how long a wait takes is not what this test is about. Anything else is a failure.
 _WORKER = """
 import json, sys
 import pandas as pd
+from rulkit.fleet.store.database_file import StoreBusyError
 from rulkit.fleet.store.sqlite import ingest_into
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 db, k = sys.argv[1], int(sys.argv[2])
 rows = [(f"p{k}-{i}", float(t), 0.3) for i in range(100) for t in range(10)]
 df = pd.DataFrame(rows, columns=["component", "time", "hi"])
-try:
-    res, created = ingest_into(db, df, config=TrackerConfig(dt=1.0), source=f"w{k}",
-                               timeout=120.0)
-    print(json.dumps(["ok", bool(created), res.n_rows]))
-except Exception as err:
-    print(json.dumps(["err", type(err).__name__, str(err)]))
+busy = 0
+while True:
+    try:
+        res, created = ingest_into(db, df, config=TrackerConfig(dt=1.0), source=f"w{k}",
+                                   timeout=5.0)
+        print(json.dumps(["ok", bool(created), res.n_rows, busy]))
+        break
+    except StoreBusyError:
+        busy += 1
+    except Exception as err:
+        print(json.dumps(["err", type(err).__name__, str(err)]))
+        break
 """
 
 
@@ -106,10 +116,12 @@ def test_concurrent_first_ingests_create_one_complete_database(tmp_path):
     for trial in range(3):
         db = tmp_path / f"c{trial}.db"
         procs = [subprocess.Popen([sys.executable, "-c", _WORKER, str(db), str(k)],
-                                  stdout=subprocess.PIPE, text=True) for k in range(4)]
-        out = [json.loads(p.communicate(timeout=300)[0].strip().splitlines()[-1])
-               for p in procs]
-        assert all(o[0] == "ok" for o in out), out
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                 for k in range(4)]
+        done = [p.communicate(timeout=600) for p in procs]  # a hang guard only
+        out = [json.loads((o.strip().splitlines() or ["[\"no output\"]"])[-1])
+               for o, _ in done]
+        assert all(o[0] == "ok" for o in out), (out, [e[-2000:] for _, e in done])
         assert sum(o[1] for o in out) == 1  # exactly one process created the database
         with ComponentStore(db, readonly=True) as s:
             assert s.counts() == (400, 4000, 4000)

@@ -233,11 +233,12 @@ def read_verified(path: Path, timeout: float, read: Callable[[sqlite3.Connection
     raise StoreBusyError(f"{path}: the database kept changing while it was read; retry")
 
 
-def _probe(path: Path) -> dict[str, str] | None:
+def _probe(path: Path, timeout: float = 30.0) -> dict[str, str] | None:
     """The checked ``meta`` of the rulkit database at ``path``, ``None`` if there is no file
-    (:func:`read_verified`: read-only, through SQLite)."""
+    (:func:`read_verified`: read-only, through SQLite; waits up to ``timeout`` seconds for a
+    writer's lock)."""
     try:
-        return read_verified(path, 30.0, _read_meta)
+        return read_verified(path, timeout, _read_meta)
     except FileNotFoundError:
         return None
 

@@ -265,7 +265,7 @@ def ingest_into(
     """
     path = Path(path)
     for _attempt in range(2):
-        meta = _probe(path)
+        meta = _probe(path, timeout)
         if meta is None:
             cfg = config or TrackerConfig()
             acq = validate_acquisitions(df, cfg, hi_model)
