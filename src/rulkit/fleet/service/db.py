@@ -252,7 +252,7 @@ class ServiceDB:
                 i = int(np.flatnonzero(has_nul)[0])
                 raise IngestError(f"row {i + 1}: the component name contains a NUL character")
         with self.writing() as s:
-            acq = validate_acquisitions(df, s.config, s.hi_model)
+            acq = validate_acquisitions(df, s.config, s.hi_model, getattr(s, "time_axis", None))
             with s._transaction("IMMEDIATE") as conn:
                 acq, n_dup = _drop_duplicates(conn, acq)
                 if len(acq):

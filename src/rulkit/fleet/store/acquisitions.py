@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rulkit.fleet.time_axis import INSTALLED_COLUMN, TimeAxis, TimeAxisError
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
@@ -142,15 +143,21 @@ def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
 
 
 def validate_acquisitions(
-    df: pd.DataFrame, config: TrackerConfig, hi_model: HealthIndexModel | None
+    df: pd.DataFrame, config: TrackerConfig, hi_model: HealthIndexModel | None,
+    time_axis: TimeAxis | None = None,
 ) -> pd.DataFrame:
-    """Check a batch and return it as columns ``component`` (str), ``t``, ``hi``, ``row``.
+    """Check a batch and return it as columns ``component`` (str), ``t``, ``hi``, ``row``
+    (and ``installed`` when the time axis counts ages from it).
 
     ``row`` is the 1-based data row (header excluded) used in error messages. Expected columns:
     ``component``, ``time`` and either ``hi`` or exactly the CI columns of the stored
     HI model. Rejected with :class:`IngestError`: an empty batch, missing / unknown / ambiguous
     columns, an empty component name, non-numeric / NaN / infinite values, HI outside
     [0, hi_max], and time not strictly increasing for a component (unsorted or duplicated).
+    ``time_axis`` (stored by ``rulkit fit``): the time column is read on it
+    (:meth:`~rulkit.fleet.time_axis.TimeAxis.values`: date-times converted into its unit, and
+    refused where numbers were fitted, or the reverse); without one, date-times are seconds
+    since 1970 and numbers are taken as they are.
     """
     if len(df) == 0:
         raise IngestError("the batch holds no acquisitions (0 rows)")
@@ -164,7 +171,12 @@ def validate_acquisitions(
     if missing:
         raise IngestError(f"missing required column(s) {missing}; got {cols}")
     ci_names = list(hi_model.names) if hi_model is not None else []
-    value_cols = [c for c in cols if c not in ("component", "time")]
+    installed = time_axis is not None and time_axis.origin == "installed"
+    if installed and INSTALLED_COLUMN not in cols:
+        raise IngestError(f"missing column {INSTALLED_COLUMN!r}: the database's model counts "
+                          "each component's age from its install time")
+    value_cols = [c for c in cols if c not in ("component", "time")
+                  and not (installed and c == INSTALLED_COLUMN)]
     if "hi" in value_cols:
         extra = [c for c in value_cols if c != "hi"]
         if extra:
@@ -196,10 +208,21 @@ def validate_acquisitions(
             f" or the CI columns {ci_names}" if ci_names else ""))
 
     df["component"] = check_component_ids(df["component"])
-    t = time_seconds(df["time"], "time", error=IngestError,
-                     row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
-    if t is None:
-        t = _numeric_column(df, "time")
+    label = lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})"  # noqa: E731
+    inst = None
+    t: np.ndarray | None
+    if time_axis is not None:
+        try:
+            t = time_axis.values(df["time"], "time", "batch", row_label=label)
+            if installed:
+                inst = time_axis.values(df[INSTALLED_COLUMN], INSTALLED_COLUMN, "batch",
+                                        row_label=label)
+        except TimeAxisError as err:
+            raise IngestError(str(err).removeprefix("batch: ")) from err
+    else:
+        t = time_seconds(df["time"], "time", error=IngestError, row_label=label)
+        if t is None:
+            t = _numeric_column(df, "time")
     if mode == "hi":
         hi = _numeric_column(df, "hi")
         source = "hi"
@@ -220,6 +243,8 @@ def validate_acquisitions(
                         "row": np.arange(1, len(df) + 1,
                                          dtype=np.int32 if len(df) < 2**31 - 1 else np.int64)},
                        copy=False)  # no 2M-row copies
+    if inst is not None:
+        out["installed"] = inst
     # time strictly increasing per component, in file order
     codes = np.asarray(comp.cat.codes)
     prev_t = pd.Series(t).groupby(codes, sort=False).shift(1).to_numpy()

@@ -160,6 +160,7 @@ class PgComponentStore(ComponentStore):
             self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
                              if "hi_model" in meta else None)
             self.degradation = None
+            self.time_axis = None  # rulkit fit (which stores one) is SQLite's
             if "degradation_model" in meta:
                 raise StoreError(f"{self.path}: holds a learned degradation model (rulkit "
                                  "fit), which the PostgreSQL backend does not support yet")

@@ -79,6 +79,7 @@ from rulkit.fleet.store.database_file import (
     _probe,
     _read_meta,
     _store_error,
+    time_axis_from_meta,
 )
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
@@ -240,7 +241,8 @@ def ingest_into(
             if hi_model is not None and stored_model is not None and (
                     hi_model.to_dict() != stored_model.to_dict()):
                 raise StoreError(f"{path} already holds a different HI model")
-            acq = validate_acquisitions(df, store.config, stored_model or hi_model)
+            acq = validate_acquisitions(df, store.config, stored_model or hi_model,
+                                        store.time_axis)
             new_model = hi_model if stored_model is None else None
             return store._ingest_validated(acq, source, new_model=new_model), False
     raise AssertionError("unreachable: the database exists after a lost creation race")
@@ -323,6 +325,7 @@ class ComponentStore:
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
         self.degradation = _degradation_from_meta(self.path, meta)
+        self.time_axis = time_axis_from_meta(self.path, meta)
         if hi_model is not None and stored_model is None:
             try:
                 with self._transaction():
@@ -343,6 +346,7 @@ class ComponentStore:
         self.readonly = False
         self.gains = config.gains()
         self.degradation = None  # learned model (rulkit fit), set from meta by __init__
+        self.time_axis = None  # the time axis rulkit fit stored, set from meta by __init__
 
     # -- plumbing
     def close(self) -> None:
@@ -485,7 +489,7 @@ class ComponentStore:
         committed result with the new alerts (:class:`Alert`). Raises :class:`IngestError`
         (database unchanged) on bad input.
         """
-        acq = validate_acquisitions(df, self.config, self.hi_model)
+        acq = validate_acquisitions(df, self.config, self.hi_model, self.time_axis)
         return self._ingest_validated(acq, source)
 
     def _ingest_validated(self, acq: pd.DataFrame, source: str,
@@ -580,7 +584,12 @@ class ComponentStore:
 
             fcodes = codes.astype(np.int64)
             rank = pd.Series(fcodes).groupby(fcodes, sort=False).cumcount().to_numpy()
-            learned = LearnedPass(self._conn, self.degradation, names)
+            inst = None
+            if "installed" in acq:  # each component's install time (its first row's)
+                first_rows = acq.drop_duplicates("component")
+                inst = dict(zip(first_rows["component"].astype(str),
+                                first_rows["installed"].astype(float), strict=True))
+            learned = LearnedPass(self._conn, self.degradation, names, inst)
             learned_cols = np.full((3, n), np.nan)
             for r in range(int(rank.max()) + 1):
                 sel = np.flatnonzero(rank == r)
@@ -725,16 +734,66 @@ class ComponentStore:
         )
 
     def set_degradation_model(self, model: Any) -> int:
-        """Store a learned model (:mod:`rulkit.fleet.learned.degradation`) in one transaction:
-        meta ``degradation_model``, the additive migration (history column ``rul_median``,
-        table ``model_state``) and every existing component's model state rebuilt by replaying
-        its stored history. Returns the number of components rebuilt."""
-        from rulkit.fleet.store.learned_state import install_model
+        """Store a learned model (:mod:`rulkit.fleet.learned.candidates`) in one transaction:
+        meta ``degradation_model`` and ``time_axis``, the additive migration (history column
+        ``rul_median``, table ``model_state``) and every existing component's model state
+        rebuilt by replaying its stored history. Returns the number of components rebuilt.
+        Refused (:class:`StoreError`) when the stored history was read on another time axis
+        (:meth:`check_time_axis`)."""
+        from rulkit.fleet.store.learned_state import install_model, model_axis
 
+        axis = model_axis(model)
         with self._transaction("IMMEDIATE"):
-            n = install_model(self._conn, model)
+            self._check_time_axis(axis)
+            try:
+                n = install_model(self._conn, model)
+            except ValueError as err:
+                raise StoreError(f"{self.path}: {err}") from err
         self.degradation = model
+        self.time_axis = axis
         return n
+
+    def _check_time_axis(self, axis: Any) -> None:
+        """Inside a transaction: refuse a time axis other than the stored one (or, for a
+        database from before time axes were stored, one with date-times) while components
+        are stored, since their times were read on the old axis."""
+        n = self._conn.execute("SELECT COUNT(*) FROM components").fetchone()[0]
+        if n == 0:
+            return
+        stored = self.time_axis
+        if stored is not None and stored != axis:
+            raise StoreError(
+                f"{self.path}: holds {n} components whose times were read as "
+                f"'{stored.describe()}', not '{axis.describe()}'; fit with the same time "
+                "column and --time-unit, or into a new database")
+        if stored is None and axis.timestamps:
+            raise StoreError(
+                f"{self.path}: holds {n} components tracked before a time axis was stored "
+                "(date-times then became seconds since 1970); a model fitted on date-times in "
+                f"{axis.label()} cannot continue them: fit it into a new database")
+
+    def set_tracker_config(self, config: TrackerConfig, axis: Any) -> None:
+        """Replace the tracker settings (and store the time axis they were fitted on) of a
+        database without components (:class:`StoreError` otherwise: the trackers' state is
+        only meaningful with the settings it was run with)."""
+        with self._transaction("IMMEDIATE"):
+            n = self._conn.execute("SELECT COUNT(*) FROM components").fetchone()[0]
+            if n:
+                raise StoreError(
+                    f"{self.path}: holds {n} components tracked with the stored tracker "
+                    "settings, which are fixed once a component is tracked; fit the tracker "
+                    "before the first 'rulkit track', or into a new database")
+            self._check_time_axis(axis)
+            if self.time_axis is not None and self.time_axis != axis:
+                raise StoreError(
+                    f"{self.path}: its learned model reads time as '{self.time_axis.describe()}'"
+                    f", the tracker histories as '{axis.describe()}'; fit both from histories "
+                    "with the same time column and --time-unit")
+            self._conn.execute("INSERT OR REPLACE INTO meta VALUES ('tracker_config', ?)",
+                               (json.dumps(config.to_dict()),))
+            self._conn.execute("INSERT OR REPLACE INTO meta VALUES ('time_axis', ?)",
+                               (json.dumps(axis.to_dict()),))
+        self.config, self.gains, self.time_axis = config, config.gains(), axis
 
     def meta(self) -> dict[str, Any]:
         """The stored configuration (tracker config and HI model as dicts)."""
