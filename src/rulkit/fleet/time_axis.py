@@ -93,6 +93,7 @@ class TimeAxis:
                 f"converted to {self.label()}; give date-times (ISO 8601) as when fitted")
         if secs is not None:
             return secs / self.seconds_per_unit
+        _mostly_dates(col, name, prefix, row_label)
         frame = pd.DataFrame({name: pd.Series(col).reset_index(drop=True)})
         return numeric_columns(frame, [name], error=TimeAxisError, source=where, **kw)[name]
 
@@ -104,6 +105,25 @@ class TimeAxis:
     def from_dict(cls, d: dict[str, Any] | None) -> TimeAxis:
         """Inverse of :meth:`to_dict` (None or empty: the default axis)."""
         return cls() if not d else cls(**d)
+
+
+_DATE = r"^\s*\d{4}-\d{2}-\d{2}"
+
+
+def _mostly_dates(col: Any, name: str, prefix: str, row_label: Any) -> None:
+    """A text column whose cells are mostly date-times but not all: name the first other
+    cell (instead of calling every date 'not a number')."""
+    import pandas as pd
+
+    s = pd.Series(col).reset_index(drop=True)
+    if not (s.dtype == object or pd.api.types.is_string_dtype(s.dtype)):
+        return
+    is_date = s.astype(str).str.match(_DATE).to_numpy()
+    if is_date.mean() > 0.5 and not is_date.all():
+        i = int(np.flatnonzero(~is_date)[0])
+        where = row_label(i) if row_label is not None else f"row {i + 1}"
+        raise TimeAxisError(f"{prefix}column {name!r}, {where}: {s.iloc[i]!r} is not a "
+                            "date-time (ISO 8601), as the column's other cells are")
 
 
 def infer_axis(col: Any, *, unit: str = "", origin: str | None = None,

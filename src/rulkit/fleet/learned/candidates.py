@@ -8,19 +8,20 @@ for censored mass, 0 once the measured hi >= 1, NaN before a first acquisition) 
 ``rul_cdf(state, r)``, its ``warnings``, ``time_unit`` and ``time_axis``. So one ``status`` row
 shows the median and interval of one distribution whatever the candidate.
 
-=====================  ==========================================================
-name                   model
-=====================  ==========================================================
-``paris``              Box-Cox growth, noise on the growth (log-like) scale: eq. (1)
-``paris-additive``     Box-Cox growth, additive HI noise: eq. (7)
-``paris-mixed``        Box-Cox growth, both noise scales: eq. (7)
-``paris-additive-iid`` ``paris-additive`` without the random walk (independent errors)
-``onset``              flat until a per-unit onset, then ``paris-additive``: eq. (9)
-``similarity``         nearest failed trajectories: eq. (12)
-``regression``         each unit's own recent trend: eq. (11)
-``linear``             linear growth, noise on the HI scale: eq. (1)
-``exponential``        ln(hi - phi) growth: eq. (1)
-=====================  ==========================================================
+========================  =======================================================
+name                      model
+========================  =======================================================
+``paris``                 Box-Cox growth, noise on the growth (log-like) scale: eq. (1)
+``paris-additive``        Box-Cox growth, additive HI noise: eq. (7)
+``paris-multiplicative``  Box-Cox growth, multiplicative HI noise (log scale): eq. (7)
+``paris-mixed``           Box-Cox growth, additive and multiplicative noise: eq. (7)
+``paris-additive-iid``    ``paris-additive`` without the random walk (independent errors)
+``onset``                 flat until a per-unit onset, then ``paris-additive``: eq. (9)
+``similarity``            nearest failed trajectories: eq. (12)
+``regression``            each unit's own recent trend: eq. (11)
+``linear``                linear growth, noise on the HI scale: eq. (1)
+``exponential``           ln(hi - phi) growth: eq. (1)
+========================  =======================================================
 
 :data:`AUTO_CANDIDATES` are the ones ``rulkit fit`` compares by default.
 """
@@ -34,8 +35,8 @@ import numpy as np
 
 from rulkit.fleet.learned.histories import Histories
 
-AUTO_CANDIDATES = ("paris", "paris-additive", "paris-mixed", "onset", "similarity",
-                   "regression")
+AUTO_CANDIDATES = ("paris", "paris-additive", "paris-multiplicative", "paris-mixed", "onset",
+                   "similarity", "regression")
 """Compared by ``rulkit fit`` unless ``--model`` names others."""
 ALL_CANDIDATES = (*AUTO_CANDIDATES, "paris-additive-iid", "linear", "exponential")
 """Every name ``--model`` accepts (besides ``auto``, ``all`` and ``tracker``)."""

@@ -145,7 +145,7 @@ _BOUND_TEXT = {
     "onset": ("the onset prior sits at an end of its grid: onsets are earlier or later than "
               "the observed ages allow; the onset candidate may not suit this fleet"),
 }
-_BOUNDS = {"log_noise_var": ("noise", "measurement noise"), "log_r_z": ("noise", "growth-scale "
+_BOUNDS = {"log_noise_var": ("noise", "measurement noise"), "log_r_log": ("noise", "multiplicative "
            "noise"), "log_r_hi": ("noise", "HI noise"), "log_l11": ("spread", "level"),
            "log_l22": ("spread", "rate"), "log_walk_var": ("walk", ""), "log_q": ("walk", ""),
            "mu_s": ("onset", ""), "log_sd_s": ("onset", "")}

@@ -90,6 +90,7 @@ def fmt_candidates(table: Any) -> str:
     cols = {
         "candidate": list(table["candidate"]),
         "log-lik": [f(v, ".6g") for v in table["log_likelihood"]],
+        "held-out log-lik/acq": [f(v, ".4f") for v in table["heldout_loglik_per_acq"]],
         "held-out rel. error": [f(v, ".3f") for v in table["heldout_median_rel_err"]],
         "90 % coverage": [f(v, ".2f") for v in table["heldout_coverage_90"]],
         "score": [f(v, ".4f") for v in table["heldout_score"]],
@@ -242,9 +243,11 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                     bad_option("--candidates", str(err))
         sel = _select(hist, names, folds)
         typer.echo(fmt_candidates(sel.table()), nl=False)
-        typer.echo("held-out: median relative error and 90 % interval coverage over the last "
-                   "half of each held-out unit's life; score: mean CRPS / life (lower is "
-                   "better); log-lik: of the HI on all units")
+        typer.echo("log-lik: of the HI on all units; held-out: log-likelihood of the held-out "
+                   "units' HI per acquisition, median relative error and 90 % interval coverage "
+                   "over the last half of their lives, score: mean CRPS / life (lower is "
+                   "better). Chosen: the lowest score; among candidates within two standard errors "
+                   "of it, the best held-out log-lik")
         chosen = next(r for r in sel.results if r.name == sel.chosen)
         coverage = chosen.scores.coverage_90 if chosen.scores else math.nan
         fit_warnings = check_fit(sel.model, coverage)

@@ -239,6 +239,16 @@ class DegradationModel:
         """One acquisition per unit (:func:`update_state`); ``t`` is the unit's age."""
         return update_state(state, self, t, hi)
 
+    def log_likelihood_of(self, hist: Histories) -> float:
+        """Log-likelihood of ``hist``'s HI under this model's prior (eq. (3) with the
+        Jacobian of eq. (4)): how well the model predicts units it was not fitted on."""
+        x = hist.t / self.time_scale
+        z = self.transform(hist.hi)
+        nll = _nll_kernel(np.asarray(self.mean, dtype=np.float64),
+                          np.asarray(self.cov, dtype=np.float64), self.walk_sd**2,
+                          self.noise_sd**2, x, z, hist.start.astype(np.int64))
+        return -nll + log_jacobian(self.kind, self.shape, hist.hi)
+
     def replay(self, hist: Histories) -> UnitState:
         """The state after each row of ``hist`` (:func:`filtered_states`)."""
         return filtered_states(self, hist)

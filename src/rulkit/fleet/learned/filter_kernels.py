@@ -8,8 +8,9 @@ recompiled every time). Imported lazily by :mod:`rulkit.fleet.learned.degradatio
 * ``kf_*``: the exact Kalman filter of eq. (2) on the transformed HI z = g(hi) with Gaussian
   noise on that scale; its prediction-error likelihood (eq. (3)) and, for the optimiser, the
   likelihood with its central-difference gradient over the 7 parameters in one call;
-* ``growth_*``: the iterated extended Kalman filter of eq. (8) measuring the HI itself (noise on
-  the HI scale, the growth scale or both, eq. (7)), over an onset grid (eq. (9)).
+* ``growth_*``: the iterated extended Kalman filter of eq. (8) measuring the HI itself
+  (additive noise, multiplicative noise on the log scale, or both, eq. (7)), over an onset grid
+  (eq. (9)).
 """
 
 from __future__ import annotations
@@ -135,7 +136,7 @@ def assimilate(st, dx, y, lam, rz, rhi, q):  # pragma: no cover - compiled
     zi = min(max(mz, zlo), zhi)
     for _ in range(IEKF_ITERATIONS):
         h, hh = boxcox_inverse(zi, lam)
-        s = hh * hh * (pzz + rz) + rhi
+        s = hh * hh * pzz + h * h * rz + rhi
         nu = y - h - hh * (mz - zi)
         zn = min(max(mz + pzz * hh * nu / s, zlo), zhi)
         done = abs(zn - zi) <= 1e-9 * (1.0 + abs(zi))
@@ -143,7 +144,7 @@ def assimilate(st, dx, y, lam, rz, rhi, q):  # pragma: no cover - compiled
         if done:
             break
     h, hh = boxcox_inverse(zi, lam)
-    s = hh * hh * (pzz + rz) + rhi
+    s = hh * hh * pzz + h * h * rz + rhi
     nu = y - h - hh * (mz - zi)
     kz, kb = pzz * hh / s, pzb * hh / s
     st[0] = mz + kz * nu
@@ -189,15 +190,21 @@ def growth_nll(theta, x, y, start, lam, grid):  # pragma: no cover - compiled
     st = np.empty(5)
     total = 0.0
     for u in range(start.shape[0] - 1):
+        flat = math.nan  # every onset at or after the last age: the same (flat) filter
         for j in range(k):
+            if grid[j] >= x[start[u + 1] - 1] and math.isfinite(flat):
+                ll[j] = logpi[j] + flat
+                continue
             st[:] = prior
             xe_prev = 0.0
-            acc = logpi[j]
+            acc = 0.0
             for i in range(start[u], start[u + 1]):
                 xe = max(x[i] - grid[j], 0.0)
                 acc += assimilate(st, xe - xe_prev, y[i], lam, rz, rhi, q)
                 xe_prev = xe
-            ll[j] = acc
+            if grid[j] >= x[start[u + 1] - 1]:
+                flat = acc
+            ll[j] = logpi[j] + acc
         total -= _logsumexp(ll)
     return total if math.isfinite(total) else 1e300
 
@@ -292,5 +299,5 @@ def replay(theta: FloatArray, x: FloatArray, y: FloatArray, start: NDArray[np.in
 def step_units(m: FloatArray, p: FloatArray, lw: FloatArray, x_prev: FloatArray, x: FloatArray,
                y: FloatArray, lam: float, params: GrowthParams, grid: FloatArray) -> None:
     """One acquisition per unit, in place (NaN = none for that unit); see :func:`replay`."""
-    growth_step_units(m, p, lw, x_prev, x, y, lam, params.r_z, params.r_hi, params.q,
+    growth_step_units(m, p, lw, x_prev, x, y, lam, params.r_log, params.r_hi, params.q,
                             np.asarray(grid, dtype=np.float64))

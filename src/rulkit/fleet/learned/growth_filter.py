@@ -1,15 +1,16 @@
-"""The filter of growth laws measured with noise on the HI scale, the growth scale, or both.
+"""The filter of growth laws measured with additive noise, multiplicative noise, or both.
 
 docs/fleet-models.md section 6. The unit's hidden state is the Gaussian (level z, rate b) of
 eq. (1) on the Box-Cox growth scale z = g(hi) = (hi^lam - 1) / lam (lam = 1 - m/2, g = ln hi at
 m = 2, so g(1) = 0 is the failure level), but the measurement is the HI itself (eq. (7)):
 
-    hi_k = g^-1(z(x_k) + e1) + e2,   e1 ~ N(0, r_z), e2 ~ N(0, r_hi),
+    hi_k = g^-1(z(x_k)) exp(e1) + e2,   e1 ~ N(0, r_log), e2 ~ N(0, r_hi),
 
-``r_z`` the multiplicative (growth-scale) noise, ``r_hi`` the additive HI noise; either may be
-zero. One acquisition is one iterated extended Kalman update (eq. (8)): Gauss-Newton steps on z
-to the posterior mode, then the Kalman update linearised there, with the measurement variance
-R = r_hi + H^2 r_z, H = dhi/dz = hi^(1 - lam). Its prediction errors give the marginal
+``r_log`` the multiplicative noise (on the log scale, whatever the shape), ``r_hi`` the
+additive HI noise; either may be zero. One acquisition is one iterated extended Kalman update
+(eq. (8)): Gauss-Newton steps on z to the posterior mode, then the Kalman update linearised
+there, with H = dhi/dz = hi^(1 - lam) and the measurement variance R = r_hi + hi^2 r_log (the
+multiplicative noise to first order). Its prediction errors give the marginal
 likelihood of the HI (no Jacobian needed: the density is of hi itself, so it compares with the
 transformed models' likelihoods of eq. (4)); tested against a brute-force quadrature of the
 exact likelihood.
@@ -36,11 +37,12 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
-THETA = ("m_a", "m_b", "log_l11", "l21", "log_l22", "log_r_z", "log_r_hi", "log_q", "mu_s",
+THETA = ("m_a", "m_b", "log_l11", "l21", "log_l22", "log_r_log", "log_r_hi", "log_q", "mu_s",
          "log_sd_s")
 """Parameter vector: prior mean (level at age 0, rate), log-Cholesky of the prior covariance,
-log variances of the growth-scale noise, the HI noise and the random walk (per unit of scaled
-age), the onset prior's mean and log sd (scaled age; unused without onset)."""
+log variances of the multiplicative (log-scale) noise, the additive HI noise and the random walk
+(per unit of scaled age), the onset prior's mean and log sd (scaled age; unused without
+onset)."""
 HI_LO, HI_HI = 1e-6, 1e3
 """The HI range the inverse transform is evaluated in (z is clipped to g of this range)."""
 IEKF_ITERATIONS = 8
@@ -60,7 +62,7 @@ class GrowthParams:
 
     mean: tuple[float, float]
     cov: tuple[float, float, float]
-    r_z: float
+    r_log: float
     r_hi: float
     q: float
     onset_mean: float
@@ -72,7 +74,7 @@ class GrowthParams:
         l11, l21, l22 = math.exp(th[2]), float(th[3]), math.exp(th[4])
         return cls(mean=(float(th[0]), float(th[1])),
                    cov=(l11 * l11, l11 * l21, l21 * l21 + l22 * l22),
-                   r_z=math.exp(th[5]), r_hi=math.exp(th[6]), q=math.exp(th[7]),
+                   r_log=math.exp(th[5]), r_hi=math.exp(th[6]), q=math.exp(th[7]),
                    onset_mean=float(th[8]), onset_sd=math.exp(th[9]))
 
     def theta(self) -> FloatArray:
@@ -83,7 +85,7 @@ class GrowthParams:
         l22 = math.sqrt(max(sbb - l21 * l21, 1e-300))
         lg = lambda v: math.log(v) if v > 0 else -math.inf  # noqa: E731
         return np.array([self.mean[0], self.mean[1], math.log(l11), l21, math.log(l22),
-                         lg(self.r_z), lg(self.r_hi), lg(self.q), self.onset_mean,
+                         lg(self.r_log), lg(self.r_hi), lg(self.q), self.onset_mean,
                          lg(self.onset_sd) if self.onset_sd > 0 else 0.0])
 
 

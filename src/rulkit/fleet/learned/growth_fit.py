@@ -85,7 +85,7 @@ class FitDiagnostics:
 @dataclass(frozen=True)
 class GrowthSpec:
     """Which parameters a growth model learns: ``noise`` "additive" (HI scale), "multiplicative"
-    (growth scale) or "mixed" (both); ``walk`` the Brownian random walk (False: independent
+    (log scale) or "mixed" (both); ``walk`` the Brownian random walk (False: independent
     errors only); ``onset_grid`` the onset values in scaled age (one value 0: no onset)."""
 
     noise: str = "additive"
@@ -161,13 +161,15 @@ def _start(hist: Histories, x: FloatArray, lam: float, setup: GrowthSpec) -> Flo
     t7 = two_stage_start(x, z, hist)  # m_a, m_b, log l11, l21, log l22, log r, log q
     th = np.full(len(THETA), -np.inf)
     th[:5] = t7[:5]
-    r = math.exp(t7[5])
+    r = math.exp(t7[5])  # residual variance on the growth scale
     h = np.clip(hist.hi, _floor_hi(hist.hi), None)
-    slope2 = float(np.median(h ** (2.0 * (1.0 - lam))))  # (dhi/dz)^2 at the data
+    to_hi = float(np.median(h ** (2.0 * (1.0 - lam))))  # (dhi/dz)^2 at the data
+    to_log = float(np.median(h ** (-2.0 * lam)))  # (dlog hi/dz)^2 at the data
+    half = 0.7 if setup.noise == "mixed" else 0.0  # each term half the residual at the start
     if setup.noise in ("multiplicative", "mixed"):
-        th[5] = math.log(r) - (0.7 if setup.noise == "mixed" else 0.0)
+        th[5] = math.log(max(r * to_log, 1e-12)) - half
     if setup.noise in ("additive", "mixed"):
-        th[6] = math.log(max(r * slope2, 1e-12)) - (0.7 if setup.noise == "mixed" else 0.0)
+        th[6] = math.log(max(r * to_hi, 1e-12)) - half
     if setup.walk:
         th[7] = math.log(r) - 4.0
     grid = np.asarray(setup.onset_grid)
@@ -180,12 +182,13 @@ def _bounds(hist: Histories, lam: float, setup: GrowthSpec) -> list[tuple[float,
     z = boxcox(np.maximum(hist.hi, _floor_hi(hist.hi)), lam)
     lz = math.log(max(float(np.std(z)), 1e-12))
     lh = math.log(max(float(np.std(hist.hi)), 1e-12))
+    ll = math.log(max(float(np.std(np.log(np.maximum(hist.hi, _floor_hi(hist.hi))))), 1e-12))
     grid = np.asarray(setup.onset_grid)
     span = float(grid.max() - grid.min()) if grid.size > 1 else 1.0
     step = span / max(grid.size - 1, 1)
     inf = math.inf
     return [(-inf, inf), (-inf, inf), (lz - 9.2, lz + 9.2), (-inf, inf), (lz - 9.2, lz + 9.2),
-            (2 * lz - 18.4, 2 * lz + 9.2), (2 * lh - 18.4, 2 * lh + 2.0),
+            (2 * ll - 18.4, 2 * ll + 2.0), (2 * lh - 18.4, 2 * lh + 2.0),
             (2 * lz - 18.4, 2 * lz + 9.2),
             (float(grid.min()) - span, float(grid.max()) + span),
             (math.log(max(step / 2.0, 1e-9)), math.log(max(2.0 * span, 1e-9)))]

@@ -1,10 +1,11 @@
-"""Growth models measured with additive HI noise, or with both noise scales.
+"""Growth models measured with additive noise, multiplicative noise, or both.
 
 docs/fleet-models.md section 6, eq. (7)-(8). A historian's HI is often ``true + noise``: a model
-that puts all noise on the log (growth) scale reads the noise at low HI as huge relative jumps
-and learns a wrong shape. :class:`HiNoiseModel` keeps the Paris (Box-Cox) growth law of eq. (1)
-for the hidden level and rate, and measures the HI itself with additive noise (``additive``),
-or with additive and growth-scale noise (``mixed``), through the filter of
+that puts all noise on a log-like scale reads the noise at low HI as huge relative jumps and
+learns a wrong shape; other sensors give noise proportional to the HI. :class:`HiNoiseModel`
+keeps the Paris (Box-Cox) growth law of eq. (1) for the hidden level and rate, and measures the
+HI itself with additive noise (``additive``), multiplicative noise on the log scale
+(``multiplicative``) or both (``mixed``), through the filter of
 :mod:`rulkit.fleet.learned.growth_filter`. Its unit state is the same Gaussian (level, rate) as
 the transformed models' (:class:`~rulkit.fleet.learned.degradation.UnitState`, 7 numbers), so
 its RUL is the closed form of eq. (5)-(6) with the failure level g(1) = 0.
@@ -41,7 +42,7 @@ from rulkit.fleet.learned.growth_fit import (
 )
 from rulkit.fleet.learned.histories import Histories
 
-NOISES = ("additive", "mixed")
+NOISES = ("additive", "multiplicative", "mixed")
 
 
 def check_forward(last_t: np.ndarray, t: np.ndarray) -> None:
@@ -59,9 +60,10 @@ class HiNoiseModel:
     """A fitted Box-Cox growth law with HI-scale noise (module docstring).
 
     ``shape`` lam = 1 - m/2; ``mean``/``cov`` the prior of (level at age 0, rate) on the growth
-    scale, per unit of scaled age x = t / ``time_scale``; ``hi_noise_sd`` the additive HI noise,
-    ``z_noise_sd`` the growth-scale noise (0 for ``additive``), ``walk_sd`` the random walk per
-    sqrt of scaled age (0: independent errors only). The other fields as
+    scale, per unit of scaled age x = t / ``time_scale``; ``hi_noise_sd`` the additive HI noise
+    (0 for ``multiplicative``), ``log_noise_sd`` the multiplicative noise's sd on the log scale
+    (0 for ``additive``), ``walk_sd`` the random walk per sqrt of scaled age (0: independent
+    errors only). The other fields as
     :class:`~rulkit.fleet.learned.degradation.DegradationModel`'s.
     """
 
@@ -70,7 +72,7 @@ class HiNoiseModel:
     mean: tuple[float, float]
     cov: tuple[float, float, float]
     hi_noise_sd: float
-    z_noise_sd: float
+    log_noise_sd: float
     walk_sd: float
     time_scale: float
     time_unit: str = ""
@@ -90,14 +92,16 @@ class HiNoiseModel:
         saa, sab, sbb = self.cov
         if not (saa > 0 and sbb > 0 and abs(sab) <= math.sqrt(saa * sbb)):
             raise ValueError(f"HiNoiseModel.cov: not a covariance: {self.cov}")
-        if not (self.hi_noise_sd > 0 and self.z_noise_sd >= 0 and self.walk_sd >= 0
+        if not (self.hi_noise_sd >= 0 and self.log_noise_sd >= 0
+                and self.hi_noise_sd + self.log_noise_sd > 0 and self.walk_sd >= 0
                 and self.time_scale > 0):
-            raise ValueError("HiNoiseModel: hi_noise_sd > 0, z_noise_sd >= 0, walk_sd >= 0, "
+            raise ValueError("HiNoiseModel: noise sds >= 0 (not both 0), walk_sd >= 0, "
                              "time_scale > 0 expected")
 
     @property
     def name(self) -> str:
-        """``paris-additive`` or ``paris-mixed`` (``-iid`` without the random walk)."""
+        """``paris-additive``, ``paris-multiplicative`` or ``paris-mixed`` (``-iid`` without
+        the random walk)."""
         return f"paris-{self.noise}" + ("" if self.walk_sd > 0 else "-iid")
 
     @property
@@ -107,13 +111,14 @@ class HiNoiseModel:
 
     @property
     def measured_var(self) -> float:
-        """Variance of a measurement at hi = 1 on the growth scale (dhi/dz = 1 there): the RUL
-        is that of the first measurement >= 1 (eq. (5) on the measured HI)."""
-        return self.hi_noise_sd**2 + self.z_noise_sd**2
+        """Variance of a measurement at hi = 1 (both noises; dhi/dz = 1 there, so also on the
+        growth scale): the RUL is that of the first measurement >= 1 (eq. (5) on the measured
+        HI)."""
+        return self.hi_noise_sd**2 + self.log_noise_sd**2
 
     def params(self) -> GrowthParams:
         """The parameters as :class:`~rulkit.fleet.learned.growth_filter.GrowthParams`."""
-        return GrowthParams(mean=self.mean, cov=self.cov, r_z=self.z_noise_sd**2,
+        return GrowthParams(mean=self.mean, cov=self.cov, r_log=self.log_noise_sd**2,
                             r_hi=self.hi_noise_sd**2, q=self.walk_sd**2, onset_mean=0.0,
                             onset_sd=1.0)
 
@@ -141,6 +146,14 @@ class HiNoiseModel:
         have = np.isfinite(t) & np.isfinite(hi)
         return UnitState(m=m[:, 0], p=p[:, 0], t=np.where(have, t, state.t),
                          hi=np.where(have, hi, state.hi), n=state.n + have)
+
+    def log_likelihood_of(self, hist: Histories) -> float:
+        """Log-likelihood of ``hist``'s HI under this model's prior (eq. (7)-(8))."""
+        from rulkit.fleet.learned.filter_kernels import negative_log_likelihood
+
+        return -negative_log_likelihood(self.params().theta(), hist.t / self.time_scale,
+                                        hist.hi, hist.start.astype(np.int64), self.shape,
+                                        np.zeros(1))
 
     def replay(self, hist: Histories) -> UnitState:
         """The state after each row of ``hist``."""
@@ -182,9 +195,10 @@ class HiNoiseModel:
         u = self.time_unit or "time unit"
         tau = self.time_scale
         sd_a, sd_b = math.sqrt(self.cov[0]), math.sqrt(self.cov[2])
-        noise = f"additive HI noise sd {self.hi_noise_sd:.3g}"
-        if self.noise == "mixed":
-            noise += f", growth-scale noise sd {self.z_noise_sd:.3g}"
+        noise = ", ".join(
+            [f"additive HI noise sd {self.hi_noise_sd:.3g}"] * (self.noise != "multiplicative")
+            + [f"multiplicative noise sd {self.log_noise_sd:.3g} (log scale)"]
+            * (self.noise != "additive"))
         return (f"{self.name} model, Box-Cox growth, Paris exponent m = "
                 f"{self.paris_exponent:.2f}: prior level {self.mean[0]:.4g} (sd {sd_a:.3g}), "
                 f"rate {self.mean[1] / tau:.4g} per {u} (sd {sd_b / tau:.3g}); {noise}; "
@@ -199,7 +213,7 @@ def model_of(fit: GrowthFit, noise: str, hist: Histories, tau: float, edge: bool
     p = GrowthParams.from_theta(fit.theta)
     return HiNoiseModel(
         noise=noise, shape=fit.lam, mean=p.mean, cov=p.cov, hi_noise_sd=math.sqrt(p.r_hi),
-        z_noise_sd=math.sqrt(p.r_z), walk_sd=math.sqrt(p.q), time_scale=tau,
+        log_noise_sd=math.sqrt(p.r_log), walk_sd=math.sqrt(p.q), time_scale=tau,
         n_units=hist.n_units, n_failed=int(hist.failed.sum()),
         log_likelihood=fit.log_likelihood, diagnostics=FitDiagnostics(fit.optim, edge))
 

@@ -100,7 +100,7 @@ class OnsetModel:
     mean: tuple[float, float]
     cov: tuple[float, float, float]
     hi_noise_sd: float
-    z_noise_sd: float
+    log_noise_sd: float
     walk_sd: float
     time_scale: float
     grid: tuple[float, ...]
@@ -130,7 +130,7 @@ class OnsetModel:
     def measured_var(self) -> float:
         """Variance of a measurement at hi = 1 on the growth scale (see
         :attr:`rulkit.fleet.learned.hi_noise.HiNoiseModel.measured_var`)."""
-        return self.hi_noise_sd**2 + self.z_noise_sd**2
+        return self.hi_noise_sd**2 + self.log_noise_sd**2
 
     @property
     def state_columns(self) -> tuple[str, ...]:
@@ -139,7 +139,7 @@ class OnsetModel:
 
     def params(self) -> GrowthParams:
         """The parameters as :class:`~rulkit.fleet.learned.growth_filter.GrowthParams`."""
-        return GrowthParams(mean=self.mean, cov=self.cov, r_z=self.z_noise_sd**2,
+        return GrowthParams(mean=self.mean, cov=self.cov, r_log=self.log_noise_sd**2,
                             r_hi=self.hi_noise_sd**2, q=self.walk_sd**2,
                             onset_mean=self.onset_mean, onset_sd=self.onset_sd)
 
@@ -180,6 +180,14 @@ class OnsetModel:
         have = np.isfinite(t) & np.isfinite(hi)
         return MixtureState(lw=lw, m=m, p=p, t=np.where(have, t, state.t),
                             hi=np.where(have, hi, state.hi), n=state.n + have)
+
+    def log_likelihood_of(self, hist: Histories) -> float:
+        """Log-likelihood of ``hist``'s HI under this model's prior (eq. (9))."""
+        from rulkit.fleet.learned.filter_kernels import negative_log_likelihood
+
+        return -negative_log_likelihood(self.params().theta(), hist.t / self.time_scale,
+                                        hist.hi, hist.start.astype(np.int64), self.shape,
+                                        np.asarray(self.grid))
 
     def replay(self, hist: Histories) -> MixtureState:
         """The state after each row of ``hist``."""
@@ -272,7 +280,7 @@ class OnsetModel:
                 f"{len(self.grid)} values up to {self.grid[-1] * tau:.4g}), then Box-Cox "
                 f"growth with Paris exponent m = {self.paris_exponent:.2f}, rate "
                 f"{self.mean[1] / tau:.4g} per {u} (sd {sd_b / tau:.3g}); HI noise sd "
-                f"{self.hi_noise_sd:.3g}" + (f", growth-scale noise sd {self.z_noise_sd:.3g}"
+                f"{self.hi_noise_sd:.3g}" + (f", multiplicative noise sd {self.log_noise_sd:.3g}"
                                              if self.noise == "mixed" else "")
                 + f"; learned from {self.n_units} units ({self.n_failed} failed), "
                 f"log-likelihood {self.log_likelihood:.2f}")
@@ -314,7 +322,7 @@ def fit_onset(hist: Histories, noise: str = "additive", *, start: OnsetModel | N
     p = GrowthParams.from_theta(best.theta)
     return OnsetModel(
         noise=noise, shape=best.lam, mean=p.mean, cov=p.cov, hi_noise_sd=math.sqrt(p.r_hi),
-        z_noise_sd=math.sqrt(p.r_z), walk_sd=math.sqrt(p.q), time_scale=tau, grid=grid,
+        log_noise_sd=math.sqrt(p.r_log), walk_sd=math.sqrt(p.q), time_scale=tau, grid=grid,
         onset_mean=p.onset_mean, onset_sd=p.onset_sd, n_units=hist.n_units,
         n_failed=int(hist.failed.sum()), log_likelihood=best.log_likelihood,
         diagnostics=FitDiagnostics(best.optim, edge))

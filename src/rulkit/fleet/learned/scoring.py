@@ -40,12 +40,18 @@ def truth_rul(h: Histories) -> FloatArray:
 def crps_grid(model: Any, state: Any, y: FloatArray, cap: float, n_grid: int = 400
               ) -> FloatArray:
     """CRPS of ``model``'s RUL distribution at the truth ``y (B,)``: the integral over
-    [0, cap] of (F(r) - 1{r >= y})^2 by the trapezoidal rule (the never-failing mass stays in
-    F's deficit up to ``cap``)."""
-    r = np.linspace(0.0, cap, n_grid)
-    rr = np.broadcast_to(r, (len(state), n_grid))
-    f = model.rul_cdf(state, rr)
-    return np.asarray(np.trapezoid((f - (rr >= np.asarray(y)[:, None])) ** 2, r, axis=1))
+    [0, cap] of (F(r) - 1{r >= y})^2, split at y (int_0^y F^2 + int_y^cap (1 - F)^2, each by
+    the trapezoidal rule on ``n_grid / 2`` points of its own interval, so the step of the
+    indicator costs no accuracy); the never-failing mass stays in F's deficit up to ``cap``."""
+    y = np.minimum(np.asarray(y, dtype=np.float64), cap)
+    u = np.linspace(0.0, 1.0, max(n_grid // 2, 2))
+    below = y[:, None] * u[None, :]
+    above = y[:, None] + (cap - y)[:, None] * u[None, :]
+    f_lo = model.rul_cdf(state, below)
+    f_hi = model.rul_cdf(state, above)
+    a = np.trapezoid(f_lo**2, below, axis=1)
+    b = np.trapezoid((1.0 - f_hi) ** 2, above, axis=1)
+    return np.asarray(a + b)
 
 
 def predictions(model: Any, test: Histories, cap: float, n_grid: int = 400) -> pd.DataFrame:
