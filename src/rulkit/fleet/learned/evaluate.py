@@ -6,8 +6,10 @@ its true failure time compare the RUL with the truth (true failure time - t). Th
 candidate of :mod:`rulkit.fleet.learned.candidates` by name, ``auto`` (the candidate ``rulkit
 fit`` selects on all units, :func:`rulkit.fleet.learned.selection.select_model`, then evaluated
 like any other), ``all`` (every candidate ``fit`` compares, one row each) or ``tracker`` (the
-safe tracker chain). Each fold's fit starts from the fit on all units (a warm start; the Paris
-exponent is searched again from there, so the held-out unit never chooses it). Beside the
+safe tracker chain). Each fold refits every continuous parameter (prior, noises, random walk,
+onset prior) without the held-out unit, starting from the fit on all units; the discrete
+settings (the Paris exponent on its 0.25 grid, the onset grid, the baselines' windows and
+widths) keep their all-unit choice, as the candidate choice of ``auto`` does. Beside the
 models, two naive point baselines on the raw HI:
 
 * ``origin``: linear through (0, 0) and the current acquisition, RUL = t (1 - hi) / hi;
@@ -71,7 +73,7 @@ def _predict_model(train: Histories, test: Histories, kind: str, cap: float,
     from rulkit.fleet.learned.candidates import fit_candidate
     from rulkit.fleet.learned.scoring import predictions as model_predictions
 
-    model = fit_candidate(kind, train, start=start)
+    model = fit_candidate(kind, train, start=start, fixed_shape=start is not None)
     p = model_predictions(model, test, cap, n_grid=600)
     return p[["median", "low", "high", "crps"]]
 
