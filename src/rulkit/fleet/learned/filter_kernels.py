@@ -301,3 +301,92 @@ def step_units(m: FloatArray, p: FloatArray, lw: FloatArray, x_prev: FloatArray,
     """One acquisition per unit, in place (NaN = none for that unit); see :func:`replay`."""
     growth_step_units(m, p, lw, x_prev, x, y, lam, params.r_log, params.r_hi, params.q,
                             np.asarray(grid, dtype=np.float64))
+
+
+# ------------------------------------------------------------------- RUL quantiles (bisection)
+@numba.njit(cache=True)
+def log_ndtr(x):  # pragma: no cover - compiled
+    """log Phi(x), accurate in the lower tail (asymptotic series below x = -30)."""
+    if x > -30.0:
+        return math.log(0.5 * math.erfc(-x / math.sqrt(2.0)))
+    x2 = x * x
+    return -0.5 * x2 - math.log(-x) - 0.5 * math.log(2.0 * math.pi) + math.log1p(
+        -1.0 / x2 + 3.0 / (x2 * x2))
+
+
+@numba.njit(cache=True)
+def _mixture_log_surv(lw, m, p, x0, w, grid, q, r):  # pragma: no cover - compiled
+    """log sum_k w_k S_k(e_k(w)) for one unit (eq. (10)); components with a weight below
+    1e-16 of the largest are left out (a relative error below 1e-15)."""
+    k = grid.shape[0]
+    acc = np.full(k, -np.inf)
+    top = lw.max()
+    for j in range(k):
+        if lw[j] < top - 37.0:
+            continue
+        e = max(x0 + w - grid[j], 0.0) - max(x0 - grid[j], 0.0)
+        num = m[j, 0] + m[j, 1] * e
+        var = p[j, 0] + r + 2.0 * e * p[j, 1] + e * e * p[j, 2] + q * e
+        acc[j] = lw[j] + log_ndtr(-num / math.sqrt(max(var, 1e-300)))
+    return _logsumexp(acc)
+
+
+@numba.njit(cache=True)
+def onset_quantiles(lw, m, p, x0, grid, q, r, levels, iterations, out):  # pragma: no cover
+    """Quantiles of eq. (10) per unit into ``out (L, B)``, in scaled age: bisection on
+    u in (0, 1), w = W u / (1 - u), W = max(x0, 1); +inf beyond the failing mass."""
+    for b in range(lw.shape[0]):
+        ls0 = _mixture_log_surv(lw[b], m[b], p[b], x0[b], 0.0, grid, q, r)
+        inf_acc = np.empty(grid.shape[0])
+        for j in range(grid.shape[0]):
+            inf_acc[j] = lw[b, j] + log_ndtr(-m[b, j, 1] / math.sqrt(p[b, j, 2]))
+        ls_inf = _logsumexp(inf_acc)
+        scale = max(x0[b], 1.0)
+        for i in range(levels.shape[0]):
+            target = ls0 + math.log1p(-levels[i])
+            if target <= ls_inf:
+                out[i, b] = np.inf
+                continue
+            lo, hi = 0.0, 1.0
+            for _ in range(iterations):
+                u = 0.5 * (lo + hi)
+                if _mixture_log_surv(lw[b], m[b], p[b], x0[b], scale * u / (1.0 - u), grid,
+                                     q, r) > target:
+                    lo = u
+                else:
+                    hi = u
+            u = 0.5 * (lo + hi)
+            out[i, b] = scale * u / (1.0 - u)
+    return 0
+
+
+@numba.njit(cache=True)
+def lognormal_mixture_quantiles(w, lr, bw, levels, iterations, out):  # pragma: no cover
+    """Quantiles of sum_j w_j LogNormal(lr_j, bw^2) per unit into ``out (L, B)``: bisection
+    on log r between the smallest and largest centre -+ 6 bw; weights below 1e-12 of the
+    largest are left out (an error below 1e-10 in the CDF)."""
+    keep = np.empty(w.shape[1], dtype=np.int64)
+    for b in range(w.shape[0]):
+        lo0, hi0 = np.inf, -np.inf
+        top = w[b].max()
+        nk = 0
+        for j in range(w.shape[1]):
+            if w[b, j] > 1e-12 * top:
+                lo0 = min(lo0, lr[b, j])
+                hi0 = max(hi0, lr[b, j])
+                keep[nk] = j
+                nk += 1
+        for i in range(levels.shape[0]):
+            lo, hi = lo0 - 6.0 * bw, hi0 + 6.0 * bw
+            for _ in range(iterations):
+                mid = 0.5 * (lo + hi)
+                f = 0.0
+                for jj in range(nk):
+                    j = keep[jj]
+                    f += w[b, j] * 0.5 * math.erfc(-(mid - lr[b, j]) / (bw * math.sqrt(2.0)))
+                if f < levels[i]:
+                    lo = mid
+                else:
+                    hi = mid
+            out[i, b] = math.exp(0.5 * (lo + hi))
+    return 0
