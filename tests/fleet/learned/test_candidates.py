@@ -14,6 +14,7 @@ from rulkit.fleet.learned.candidates import (
 )
 from rulkit.fleet.learned.datasets import synthetic_growth_fleet
 from rulkit.fleet.learned.degradation import DegradationModel
+from rulkit.fleet.learned.hi_noise import HiNoiseModel
 from rulkit.fleet.learned.histories import histories_from_frame
 
 
@@ -23,17 +24,19 @@ def hist():
     return histories_from_frame(df.assign(time=df["time"] / 24.0), unit="d")
 
 
+GROWTH = {"shape": 0.0, "mean": (-1.6, 1.6), "cov": (0.01, 0.0, 0.1), "walk_sd": 0.01,
+          "time_scale": 10.0}
+
+
 @pytest.mark.parametrize("name", ["paris", "paris-additive", "onset", "similarity",
                                   "regression"])
 def test_fit_store_and_interface(hist, name):
-    start = None
-    if name in ("paris", "paris-additive", "onset"):  # a fixed shape keeps this test short
-        start = {"paris": DegradationModel(kind="paris", shape=0.0, mean=(-1.6, 1.6),
-                                           cov=(0.01, 0.0, 0.1), noise_sd=0.05, walk_sd=0.01,
-                                           time_scale=10.0)}.get(name)
-    m = fit_candidate(name, hist, start=start, fixed_shape=start is not None) \
-        if name != "onset" else fit_candidate(name, hist, fitted={
-            "paris-additive": fit_candidate("paris-additive", hist)})
+    # the growth models start from a fixed shape (m = 2), which keeps this test short
+    additive = HiNoiseModel(noise="additive", hi_noise_sd=0.02, log_noise_sd=0.0, **GROWTH)
+    start = {"paris": DegradationModel(kind="paris", noise_sd=0.05, **GROWTH),
+             "paris-additive": additive}.get(name)
+    fitted = {"paris-additive": additive}
+    m = fit_candidate(name, hist, start=start, fixed_shape=start is not None, fitted=fitted)
     assert m.name == name and m.time_unit == "d" and m.time_axis["unit"] == "d"
     back = model_from_dict(model_to_dict(m))
     assert back == m
