@@ -74,6 +74,19 @@ def test_rul_is_that_of_a_measurement_reaching_one():
     assert m.measured_var == pytest.approx(0.02**2 + 0.03**2)
 
 
+def test_hi_forecast_reaches_one_at_the_latent_rul():
+    """The latent HI's median reaches 1 where the latent model's RUL median is (both from the
+    level's Gaussian: g(1) = 0 crossed by the median path), and the band orders."""
+    m = HiNoiseModel(noise="additive", shape=0.0, mean=(-2.3, 2.0), cov=(1e-3, 0.0, 0.05),
+                     hi_noise_sd=1e-9, log_noise_sd=0.0, walk_sd=0.0, time_scale=300.0)
+    st = UnitState(m=np.array([[-0.4, 2.0]]), p=np.array([[1e-6, 0.0, 1e-8]]),
+                   t=np.array([100.0]), hi=np.array([0.7]), n=np.array([10]))
+    med = m.rul_quantiles(st, (0.5,))[0]
+    got = m.hi_quantiles(st, med[:, None], (0.5, 0.05, 0.95))
+    assert got[0][0, 0] == pytest.approx(1.0, abs=1e-6)
+    assert got[1][0, 0] < got[0][0, 0] < got[2][0, 0]
+
+
 def test_dict_round_trip_and_names():
     m = _model()
     assert HiNoiseModel.from_dict(m.to_dict()) == m

@@ -89,6 +89,31 @@ class GrowthParams:
                          lg(self.onset_sd) if self.onset_sd > 0 else 0.0])
 
 
+def boxcox_inverse(z: FloatArray, lam: float) -> FloatArray:
+    """hi = g^-1(z), z clipped to g([HI_LO, HI_HI])."""
+    zc = np.clip(np.asarray(z, dtype=np.float64), boxcox(np.array(HI_LO), lam),
+                 boxcox(np.array(HI_HI), lam))
+    if abs(lam) < 1e-12:
+        return np.exp(zc)
+    return np.asarray((1.0 + lam * zc) ** (1.0 / lam))
+
+
+def growth_hi_quantiles(m: FloatArray, p: FloatArray, walk_sd: float, time_scale: float,
+                        lam: float, horizons: FloatArray, levels: tuple[float, ...]
+                        ) -> tuple[FloatArray, ...]:
+    """Quantiles of the (latent) HI ``horizons (B, K)`` after the last acquisition of B units
+    with Gaussian (level, rate) posteriors ``m (B, 2)``, ``p (B, 3)``: the growth-scale level
+    is Gaussian with mean m_z + m_b w and variance P_zz + 2 w P_zb + w^2 P_bb + sigma_w^2 w,
+    w = r / tau (eq. (5)), mapped back through g^-1 (monotone, so quantiles map)."""
+    from scipy.special import ndtri
+
+    w = np.asarray(horizons, dtype=np.float64) / time_scale
+    mean = m[:, :1] + m[:, 1:] * w
+    var = p[:, :1] + 2.0 * w * p[:, 1:2] + w * w * p[:, 2:] + walk_sd**2 * w
+    sd = np.sqrt(np.maximum(var, 0.0))
+    return tuple(boxcox_inverse(mean + float(ndtri(q)) * sd, lam) for q in levels)
+
+
 def onset_prior(grid: FloatArray, mean: float, sd: float) -> FloatArray:
     """log pi_k of the onset grid (eq. (9)): a normal density on the grid, normalised."""
     if grid.size == 1:
@@ -98,4 +123,4 @@ def onset_prior(grid: FloatArray, mean: float, sd: float) -> FloatArray:
 
 
 __all__ = ["HI_HI", "HI_LO", "IEKF_ITERATIONS", "THETA", "GrowthParams", "boxcox",
-           "onset_prior"]
+           "boxcox_inverse", "growth_hi_quantiles", "onset_prior"]

@@ -32,7 +32,7 @@ from rulkit.fleet.learned.degradation import (
     rul_quantiles,
     time_scale_of,
 )
-from rulkit.fleet.learned.growth_filter import GrowthParams
+from rulkit.fleet.learned.growth_filter import GrowthParams, growth_hi_quantiles
 from rulkit.fleet.learned.growth_fit import (
     FitDiagnostics,
     GrowthFit,
@@ -170,6 +170,12 @@ class HiNoiseModel:
                       ) -> tuple[np.ndarray, ...]:
         """RUL quantiles per unit (>= 0; inf in the never-failing mass; 0 once hi >= 1)."""
         return rul_quantiles(self, state, levels)
+
+    def hi_quantiles(self, state: UnitState, horizons: np.ndarray,
+                     levels: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+        """The HI forecast ``horizons (B, K)`` after the last acquisition (latent HI)."""
+        return growth_hi_quantiles(state.m, state.p, self.walk_sd, self.time_scale,
+                                   self.shape, horizons, levels)
 
     def rul_cdf(self, state: UnitState, r: np.ndarray) -> np.ndarray:
         """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5))."""

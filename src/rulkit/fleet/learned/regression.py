@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rulkit.fleet.learned.degradation import UnitState, rul_cdf, rul_quantiles, time_scale_of
-from rulkit.fleet.learned.growth_filter import boxcox
+from rulkit.fleet.learned.growth_filter import boxcox, growth_hi_quantiles
 from rulkit.fleet.learned.hi_noise import check_forward
 from rulkit.fleet.learned.histories import Histories
 
@@ -166,6 +166,13 @@ class RegressionModel:
                       ) -> tuple[FloatArray, ...]:
         """RUL quantiles per unit (eq. (5)-(6) on :meth:`gaussian`)."""
         return rul_quantiles(self, self.gaussian(state), levels)
+
+    def hi_quantiles(self, state: SumsState, horizons: FloatArray,
+                     levels: tuple[float, ...]) -> tuple[FloatArray, ...]:
+        """The HI forecast ``horizons (B, K)`` after the last acquisition: each unit's line."""
+        g = self.gaussian(state)
+        return growth_hi_quantiles(g.m, g.p, 0.0, self.time_scale, self.shape, horizons,
+                                   levels)
 
     def rul_cdf(self, state: SumsState, r: FloatArray) -> FloatArray:
         """P(RUL <= r), ``r (B, K)``."""
