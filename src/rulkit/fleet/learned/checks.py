@@ -140,6 +140,9 @@ _BOUND_TEXT = {
     "spread": ("the units' spread of {what} sits at its floor: every unit is modelled with the "
                "same {what}; fine if all units start alike, otherwise check the time column "
                "(ages since install?)"),
+    "coupled": ("level and rate are perfectly correlated in the prior (the rate's spread beyond "
+                "what the level explains sits at its floor): a degenerate fleet prior; RUL "
+                "intervals of new units may be too narrow"),
     "walk_hi": ("the random walk sits at its ceiling: the paths wander more than the growth "
                 "law explains; try another candidate (--model)"),
     "onset": ("the onset prior sits at an end of its grid: onsets are earlier or later than "
@@ -147,7 +150,7 @@ _BOUND_TEXT = {
 }
 _BOUNDS = {"log_noise_var": ("noise", "measurement noise"), "log_r_log": ("noise", "multiplicative "
            "noise"), "log_r_hi": ("noise", "HI noise"), "log_l11": ("spread", "level"),
-           "log_l22": ("spread", "rate"), "log_walk_var": ("walk", ""), "log_q": ("walk", ""),
+           "log_l22": ("coupled", ""), "log_walk_var": ("walk", ""), "log_q": ("walk", ""),
            "mu_s": ("onset", ""), "log_sd_s": ("onset", "")}
 
 
@@ -187,7 +190,7 @@ def _bound_warnings(name: str, model: Any, at_bound: tuple[str, ...]) -> list[st
             kind = "walk_hi" if side == "high" else ""
         elif kind == "noise" and side == "high":
             kind = "noise_hi"
-        elif kind == "spread" and side == "high":
+        elif kind in ("spread", "coupled") and side == "high":
             kind = ""
         if kind:
             out.append(f"{name}: " + _BOUND_TEXT[kind].format(what=what))
