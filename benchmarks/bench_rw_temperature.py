@@ -40,10 +40,10 @@ import numpy as np  # noqa: E402
 
 from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf  # noqa: E402
 from rulkit.systems.reaction_wheel.temperature import (  # noqa: E402
-    TABLE5_N,
     TemperatureConfig,
     filter_temperature,
 )
+from rulkit.systems.reaction_wheel.temperature_study import TABLE5_N  # noqa: E402
 from rulkit.systems.reaction_wheel.wheel import IthacoParams, simulate_table3  # noqa: E402
 
 # Flops per particle-step of the F2 filter, counted from the kernel source (an add, multiply,

@@ -76,7 +76,8 @@ class TimeAxis:
         """The column in this axis' unit (date-times: units since 1970-01-01 UTC)."""
         import pandas as pd
 
-        from rulkit.tables import numeric_columns, time_seconds
+        from rulkit.fleet.rows import numeric_values
+        from rulkit.tables import time_seconds
 
         prefix = f"{where}: " if where else ""
         kw = {"row_label": row_label} if row_label is not None else {}
@@ -94,8 +95,11 @@ class TimeAxis:
         if secs is not None:
             return secs / self.seconds_per_unit
         _mostly_dates(col, name, prefix, row_label)
-        frame = pd.DataFrame({name: pd.Series(col).reset_index(drop=True)})
-        return numeric_columns(frame, [name], error=TimeAxisError, source=where, **kw)[name]
+        try:  # the number rules of every fleet table
+            return numeric_values(pd.Series(col).reset_index(drop=True), name,
+                                  error=TimeAxisError, **kw)
+        except TimeAxisError as err:
+            raise TimeAxisError(f"{prefix}{err}") from None
 
     def to_dict(self) -> dict[str, Any]:
         """The axis as JSON-ready values."""

@@ -51,6 +51,7 @@ def test_track_writes_the_models_own_quantiles(fleet, tmp_path, k, origin):
     with ComponentStore(db) as s:
         assert s.set_degradation_model(model) == 0
         s.ingest(acq[half])
+    with ComponentStore(db) as s:  # opened again: the schema keeps the model's own columns
         s.ingest(acq[~half])  # a second batch continues the stored states
         got = s.history()
         cols = [r[1] for r in s._conn.execute("PRAGMA table_info(model_state)")]

@@ -11,15 +11,11 @@ import math
 import numpy as np
 import pytest
 
-from rulkit.estimation.kalman import ExtendedKalmanFilter
+from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, RBPFConfig, run_rbpf
-from rulkit.systems.reaction_wheel.temperature import (
-    estimate_temperature,
-    format_table5,
-    run_ekf,
-    run_table5,
-    table3_telemetry,
-)
+from rulkit.systems.reaction_wheel.temperature import run_ekf, table3_telemetry
+from rulkit.systems.reaction_wheel.temperature_estimate import estimate_temperature
+from rulkit.systems.reaction_wheel.temperature_study import format_table5, run_table5
 from rulkit.systems.reaction_wheel.wheel import IthacoParams, rk4_wheel_step, simulate_table3
 
 
@@ -164,7 +160,7 @@ def test_table5_rows_and_telemetry_entry_point() -> None:
 
 
 def test_plot_includes_rbpf_variant(tmp_path) -> None:
-    from rulkit.systems.reaction_wheel.temperature import plot_temperature_estimates
+    from rulkit.systems.reaction_wheel.temperature_study import plot_temperature_estimates
 
     paths = plot_temperature_estimates(tmp_path, n_particles=30, variants=("rbpf",),
                                        with_ekf=False, t_end=5.0)

@@ -11,17 +11,19 @@ import pytest
 from scipy.linalg import expm
 
 from rulkit.systems.reaction_wheel.temperature import (
-    PAPER_TABLE5,
     TemperatureConfig,
     apf_eq28_weights,
-    estimate_temperature,
     filter_temperature,
-    format_table5,
     likelihood_covariance,
-    plot_temperature_estimates,
     run_ekf,
-    run_table5,
     table3_telemetry,
+)
+from rulkit.systems.reaction_wheel.temperature_estimate import estimate_temperature
+from rulkit.systems.reaction_wheel.temperature_study import (
+    PAPER_TABLE5,
+    format_table5,
+    plot_temperature_estimates,
+    run_table5,
 )
 from rulkit.systems.reaction_wheel.wheel import IthacoParams, simulate_table3, viscous_coefficient
 

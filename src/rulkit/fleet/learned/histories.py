@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
 from rulkit.fleet.time_axis import (
     INSTALLED_COLUMN,
     TimeAxis,
@@ -107,15 +108,11 @@ class Histories:
 
 
 def _number_column(df: pd.DataFrame, col: str, where: str) -> FloatArray:
-    v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=np.float64)
-    bad = ~np.isfinite(v)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise HistoryError(
-            f"{where}: row {i + 1} (component {df['component'].iloc[i]!r}): column {col!r} = "
-            f"{df[col].iloc[i]!r} is not a finite number (NaN, inf or text)"
-        )
-    return v
+    try:  # the number rules of every fleet table (rulkit.fleet.rows)
+        return numeric_values(df[col], col, error=HistoryError, row_label=lambda i: (
+            f"row {i + 1} (component {df['component'].iloc[i]!r})"))
+    except HistoryError as err:
+        raise HistoryError(f"{where}: {err}") from None
 
 
 KNOWN_COLUMNS = ("component", "time", "hi", "failed", INSTALLED_COLUMN)
@@ -183,11 +180,11 @@ def histories_from_frame(
     if len(df) == 0:
         raise HistoryError(f"{where}: no rows")
     df = df.reset_index(drop=True)
-    comp = df["component"]
-    empty = comp.isna().to_numpy() | (comp.astype(str).str.strip() == "").to_numpy()
-    if empty.any():
-        raise HistoryError(f"{where}: row {int(np.flatnonzero(empty)[0]) + 1}: empty component")
-    names_col = comp.astype(str).str.strip().to_numpy(dtype=object)
+    try:  # the id rules of every fleet table (rulkit.fleet.rows)
+        comp = check_component_ids(df["component"], error=HistoryError)
+    except HistoryError as err:
+        raise HistoryError(f"{where}: {err}") from None
+    names_col = comp.astype(str).to_numpy(dtype=object)
     df = df.assign(component=names_col)
     codes, names = pd.factorize(pd.Series(names_col), sort=False)
     codes = codes.astype(np.int64)
@@ -256,20 +253,22 @@ def _failed(df: pd.DataFrame, codes: NDArray[np.int64], counts: NDArray[np.int64
 def read_histories(path: str | Path, **kwargs: object) -> Histories:
     """Read a CSV or Parquet file (or a directory of Parquet partitions) of histories;
     ``kwargs`` go to :func:`histories_from_frame`."""
-    from rulkit.tables import read_table
-
     p = Path(path)
     if not p.exists():
         raise HistoryError(f"{p}: no such file or directory")
-    if p.is_dir():
-        try:
+    try:
+        if p.is_dir() or p.suffix.lower() in (".parquet", ".pq"):
             df = pd.read_parquet(p)
-        except Exception as err:  # a parser error names the directory
-            raise HistoryError(f"{p}: cannot read: {err}") from err
-    else:
-        df = read_table(p, error=HistoryError, csv_suffixes=(".csv", ".csv.gz", ".txt"),
-                        expected_columns=("component", "time", "hi"),
-                        text_columns=("component",))
+        elif p.name.lower().endswith((".csv", ".csv.gz", ".txt")):
+            # the one CSV reader of every fleet table: field counts checked, ids kept as text
+            df = read_csv_rows(p, error=HistoryError)
+        else:
+            raise HistoryError(f"{p}: expected a .csv, .csv.gz or .parquet file (or a "
+                               "directory of Parquet partitions)")
+    except HistoryError:
+        raise
+    except Exception as err:  # a parser error names the file
+        raise HistoryError(f"{p}: cannot read: {err}") from err
     return histories_from_frame(df, str(p), **kwargs)  # type: ignore[arg-type]
 
 

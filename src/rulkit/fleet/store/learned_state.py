@@ -24,6 +24,7 @@ from rulkit.fleet.learned.candidates import FleetModel, model_to_dict
 from rulkit.fleet.learned.histories import Histories
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.database_file import rows_of_components
+from rulkit.fleet.store.schema import model_state_table
 from rulkit.fleet.time_axis import TimeAxis
 
 LEVELS = MonitoringRules().levels
@@ -47,8 +48,8 @@ def ensure_model_state(conn: Any, model: FleetModel) -> None:
     if have == want:
         return
     conn.execute("DROP TABLE IF EXISTS model_state")
-    body = ", ".join(f"{c} {'INTEGER' if c == 'n' else 'REAL'} NOT NULL" for c in want[1:])
-    conn.execute(f"CREATE TABLE model_state (component TEXT PRIMARY KEY, {body})")
+    for stmt in model_state_table(_columns(model)).create("sqlite"):
+        conn.execute(stmt)
 
 
 def store_model(conn: Any, model: FleetModel) -> None:

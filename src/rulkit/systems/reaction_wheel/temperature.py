@@ -480,7 +480,7 @@ def run_ekf(
     ``(sigma_w, sigma_I)`` or per unit (B, 2). Discrete model: one
     RK4 step of the wheel with T held, T a random walk of step ``q_T``; tiny process noise
     ``q_Iw`` on [I, w] keeps P well conditioned. Prior: [I, w] = y_0 with covariance R, T with
-    the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.kalman.ExtendedKalmanFilter`
+    the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.ekf.ExtendedKalmanFilter`
     with the tangent-linear RK4 Jacobian (:func:`rk4_wheel_step_jacobian`; finite differences
     when ``analytic_jacobian=False``).
     """
@@ -524,7 +524,7 @@ def ekf_setup(
     """The wheel EKF of :func:`run_ekf` for B units whose first sample is ``y0`` (B, 2) =
     [w, I_m]: (filter, prior mean x0 (B, 3), prior covariance P0 (B, 3, 3), its
     :class:`StepClock`)."""
-    from rulkit.estimation.kalman import ExtendedKalmanFilter
+    from rulkit.estimation.ekf import ExtendedKalmanFilter
 
     p = params or IthacoParams()
     y0 = np.asarray(y0, dtype=np.float64)
@@ -577,22 +577,3 @@ def table3_telemetry(
     return pd.DataFrame(dict(zip(COLUMNS, (d.t, d.V, d.y[:, 0], d.y[:, 1]), strict=True))
                         | {"T_lub_C": d.T})
 
-
-# The Table 5 study and its figures live in temperature_study (names kept importable here).
-_STUDY = ("PAPER_TABLE5", "TABLE5_N", "COVERAGE_QUANTILES", "run_table5", "format_table5",
-          "plot_temperature_estimates")
-# ... and the user-telemetry estimate in temperature_estimate
-_ESTIMATE = ("estimate_temperature", "ImplausibleEstimateError", "MODEL_RANGE_C",
-             "ABSOLUTE_ZERO_C", "TemperatureEstimator")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _STUDY:
-        from rulkit.systems.reaction_wheel import temperature_study
-
-        return getattr(temperature_study, name)
-    if name in _ESTIMATE:
-        from rulkit.systems.reaction_wheel import temperature_estimate
-
-        return getattr(temperature_estimate, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
