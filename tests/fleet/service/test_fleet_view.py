@@ -15,8 +15,9 @@ NOW = 1.8e9  # calendar time of the second batch (seconds since 1970)
 
 
 def fleet(sdb, n=90):
-    """``n`` components with every level, unknown RULs and failed ones (ties on the key), two ingestion
-    times (the first batch's components stale at ``NOW``), hours as the time unit."""
+    """``n`` components with every level, unknown RULs and failed ones (ties on the key), two
+    ingestion times (the first batch's components stale at ``NOW``), hours as the time
+    unit."""
     with sdb.store() as s:
         s.set_rules(MonitoringRules(time_unit="h", lead_time=30.0, alarm_hi=0.9,
                                     stale_after=3600.0))
@@ -75,7 +76,7 @@ def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level):
                 break
         assert got == want, (sort, level)
         # offset after a cursor skips rows of the same order
-        _, first, cur = sdb.components(limit=3, level=level, sort=sort, now=NOW)
+        _, _, cur = sdb.components(limit=3, level=level, sort=sort, now=NOW)
         if cur is not None:
             _, skipped, _ = sdb.components(limit=2, offset=2, level=level, sort=sort,
                                            after=cur, now=NOW)

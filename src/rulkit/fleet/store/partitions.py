@@ -32,6 +32,7 @@ from rulkit.fleet.store.schema import (
     HISTORY,
     MODEL_STATE,
     create_schema,
+    model_state_table,
     recount_levels,
 )
 from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
@@ -225,6 +226,7 @@ def _write_seed(path: Path, seed: dict[str, Any]) -> None:
         conn.execute("BEGIN")
         create_schema(conn, "sqlite")
         conn.executemany("INSERT INTO meta VALUES (?, ?)", seed["meta"])
+        _model_state_like(conn, seed[MODEL_STATE.name][0])
         for table in (COMPONENTS, MODEL_STATE, HISTORY):
             cols, rows = seed[table.name]
             if rows:
@@ -234,6 +236,16 @@ def _write_seed(path: Path, seed: dict[str, Any]) -> None:
         conn.execute("COMMIT")
     finally:
         conn.close()
+
+
+def _model_state_like(conn: Any, cols: list[str]) -> None:
+    """Table ``main.model_state`` (still empty) made with the columns ``cols`` of the stored
+    model's states (their columns are the model's own: :func:`model_state_table`)."""
+    if not cols or _columns(conn, "model_state") == cols:
+        return
+    conn.execute("DROP TABLE main.model_state")
+    for stmt in model_state_table(tuple(cols[1:])).create("sqlite"):
+        conn.execute(stmt)
 
 
 def _copy(conn: Any, table: str, where: str = "", params: tuple = (), *,
@@ -274,6 +286,7 @@ def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
             _copy(conn, "history", "WHERE ingest = ?", (1, bid), skip=("ingest",),
                   set_ingest=True)
             _copy(conn, "components")
+            _model_state_like(conn, _columns(conn, "model_state", "part"))
             _copy(conn, "model_state")
             _copy(conn, "alerts", "ORDER BY id", skip=("id",))
             conn.execute("DETACH DATABASE part")
