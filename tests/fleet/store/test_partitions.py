@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 
 from rulkit.cli import app
 from rulkit.fleet.learned.onset import OnsetModel
+from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.acquisitions import IngestError
 from rulkit.fleet.store.partitions import track_directory
 from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
@@ -114,6 +115,31 @@ def test_a_learned_models_own_state_columns_come_back_from_the_buckets(tmp_path,
     assert got["serial"]["history"]["rul_median"].notna().all()
     for t in got["serial"]:
         pd.testing.assert_frame_equal(got["dask"][t], got["serial"][t], check_exact=True)
+
+
+def test_the_alert_rules_reach_the_dask_buckets(tmp_path, cluster):
+    """Rules given to track_directory (as rulkit track --alarm-hi ... passes them) rule the
+    buckets as they rule the serial run: on a new database and when they replace the stored
+    ones; other rules than the defaults change the levels, so a bucket that ran the defaults
+    would differ."""
+    df = fleet(n_comp=12, steps=40)
+    first, rest = df[df.time < 20], df[df.time >= 20]
+    d = partitions(rest, tmp_path / "parts")
+    rules = MonitoringRules(alarm_hi=0.45, alarm_hits=2, alarm_window=3, lead_time=15.0)
+    for name, scheduler in (("serial", None), ("dask", cluster)):
+        ingest_into(tmp_path / f"{name}.db", first, config=CFG)  # stored with the defaults
+        for db in (tmp_path / f"{name}.db", tmp_path / f"new-{name}.db"):
+            track_directory(db, d, config=CFG, scheduler=scheduler, buckets=3, rules=rules)
+            with ComponentStore(db, readonly=True) as s:
+                assert s.rules == rules
+    default = tmp_path / "default.db"
+    track_directory(default, d, config=CFG, scheduler=cluster, buckets=3)
+    for prefix in ("", "new-"):
+        serial, dask = (tables(tmp_path / f"{prefix}{n}.db") for n in ("serial", "dask"))
+        for t in serial:
+            pd.testing.assert_frame_equal(dask[t], serial[t], check_exact=True)
+    assert not tables(default)["components"]["level"].equals(
+        tables(tmp_path / "new-dask.db")["components"]["level"])
 
 
 def test_a_bad_partition_writes_and_creates_nothing(tmp_path, cluster):

@@ -315,7 +315,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
 
                 res, created = track_directory(db, acquisitions, config=cfg, hi_model=hi_model,
                                                scheduler=scheduler, buckets=buckets,
-                                               timeout=wait)
+                                               timeout=wait, rules=rules)
             else:
                 res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
                                            source=str(acquisitions), timeout=wait, rules=rules)

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
 from rulkit.fleet.store.schema import (
     COMPONENTS,
@@ -76,20 +77,25 @@ def _bucket_of(names: np.ndarray, buckets: int) -> np.ndarray:
 
 def track_directory(db: str | Path, directory: str | Path, *, config: TrackerConfig,
                     hi_model: HealthIndexModel | None = None, scheduler: Any = None,
-                    buckets: int = 0, timeout: float = 30.0) -> tuple[IngestResult, bool]:
+                    buckets: int = 0, timeout: float = 30.0,
+                    rules: MonitoringRules | None = None) -> tuple[IngestResult, bool]:
     """Ingest the partitions under ``directory`` into the SQLite database ``db`` (created if
     missing); ``(result, created)`` as :func:`~rulkit.fleet.store.sqlite.ingest_into`.
     ``scheduler``: a Dask scheduler address or ``distributed.Client`` (module docstring);
-    ``buckets``: tasks to split the components into (default: 4 per worker). Nothing is
-    written (or created) when a bucket's rows are refused."""
+    ``buckets``: tasks to split the components into (default: 4 per worker). ``rules``: the
+    estimator choice and alert rules, as for ``ingest_into`` (rules other than the stored
+    ones replace them before the batch; the buckets run under them). Nothing is written (or
+    created) when a bucket's rows are refused."""
     source = str(directory)
     if scheduler is None:
         return ingest_into(db, read_directory(directory), config=config, hi_model=hi_model,
-                           source=source, timeout=timeout)
+                           source=source, timeout=timeout, rules=rules)
     import pyarrow.dataset as ds
     from distributed import Client
 
     path = Path(db)
+    if rules is not None and path.exists():  # the rules in force before the buckets read them
+        ComponentStore(path, config=config, timeout=timeout, rules=rules).close()
     client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
     try:
         files = [str(f) for f in partition_files(directory)]
@@ -98,7 +104,7 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
         n_buckets = buckets or 4 * max(1, len(client.scheduler_info()["workers"]))
         bucket = _bucket_of(names, n_buckets)
         groups = [names[bucket == b].tolist() for b in range(n_buckets) if (bucket == b).any()]
-        seeds = _seeds(path, groups, config, hi_model, timeout)
+        seeds = _seeds(path, groups, config, hi_model, timeout, rules)
         now = time.time()  # one calendar time of ingestion for every bucket
         parts = client.gather(client.map(_run_bucket, [files] * len(groups), groups, seeds,
                                          [now] * len(groups), pure=False))
@@ -161,17 +167,19 @@ def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, s
 
 
 def _seeds(path: Path, groups: list[list[str]], config: TrackerConfig,
-           hi_model: HealthIndexModel | None, timeout: float) -> list[dict[str, Any]]:
-    """Each bucket's starting point: the settings (``meta``) and, for an existing database,
-    the stored rows of its components (states, learned states, history), every column."""
-    from rulkit.fleet.monitoring.rules import MonitoringRules
+           hi_model: HealthIndexModel | None, timeout: float,
+           rules: MonitoringRules | None = None) -> list[dict[str, Any]]:
+    """Each bucket's starting point: the settings (``meta``; a new database's rules are
+    ``rules``, default ones if ``None``) and, for an existing database, the stored rows of
+    its components (states, learned states, history), every column."""
     from rulkit.fleet.monitoring.unit_trend import TrendConfig
     from rulkit.fleet.store.database_file import _meta_rows
     from rulkit.fleet.store.prognosis import monitoring_meta
 
     empty: dict[str, Any] = {t.name: ([], []) for t in (COMPONENTS, MODEL_STATE, HISTORY)}
     if not path.exists():
-        meta = [*_meta_rows(config, hi_model), monitoring_meta(MonitoringRules(), TrendConfig())]
+        meta = [*_meta_rows(config, hi_model),
+                monitoring_meta(rules or MonitoringRules(), TrendConfig())]
         return [{"meta": meta, **empty} for _ in groups]
     with ComponentStore(path, config=config, readonly=True, timeout=timeout) as store:
         meta = store._conn.execute("SELECT key, value FROM meta").fetchall()
