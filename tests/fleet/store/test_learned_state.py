@@ -3,18 +3,22 @@ each acquisition (the model's own replay is the oracle), at ages on the stored t
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from rulkit.fleet.learned.candidates import model_to_dict
 from rulkit.fleet.learned.datasets import synthetic_growth_fleet
 from rulkit.fleet.learned.hi_noise import HiNoiseModel
 from rulkit.fleet.learned.histories import histories_from_frame
 from rulkit.fleet.learned.onset import OnsetModel
 from rulkit.fleet.learned.similarity import fit_similarity
 from rulkit.fleet.store.database_file import StoreError
+from rulkit.fleet.store.postgres import open_store
+from rulkit.fleet.store.schema import table_columns
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.time_axis import TimeAxis
 
@@ -42,19 +46,20 @@ def _model(fleet, axis, k):
 
 @pytest.mark.parametrize("k", [0, 1, 2])
 @pytest.mark.parametrize("origin", ["time", "first"])
-def test_track_writes_the_models_own_quantiles(fleet, tmp_path, k, origin):
+def test_track_writes_the_models_own_quantiles(fleet, db_url, k, origin):
+    """On both backends (the same store interface)."""
     axis = TimeAxis(unit="d", origin=origin)
     model = _model(fleet, axis, k)
     acq = fleet.assign(time=fleet["time"] + 50.0)  # ages + 50: "first" must remove it
     half = acq.groupby("component").cumcount() < 6
-    db = tmp_path / "m.db"
-    with ComponentStore(db) as s:
+    with open_store(db_url) as s:
         assert s.set_degradation_model(model) == 0
         s.ingest(acq[half])
-    with ComponentStore(db) as s:  # opened again: the schema keeps the model's own columns
+    with open_store(db_url) as s:  # opened again: the schema keeps the model's own columns
+        assert json.dumps(model_to_dict(s.degradation)) == json.dumps(model_to_dict(model))
         s.ingest(acq[~half])  # a second batch continues the stored states
         got = s.history()
-        cols = [r[1] for r in s._conn.execute("PRAGMA table_info(model_state)")]
+        cols = table_columns(s._conn, "model_state")
     assert cols == ["component", "t0", *model.state_columns]
     h = histories_from_frame(acq, axis=axis)
     med, lo, hi = model.rul_quantiles(model.replay(h))

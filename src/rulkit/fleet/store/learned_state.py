@@ -24,7 +24,7 @@ from rulkit.fleet.learned.candidates import FleetModel, model_to_dict
 from rulkit.fleet.learned.histories import Histories
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.database_file import rows_of_components
-from rulkit.fleet.store.schema import model_state_table
+from rulkit.fleet.store.schema import model_state_table, table_columns
 from rulkit.fleet.time_axis import TimeAxis
 
 LEVELS = MonitoringRules().levels
@@ -43,12 +43,11 @@ def _columns(model: FleetModel) -> tuple[str, ...]:
 def ensure_model_state(conn: Any, model: FleetModel) -> None:
     """Create the ``model_state`` table for ``model``'s columns, or make it again (empty)
     when it holds another model's (inside the caller's transaction)."""
-    have = [str(r[1]) for r in conn.execute("PRAGMA table_info(model_state)").fetchall()]
     want = ["component", *_columns(model)]
-    if have == want:
+    if table_columns(conn, "model_state") == want:
         return
     conn.execute("DROP TABLE IF EXISTS model_state")
-    for stmt in model_state_table(_columns(model)).create("sqlite"):
+    for stmt in model_state_table(_columns(model)).create(getattr(conn, "dialect", "sqlite")):
         conn.execute(stmt)
 
 

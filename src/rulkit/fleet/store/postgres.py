@@ -35,7 +35,12 @@ import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig
-from rulkit.fleet.store.database_file import SCHEMA_VERSION, StoreError
+from rulkit.fleet.store.database_file import (
+    SCHEMA_VERSION,
+    StoreError,
+    _degradation_from_meta,
+    time_axis_from_meta,
+)
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
 from rulkit.fleet.store.schema import create_schema, needs_migration
 from rulkit.fleet.store.sqlite import HISTORY_FIELDS, ComponentStore, HistoryChunk
@@ -141,13 +146,10 @@ class PgComponentStore(ComponentStore):
             self.config = TrackerConfig.from_dict(json.loads(meta["tracker_config"]))
             self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
                              if "hi_model" in meta else None)
-            self.degradation = None
-            self.time_axis = None  # rulkit fit (which stores one) is SQLite's
+            self.degradation = _degradation_from_meta(self.path, meta)  # type: ignore[arg-type]
+            self.time_axis = time_axis_from_meta(self.path, meta)  # type: ignore[arg-type]
             self.rules, self.trend = read_monitoring(meta)
             self.now: float | None = None
-            if "degradation_model" in meta:
-                raise StoreError(f"{self.path}: holds a learned degradation model (rulkit "
-                                 "fit), which the PostgreSQL backend does not support yet")
             if config is not None and config != self.config:
                 raise StoreError(
                     f"{self.path} was created with tracker config {self.config.to_dict()}; "

@@ -50,7 +50,13 @@ from rulkit.fleet.monitoring.unit_trend import (
     trend_run,
 )
 from rulkit.fleet.store.database_file import rows_of_components
-from rulkit.fleet.store.schema import RUL_COLUMNS, TREND_COLUMNS, migrate, recount_levels
+from rulkit.fleet.store.schema import (
+    RUL_COLUMNS,
+    TREND_COLUMNS,
+    migrate,
+    recount_levels,
+    table_columns,
+)
 from rulkit.fleet.tracking.tracker_chain import LEVEL_ALARM, tracker_rul_interval
 
 if TYPE_CHECKING:
@@ -65,16 +71,6 @@ REPLAY_ROWS = 200_000
 # ----------------------------------------------------------------------------- schema
 def _dialect(conn: Any) -> str:
     return str(getattr(conn, "dialect", "sqlite"))
-
-
-def table_columns(conn: Any, table: str) -> list[str]:
-    """The columns of ``table`` (SQLite or PostgreSQL connection)."""
-    if _dialect(conn) == "postgresql":
-        rows = conn.execute("SELECT column_name FROM information_schema.columns WHERE "
-                            "table_name = ? AND table_schema = current_schema()",
-                            (table,)).fetchall()
-        return [str(r[0]) for r in rows]
-    return [str(r[1]) for r in conn.execute(f"PRAGMA table_info({table})").fetchall()]
 
 
 def read_monitoring(meta: dict[str, str]) -> tuple[MonitoringRules, TrendConfig]:
@@ -359,7 +355,6 @@ __all__ = [
     "read_monitoring",
     "replay",
     "stored_interval",
-    "table_columns",
     "upgrade",
     "write_monitoring",
 ]

@@ -186,12 +186,14 @@ def create_schema(conn: Any, dialect: str) -> None:
     recount_levels(conn)
 
 
-def _existing_columns(conn: Any, dialect: str, table: str) -> list[str]:
-    if dialect == "sqlite":
-        return [r[1] for r in conn.execute(f"PRAGMA table_info({table})").fetchall()]
-    return [r[0] for r in conn.execute(
+def table_columns(conn: Any, table: str) -> list[str]:
+    """The columns of ``table``, in order (a SQLite connection or the PostgreSQL store's,
+    which says ``dialect = "postgresql"``); ``[]`` when there is no such table."""
+    if getattr(conn, "dialect", "sqlite") == "sqlite":
+        return [str(r[1]) for r in conn.execute(f"PRAGMA table_info({table})").fetchall()]
+    return [str(r[0]) for r in conn.execute(
         "SELECT column_name FROM information_schema.columns WHERE table_schema = "
-        "current_schema() AND table_name = ?", (table,)).fetchall()]
+        "current_schema() AND table_name = ? ORDER BY ordinal_position", (table,)).fetchall()]
 
 
 def migrate(conn: Any, dialect: str) -> None:
@@ -199,7 +201,7 @@ def migrate(conn: Any, dialect: str) -> None:
     nullable columns (additive only; a database of another schema version is refused before
     this runs)."""
     for table in TABLES:
-        have = _existing_columns(conn, dialect, table.name)
+        have = table_columns(conn, table.name)
         if have:
             for col in table.columns:
                 if col.name not in have:
@@ -243,7 +245,7 @@ def add_level_counts(conn: Any, old: Any, new: Any) -> None:
 def needs_migration(conn: Any, dialect: str) -> bool:
     """Whether :func:`migrate` would change anything (read-only check)."""
     for table in TABLES:
-        have = _existing_columns(conn, dialect, table.name)
+        have = table_columns(conn, table.name)
         if not have or any(c.name not in have for c in table.columns):
             return True
     return not level_counts_valid(conn)

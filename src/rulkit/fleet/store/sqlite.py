@@ -948,10 +948,10 @@ class ComponentStore:
                     f"{self.path}: its learned model reads time as '{self.time_axis.describe()}'"
                     f", the tracker histories as '{axis.describe()}'; fit both from histories "
                     "with the same time column and --time-unit")
-            self._conn.execute("INSERT OR REPLACE INTO meta VALUES ('tracker_config', ?)",
-                               (json.dumps(config.to_dict()),))
-            self._conn.execute("INSERT OR REPLACE INTO meta VALUES ('time_axis', ?)",
-                               (json.dumps(axis.to_dict()),))
+            self._conn.execute("DELETE FROM meta WHERE key IN ('tracker_config', 'time_axis')")
+            self._conn.executemany("INSERT INTO meta VALUES (?, ?)", [
+                ("tracker_config", json.dumps(config.to_dict())),
+                ("time_axis", json.dumps(axis.to_dict()))])
         self.config, self.gains, self.time_axis = config, config.gains(), axis
 
     def meta(self) -> dict[str, Any]:
