@@ -188,3 +188,37 @@ def test_baseline_with_a_non_numeric_cell_names_column_and_row(tmp_path):
     assert r.exit_code == 1
     assert "column 'so2', row 3: 'abc' is not a number" in r.output
     assert not db.exists()
+
+
+def test_fit_track_and_status_take_a_postgresql_url(tmp_path, pg_server):
+    """`--db postgresql://...` wherever `--db` is taken: fit a model, track with alert rules,
+    status; the same table as on a SQLite file (the calendar columns aside), and a refused
+    first batch creates nothing."""
+    from rulkit.fleet.learned.datasets import synthetic_linear_fleet
+    from rulkit.fleet.store.postgres import open_store
+
+    hist, _ = synthetic_linear_fleet(np.random.default_rng(0), 10, n_acq=6)
+    hist.to_csv(tmp_path / "hist.csv", index=False)
+    acq = fleet_csv(tmp_path / "acq.csv", t1=40)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("component,time,hi\na,0,0.1\na,1,nan\n")
+    outs = {}
+    for name, db in (("sqlite", str(tmp_path / "f.db")), ("pg", pg_server.create_schema())):
+        r = runner.invoke(app, ["track", "--db", db, str(bad)])
+        assert r.exit_code == 1 and "nothing was written" in r.output, r.output
+        if name == "pg":
+            with pytest.raises(FileNotFoundError):
+                open_store(db, create=False)
+        r = runner.invoke(app, ["fit", "--db", db, str(tmp_path / "hist.csv"), "--model",
+                                "linear", "--time-unit", "h"])
+        assert r.exit_code == 0, r.output
+        r = runner.invoke(app, ["track", "--db", db, str(acq), "--lead-time", "30"])
+        assert r.exit_code == 0, r.output
+        r = runner.invoke(app, ["status", "--db", db, "--format", "csv",
+                                "--now", "2030-01-01T00:00"])
+        assert r.exit_code == 0, r.output
+        rows = list(csv.DictReader(io.StringIO(r.output)))
+        assert len(rows) == 3 and all(row["estimator"] for row in rows)
+        clock = ("last_seen", "due")  # the calendar time of each ingestion
+        outs[name] = [{k: v for k, v in row.items() if k not in clock} for row in rows]
+    assert outs["pg"] == outs["sqlite"]

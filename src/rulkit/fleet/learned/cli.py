@@ -109,17 +109,17 @@ def _fit_tracker(hist: Any, histories: Path) -> Any:
         _fail(f"{histories}: {err}")
 
 
-def _store(db: Path, model: Any, cfg: Any, axis: Any) -> int:
+def _store(db: str, model: Any, cfg: Any, axis: Any) -> int:
     """Store the tracker settings and / or the model; the components rebuilt."""
     from rulkit.fleet.store.database_file import StoreError
-    from rulkit.fleet.store.sqlite import ComponentStore
+    from rulkit.fleet.store.postgres import open_store
 
     try:
-        with ComponentStore(db) as store:
+        with open_store(db) as store:
             if cfg is not None:
                 store.set_tracker_config(cfg, axis)
             return store.set_degradation_model(model) if model is not None else 0
-    except (StoreError, FileNotFoundError) as err:
+    except (StoreError, FileNotFoundError, ConnectionError) as err:
         _fail(str(err))
     raise AssertionError  # unreachable
 
@@ -188,7 +188,8 @@ def fit_command(
     histories: Annotated[Path, typer.Argument(
         help="CSV/Parquet (or Parquet directory) with columns component, time, hi "
              "(optional failed, installed); failure at hi = 1.")],
-    db: Annotated[Path, typer.Option("--db", help="SQLite component database.")],
+    db: Annotated[str, typer.Option(
+        "--db", help="Component database: a SQLite file or a postgresql:// URL.")],
     model: str = typer.Option(
         DEFAULT_MODEL, "--model",
         help="auto (compare the candidates, keep the best held-out), a candidate's name, "

@@ -86,7 +86,7 @@ def status_footer(info: Any) -> list[str]:
     return lines
 
 
-def _echo_table(db: Path, info: Any, cols: dict[str, Any]) -> None:
+def _echo_table(db: str, info: Any, cols: dict[str, Any]) -> None:
     """The ``rulkit status`` table of the columns of
     :func:`rulkit.fleet.store.status_view.status_columns` (every id through
     :func:`safe_text`)."""
@@ -120,21 +120,23 @@ def _echo_table(db: Path, info: Any, cols: dict[str, Any]) -> None:
         typer.echo(safe_text(line))
 
 
-def _status_from_frame(db: Path, limit: int, fmt: str, now: float, sort: str) -> None:
+def _status_from_frame(db: str, limit: int, fmt: str, now: float, sort: str) -> None:
     """``rulkit status`` through :meth:`ComponentStore.status` (pandas), for a components
     table rulkit cannot have written: it names the bad row, or coerces as it always did;
     printed by the same writers as the fast path."""
     from rulkit.cli.errors import fail
     from rulkit.fleet.monitoring.estimators import estimator_in_force
     from rulkit.fleet.store.database_file import StoreError
+    from rulkit.fleet.store.postgres import is_postgres_url, open_store
     from rulkit.fleet.store.sqlite import ComponentStore
     from rulkit.fleet.store.status_view import STORED_COLUMNS, status_columns
 
     try:
-        with ComponentStore(db, readonly=True) as store:
+        with (open_store(db, create=False) if is_postgres_url(db)
+              else ComponentStore(db, readonly=True)) as store:
             df = store.status()
             est = estimator_in_force(store.rules, store.config, store.degradation, store.trend)
-    except FileNotFoundError as err:
+    except (FileNotFoundError, ConnectionError) as err:
         fail(str(err))
     except StoreError as err:
         fail(str(err), code=err.exit_code)
@@ -144,7 +146,7 @@ def _status_from_frame(db: Path, limit: int, fmt: str, now: float, sort: str) ->
     _print_status(db, info, cols, limit, fmt)
 
 
-def _print_status(db: Path, info: Any, cols: dict[str, Any], limit: int, fmt: str) -> None:
+def _print_status(db: str, info: Any, cols: dict[str, Any], limit: int, fmt: str) -> None:
     from rulkit.fleet.store.status_view import format_csv, format_json, limited
 
     cols = limited(cols, limit)
@@ -203,8 +205,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             help="CSV or Parquet file (or a directory of Parquet partitions) with columns "
                  "component, time and hi (or the CI columns of the database's HI model); "
                  "see docs/file-formats.md.")],
-        db: Annotated[Path, typer.Option(
-            "--db", help="SQLite component database (created with the first accepted batch).")],
+        db: Annotated[str, typer.Option(
+            "--db", help="Component database: a SQLite file or a postgresql:// URL (created "
+                         "with the first accepted batch).")],
         baseline: Annotated[Path | None, typer.Option(
             "--baseline", help="CSV of healthy CIs (one column per CI) to fit and store "
                                "the CI -> HI model (new database or one without a model).")
@@ -270,7 +273,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
         from rulkit.fleet.store.database_file import StoreBusyError, StoreError
-        from rulkit.fleet.store.sqlite import ingest_into, read_rules, read_settings
+        from rulkit.fleet.store.postgres import is_postgres_url
+        from rulkit.fleet.store.sqlite import ingest_into
         from rulkit.fleet.tracking.tracker_chain import TrackerConfig
         from rulkit.tables import safe_text
 
@@ -290,16 +294,21 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         _rules_options(None, rule_opts)  # refuse bad values before reading anything
         hi_model = _fit_baseline(baseline, pfa, offset) if baseline is not None else None
         nothing = f"nothing was written to {db}"
+        pg = is_postgres_url(db)
         if scheduler is not None and not acquisitions.is_dir():
             bad_option("--scheduler", "needs a directory of Parquet partitions")
+        if scheduler is not None and pg:
+            bad_option("--scheduler", "tracks into a SQLite database (give a file as --db)")
         try:
             df = None if acquisitions.is_dir() else read_acquisitions(acquisitions)
-            settings = read_settings(db)
-            rules = _rules_options(read_rules(db), rule_opts)
+            settings, stored_rules = _stored_settings(db)
+            rules = _rules_options(stored_rules, rule_opts)
         except IngestError as err:
             fail(f"{err} ({nothing})")
         except StoreError as err:
             fail(str(err), code=err.exit_code)
+        except ConnectionError as err:
+            fail(str(err))
         if settings is None:
             cfg = new_cfg
         else:
@@ -310,7 +319,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 fail(f"{db} was created with other tracker settings (stored, given): {diff}; "
                      "the state is only meaningful with its own settings")
         try:
-            if df is None:  # a directory of partitions, serially or on Dask workers
+            if pg:
+                res, created = _track_postgres(db, acquisitions, df, cfg, hi_model, rules,
+                                               wait, new=settings is None), settings is None
+            elif df is None:  # a directory of partitions, serially or on Dask workers
                 from rulkit.fleet.store.partitions import track_directory
 
                 res, created = track_directory(db, acquisitions, config=cfg, hi_model=hi_model,
@@ -327,6 +339,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             fail(f"{err}; retry the same command", code=err.exit_code)
         except StoreError as err:
             fail(f"{err} ({nothing})", code=err.exit_code)
+        except ConnectionError as err:
+            fail(f"{err} ({nothing})")
         typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
                    f"({res.n_new_components} new) into {safe_text(db)}"
                    + (" (new database)" if created else "")
@@ -345,7 +359,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
 
     @app.command("status")
     def status(
-        db: Annotated[Path, typer.Option("--db", help="SQLite component database.")],
+        db: Annotated[str, typer.Option(
+            "--db", help="Component database: a SQLite file or a postgresql:// URL.")],
         limit: int = typer.Option(0, "--limit", min=0, help="Show the first N (0 = all)."),
         fmt: str = typer.Option("table", "--format",
                                 help="table (for people), csv or json (for scripts)."),
@@ -364,6 +379,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
 
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.database_file import StoreError
+        from rulkit.fleet.store.postgres import is_postgres_url
         from rulkit.fleet.store.status_view import SORTS, read_status
 
         if fmt not in ("table", "csv", "json"):
@@ -371,6 +387,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if sort not in SORTS:
             bad_option("--sort", f"expected one of {', '.join(SORTS)}, got {sort!r}")
         at = time.time() if now is None else _iso_seconds(now)
+        if is_postgres_url(db):  # through the store (the fast path reads SQLite files)
+            _status_from_frame(db, limit, fmt, at, sort)
+            return
         try:  # sqlite3 only; None: a row rulkit cannot have written
             got = read_status(db, now=at, sort=sort)
         except FileNotFoundError as err:
@@ -381,6 +400,38 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             _status_from_frame(db, limit, fmt, at, sort)
             return
         _print_status(db, got[0], got[1], limit, fmt)
+
+
+def _stored_settings(db: str) -> tuple[Any, Any]:
+    """``((tracker config, HI model), rules)`` stored in the database ``db`` (a SQLite path or
+    a ``postgresql://`` URL), ``(None, None)`` when there is none yet."""
+    from rulkit.fleet.store.postgres import is_postgres_url, open_store
+    from rulkit.fleet.store.sqlite import read_rules, read_settings
+
+    if not is_postgres_url(db):
+        return read_settings(db), read_rules(db)
+    try:
+        with open_store(db, create=False) as store:
+            return (store.config, store.hi_model), store.rules
+    except FileNotFoundError:
+        return None, None
+
+
+def _track_postgres(db: str, acquisitions: Path, df: Any, cfg: Any, hi_model: Any,
+                    rules: Any, wait: float, new: bool) -> Any:
+    """``rulkit track`` into PostgreSQL: the file (or the partitions read serially) through
+    the store's one ingestion path; a ``new`` database's schema is created only once its
+    first batch has been validated (a refused batch creates nothing)."""
+    from rulkit.fleet.store.acquisitions import validate_acquisitions
+    from rulkit.fleet.store.partitions import read_directory
+    from rulkit.fleet.store.postgres import open_store
+
+    if df is None:
+        df = read_directory(acquisitions)
+    if new:
+        validate_acquisitions(df, cfg, hi_model)
+    with open_store(db, config=cfg, hi_model=hi_model, rules=rules, timeout=wait) as store:
+        return store.ingest(df, source=str(acquisitions))
 
 
 def _iso_seconds(text: str) -> float:
