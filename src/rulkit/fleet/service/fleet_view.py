@@ -92,7 +92,7 @@ def page_query(sort: str, level: str | None, est: Estimator, now: float,
     cond, params = _filter(level, est, now)
     k, order = SORTS[sort][0], ", ".join(SORTS[sort])
     levels = [None] if sort != "worst" or level in LEVEL_CODES else [2, 1, 0]
-    ranges: list[tuple[str, list[Any]]] = []
+    ranges: list[tuple[str, list[Any], str]] = []  # (condition, parameters, order)
     for lv in levels:
         if key is not None and lv is not None and lv > key[0]:
             continue
@@ -100,13 +100,14 @@ def page_query(sort: str, level: str | None, est: Estimator, now: float,
         if lv is not None:
             where, p = f"{where} AND level = ?", [*p, lv]
         if key is None or (lv is not None and lv < key[0]):
-            ranges.append((where, p))
-        else:
-            ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]]),
-                       (f"{where} AND {k} > ?", [*p, key[1]])]
-    parts = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {order} LIMIT {int(n)}"
-             for w, _ in ranges]
-    args = [v for _, p in ranges for v in p]
+            ranges.append((where, p, order))
+        else:  # the key fixed: ordered by id alone (else SQLite sorts the whole tie)
+            ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]],
+                        "component"),
+                       (f"{where} AND {k} > ?", [*p, key[1]], order)]
+    parts = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} LIMIT {int(n)}"
+             for w, _, o in ranges]
+    args = [v for _, p, _ in ranges for v in p]
     if len(parts) == 1:
         return parts[0], args
     union = " UNION ALL ".join(f"SELECT * FROM ({q}) AS p{i}" for i, q in enumerate(parts))
