@@ -126,8 +126,8 @@ def _status_from_frame(db: str, limit: int, fmt: str, now: float, sort: str) -> 
     printed by the same writers as the fast path."""
     from rulkit.cli.errors import fail
     from rulkit.fleet.monitoring.estimators import estimator_in_force
-    from rulkit.fleet.store.database_file import StoreError
-    from rulkit.fleet.store.postgres import is_postgres_url, open_store
+    from rulkit.fleet.store.database_file import StoreError, is_postgres_url
+    from rulkit.fleet.store.postgres import open_store
     from rulkit.fleet.store.sqlite import ComponentStore
     from rulkit.fleet.store.status_view import STORED_COLUMNS, status_columns
 
@@ -272,8 +272,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         """
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
-        from rulkit.fleet.store.database_file import StoreBusyError, StoreError
-        from rulkit.fleet.store.postgres import is_postgres_url
+        from rulkit.fleet.store.database_file import StoreBusyError, StoreError, is_postgres_url
         from rulkit.fleet.store.sqlite import ingest_into
         from rulkit.fleet.tracking.tracker_chain import TrackerConfig
         from rulkit.tables import safe_text
@@ -378,8 +377,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         import time
 
         from rulkit.cli.errors import bad_option, fail
-        from rulkit.fleet.store.database_file import StoreError
-        from rulkit.fleet.store.postgres import is_postgres_url
+        from rulkit.fleet.store.database_file import StoreError, is_postgres_url
         from rulkit.fleet.store.status_view import SORTS, read_status
 
         if fmt not in ("table", "csv", "json"):
@@ -405,7 +403,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
 def _stored_settings(db: str) -> tuple[Any, Any]:
     """``((tracker config, HI model), rules)`` stored in the database ``db`` (a SQLite path or
     a ``postgresql://`` URL), ``(None, None)`` when there is none yet."""
-    from rulkit.fleet.store.postgres import is_postgres_url, open_store
+    from rulkit.fleet.store.database_file import is_postgres_url
+    from rulkit.fleet.store.postgres import open_store
     from rulkit.fleet.store.sqlite import read_rules, read_settings
 
     if not is_postgres_url(db):

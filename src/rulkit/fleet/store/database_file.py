@@ -41,6 +41,14 @@ from rulkit.tables import safe_text
 
 SCHEMA_VERSION = 1
 T = TypeVar("T")
+PG_SCHEMES = ("postgresql://", "postgres://")
+"""How a ``--db`` that names a PostgreSQL database begins (a libpq URL)."""
+
+
+def is_postgres_url(db: str | Path) -> bool:
+    """Whether ``db`` (what ``--db`` gives) is a PostgreSQL URL rather than a SQLite file
+    (decided without importing the PostgreSQL store: ``rulkit status`` stays light)."""
+    return isinstance(db, str) and db.startswith(PG_SCHEMES)
 
 class StoreError(ValueError):
     """The database cannot be used as a rulkit component database (missing directory, not a

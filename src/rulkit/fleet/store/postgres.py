@@ -39,6 +39,7 @@ from rulkit.fleet.store.database_file import (
     SCHEMA_VERSION,
     StoreError,
     _degradation_from_meta,
+    is_postgres_url,
     time_axis_from_meta,
 )
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
@@ -47,14 +48,9 @@ from rulkit.fleet.store.sqlite import HISTORY_FIELDS, ComponentStore, HistoryChu
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
-PG_SCHEMES = ("postgresql://", "postgres://")
 # Key of the advisory lock that serialises writers (any fixed 64-bit number; "rulkit" in ASCII).
 WRITE_LOCK_KEY = 0x72756C6B6974
 
-
-
-def is_postgres_url(db: str | Path) -> bool:
-    return isinstance(db, str) and db.startswith(PG_SCHEMES)
 
 
 @lru_cache(maxsize=256)
