@@ -91,9 +91,9 @@ def test_bad_options_exit_code_2(telemetry: Path) -> None:
 
 
 def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeypatch) -> None:
-    from rulkit.systems.reaction_wheel.degradation import DegradationConfig
+    from rulkit.systems.reaction_wheel.degradation.trackers import DegradationConfig
     from rulkit.systems.reaction_wheel.reproduce import ReproductionConfig
-    from rulkit.systems.reaction_wheel.rul import RULConfig
+    from rulkit.systems.reaction_wheel.rul.forecast import RULConfig
 
     tiny = ReproductionConfig(
         quick=True, n_runs=2, seed=3,
@@ -147,7 +147,7 @@ def test_estimate_temperature_other_methods(telemetry: Path, tmp_path: Path, met
 
 def test_estimate_temperature_refuses_to_overwrite_its_input(tmp_path) -> None:
     """Issue 13: ``--out f.csv`` on input f.csv overwrote the input; now refused, unchanged."""
-    from rulkit.systems.reaction_wheel.temperature import table3_telemetry
+    from rulkit.systems.reaction_wheel.telemetry import table3_telemetry
 
     f = tmp_path / "f.csv"
     table3_telemetry(np.random.default_rng(0), "low", t_end=2.0).to_csv(f, index=False)
@@ -158,7 +158,7 @@ def test_estimate_temperature_refuses_to_overwrite_its_input(tmp_path) -> None:
 
 
 def test_estimate_below_absolute_zero_is_refused() -> None:
-    from rulkit.systems.reaction_wheel.temperature_estimate import (
+    from rulkit.systems.reaction_wheel.temperature.estimator import (
         ImplausibleEstimateError,
         TemperatureEstimator,
     )

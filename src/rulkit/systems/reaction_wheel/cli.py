@@ -17,6 +17,8 @@ from typing import Annotated, Any
 
 import typer
 
+from rulkit.systems.reaction_wheel.pipeline import stream_temperature
+
 METHODS = ("adaptive", "apf_eq28", "apf_tempered", "pf", "rbpf", "ekf")
 
 
@@ -66,13 +68,9 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from rulkit.systems.reaction_wheel.degradation_study import SOURCES
-    from rulkit.systems.reaction_wheel.reproduce import (
-        ReproductionConfig,
-        run,
-        with_overrides,
-        write_report,
-    )
+    from rulkit.systems.reaction_wheel.degradation.study import SOURCES
+    from rulkit.systems.reaction_wheel.report import write_report
+    from rulkit.systems.reaction_wheel.reproduce import ReproductionConfig, run, with_overrides
 
     if runs is not None and runs < 1:
         raise typer.BadParameter(f"--runs: expected >= 1, got {runs}")
@@ -240,57 +238,3 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         typer.echo(f"{summary.rows} samples, T_lub {summary.last['T_mean']:.2f} C at t = "
                    f"{summary.last['time_s']:g} s ({level:.0%} interval "
                    f"{summary.last['T_lo']:.2f} .. {summary.last['T_hi']:.2f} C); wrote {dest}")
-
-
-class StreamSummary:
-    """What ``rw estimate-temperature`` reports: rows, the last estimate, notes for stderr."""
-
-    def __init__(self) -> None:
-        self.rows = 0
-        self.last: dict[str, float] = {}
-        self.notes: list[str] = []
-
-
-def stream_temperature(file: Path, dest: Path, *, method: str, particles: int, seed: int,
-                       noise: str, level: float, chunk_rows: int) -> StreamSummary:
-    """Read ``file`` chunk by chunk, filter each chunk, and append its estimates to a
-    temporary file beside ``dest`` that replaces ``dest`` only when the whole record has been
-    read, checked and filtered (an error leaves ``dest`` as it was). Memory is bounded by
-    ``chunk_rows``, not the record's length."""
-    import os
-
-    import numpy as np
-
-    from rulkit.systems.reaction_wheel.telemetry import iter_wheel_telemetry
-    from rulkit.systems.reaction_wheel.temperature_estimate import TemperatureEstimator
-    from rulkit.tables import TableWriter, table_format
-
-    tmp = dest.with_name(f".{dest.name}.{os.getpid()}.partial")
-    summary = StreamSummary()
-    est: TemperatureEstimator | None = None
-    try:
-        with TableWriter(tmp, fmt=table_format(dest)) as writer:
-            for chunk in iter_wheel_telemetry(file, chunk_rows=chunk_rows):
-                if est is None:
-                    est = TemperatureEstimator(method, particles, np.random.default_rng(seed),
-                                               dt=float(chunk.attrs["dt"]), noise=noise,
-                                               level=level, source=str(file))
-                part = est.update(chunk)
-                writer.write(part)
-                summary.last = {c: float(part[c].iloc[-1])
-                                for c in ("time_s", "T_mean", "T_lo", "T_hi")}
-        assert est is not None  # iter_wheel_telemetry yields at least one chunk or raises
-        est.finish()
-        os.replace(tmp, dest)
-    finally:
-        tmp.unlink(missing_ok=True)
-    summary.rows = est.rows
-    if est.note:
-        summary.notes.append(f"note: {est.note}")
-    if est.warning:
-        summary.notes.append(f"warning: {est.warning}")
-    if est.n_untrusted:
-        summary.notes.append(f"warning: {est.n_untrusted} samples not trusted (outlier gate; "
-                             f"column 'untrusted'), the first at time_s = "
-                             f"{est.first_untrusted:g}")
-    return summary

@@ -26,15 +26,24 @@ from typing import Any
 
 import numpy as np
 
+from rulkit.systems.reaction_wheel.wheel import simulate_table3
 from rulkit.tables import did_you_mean, numeric_columns, read_table, read_table_chunks
 
 TIME, VOLT, SPEED, CURRENT = "time_s", "v_comm_V", "speed_rad_s", "current_A"
+
+
 COLUMNS: tuple[str, ...] = (TIME, VOLT, SPEED, CURRENT)
+
 
 #: Plausibility limits (absolute values) used to catch wrong units.
 MAX_SPEED_RAD_S = 1000.0  # the overspeed threshold is 690 rad/s (Table 2)
+
+
 MAX_CURRENT_A = 5.0  # G_d * 5 V = 0.95 A at full command
+
+
 MAX_VOLTAGE_V = 5.0  # Table 2: input voltage 0-5 V
+
 
 _ALIASES = {
     TIME: ("t", "time", "timestamp", "t_s", "time_sec", "seconds"),
@@ -47,10 +56,16 @@ _ALIASES = {
 #: Sampling steps the wheel model can be integrated with (RK4 on the driver pole w_d = 9
 #: rad/s is unstable above ~0.3 s; below 1e-4 s the record is not wheel telemetry in seconds).
 MIN_DT_S, MAX_DT_S = 1e-4, 0.25
+
+
 #: Largest speed change per sample that is physics plus noise: |dw/dt| <= (K_t I_max +
 #: tau_c) / J ~ 19 rad/s^2 at 5 A, so a jump above MAX_ACCEL dt + JUMP_SLACK is a splice.
 MAX_ACCEL_RAD_S2 = 20.0
+
+
 JUMP_SLACK_RAD_S = 1.0
+
+
 #: Temperature is observable only through the viscous torque b_v(T) w: below this peak speed
 #: the record carries no temperature information.
 MIN_PEAK_SPEED_RAD_S = 0.5
@@ -297,3 +312,16 @@ def _check_jumps(w: Any, dt: float, source: str, where: Any, csv: bool) -> None:
             f"(> {MAX_ACCEL_RAD_S2:g} rad/s^2): records spliced or tiled together? Give one "
             "continuous record"
         )
+
+
+def table3_telemetry(
+    rng: np.random.Generator, noise: str = "low", *, t_end: float = 500.0
+) -> Any:
+    """A simulated telemetry frame of the Table 3 path in the
+    :mod:`rulkit.systems.reaction_wheel.telemetry`
+    format (columns time_s, v_comm_V, speed_rad_s, current_A) plus the true ``T_lub_C``."""
+    import pandas as pd
+
+    d = simulate_table3(rng, noise, t_end=t_end)
+    return pd.DataFrame(dict(zip(COLUMNS, (d.t, d.V, d.y[:, 0], d.y[:, 1]), strict=True))
+                        | {"T_lub_C": d.T})

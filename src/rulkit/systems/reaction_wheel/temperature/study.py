@@ -2,7 +2,8 @@
 docs/systems/reaction-wheel.md section 3) and its figures (like seed 001 Figs 9-11).
 
 :func:`run_table5` runs every (variant, design, noise, N, run) cell of the grid with
-:func:`rulkit.systems.reaction_wheel.temperature.filter_temperature` (the Rao-Blackwellised PF
+:func:`rulkit.systems.reaction_wheel.temperature.particle.filter_temperature` (the
+Rao-Blackwellised PF
 and the EKF reference beside them) and prints our RMSPE beside the paper's
 (:func:`format_table5`); :func:`plot_temperature_estimates` draws one run per estimator.
 """
@@ -16,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from rulkit.systems.reaction_wheel import kernels as kern
-from rulkit.systems.reaction_wheel.temperature import (
+from rulkit.systems.reaction_wheel.temperature import kernels as kern
+from rulkit.systems.reaction_wheel.temperature.ekf import run_ekf
+from rulkit.systems.reaction_wheel.temperature.particle import (
     Design,
     FloatArray,
     TemperatureConfig,
     filter_temperature,
-    run_ekf,
 )
 from rulkit.systems.reaction_wheel.wheel import simulate_table3
 
@@ -33,11 +34,10 @@ PAPER_TABLE5: dict[tuple[str, str], tuple[float, ...]] = {
     ("adaptive", "high"): (3.596, 3.118, 2.745, 2.742, 2.735, 2.707, 2.748),
     ("apf_eq28", "high"): (3.048, 2.691, 2.697, 2.605, 2.589, 2.496, 2.480),
 }
+
+
 TABLE5_N: tuple[int, ...] = (50, 100, 150, 200, 250, 300, 350)
 
-
-# --------------------------------------------------------------------------------------------
-# Table 5 experiment (docs/systems/reaction-wheel.md section 6)
 
 _NOISES = ("low", "high")
 
@@ -82,7 +82,7 @@ def _table5_pf_task(task: tuple[Any, ...], rng: np.random.Generator) -> dict[str
 def _table5_rbpf_task(task: tuple[Any, ...], rng: np.random.Generator) -> dict[str, Any]:
     """One Rao-Blackwellised PF run (design ``RBPF_DESIGNS[design]``, beyond the seeds) of the
     Table 5 grid; its generator is ``SeedSequence([seed, 2, design index, noise, N, run])``."""
-    from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf
+    from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf
 
     _, design, noise, n, run, seed, t_burn, _overrides, initial, *rest = task
     coverage = bool(rest[0]) if rest else False
@@ -178,7 +178,8 @@ def run_table5(
     ``scheduler`` (the runner only distributes). ``initial``: "rest" ([R]) or
     "equilibrium" start of the truth; ``overrides``: TemperatureConfig fields for every seed-PF run.
     Beyond the seeds: a design named in
-    :data:`rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS` ("RB", "RB05", "RBJ", "RBJ0") adds the
+    :data:`rulkit.systems.reaction_wheel.temperature.rbpf.RBPF_DESIGNS` ("RB", "RB05", "RBJ",
+    "RBJ0") adds the
     Rao-Blackwellised PF (method "rbpf") in that design (e.g. ``designs=("F1", "RBJ")``);
     its generator is ``SeedSequence([seed, 2, design index, noise, N, r])``. ``coverage``:
     also compute each run's 90 % interval and report the fraction of samples in which it
@@ -197,7 +198,7 @@ def run_table5(
         n_list = tuple(n_particles) if n_particles else (50, 200, 350)
     else:
         n_list = tuple(n_particles) if n_particles else TABLE5_N
-    from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS
+    from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS
 
     if methods is None:
         variants = ["adaptive", "apf_eq28"] + (["pf", "apf_tempered"] if extra else [])
@@ -299,11 +300,6 @@ def format_table5(df: Any, column: str = "rmspe_mean") -> str:
     return "\n".join(lines)
 
 
-
-# --------------------------------------------------------------------------------------------
-# figures like seed 001 Figs 9-11
-
-
 _TITLES = {"pf": "PF", "adaptive": "PF + adaptive resampling", "apf_eq28": "APF (eq. 28)",
            "apf_tempered": "APF (tempering)",
            "rbpf": "Rao-Blackwellised PF (beyond the seeds)"}
@@ -328,7 +324,7 @@ def plot_temperature_estimates(
     ``"rbpf"`` draws the Rao-Blackwellised PF in design ``rbpf_design`` (beyond the seeds)."""
     import matplotlib
 
-    from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf
+    from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -376,4 +372,3 @@ def plot_temperature_estimates(
         plt.close(fig)
         paths.append(path)
     return paths
-

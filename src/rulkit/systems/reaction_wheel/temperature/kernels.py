@@ -7,7 +7,7 @@ update of the chosen variant, the estimates, the ESS and systematic resampling. 
 from the
 ``numpy.random.Generator`` passed in (numba draws from the same bit generator, in the same
 order as the numpy reference path
-:func:`rulkit.systems.reaction_wheel.temperature.filter_temperature_numpy`, so both
+:func:`rulkit.systems.reaction_wheel.temperature.particle.filter_temperature_numpy`, so both
 give the same numbers; tested).
 
 Draw order (both paths): T0 = lo + (hi - lo) U (N uniforms); for F2 the initial [I, w] as
@@ -33,67 +33,17 @@ from rulkit.estimation.batched import (
     systematic_row,
     weighted_quantile_pair_row,
 )
-from rulkit.systems.reaction_wheel.wheel import IthacoParams
+from rulkit.systems.reaction_wheel.wheel_kernels import (
+    rk4,
+    viscous_law,
+    wheel_constants,
+)
 
 # variants and designs (integer codes used by the kernel)
 VARIANTS = {"pf": 0, "adaptive": 1, "apf_eq28": 2, "apf_tempered": 3}
+
+
 DESIGNS = {"F1": 0, "F2": 1}
-
-
-def pack_params(p: IthacoParams) -> np.ndarray:
-    """Pack :class:`IthacoParams` into the kernel's float64 parameter vector."""
-    if p.B != 0.0 or p.C != 0.0:
-        raise ValueError("the step-1 kernels model no ripple "
-                         "(B = C = 0, docs/systems/reaction-wheel.md §1.2)")
-    return np.array(
-        [p.G_d, p.w_d, p.K_t, p.K_e, p.K_s, p.w_s, p.tau_c, p.J, p.R_in, p.K_f, p.theta_a,
-         p.w_a, p.V_bus, p.R_B, p.P_q, 0.0 if p.friction_law == "spec" else 1.0],
-        dtype=np.float64,
-    )
-
-
-# No fastmath: with reassociation the kernel compiled in this process and the same kernel loaded
-# from numba's on-disk cache rounded differently, so a command's first run on a machine (cold
-# cache) and its later runs wrote different last digits. FMA contraction alone is deterministic
-# but gains only ~6% here. Strict IEEE order costs about a tenth of the kernel's speed
-# (benchmarks/bench_rw_temperature.py, numba F2 and F1 rows) and keeps the golden tables far
-# inside their tolerance on other processors (tests/test_golden_tables.py).
-
-
-@nb.njit(cache=True, inline="always")
-def _deriv(I, w, V, b, tn, C):  # type: ignore[no-untyped-def]
-    """Wheel derivatives for one particle: the algebra of ``wheel_derivatives`` written
-    branch-free (comparisons as 0/1 factors, docs/systems/reaction-wheel.md §1: Heavisides are exact
-    steps) so the particle loop vectorises. ``C`` is the tuple from :func:`_consts` (inverses
-    precomputed)."""
-    G_d, w_d, K_t, K_e, K_s, w_s, tau_c, inv_J, R_in, K_f, V_bus, R_B, P_q, inv_Vbus = C
-    aI = abs(I)
-    aw = abs(w)
-    sw = (1.0 if w > 0.0 else 0.0) - (1.0 if w < 0.0 else 0.0)
-    I_bus = (R_B * I * I + 0.04 * aI * V_bus + P_q + K_e * w * I) * inv_Vbus
-    V_h = K_f * (V_bus - 6.0 - (1.0 + R_in * I_bus) * (1.0 if I_bus > 0.0 else 0.0) - K_e * aw)
-    f3 = min(V_h, 0.0)
-    f5 = sw * K_s * (aw - w_s) * (1.0 if aw >= w_s else 0.0)
-    dI = w_d * (G_d * (V + f3 - f5) - I)
-    dw = (K_t * I - b * w - tau_c * sw + tn) * inv_J
-    return dI, dw
-
-
-@nb.njit(cache=True)
-def _consts(P):  # type: ignore[no-untyped-def]
-    return (P[0], P[1], P[2], P[3], P[4], P[5], P[6], 1.0 / P[7], P[8], P[9], P[12], P[13],
-            P[14], 1.0 / P[12])
-
-
-@nb.njit(cache=True, inline="always")
-def _rk4(I, w, V, b, tn0, tn1, tn2, dt, C):  # type: ignore[no-untyped-def]
-    """Classical RK4 step; tn0/tn1/tn2: torque noise at t, t + dt/2, t + dt."""
-    k1I, k1w = _deriv(I, w, V, b, tn0, C)
-    k2I, k2w = _deriv(I + 0.5 * dt * k1I, w + 0.5 * dt * k1w, V, b, tn1, C)
-    k3I, k3w = _deriv(I + 0.5 * dt * k2I, w + 0.5 * dt * k2w, V, b, tn1, C)
-    k4I, k4w = _deriv(I + dt * k3I, w + dt * k3w, V, b, tn2, C)
-    return (I + dt / 6.0 * (k1I + 2.0 * k2I + 2.0 * k3I + k4I),
-            w + dt / 6.0 * (k1w + 2.0 * k2w + 2.0 * k3w + k4w))
 
 
 @nb.njit(cache=True)
@@ -103,9 +53,9 @@ def _predict_loglik(I, W, T, ll, N, design, yprev_w, yprev_I, yw, yI, Vk, tn0, t
     for i in range(N):
         b = b0 + b1 * T[i]
         if design == 0:
-            Ii, Wi = _rk4(yprev_I, yprev_w, Vk, b, tn0, tn1, tn2, dt, C)
+            Ii, Wi = rk4(yprev_I, yprev_w, Vk, b, tn0, tn1, tn2, dt, C)
         else:
-            Ii, Wi = _rk4(I[i], W[i], Vk, b, tn0, tn1, tn2, dt, C)
+            Ii, Wi = rk4(I[i], W[i], Vk, b, tn0, tn1, tn2, dt, C)
         I[i] = Ii
         W[i] = Wi
         e0 = yw - Wi
@@ -163,14 +113,6 @@ class KernelSettings(NamedTuple):
     gate_d2: float
     reanchor_after: int
     rollback: int
-
-
-@nb.njit(cache=True)
-def _friction_law(P):  # type: ignore[no-untyped-def]
-    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction-wheel.md §1, (RW-7))."""
-    if P[15] > 0.5:  # seed literal viscous law b = 0.0049 - 0.0002 (T + 30)
-        return 0.0049 - 0.0002 * 30.0, -0.0002
-    return 1e-3 * (0.049 - 0.0002 * 30.0), -1e-3 * 0.0002  # b = 1e-3 (0.049 - 0.0002 (T + 30))
 
 
 @nb.njit(cache=True)
@@ -390,8 +332,8 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     a12 = S_inv[0, 1]
     a22 = S_inv[1, 1]
     logN = math.log(N)
-    C = _consts(P)
-    b0, b1 = _friction_law(P)
+    C = wheel_constants(P)
+    b0, b1 = viscous_law(P)
     tn_amp = P[7] * P[10] * P[11] * P[11]
     w_a = P[11]
     ll_gate = -0.5 * s.gate_d2 - s.log_norm

@@ -1,7 +1,8 @@
 """The Table 6 study of the lubricant-loss trackers (seed 001 Table 6;
 docs/systems/reaction-wheel.md §4, §6).
 
-:func:`run_table6` runs the trackers of :mod:`rulkit.systems.reaction_wheel.degradation` on every
+:func:`run_table6` runs the trackers of :mod:`rulkit.systems.reaction_wheel.degradation.trackers`
+on every
 (scenario, T^ source) case (:func:`run_case`) and prints our RMSPE of b and beta0 beside the
 paper's (:data:`PAPER_TABLE6`). The T^ of each source comes from the error-process shortcut: its
 statistics are measured on real step-1 runs (:func:`measure_temperature_errors`) and the shortcut
@@ -18,7 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from rulkit.systems.reaction_wheel.degradation import (
+from rulkit.systems.reaction_wheel.degradation.shortcut import (
+    EstimateErrorProcess,
+    synthetic_estimate_quadrature,
+)
+from rulkit.systems.reaction_wheel.degradation.trackers import (
     DegradationConfig,
     FloatArray,
     Progress,
@@ -32,10 +37,8 @@ from rulkit.systems.reaction_wheel.lubrication import (
     SAMPLE_DT,
     SCENARIOS,
     WINDOW_S,
-    EstimateErrorProcess,
     LubricationSetup,
     simulate_measurements,
-    synthetic_estimate_quadrature,
     true_window_increments,
 )
 
@@ -46,21 +49,21 @@ PAPER_TABLE6: dict[str, tuple[float, float, float, float]] = {
     "APF + one-step PF": (136.999, 23.896, 66.172, 24.303),
 }
 
+
 #: Step-1 estimators whose error statistics feed the shortcut, and their Table 5 labels.
 #: "APF" and "PF" are the seed's; "RBPF" (ours, beyond the seeds) is the Rao-Blackwellised PF
-#: of :mod:`rulkit.systems.reaction_wheel.rbpf`, design :data:`RBPF_STEP1_DESIGN`. A source's
+#: of :mod:`rulkit.systems.reaction_wheel.temperature.rbpf`, design :data:`RBPF_STEP1_DESIGN`. A
+#: source's
 #: index here keys its random streams, so adding a source leaves the others' numbers unchanged.
 SOURCES = ("APF", "PF", "RBPF")
 
-
-# ---------------------------------------------------------------------------------------------
-# The Table 6 experiment
-# ---------------------------------------------------------------------------------------------
 
 #: Trackers run on the T^ of each step-1 estimator; the seed's three rows plus our RBPF.
 METHODS: dict[str, tuple[str, ...]] = {"APF": ("two_step", "one_step", "rbpf"),
                                        "PF": ("two_step", "rbpf"),
                                        "RBPF": ("two_step", "rbpf")}
+
+
 ROW_LABELS: dict[tuple[str, str], str] = {
     ("APF", "two_step"): "APF + two-step PF",
     ("PF", "two_step"): "PF + two-step PF",
@@ -264,14 +267,13 @@ def run_table6(n_runs: int, seed: int, settings: DegradationConfig,
                         time.perf_counter() - t0)
 
 
-# ---------------------------------------------------------------------------------------------
-# Error statistics of the real step-1 estimator, and validation of the shortcut
-# ---------------------------------------------------------------------------------------------
-
 #: Step-1 variants behind the T^ sources: names of
-#: rulkit.systems.reaction_wheel.temperature.TemperatureConfig
-#: variants, and for "RBPF" the design name in rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS.
+#: rulkit.systems.reaction_wheel.temperature.particle.TemperatureConfig
+#: variants, and for "RBPF" the design name in
+#: rulkit.systems.reaction_wheel.temperature.rbpf.RBPF_DESIGNS.
 RBPF_STEP1_DESIGN = "RBJ"
+
+
 STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive", "RBPF": f"rbpf {RBPF_STEP1_DESIGN}"}
 
 
@@ -281,19 +283,23 @@ def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
                       ) -> FloatArray:
     """T^ (K,) of the real step-1 estimator behind ``source`` on telemetry ``y`` (K, 2), ``V``.
 
-    "APF", "PF": ``rulkit.systems.reaction_wheel.temperature.filter_temperature`` (variant
+    "APF", "PF": ``rulkit.systems.reaction_wheel.temperature.particle.filter_temperature`` (variant
     :data:`STEP1_VARIANTS`,
-    F2 design, its default settings); "RBPF": ``rulkit.systems.reaction_wheel.rbpf.run_rbpf``
+    F2 design, its default settings); "RBPF":
+    ``rulkit.systems.reaction_wheel.temperature.rbpf.run_rbpf``
     with design :data:`RBPF_STEP1_DESIGN` (its settings, ``n_particles`` particles).
     """
     if source == "RBPF":
-        from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf
+        from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf
 
         rcfg = replace(RBPF_DESIGNS[RBPF_STEP1_DESIGN], n_particles=n_particles)
         return run_rbpf(y, V, rng, rcfg, sigma=sigma, dt=dt, quantiles=False).T_mean
     if source not in STEP1_VARIANTS:
         raise ValueError(f"source: expected one of {SOURCES}, got {source!r}")
-    from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
+    from rulkit.systems.reaction_wheel.temperature.particle import (
+        TemperatureConfig,
+        filter_temperature,
+    )
 
     variant: Any = STEP1_VARIANTS[source]  # a TemperatureConfig variant for the PF sources
     cfg = TemperatureConfig(variant=variant, n_particles=n_particles)
@@ -318,7 +324,7 @@ def measure_temperature_errors(source: str, n_runs: int, seed: int, *, n_particl
     ``hours`` (the conditions of step 2); ``on="table3"``: the 500 s Table 3 validation path of
     step 1 (a temperature step and a voltage step: transients that the months-long path lacks).
     """
-    from rulkit.systems.reaction_wheel.lubrication import fit_error_process
+    from rulkit.systems.reaction_wheel.degradation.shortcut import fit_error_process
     from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, ReactionWheel, simulate_table3
 
     errs = []
@@ -405,11 +411,9 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     Reports the window-mean error std of both and the b RMSPE of the two-step PF and the RB-PF
     on each; also fits the error process to the real errors of these runs (``fitted_on_path``).
     """
-    from rulkit.systems.reaction_wheel.lubrication import (
-        WINDOW_SAMPLES,
-        fit_error_process,
-        window_quadrature,
-    )
+    from rulkit.systems.reaction_wheel.degradation.quadrature import window_quadrature
+    from rulkit.systems.reaction_wheel.degradation.shortcut import fit_error_process
+    from rulkit.systems.reaction_wheel.lubrication import WINDOW_SAMPLES
     from rulkit.systems.reaction_wheel.wheel import ReactionWheel
 
     t0 = time.perf_counter()
@@ -461,10 +465,6 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     return ShortcutValidation(hours, n_runs, win_err_real, float(d.std()), out_real, out_syn,
                               fitted, time.perf_counter() - t0)
 
-
-# ---------------------------------------------------------------------------------------------
-# Sensitivity of Table 6 to the unstated settings
-# ---------------------------------------------------------------------------------------------
 
 #: Variations of the sensitivity study: (label, field, values). Fields of DegradationConfig, of the
 #: error process ("error.std_c", "error.tau_s" as multiples) or of the path ("path.orbit").

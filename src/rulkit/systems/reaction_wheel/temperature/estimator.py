@@ -4,7 +4,8 @@ any length chunk by chunk in bounded memory (docs/systems/reaction-wheel.md §3)
 :class:`TemperatureEstimator` holds one filter's state between chunks: ``update(chunk)``
 returns the estimates of that chunk's rows, and a record filtered in chunks gives the numbers
 of one pass over the whole record (tested). The particle filters carry their cloud
-(:func:`rulkit.systems.reaction_wheel.kernels.pf_steps`), the EKF its mean and covariance,
+(:func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_steps`), the EKF its mean and
+covariance,
 the RBPF its particles' Kalman filters. :func:`estimate_temperature` is the one-frame
 form; ``rulkit rw estimate-temperature`` streams a file through
 :func:`rulkit.systems.reaction_wheel.telemetry.iter_wheel_telemetry`.
@@ -22,23 +23,30 @@ from typing import Any
 
 import numpy as np
 
-from rulkit.systems.reaction_wheel import kernels as kern
-from rulkit.systems.reaction_wheel.temperature import (
+from rulkit.systems.reaction_wheel.temperature import kernels as kern
+from rulkit.systems.reaction_wheel.temperature.ekf import ekf_setup
+from rulkit.systems.reaction_wheel.temperature.particle import (
     DEFAULT_GATE_D2,
-    RBPF_INTERVAL_NOTE,
     TemperatureConfig,
     _prepare,
-    ekf_setup,
     kernel_settings,
 )
+from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_INTERVAL_NOTE
 from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, IthacoParams
+from rulkit.systems.reaction_wheel.wheel_kernels import pack_params
 
 #: Temperatures the wheel model describes (C): the viscous coefficient b_v(T) is positive
 #: from below -30 C up to 215 C (docs/systems/reaction-wheel.md, (RW-7)).
 MODEL_RANGE_C = (-30.0, 215.0)
+
+
 ABSOLUTE_ZERO_C = -273.15
+
+
 #: The columns of an estimate.
 OUTPUT_COLUMNS = ("time_s", "T_mean", "T_lo", "T_hi", "untrusted")
+
+
 METHODS = ("adaptive", "apf_eq28", "apf_tempered", "pf", "rbpf", "ekf")
 
 
@@ -104,7 +112,7 @@ class TemperatureEstimator:
         self._last: Any = None  # the previous chunk's last row (y, V, t)
         q = (0.5 - level / 2, 0.5 + level / 2)
         if method == "rbpf":
-            from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, RBPFConfig
+            from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, RBPFConfig
 
             if config is None:
                 name = "RBJ" if design == "F2" else design
@@ -199,7 +207,7 @@ class TemperatureEstimator:
         first = self._state is None
         if first:
             d = _prepare(y, V, cfg, self.sigma, self.params, self.dt)
-            self._inp = (d["S_inv"], d["init_sd"], kern.pack_params(self.params))
+            self._inp = (d["S_inv"], d["init_sd"], pack_params(self.params))
             self._settings = kernel_settings(cfg, d, float(t[0]), self.dt)
             st, *row0 = kern.pf_start(d["y"][0], d["init_sd"], self._settings, self.rng)
             self._state = st
@@ -238,7 +246,7 @@ class TemperatureEstimator:
         return m, m - z * s, m + z * s, np.zeros(len(t), dtype=bool)
 
     def _rbpf(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
-        from rulkit.systems.reaction_wheel.rbpf import RBPFStream
+        from rulkit.systems.reaction_wheel.temperature.rbpf import RBPFStream
 
         if self._state is None:
             assert self.rng is not None  # checked in __init__
@@ -290,9 +298,10 @@ def estimate_temperature(
     its step is dt).
     ``method``: ``"pf"``, ``"adaptive"``, ``"apf_eq28"``, ``"apf_tempered"`` (particle filters,
     need ``rng``; outlier-gated, see
-    :data:`rulkit.systems.reaction_wheel.temperature.DEFAULT_GATE_D2`), ``"rbpf"``
+    :data:`rulkit.systems.reaction_wheel.temperature.particle.DEFAULT_GATE_D2`), ``"rbpf"``
     (Rao-Blackwellised PF, beyond the seeds: ``design`` one of
-    :data:`rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS`, "RBJ" when ``design`` is left at
+    :data:`rulkit.systems.reaction_wheel.temperature.rbpf.RBPF_DESIGNS`, "RBJ" when ``design`` is
+    left at
     "F2"; ``config`` may be an :class:`RBPFConfig`) or ``"ekf"`` (deterministic).
     ``noise``: the measurement-noise level assumed ("low", "high" of seed Table 5, or
     ``(sigma_w, sigma_I)``). ``config`` overrides every PF setting. Raises

@@ -2,7 +2,7 @@
 T_lub from wheel speed and motor current (docs/systems/reaction-wheel.md §3; seed 001 section
 3.1, eqs 13-17 and 28; seed 000 section 3.2 and eq. 27). The Table 5 experiment and its
 figures (docs/systems/reaction-wheel.md §6) are in
-:mod:`rulkit.systems.reaction_wheel.temperature_study`.
+:mod:`rulkit.systems.reaction_wheel.temperature.study`.
 
 Estimators (all with the temperature random walk T_k = T_{k-1} + q_T xi_k):
 
@@ -26,11 +26,12 @@ S = R + Phi R Phi^T for the noise in that start (Phi the Jacobian of the RK4 ste
 differences at the 1 V / 23 C steady state). ``"F2"`` particles carry their own [I, w].
 
 Two implementations give the same numbers (tested): the fused numba kernel
-(:mod:`rulkit.systems.reaction_wheel.kernels`, default) and a vectorised numpy reference path
+(:mod:`rulkit.systems.reaction_wheel.temperature.kernels`, default) and a vectorised numpy
+reference path
 built on the engine (:func:`filter_temperature_numpy`).
 
 Beyond the seeds: the Rao-Blackwellised PF over T with a Kalman filter on [I, w] per particle
-(:mod:`rulkit.systems.reaction_wheel.rbpf`), as Table 5 designs "RB", "RB05", "RBJ"
+(:mod:`rulkit.systems.reaction_wheel.temperature.rbpf`), as Table 5 designs "RB", "RB05", "RBJ"
 (``run_table5(designs=...)``) and ``estimate_temperature(method="rbpf")``.
 """
 
@@ -43,19 +44,22 @@ from typing import Any, Literal
 import numpy as np
 
 from rulkit.estimation.batched import ess_rows, normalise_rows, weighted_quantile_rows
-from rulkit.systems.reaction_wheel import kernels as kern
+from rulkit.systems.reaction_wheel.temperature import kernels as kern
 from rulkit.systems.reaction_wheel.wheel import (
     NOISE_LEVELS,
     IthacoParams,
     ReactionWheel,
     check_measurements,
     rk4_wheel_step,
-    rk4_wheel_step_jacobian,
-    simulate_table3,
 )
+from rulkit.systems.reaction_wheel.wheel_kernels import pack_params
 
 FloatArray = np.ndarray
+
+
 Design = Literal["F1", "F2"]
+
+
 Variant = Literal["pf", "adaptive", "apf_eq28", "apf_tempered"]
 
 
@@ -64,11 +68,6 @@ Variant = Literal["pf", "adaptive", "apf_eq28", "apf_tempered"]
 #: probability e^-12.5 ~ 4e-6 per sample for a particle on the truth). Beyond the seeds; the
 #: paper's filters (Table 5) run without it.
 DEFAULT_GATE_D2 = 25.0
-
-#: Said with every RBPF estimate: its interval is not calibrated (issue 13 measured 75 %
-#: coverage of the truth by the 95 % interval on a slowly varying temperature).
-RBPF_INTERVAL_NOTE = ("the RBPF interval is not calibrated: its 95 % interval covered only "
-                      "75 % of the true temperature on a slowly varying record")
 
 
 @dataclass(frozen=True)
@@ -158,10 +157,6 @@ class TemperatureResult:
     config: TemperatureConfig = field(repr=False)
 
 
-# --------------------------------------------------------------------------------------------
-# likelihood covariance
-
-
 def _rk4_jacobian(sigma: tuple[float, float], params: IthacoParams, dt: float) -> np.ndarray:
     """Jacobian (in output order [w, I]) of one RK4 step w.r.t. its start, by central
     differences at the 1 V, 23 C steady state (near-constant: the wheel is almost linear)."""
@@ -242,7 +237,7 @@ def filter_temperature(
         return filter_temperature_numpy(d, cfg, rng, p, dt, t0, quantiles)
     if backend != "numba":
         raise ValueError(f"backend: expected 'numba' or 'numpy', got {backend!r}")
-    inp = kern.KernelInputs(d["y"], d["V"], d["S_inv"], d["init_sd"], kern.pack_params(p))
+    inp = kern.KernelInputs(d["y"], d["V"], d["S_inv"], d["init_sd"], pack_params(p))
     settings = kernel_settings(cfg, d, t0, dt, quantiles)
     out = kern.pf_kernel(inp, settings, rng)
     t = t0 + dt * np.arange(d["y"].shape[0])
@@ -269,16 +264,12 @@ def kernel_settings(cfg: TemperatureConfig, d: dict[str, Any], t0: float, dt: fl
     )
 
 
-# --------------------------------------------------------------------------------------------
-# numpy reference path: the engine's ParticleFilter (per-step API) with plug-ins; same random
-# draws and algebra as the fused kernel
-
-
 def filter_temperature_numpy(
     d: dict[str, Any], cfg: TemperatureConfig, rng: np.random.Generator, p: IthacoParams, dt: float,
     t0: float, quantiles: bool,
 ) -> TemperatureResult:
-    """Vectorised numpy reference of :func:`rulkit.systems.reaction_wheel.kernels.pf_kernel`.
+    """Vectorised numpy reference of
+    :func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_kernel`.
 
     Built on :class:`rulkit.estimation.particle.ParticleFilter`: ``transition`` (T random walk,
     F2 RK4 via :func:`rulkit.integrate.rk4_step`), ``log_likelihood``, ``weight_update`` for
@@ -445,154 +436,3 @@ def _temper_gamma_np(lw: FloatArray, ll: FloatArray, cfg: TemperatureConfig, N: 
         else:
             hi = mid
     return math.exp(lo)
-
-
-# --------------------------------------------------------------------------------------------
-# reference estimator that is not a particle filter (docs/systems/reaction-wheel.md §3)
-
-
-@dataclass(frozen=True)
-class EKFResult:
-    """EKF estimates of T for B units: ``T_mean``/``T_std`` (K, B); row 0 is the prior."""
-
-    t: FloatArray
-    T_mean: FloatArray
-    T_std: FloatArray
-
-
-def run_ekf(
-    ys: FloatArray,
-    V: FloatArray,
-    *,
-    sigma: Any = NOISE_LEVELS["low"],
-    dt: float = 0.05,
-    t0: float = 0.0,
-    q_T: float = 0.02,
-    q_Iw: tuple[float, float] = (1e-6, 1e-6),
-    T_prior: tuple[float, float] = (15.0, 45.0),
-    params: IthacoParams | None = None,
-    analytic_jacobian: bool = True,
-) -> EKFResult:
-    """Extended Kalman filter on [I, w, T] (docs/systems/reaction-wheel.md §3 reference), batched
-    over B units.
-
-    ``ys`` (K, 2) or (K, B, 2) = [w, I_m] sharing the voltage ``V`` (K,); ``sigma`` is
-    ``(sigma_w, sigma_I)`` or per unit (B, 2). Discrete model: one
-    RK4 step of the wheel with T held, T a random walk of step ``q_T``; tiny process noise
-    ``q_Iw`` on [I, w] keeps P well conditioned. Prior: [I, w] = y_0 with covariance R, T with
-    the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.kalman.ExtendedKalmanFilter`
-    with the tangent-linear RK4 Jacobian (:func:`rk4_wheel_step_jacobian`; finite differences
-    when ``analytic_jacobian=False``).
-    """
-    Y = np.asarray(ys, dtype=np.float64)
-    if Y.ndim == 2:
-        Y = Y[:, None, :]
-    if Y.ndim != 3 or Y.shape[2] != 2 or Y.shape[0] < 2:
-        raise ValueError(f"ys: expected shape (K, 2) or (K, B, 2), got {np.shape(ys)}")
-    V = np.asarray(V, dtype=np.float64)
-    K = Y.shape[0]
-    if V.shape != (K,):
-        raise ValueError(f"V: expected shape ({K},), got {V.shape}")
-    ekf, x0, P0, clock = ekf_setup(Y[0], sigma, params, q_T=q_T, q_Iw=q_Iw, T_prior=T_prior,
-                                   analytic_jacobian=analytic_jacobian)
-    clock.t0, clock.dt = t0, dt
-    res = ekf.filter(Y[1:], x0, P0, us=V[:-1])
-    T_mean = np.vstack([x0[None, :, 2], res.x[:, :, 2]])
-    T_std = np.vstack([np.sqrt(P0[None, :, 2, 2]), np.sqrt(res.P[:, :, 2, 2])])
-    return EKFResult(t0 + dt * np.arange(K), T_mean, T_std)
-
-
-@dataclass
-class StepClock:
-    """Time of step ``j`` of an EKF run: ``t0 + j dt`` (mutable, so one filter object can
-    continue a record chunk after chunk)."""
-
-    t0: float = 0.0
-    dt: float = 0.05
-
-
-def ekf_setup(
-    y0: FloatArray,
-    sigma: tuple[float, float] | FloatArray,
-    params: IthacoParams | None = None,
-    *,
-    q_T: float = 0.02,
-    q_Iw: tuple[float, float] = (1e-6, 1e-6),
-    T_prior: tuple[float, float] = (15.0, 45.0),
-    analytic_jacobian: bool = True,
-) -> tuple[Any, FloatArray, FloatArray, StepClock]:
-    """The wheel EKF of :func:`run_ekf` for B units whose first sample is ``y0`` (B, 2) =
-    [w, I_m]: (filter, prior mean x0 (B, 3), prior covariance P0 (B, 3, 3), its
-    :class:`StepClock`)."""
-    from rulkit.estimation.kalman import ExtendedKalmanFilter
-
-    p = params or IthacoParams()
-    y0 = np.asarray(y0, dtype=np.float64)
-    B = y0.shape[0]
-    clock = StepClock()
-
-    def f(x: FloatArray, u: float, j: int) -> FloatArray:
-        X = rk4_wheel_step(x[:, :2], u, x[:, 2], clock.t0 + j * clock.dt, clock.dt, p)
-        return np.column_stack([X, x[:, 2]])
-
-    def jac_f(x: FloatArray, u: float, j: int) -> FloatArray:
-        return rk4_wheel_step_jacobian(x, u, x[:, 2], clock.t0 + j * clock.dt, clock.dt, p)
-
-    def h(x: FloatArray, u: float, j: int) -> FloatArray:
-        return np.column_stack([x[:, 1], x[:, 0]])
-
-    H = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
-
-    sg = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (B, 2))  # per unit [sw, sI]
-    if not np.all(sg > 0):
-        raise ValueError(f"sigma: expected positive (sigma_w, sigma_I), got {sigma}")
-    sw, sI = sg[:, 0], sg[:, 1]
-    Q = np.diag([q_Iw[0] ** 2, q_Iw[1] ** 2, q_T**2])
-    R = np.zeros((B, 2, 2))
-    R[:, 0, 0], R[:, 1, 1] = sw**2, sI**2
-    ekf = ExtendedKalmanFilter(f, h, Q, R, jac_f=jac_f if analytic_jacobian else None,
-                               jac_h=lambda x, u, j: H)
-    lo, hi = T_prior
-    x0 = np.column_stack([y0[:, 1], y0[:, 0], np.full(B, 0.5 * (lo + hi))])
-    P0 = np.zeros((B, 3, 3))
-    P0[:, 0, 0], P0[:, 1, 1], P0[:, 2, 2] = sI**2, sw**2, (hi - lo) ** 2 / 12.0
-    return ekf, x0, P0, clock
-
-
-# --------------------------------------------------------------------------------------------
-# user telemetry
-
-
-def table3_telemetry(
-    rng: np.random.Generator, noise: str = "low", *, t_end: float = 500.0
-) -> Any:
-    """A simulated telemetry frame of the Table 3 path in the
-    :mod:`rulkit.systems.reaction_wheel.telemetry`
-    format (columns time_s, v_comm_V, speed_rad_s, current_A) plus the true ``T_lub_C``."""
-    import pandas as pd
-
-    from rulkit.systems.reaction_wheel.telemetry import COLUMNS
-
-    d = simulate_table3(rng, noise, t_end=t_end)
-    return pd.DataFrame(dict(zip(COLUMNS, (d.t, d.V, d.y[:, 0], d.y[:, 1]), strict=True))
-                        | {"T_lub_C": d.T})
-
-
-# The Table 5 study and its figures live in temperature_study (names kept importable here).
-_STUDY = ("PAPER_TABLE5", "TABLE5_N", "COVERAGE_QUANTILES", "run_table5", "format_table5",
-          "plot_temperature_estimates")
-# ... and the user-telemetry estimate in temperature_estimate
-_ESTIMATE = ("estimate_temperature", "ImplausibleEstimateError", "MODEL_RANGE_C",
-             "ABSOLUTE_ZERO_C", "TemperatureEstimator")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _STUDY:
-        from rulkit.systems.reaction_wheel import temperature_study
-
-        return getattr(temperature_study, name)
-    if name in _ESTIMATE:
-        from rulkit.systems.reaction_wheel import temperature_estimate
-
-        return getattr(temperature_estimate, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

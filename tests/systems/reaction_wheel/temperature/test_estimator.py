@@ -16,9 +16,9 @@ from rulkit.systems.reaction_wheel.telemetry import (
     TelemetryError,
     iter_wheel_telemetry,
     read_wheel_telemetry,
+    table3_telemetry,
 )
-from rulkit.systems.reaction_wheel.temperature import table3_telemetry
-from rulkit.systems.reaction_wheel.temperature_estimate import (
+from rulkit.systems.reaction_wheel.temperature.estimator import (
     EstimationError,
     TemperatureEstimator,
     estimate_temperature,
@@ -155,7 +155,7 @@ def test_a_filter_failure_names_the_file_row_and_time(record, monkeypatch) -> No
     """Issue 13: "innovation covariance ..." from inside the EKF becomes a message naming the
     source, the record row and its time (the step index mapped through the chunking)."""
     from rulkit.estimation.kalman import FilterStepError
-    from rulkit.systems.reaction_wheel import temperature_estimate as te
+    from rulkit.systems.reaction_wheel.temperature import estimator as te
 
     real = te.ekf_setup
 

@@ -10,18 +10,20 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from rulkit.systems.reaction_wheel.temperature import (
-    PAPER_TABLE5,
+from rulkit.systems.reaction_wheel.telemetry import table3_telemetry
+from rulkit.systems.reaction_wheel.temperature.ekf import run_ekf
+from rulkit.systems.reaction_wheel.temperature.estimator import estimate_temperature
+from rulkit.systems.reaction_wheel.temperature.particle import (
     TemperatureConfig,
     apf_eq28_weights,
-    estimate_temperature,
     filter_temperature,
-    format_table5,
     likelihood_covariance,
+)
+from rulkit.systems.reaction_wheel.temperature.study import (
+    PAPER_TABLE5,
+    format_table5,
     plot_temperature_estimates,
-    run_ekf,
     run_table5,
-    table3_telemetry,
 )
 from rulkit.systems.reaction_wheel.wheel import IthacoParams, simulate_table3, viscous_coefficient
 
@@ -32,6 +34,29 @@ def short_run():
 
 
 CASES = [(d, v) for d in ("F1", "F2") for v in ("pf", "adaptive", "apf_eq28", "apf_tempered")]
+
+
+def _constant_record(T: float = 30.0, V: float = 1.0, K: int = 4000, seed: int = 0,
+                     noise: str = "low") -> tuple[object, np.ndarray]:
+    """Telemetry frame of the wheel at equilibrium at constant T and V, and the true T."""
+    import pandas as pd
+
+    from rulkit.systems.reaction_wheel.telemetry import COLUMNS
+    from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, ReactionWheel, rk4_wheel_step
+
+    p = IthacoParams()
+    sw, sI = NOISE_LEVELS[noise]
+    x = ReactionWheel(p, noise=(sw, sI)).steady_state(V, T)[None]
+    X = np.empty((K, 2))
+    X[0] = x[0]
+    for k in range(K - 1):
+        x = rk4_wheel_step(x, V, T, k * 0.05, 0.05, p)
+        X[k + 1] = x[0]
+    rng = np.random.default_rng(seed)
+    t = 0.05 * np.arange(K)
+    df = pd.DataFrame(dict(zip(COLUMNS, (t, np.full(K, V), X[:, 1] + sw * rng.standard_normal(K),
+                                         X[:, 0] + sI * rng.standard_normal(K)), strict=True)))
+    return df, np.full(K, T)
 
 
 @pytest.mark.parametrize(("design", "variant"), CASES)
@@ -185,29 +210,6 @@ def test_plot_temperature_estimates_writes_figures(tmp_path) -> None:
     paths = plot_temperature_estimates(tmp_path, n_particles=30, variants=("adaptive",),
                                        with_ekf=False, t_end=5.0)
     assert len(paths) == 1 and paths[0].exists() and paths[0].stat().st_size > 10_000
-
-
-def _constant_record(T: float = 30.0, V: float = 1.0, K: int = 4000, seed: int = 0,
-                     noise: str = "low") -> tuple[object, np.ndarray]:
-    """Telemetry frame of the wheel at equilibrium at constant T and V, and the true T."""
-    import pandas as pd
-
-    from rulkit.systems.reaction_wheel.telemetry import COLUMNS
-    from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, ReactionWheel, rk4_wheel_step
-
-    p = IthacoParams()
-    sw, sI = NOISE_LEVELS[noise]
-    x = ReactionWheel(p, noise=(sw, sI)).steady_state(V, T)[None]
-    X = np.empty((K, 2))
-    X[0] = x[0]
-    for k in range(K - 1):
-        x = rk4_wheel_step(x, V, T, k * 0.05, 0.05, p)
-        X[k + 1] = x[0]
-    rng = np.random.default_rng(seed)
-    t = 0.05 * np.arange(K)
-    df = pd.DataFrame(dict(zip(COLUMNS, (t, np.full(K, V), X[:, 1] + sw * rng.standard_normal(K),
-                                         X[:, 0] + sI * rng.standard_normal(K)), strict=True)))
-    return df, np.full(K, T)
 
 
 @pytest.mark.parametrize("noise", ["low", "high"])

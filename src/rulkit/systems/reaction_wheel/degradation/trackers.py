@@ -13,11 +13,12 @@ Three trackers of ``theta = [b, beta0]`` (random walks) from the window losses
   particle carries an exact scalar Kalman filter ``(m, P)`` for ``beta0`` and is weighted by the
   Kalman predictive likelihood ``N(y_k; H m, H^2 P + sigma_y^2)``.
 
-The window sums use :class:`rulkit.systems.reaction_wheel.lubrication.WindowQuadrature` (n Gauss
+The window sums use :class:`rulkit.systems.reaction_wheel.degradation.quadrature.WindowQuadrature`
+(n Gauss
 nodes per window
 instead of 4,800 exponentials per particle). ``T^`` over three months comes from the error-process
 shortcut (docs/systems/reaction-wheel.md §4); it and the Table 6 study are in
-:mod:`rulkit.systems.reaction_wheel.degradation_study`.
+:mod:`rulkit.systems.reaction_wheel.degradation.study`.
 
 Batched over units: every array has a leading unit axis U (runs x scenarios x T^ sources) and a
 particle axis N, so the 32,400-window loop runs once per tracker for all 20 runs. Each unit has its
@@ -49,14 +50,12 @@ from rulkit.estimation.batched import (
     systematic_row,
     systematic_rows,
 )
-from rulkit.systems.reaction_wheel.lubrication import (
-    DAY_S,
-    SAMPLE_DT,
-    WINDOW_S,
-    WindowQuadrature,
-)
+from rulkit.systems.reaction_wheel.degradation.quadrature import WindowQuadrature
+from rulkit.systems.reaction_wheel.lubrication import DAY_S, SAMPLE_DT, WINDOW_S
 
 FloatArray = NDArray[np.float64]
+
+
 Progress = Callable[[str, int, int], None]
 
 
@@ -90,10 +89,6 @@ class DegradationConfig:
         return round(self.horizon_days * DAY_S / WINDOW_S)
 
 
-# ---------------------------------------------------------------------------------------------
-# Random streams: one generator per (purpose, scenario, source, run)
-# ---------------------------------------------------------------------------------------------
-
 _STREAMS = {"measurement": 0, "estimate": 1, "one_step": 2, "pf1": 3, "pf2": 4, "rbpf": 5,
             "forecast": 6}
 
@@ -103,11 +98,6 @@ def unit_rng(seed: int, stream: str, scenario_id: int, source: int, run: int
     """Generator for one unit and purpose, independent of batching (SeedSequence spawn keys)."""
     ss = np.random.SeedSequence(seed, spawn_key=(_STREAMS[stream], scenario_id, source, run))
     return np.random.default_rng(ss)
-
-
-# ---------------------------------------------------------------------------------------------
-# Batched particle-filter pieces
-# ---------------------------------------------------------------------------------------------
 
 
 def _progress(progress: Progress | None, label: str, done: int, W: int) -> None:
@@ -199,11 +189,6 @@ def _np_resample(logw: FloatArray, ess: FloatArray, states: list[FloatArray], u:
             st[rows] = np.take_along_axis(st[rows], idx, axis=1)
         logw[rows] = -np.log(N)
     return do
-
-
-# ---------------------------------------------------------------------------------------------
-# Compiled kernels (same algebra and draws as the numpy path, tested equal)
-# ---------------------------------------------------------------------------------------------
 
 
 @numba.njit(cache=True)
