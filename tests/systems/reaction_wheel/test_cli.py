@@ -37,7 +37,7 @@ def test_estimate_temperature_writes_estimate_with_interval(telemetry: Path, tmp
                               "--particles", "40", "--seed", "1"])
     assert res.exit_code == 0, _err(res)
     est = pd.read_csv(out)
-    assert list(est.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted"]
+    assert list(est.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted", "flags"]
     assert len(est) == 601
     num = est[["time_s", "T_mean", "T_lo", "T_hi"]].to_numpy()
     assert np.isfinite(num).all() and (est["T_lo"] <= est["T_hi"]).all()
@@ -75,7 +75,9 @@ def test_bad_telemetry_gives_specific_error_and_exit_code_2(telemetry: Path, tmp
     else:
         p = tmp_path / "bad.xlsx"
         p.write_text("x")
-    res = runner.invoke(app, ["rw", "estimate-temperature", str(p)])
+    # a particle filter needs every cell (the default 'imm' takes an empty cell as a dropout)
+    res = runner.invoke(app, ["rw", "estimate-temperature", str(p), "--method", "pf",
+                              "--particles", "20"])
     assert res.exit_code == 1  # the input file was refused (docs/guide.md, exit codes)
     msg = _err(res)
     assert "error:" in msg and expect in msg

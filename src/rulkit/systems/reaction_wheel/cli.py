@@ -19,7 +19,10 @@ import typer
 
 from rulkit.systems.reaction_wheel.pipeline import stream_temperature
 
-METHODS = ("adaptive", "apf_eq28", "apf_tempered", "pf", "rbpf", "ekf")
+#: The step-1 estimators (the default first); the same as
+#: ``rulkit.systems.reaction_wheel.temperature.estimator.METHODS`` (kept here so that
+#: ``rulkit --help`` does not import numba).
+METHODS = ("imm", "ekf", "rbpf", "pf", "adaptive", "apf", "apf_eq28", "apf_tempered")
 
 
 def _print_tables(rep: Any, console: Any) -> None:
@@ -191,42 +194,38 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                                                   "speed_rad_s, current_A.")],
         out: Annotated[Path | None, typer.Option(
             help="Output CSV or Parquet (default FILE stem + _temperature.csv).")] = None,
-        method: Annotated[str, typer.Option(help=f"One of {', '.join(METHODS)}.")] = "adaptive",
-        particles: Annotated[int, typer.Option(help="Particles (PF methods).")] = 350,
+        wheel: Annotated[Path | None, typer.Option(
+            help="Wheel file (TOML; default the seed's wheel): `rulkit rw wheel-template`.")
+        ] = None,
+        method: Annotated[str | None, typer.Option(
+            help=f"One of {', '.join(METHODS)} (default the wheel file's, imm).")] = None,
+        particles: Annotated[int | None, typer.Option(help="Particles (PF methods).")] = None,
         seed: Annotated[int, typer.Option(min=0, help="Seed of the particle filter.")] = 0,
-        noise: Annotated[str, typer.Option(help="Assumed noise level: low or high.")] = "low",
+        noise: Annotated[str | None, typer.Option(
+            help="Noise level low or high of seed Table 5 (default the wheel file's).")] = None,
         level: Annotated[float, typer.Option(help="Interval level.")] = 0.95,
         chunk_rows: Annotated[int, typer.Option(
             help="Rows read, filtered and written at a time (bounds the memory).")] = 100_000,
     ) -> None:
         """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
-        import os
+        from rulkit.cli.errors import EXIT_USAGE, fail
 
-        from rulkit.cli.errors import EXIT_USAGE
-        from rulkit.cli.errors import fail as _fail
-
-        def fail(msg: str, code: int = 1) -> None:  # 1: the input; 2: an option (usage)
-            _fail(msg, code=code)
-
-        if method not in METHODS:
-            fail(f"--method: expected one of {', '.join(METHODS)}, got {method!r}", EXIT_USAGE)
-        if particles < 2:
-            fail(f"--particles: need at least 2, got {particles}", EXIT_USAGE)
-        if noise not in ("low", "high"):
-            fail(f"--noise: expected 'low' or 'high', got {noise!r}", EXIT_USAGE)
+        if method is not None and method not in METHODS:
+            fail(f"--method: expected one of {', '.join(METHODS)}, got {method!r}",
+                 code=EXIT_USAGE)
+        if particles is not None and particles < 2:
+            fail(f"--particles: need at least 2, got {particles}", code=EXIT_USAGE)
+        if noise not in (None, "low", "high"):
+            fail(f"--noise: expected 'low' or 'high', got {noise!r}", code=EXIT_USAGE)
         if not 0 < level < 1:
-            fail(f"--level: expected a value in (0, 1), got {level}", EXIT_USAGE)
+            fail(f"--level: expected a value in (0, 1), got {level}", code=EXIT_USAGE)
         if chunk_rows < 2:
-            fail(f"--chunk-rows: need at least 2, got {chunk_rows}", EXIT_USAGE)
+            fail(f"--chunk-rows: need at least 2, got {chunk_rows}", code=EXIT_USAGE)
         dest = out or file.with_name(file.stem + "_temperature.csv")
-        if dest.exists() and file.exists() and os.path.samefile(dest, file):
-            fail(f"--out {dest} is the input file; refusing to overwrite it (choose another "
-                 "name)", EXIT_USAGE)
-        if dest.suffix.lower() not in (".csv", ".parquet", ".pq"):
-            fail(f"--out: expected a .csv, .parquet or .pq file name, got {dest.name!r}",
-                 EXIT_USAGE)
+        _check_output_file(dest, file, (".csv", ".parquet", ".pq"))
+        w = _wheel(wheel)
         try:
-            summary = stream_temperature(file, dest, method=method, particles=particles,
+            summary = stream_temperature(file, dest, wheel=w, method=method, particles=particles,
                                          seed=seed, noise=noise, level=level,
                                          chunk_rows=chunk_rows)
         except ValueError as err:  # the telemetry, or the filter on it: named in the message
@@ -238,3 +237,45 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         typer.echo(f"{summary.rows} samples, T_lub {summary.last['T_mean']:.2f} C at t = "
                    f"{summary.last['time_s']:g} s ({level:.0%} interval "
                    f"{summary.last['T_lo']:.2f} .. {summary.last['T_hi']:.2f} C); wrote {dest}")
+
+    @rw.command("wheel-template")
+    def wheel_template_cmd(
+        out: Annotated[Path | None, typer.Option(
+            help="Write the template here (default: print it).")] = None,
+    ) -> None:
+        """Print (or write) a wheel file with every key at the seed wheel's value, commented
+        with its unit, range and meaning."""
+        from rulkit.systems.reaction_wheel.wheel_file import wheel_file_template
+
+        text = wheel_file_template()
+        if out is None:
+            typer.echo(text, nl=False)
+            return
+        out.write_text(text)
+        typer.echo(f"wrote {out}")
+
+
+def _wheel(path: Path | None) -> Any:
+    """The wheel file ``path`` read and checked (exit 1 naming the key when it is refused)."""
+    from rulkit.cli.errors import fail
+    from rulkit.machine_file import MachineFileError
+    from rulkit.systems.reaction_wheel.wheel_file import read_wheel_file
+
+    try:
+        return read_wheel_file(path)
+    except MachineFileError as err:
+        fail(str(err))
+
+
+def _check_output_file(dest: Path, source: Path, suffixes: tuple[str, ...]) -> None:
+    """Refuse (exit 2) an output that is the input file or has an unknown ending."""
+    import os
+
+    from rulkit.cli.errors import EXIT_USAGE, fail
+
+    if dest.exists() and source.exists() and os.path.samefile(dest, source):
+        fail(f"--out {dest} is the input file; refusing to overwrite it (choose another name)",
+             code=EXIT_USAGE)
+    if not dest.name.lower().endswith(suffixes):
+        fail(f"--out: expected a {', '.join(suffixes)} file name, got {dest.name!r}",
+             code=EXIT_USAGE)

@@ -169,7 +169,7 @@ def test_run_step1_rejects_bad_input(short_run) -> None:
     with pytest.raises(ValueError, match="finite"):
         filter_temperature(bad, V, rng)
     with pytest.raises(ValueError, match="variant"):
-        TemperatureConfig(variant="apf")  # type: ignore[arg-type]
+        TemperatureConfig(variant="apf_pitt")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="T_prior"):
         TemperatureConfig(T_prior=(30.0, 20.0))
     with pytest.raises(ValueError, match="backend"):
@@ -193,7 +193,7 @@ def test_table5_quick_grid_serial_equals_workers_and_carries_paper_values() -> N
 def test_estimate_temperature_from_telemetry_frame(tmp_path) -> None:
     df = table3_telemetry(np.random.default_rng(2), "low", t_end=10.0)
     out = estimate_temperature(df, "adaptive", 50, np.random.default_rng(0))
-    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted"]
+    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted", "flags"]
     assert len(out) == len(df) and np.all(out["T_lo"] <= out["T_hi"])
     assert np.all(np.isfinite(out[["T_mean", "T_lo", "T_hi"]].to_numpy()))
     ekf = estimate_temperature(df.iloc[:60], "ekf")
@@ -213,9 +213,9 @@ def test_plot_temperature_estimates_writes_figures(tmp_path) -> None:
 
 
 @pytest.mark.parametrize("noise", ["low", "high"])
-def test_default_method_survives_one_corrupted_command_sample(noise: str) -> None:
+def test_gated_adaptive_pf_survives_one_corrupted_command_sample(noise: str) -> None:
     """Issue 13: +1 V on one command sample early in a record. Without the outlier gate the
-    default adaptive PF carries the wrong [I, w] it predicted and its RMSPE roughly quadruples
+    adaptive PF carries the wrong [I, w] it predicted and its RMSPE roughly quadruples
     (before the gate: 4.8 % vs 1.2 % clean at low noise, 4.6 % vs 1.0 % at high); with it the
     glitch is flagged, the cloud recovers, and the RMSPE stays within 1.5x the clean one."""
     from rulkit.metrics import rmspe
@@ -223,7 +223,7 @@ def test_default_method_survives_one_corrupted_command_sample(noise: str) -> Non
     df, T = _constant_record(noise=noise)
     bad = df.copy()
     bad.loc[20, "v_comm_V"] += 1.0
-    kw = dict(noise=noise)
+    kw = dict(noise=noise, method="adaptive")
     clean = estimate_temperature(df, rng=np.random.default_rng(1), **kw)
     glitch = estimate_temperature(bad, rng=np.random.default_rng(1), **kw)
     e_clean = rmspe(clean["T_mean"].to_numpy()[1:], T[1:])

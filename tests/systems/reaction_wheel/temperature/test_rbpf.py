@@ -152,7 +152,7 @@ def test_table5_rows_and_telemetry_entry_point() -> None:
     tel = table3_telemetry(np.random.default_rng(1), "low", t_end=10.0)
     out = estimate_temperature(tel, "rbpf", n_particles=30, rng=np.random.default_rng(2),
                                level=0.9)
-    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted"]
+    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted", "flags"]
     assert "not calibrated" in out.attrs["note"]
     assert np.all(out["T_lo"] <= out["T_hi"])
     with pytest.raises(ValueError, match="design"):

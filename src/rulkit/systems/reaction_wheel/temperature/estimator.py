@@ -1,14 +1,19 @@
 """The lubricant temperature of a user's wheel telemetry, a whole frame at once or a record of
-any length chunk by chunk in bounded memory (docs/systems/reaction-wheel.md §3).
+any length chunk by chunk in bounded memory (docs/systems/reaction-wheel.md §3, §3.4).
 
 :class:`TemperatureEstimator` holds one filter's state between chunks: ``update(chunk)``
 returns the estimates of that chunk's rows, and a record filtered in chunks gives the numbers
-of one pass over the whole record (tested). The particle filters carry their cloud
-(:func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_steps`), the EKF its mean and
-covariance,
-the RBPF its particles' Kalman filters. :func:`estimate_temperature` is the one-frame
-form; ``rulkit rw estimate-temperature`` streams a file through
-:func:`rulkit.systems.reaction_wheel.telemetry.iter_wheel_telemetry`.
+of one pass over the whole record (tested). The default, ``"imm"``, is the compiled
+interacting multiple-model EKF of :mod:`rulkit.systems.reaction_wheel.temperature.ekf`: the
+most accurate estimator on the simulated records of the tests and benchmarks, the only one
+whose printed intervals are calibrated, and the one that takes a real record's defects (gaps,
+empty cells, spikes, stuck sensors) in its stride. The particle filters carry their cloud
+(:func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_steps`), the RBPF its particles'
+Kalman filters; they need complete, regularly sampled telemetry. Every filter runs on the time
+since the record's first row, so the result does not depend on the time origin (epoch seconds
+or Parquet timestamps give the numbers of a record starting at 0).
+:func:`estimate_temperature` is the one-frame form; ``rulkit rw estimate-temperature`` streams a
+file through :func:`rulkit.systems.reaction_wheel.telemetry.iter_wheel_telemetry`.
 
 Every estimate is checked: a temperature below absolute zero or not finite raises
 :class:`ImplausibleEstimateError` naming the row and time; estimates outside the range the
@@ -17,14 +22,20 @@ wheel model describes give a warning (``warning``).
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
 
 from rulkit.systems.reaction_wheel.temperature import kernels as kern
-from rulkit.systems.reaction_wheel.temperature.ekf import ekf_setup
+from rulkit.systems.reaction_wheel.temperature.ekf import (
+    FLAG_SPEED_UNUSED,
+    PLAIN_EKF,
+    EKFConfig,
+    ekf_start,
+    ekf_steps,
+)
 from rulkit.systems.reaction_wheel.temperature.particle import (
     DEFAULT_GATE_D2,
     TemperatureConfig,
@@ -38,16 +49,17 @@ from rulkit.systems.reaction_wheel.wheel_kernels import pack_params
 #: Temperatures the wheel model describes (C): the viscous coefficient b_v(T) is positive
 #: from below -30 C up to 215 C (docs/systems/reaction-wheel.md, (RW-7)).
 MODEL_RANGE_C = (-30.0, 215.0)
-
-
 ABSOLUTE_ZERO_C = -273.15
-
-
-#: The columns of an estimate.
-OUTPUT_COLUMNS = ("time_s", "T_mean", "T_lo", "T_hi", "untrusted")
-
-
-METHODS = ("adaptive", "apf_eq28", "apf_tempered", "pf", "rbpf", "ekf")
+#: The columns of an estimate: ``flags`` are the bits of
+#: :mod:`rulkit.systems.reaction_wheel.temperature.ekf` (``FLAG_*``; the particle filters set
+#: only 1, a sample their gate did not trust); ``untrusted`` is bit 1 (the speed, which alone
+#: carries the temperature, was not used).
+OUTPUT_COLUMNS = ("time_s", "T_mean", "T_lo", "T_hi", "untrusted", "flags")
+#: The estimators, the default first.
+METHODS = ("imm", "ekf", "rbpf", "pf", "adaptive", "apf", "apf_eq28", "apf_tempered")
+DEFAULT_METHOD = "imm"
+#: The methods that accept gaps, empty cells and spikes (lenient telemetry).
+ROBUST_METHODS = ("imm", "ekf")
 
 
 class ImplausibleEstimateError(ValueError):
@@ -58,24 +70,69 @@ class EstimationError(ValueError):
     """A filter failed on the telemetry (the message names the source, row and time)."""
 
 
+def noise_sigmas(noise: str | tuple[float, float]) -> tuple[float, float]:
+    """``(sigma_w, sigma_I)`` of a seed Table 5 level ("low", "high") or given as a pair."""
+    if isinstance(noise, str):
+        if noise not in NOISE_LEVELS:
+            raise ValueError(f"noise: expected one of {sorted(NOISE_LEVELS)} or "
+                             "(sigma_w, sigma_I)")
+        return NOISE_LEVELS[noise]
+    sw, sI = float(noise[0]), float(noise[1])
+    if not (sw > 0 and sI > 0):
+        raise ValueError(f"noise: expected positive (sigma_w, sigma_I), got {noise}")
+    return sw, sI
+
+
+def method_config(method: str, n_particles: int, design: str, config: Any,
+                  level: float) -> Any:
+    """The settings object of ``method``: ``config`` when given (checked), else the method's
+    defaults (:class:`EKFConfig` for "imm", :data:`PLAIN_EKF` for "ekf", the RBJ design for
+    "rbpf", a gated :class:`TemperatureConfig` for the seed particle filters)."""
+    q = (0.5 - level / 2, 0.5 + level / 2)
+    if method in ROBUST_METHODS:
+        if config is None:
+            return EKFConfig() if method == "imm" else PLAIN_EKF
+        if not isinstance(config, EKFConfig):
+            raise ValueError(f"config: method {method!r} needs an EKFConfig")
+        return config
+    if method == "rbpf":
+        from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, RBPFConfig
+
+        if config is None:
+            name = "RBJ" if design == "F2" else design
+            if name not in RBPF_DESIGNS:
+                raise ValueError(f"design: method 'rbpf' takes one of {sorted(RBPF_DESIGNS)}, "
+                                 f"got {design!r}")
+            return replace(RBPF_DESIGNS[name], n_particles=n_particles, quantiles=q)
+        if not isinstance(config, RBPFConfig):
+            raise ValueError("config: method 'rbpf' needs an RBPFConfig")
+        return config
+    if design not in kern.DESIGNS:
+        raise ValueError(f"design: expected one of {sorted(kern.DESIGNS)}, got {design!r}")
+    return config or TemperatureConfig(design=design, variant=method,  # type: ignore[arg-type]
+                                       n_particles=n_particles, quantiles=q,
+                                       gate_d2=DEFAULT_GATE_D2)
+
+
 class TemperatureEstimator:
     """One temperature filter run over a record given in consecutive chunks.
 
-    ``method``: ``"pf"``, ``"adaptive"`` (the default), ``"apf_eq28"``, ``"apf_tempered"``
-    (particle filters; need ``rng``), ``"rbpf"`` or ``"ekf"``; ``design``,
-    ``noise``, ``config`` and ``level`` as in :func:`estimate_temperature`. ``dt`` the
-    sampling step (s). ``source`` names the record in messages.
+    ``method``: one of :data:`METHODS` (``"imm"`` the default; the particle filters need
+    ``rng``); ``design``, ``noise``, ``config`` and ``level`` as in
+    :func:`estimate_temperature`. ``dt`` the sampling step (s). ``source`` names the record in
+    messages; ``params`` the wheel (default the seed's).
 
     ``update(chunk)``: ``chunk`` a clean telemetry frame (the columns of
     :data:`rulkit.systems.reaction_wheel.telemetry.COLUMNS`, float64, rows following the
-    previous chunk's; ``attrs["row0"]`` its first row in the record, else counted here).
-    Returns a frame with :data:`OUTPUT_COLUMNS`. ``warning`` and ``note`` hold what a user
-    must be told about the whole run so far (``None`` when nothing).
+    previous chunk's; ``attrs["row0"]`` its first row in the record, else counted here; empty
+    cells and gaps only for :data:`ROBUST_METHODS`). Returns a frame with
+    :data:`OUTPUT_COLUMNS`. ``warning`` and ``note`` hold what a user must be told about the
+    whole run so far (``None`` when nothing).
     """
 
     def __init__(
         self,
-        method: str = "adaptive",
+        method: str = DEFAULT_METHOD,
         n_particles: int = 350,
         rng: np.random.Generator | None = None,
         *,
@@ -87,50 +144,25 @@ class TemperatureEstimator:
         source: str = "telemetry",
         params: IthacoParams | None = None,
     ) -> None:
-        if isinstance(noise, str):
-            if noise not in NOISE_LEVELS:
-                raise ValueError(f"noise: expected one of {sorted(NOISE_LEVELS)} or "
-                                 "(sigma_w, sigma_I)")
-            sigma = NOISE_LEVELS[noise]
-        else:
-            sigma = (float(noise[0]), float(noise[1]))
+        if method not in METHODS:
+            raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
         if not 0 < level < 1:
             raise ValueError(f"level: expected 0 < level < 1, got {level}")
-        if method not in METHODS:
-            raise ValueError(f"method: expected 'ekf', 'rbpf' or one of "
-                             f"{sorted(kern.VARIANTS)}, got {method!r}")
-        if method != "ekf" and rng is None:
+        if method not in ROBUST_METHODS and method != "rbpf" and rng is None:
             raise ValueError("a particle-filter method needs rng (a numpy.random.Generator)")
-        self.method, self.sigma, self.level, self.dt = method, sigma, level, float(dt)
+        if method == "rbpf" and rng is None:
+            raise ValueError("a particle-filter method needs rng (a numpy.random.Generator)")
+        self.method, self.sigma, self.level, self.dt = method, noise_sigmas(noise), level, float(dt)
         self.source, self.rng, self.params = source, rng, params or IthacoParams()
+        self.config = method_config(method, n_particles, design, config, level)
         self.rows = 0  # rows estimated so far
-        self.note: str | None = None
+        self.note: str | None = RBPF_INTERVAL_NOTE if method == "rbpf" else None
         self.warning: str | None = None
         self._n_out, self._first_out = 0, ""
-        self.n_untrusted = 0  # samples the outlier gate did not trust, so far
+        self.n_untrusted = 0  # samples whose speed was not used, so far
         self.first_untrusted: float | None = None  # the time of the first
+        self.flag_counts: dict[int, int] = {}  # rows per flag bit
         self._last: Any = None  # the previous chunk's last row (y, V, t)
-        q = (0.5 - level / 2, 0.5 + level / 2)
-        if method == "rbpf":
-            from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, RBPFConfig
-
-            if config is None:
-                name = "RBJ" if design == "F2" else design
-                if name not in RBPF_DESIGNS:
-                    raise ValueError(f"design: method 'rbpf' takes one of "
-                                     f"{sorted(RBPF_DESIGNS)}, got {design!r}")
-                config = replace(RBPF_DESIGNS[name], n_particles=n_particles, quantiles=q)
-            elif not isinstance(config, RBPFConfig):
-                raise ValueError("config: method 'rbpf' needs an RBPFConfig")
-            self.note = RBPF_INTERVAL_NOTE
-        elif method != "ekf":
-            if design not in kern.DESIGNS:
-                raise ValueError(f"design: expected one of {sorted(kern.DESIGNS)}, got "
-                                 f"{design!r}")
-            config = config or TemperatureConfig(
-                design=design, variant=method,  # type: ignore[arg-type]
-                n_particles=n_particles, quantiles=q, gate_d2=DEFAULT_GATE_D2)
-        self.config = config
         self._state: Any = None
 
     # ------------------------------------------------------------------ the filters
@@ -144,7 +176,7 @@ class TemperatureEstimator:
         if row0 != self.rows:
             raise ValueError(f"chunk starts at row {row0}, expected row {self.rows} (chunks "
                              "must follow each other)")
-        t = chunk[TIME].to_numpy(dtype=np.float64)
+        t = np.array(chunk[TIME].to_numpy(dtype=np.float64))
         y = np.column_stack([chunk[SPEED].to_numpy(dtype=np.float64),
                              chunk[CURRENT].to_numpy(dtype=np.float64)])
         # a fresh writable copy: pandas (copy-on-write) hands out read-only views, and numba
@@ -155,18 +187,12 @@ class TemperatureEstimator:
         if len(t) == 0:
             return pd.DataFrame({c: np.empty(0) for c in OUTPUT_COLUMNS})
         try:
-            if self.method == "ekf":
-                m, lo, hi, flag = self._ekf(t, y, V)
-            elif self.method == "rbpf":
-                m, lo, hi, flag = self._rbpf(t, y, V)
-            else:
-                m, lo, hi, flag = self._pf(t, y, V)
+            m, lo, hi, flags = self._filter(t, y, V)
         except EstimationError:
             raise
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as err:
             step = getattr(err, "step", None)  # FilterStepError: the index into ys
-            first = self.method == "ekf" and row0 == 0  # ys starts at row 1 (row 0: prior)
-            r = None if step is None else int(step) + first
+            r = None if step is None else int(step)
             where = (f"row {row0 + r} (time_s = {t[r]:g})" if r is not None and r < len(t)
                      else f"rows {row0}..{row0 + len(t) - 1}")
             raise EstimationError(f"{self.source}: {where}: the {self.method} filter failed "
@@ -174,27 +200,43 @@ class TemperatureEstimator:
                                   "(wrong units, wrong noise level, or not this wheel)") from err
         self._last = (y[-1], V[-1], t[-1])
         self.rows += len(t)
+        untrusted = (flags & FLAG_SPEED_UNUSED) != 0
         est = pd.DataFrame({"time_s": t, "T_mean": m, "T_lo": lo, "T_hi": hi,
-                            "untrusted": flag.astype(bool)})
+                            "untrusted": untrusted, "flags": flags.astype(np.int8)})
         self._check(est, row0)
-        bad = est["untrusted"].to_numpy()
-        if bad.any() and self.first_untrusted is None:
-            self.first_untrusted = float(t[bad][0])
-        self.n_untrusted += int(bad.sum())
+        self._count(t, untrusted, flags)
         return est
+
+    def _filter(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
+        if self.method in ROBUST_METHODS:
+            return self._ekf(t, y, V)
+        if self.method == "rbpf":
+            return self._rbpf(t, y, V)
+        return self._pf(t, y, V)
+
+    def _count(self, t: Any, untrusted: Any, flags: Any) -> None:
+        if untrusted.any() and self.first_untrusted is None:
+            self.first_untrusted = float(t[untrusted][0])
+        self.n_untrusted += int(untrusted.sum())
+        for bit in range(7):
+            n = int(np.count_nonzero(flags & (1 << bit)))
+            if n:
+                self.flag_counts[1 << bit] = self.flag_counts.get(1 << bit, 0) + n
 
     def finish(self) -> None:
         """The verdict on the whole run: raises :class:`ImplausibleEstimateError` when most
-        samples (more than half) were not trusted by the outlier gate or have estimates
-        outside the range the wheel model describes: the output would then be the prior or
-        a number with no physical meaning, so none is given."""
+        samples (more than half) had their speed not used (missing, stuck or refused by the
+        outlier gate) or have estimates outside the range the wheel model describes: the
+        output would then be the prior or a number with no physical meaning, so none is
+        given."""
         half = self.rows / 2
         if self.n_untrusted > half:
             raise ImplausibleEstimateError(
-                f"{self.source}: the outlier gate trusted only {self.rows - self.n_untrusted} "
-                f"of {self.rows} samples (the estimate would be the prior): the telemetry does "
-                "not follow the wheel model (wrong units, wrong --noise level, or not this "
-                "wheel); nothing written")
+                f"{self.source}: only {self.rows - self.n_untrusted} of {self.rows} speed "
+                "samples could be used (the others were missing, stuck or refused by the "
+                "outlier gate; the estimate would be the prior): the telemetry does not follow "
+                "the wheel model (wrong units, wrong noise level, or not this wheel); nothing "
+                "written")
         if self._n_out > half:
             raise ImplausibleEstimateError(
                 f"{self.source}: {self._n_out} of {self.rows} estimates are outside "
@@ -208,7 +250,7 @@ class TemperatureEstimator:
         if first:
             d = _prepare(y, V, cfg, self.sigma, self.params, self.dt)
             self._inp = (d["S_inv"], d["init_sd"], pack_params(self.params))
-            self._settings = kernel_settings(cfg, d, float(t[0]), self.dt)
+            self._settings = kernel_settings(cfg, d, 0.0, self.dt)  # time since the start
             st, *row0 = kern.pf_start(d["y"][0], d["init_sd"], self._settings, self.rng)
             self._state = st
             yy, VV = d["y"], d["V"]
@@ -221,29 +263,18 @@ class TemperatureEstimator:
         flag = out[9] if first else out[9][1:]
         if first:
             m[0], lo[0], hi[0] = row0[0], row0[2], row0[3]
-        return m, lo, hi, flag
+        return m, lo, hi, flag.astype(np.int8)
 
     def _ekf(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
-        from statistics import NormalDist
-
-        z = NormalDist().inv_cdf(0.5 + self.level / 2)
+        cfg: EKFConfig = self.config
         if self._state is None:
-            ekf, x0, P0, clock = ekf_setup(y[None, 0], self.sigma, self.params)
-            self._state = [ekf, clock, x0, P0]
-            self._t0 = float(t[0])
-            ys, us, t_base = y[1:], V[:-1], self._t0
-        else:  # step j of this call starts at the previous chunk's last row
-            ys, us = y, np.concatenate([[self._last[1]], V[:-1]])
-            t_base = self._t0 + (self.rows - 1) * self.dt
-        ekf, clock, x, P = self._state
-        clock.t0, clock.dt = t_base, self.dt
-        res = ekf.filter(ys[:, None, :], x, P, us=us)
-        self._state[2:] = [res.x[-1], res.P[-1]]
-        m, s = res.x[:, 0, 2], np.sqrt(res.P[:, 0, 2, 2])
-        if len(ys) < len(t):  # the first chunk: row 0 is the prior
-            m = np.concatenate([[x[0, 2]], m])
-            s = np.concatenate([[math.sqrt(P[0, 2, 2])], s])
-        return m, m - z * s, m + z * s, np.zeros(len(t), dtype=bool)
+            self._state = ekf_start(len(cfg.q_T))
+            self._ekf_settings = cfg.settings(self.dt, self.sigma)
+            self._qT = np.array(cfg.q_T, dtype=np.float64)
+            self._P = pack_params(self.params)
+        m, sd, flags = ekf_steps(t, V, y, self._state, self._ekf_settings, self._qT, self._P)
+        half = NormalDist().inv_cdf(0.5 + self.level / 2) * cfg.interval_scale * sd
+        return m, m - half, m + half, flags
 
     def _rbpf(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
         from rulkit.systems.reaction_wheel.temperature.rbpf import RBPFStream
@@ -251,9 +282,9 @@ class TemperatureEstimator:
         if self._state is None:
             assert self.rng is not None  # checked in __init__
             self._state = RBPFStream(self.rng, self.config, sigma=self.sigma, dt=self.dt,
-                                     t0=float(t[0]), params=self.params)
+                                     t0=0.0, params=self.params)  # time since the start
         m, lo, hi = self._state.update(y, V)
-        return m, lo, hi, np.zeros(len(t), dtype=bool)
+        return m, lo, hi, np.zeros(len(t), dtype=np.int8)
 
     # ------------------------------------------------------------------ the checks
     def _check(self, est: Any, row0: int) -> None:
@@ -282,7 +313,7 @@ class TemperatureEstimator:
 
 def estimate_temperature(
     df: Any,
-    method: str = "adaptive",
+    method: str = DEFAULT_METHOD,
     n_particles: int = 350,
     rng: np.random.Generator | None = None,
     *,
@@ -290,45 +321,36 @@ def estimate_temperature(
     noise: str | tuple[float, float] = "low",
     config: Any = None,
     level: float = 0.95,
+    params: IthacoParams | None = None,
 ) -> Any:
     """Estimate the lubricant temperature from wheel telemetry (docs/systems/reaction-wheel.md §3).
 
     ``df``: a frame with columns time_s, v_comm_V, speed_rad_s, current_A (validated with
-    :func:`rulkit.systems.reaction_wheel.telemetry.validate_wheel_telemetry`; regular sampling,
-    its step is dt).
-    ``method``: ``"pf"``, ``"adaptive"``, ``"apf_eq28"``, ``"apf_tempered"`` (particle filters,
-    need ``rng``; outlier-gated, see
-    :data:`rulkit.systems.reaction_wheel.temperature.particle.DEFAULT_GATE_D2`), ``"rbpf"``
-    (Rao-Blackwellised PF, beyond the seeds: ``design`` one of
-    :data:`rulkit.systems.reaction_wheel.temperature.rbpf.RBPF_DESIGNS`, "RBJ" when ``design`` is
-    left at
-    "F2"; ``config`` may be an :class:`RBPFConfig`) or ``"ekf"`` (deterministic).
+    :func:`rulkit.systems.reaction_wheel.telemetry.validate_wheel_telemetry`, leniently for
+    :data:`ROBUST_METHODS`).
+    ``method``: ``"imm"`` (the default: the interacting multiple-model EKF, calibrated
+    intervals, robust to a record's defects; ``config`` an :class:`EKFConfig`), ``"ekf"`` (one
+    model, q_T = 0.02 C per sample), ``"rbpf"`` (Rao-Blackwellised PF, beyond the seeds:
+    ``design`` one of :data:`rulkit.systems.reaction_wheel.temperature.rbpf.RBPF_DESIGNS`, "RBJ"
+    when ``design`` is left at "F2"), or the seeds' particle filters ``"pf"``, ``"adaptive"``,
+    ``"apf"`` (auxiliary PF after Pitt and Shephard), ``"apf_eq28"``, ``"apf_tempered"``
+    (outlier-gated, see
+    :data:`rulkit.systems.reaction_wheel.temperature.particle.DEFAULT_GATE_D2`); the particle
+    filters need ``rng``.
     ``noise``: the measurement-noise level assumed ("low", "high" of seed Table 5, or
-    ``(sigma_w, sigma_I)``). ``config`` overrides every PF setting. Raises
-    :class:`ImplausibleEstimateError` for an estimate below absolute zero and when most samples
-    are untrusted or out of the model's range (:meth:`TemperatureEstimator.finish`). Returns a
-    DataFrame
-    (:data:`OUTPUT_COLUMNS`) with the ``level`` interval (weighted particle quantiles; for the
-    EKF mean +- z sd) and ``untrusted`` the samples the outlier gate did not trust; ``attrs``
-    ``"note"`` / ``"warning"`` when there is something to say.
-
-    Which method: on the simulated Table 3 path the EKF reference is the most accurate and the
-    F2 particle filters beat the seed-faithful F1 (compare the rows of
-    ``run_table5(designs=("F1", "F2"), extra=True)``); the seed particle filters' intervals
-    are overconfident after the 50 s temperature step (see ``plot_temperature_estimates``).
-    Among particle filters use ``"rbpf"``: with q_T = 0.02 C per sample the Gaussian random
-    walk gives the 8 C step at 50 s no prior mass, the cloud lags and then overshoots (its
-    speeds can only be corrected through T), so every q_T = 0.02 PF is poor for ~200 s. With
-    [I, w] marginalised, "RB05" (q_T = 0.05) matches the EKF run with the same q_T, and "RBJ"
-    (q_T = 0.01 plus proposed jumps; the default) matches the q_T = 0.02 EKF after 100 s and
-    beats it over 0-500 s at N >= 100 (``run_table5(designs=("RB05", "RBJ"),
-    coverage=True)``).
+    ``(sigma_w, sigma_I)``); ``params`` the wheel. Raises :class:`ImplausibleEstimateError` for
+    an estimate below absolute zero and when most samples are untrusted or out of the model's
+    range (:meth:`TemperatureEstimator.finish`). Returns a DataFrame (:data:`OUTPUT_COLUMNS`)
+    with the ``level`` interval (the IMM's calibrated mean +- z scale sd, the EKF's mean +- z
+    sd, weighted particle quantiles) and ``attrs`` ``"note"`` / ``"warning"`` when there is
+    something to say.
     """
     from rulkit.systems.reaction_wheel.telemetry import validate_wheel_telemetry
 
-    clean = validate_wheel_telemetry(df, source="telemetry")
+    clean = validate_wheel_telemetry(df, source="telemetry", lenient=method in ROBUST_METHODS)
     est = TemperatureEstimator(method, n_particles, rng, dt=float(clean.attrs["dt"]),
-                               design=design, noise=noise, config=config, level=level)
+                               design=design, noise=noise, config=config, level=level,
+                               params=params)
     out = est.update(clean)
     est.finish()
     for key in ("note", "warning"):

@@ -40,7 +40,7 @@ from rulkit.systems.reaction_wheel.wheel_kernels import (
 )
 
 # variants and designs (integer codes used by the kernel)
-VARIANTS = {"pf": 0, "adaptive": 1, "apf_eq28": 2, "apf_tempered": 3}
+VARIANTS = {"pf": 0, "adaptive": 1, "apf_eq28": 2, "apf_tempered": 3, "apf": 4}
 
 
 DESIGNS = {"F1": 0, "F2": 1}
@@ -61,6 +61,23 @@ def _predict_loglik(I, W, T, ll, N, design, yprev_w, yprev_I, yw, yI, Vk, tn0, t
         e0 = yw - Wi
         e1 = yI - Ii
         ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - log_norm
+
+
+@nb.njit(cache=True)
+def _point_loglik(I, W, T, ll1, N, design, yprev_w, yprev_I, yw, yI, Vk, tn0, tn1, tn2, dt,
+                  b0, b1, a11, a12, a22, log_norm, C):  # type: ignore[no-untyped-def]
+    """The auxiliary PF's first-stage log-likelihoods log p(y_k | mu_k^i), ``mu`` the point
+    prediction of particle i (its T held, [I, w] by one RK4 step; the state is not changed)."""
+    for i in range(N):
+        b = b0 + b1 * T[i]
+        if design == 0:
+            Ii, Wi = rk4(yprev_I, yprev_w, Vk, b, tn0, tn1, tn2, dt, C)
+        else:
+            Ii, Wi = rk4(I[i], W[i], Vk, b, tn0, tn1, tn2, dt, C)
+        e0 = yw - Wi
+        e1 = yI - Ii
+        v = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - log_norm
+        ll1[i] = v if v == v else -np.inf
 
 
 class KernelInputs(NamedTuple):
@@ -289,6 +306,76 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
 
 
 @nb.njit(cache=True)
+def _untrusted(T, I, W, lw, wn, ring_T, ring_lw, k, n_bad, yw, yI, init_sd, s, rng
+               ):  # type: ignore[no-untyped-def]
+    """A sample no particle explains: keep the weights; after ``reanchor_after`` in a row
+    redraw the F2 [I, w] around the measurement and roll T and the weights back. Returns
+    (n_bad, action)."""
+    n_bad += 1
+    act = 4
+    R = ring_T.shape[0]
+    if s.design == 1 and n_bad >= s.reanchor_after:
+        for i in range(T.size):
+            I[i] = yI + init_sd[0] * rng.standard_normal()
+            W[i] = yw + init_sd[1] * rng.standard_normal()
+        back = k - n_bad - s.rollback  # the cloud after step back, if still kept
+        if R > 1 and back >= 0:
+            T[:] = ring_T[back % R]
+            lw[:] = ring_lw[back % R]
+            normalise_row(lw, wn)
+        n_bad = 0
+        act = 5
+    return n_bad, act
+
+
+@nb.njit(cache=True)
+def _renew(T, I, W, lw, wn, m, ess, spread, s, rng, idx, T2, I2, W2, cw
+           ):  # type: ignore[no-untyped-def]
+    """After the update: the adaptive spread around the estimate ``m`` (``spread``), or
+    ESS-triggered systematic resampling (not for the auxiliary PF, which resampled in its
+    first stage). Returns the action (0, 1 or 2)."""
+    N = T.size
+    logN = math.log(N)
+    if spread:
+        for i in range(N):
+            T[i] = m + s.adapt_spread * rng.standard_normal()
+            lw[i] = -logN
+            wn[i] = 1.0 / N
+        return 2
+    if s.variant != 4 and ess < s.ess_frac * N:
+        _resample(T, I, W, idx, wn, rng.random(), s.design, T2, I2, W2, cw)
+        for i in range(N):
+            lw[i] = -logN
+            wn[i] = 1.0 / N
+        return 1
+    return 0
+
+
+@nb.njit(cache=True)
+def _apf_first_stage(T, I, W, lw, wn, ll1, u, s, idx, T2, I2, W2, cw
+                     ):  # type: ignore[no-untyped-def]
+    """The auxiliary PF's first stage (Pitt and Shephard 1999): resample the ancestors by
+    w_{k-1} p(y_k | mu_k), keep each survivor's ``ll1`` for its second-stage weight
+    p(y_k | x_k) / p(y_k | mu_k), set equal weights. Returns log sum_i w_i p(y_k | mu_k^i),
+    the first factor of the data likelihood."""
+    N = T.size
+    for i in range(N):
+        T2[i] = lw[i] + ll1[i]
+    ls = normalise_row(T2, cw)
+    fw = np.empty(N)
+    fw[:] = cw
+    _resample(T, I, W, idx, fw, u, s.design, T2, I2, W2, cw)
+    for j in range(N):
+        T2[j] = ll1[idx[j]]
+    logN = math.log(N)
+    for i in range(N):
+        ll1[i] = T2[i]
+        lw[i] = -logN
+        wn[i] = 1.0 / N
+    return ls
+
+
+@nb.njit(cache=True)
 def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     """Advance the cloud ``st`` (a :class:`PFState`, updated in place) over ``inp.y`` (K, 2) =
     [w, I_m]: row 0 is the sample the cloud is at (global index ``k0``), rows 1..K-1 the new
@@ -299,18 +386,21 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     the step ending at t_k = t0 + k dt (and sets the APF gain c = c0 / (c0 - V)). Design F1:
     each particle predicts y_k by one RK4 step from the measured y_{k-1}; F2: particles carry
     [I, w], initialised at y_0 + init_sd * normal. Likelihood log p = -d^2/2 - log_norm.
+    The auxiliary PF (variant 4) first resamples by the point predictions' likelihoods (one
+    uniform, drawn before the step's normals), then weights by p(y | x) / p(y | mu).
 
     Returns (T_mean, T_std, T_qlo, T_qhi, ess, action, n_clipped, gamma, loglik, untrusted),
     each (K,), row 0 not filled (NaN / 0). ``action``: 0 none, 1 ESS resampling, 2 adaptive
     spread, 3 all weights zero (reset to equal weights), 4 untrusted sample (gated: weights
-    kept), 5 untrusted and the F2 [I, w] redrawn around the measurement. ``untrusted`` (int8)
-    is 1 for a gated sample.
+    kept), 5 untrusted and the F2 [I, w] redrawn around the measurement, 6 auxiliary PF
+    first-stage resampling. ``untrusted`` (int8) is 1 for a gated sample.
     """
     y, V, S_inv, init_sd, P = inp
     K = y.shape[0]
     N = s.n
     T, I, W, lw, wn, ring_T, ring_lw, sc = st
     ll = np.empty(N)
+    ll1 = np.empty(N)
     T2 = np.empty(N)
     I2 = np.empty(N)
     W2 = np.empty(N)
@@ -354,6 +444,15 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
         tn2 = tn_amp * math.sin(w_a * (t + s.dt))
         yw = y[kk, 0]
         yI = y[kk, 1]
+        ls_first = 0.0
+        first = False
+        if s.variant == 4:  # auxiliary PF: resample by the point predictions first
+            _point_loglik(I, W, T, ll1, N, s.design, y[kk - 1, 0], y[kk - 1, 1], yw, yI, Vk,
+                          tn0, tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
+            if ll1.max() >= ll_gate:
+                ls_first = _apf_first_stage(T, I, W, lw, wn, ll1, rng.random(), s, idx, T2,
+                                            I2, W2, cw)
+                first = True
         # --- prediction: T random walk, then RK4 per particle with its own T
         for i in range(N):
             T[i] += s.q_T * rng.standard_normal()
@@ -381,38 +480,29 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
                 ll[i] = -np.inf
             if ll[i] > llmax:
                 llmax = ll[i]
-        act = 0
-        if llmax < ll_gate:
+        if llmax < ll_gate or (s.variant == 4 and not first):
             # --- untrusted sample: no particle explains it; keep the weights
             out_flag[kk] = 1
-            n_bad += 1
-            act = 4
-            if s.design == 1 and n_bad >= s.reanchor_after:
-                for i in range(N):
-                    I[i] = yI + init_sd[0] * rng.standard_normal()
-                    W[i] = yw + init_sd[1] * rng.standard_normal()
-                back = k - n_bad - s.rollback  # the cloud after step back, if still kept
-                if R > 1 and back >= 0:
-                    T[:] = ring_T[back % R]
-                    lw[:] = ring_lw[back % R]
-                    normalise_row(lw, wn)
-                n_bad = 0
-                act = 5
+            n_bad, out_act[kk] = _untrusted(T, I, W, lw, wn, ring_T, ring_lw, k, n_bad, yw, yI,
+                                            init_sd, s, rng)
             out_mean[kk], out_std[kk] = _mean_std(T, wn)
             if s.want_quantiles:
                 out_qlo[kk], out_qhi[kk] = _interval(T, wn, s, ibuf, fbuf)
             out_ess[kk] = ess_row(wn)
-            out_act[kk] = act
             continue
         n_bad = 0
+        if first:  # second-stage weight p(y | x) / p(y | mu) of the auxiliary PF
+            for i in range(N):
+                ll[i] -= ll1[i]
         # --- weight update; ls_data = log sum_i exp(lw_i + ll_i), the data log-likelihood
         ls, ls_data, out_clip[kk], out_gamma[kk] = _weight_update(lw, wn, ll, Vk, s, T2, cw)
+        act = 6 if first else 0
         if not ls > -np.inf:  # every weight zero: documented reset to equal weights
             for i in range(N):
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             act = 3
-        out_ll[kk] = ls_data
+        out_ll[kk] = ls_data + ls_first
         # --- estimates
         m, sd = _mean_std(T, wn)
         out_mean[kk] = m
@@ -428,21 +518,10 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
             win_cnt += 1
             if win_cnt >= s.adapt_window and math.log(win_sum / win_cnt) < s.log_p_eff:
                 spread = True
-        if spread:
-            for i in range(N):
-                T[i] = m + s.adapt_spread * rng.standard_normal()
-                lw[i] = -logN
-                wn[i] = 1.0 / N
-            win_sum = 0.0
-            win_cnt = 0
-            act = 2
-        elif ess < s.ess_frac * N:
-            _resample(T, I, W, idx, wn, rng.random(), s.design, T2, I2, W2, cw)
-            for i in range(N):
-                lw[i] = -logN
-                wn[i] = 1.0 / N
-            act = 1
-        out_act[kk] = act
+                win_sum = 0.0
+                win_cnt = 0
+        renewed = _renew(T, I, W, lw, wn, m, ess, spread, s, rng, idx, T2, I2, W2, cw)
+        out_act[kk] = renewed if renewed else act
     sc[0] = win_sum
     sc[1] = win_cnt
     sc[2] = n_bad

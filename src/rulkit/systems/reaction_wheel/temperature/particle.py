@@ -19,6 +19,11 @@ Estimators (all with the temperature random walk T_k = T_{k-1} + q_T xi_k):
   plain update w_prev p; then normalised.
 - ``variant="apf_tempered"``: the intent of eq. 28 in a well-defined form: w ~ w_prev p^gamma
   with the largest gamma in [1, temper_gamma_max] keeping ESS >= temper_target N.
+- ``variant="apf"``: the auxiliary particle filter of Pitt and Shephard (1999), which eq. 28
+  names but does not implement: first-stage weights w_{k-1} p(y_k | mu_k^i) from each
+  particle's point prediction mu (its T held, [I, w] one RK4 step ahead) choose the ancestors,
+  which are then propagated and weighted by p(y_k | x_k) / p(y_k | mu_k^ancestor). Why eq. 28
+  as printed fails: :func:`apf_eq28_weights` and docs/systems/reaction-wheel.md §3.2.
 
 Prediction designs (docs/systems/reaction-wheel.md §3): ``"F1"`` each particle predicts y_k by one
 RK4 step from the measured y_{k-1} with its own T; the likelihood covariance is inflated to
@@ -60,7 +65,7 @@ FloatArray = np.ndarray
 Design = Literal["F1", "F2"]
 
 
-Variant = Literal["pf", "adaptive", "apf_eq28", "apf_tempered"]
+Variant = Literal["pf", "adaptive", "apf_eq28", "apf_tempered", "apf"]
 
 
 #: Outlier gate of :func:`estimate_temperature`'s particle filters (squared Mahalanobis
@@ -230,6 +235,11 @@ def filter_temperature(
     cfg = config or TemperatureConfig()
     p = params or IthacoParams()
     d = _prepare(y, V, cfg, sigma, p, dt)
+    if backend == "numpy" and cfg.variant == "apf":
+        if math.isfinite(cfg.gate_d2):
+            raise ValueError("backend 'numpy' (the reference path) has no outlier gate: "
+                             "use gate_d2=inf")
+        return apf_numpy(d, cfg, rng, p, dt, t0, quantiles)
     if backend == "numpy":
         if math.isfinite(cfg.gate_d2):
             raise ValueError("backend 'numpy' (the reference path) has no outlier gate: "
@@ -387,6 +397,67 @@ def filter_temperature_numpy(
     tt = t0 + dt * np.arange(K)
     return TemperatureResult(tt, out["mean"], out["std"], out["qlo"], out["qhi"], out["ess"], act,
                        clip, gam, lls, np.zeros(K, dtype=np.int8), config=cfg)
+
+
+def apf_numpy(
+    d: dict[str, Any], cfg: TemperatureConfig, rng: np.random.Generator, p: IthacoParams,
+    dt: float, t0: float, quantiles: bool,
+) -> TemperatureResult:
+    """Vectorised numpy reference of the auxiliary particle filter (variant "apf") of
+    :func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_steps`, without the outlier
+    gate; the same draws in the same order (per step: one uniform for the first-stage
+    systematic resampling, then the N normals of the T random walk)."""
+    from rulkit.estimation.batched import systematic_rows
+
+    y, V, S_inv, log_norm = d["y"], d["V"], d["S_inv"], d["log_norm"]
+    K, N = y.shape[0], int(cfg.n_particles)
+    lo, hi = cfg.T_prior
+    f2 = cfg.design == "F2"
+    T = lo + (hi - lo) * rng.random(N)
+    Iw = np.zeros((N, 2))  # [I, w] per particle (F2)
+    if f2:
+        Z = rng.standard_normal((N, 2))
+        Iw = np.column_stack([y[0, 1] + d["init_sd"][0] * Z[:, 0],
+                              y[0, 0] + d["init_sd"][1] * Z[:, 1]])
+    lw = np.full(N, -math.log(N))
+
+    def loglik(X: FloatArray, k: int) -> FloatArray:
+        e0, e1 = y[k, 0] - X[:, 1], y[k, 1] - X[:, 0]
+        ll = -0.5 * (S_inv[0, 0] * e0 * e0 + 2.0 * S_inv[0, 1] * e0 * e1
+                     + S_inv[1, 1] * e1 * e1) - log_norm
+        return np.where(np.isnan(ll), -np.inf, ll)
+
+    out = {c: np.full(K, np.nan) for c in ("mean", "std", "qlo", "qhi", "ess")}
+    lls = np.zeros(K)
+
+    def record(k: int) -> None:
+        _, w, _ = normalise_rows(lw)
+        out["mean"][k] = m = float(np.sum(w * T))
+        out["std"][k] = math.sqrt(float(np.sum(w * (T - m) ** 2)))
+        if quantiles:
+            out["qlo"][k], out["qhi"][k] = weighted_quantile_rows(T, w, np.array(cfg.quantiles))
+        out["ess"][k] = float(ess_rows(w))
+
+    record(0)
+    for k in range(1, K):
+        tk = t0 + (k - 1) * dt
+        start = Iw if f2 else np.broadcast_to(np.array([y[k - 1, 1], y[k - 1, 0]]), (N, 2))
+        ll1 = loglik(rk4_wheel_step(start, V[k - 1], T, tk, dt, p), k)
+        _, fw, ls_first = normalise_rows(lw + ll1)
+        a = systematic_rows(fw, rng.random())
+        T, Iw, ll1 = T[a] + cfg.q_T * rng.standard_normal(N), Iw[a], ll1[a]
+        start = Iw if f2 else np.broadcast_to(np.array([y[k - 1, 1], y[k - 1, 0]]), (N, 2))
+        X = rk4_wheel_step(start, V[k - 1], T, tk, dt, p)
+        if f2:
+            Iw = X
+        lw, _, ls = normalise_rows(np.full(N, -math.log(N)) + loglik(X, k) - ll1)
+        lls[k] = float(ls_first) + float(ls)
+        record(k)
+    act = np.full(K, 6, dtype=np.int8)
+    act[0] = 0
+    return TemperatureResult(t0 + dt * np.arange(K), out["mean"], out["std"], out["qlo"],
+                             out["qhi"], out["ess"], act, np.zeros(K, dtype=np.int64), np.ones(K),
+                             lls, np.zeros(K, dtype=np.int8), config=cfg)
 
 
 def apf_eq28_weights(

@@ -59,6 +59,7 @@ from rulkit.systems.reaction_wheel.wheel import (
 from rulkit.systems.reaction_wheel.wheel_kernels import (
     pack_params,
     rk4_tangent_linear,
+    viscous_law,
     wheel_constants,
 )
 
@@ -387,9 +388,7 @@ def _rbpf_steps(  # type: ignore[no-untyped-def]
     rows 1.. the new ones. Chunks overlapping by one row give the numbers of one call."""
     K = y.shape[0]
     C = wheel_constants(Pp)
-    law = Pp[15]
-    b0 = 1e-3 * (0.049 - 0.0002 * 30.0) if law == 0.0 else 0.0049 - 0.0002 * 30.0
-    b1 = -1e-3 * 0.0002 if law == 0.0 else -0.0002
+    b0, b1 = viscous_law(Pp)
     J, th_a, w_a = Pp[7], Pp[10], Pp[11]
     T, mI, mw, P11, P12, P22, lw, wn = st
     QI, Qw, RI, Rw = q_I * q_I, q_w * q_w, sI * sI, sw * sw
