@@ -174,3 +174,62 @@ def test_estimate_below_absolute_zero_is_refused() -> None:
     check._check(est.assign(T_mean=[-40.0, 20.0]), 2)
     assert check.warning is not None
     assert "2 estimates outside -30..215 C" in check.warning and "first: 250 C" in check.warning
+
+
+@pytest.fixture(scope="module")
+def wheel_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from rulkit.systems.reaction_wheel.simulate import simulate_record
+
+    d = tmp_path_factory.mktemp("wheel-07")
+    simulate_record(d, 1 / 24, np.random.default_rng(3), file_days=1 / 48)
+    return d
+
+
+def test_pipeline_then_rul_then_degradation_commands(wheel_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "p"
+    res = runner.invoke(app, ["rw", "pipeline", str(wheel_dir), "--out", str(out),
+                              "--threshold", "0.2"])
+    assert res.exit_code == 0, res.output
+    assert "RUL" in res.output and (out / "report.md").exists()
+    res = runner.invoke(app, ["rw", "rul", str(out), "--threshold", "0.3", "--repeat-days",
+                              "0.02"])
+    assert res.exit_code == 0, res.output
+    assert "two_step: RUL median" in res.output and (out / "rul_two_step.json").exists()
+    est = tmp_path / "T.parquet"
+    files = sorted((wheel_dir / "telemetry").iterdir())
+    assert runner.invoke(app, ["rw", "estimate-temperature", str(files[0]), "--out",
+                               str(est)]).exit_code == 0
+    res = runner.invoke(app, ["rw", "degradation", "--losses", str(wheel_dir / "losses.csv"),
+                              "--temperature", str(est), "--out", str(tmp_path / "d")])
+    assert res.exit_code == 0, res.output
+    # the windows the half hour of estimate reaches: 7 whole and the one it ends in
+    assert pd.read_csv(tmp_path / "d" / "tracks.csv").shape[0] == 8
+
+
+@pytest.mark.parametrize(("args", "code", "match"), [
+    (["rw", "pipeline", "NOWHERE"], 2, "no such file"),
+    (["rw", "pipeline", "WHEEL", "--threshold", "-1"], 2, "--threshold"),
+    (["rw", "pipeline", "WHEEL", "--method", "adaptive"], 2, "--method"),
+    (["rw", "pipeline", "WHEEL", "WHEEL", "--losses", "x.csv"], 2, "go with one record"),
+    (["rw", "degradation", "--losses", "L"], 2, "exactly one of"),
+    (["rw", "rul", "NOWHERE", "--threshold", "1"], 1, "not the output of step 2"),
+    (["rw", "pipeline", "WHEEL", "--wheel", "BADWHEEL"], 1, r"\[wheel\] J"),
+])
+def test_record_commands_refuse_bad_input(wheel_dir: Path, tmp_path: Path, args, code,
+                                          match) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[wheel]\nJ = -1.0\n")
+    subs = {"WHEEL": str(wheel_dir), "NOWHERE": str(tmp_path / "nowhere"),
+            "L": str(wheel_dir / "losses.csv"), "BADWHEEL": str(bad)}
+    res = runner.invoke(app, [subs.get(a, a) for a in args] + ["--out", str(tmp_path / "o")]
+                        if args[1] != "rul" else [subs.get(a, a) for a in args])
+    assert res.exit_code == code, res.output
+    assert __import__("re").search(match, _err(res)), _err(res)
+
+
+def test_wheel_template_command_writes_a_readable_file(tmp_path: Path) -> None:
+    from rulkit.systems.reaction_wheel.wheel_file import read_wheel_file
+
+    f = tmp_path / "w.toml"
+    assert runner.invoke(app, ["rw", "wheel-template", "--out", str(f)]).exit_code == 0
+    assert read_wheel_file(f).params.J == 0.0077

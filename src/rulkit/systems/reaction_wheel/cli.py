@@ -238,6 +238,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                    f"{summary.last['time_s']:g} s ({level:.0%} interval "
                    f"{summary.last['T_lo']:.2f} .. {summary.last['T_hi']:.2f} C); wrote {dest}")
 
+    _register_records(rw)
+
     @rw.command("wheel-template")
     def wheel_template_cmd(
         out: Annotated[Path | None, typer.Option(
@@ -253,6 +255,235 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             return
         out.write_text(text)
         typer.echo(f"wrote {out}")
+
+
+def _register_records(rw: typer.Typer) -> None:
+    """``rw pipeline``, ``rw degradation`` and ``rw rul``: steps 1-3 on a user's records."""
+
+    @rw.command("pipeline")
+    def pipeline_cmd(
+        records: Annotated[list[Path], typer.Argument(
+            help="Telemetry file, directory of telemetry files, or wheel directory "
+                 "(telemetry/, losses.csv, wheel.toml, future.csv); several: one per wheel.")],
+        out: Annotated[Path, typer.Option(help="Output directory.")] = Path("out/rw-pipeline"),
+        losses: Annotated[Path | None, typer.Option(
+            help="Loss measurements or injection log (CSV/Parquet; one record only).")] = None,
+        wheel: Annotated[Path | None, typer.Option(help="Wheel file (one record only).")] = None,
+        future: Annotated[Path | None, typer.Option(
+            help="Future temperature profile: time_s (s from now), T_C.")] = None,
+        threshold: Annotated[float | None, typer.Option(
+            help="Loss threshold of the RUL (mL, cumulative since the record's start).")
+        ] = None,
+        repeat_days: Annotated[float, typer.Option(
+            help="Without --future: repeat the last days of the estimate.")] = 7.0,
+        method: Annotated[str | None, typer.Option(help="Step-1 method: imm or ekf.")] = None,
+        seed: Annotated[int, typer.Option(min=0, help="Seed of the step-2 trackers.")] = 0,
+        level: Annotated[float, typer.Option(help="Level of the step-2/3 intervals.")] = 0.9,
+        chunk_rows: Annotated[int, typer.Option(help="Rows read at a time.")] = 1_000_000,
+        samples: Annotated[bool, typer.Option(
+            "--samples", help="Also write the estimate of every sample (Parquet).")] = False,
+        restart: Annotated[bool, typer.Option(
+            "--restart", help="Ignore a checkpoint in --out and start over.")] = False,
+        workers: Annotated[int, typer.Option(help="Wheels run in parallel processes.")] = 1,
+        scheduler: Annotated[str | None, typer.Option(
+            help="Address of a Dask scheduler (tcp://host:port) to run the wheels on.")] = None,
+    ) -> None:
+        """Steps 1-3 over long records (streaming, resumable): temperature, lubricant-loss
+        parameters, RUL; a report per wheel."""
+        from rulkit.cli.errors import EXIT_USAGE, fail
+        from rulkit.systems.reaction_wheel.pipeline import (
+            PipelineOptions,
+            find_record,
+        )
+
+        _check_record_options(records, losses, wheel, future, threshold, method, level,
+                              chunk_rows, workers, scheduler)
+        opts = PipelineOptions(threshold_mL=threshold, repeat_days=repeat_days, seed=seed,
+                               level=level, chunk_rows=chunk_rows, samples=samples,
+                               restart=restart, method=method)
+        try:
+            recs = [find_record(r, losses=losses, wheel=wheel, future=future) for r in records]
+        except ValueError as err:
+            fail(str(err), code=EXIT_USAGE if "no telemetry files" not in str(err) else 1)
+        if len(recs) == 1:
+            _run_one(recs[0], out, opts)
+        else:
+            _run_many(recs, out, opts, workers, scheduler)
+
+    @rw.command("degradation")
+    def degradation_cmd(
+        losses: Annotated[Path, typer.Option(
+            help="Loss measurements (loss_mL or cumulative_mL) or injection log "
+                 "(injected_mL), with time_s.")],
+        telemetry: Annotated[Path | None, typer.Option(
+            help="Telemetry file or directory (step 1 runs on it).")] = None,
+        temperature: Annotated[Path | None, typer.Option(
+            help="Or a step-1 estimate file (rw estimate-temperature's output).")] = None,
+        out: Annotated[Path, typer.Option(help="Output directory.")] = Path("out/rw-degradation"),
+        wheel: Annotated[Path | None, typer.Option(help="Wheel file.")] = None,
+        seed: Annotated[int, typer.Option(min=0, help="Seed of the trackers.")] = 0,
+        level: Annotated[float, typer.Option(help="Interval level.")] = 0.9,
+    ) -> None:
+        """Step 2: track the lubricant-loss parameters b and beta0 (one-step, two-step and
+        Rao-Blackwellised PFs, with intervals) from loss measurements and the temperature."""
+        from rulkit.cli.errors import EXIT_USAGE, fail
+        from rulkit.systems.reaction_wheel.pipeline import (
+            PipelineOptions,
+            WheelRecord,
+            find_record,
+        )
+
+        if (telemetry is None) == (temperature is None):
+            fail("give exactly one of --telemetry (run step 1) and --temperature (its output)",
+                 code=EXIT_USAGE)
+        _check_record_options([], losses, wheel, None, None, None, level, 10**6, 1, None)
+        try:
+            rec = (find_record(telemetry, losses=losses, wheel=wheel) if telemetry is not None
+                   else WheelRecord(Path(str(temperature)).stem, (), losses, wheel, None,
+                                    temperature))
+        except ValueError as err:
+            fail(str(err))
+        _run_one(rec, out, PipelineOptions(seed=seed, level=level))
+
+    @rw.command("rul")
+    def rul_cmd(
+        step2: Annotated[Path, typer.Argument(
+            help="Output directory of rw degradation or rw pipeline.")],
+        threshold: Annotated[float, typer.Option(
+            help="Loss threshold (mL, cumulative since the record's start).")],
+        future: Annotated[Path | None, typer.Option(
+            help="Future temperature profile: time_s (s from now), T_C.")] = None,
+        repeat_days: Annotated[float, typer.Option(
+            help="Without --future: repeat the last days of the estimate.")] = 7.0,
+        wheel: Annotated[Path | None, typer.Option(help="Wheel file ([rul] settings).")] = None,
+        out: Annotated[Path | None, typer.Option(help="Output directory (default STEP2).")] = None,
+    ) -> None:
+        """Step 3: the RUL distribution from the step-2 posterior along a future temperature
+        profile, to a loss threshold."""
+        _run_rul(step2, threshold, future, repeat_days, wheel, out or step2)
+
+
+def _check_record_options(records: list[Path], losses: Path | None, wheel: Path | None,
+                          future: Path | None, threshold: float | None, method: str | None,
+                          level: float, chunk_rows: int, workers: int,
+                          scheduler: str | None) -> None:
+    """Refuse (exit 2) option values and combinations no run can use."""
+    from rulkit.cli.errors import EXIT_USAGE, fail
+
+    if len(records) > 1 and any(x is not None for x in (losses, wheel, future)):
+        fail("--losses, --wheel and --future go with one record; for several wheels put them in "
+             "each wheel directory (losses.csv, wheel.toml, future.csv)", code=EXIT_USAGE)
+    if threshold is not None and not threshold > 0:
+        fail(f"--threshold: expected a positive loss (mL), got {threshold}", code=EXIT_USAGE)
+    if method is not None and method not in ("imm", "ekf"):
+        fail(f"--method: the pipeline runs 'imm' or 'ekf', got {method!r}", code=EXIT_USAGE)
+    if not 0 < level < 1:
+        fail(f"--level: expected a value in (0, 1), got {level}", code=EXIT_USAGE)
+    if chunk_rows <= 1000:
+        fail(f"--chunk-rows: expected more than 1000, got {chunk_rows}", code=EXIT_USAGE)
+    if workers < 1 or (scheduler is not None and workers != 1):
+        fail("--workers: expected >= 1, and not together with --scheduler", code=EXIT_USAGE)
+    if scheduler is not None:
+        check_scheduler(scheduler)
+
+
+def _run_one(rec: Any, out: Path, opts: Any) -> None:
+    """One record with a progress bar; exit 1 naming the input on refusal."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from rulkit.cli.errors import fail
+    from rulkit.machine_file import MachineFileError
+    from rulkit.systems.reaction_wheel.pipeline import run_pipeline
+
+    total = _total_rows(rec.telemetry)
+    console = Console(stderr=True)
+    try:
+        with Progress(TextColumn("{task.description}"), BarColumn(),
+                      TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn(),
+                      console=console, transient=True) as bar:
+            task = bar.add_task(rec.name, total=total or None)
+            res = run_pipeline(rec, out, opts, progress=lambda n, msg: bar.update(
+                task, advance=n, description=escape(msg[:60])))
+    except (ValueError, MachineFileError) as err:
+        fail(str(err))
+    except OSError as err:
+        fail(f"cannot read or write: {err}")
+    for n in res.notes:
+        typer.echo(f"note: {n}", err=True)
+    typer.echo(_result_line(res) + f"; wrote {out / 'report.md'}")
+
+
+def _result_line(res: Any) -> str:
+    line = f"{res.record.name}: {res.rows:,} rows"
+    if len(res.hourly):
+        line += f", T_lub {res.hourly['T_mean'].iloc[-1]:.2f} C (last hour)"
+    if res.tracks is not None:
+        r = res.tracks.table.iloc[-1]
+        line += f", b {r['b_two_step']:.3g} C, beta0 {r['beta0_two_step']:.4g} mL/s (two-step)"
+    d = res.ruls.get("two_step")
+    if d is not None:
+        lo, hi = d.interval(res.options.level)
+        line += (f", RUL {d.median:.3g} d ({res.options.level:.0%} interval "
+                 f"{lo:.3g} .. {hi:.3g} d)")
+    return line
+
+
+def _total_rows(files: tuple[Path, ...]) -> int:
+    """Rows of the Parquet files (from their metadata; 0 when a CSV is among them)."""
+    import pyarrow.parquet as pq
+
+    total = 0
+    for f in files:
+        if not f.name.lower().endswith((".parquet", ".pq")):
+            return 0
+        try:
+            total += pq.ParquetFile(f).metadata.num_rows
+        except Exception:  # an unreadable file is refused with its message by the reader
+            return 0
+    return total
+
+
+def _run_many(recs: list[Any], out: Path, opts: Any, workers: int,
+              scheduler: str | None) -> None:
+    """Several wheels as independent tasks; prints the fleet table."""
+    from rulkit.cli.errors import fail
+    from rulkit.machine_file import MachineFileError
+    from rulkit.systems.reaction_wheel.pipeline import run_fleet
+
+    try:
+        table = run_fleet(recs, out, opts, workers=workers, scheduler=scheduler, progress=True)
+    except (ValueError, MachineFileError) as err:
+        fail(str(err))
+    typer.echo(table.to_string(index=False))
+    typer.echo(f"wrote {out / 'fleet.csv'} and a report per wheel in {out}/<wheel>/")
+
+
+def _run_rul(step2: Path, threshold: float, future: Path | None, repeat_days: float,
+             wheel: Path | None, out: Path) -> None:
+    from rulkit.cli.errors import EXIT_USAGE, fail
+    from rulkit.systems.reaction_wheel.degradation.track import load_step2
+    from rulkit.systems.reaction_wheel.pipeline import future_cycle, ruls
+
+    if not threshold > 0 or not repeat_days > 0:
+        fail("--threshold and --repeat-days: expected positive values", code=EXIT_USAGE)
+    w = _wheel(wheel)
+    try:
+        st = load_step2(step2)
+        cycle = future_cycle(w, future, st.losses, st.sums, repeat_days)
+        dists = ruls(st.posteriors, st.X_end, cycle, threshold, w.rul["horizon_days"])
+    except ValueError as err:
+        fail(str(err))
+    out.mkdir(parents=True, exist_ok=True)
+    lvl = float(st.meta.get("level", 0.9))
+    for name, d in dists.items():
+        d.to_json(out / f"rul_{name}.json")
+        lo, hi = d.interval(lvl)
+        typer.echo(f"{name}: RUL median {d.median:.4g} d, {lvl:.0%} interval {lo:.4g} .. "
+                   f"{hi:.4g} d (to {threshold:g} mL from {st.X_end:.6g} mL along "
+                   f"{cycle.description})")
+    typer.echo(f"wrote {', '.join(f'rul_{n}.json' for n in dists)} to {out}")
 
 
 def _wheel(path: Path | None) -> Any:

@@ -16,6 +16,7 @@ Example::
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -113,3 +114,55 @@ def corrupt(df: Any, kind: str, rng: np.random.Generator, *, events: int = 3,
 def telemetry_columns(df: Any) -> Any:
     """The telemetry columns of a simulated frame (without the truth)."""
     return df[list(COLUMNS)]
+
+
+def simulate_record(out_dir: str | Path, days: float, rng: np.random.Generator, *,
+                    scenario: int = 1, v_comm: float = 2.0, file_days: float = 1.0,
+                    t0: float = 1.7e9, dt: float = 0.05, loss_noise_rel: float = 0.01,
+                    sigma: tuple[float, float] = NOISE_LEVELS["low"]) -> dict[str, Any]:
+    """A wheel directory for ``rulkit rw pipeline`` with known truth: ``telemetry/`` holds
+    ``days`` of telemetry at ``dt`` in Parquet files of ``file_days`` each (epoch-second times
+    from ``t0``), the wheel at ``v_comm`` along the temperature path of fault ``scenario``
+    (docs/systems/reaction-wheel.md §4), simulated file by file (memory: one file);
+    ``losses.csv`` the loss of every 4-minute window (the true increments plus noise of
+    ``loss_noise_rel`` of the healthy window loss). Returns the truth: the path, the scenario,
+    the loss noise, the files and their rows."""
+    import pandas as pd
+
+    from rulkit.systems.reaction_wheel.lubrication import (
+        PATHS,
+        SCENARIOS,
+        WINDOW_S,
+        LubricationSetup,
+        true_window_increments,
+    )
+
+    out = Path(out_dir)
+    (out / "telemetry").mkdir(parents=True, exist_ok=True)
+    path, p = PATHS[scenario], IthacoParams()
+    P = pack_params(p)
+    n_total = round(days * 86400.0 / dt)
+    per_file = round(file_days * 86400.0 / dt)
+    x0 = np.asarray(ReactionWheel(p).steady_state(v_comm, float(path(0.0))), dtype=np.float64)
+    files = []
+    for i, a in enumerate(range(0, n_total, per_file)):
+        k = np.arange(a, min(a + per_file, n_total) + 1)  # one extra: the next file's start
+        t_rel = k * dt
+        T = np.asarray(path(t_rel.astype(np.float64)), dtype=np.float64)
+        x = simulate_states(x0, np.full(k.size, v_comm), T, t_rel[0], dt, P)
+        x0 = x[-1].copy()
+        n = k.size - 1
+        noise = rng.standard_normal((n, 2)) * np.asarray(sigma)
+        f = out / "telemetry" / f"day{i:03d}.parquet"
+        pd.DataFrame({TIME: t0 + t_rel[:n], VOLT: np.full(n, v_comm),
+                      SPEED: x[:n, 1] + noise[:, 0], CURRENT: x[:n, 0] + noise[:, 1]}
+                     ).to_parquet(f, index=False)
+        files.append(f)
+    W = int(n_total * dt // WINDOW_S)
+    y_true = true_window_increments(path, SCENARIOS[scenario], W)
+    sigma_y = LubricationSetup(scenario, noise_rel=loss_noise_rel, path=path).sigma_y
+    y = y_true + sigma_y * rng.standard_normal(W)
+    pd.DataFrame({TIME: t0 + (np.arange(W) + 1) * WINDOW_S, "loss_mL": y}).to_csv(
+        out / "losses.csv", index=False)
+    return {"path": path, "scenario": SCENARIOS[scenario], "sigma_y": sigma_y,
+            "files": files, "rows": n_total, "y_true": y_true, "t0": t0}

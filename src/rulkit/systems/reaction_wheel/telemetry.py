@@ -211,15 +211,19 @@ class TelemetryCheck:
         return _where(r, self.csv)
 
     def chunk(self, df: Any, row0: int) -> Any:
-        """The clean float64 frame of rows ``row0 ..`` of the record (``attrs`` dt, row0)."""
+        """The clean float64 frame of rows ``row0 ..`` of the current file (the record may
+        continue over several files, :attr:`source` naming the current one): ``attrs`` dt,
+        ``row0`` (the record's row of the chunk's first row: rows count over every file),
+        ``file_row0`` (``row0`` as given), ``source``, ``n_out_of_range``."""
         import pandas as pd
 
         src = self.source
+        rec0 = self.rows
         if TIME in df.columns:
             df = _time_in_seconds(df, src)
         if len(df) == 0:
             raise TelemetryError(f"{src}: no data rows (header only)")
-        if row0 == 0 and len(df) < 2:
+        if rec0 == 0 and len(df) < 2:
             raise TelemetryError(f"{src}: need at least 2 rows, got {len(df)}")
         _refuse_booleans(df, src, lambda r: self.where(row0 + r))
         if self.lenient:
@@ -227,27 +231,29 @@ class TelemetryCheck:
         else:
             cols = numeric_columns(df, COLUMNS, error=TelemetryError, source=src,
                                    row_label=lambda r: self.where(row0 + r))
-        out = pd.DataFrame(cols, index=pd.RangeIndex(row0, row0 + len(df)))
+        out = pd.DataFrame(cols, index=pd.RangeIndex(rec0, rec0 + len(df)))
         t = out[TIME].to_numpy()
-        self._check_times(t, row0)
+        first = rec0 == 0  # the record's first chunk: nothing before it to compare with
+        self._check_times(t, row0, first)
         self._check_units(out, row0)
         w = out[SPEED].to_numpy()
         if not self.lenient:
-            at = row0 + (1 if row0 == 0 else 0)
-            _check_jumps(w if row0 == 0 else np.concatenate([[self.last_w], w]),
+            at = row0 + (1 if first else 0)
+            _check_jumps(w if first else np.concatenate([[self.last_w], w]),
                          float(self.dt or 0.0), src, lambda j: self.where(at + j - 1))
         finite = w[np.isfinite(w)]
         if finite.size:
             self.peak = max(self.peak, float(np.max(np.abs(finite))))
         self.last_t, self.last_w = float(t[-1]), float(w[-1])
         self.rows += len(out)
-        out.attrs.update(dt=self.dt, source=src, row0=row0, n_out_of_range=self.n_out_of_range)
+        out.attrs.update(dt=self.dt, source=src, row0=rec0, file_row0=row0,
+                         n_out_of_range=self.n_out_of_range)
         return out
 
-    def _check_times(self, t: Any, row0: int) -> None:
-        """Strictly increasing times; the sampling step; (strict) regular steps."""
+    def _check_times(self, t: Any, row0: int, first: bool) -> None:
+        """Strictly increasing times (across chunks and files); the sampling step; (strict)
+        regular steps."""
         src = self.source
-        first = row0 == 0
         # steps from the previous chunk's last row on (d[j] ends at row row0 + j + first)
         d = np.diff(t) if first else np.diff(t, prepend=self.last_t)
         at = row0 + (1 if first else 0)  # the file row d[0] ends at
@@ -301,6 +307,18 @@ class TelemetryCheck:
             raise TelemetryError(
                 f"{self.source}: column {c!r}, {self.where(row0 + r)}: |value| {v[r]:.6g} "
                 f"{unit} exceeds {limit:g} {unit}{many} ({hint})")
+
+    def state(self) -> dict[str, Any]:
+        """What the checks carry between chunks (a checkpoint; :meth:`restore`)."""
+        return {"dt": self.dt, "last_t": self.last_t, "last_w": self.last_w, "peak": self.peak,
+                "rows": self.rows, "n_out_of_range": self.n_out_of_range}
+
+    def restore(self, st: dict[str, Any]) -> None:
+        """Continue the checks of a record from :meth:`state`."""
+        self.dt = None if st["dt"] is None else float(st["dt"])
+        self.last_t, self.last_w = float(st["last_t"]), float(st["last_w"])
+        self.peak, self.rows = float(st["peak"]), int(st["rows"])
+        self.n_out_of_range = int(st["n_out_of_range"])
 
     def finish(self) -> None:
         """The checks that need the whole record (raises :class:`TelemetryError`)."""

@@ -28,7 +28,8 @@ class WindowQuadrature:
 
     ``u_j = center + scale * x_j``; ``nodes`` (..., W, n) hold the standardised nodes ``x_i`` and
     ``weights`` (..., W, n) the Gauss weights (summing to 1); ``count`` is the number of samples
-    per window. Then ``S_k(b) ~= count * exp(-b c_k) * sum_i w_ki exp(-b s_k x_ki)``, exact for
+    per window, one number or one per window (a user's windows differ in length). Then
+    ``S_k(b) ~= count_k * exp(-b c_k) * sum_i w_ki exp(-b s_k x_ki)``, exact for
     any ``b`` when ``exp(-b s x)`` is a polynomial of degree <= 2n - 1 in x.
     """
 
@@ -36,7 +37,7 @@ class WindowQuadrature:
     scale: FloatArray
     nodes: FloatArray
     weights: FloatArray
-    count: float
+    count: float | FloatArray
 
     @property
     def n_windows(self) -> int:
@@ -60,14 +61,19 @@ class WindowQuadrature:
         w = self.weights[..., k, :][..., None, :]
         b = np.asarray(b, dtype=np.float64)
         inner = (w * np.exp(-(b * s)[..., None] * x)).sum(axis=-1)
-        return np.log(self.count) - b * c + np.log(inner)
+        return self.log_counts()[..., k][..., None] - b * c + np.log(inner)
+
+    def log_counts(self) -> FloatArray:
+        """``ln count`` per window, shape of ``center`` (a scalar ``count`` broadcast)."""
+        return np.broadcast_to(np.log(np.asarray(self.count, dtype=np.float64)),
+                               self.center.shape)
 
     def sums(self, b: FloatArray, k: int | slice) -> FloatArray:
         """``S_k(b)`` for particles ``b`` (see :meth:`log_sums`)."""
         return np.exp(self.log_sums(b, k))
 
 
-def window_quadrature(u: FloatArray, n_nodes: int = 5, *, count: float | None = None,
+def window_quadrature(u: FloatArray, n_nodes: int = 5, *, count: float | FloatArray | None = None,
                       backend: str = "numba") -> WindowQuadrature:
     """Gauss quadrature of the empirical distribution of ``u`` per window (last axis: samples).
 
@@ -109,7 +115,7 @@ def window_quadrature(u: FloatArray, n_nodes: int = 5, *, count: float | None = 
     weights = vecs[..., 0, :] ** 2
     weights /= weights.sum(axis=-1, keepdims=True)
     return WindowQuadrature(center=center, scale=scale, nodes=nodes, weights=weights,
-                            count=float(m if count is None else count))
+                            count=float(m) if count is None else count)
 
 
 _TINY_REL = 1e-14  # a window whose std is below this x |mean| is treated as constant

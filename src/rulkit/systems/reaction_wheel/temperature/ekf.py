@@ -279,15 +279,10 @@ def ekf_start(n_models: int = 1) -> EKFState:
 
 
 @nb.njit(cache=True)
-def _predict(x, P, V, h, t, q2, Pp, C, b0, b1):  # type: ignore[no-untyped-def]
-    """One RK4 step of length ``h`` from time ``t`` (since the record's start) with the
-    covariance propagated by the tangent-linear Jacobian and the random-walk variances ``q2``
-    = (I, w, T) added, in place."""
-    amp = Pp[7] * Pp[10] * Pp[11] * Pp[11]
-    w_a = Pp[11]
-    tn0 = amp * math.sin(w_a * t)
-    tn1 = amp * math.sin(w_a * (t + 0.5 * h))
-    tn2 = amp * math.sin(w_a * (t + h))
+def _predict(x, P, V, h, tn0, tn1, tn2, q2, C, b0, b1):  # type: ignore[no-untyped-def]
+    """One RK4 step of length ``h`` (torque disturbance ``tn0``, ``tn1``, ``tn2`` at its
+    start, middle and end) with the covariance propagated by the tangent-linear Jacobian and
+    the random-walk variances ``q2`` = (I, w, T) added, in place."""
     I1, w1, F = rk4_tangent_linear3(x[0], x[1], V, b0, b1, x[2], tn0, tn1, tn2, h, C)
     x[0], x[1] = I1, w1
     # P <- F P F^T with F = [[F0 F1 F2], [F3 F4 F5], [0 0 1]]
@@ -353,19 +348,20 @@ def _mix(X, P, mu, p_stay, X0, P0, c):  # type: ignore[no-untyped-def]
     for j in range(M):
         for a in range(3):
             X0[j, a] = 0.0
-        for i in range(M):
-            wij = (p_stay if i == j else off) * mu[i] / c[j]
-            for a in range(3):
-                X0[j, a] += wij * X[i, a]
-        for a in range(3):
             for b in range(3):
                 P0[j, a, b] = 0.0
         for i in range(M):
             wij = (p_stay if i == j else off) * mu[i] / c[j]
             for a in range(3):
-                da = X[i, a] - X0[j, a]
-                for b in range(3):
-                    P0[j, a, b] += wij * (P[i, a, b] + da * (X[i, b] - X0[j, b]))
+                X0[j, a] += wij * X[i, a]
+        for i in range(M):
+            wij = (p_stay if i == j else off) * mu[i] / c[j]
+            d0, d1, d2 = X[i, 0] - X0[j, 0], X[i, 1] - X0[j, 1], X[i, 2] - X0[j, 2]
+            for a in range(3):
+                da = d0 if a == 0 else (d1 if a == 1 else d2)
+                P0[j, a, 0] += wij * (P[i, a, 0] + da * d0)
+                P0[j, a, 1] += wij * (P[i, a, 1] + da * d1)
+                P0[j, a, 2] += wij * (P[i, a, 2] + da * d2)
     X[:, :] = X0
     P[:, :, :] = P0
 
@@ -463,10 +459,16 @@ def _step(X, P, mu, mem, work, t, v0, yw, yI, s, qT, Pp, C, b0, b1):  # type: ig
     if M > 1:
         _mix(X, P, mu, s.p_stay, X0, P0, c)
     f = h / s.dt
-    for j in range(M):
-        q2 = (s.q_I * s.q_I * f, s.q_w * s.q_w * f, qT[j] * qT[j] * f)
-        for m in range(n):
-            _predict(X[j], P[j], Vu, h, mem[_T_PREV] + m * h, q2, Pp, C, b0, b1)
+    amp = Pp[7] * Pp[10] * Pp[11] * Pp[11]
+    w_a = Pp[11]
+    for m in range(n):  # the torque disturbance runs on the time since the record's start
+        t0 = mem[_T_PREV] + m * h
+        tn0 = amp * math.sin(w_a * t0)
+        tn1 = amp * math.sin(w_a * (t0 + 0.5 * h))
+        tn2 = amp * math.sin(w_a * (t0 + h))
+        for j in range(M):
+            q2 = (s.q_I * s.q_I * f, s.q_w * s.q_w * f, qT[j] * qT[j] * f)
+            _predict(X[j], P[j], Vu, h, tn0, tn1, tn2, q2, C, b0, b1)
     cw, stuck_w = _stuck(yw, mem[_YW], mem[_STUCK_W], s)
     cI, stuck_I = _stuck(yI, mem[_YI], mem[_STUCK_I], s)
     mem[_STUCK_W], mem[_STUCK_I] = cw, cI

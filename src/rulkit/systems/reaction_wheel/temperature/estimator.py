@@ -244,6 +244,35 @@ class TemperatureEstimator:
                 f"describes (first: {self._first_out}): the telemetry does not follow the "
                 "wheel model; nothing written")
 
+    def state(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """(arrays, values) that restore this run of a robust method in another process
+        (:meth:`restore`): the filter's state and the counts behind :meth:`finish` and the
+        notes. The particle filters' clouds and generators are not saved."""
+        if self.method not in ROBUST_METHODS:
+            raise ValueError(f"state: only the methods {ROBUST_METHODS} can be checkpointed")
+        arrays = dict(self._state._asdict()) if self._state is not None else {}
+        values = {"rows": self.rows, "n_untrusted": self.n_untrusted,
+                  "first_untrusted": self.first_untrusted, "n_out": self._n_out,
+                  "first_out": self._first_out, "warning": self.warning,
+                  "flag_counts": {str(k): v for k, v in self.flag_counts.items()}}
+        return arrays, values
+
+    def restore(self, arrays: dict[str, Any], values: dict[str, Any]) -> None:
+        """Continue the run saved by :meth:`state` (same method, settings and wheel)."""
+        from rulkit.systems.reaction_wheel.temperature.ekf import EKFState
+
+        if arrays:
+            self._state = EKFState(*(np.array(arrays[f]) for f in EKFState._fields))
+            cfg: EKFConfig = self.config
+            self._ekf_settings = cfg.settings(self.dt, self.sigma)
+            self._qT = np.array(cfg.q_T, dtype=np.float64)
+            self._P = pack_params(self.params)
+        self.rows, self.n_untrusted = int(values["rows"]), int(values["n_untrusted"])
+        self.first_untrusted = values["first_untrusted"]
+        self._n_out, self._first_out = int(values["n_out"]), str(values["first_out"])
+        self.warning = values["warning"]
+        self.flag_counts = {int(k): int(v) for k, v in values["flag_counts"].items()}
+
     def _pf(self, t: Any, y: Any, V: Any) -> tuple[Any, Any, Any, Any]:
         cfg = self.config
         first = self._state is None
