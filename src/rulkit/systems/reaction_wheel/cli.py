@@ -66,7 +66,8 @@ def _print_tables(rep: Any, console: Any) -> None:
 
 
 def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, workers: int,
-                     scheduler: str | None, show_progress: bool = True) -> Any:
+                     scheduler: str | None, show_progress: bool = True,
+                     real_step1_runs: int | None = None) -> Any:
     """Run the reproduction with a rich progress bar over its stages; returns the result."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -83,14 +84,16 @@ def run_reproduction(out: Path, *, quick: bool, runs: int | None, seed: int, wor
         raise typer.BadParameter("give either --workers or --scheduler, not both")
     cfg = (ReproductionConfig.quick_config(seed=seed, n_runs=runs) if quick
            else with_overrides(ReproductionConfig(seed=seed), n_runs=runs))
-    cfg = with_overrides(cfg, workers=workers, scheduler=scheduler)
+    cfg = with_overrides(cfg, workers=workers, scheduler=scheduler,
+                         real_step1_runs=real_step1_runs)
     console = Console()
     t0 = time.perf_counter()
     # one log line per stage: step 1, one per T^ source (APF, PF, RBPF), steps 2 and 3, ...,
     # and the files (tables, figures, report.md) at the end
     n_src = len(SOURCES)
     stages = (4 + n_src + n_src * (cfg.validation_hours > 0) + (cfg.sensitivity_runs > 0)
-              + cfg.table6_alt)
+              + cfg.table6_alt + cfg.seed_filters + (cfg.eq28_seconds > 0)
+              + (cfg.real_step1_runs > 0))
     if not show_progress:
         rep = run(cfg, log=lambda m: None)
         write_report(rep, out)
@@ -161,6 +164,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         workers: Annotated[int, typer.Option(help="Local worker processes.")] = 1,
         scheduler: Annotated[str | None, typer.Option(
             help="Address of an existing Dask scheduler (tcp://host:port).")] = None,
+        real_step1_runs: Annotated[int | None, typer.Option(
+            min=0, help="Runs of the real step 1 (IMM) over the whole horizon against the T^ "
+                        "shortcut (default 2; quick 0).")] = None,
     ) -> None:
         """Reproduce seed 001 Tables 5-7 (reaction-wheel lubrication prognostics)."""
         from rich.console import Console
@@ -173,7 +179,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
             check_scheduler(scheduler)
         try:
             rep = run_reproduction(out, quick=quick, runs=runs, seed=seed, workers=workers,
-                                   scheduler=scheduler)
+                                   scheduler=scheduler, real_step1_runs=real_step1_runs)
         except (OSError, TimeoutError) as err:
             if scheduler is None:
                 raise

@@ -1,5 +1,6 @@
-"""The report of steps 1-3 on a user's record (``rulkit rw pipeline``; docs/systems/reaction-
-wheel.md §7.4): tables (CSV), figures (PNG), ``report.md`` and ``summary.json`` of a
+"""The report of steps 1-3 on a user's record (``rulkit rw pipeline``;
+docs/systems/reaction-wheel.md §7.4): tables (CSV), figures (PNG), ``report.md`` and
+``summary.json`` of a
 :class:`rulkit.systems.reaction_wheel.pipeline.PipelineResult`.
 
 Files: ``temperature_hourly.csv`` (the step-1 estimate per hour: mean, lowest lower and highest

@@ -59,6 +59,15 @@ class ReproductionConfig:
     validation_runs: int = 3
     sensitivity_runs: int = 5
     sensitivity_days: float = 10.0
+    # The seeds' filters complete (docs/systems/reaction-wheel.md §3.2): all five weightings
+    # in both designs (None: N = 50, 200, 350), and eq. 28's effect on the weights measured
+    # over this many seconds of the Table 3 path (0: not measured).
+    seed_filters: bool = True
+    seed_filter_particles: tuple[int, ...] | None = None
+    eq28_seconds: float = 500.0
+    # Runs of the real step-1 estimator (the IMM) over the whole step-2 horizon, against the
+    # T^ shortcut (docs/systems/reaction-wheel.md §7.4); 0: not run.
+    real_step1_runs: int = 2
     workers: int = 1
     scheduler: str | None = None
 
@@ -72,6 +81,8 @@ class ReproductionConfig:
         kw.setdefault("step3", RULConfig(prediction_days=(2.0, 5.0, 10.0)))
         kw.setdefault("table5_particles", (200,))
         kw.setdefault("error_hours", 1.0)
+        kw.setdefault("eq28_seconds", 150.0)
+        kw.setdefault("real_step1_runs", 0)
         return cls(quick=True, n_runs=n_runs or 5, seed=seed, step1_error_runs=2,
                    validation_hours=0.0, sensitivity_runs=0, table6_alt=False, **kw)
 
@@ -99,6 +110,10 @@ class Reproduction:
     notes: list[str]
     errors_alt: dict[str, EstimateErrorProcess] = field(default_factory=dict)
     table6_alt: Any = None
+    seed_filters: Any = None  # all five weightings in F1 and F2 (a DataFrame)
+    eq28: Any = None  # eq. 28 against Bayes on the same weights (a DataFrame)
+    one_vs_two: Any = None  # one-step against two-step on every T^ source (a DataFrame)
+    real_step1: Any = None  # the real IMM over the whole horizon against the shortcut
 
 
 def run(config: ReproductionConfig, *, progress: Progress | None = None,
@@ -154,8 +169,44 @@ def run(config: ReproductionConfig, *, progress: Progress | None = None,
         sens = sensitivity_study(cfg.step2, errors["APF"], n_runs=cfg.sensitivity_runs,
                                  horizon_days=cfg.sensitivity_days, seed=cfg.seed)
         timings["sensitivity"] = time.perf_counter() - t
-    return Reproduction(cfg, table5, errors, t6, s3.table, s3, validation, sens, [], timings,
-                        [], errors_alt, t6_alt)
+    rep = Reproduction(cfg, table5, errors, t6, s3.table, s3, validation, sens, [], timings,
+                       [], errors_alt, t6_alt)
+    _beyond_the_tables(cfg, rep, log)
+    return rep
+
+
+def _beyond_the_tables(cfg: ReproductionConfig, rep: Reproduction,
+                       log: Callable[[str], None]) -> None:
+    """The seeds' filters complete, eq. 28 analysed, one-step against two-step on every T^,
+    and the real step 1 over the whole horizon against the shortcut."""
+    from rulkit.systems.reaction_wheel.degradation.study import one_vs_two_step
+    from rulkit.systems.reaction_wheel.temperature.study import (
+        eq28_weight_analysis,
+        run_seed_filters,
+    )
+
+    t = time.perf_counter()
+    if cfg.seed_filters:
+        log("step 1: all five weightings in designs F1 and F2")
+        ns = cfg.seed_filter_particles or cfg.table5_particles or (50, 200, 350)
+        rep.seed_filters = run_seed_filters(min(cfg.n_runs, 20), cfg.seed, ns,
+                                            workers=cfg.workers, scheduler=cfg.scheduler)
+    if cfg.eq28_seconds > 0:
+        log("step 1: eq. 28 against Bayes on the same weights")
+        rep.eq28 = eq28_weight_analysis(cfg.seed, t_end=cfg.eq28_seconds)
+    rep.timings["seed filters and eq. 28"] = time.perf_counter() - t
+    rep.one_vs_two = one_vs_two_step(rep.table6)
+    if cfg.real_step1_runs > 0 and "IMM" in rep.errors:
+        from rulkit.systems.reaction_wheel.degradation.real_step1 import (
+            compare_real_and_shortcut,
+        )
+
+        t = time.perf_counter()
+        log(f"the real step 1 (IMM) over {cfg.step2.horizon_days:g} days against the shortcut")
+        rep.real_step1 = compare_real_and_shortcut(cfg.real_step1_runs, cfg.seed, cfg.step2,
+                                                   rep.errors["IMM"], workers=cfg.workers,
+                                                   scheduler=cfg.scheduler)
+        rep.timings["real step 1 over the horizon"] = time.perf_counter() - t
 
 
 def _run_table5(cfg: ReproductionConfig, log: Callable[[str], None]) -> Any:

@@ -52,16 +52,18 @@ PAPER_TABLE6: dict[str, tuple[float, float, float, float]] = {
 
 #: Step-1 estimators whose error statistics feed the shortcut, and their Table 5 labels.
 #: "APF" and "PF" are the seed's; "RBPF" (ours, beyond the seeds) is the Rao-Blackwellised PF
-#: of :mod:`rulkit.systems.reaction_wheel.temperature.rbpf`, design :data:`RBPF_STEP1_DESIGN`. A
-#: source's
-#: index here keys its random streams, so adding a source leaves the others' numbers unchanged.
-SOURCES = ("APF", "PF", "RBPF")
+#: of :mod:`rulkit.systems.reaction_wheel.temperature.rbpf`, design :data:`RBPF_STEP1_DESIGN`;
+#: "IMM" (ours) the default estimator on a user's record (docs/systems/reaction-wheel.md §3.4).
+#: A source's index here keys its random streams, so adding a source leaves the others' numbers
+#: unchanged.
+SOURCES = ("APF", "PF", "RBPF", "IMM")
 
-
-#: Trackers run on the T^ of each step-1 estimator; the seed's three rows plus our RBPF.
+#: Trackers run on the T^ of each step-1 estimator: the seed's three rows, our RB-PF, and the
+#: one-step beside the two-step on the good estimates (the one-vs-two-step table).
 METHODS: dict[str, tuple[str, ...]] = {"APF": ("two_step", "one_step", "rbpf"),
                                        "PF": ("two_step", "rbpf"),
-                                       "RBPF": ("two_step", "rbpf")}
+                                       "RBPF": ("two_step", "rbpf", "one_step"),
+                                       "IMM": ("two_step", "one_step", "rbpf")}
 
 
 ROW_LABELS: dict[tuple[str, str], str] = {
@@ -73,6 +75,12 @@ ROW_LABELS: dict[tuple[str, str], str] = {
     ("RBPF", "two_step"): "RBPF + two-step PF (ours)",
     ("RBPF", "rbpf"): "RBPF + RB-PF (ours)",
 }
+
+
+def row_label(source: str, method: str) -> str:
+    """The row name of a (T^ source, tracker) pair: Table 6's, else "<source> + <tracker>"."""
+    names = {"two_step": "two-step PF", "one_step": "one-step PF", "rbpf": "RB-PF"}
+    return ROW_LABELS.get((source, method), f"{source} + {names.get(method, method)} (ours)")
 
 
 @dataclass(frozen=True)
@@ -145,16 +153,26 @@ def run_case(task: CaseTask, rng: np.random.Generator | None = None) -> CaseResu
     how runs are grouped into tasks or which worker runs them.
     """
     st = task.settings
+    sid, si = task.scenario_id, SOURCES.index(task.source)
+    t0 = time.perf_counter()
+    est_rngs = [unit_rng(task.seed, "estimate", sid, si, r) for r in task.runs]
+    quad = synthetic_estimate_quadrature(PATHS[sid], replace(task.error,
+                                         hold_samples=st.hold_samples), st.n_windows, est_rngs,
+                                         n_nodes=st.n_nodes)
+    return track_case(task, quad, {"data": time.perf_counter() - t0})
+
+
+def track_case(task: CaseTask, quad: Any, seconds: dict[str, float] | None = None
+               ) -> CaseResult:
+    """The step-2 trackers of ``task`` on the window rules ``quad`` of its runs' T^ (the
+    shortcut's, or the real step-1 estimator's), against the task's measured losses; the
+    trackers' streams are the task's (:func:`unit_rng`)."""
+    st = task.settings
     sid, src = task.scenario_id, task.source
     si = SOURCES.index(src)
     W = st.n_windows
-    t0 = time.perf_counter()
     y, sigma_y = measurements(task)
-    est_rngs = [unit_rng(task.seed, "estimate", sid, si, r) for r in task.runs]
-    quad = synthetic_estimate_quadrature(PATHS[sid], replace(task.error,
-                                         hold_samples=st.hold_samples), W, est_rngs,
-                                         n_nodes=st.n_nodes)
-    seconds = {"data": time.perf_counter() - t0}
+    seconds = dict(seconds or {})
     beta_ref = SCENARIOS[sid].beta0_healthy
     b_true, beta_true = truth_parameters(sid, W)
     methods = task.methods or METHODS[src]
@@ -274,7 +292,8 @@ def run_table6(n_runs: int, seed: int, settings: DegradationConfig,
 RBPF_STEP1_DESIGN = "RBJ"
 
 
-STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive", "RBPF": f"rbpf {RBPF_STEP1_DESIGN}"}
+STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive", "RBPF": f"rbpf {RBPF_STEP1_DESIGN}",
+                  "IMM": "imm"}
 
 
 def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
@@ -289,6 +308,8 @@ def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
     ``rulkit.systems.reaction_wheel.temperature.rbpf.run_rbpf``
     with design :data:`RBPF_STEP1_DESIGN` (its settings, ``n_particles`` particles).
     """
+    if source == "IMM":
+        return imm_estimate(y, V, sigma=sigma, dt=dt)
     if source == "RBPF":
         from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf
 
@@ -306,8 +327,24 @@ def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
     return filter_temperature(y, V, rng, cfg, sigma=sigma, dt=dt, quantiles=False).T_mean
 
 
+def imm_estimate(y: FloatArray, V: FloatArray, *, sigma: tuple[float, float],
+                 dt: float = SAMPLE_DT) -> FloatArray:
+    """T^ (K,) of the default step-1 estimator (the compiled IMM EKF, its default settings) on
+    the seed's wheel, times from 0 every ``dt``."""
+    from rulkit.systems.reaction_wheel.temperature.ekf import EKFConfig, ekf_start, ekf_steps
+    from rulkit.systems.reaction_wheel.wheel import IthacoParams
+    from rulkit.systems.reaction_wheel.wheel_kernels import pack_params
+
+    cfg = EKFConfig()
+    t = dt * np.arange(y.shape[0], dtype=np.float64)
+    m, _, _ = ekf_steps(t, np.ascontiguousarray(V, dtype=np.float64),
+                        np.ascontiguousarray(y, dtype=np.float64), ekf_start(len(cfg.q_T)),
+                        cfg.settings(dt, sigma), np.array(cfg.q_T), pack_params(IthacoParams()))
+    return np.asarray(m)
+
+
 def _step1_name(source: str) -> str:
-    return STEP1_VARIANTS[source] + ("" if source == "RBPF" else ", F2")
+    return STEP1_VARIANTS[source] + ("" if source in ("RBPF", "IMM") else ", F2")
 
 
 def measure_temperature_errors(source: str, n_runs: int, seed: int, *, n_particles: int = 200,
@@ -520,3 +557,31 @@ def sensitivity_study(base: DegradationConfig, error: EstimateErrorProcess, *, n
 def settings_dict(settings: DegradationConfig) -> dict[str, Any]:
     """The settings as a plain dict (for report.md)."""
     return asdict(settings)
+
+
+def one_vs_two_step(t6: Table6Result) -> Any:
+    """The one-step PF beside the two-step PF on every T^ source of ``t6`` (seed 001's claim
+    that two-step beats one-step, tested beyond the biased APF estimate): one row per source,
+    RMSPE (%) of b and beta0 per scenario, means over the runs; the paper's APF values beside
+    (docs/systems/reaction-wheel.md §4)."""
+    import pandas as pd
+
+    rows = []
+    for src in SOURCES:
+        cases = [c for c in t6.cases if c.source == src]
+        if not cases or not all("one_step" in c.rmspe_b for c in cases):
+            continue
+        row: dict[str, Any] = {"T^ source": src, "step-1 estimator": _step1_name(src)}
+        for c in sorted(cases, key=lambda c: c.scenario_id):
+            s = c.scenario_id
+            for meth, label in (("one_step", "one-step"), ("two_step", "two-step")):
+                row[f"S{s} b {label}"] = float(np.mean(c.rmspe_b[meth]))
+                row[f"S{s} beta {label}"] = float(np.mean(c.rmspe_beta0[meth]))
+        if src == "APF":
+            for s in (1, 2):
+                one, two = PAPER_TABLE6["APF + one-step PF"], PAPER_TABLE6["APF + two-step PF"]
+                row[f"S{s} b paper one/two"] = f"{one[2 * (s - 1)]} / {two[2 * (s - 1)]}"
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    table["runs"], table["seed"] = t6.n_runs, t6.seed
+    return table

@@ -149,8 +149,8 @@ def run_table7(table6: Any, settings: RULConfig) -> Step3Result:
     for case in table6.cases:
         sc = SCENARIOS[case.scenario_id]
         for meth, snaps in case.snapshots.items():
-            if not snaps:
-                continue
+            if not snaps or (case.source, meth) not in ROW_LABELS:
+                continue  # Table 7 keeps the rows of Table 6
             label = ROW_LABELS[(case.source, meth)]
             methods.append(rul_for_method(case.scenario_id, label, snaps, case.X_at, settings,
                                           table6.seed, (sc.b_fault, sc.beta0_fault)))
