@@ -7,8 +7,8 @@ The benchmark makes the record itself (never committed): ``--days`` daily Parque
 seed's wheel at 2 V along the scenario-1 temperature path with the fault after 159 min, and the
 4-minute loss measurements (``rulkit.systems.reaction_wheel.simulate.simulate_record``), in a
 temporary directory removed afterwards (``--keep`` keeps it). It then runs the command in a
-child process and prints its wall time, its CPU time (user + system, from ``getrusage`` of the
-child), rows per CPU second, its peak resident memory (``ru_maxrss``), the load average of the
+child process and prints its wall time, its CPU time (user + system), rows per CPU second, its
+own peak resident memory (VmHWM; ``bench_scale.measure``), the load average of the
 machine before and after, and, for fewer than 90 days, the extrapolation to 155.5 million rows
 at the measured rate. On a shared machine the wall time measures the other jobs as much as the
 pipeline: compare the CPU time (the pipeline is one process; on an idle machine wall ~= CPU).
@@ -21,10 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -46,20 +43,13 @@ def make_record(root: Path, days: float, seed: int) -> dict:
     return truth
 
 
-def run_pipeline(root: Path, threshold: float) -> tuple[float, float, float, str]:
-    """(wall s, CPU s, peak RSS MB, output) of one ``rulkit rw pipeline`` child process."""
-    cmd = [sys.executable, "-c", "from rulkit.cli import main; main()", "rw", "pipeline",
-           str(root / "wheel"), "--out", str(root / "out"), "--threshold", str(threshold),
-           "--restart"]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if proc.returncode != 0:
-        raise SystemExit(f"the pipeline failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return wall, cpu, after.ru_maxrss / 1024.0, proc.stdout.strip()
+def run_pipeline(root: Path, threshold: float) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak RSS MB) of one ``rulkit rw pipeline`` process (the peak is the
+    process's own VmHWM: ``bench_scale.measure``)."""
+    from bench_scale import RULKIT, measure
+
+    return measure([*RULKIT, "rw", "pipeline", str(root / "wheel"), "--out", str(root / "out"),
+                    "--threshold", str(threshold), "--restart"])
 
 
 def main() -> None:
@@ -75,9 +65,9 @@ def main() -> None:
         truth = make_record(root, a.days, a.seed)
         rows = truth["rows"]
         load0 = os.getloadavg()
-        wall, cpu, rss, out = run_pipeline(root, a.threshold)
+        wall, cpu, rss = run_pipeline(root, a.threshold)
         load1 = os.getloadavg()
-        print(out)
+        print((root / "out" / "report.md").read_text().split("## Timings")[0][-1500:])
         rate = rows / cpu
         print(f"pipeline: {rows:,} rows, wall {wall:.0f} s, CPU {cpu:.0f} s "
               f"({rate / 1e6:.2f} M rows per CPU second), peak memory {rss:.0f} MB")

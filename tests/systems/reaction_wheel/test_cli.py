@@ -233,3 +233,11 @@ def test_wheel_template_command_writes_a_readable_file(tmp_path: Path) -> None:
     f = tmp_path / "w.toml"
     assert runner.invoke(app, ["rw", "wheel-template", "--out", str(f)]).exit_code == 0
     assert read_wheel_file(f).params.J == 0.0077
+
+
+def test_pipeline_refuses_an_unreachable_scheduler_before_any_work(wheel_dir: Path,
+                                                                    tmp_path: Path) -> None:
+    res = runner.invoke(app, ["rw", "pipeline", str(wheel_dir), str(wheel_dir), "--out",
+                              str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:1"])
+    assert res.exit_code == 1 and "cannot reach the Dask scheduler" in _err(res)
+    assert not (tmp_path / "o").exists()

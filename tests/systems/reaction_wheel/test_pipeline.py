@@ -104,3 +104,17 @@ def test_only_the_robust_methods_run_months(wheel_dir: Path, tmp_path: Path) -> 
         run_pipeline(find_record(wheel_dir), tmp_path, PipelineOptions(method="adaptive"))
     with pytest.raises(PipelineError, match="no such file"):
         find_record(tmp_path / "nothing")
+
+
+@pytest.mark.slow  # a local Dask cluster and two pipelines
+def test_several_wheels_on_a_dask_cluster_equal_serial(wheel_dir: Path, tmp_path: Path) -> None:
+    distributed = pytest.importorskip("distributed")
+    other = tmp_path / "other"
+    shutil.copytree(wheel_dir, other)
+    recs = [find_record(wheel_dir), find_record(other)]
+    serial = run_fleet(recs, tmp_path / "s", OPTS)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  protocol="tcp", host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        dask = run_fleet(recs, tmp_path / "d", OPTS, scheduler=cluster.scheduler_address)
+    pd.testing.assert_frame_equal(serial, dask)

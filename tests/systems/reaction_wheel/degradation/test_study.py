@@ -157,3 +157,30 @@ def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> N
     monkeypatch.setattr(rbpf, "run_rbpf", shifted)
     e3 = measure_temperature_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
     assert e3.bias_c == pytest.approx(e.bias_c + 3.0)
+
+
+def test_one_step_beside_two_step_on_every_source() -> None:
+    from rulkit.systems.reaction_wheel.degradation.shortcut import EstimateErrorProcess
+    from rulkit.systems.reaction_wheel.degradation.study import one_vs_two_step, run_table6
+    from rulkit.systems.reaction_wheel.degradation.trackers import DegradationConfig
+
+    err = {s: EstimateErrorProcess(std_c=0.1, tau_s=10.0) for s in ("APF", "RBPF", "IMM")}
+    t6 = run_table6(1, 0, DegradationConfig(n_particles=30, horizon_days=0.3), err)
+    t = one_vs_two_step(t6)
+    assert list(t["T^ source"]) == ["APF", "RBPF", "IMM"]
+    assert {"S1 b one-step", "S1 b two-step", "S2 beta two-step"} <= set(t.columns)
+    assert t.loc[0, "S1 b paper one/two"] == "136.999 / 3.947"
+    # Table 6 keeps the rows of the seeds' methods and ours (no one-step row on RBPF, IMM)
+    assert not t6.table["method"].str.contains("IMM").any()
+
+
+def test_real_step1_over_the_horizon_against_the_shortcut() -> None:
+    from rulkit.systems.reaction_wheel.degradation.real_step1 import compare_real_and_shortcut
+    from rulkit.systems.reaction_wheel.degradation.shortcut import EstimateErrorProcess
+    from rulkit.systems.reaction_wheel.degradation.trackers import DegradationConfig
+
+    t = compare_real_and_shortcut(1, 0, DegradationConfig(n_particles=30, horizon_days=0.05),
+                                  EstimateErrorProcess(std_c=0.05, tau_s=5.0))
+    assert set(t["scenario"]) == {1, 2} and set(t["tracker"]) == {"two_step", "one_step", "rbpf"}
+    assert np.isfinite(t[["b real", "b shortcut", "beta real", "beta shortcut"]]).all().all()
+    assert (t["step-1 s per run"] > 0).all()

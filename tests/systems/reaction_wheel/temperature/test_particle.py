@@ -33,7 +33,8 @@ def short_run():
     return simulate_table3(np.random.default_rng(11), "low", t_end=25.0)
 
 
-CASES = [(d, v) for d in ("F1", "F2") for v in ("pf", "adaptive", "apf_eq28", "apf_tempered")]
+CASES = [(d, v) for d in ("F1", "F2")
+         for v in ("pf", "adaptive", "apf_eq28", "apf_tempered", "apf")]
 
 
 def _constant_record(T: float = 30.0, V: float = 1.0, K: int = 4000, seed: int = 0,
@@ -90,6 +91,8 @@ def test_kernel_equals_numpy_reference(short_run, design: str, variant: str) -> 
         assert a.n_clipped.sum() > 0
     if variant == "apf_tempered":
         assert a.gamma.max() > 1.0
+    if variant == "apf":  # the auxiliary PF resamples in its first stage at every step
+        assert np.all(a.action[1:] == 6)
 
 
 def test_same_seed_same_result_different_seed_differs(short_run) -> None:
@@ -149,9 +152,11 @@ def test_estimators_track_constant_temperature_from_equilibrium() -> None:
         x[k + 1] = rk4_wheel_step(x[k : k + 1], 1.0, 30.0, k * dt, dt, m.params)[0]
     y = m.output(x) + m.noise.sample_measurement(K, np.random.default_rng(0))
     V = np.ones(K)
-    cfg = TemperatureConfig(design="F2", variant="pf", n_particles=300, T_prior=(10.0, 40.0))
-    r = filter_temperature(y, V, np.random.default_rng(1), cfg)
-    assert abs(r.T_mean[-200:].mean() - 30.0) < 1.5
+    for variant in ("pf", "apf"):  # the plain PF and the auxiliary PF (Pitt and Shephard)
+        cfg = TemperatureConfig(design="F2", variant=variant,  # type: ignore[arg-type]
+                                n_particles=300, T_prior=(10.0, 40.0))
+        r = filter_temperature(y, V, np.random.default_rng(1), cfg)
+        assert abs(r.T_mean[-200:].mean() - 30.0) < 1.5, variant
     e = run_ekf(y, V, T_prior=(10.0, 40.0))
     assert abs(e.T_mean[-200:, 0].mean() - 30.0) < 0.5
     assert e.T_std[-1, 0] < 0.5
