@@ -152,6 +152,16 @@ def run_quick(out: Path, seed: int) -> None:
 
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     """Add ``reproduce rw-lubrication`` and the ``rw`` group to the CLI."""
+    _register_reproduce(reproduce)
+    rw = typer.Typer(help="Reaction-wheel lubrication tools.", no_args_is_help=True)
+    app.add_typer(rw, name="rw")
+    _register_step1(rw)
+    _register_pipeline(rw)
+    _register_steps_2_3(rw)
+
+
+def _register_reproduce(reproduce: typer.Typer) -> None:
+    """``rulkit reproduce rw-lubrication``."""
 
     @reproduce.command("rw-lubrication")
     def reproduce_rw(
@@ -191,8 +201,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                       f"{time.perf_counter() - t0:.1f} s; see "
                       f"{escape(str(out / 'report.md'))}", highlight=False)
 
-    rw = typer.Typer(help="Reaction-wheel lubrication tools.", no_args_is_help=True)
-    app.add_typer(rw, name="rw")
+
+def _register_step1(rw: typer.Typer) -> None:
+    """``rw estimate-temperature`` and ``rw wheel-template``."""
 
     @rw.command("estimate-temperature")
     def estimate_temperature_cmd(
@@ -244,8 +255,6 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                    f"{summary.last['time_s']:g} s ({level:.0%} interval "
                    f"{summary.last['T_lo']:.2f} .. {summary.last['T_hi']:.2f} C); wrote {dest}")
 
-    _register_records(rw)
-
     @rw.command("wheel-template")
     def wheel_template_cmd(
         out: Annotated[Path | None, typer.Option(
@@ -263,8 +272,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         typer.echo(f"wrote {out}")
 
 
-def _register_records(rw: typer.Typer) -> None:
-    """``rw pipeline``, ``rw degradation`` and ``rw rul``: steps 1-3 on a user's records."""
+def _register_pipeline(rw: typer.Typer) -> None:
+    """``rw pipeline``: steps 1-3 over long records."""
 
     @rw.command("pipeline")
     def pipeline_cmd(
@@ -315,6 +324,11 @@ def _register_records(rw: typer.Typer) -> None:
             _run_one(recs[0], out, opts)
         else:
             _run_many(recs, out, opts, workers, scheduler)
+
+
+
+def _register_steps_2_3(rw: typer.Typer) -> None:
+    """``rw degradation`` and ``rw rul``: steps 2 and 3 on a user's files."""
 
     @rw.command("degradation")
     def degradation_cmd(

@@ -164,35 +164,7 @@ def render_report(rep: Reproduction) -> str:
         L.append("**This is the reduced `--quick` run**: fewer runs, a 10-day step-2 horizon "
                  "instead of three months, fewer particles, no shortcut validation; its numbers "
                  "are indicative only. The full run is `rulkit reproduce rw-lubrication`.\n")
-    L.append("## Step 1: lubricant temperature (Table 5)\n")
-    if rep.table5 is not None:
-        t5 = rep.table5
-        keep = [c for c in ("method", "design", "noise", "N", "runs", "rmspe_mean", "rmspe_sd",
-                            "paper", "rmspe_late_mean", "cover_mean", "cover_late_mean")
-                if c in t5.columns]
-        L.append("Produced by `rulkit.systems.reaction_wheel.temperature.study.run_table5` "
-                 "(see its own documentation for its settings). RMSPE of T in % over 0-500 s, "
-                 "ours beside the paper's; `rmspe_late_mean` is the RMSPE after 100 s and "
-                 "`cover_*` the fraction of samples whose 90 % interval holds the true T "
-                 "(over 0-500 s, after 100 s).\n")
-        L.append(_md(t5[keep]) + "\n")
-        if cfg.table5_extra_designs:
-            L.append(
-                "Beyond the seeds: method `rbpf` (designs "
-                + ", ".join(cfg.table5_extra_designs)
-                + ") is a Rao-Blackwellised particle filter: each particle samples the "
-                "temperature path and carries an exact Kalman filter of [I, w] given it "
-                "(`rulkit.systems.reaction_wheel.temperature.rbpf`). RBJ models the temperature as "
-                "a random "
-                "walk (q_T = 0.01 C per sample) with rare 5 C jumps, proposed more often than "
-                "their prior rate and reweighted. Its three settings were chosen on runs 0-2 of "
-                "seed 0 (so they are not independent of this table); a held-out seed-1 grid "
-                "gave the same picture. The seed-faithful rows are unchanged by it. Why the "
-                "seed designs lag: under a q_T random walk the 8 C step at 50 s has almost no "
-                "prior probability, so a particle cloud follows it by diffusion and selection "
-                "and then oscillates, while the EKF's linear update jumps.\n")
-    else:
-        L.append("Not run in this reproduction.\n")
+    L += _table5_lines(rep)
     L += _seed_filter_lines(rep)
     L.append("## Step 1 -> 2: the T^ shortcut\n")
     L.append("A 0.05 s particle filter over three months (155 million steps) per run is out of "
@@ -266,6 +238,42 @@ def render_report(rep: Reproduction) -> str:
     L.append(_md(rep.step3.metrics) + "\n")
     L += _report_choices_and_files(rep)
     return "\n".join(L) + "\n"
+
+
+def _table5_lines(rep: Reproduction) -> list[str]:
+    """The step-1 section: Table 5 beside the paper's, and what the RBPF rows are."""
+    cfg = rep.config
+    L: list[str] = []
+    L.append("## Step 1: lubricant temperature (Table 5)\n")
+    if rep.table5 is not None:
+        t5 = rep.table5
+        keep = [c for c in ("method", "design", "noise", "N", "runs", "rmspe_mean", "rmspe_sd",
+                            "paper", "rmspe_late_mean", "cover_mean", "cover_late_mean")
+                if c in t5.columns]
+        L.append("Produced by `rulkit.systems.reaction_wheel.temperature.study.run_table5` "
+                 "(see its own documentation for its settings). RMSPE of T in % over 0-500 s, "
+                 "ours beside the paper's; `rmspe_late_mean` is the RMSPE after 100 s and "
+                 "`cover_*` the fraction of samples whose 90 % interval holds the true T "
+                 "(over 0-500 s, after 100 s).\n")
+        L.append(_md(t5[keep]) + "\n")
+        if cfg.table5_extra_designs:
+            L.append(
+                "Beyond the seeds: method `rbpf` (designs "
+                + ", ".join(cfg.table5_extra_designs)
+                + ") is a Rao-Blackwellised particle filter: each particle samples the "
+                "temperature path and carries an exact Kalman filter of [I, w] given it "
+                "(`rulkit.systems.reaction_wheel.temperature.rbpf`). RBJ models the temperature as "
+                "a random "
+                "walk (q_T = 0.01 C per sample) with rare 5 C jumps, proposed more often than "
+                "their prior rate and reweighted. Its three settings were chosen on runs 0-2 of "
+                "seed 0 (so they are not independent of this table); a held-out seed-1 grid "
+                "gave the same picture. The seed-faithful rows are unchanged by it. Why the "
+                "seed designs lag: under a q_T random walk the 8 C step at 50 s has almost no "
+                "prior probability, so a particle cloud follows it by diffusion and selection "
+                "and then oscillates, while the EKF's linear update jumps.\n")
+    else:
+        L.append("Not run in this reproduction.\n")
+    return L
 
 
 def _seed_filter_lines(rep: Reproduction) -> list[str]:

@@ -376,6 +376,63 @@ def _apf_first_stage(T, I, W, lw, wn, ll1, u, s, idx, T2, I2, W2, cw
 
 
 @nb.njit(cache=True)
+def _outputs(K):  # type: ignore[no-untyped-def]
+    """The per-sample outputs of :func:`pf_steps`, unfilled."""
+    return (np.full(K, np.nan), np.full(K, np.nan), np.full(K, np.nan), np.full(K, np.nan),
+            np.full(K, np.nan), np.zeros(K, dtype=np.int8), np.zeros(K, dtype=np.int64),
+            np.ones(K), np.zeros(K), np.zeros(K, dtype=np.int8))
+
+
+@nb.njit(cache=True)
+def _record(outs, kk, T, wn, s, ibuf, fbuf):  # type: ignore[no-untyped-def]
+    """Write the estimates of row ``kk`` (mean, sd, interval, ESS); returns (mean, ESS)."""
+    m, sd = _mean_std(T, wn)
+    outs[0][kk] = m
+    outs[1][kk] = sd
+    if s.want_quantiles:
+        outs[2][kk], outs[3][kk] = _interval(T, wn, s, ibuf, fbuf)
+    ess = ess_row(wn)
+    outs[4][kk] = ess
+    return m, ess
+
+
+@nb.njit(cache=True)
+def _propagate(T, I, W, ll, I2, W2, s, rng, yprev_w, yprev_I, yw, yI, Vk, tn0, tn1, tn2, b0, b1,
+               S_inv, C):  # type: ignore[no-untyped-def]
+    """The prediction of one step: T random walk, then RK4 per particle with its own T (plus
+    the F2 process noise of [I, w]), and the log-likelihood of the sample; returns the largest
+    log-likelihood (NaN predictions count as zero likelihood)."""
+    N = T.size
+    a11, a12, a22 = S_inv[0, 0], S_inv[0, 1], S_inv[1, 1]
+    for i in range(N):
+        T[i] += s.q_T * rng.standard_normal()
+    if s.design == 1 and s.q_I > 0.0:
+        for i in range(N):
+            I2[i] = s.q_I * rng.standard_normal()
+    if s.design == 1 and s.q_w > 0.0:
+        for i in range(N):
+            W2[i] = s.q_w * rng.standard_normal()
+    _predict_loglik(I, W, T, ll, N, s.design, yprev_w, yprev_I, yw, yI, Vk,
+                    tn0, tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
+    if s.design == 1 and (s.q_I > 0.0 or s.q_w > 0.0):
+        for i in range(N):
+            if s.q_I > 0.0:
+                I[i] += I2[i]
+            if s.q_w > 0.0:
+                W[i] += W2[i]
+            e0 = yw - W[i]
+            e1 = yI - I[i]
+            ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - s.log_norm
+    llmax = -np.inf
+    for i in range(N):
+        if ll[i] != ll[i]:  # NaN prediction (diverged particle): zero likelihood
+            ll[i] = -np.inf
+        if ll[i] > llmax:
+            llmax = ll[i]
+    return llmax
+
+
+@nb.njit(cache=True)
 def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     """Advance the cloud ``st`` (a :class:`PFState`, updated in place) over ``inp.y`` (K, 2) =
     [w, I_m]: row 0 is the sample the cloud is at (global index ``k0``), rows 1..K-1 the new
@@ -399,28 +456,12 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     K = y.shape[0]
     N = s.n
     T, I, W, lw, wn, ring_T, ring_lw, sc = st
-    ll = np.empty(N)
-    ll1 = np.empty(N)
-    T2 = np.empty(N)
-    I2 = np.empty(N)
-    W2 = np.empty(N)
-    cw = np.empty(N)
-    idx = np.empty(N, dtype=np.int64)
-    ibuf = np.empty(N, dtype=np.int64)
-    fbuf = np.empty(3 * N)
-    out_mean = np.full(K, np.nan)
-    out_std = np.full(K, np.nan)
-    out_qlo = np.full(K, np.nan)
-    out_qhi = np.full(K, np.nan)
-    out_ess = np.full(K, np.nan)
-    out_act = np.zeros(K, dtype=np.int8)
-    out_clip = np.zeros(K, dtype=np.int64)
-    out_gamma = np.ones(K)
-    out_ll = np.zeros(K)
-    out_flag = np.zeros(K, dtype=np.int8)
-    a11 = S_inv[0, 0]
-    a12 = S_inv[0, 1]
-    a22 = S_inv[1, 1]
+    ll, ll1, T2, I2, W2, cw = (np.empty(N), np.empty(N), np.empty(N), np.empty(N),
+                               np.empty(N), np.empty(N))
+    idx, ibuf, fbuf = np.empty(N, dtype=np.int64), np.empty(N, dtype=np.int64), np.empty(3 * N)
+    outs = _outputs(K)
+    out_act, out_clip, out_gamma, out_ll, out_flag = outs[5:]
+    a11, a12, a22 = S_inv[0, 0], S_inv[0, 1], S_inv[1, 1]
     logN = math.log(N)
     C = wheel_constants(P)
     b0, b1 = viscous_law(P)
@@ -428,9 +469,7 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     w_a = P[11]
     ll_gate = -0.5 * s.gate_d2 - s.log_norm
     R = ring_T.shape[0]
-    win_sum = sc[0]
-    win_cnt = int(sc[1])
-    n_bad = int(sc[2])
+    win_sum, win_cnt, n_bad = sc[0], int(sc[1]), int(sc[2])
 
     for kk in range(1, K):
         k = k0 + kk  # the global sample index
@@ -453,42 +492,14 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
                 ls_first = _apf_first_stage(T, I, W, lw, wn, ll1, rng.random(), s, idx, T2,
                                             I2, W2, cw)
                 first = True
-        # --- prediction: T random walk, then RK4 per particle with its own T
-        for i in range(N):
-            T[i] += s.q_T * rng.standard_normal()
-        if s.design == 1 and s.q_I > 0.0:
-            for i in range(N):
-                I2[i] = s.q_I * rng.standard_normal()
-        if s.design == 1 and s.q_w > 0.0:
-            for i in range(N):
-                W2[i] = s.q_w * rng.standard_normal()
-        _predict_loglik(I, W, T, ll, N, s.design, y[kk - 1, 0], y[kk - 1, 1], yw, yI, Vk,
-                        tn0, tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
-        if s.design == 1 and (s.q_I > 0.0 or s.q_w > 0.0):
-            for i in range(N):
-                if s.q_I > 0.0:
-                    I[i] += I2[i]
-                if s.q_w > 0.0:
-                    W[i] += W2[i]
-                e0 = yw - W[i]
-                e1 = yI - I[i]
-                ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) \
-                    - s.log_norm
-        llmax = -np.inf
-        for i in range(N):
-            if ll[i] != ll[i]:  # NaN prediction (diverged particle): zero likelihood
-                ll[i] = -np.inf
-            if ll[i] > llmax:
-                llmax = ll[i]
+        llmax = _propagate(T, I, W, ll, I2, W2, s, rng, y[kk - 1, 0], y[kk - 1, 1], yw, yI,
+                           Vk, tn0, tn1, tn2, b0, b1, S_inv, C)
         if llmax < ll_gate or (s.variant == 4 and not first):
             # --- untrusted sample: no particle explains it; keep the weights
             out_flag[kk] = 1
             n_bad, out_act[kk] = _untrusted(T, I, W, lw, wn, ring_T, ring_lw, k, n_bad, yw, yI,
                                             init_sd, s, rng)
-            out_mean[kk], out_std[kk] = _mean_std(T, wn)
-            if s.want_quantiles:
-                out_qlo[kk], out_qhi[kk] = _interval(T, wn, s, ibuf, fbuf)
-            out_ess[kk] = ess_row(wn)
+            _record(outs, kk, T, wn, s, ibuf, fbuf)
             continue
         n_bad = 0
         if first:  # second-stage weight p(y | x) / p(y | mu) of the auxiliary PF
@@ -504,13 +515,7 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
             act = 3
         out_ll[kk] = ls_data + ls_first
         # --- estimates
-        m, sd = _mean_std(T, wn)
-        out_mean[kk] = m
-        out_std[kk] = sd
-        if s.want_quantiles:
-            out_qlo[kk], out_qhi[kk] = _interval(T, wn, s, ibuf, fbuf)
-        ess = ess_row(wn)
-        out_ess[kk] = ess
+        m, ess = _record(outs, kk, T, wn, s, ibuf, fbuf)
         # --- resampling / adaptive spread
         spread = False
         if s.variant == 1:
@@ -525,5 +530,4 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     sc[0] = win_sum
     sc[1] = win_cnt
     sc[2] = n_bad
-    return (out_mean, out_std, out_qlo, out_qhi, out_ess, out_act, out_clip, out_gamma, out_ll,
-            out_flag)
+    return outs
