@@ -46,6 +46,7 @@ bench-all: $(STAMP)
 	$(BIN)/python benchmarks/bench_friction_rul.py
 	$(BIN)/python benchmarks/bench_trackers.py
 	$(BIN)/python benchmarks/bench_scale.py
+	$(BIN)/python benchmarks/bench_export.py
 
 # The four full reproductions (tens of minutes on 2 cores), each into out/<system>/.
 reproduce: $(STAMP)

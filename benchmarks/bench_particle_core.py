@@ -51,7 +51,7 @@ else:
     from rulkit.systems.reaction_wheel import lubrication as lub
     Deg = deg.DegradationConfig
 from dataclasses import replace
-from rulkit.estimation.particle import log_normalise
+from rulkit.estimation.weights import log_normalise
 from rulkit.estimation.resampling import systematic
 
 def med(fn, n=repeats):

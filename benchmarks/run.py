@@ -52,8 +52,9 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from rulkit.estimation.base import weighted_moments  # noqa: E402
 from rulkit.estimation.kalman import KalmanFilter  # noqa: E402
-from rulkit.estimation.particle import ParticleFilter, _mean_cov  # noqa: E402
+from rulkit.estimation.particle import ParticleFilter  # noqa: E402
 from rulkit.estimation.resampling import systematic  # noqa: E402
 from rulkit.prognosis.rul import propagate_to_threshold  # noqa: E402
 from rulkit.systems.toy.model import ToyDegradation  # noqa: E402
@@ -197,7 +198,8 @@ def ours_filter(model: ToyDegradation, ess_threshold: float) -> ParticleFilter:
 
 def bench_pf(n: int, model: ToyDegradation, ys: np.ndarray, seed: int, reps: int,
              reps_peer: int, pp: object | None) -> np.ndarray:
-    """Particle-filter comparisons at N = n; returns our final (equal-weight) particles."""
+    """Particle-filter comparisons at N = n; returns our final particles, resampled to equal
+    weights (systematic) for the Monte Carlo benchmarks."""
     rng0 = np.random.default_rng(seed + 1)
     p0 = PRIOR_MEAN + PRIOR_STD * rng0.standard_normal((n, 2))
     kf_m, kf_s = exact_posterior(model, ys)
@@ -282,7 +284,8 @@ def bench_pf(n: int, model: ToyDegradation, ys: np.ndarray, seed: int, reps: int
               f"[{s[0] / kf_s[0]:.2f}, {s[1] / kf_s[1]:.2f}] -> "
               f"{'agrees' if ok else 'DISAGREES'} with the exact posterior")
     pf_profile(n, model, ys, seed, max(3, reps // 3), t_pp if pp is not None else None)
-    return r_ours.particles
+    final = r_ours.final  # type: ignore[attr-defined]
+    return final.samples[systematic(final.weights, np.random.default_rng(seed + 3))]
 
 
 def pf_profile(n: int, model: ToyDegradation, ys: np.ndarray, seed: int, reps: int,
@@ -314,7 +317,7 @@ def pf_profile(n: int, model: ToyDegradation, ys: np.ndarray, seed: int, reps: i
                 t2 = clock()
                 pf.update(st, ys2[k], missing=False)
                 t3 = clock()
-                _mean_cov(st.particles, st.weights)  # what filter() computes per step
+                weighted_moments(st.particles, st.weights)  # what filter() computes per step
                 t4 = clock()
                 pf.resample_if_needed(st)
                 t5 = clock()

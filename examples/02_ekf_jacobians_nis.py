@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from rulkit.estimation.kalman import ExtendedKalmanFilter, numerical_jacobian
+from rulkit.estimation.ekf import ExtendedKalmanFilter
+from rulkit.estimation.kalman import numerical_jacobian
 
 DT, G_L, C = 0.05, 9.81, 0.1
 Q = np.diag([1e-6, 1e-4])

@@ -24,7 +24,9 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from rulkit.estimation.kalman import ExtendedKalmanFilter, KalmanFilter, UnscentedKalmanFilter
+from rulkit.estimation.ekf import ExtendedKalmanFilter
+from rulkit.estimation.kalman import KalmanFilter
+from rulkit.estimation.ukf import UnscentedKalmanFilter
 from rulkit.systems.toy.model import ToyDegradation
 
 # reuse the pendulum model of example 02 (same folder)

@@ -12,9 +12,9 @@ Shows:
 2. ``RULDistribution``: summary (restricted mean, median, 90 % interval, censoring), the KDE
    sub-density integrating to the uncensored mass, and an exact JSON round trip.
 3. metrics: ``crps_samples`` of normal samples against the closed-form ``crps_normal``, then a
-   prognosis run (exact Kalman filter on noisy measurements, posterior samples propagated with
-   process noise) scored with ``alpha_lambda``, ``prognostic_horizon`` and CRPS against the
-   true end of life of the simulated unit.
+   prognosis run (exact Kalman filter on noisy measurements, its Gaussian posteriors sampled and
+   propagated with process noise by ``monte_carlo_rul``) scored with ``alpha_lambda``,
+   ``prognostic_horizon`` and CRPS against the true end of life of the simulated unit.
 
 Run:  python examples/04_rul_monte_carlo.py [--seed 0] [--samples 4000] [--out DIR]
 """
@@ -30,6 +30,7 @@ from scipy import stats
 
 from rulkit.estimation.kalman import KalmanFilter
 from rulkit.metrics import alpha_lambda, crps_normal, crps_samples, prognostic_horizon
+from rulkit.prognosis.predictors import monte_carlo_rul
 from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
 from rulkit.systems.toy.model import ToyDegradation
 
@@ -54,7 +55,8 @@ def main(argv: list[str] | None = None) -> None:
     d0, r_mu, r_sd, horizon = 0.2, 0.01, 0.003, 100.0
     x0 = np.column_stack([np.full(N, d0), r_mu + r_sd * rng.standard_normal(N)])
 
-    def step(x: np.ndarray, t: float, dt: float, rng: np.random.Generator) -> np.ndarray:
+    def step(x: np.ndarray, u: object, t: float, dt: float, rng: np.random.Generator
+             ) -> np.ndarray:
         return quiet.step(x, None, t, dt, rng=None)  # deterministic
 
     dist = propagate_to_threshold(x0, step, quiet.health, quiet.threshold,
@@ -112,15 +114,11 @@ def main(argv: list[str] | None = None) -> None:
                       model.noise.Q, model.noise.R).filter(
         ys[:T_obs], np.array([[0.0, 0.01]]), np.diag([0.02, 0.004]) ** 2)
 
-    def noisy_step(x: np.ndarray, t: float, dt: float, rng: np.random.Generator) -> np.ndarray:
-        return model.step(x, None, t, dt, rng)
-
     times, dists = [], []
     for kp in (20, 30, 40, 50, 60):
-        m, P = kr.x[kp - 1, 0], kr.P[kp - 1, 0]  # posterior after ys[kp-1], time kp
-        post = rng.multivariate_normal(m, P, size=N)
-        dists.append(propagate_to_threshold(post, noisy_step, model.health, model.threshold,
-                                            t0=float(kp), dt=1.0, horizon=300.0, rng=rng))
+        post = kr.posterior(kp - 1)  # Gaussian posterior after ys[kp-1], time kp
+        dists.append(monte_carlo_rul(post, model, n_samples=N, t0=float(kp), dt=1.0,
+                                     horizon=300.0, rng=rng, after_crossing="hold"))
         times.append(float(kp))
     al = alpha_lambda(times, dists, t_eol, alpha=0.2, lam=0.5)
     ph = prognostic_horizon(times, dists, t_eol, alpha=0.1, beta=0.5)

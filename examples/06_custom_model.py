@@ -34,7 +34,7 @@ import numpy as np
 from scipy import stats
 
 from rulkit import KalmanFilter, ParticleFilter, propagate_to_threshold
-from rulkit.estimation.particle import weighted_mean
+from rulkit.estimation.weights import weighted_mean
 from rulkit.model import GaussianNoise, StateSpaceModel, as_batch
 
 
@@ -119,7 +119,8 @@ def main(argv: list[str] | None = None) -> None:
     mc = 1 / math.sqrt(res.ess.min())
     check(max(np.max(np.abs(pf_z - kz) / sz), np.max(np.abs(pf_g - kg) / sg)) < 10 * mc,
           "PF within 10 Monte Carlo scales of the exact KF")
-    print(f"final posterior: amplitude mean {weighted_mean(res.particles[:, 0], res.weights):.4f}"
+    final = res.posterior()  # the weighted particles of the last step, weights attached
+    print(f"final posterior: amplitude mean {weighted_mean(final.samples[:, 0], final.weights):.4f}"
           f", rate {pf_g[-1]:.5f} +- {math.sqrt(res.cov[-1, 1, 1]):.5f} "
           f"(KF {kg[-1]:.5f} +- {sg[-1]:.5f}); true {x[0].round(5).tolist()}")
 

@@ -26,7 +26,7 @@ EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
 DOCS = ROOT / "docs"
 GUIDE = DOCS / "guide.md"
 #: Languages of fenced blocks that are deliberately not executed.
-NOT_PYTHON = {"text", "console"}
+NOT_PYTHON = {"text", "console", "c"}  # C: compiled by tests/fleet/export
 FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```[ \t]*$", flags=re.S | re.M)
 
 

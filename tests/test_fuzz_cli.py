@@ -186,7 +186,11 @@ def test_fuzz_track_and_status(case, existing):
         for row in rows:
             assert row["component"].isprintable() and 0 < len(row["component"]) <= 128
             assert 0.0 <= row["hi"] <= 10.0 and row["level"] in ("ok", "warning", "alarm")
-            assert all(math.isfinite(row[k]) for k in ("fhi", "dhi", "t"))
+            assert math.isfinite(row["t"])
+            if row["rul"] is not None:  # one RUL: never negative, inside its interval
+                assert row["rul_low"] <= row["rul"] and row["rul"] >= 0
+                assert row["rul_high"] is None or row["rul"] <= row["rul_high"]
+            assert row["failed"] == (row["level"] == "alarm")
         t = runner.invoke(app, ["status", "--db", str(db)])
         assert t.exit_code == 0 and printable(t.output)
 

@@ -256,3 +256,47 @@ def test_crps_rul_with_censored_forecast_and_truth_against_brute_force() -> None
         upper = min(10.0, y if tc else math.inf)
         assert crps_rul(d, y, truth_censored=tc) == pytest.approx(
             _grid_crps(d, y, upper, tc), rel=1e-4, abs=1e-6)
+
+
+def test_a_forecast_with_every_sample_censored_scores_nan_with_a_warning() -> None:
+    """A horizon too short for any sample to fail used to score a perfect CRPS of 0.0 (and a
+    profile summary with crps_mean 0.0), silently: it scores NaN with a warning."""
+    from rulkit.metrics import UninformativeForecastWarning, crps_rul
+
+    d = RULDistribution(np.full(50, 10.0), censored=np.ones(50, bool), horizon=10.0)
+    for y, truth_censored in ((25.0, False), (40.0, True), (5.0, False)):
+        with pytest.warns(UninformativeForecastWarning, match="every sample of the forecast is "
+                                                               "censored at the horizon 10"):
+            assert np.isnan(crps_rul(d, y, truth_censored=truth_censored))
+    one_crossed = RULDistribution(np.r_[3.0, np.full(49, 10.0)],
+                                  censored=np.r_[False, np.ones(49, bool)], horizon=10.0)
+    assert crps_rul(one_crossed, 25.0) > 0  # some information: scored
+
+
+def test_profile_with_every_forecast_censored_has_no_perfect_score() -> None:
+    from rulkit import GaussianNoise, StateSpaceModel, prognosis_profile
+    from rulkit.metrics import UninformativeForecastWarning
+
+    class Slow(StateSpaceModel):
+        state_names, output_names, threshold, dt = ("d",), ("y",), 1.0, 1.0
+
+        @property
+        def noise(self):
+            return GaussianNoise(Q=np.array([[1e-8]]), R=np.array([[1e-4]]))
+
+        def step(self, x, u, t, dt, rng=None):
+            return x + 0.001 * dt
+
+        def output(self, x, u=None):
+            return x.copy()
+
+        def health(self, x):
+            return x[:, 0]
+
+    ys = 0.001 * np.arange(1.0, 31.0)[:, None]
+    with pytest.warns(UninformativeForecastWarning):
+        prof = prognosis_profile(Slow(), ys, "ekf", np.zeros(1), P0=[[1e-6]], times=[10, 20],
+                                 horizon=5.0, t_eol=1000.0, rng=np.random.default_rng(0))
+        summary = prof.summary()
+    assert np.all([d.n_censored == d.n for d in prof.distributions])
+    assert np.isnan(summary["crps_mean"])

@@ -17,7 +17,7 @@ def test_as_batch_shapes_and_errors() -> None:
     with pytest.raises(ValueError, match=r"x0: expected shape \(N, 3\) or \(3,\), got \(3, 2\)"):
         as_batch(x, 3, "x0")
     x[2, 1] = np.nan
-    with pytest.raises(ValueError, match="non-finite value at row 2, column 1"):
+    with pytest.raises(ValueError, match="x: non-finite value nan at row 2, column 1"):
         as_batch(x, 2)
 
 

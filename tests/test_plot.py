@@ -14,6 +14,7 @@ from matplotlib.patches import Polygon
 from scipy import stats
 
 from rulkit import plot
+from rulkit.estimation.base import Posterior
 from rulkit.prognosis.rul import RULDistribution
 
 
@@ -134,7 +135,7 @@ def test_state_estimates_band_truth_measurements(tmp_path: Path) -> None:
     truth = mean + 0.05
     ys = mean[:, :1] + 0.01
     fig = plot.state_estimates(t, mean, std=std, n_sigma=2.0, truth=truth, measurements=ys,
-                               names=["a", "b"])
+                               measured=[0], names=["a", "b"])
     _render(fig, tmp_path / "states.png")
     assert len(fig.axes) == 2
     for i, ax in enumerate(fig.axes):
@@ -177,15 +178,52 @@ def test_state_estimates_from_filter_results() -> None:
     v = band.get_paths()[0].vertices
     assert v[:, 1].max() == pytest.approx((kr.x[:, 0, 0] + np.sqrt(kr.P[:, 0, 0, 0])).max())
 
-    class PFResult:  # the fields of ParticleFilterResult the plot reads
-        mean = np.column_stack([t, 2 * t])
-        cov = np.broadcast_to(np.diag([4.0, 9.0]), (20, 2, 2))
-
-    fig = plot.state_estimates(t, PFResult(), n_sigma=2.0)
+    posts = [Posterior(np.array([ti, 2 * ti]), np.diag([4.0, 9.0])) for ti in t]
+    fig = plot.state_estimates(t, posts, n_sigma=2.0)  # a sequence of posteriors
     band = next(c for c in fig.axes[1].collections if c.get_label() == "+-2 sigma")
     assert band.get_paths()[0].vertices[:, 1].min() == pytest.approx(2.0 - 6.0)
-    with pytest.raises(ValueError, match="brings its own band"):
-        plot.state_estimates(t, PFResult(), std=np.ones(20))
+    with pytest.raises(ValueError, match="bring their own band"):
+        plot.state_estimates(t, posts, std=np.ones(20))
+
+
+class Fade:
+    """state [loss, rate]; the instrument reads state of health 1 - loss (not a state)."""
+
+    output_names = ("soh",)
+
+    def output(self, x, u=None):
+        return 1.0 - x[:, :1]
+
+
+class Direct(Fade):
+    output_names = ("loss_measured",)
+
+    def output(self, x, u=None):
+        return x[:, :1].copy()
+
+
+def test_state_estimates_draws_measurements_where_they_belong() -> None:
+    """Measurements of a state go on its panel; a measured quantity that is no state (state
+    of health 1 - loss) gets a panel of its own beside h(estimate), never the first state's
+    axis; without a measurement function, measurements get their own panel."""
+    t = np.arange(1.0, 21.0)
+    est = np.column_stack([0.01 * t, np.full(20, 0.01)])
+    soh = 1.0 - est[:, :1] + 0.001
+    fig = plot.state_estimates(t, est, measurements=soh, output=Fade())
+    assert len(fig.axes) == 3  # loss, rate, soh
+    assert not [a for a in fig.axes[0].get_children() if a.get_gid() == "measurements"]
+    np.testing.assert_allclose(_by_gid(fig.axes[2], "measurements").get_ydata(), soh[:, 0])
+    np.testing.assert_allclose(_by_gid(fig.axes[2], "predicted-measurement").get_ydata(),
+                               1.0 - est[:, 0])
+    assert fig.axes[2].get_ylabel() == "soh"
+    loss = est[:, :1] + 0.001
+    fig = plot.state_estimates(t, est, measurements=loss, output=Direct())
+    assert len(fig.axes) == 2
+    np.testing.assert_allclose(_by_gid(fig.axes[0], "measurements").get_ydata(), loss[:, 0])
+    fig = plot.state_estimates(t, est, measurements=soh)  # nothing known: a panel of its own
+    assert len(fig.axes) == 3 and fig.axes[2].get_ylabel() == "y[0]"
+    with pytest.raises(ValueError, match=r"measured: expected 1 state indices in \[0, 1\]"):
+        plot.state_estimates(t, est, measurements=soh, measured=[5])
 
 
 def test_consistency_bounds_are_chi_square(tmp_path: Path) -> None:

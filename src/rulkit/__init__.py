@@ -7,8 +7,11 @@ Useful Life (RUL) distribution, with metrics and alerts. Physics lives in models
 
     import rulkit
     sim = model.simulate(x0, n_steps=60, rng=rng)
-    pf = rulkit.ParticleFilter.from_model(model)
-    profile = rulkit.prognosis_profile(model, sim.y, pf, particles0, times=[20, 30], rng=rng)
+    prior = rulkit.Posterior(mean0, cov0)             # every filter's prior and posterior
+    res = rulkit.ExtendedKalmanFilter.from_model(model).filter(sim.y, prior)
+    rul = rulkit.monte_carlo_rul(res.posterior(), model, horizon=100.0, rng=rng)
+    profile = rulkit.prognosis_profile(model, sim.y, "pf", prior.with_samples(2000, rng),
+                                       times=[20, 30], horizon=100.0, rng=rng)
 
 The engine's API is documented once in docs/engine-api.md.
 """
@@ -19,6 +22,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from rulkit.estimation.base import Posterior
     from rulkit.estimation.ekf import ExtendedKalmanFilter
     from rulkit.estimation.kalman import KalmanFilter, KalmanResult
     from rulkit.estimation.particle import ParticleFilter, ParticleFilterResult
@@ -35,7 +39,7 @@ if TYPE_CHECKING:
         relative_accuracy,
     )
     from rulkit.model import GaussianNoise, Simulation, StateSpaceModel
-    from rulkit.prognosis.learning import ParameterFit, fit_parameters
+    from rulkit.prognosis.learning import FitError, FitWarning, ParameterFit, fit_parameters
     from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
     from rulkit.prognosis.profile import PrognosisProfile, prognosis_profile
     from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
@@ -43,6 +47,7 @@ if TYPE_CHECKING:
 # The engine's names are imported on first use (PEP 562): the command line and the fleet
 # commands, which need none of them, start without loading scipy and the filters.
 _EXPORTS = {
+    "Posterior": "rulkit.estimation.base",
     "ExtendedKalmanFilter": "rulkit.estimation.ekf",
     "KalmanFilter": "rulkit.estimation.kalman",
     "KalmanResult": "rulkit.estimation.kalman",
@@ -63,6 +68,8 @@ _EXPORTS = {
     "GaussianNoise": "rulkit.model",
     "Simulation": "rulkit.model",
     "StateSpaceModel": "rulkit.model",
+    "FitError": "rulkit.prognosis.learning",
+    "FitWarning": "rulkit.prognosis.learning",
     "ParameterFit": "rulkit.prognosis.learning",
     "fit_parameters": "rulkit.prognosis.learning",
     "monte_carlo_rul": "rulkit.prognosis.predictors",
@@ -98,12 +105,15 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "ExtendedKalmanFilter",
+    "FitError",
+    "FitWarning",
     "GaussianNoise",
     "KalmanFilter",
     "KalmanResult",
     "ParameterFit",
     "ParticleFilter",
     "ParticleFilterResult",
+    "Posterior",
     "PrognosisProfile",
     "RULDistribution",
     "Simulation",

@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.model import plain
+
 FloatArray = NDArray[np.float64]
 RHS = Callable[[FloatArray, float, Any], FloatArray]
 InputLike = None | np.ndarray | Callable[[float], Any]
@@ -46,7 +48,8 @@ def _input_at(u: InputLike, t: float, n_rows: int) -> FloatArray | None:
     if arr.ndim == 1:
         return np.broadcast_to(arr, (n_rows, arr.shape[0]))
     if arr.ndim != 2 or arr.shape[0] != n_rows:
-        raise ValueError(f"u: expected shape (n_u,) or ({n_rows}, n_u) at t={t!r}, got {arr.shape}")
+        raise ValueError(f"u: expected shape (n_u,) or ({n_rows}, n_u) at t={plain(t)}, got "
+                         f"{arr.shape}")
     return arr
 
 
@@ -123,11 +126,11 @@ def integrate(
     if not np.all(np.isfinite(x)):
         raise ValueError("x0: contains NaN or infinite values")
     if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: expected a positive finite step, got {dt!r}")
+        raise ValueError(f"dt: expected a positive finite step, got {plain(dt)}")
     if not np.isfinite(t0):
-        raise ValueError(f"t0: expected a finite time, got {t0!r}")
+        raise ValueError(f"t0: expected a finite time, got {plain(t0)}")
     if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 0:
-        raise ValueError(f"n_steps: expected a non-negative integer, got {n_steps!r}")
+        raise ValueError(f"n_steps: expected a non-negative integer, got {plain(n_steps)}")
     n_steps = int(n_steps)
     t = t0 + dt * np.arange(n_steps + 1, dtype=np.float64)
     if store:
@@ -167,7 +170,7 @@ def ode_step(
     except KeyError:
         raise ValueError(f"method: expected one of {sorted(_STEPPERS)}, got {method!r}") from None
     if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
-        raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
+        raise ValueError(f"substeps: expected a positive integer, got {plain(substeps)}")
     n_sub = int(substeps)
 
     def f(x: FloatArray, t: float, u: Any) -> FloatArray:

@@ -13,6 +13,7 @@ the prediction is early, i.e. conservative).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, cast
@@ -20,9 +21,15 @@ from typing import Literal, cast
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rulkit.model import plain
 from rulkit.prognosis.rul import RULDistribution
 
 FloatArray = NDArray[np.float64]
+
+
+class UninformativeForecastWarning(UserWarning):
+    """A forecast carries no information a metric could score (e.g. every sample censored):
+    the metric is NaN, never a perfect score."""
 
 
 def _first(mask: np.ndarray) -> tuple[int, ...] | None:
@@ -160,15 +167,15 @@ def _prediction_series(
         i = int(np.flatnonzero(np.diff(t) <= 0)[0])
         raise ValueError(f"times: not strictly increasing at index {i + 1}")
     if not math.isfinite(t_eol):
-        raise ValueError(f"t_eol: expected a finite end-of-life time, got {t_eol!r}")
+        raise ValueError(f"t_eol: expected a finite end-of-life time, got {plain(t_eol)}")
     if not alpha > 0 or not math.isfinite(alpha):
-        raise ValueError(f"alpha: expected a finite positive value, got {alpha!r}")
+        raise ValueError(f"alpha: expected a finite positive value, got {plain(alpha)}")
     if not 0 < beta <= 1:
-        raise ValueError(f"beta: expected a probability in (0, 1], got {beta!r}")
+        raise ValueError(f"beta: expected a probability in (0, 1], got {plain(beta)}")
     return t, r, dists
 
 
-def _mass_in(dist: RULDistribution, lo: float, hi: float) -> float:
+def mass_inside(dist: RULDistribution, lo: float, hi: float) -> float:
     """Probability mass of ``dist`` in [lo, hi].
 
     A censored sample is only known to exceed its bound, so it counts as inside only when
@@ -219,17 +226,17 @@ def alpha_lambda(
     """
     t, r, dists = _prediction_series(times, rul_pred, t_eol, alpha, beta)
     if not 0 <= lam <= 1:
-        raise ValueError(f"lam: expected a value in [0, 1], got {lam!r}")
+        raise ValueError(f"lam: expected a value in [0, 1], got {plain(lam)}")
     tp = float(t[0]) if t_p is None else float(t_p)
     if not math.isfinite(tp):
-        raise ValueError(f"t_p: expected a finite time, got {t_p!r}")
+        raise ValueError(f"t_p: expected a finite time, got {plain(t_p)}")
     if not t_eol > tp:
-        raise ValueError(f"t_eol: must exceed t_p ({tp!r}), got {t_eol!r}")
+        raise ValueError(f"t_eol: must exceed t_p ({plain(tp)}), got {plain(t_eol)}")
     t_lam = tp + lam * (t_eol - tp)
     tol = 1e-12 * max(1.0, abs(t_lam))  # t_lambda equal to a prediction time up to round-off
     idx = int(np.searchsorted(t, t_lam + tol, side="right")) - 1
     if idx < 0:
-        raise ValueError(f"no prediction at or before t_lambda = {t_lam!r}")
+        raise ValueError(f"no prediction at or before t_lambda = {plain(t_lam)}")
     rt = t_eol - float(t[idx])
     lo, hi = (1 - alpha) * rt, (1 + alpha) * rt
     rp = float(r[idx])
@@ -237,7 +244,7 @@ def alpha_lambda(
         mass = math.nan
         ok = lo <= rp <= hi
     else:
-        mass = _mass_in(dists[idx], lo, hi)
+        mass = mass_inside(dists[idx], lo, hi)
         ok = mass >= beta
     return AlphaLambdaResult(t_lam, float(t[idx]), rp, rt, lo, hi, mass, bool(ok))
 
@@ -283,7 +290,7 @@ def prognostic_horizon(
     if dists is None:
         inside = (r >= lo) & (r <= hi)
     else:
-        inside = np.array([_mass_in(d, a, b) >= beta for d, a, b in zip(dists, lo, hi,
+        inside = np.array([mass_inside(d, a, b) >= beta for d, a, b in zip(dists, lo, hi,
                                                                           strict=True)])
     inside = inside & (t < t_eol)
     if stay:
@@ -331,7 +338,7 @@ def convergence(times: ArrayLike, metric: ArrayLike, t_p: float | None = None) -
     yc = float(np.sum(dtv * mi**2)) / (2 * area)
     tp = float(t[0]) if t_p is None else float(t_p)
     if not math.isfinite(tp):
-        raise ValueError(f"t_p: expected a finite time, got {t_p!r}")
+        raise ValueError(f"t_p: expected a finite time, got {plain(t_p)}")
     return math.hypot(xc - tp, yc)
 
 
@@ -425,10 +432,19 @@ def crps_rul(dist: RULDistribution, rul_true: float, *, truth_censored: bool = F
     the threshold weight ``1{z < U}`` ([GR2007] section 4.2), a proper score for censored data;
     with nothing censored and an infinite horizon it is the ordinary CRPS
     (:func:`crps_samples`). Computed exactly from the step CDF, O(N log N).
+
+    A forecast whose every sample is censored says only "beyond the horizon": it scores NaN
+    with a :class:`UninformativeForecastWarning` (extend the horizon), never a perfect 0.
     """
     y = float(rul_true)
     if not math.isfinite(y):
-        raise ValueError(f"rul_true: expected a finite value, got {rul_true!r}")
+        raise ValueError(f"rul_true: expected a finite value, got {plain(rul_true)}")
+    if not np.any(dist.weights[~dist.censored] > 0):  # every (weighted) sample censored
+        warnings.warn(UninformativeForecastWarning(
+            f"crps_rul: every sample of the forecast is censored at the horizon "
+            f"{dist.horizon:g}: it only says RUL > {dist.horizon:g}, so no score is given "
+            "(NaN); predict with a longer horizon"), stacklevel=2)
+        return math.nan
     upper = min(dist.horizon, y if truth_censored else math.inf)
     y_ind = math.inf if truth_censored else y
     keep = ~dist.censored

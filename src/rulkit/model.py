@@ -36,38 +36,103 @@ InputLike = None | np.ndarray | Callable[[float], Any]
 Step = Callable[[FloatArray, Any, float, float, "np.random.Generator | None"], FloatArray]
 
 
-def as_batch(x: np.ndarray, n_x: int, name: str = "x") -> FloatArray:
-    """Return ``x`` as a float64 ``(N, n_x)`` array, accepting a single state of shape ``(n_x,)``.
+def plain(value: Any) -> str:
+    """``repr`` of a value for an error message, numpy scalars and arrays as plain Python
+    numbers and lists (``250.0``, not ``np.float64(250.0)``); long reprs are shortened."""
+    if isinstance(value, list | tuple):  # a list of numpy numbers prints them as numpy too
+        try:
+            value = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            pass
+    tolist = getattr(value, "tolist", None)
+    text = repr(tolist() if callable(tolist) else value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
-    Raises ``ValueError`` naming ``name`` and the expected shape when the shape is wrong or
-    the array holds NaN or infinite values.
+
+def as_batch(
+    x: Any, n_x: int | None = None, name: str = "x", *, single: bool = True, batch: str = "N"
+) -> FloatArray:
+    """The engine's one validator of a batch of states: ``x`` as a float64 ``(N, n_x)`` array.
+
+    A single state ``(n_x,)`` is read as ``N = 1`` when ``single`` (a model's step, a Kalman
+    filter's one unit); with ``single=False`` a 1-D array is refused (particles of a scalar state
+    must be ``(N, 1)``: a 1-D array would be ambiguous). ``n_x`` None accepts any positive
+    number of columns; ``batch`` names the leading axis in messages (``"N"``, ``"B"``).
+    Raises ``ValueError`` naming ``name``: a wrong shape (with the one expected), an empty
+    batch, or a NaN / infinite value (its row and column).
     """
     arr = np.asarray(x, dtype=np.float64)
-    if arr.ndim == 1:
+    if arr.ndim == 1 and single:
         arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != n_x:
-        raise ValueError(f"{name}: expected shape (N, {n_x}) or ({n_x},), got {np.shape(x)}")
-    if not np.all(np.isfinite(arr)):
-        bad = np.argwhere(~np.isfinite(arr))[0]
-        raise ValueError(f"{name}: non-finite value at row {bad[0]}, column {bad[1]}")
+    cols = "n_x" if n_x is None else str(n_x)
+    if arr.ndim != 2 or (n_x is not None and arr.shape[1] != n_x):
+        alt = f" or ({cols},)" if single else ""
+        hint = (" (use x.reshape(-1, 1) for a scalar state)"
+                if np.ndim(x) == 1 and batch == "N" else "")
+        raise ValueError(f"{name}: expected shape ({batch}, {cols}){alt}, got {np.shape(x)}{hint}")
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"{name}: need at least one row and one state, got shape {arr.shape}")
+    if not np.isfinite(arr.sum()) and not np.all(np.isfinite(arr)):
+        i, j = np.argwhere(~np.isfinite(arr))[0]
+        raise ValueError(f"{name}: non-finite value {arr[i, j]} at row {i}, column {j}")
     return arr
 
 
-def check_covariance(cov: np.ndarray, n: int, name: str) -> FloatArray:
-    """Validate a covariance matrix: shape (n, n), finite, symmetric, positive semi-definite."""
-    c = np.atleast_2d(np.asarray(cov, dtype=np.float64))
-    if c.shape != (n, n):
-        raise ValueError(f"{name}: expected shape ({n}, {n}), got {np.shape(cov)}")
+def check_covariance(
+    cov: Any, n: int, name: str, *, units: bool | int = False, definite: bool = False,
+    rtol: float = 1e-10,
+) -> FloatArray:
+    """The engine's one covariance check: shape, finite, symmetric, positive semi-definite.
+
+    ``cov`` is ``(n, n)`` (a scalar when ``n == 1``) or, when ``units`` is True (any number of
+    units) or an int ``B``, also a per-unit stack ``(B, n, n)``. Symmetric to a relative
+    ``1e-10``; the smallest eigenvalue must be ``>= -rtol`` times the largest magnitude
+    (``> 0`` with ``definite=True``; a filter checking its own propagated covariance passes a
+    looser ``rtol`` for round-off). Raises ``ValueError`` naming ``name`` (and the unit of a
+    stack) with what is wrong; returns the float64 array.
+    """
+    c = np.asarray(cov, dtype=np.float64)
+    if c.ndim == 0 and n == 1:
+        c = c.reshape(1, 1)
+    stack = units is not False and c.ndim == 3 and c.shape[1:] == (n, n) and (
+        units is True or c.shape[0] == units)
+    if c.shape != (n, n) and not stack:
+        per_unit = "" if units is False else (
+            f" or ({'B' if units is True else units}, {n}, {n})")
+        raise ValueError(f"{name}: expected shape ({n}, {n}){per_unit}, got {np.shape(cov)}")
     if not np.all(np.isfinite(c)):
-        raise ValueError(f"{name}: contains NaN or infinite entries")
-    if not np.allclose(c, c.T, rtol=1e-10, atol=1e-14 * max(1.0, np.abs(c).max())):
-        raise ValueError(f"{name}: not symmetric")
-    eig = np.linalg.eigvalsh(c)
-    if eig.min() < -1e-12 * max(1.0, abs(eig.max())):
-        raise ValueError(
-            f"{name}: not positive semi-definite (smallest eigenvalue {eig.min():.3g})"
-        )
+        idx = tuple(int(i) for i in np.argwhere(~np.isfinite(c))[0])
+        raise ValueError(f"{name}: NaN or infinite entry at index {idx}")
+    def unit(bad: Any, form: str) -> str:  # which unit of a stack, for the message
+        return form.format(int(np.flatnonzero(bad)[0])) if c.ndim == 3 else ""
+
+    scale = max(1.0, float(np.abs(c).max(initial=0.0)))
+    close = np.isclose(c, np.swapaxes(c, -1, -2), rtol=1e-10, atol=1e-13 * scale)
+    if not close.all():
+        raise ValueError(f"{name}: not symmetric{unit(~close.all(axis=(-1, -2)), ' (unit {})')}")
+    eig = np.linalg.eigvalsh(0.5 * (c + np.swapaxes(c, -1, -2)))
+    lo = eig[..., 0]
+    tol = rtol * np.maximum(np.abs(eig).max(axis=-1), np.finfo(np.float64).tiny)
+    bad = lo <= 0.0 if definite else lo < -tol
+    if np.any(bad):
+        what = "positive definite" if definite else "positive semi-definite"
+        worst = float(np.min(lo))
+        raise ValueError(f"{name}: not {what}{unit(bad, ' for unit {}')} (smallest eigenvalue "
+                         f"{worst:.3g})")
     return c
+
+
+def psd_sqrt(c: FloatArray) -> FloatArray:
+    """A square root ``L`` with ``L L^T = c`` of a symmetric positive semi-definite ``c``.
+
+    From the eigen-decomposition, so a singular ``c`` is fine: eigenvalues below
+    ``n eps max|lambda|`` are round-off of a zero eigenvalue and are set to 0, so samples
+    ``L z`` lie in the range of ``c`` only (no noise of relative size sqrt(eps) in the
+    directions ``c`` says are noise-free).
+    """
+    w, v = np.linalg.eigh(0.5 * (c + c.T))
+    tol = c.shape[0] * np.finfo(np.float64).eps * float(np.abs(w).max(initial=0.0))
+    return v * np.sqrt(np.where(w > tol, w, 0.0))
 
 
 @dataclass(frozen=True)
@@ -93,8 +158,8 @@ class GaussianNoise:
         R = check_covariance(self.R, np.atleast_2d(self.R).shape[0], "R")
         object.__setattr__(self, "Q", Q)
         object.__setattr__(self, "R", R)
-        object.__setattr__(self, "_chol_Q", _psd_sqrt(Q))
-        object.__setattr__(self, "_chol_R", _psd_sqrt(R))
+        object.__setattr__(self, "_chol_Q", psd_sqrt(Q))
+        object.__setattr__(self, "_chol_R", psd_sqrt(R))
 
     def sample_process(self, n: int, rng: np.random.Generator) -> FloatArray:
         """Draw ``n`` process-noise vectors, shape (n, n_x)."""
@@ -103,18 +168,6 @@ class GaussianNoise:
     def sample_measurement(self, n: int, rng: np.random.Generator) -> FloatArray:
         """Draw ``n`` measurement-noise vectors, shape (n, n_y)."""
         return rng.standard_normal((n, self.R.shape[0])) @ self._chol_R.T
-
-
-def _psd_sqrt(c: FloatArray) -> FloatArray:
-    """A square root L with L L^T = c, valid for semi-definite c (eigen-decomposition).
-
-    Eigenvalues below ``n eps max|lambda|`` are round-off of a zero eigenvalue and are set to 0,
-    so a singular c is sampled in its range only (no noise of relative size sqrt(eps) in the
-    directions c says are noise-free).
-    """
-    w, v = np.linalg.eigh(c)
-    tol = c.shape[0] * np.finfo(np.float64).eps * max(float(np.abs(w).max(initial=0.0)), 0.0)
-    return v * np.sqrt(np.where(w > tol, w, 0.0))
 
 
 class StateSpaceModel(ABC):
@@ -207,7 +260,7 @@ class StateSpaceModel(ABC):
         """
         h = model_dt(self, dt)
         if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-            raise ValueError(f"n_steps: expected a positive integer, got {n_steps!r}")
+            raise ValueError(f"n_steps: expected a positive integer, got {plain(n_steps)}")
         n_steps = int(n_steps)
         single = np.ndim(x0) == 1
         x = as_batch(x0, self.n_x, "x0")
@@ -311,7 +364,7 @@ def model_dt(model: Any, dt: float | None) -> float:
         raise ValueError(f"dt: {type(model).__name__} has no 'dt' attribute; pass dt=...")
     h = float(h)
     if not (math.isfinite(h) and h > 0):
-        raise ValueError(f"dt: expected a positive finite step, got {h!r}")
+        raise ValueError(f"dt: expected a positive finite step, got {plain(h)}")
     return h
 
 
@@ -460,7 +513,8 @@ def kalman_functions_from_model(
     own_dt = getattr(model, "dt", None)
     if Q is None and own_dt is not None and not math.isclose(float(own_dt), h, rel_tol=1e-12):
         raise ValueError(f"Q: model.noise.Q is the covariance of one step of the model's dt = "
-                         f"{own_dt!r}; filtering with dt = {h!r} needs Q=... for that step")
+                         f"{plain(own_dt)}; filtering with dt = {plain(h)} needs Q=... for "
+                         "that step")
     Qm = model.noise.Q if Q is None else check_covariance(Q, model.n_x, "Q")
     Rm = model.noise.R if R is None else check_covariance(R, model.n_y, "R")
     step, output = model.step, model.output

@@ -25,7 +25,8 @@ What is drawn (the metrics are in :mod:`rulkit.metrics`, following Saxena et al.
 - :func:`rul_distributions`: one density per prediction time (a half-violin standing on the
   time axis, scaled to the spacing of the times), its median, and the true RUL if known.
 - :func:`state_estimates`: one panel per state component: estimate, a band (``mean +- k std``
-  or given quantiles), truth and measurements.
+  or given quantiles), truth and the measurements where they belong (on the panel of the state
+  they measure, found from the measurement function, or on a panel of their own).
 - :func:`consistency`: per-step NIS or NEES (averaged over units when given ``(T, B)``), the
   per-step two-sided chi-square acceptance interval and the time-averaged statistic with its
   own (much narrower) interval, from :func:`rulkit.estimation.consistency.chi2_interval`.
@@ -40,7 +41,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from rulkit.estimation.base import FilterResult, Posterior
 from rulkit.estimation.consistency import chi2_interval
+from rulkit.model import plain
 from rulkit.prognosis.rul import RULDistribution
 
 if TYPE_CHECKING:
@@ -124,10 +127,11 @@ def alpha_lambda_cone(
     """
     t = _vector(times, "times")
     if not 0 < alpha < 1:
-        raise ValueError(f"alpha: expected a value in (0, 1), got {alpha!r}")
+        raise ValueError(f"alpha: expected a value in (0, 1), got {plain(alpha)}")
     tp = float(t[0]) if t_p is None else float(t_p)
     if not (math.isfinite(t_eol) and t_eol > tp):
-        raise ValueError(f"t_eol: expected a finite time after t_p = {tp!r}, got {t_eol!r}")
+        raise ValueError(f"t_eol: expected a finite time after t_p = {plain(tp)}, got "
+                         f"{plain(t_eol)}")
     med, lo, hi = _predictions(rul, t.size, level)
     ax = new_axes() if ax is None else ax
     r0 = t_eol - tp
@@ -157,7 +161,7 @@ def alpha_lambda_cone(
         ax.plot(t, med_drawn, "o", color="C0", ms=4, label="prediction", gid="predictions")
     if lam is not None:
         if not 0 <= lam <= 1:
-            raise ValueError(f"lam: expected a fraction in [0, 1], got {lam!r}")
+            raise ValueError(f"lam: expected a fraction in [0, 1], got {plain(lam)}")
         t_lam = tp + lam * (t_eol - tp)
         ax.axvline(t_lam, color="0.4", lw=1, ls=":", label=f"t_lambda (lambda = {lam:g})",
                    gid="t-lambda")
@@ -246,21 +250,60 @@ def _columns(a: ArrayLike | None, T: int, name: str) -> FloatArray | None:
     return x
 
 
-def _filter_moments(result: Any, unit: int) -> tuple[FloatArray, FloatArray] | None:
-    """(mean (T, n), std (T, n)) of a particle-filter result (``mean``, ``cov``) or of one unit
-    of a Kalman-type result (``x`` (T, B, n), ``P`` (T, B, n, n)); None for plain arrays."""
-    if hasattr(result, "mean") and hasattr(result, "cov") and not isinstance(result, np.ndarray):
-        m, c = np.asarray(result.mean), np.asarray(result.cov)
-    elif hasattr(result, "x") and hasattr(result, "P"):
-        m, c = np.asarray(result.x)[:, unit], np.asarray(result.P)[:, unit]
+def _estimate_moments(estimate: Any, unit: int) -> tuple[FloatArray, FloatArray] | None:
+    """(mean (T, n), std (T, n)) of a filter result (:class:`FilterResult`, unit ``unit``) or
+    of a sequence of :class:`Posterior` (one per time); None for plain arrays."""
+    if isinstance(estimate, FilterResult):
+        m, c = estimate.moments(unit)
+    elif (isinstance(estimate, Sequence) and len(estimate) > 0
+          and all(isinstance(p, Posterior) for p in estimate)):
+        m = np.stack([p.mean for p in estimate])
+        c = np.stack([p.cov for p in estimate])
     else:
         return None
-    return m, np.sqrt(np.einsum("tii->ti", c))
+    return np.asarray(m), np.sqrt(np.einsum("tii->ti", np.asarray(c)))
+
+
+def _measurement_panels(output: Any, mean: FloatArray, m: int, measured: Sequence[int] | None,
+                        n: int) -> tuple[list[int | None], Any]:
+    """For each of the ``m`` measured quantities, the state panel it belongs on (None: a panel
+    of its own), and the measurement function ``h(x (N, n)) -> (N, m)`` (or None).
+
+    ``measured`` places them explicitly. Otherwise, with ``output`` (a function or a model with
+    ``output``), a measurement goes on state i's panel only when ``h_j(x) = x_i`` exactly for
+    every state tried (it measures that state itself); anything else (``1 - x_0``, a sum of
+    states, another unit) gets its own panel with the measurement function of the estimate.
+    Without either, every measurement has a panel of its own."""
+    if measured is not None:
+        which = [int(i) for i in measured]
+        if len(which) != m or any(not 0 <= i < n for i in which):
+            raise ValueError(f"measured: expected {m} state indices in [0, {n - 1}], got "
+                             f"{list(measured)}")
+        return list(which), None
+    if output is None:
+        return [None] * m, None
+    h = output.output if hasattr(output, "output") else output
+    if not callable(h):
+        raise TypeError(f"output: expected a measurement function h(x) or a model, got "
+                        f"{type(output).__name__}")
+    rng = np.random.default_rng(0)
+    probe = mean[np.isfinite(mean).all(axis=1)][:3]
+    probe = np.concatenate([probe, rng.standard_normal((3, n)) * (1 + np.abs(probe).max(
+        initial=1.0))])
+    hx = np.asarray(h(probe), dtype=np.float64).reshape(probe.shape[0], -1)
+    if hx.shape[1] != m:
+        raise ValueError(f"output: the measurement function gives {hx.shape[1]} outputs, the "
+                         f"measurements have {m} columns")
+    panels: list[int | None] = []
+    for j in range(m):
+        same = [i for i in range(n) if np.array_equal(hx[:, j], probe[:, i])]
+        panels.append(same[0] if same else None)
+    return panels, h
 
 
 def state_estimates(
     t: ArrayLike,
-    mean: ArrayLike | Any,
+    estimate: ArrayLike | Any,
     *,
     std: ArrayLike | None = None,
     n_sigma: float = 3.0,
@@ -268,73 +311,104 @@ def state_estimates(
     upper: ArrayLike | None = None,
     truth: ArrayLike | None = None,
     measurements: ArrayLike | None = None,
+    output: Any = None,
     measured: Sequence[int] | None = None,
     names: Sequence[str] | None = None,
     unit: int = 0,
     fig: Figure | None = None,
 ) -> Figure:
-    """State estimates over time with a band, the truth and the measurements, one panel each.
+    """State estimates over time with a band, the truth and the measurements.
 
-    ``mean`` (T, n) or (T,), or a filter result: a particle filter's (its ``mean`` and the
-    square root of the diagonal of ``cov``) or a Kalman-type filter's (``x`` and ``P`` of unit
-    ``unit``), e.g. the ``estimate`` of a prognosis profile, which brings its own ``std``.
-    The band is ``mean +- n_sigma * std`` (``std`` (T, n), e.g. the square root of a Kalman
-    covariance's diagonal) or ``[lower, upper]`` (e.g. particle-filter quantiles). ``truth``
-    (T, n) is drawn dashed; ``measurements`` (T, m) are dots on the panels of the states
-    ``measured`` (default: the first m). NaN points are gaps. Returns the
-    Figure (its axes are ``fig.axes``, one per state).
+    ``estimate`` (T, n) or (T,), a filter's result (:class:`FilterResult`: the posterior
+    means and the square roots of the covariance diagonals, unit ``unit``), or a sequence of T
+    :class:`Posterior` (e.g. a prognosis profile's ``estimate``); the last two bring their own
+    band ``mean +- n_sigma * std``. Otherwise the band is ``mean +- n_sigma * std`` (``std``
+    (T, n)) or ``[lower, upper]`` (e.g. particle-filter quantiles). ``truth`` (T, n) is drawn
+    dashed. ``measurements`` (T, m) are drawn where they belong: on the panels of the states
+    ``measured`` (indices) when given; else, with ``output`` (the measurement function
+    ``h(x (N, n)) -> (N, m)`` or the model), a measurement of a state itself goes on that
+    state's panel and any other quantity on a panel of its own, beside ``h`` of the estimate;
+    with neither, each measured quantity gets a panel of its own. NaN points are gaps.
+    Returns the Figure (``fig.axes``: one per state, then one per measurement panel).
     """
     tt = _vector(t, "t")
     T = tt.size
-    moments = _filter_moments(mean, unit)
+    moments = _estimate_moments(estimate, unit)
     if moments is not None:
         if std is not None or lower is not None or upper is not None:
-            raise ValueError("mean: a filter result brings its own band; give no std/lower/upper")
-        mean, std = moments
-    m = _columns(mean, T, "mean")
+            raise ValueError("estimate: a filter result or posteriors bring their own band; "
+                             "give no std/lower/upper")
+        estimate, std = moments
+    m = _columns(estimate, T, "estimate")
     assert m is not None
     n = m.shape[1]
-    if std is not None and (lower is not None or upper is not None):
-        raise ValueError("give either std or lower/upper for the band, not both")
-    if (lower is None) != (upper is None):
-        raise ValueError("lower and upper: give both or neither")
-    sd = _columns(std, T, "std")
-    lo, hi = _columns(lower, T, "lower"), _columns(upper, T, "upper")
-    if sd is not None:
-        lo, hi = m - n_sigma * sd, m + n_sigma * sd
-        band = f"+-{n_sigma:g} sigma"
-    else:
-        band = "interval"
+    lo, hi, band = _band(m, std, lower, upper, n_sigma, T)
     tr = _columns(truth, T, "truth")
     ys = _columns(measurements, T, "measurements")
-    for arr, nm in ((sd, "std"), (lo, "lower"), (hi, "upper"), (tr, "truth")):
-        if arr is not None and arr.shape[1] != n:
-            raise ValueError(f"{nm}: expected {n} columns like mean, got {arr.shape[1]}")
-    labels = list(names) if names is not None else [f"x[{i}]" for i in range(n)]
-    if len(labels) != n:
-        raise ValueError(f"names: expected {n} names, got {len(labels)}")
-    which = list(measured) if measured is not None else list(range(ys.shape[1] if ys is not None
-                                                                    else 0))
-    if ys is not None and len(which) != ys.shape[1]:
-        raise ValueError(f"measured: expected {ys.shape[1]} state indices, got {len(which)}")
+    labels = _check_columns(n, names, lower=lo, upper=hi, truth=tr)
+    panels, h = ([], None) if ys is None else _measurement_panels(output, m, ys.shape[1],
+                                                                   measured, n)
+    own = [j for j, pnl in enumerate(panels) if pnl is None]
     if fig is None:
         from matplotlib.figure import Figure
 
-        fig = Figure(figsize=(6.4, 2.2 * n + 0.4), layout="constrained")
-    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
-    for i, ax in enumerate(axes):
+        fig = Figure(figsize=(6.4, 2.2 * (n + len(own)) + 0.4), layout="constrained")
+    axes = fig.subplots(n + len(own), 1, sharex=True, squeeze=False)[:, 0]
+    for i, ax in enumerate(axes[:n]):
         if lo is not None and hi is not None:
             ax.fill_between(tt, lo[:, i], hi[:, i], color="C0", alpha=0.25, lw=0, label=band)
-        if ys is not None and i in which:
-            ax.plot(tt, ys[:, which.index(i)], ".", color="0.5", ms=3, label="measured",
-                    gid="measurements")
+        for j in (j for j, pnl in enumerate(panels) if pnl == i):
+            _measured(ax, tt, ys, j)
         if tr is not None:
             ax.plot(tt, tr[:, i], "k--", lw=1, label="truth", gid="truth")
         ax.plot(tt, m[:, i], color="C0", lw=1.5, label="estimate", gid="estimate")
         ax.set_ylabel(labels[i])
         ax.legend(loc="best", fontsize="small")
+    out_names = list(getattr(output, "output_names", ()) or [])
+    for ax, j in zip(axes[n:], own, strict=True):
+        _measured(ax, tt, ys, j)
+        if h is not None:
+            ax.plot(tt, np.asarray(h(m), dtype=np.float64).reshape(T, -1)[:, j], color="C0",
+                    lw=1.5, label="h(estimate)", gid="predicted-measurement")
+        ax.set_ylabel(out_names[j] if j < len(out_names) else f"y[{j}]")
+        ax.legend(loc="best", fontsize="small")
     axes[-1].set_xlabel("time")
     return fig
+
+
+def _measured(ax: Axes, t: FloatArray, ys: FloatArray | None, j: int) -> None:
+    """Measurement column ``j`` as grey dots."""
+    assert ys is not None
+    ax.plot(t, ys[:, j], ".", color="0.5", ms=3, label="measured", gid="measurements")
+
+
+def _check_columns(n: int, names: Sequence[str] | None, **arrays: FloatArray | None
+                   ) -> list[str]:
+    """The panel labels; every array given must have ``n`` columns like the estimate."""
+    for nm, arr in arrays.items():
+        if arr is not None and arr.shape[1] != n:
+            raise ValueError(f"{nm}: expected {n} columns like the estimate, got {arr.shape[1]}")
+    labels = list(names) if names is not None else [f"x[{i}]" for i in range(n)]
+    if len(labels) != n:
+        raise ValueError(f"names: expected {n} names, got {len(labels)}")
+    return labels
+
+
+def _band(m: FloatArray, std: ArrayLike | None, lower: ArrayLike | None,
+          upper: ArrayLike | None, n_sigma: float, T: int
+          ) -> tuple[FloatArray | None, FloatArray | None, str]:
+    """The band of :func:`state_estimates`: ``m +- n_sigma std`` or ``[lower, upper]``."""
+    if std is not None and (lower is not None or upper is not None):
+        raise ValueError("give either std or lower/upper for the band, not both")
+    if (lower is None) != (upper is None):
+        raise ValueError("lower and upper: give both or neither")
+    sd = _columns(std, T, "std")
+    if sd is not None:
+        if sd.shape[1] != m.shape[1]:
+            raise ValueError(f"std: expected {m.shape[1]} columns like the estimate, got "
+                             f"{sd.shape[1]}")
+        return m - n_sigma * sd, m + n_sigma * sd, f"+-{n_sigma:g} sigma"
+    return _columns(lower, T, "lower"), _columns(upper, T, "upper"), "interval"
 
 
 def consistency(
@@ -362,7 +436,7 @@ def consistency(
         raise ValueError(f"values: expected shape ({tt.size},) or ({tt.size}, B), got "
                          f"{np.shape(values)}")
     if int(dof) != dof or dof < 1:
-        raise ValueError(f"dof: expected a positive integer, got {dof!r}")
+        raise ValueError(f"dof: expected a positive integer, got {plain(dof)}")
     B = v.shape[1]
     with np.errstate(invalid="ignore"):
         counts = np.sum(np.isfinite(v), axis=1)

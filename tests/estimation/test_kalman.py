@@ -10,15 +10,15 @@ import scipy.linalg
 from scipy.integrate import quad_vec
 from scipy.stats import multivariate_normal
 
+from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.estimation.kalman import (
-    ExtendedKalmanFilter,
     KalmanFilter,
-    UnscentedKalmanFilter,
     discretise,
     kf_predict,
     kf_update,
     numerical_jacobian,
 )
+from rulkit.estimation.ukf import UnscentedKalmanFilter
 
 DT = 0.5
 F_CV = np.array([[1.0, DT], [0.0, 1.0]])
@@ -391,7 +391,8 @@ def test_kf_predict_update_functions_match_hand_computation():
         (lambda: kf_predict(np.zeros((2, 2)), np.eye(2), np.eye(3), Q_CV), "F: expected shape"),
         (lambda: kf_predict(np.zeros((2, 2)), [[1.0, 0.5], [0.0, 1.0]], F_CV, Q_CV), "P: not sym"),
         (lambda: kf_predict(np.array([[0.0, np.nan]]), np.eye(2), F_CV, Q_CV), "x: non-finite"),
-        (lambda: kf_predict(np.zeros(2), np.eye(2), F_CV, Q_CV), r"x: expected shape \(B, n\)"),
+        (lambda: kf_predict(np.zeros(2), np.eye(2), F_CV, Q_CV),
+         r"x: expected shape \(B, n_x\), got \(2,\)$"),
         (lambda: kf_update(np.zeros((1, 2)), np.eye(2), np.zeros((1, 2)), H_2, [[1.0]]), "y: exp"),
         (lambda: kf_update(np.zeros((1, 2)), np.eye(2), [[np.inf]], [[1.0, 0]], [[1.0]]), "y: inf"),
         (lambda: kf_update(np.zeros((1, 2)), np.eye(2), [[1.0]], [[1.0, 0, 0]], [[1.0]]), "H: exp"),

@@ -15,17 +15,16 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from rulkit.estimation.particle import (
+from rulkit.estimation.particle import ParticleFilter, ParticleState
+from rulkit.estimation.resampling import systematic
+from rulkit.estimation.weights import (
     DegenerateWeightsError,
-    ParticleFilter,
-    ParticleState,
     effective_sample_size,
     log_normalise,
     weighted_cov,
     weighted_mean,
     weighted_quantile,
 )
-from rulkit.estimation.resampling import systematic
 
 Z_MAX = 5.0
 
@@ -206,7 +205,7 @@ def test_loglik_increments_hand_computed():
     # k=0: W=(1/2,1/2): log((1+3)/2); weights -> (1/4, 3/4)
     # k=1: log(1/4*2 + 3/4*1) = log(5/4); weights -> (2/5, 3/5); k=2: log 1 = 0
     np.testing.assert_allclose(r.loglik_increments, [math.log(2.0), math.log(1.25), 0.0])
-    np.testing.assert_allclose(r.weights, [0.4, 0.6])
+    np.testing.assert_allclose(r.posterior().weights, [0.4, 0.6])
     np.testing.assert_allclose(r.ess, [1 / (1 / 16 + 9 / 16), 1 / (4 / 25 + 9 / 25), 1 / 0.52])
 
 
@@ -244,15 +243,21 @@ def test_per_step_api_matches_filter():
         np.testing.assert_array_equal(state.cov(), ref.cov[k])
         np.testing.assert_array_equal(state.quantile([0.025, 0.5, 0.975]), ref.quantiles[k])
         assert state.skipped == ref.skipped[k]
-        pf.resample_if_needed(state)
-        assert state.resampled == ref.resampled[k]
+        assert pf.fires(state) == ref.resampled[k]
+        if k < len(ys) - 1:  # the final set is not resampled (nothing follows it)
+            pf.resample_if_needed(state)
     assert state.loglik == pytest.approx(ref.loglik, rel=1e-12)
-    np.testing.assert_array_equal(state.particles, ref.particles)
-    # step() = update + resample_if_needed
+    final = ref.posterior()
+    np.testing.assert_array_equal(state.particles, final.samples)
+    np.testing.assert_allclose(state.weights, final.weights, rtol=1e-14)
+    # step() = the resampling the previous step asked for, then update: the same draws
     s2 = pf.initialise(x0, np.random.default_rng(6))
-    for y in ys:
+    for k, y in enumerate(ys):
         pf.step(s2, y)
-    np.testing.assert_array_equal(s2.particles, ref.particles)
+        np.testing.assert_array_equal(s2.mean(), ref.mean[k])
+        assert s2.resample_pending == ref.resampled[k]
+    np.testing.assert_array_equal(s2.particles, final.samples)
+    np.testing.assert_array_equal(s2.posterior().mean, final.mean)
 
 
 def test_keep_particles_history_consistent():
@@ -268,10 +273,18 @@ def test_keep_particles_history_consistent():
             r.quantiles[k],
             weighted_quantile(r.particle_history[k], r.weight_history[k], r.quantile_levels),
         )
-    assert r.particles.shape == (100, 1) and r.weights.sum() == pytest.approx(1.0)
-    np.testing.assert_allclose(np.exp(r.log_weights), r.weights)
+        post = r.posterior(k)  # the weighted set of step k, weights travelling with it
+        np.testing.assert_array_equal(post.samples, r.particle_history[k])
+        np.testing.assert_allclose(post.weights, r.weight_history[k], rtol=1e-14)
+        np.testing.assert_allclose(post.mean, r.mean[k], rtol=1e-12)
+    final = r.posterior()
+    assert final.samples.shape == (100, 1) and final.weights.sum() == pytest.approx(1.0)
+    np.testing.assert_array_equal(final.samples, r.particle_history[-1])
     none = ParticleFilter(tr, ll).filter(ys, np.zeros((100, 1)), np.random.default_rng(1))
     assert none.particle_history is None and none.weight_history is None
+    np.testing.assert_array_equal(none.posterior(-1).samples, final.samples)
+    with pytest.raises(ValueError, match="keep_particles=True"):
+        none.posterior(3)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -450,9 +463,9 @@ def test_missing_measurement_policies():
     ("particles", "match"),
     [
         (np.zeros(10), r"expected shape \(N, n_x\).*reshape"),
-        (np.zeros((0, 2)), "at least one particle"),
-        (np.array([[0.0], [np.nan]]), "non-finite value nan at particle 1, state 0"),
-        (np.array([[0.0, np.inf]]), "non-finite value inf at particle 0, state 1"),
+        (np.zeros((0, 2)), "at least one row"),
+        (np.array([[0.0], [np.nan]]), "particles0: non-finite value nan at row 1, column 0"),
+        (np.array([[0.0, np.inf]]), "particles0: non-finite value inf at row 0, column 1"),
     ],
 )
 def test_invalid_particles(particles, match):

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from rulkit import monte_carlo_rul, unscented_rul
+from rulkit import Posterior, monte_carlo_rul, unscented_rul
 from rulkit.prognosis.predictors import sigma_points
 
 
@@ -51,7 +51,7 @@ def test_unscented_rul_is_exact_for_a_linear_time_of_event() -> None:
     unscented mean and standard deviation are exact: (1 - m_d) / r and sd_d / r."""
     m = np.array([0.3, 0.02])
     P = np.diag([0.05**2, 0.0])
-    dist = unscented_rul(m, P, Ramp(), horizon=200.0)
+    dist = unscented_rul(Posterior(m, P), Ramp(), horizon=200.0)
     assert dist.n == 5 and dist.n_censored == 0
     assert dist.mean == pytest.approx((1 - 0.3) / 0.02, rel=1e-9)
     assert dist.std == pytest.approx(0.05 / 0.02, rel=1e-9)
@@ -61,8 +61,8 @@ def test_unscented_rul_close_to_monte_carlo_for_an_uncertain_rate() -> None:
     """Time of event (1 - d) / r is nonlinear in r: the unscented mean is second-order accurate
     (relative error O(cv^2) with cv = sd_r / r = 5 %)."""
     m, P = np.array([0.3, 0.02]), np.diag([0.02**2, 0.001**2])
-    ut = unscented_rul(m, P, Ramp(), horizon=200.0)
-    mc = monte_carlo_rul(m, Ramp(), cov=P, n_samples=40_000, horizon=200.0,
+    ut = unscented_rul(Posterior(m, P), Ramp(), horizon=200.0)
+    mc = monte_carlo_rul(Posterior(m, P), Ramp(), n_samples=40_000, horizon=200.0,
                          rng=np.random.default_rng(0))
     se = mc.std / math.sqrt(mc.n)
     assert abs(ut.mean - mc.mean) < 4 * se + 0.01 * mc.mean
@@ -72,6 +72,13 @@ def test_unscented_rul_close_to_monte_carlo_for_an_uncertain_rate() -> None:
 def test_monte_carlo_rul_of_weighted_particles_keeps_their_weights() -> None:
     x = np.column_stack([np.zeros(3), [0.1, 0.2, 0.5]])
     w = np.array([0.2, 0.3, 0.5])
-    dist = monte_carlo_rul(x, Ramp(), weights=w, horizon=50.0, rng=np.random.default_rng(0))
+    dist = monte_carlo_rul(Posterior.from_samples(x, w), Ramp(), horizon=50.0,
+                           rng=np.random.default_rng(0))
     np.testing.assert_allclose(dist.samples, [10.0, 5.0, 2.0])
     np.testing.assert_allclose(dist.weights, w)
+    # a Gaussian posterior is sampled: n_samples draws, equally weighted
+    g = monte_carlo_rul(Posterior(x.mean(axis=0), np.diag([0.0, 1e-4])), Ramp(),
+                        n_samples=300, horizon=50.0, rng=np.random.default_rng(0))
+    assert g.n == 300 and np.ptp(g.weights) == 0
+    with pytest.raises(TypeError, match="expected a Posterior"):
+        unscented_rul(x, Ramp(), horizon=50.0)

@@ -66,9 +66,8 @@ def test_profile_equals_the_filter_and_propagation_composed_by_hand() -> None:
     res = ParticleFilter.from_model(model).filter(sim.y, p0, rng, keep_particles=True)
     for t, d in zip(times, prof.distributions, strict=True):
         k = int(t) - 1
-        ref = propagate_to_threshold(res.particle_history[k], model=model, t0=t, horizon=300.0,
-                                     rng=rng, weights=res.weight_history[k],
-                                     after_crossing="drop")
+        ref = propagate_to_threshold(res.posterior(k), model=model, t0=t, horizon=300.0,
+                                     rng=rng, after_crossing="drop")
         np.testing.assert_array_equal(d.samples, ref.samples)
         np.testing.assert_array_equal(d.weights, ref.weights)
     df = prof.to_pandas()

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from rulkit.estimation.base import Posterior
 from rulkit.prognosis.rul import RULDistribution, propagate_to_threshold
 
 
-def linear_step(x, t, dt, rng):
+def linear_step(x, u, t, dt, rng):
     """Deterministic damage growth: damage += rate * dt."""
     out = x.copy()
     out[:, 0] += x[:, 1] * dt
@@ -91,7 +92,7 @@ def test_direction_down():
     r = np.array([0.1, 0.04])
     x0 = np.column_stack([np.ones(2), r])
 
-    def step(x, t, dt, rng):
+    def step(x, u, t, dt, rng):
         out = x.copy()
         out[:, 0] -= x[:, 1] * dt
         return out
@@ -108,7 +109,7 @@ def test_brownian_drift_first_passage_matches_inverse_gaussian():
     mu, sigma, a, dt, n = 1.0, 0.3, 1.0, 1e-3, 8000
     sq = sigma * math.sqrt(dt)
 
-    def step(x, t, h, rng):
+    def step(x, u, t, h, rng):
         return x + mu * h + math.sqrt(h / dt) * sq * rng.standard_normal(x.shape)
 
     dist = propagate_to_threshold(
@@ -131,17 +132,18 @@ def test_brownian_drift_first_passage_matches_inverse_gaussian():
 
 
 def test_reproducible_from_seed_and_weights_attached():
-    def step(x, t, dt, rng):
+    def step(x, u, t, dt, rng):
         out = x.copy()
         out[:, 0] += x[:, 1] * dt + 0.01 * rng.standard_normal(x.shape[0])
         return out
 
     x0 = np.column_stack([np.zeros(50), np.full(50, 0.1)])
     w = np.arange(1.0, 51.0)
-    a = propagate_to_threshold(x0, step, damage, 1.0, dt=0.5, horizon=30.0,
-                               rng=np.random.default_rng(3), weights=w)
-    b = propagate_to_threshold(x0, step, damage, 1.0, dt=0.5, horizon=30.0,
-                               rng=np.random.default_rng(3), weights=w)
+    post = Posterior.from_samples(x0, w)
+    a = propagate_to_threshold(post, step, damage, 1.0, dt=0.5, horizon=30.0,
+                               rng=np.random.default_rng(3))
+    b = propagate_to_threshold(post, step, damage, 1.0, dt=0.5, horizon=30.0,
+                               rng=np.random.default_rng(3))
     np.testing.assert_array_equal(a.samples, b.samples)
     np.testing.assert_allclose(a.weights, w / w.sum())
 
@@ -160,14 +162,14 @@ def test_propagate_input_errors():
     with pytest.raises(ValueError, match="horizon"):
         propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
                                horizon=np.inf, rng=rng)
-    with pytest.raises(ValueError, match=r"weights: expected shape \(2,\)"):
-        propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
-                               horizon=5.0, rng=rng, weights=[1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="x0: a Gaussian posterior has no samples"):
+        propagate_to_threshold(Posterior(np.zeros(2), np.eye(2)), linear_step, damage, 1.0,
+                               dt=1.0, horizon=5.0, rng=rng)
     with pytest.raises(ValueError, match="direction"):
         propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=1.0,
                                horizon=5.0, rng=rng, direction="sideways")
 
-    def diverging(x, t, dt, rng):
+    def diverging(x, u, t, dt, rng):
         out = x.copy()
         out[1, 0] = np.nan
         return out
@@ -312,8 +314,8 @@ def test_crossed_sample_diverging_later_keeps_its_crossing_time(blowup, directio
     d0 = np.array([0.9, 0.0, 0.5, 0.2])
     rate = np.array([0.2, 0.01, 0.04, 0.05])
 
-    def step(x, t, dt, rng):
-        out = linear_step(x, t, dt, rng)
+    def step(x, u, t, dt, rng):
+        out = linear_step(x, u, t, dt, rng)
         out[x[:, 0] >= 1.0, 0] = blowup  # crossed at the previous step: diverges now
         return out
 
@@ -389,25 +391,27 @@ def test_hold_and_continue_give_identical_samples_and_drop_the_same_law() -> Non
 
 
 def test_a_weighted_estimate_carries_its_weights_into_propagation() -> None:
-    """Stumble 3: propagating particles without their weights silently gave another median.
-    A weighted estimate (anything with ``particles`` and ``weights``) is propagated with them,
-    and giving weights twice is refused."""
+    """Propagating particles without their weights silently gave another median: the weights
+    travel with the particles in a Posterior, the filter's state gives one, and propagation
+    uses them."""
     from rulkit.estimation.particle import ParticleState
 
     x = np.column_stack([np.zeros(4), np.array([0.1, 0.2, 0.4, 0.5])])  # RULs 10, 5, 2.5, 2
     w = np.array([0.7, 0.1, 0.1, 0.1])
     st = ParticleState(particles=x, logw=np.log(w), weights=w, rng=np.random.default_rng(0),
                        ess=1 / np.sum(w**2))
-    dist = propagate_to_threshold(st, linear_step, damage, 1.0, dt=0.25, horizon=50.0,
-                                  rng=np.random.default_rng(0))
+    dist = propagate_to_threshold(st.posterior(), linear_step, damage, 1.0, dt=0.25,
+                                  horizon=50.0, rng=np.random.default_rng(0))
     np.testing.assert_allclose(dist.weights, w)
     assert dist.median == pytest.approx(10.0)  # unweighted, it would be 2.5
-    with pytest.raises(ValueError, match="carries its own weights"):
-        propagate_to_threshold(st, linear_step, damage, 1.0, dt=0.25, horizon=50.0,
-                               rng=np.random.default_rng(0), weights=w)
+    with pytest.raises(TypeError, match="weights"):  # no second source of weights
+        propagate_to_threshold(st.posterior(), linear_step, damage, 1.0, dt=0.25,
+                               horizon=50.0, rng=np.random.default_rng(0), weights=w)
 
 
-def test_contract_step_gets_the_input_and_legacy_step_refuses_one() -> None:
+def test_contract_step_gets_the_input() -> None:
+    """One calling convention: ``step(x, u, t, dt, rng)`` gets ``u(t)``; the older
+    four-parameter form is not guessed at (no signature inspection): it fails loudly."""
     seen = []
 
     def step(x, u, t, dt, rng):
@@ -420,18 +424,20 @@ def test_contract_step_gets_the_input_and_legacy_step_refuses_one() -> None:
                                   horizon=10.0, rng=np.random.default_rng(0), u=lambda t: 0.25)
     np.testing.assert_allclose(dist.samples, 4.0)
     assert seen[0] == 0.25
-    with pytest.raises(ValueError, match=r"u: the step takes no input"):
-        propagate_to_threshold(np.zeros((2, 2)), linear_step, damage, 1.0, dt=0.5,
-                               horizon=10.0, rng=np.random.default_rng(0), u=1.0)
+
+    def legacy(x, t, dt, rng):
+        return x
+
+    with pytest.raises(TypeError):
+        propagate_to_threshold(np.zeros((2, 2)), legacy, damage, 1.0, dt=0.5,
+                               horizon=10.0, rng=np.random.default_rng(0))
     with pytest.raises(TypeError, match="give model="):
         propagate_to_threshold(np.zeros((2, 2)), horizon=10.0, rng=np.random.default_rng(0))
 
 
-def test_particles_of_a_weighted_filter_result_without_their_weights_warn() -> None:
-    """Stumble 3, the plain-array form: the final particles or one step of the history of a
-    particle-filter result are recognised, and propagating them without weights warns."""
-    import warnings
-
+def test_particle_filter_posteriors_carry_their_weights() -> None:
+    """The final set and every kept step of a particle-filter result come as a Posterior with
+    their weights; propagating one uses the weights (equal to passing them by hand)."""
     from rulkit.estimation.particle import ParticleFilter
 
     pf = ParticleFilter(lambda x, k, rng: x, lambda x, y, k: -0.5 * ((y[0] - x[:, 0]) / 0.1) ** 2,
@@ -440,13 +446,32 @@ def test_particles_of_a_weighted_filter_result_without_their_weights_warn() -> N
     res = pf.filter(np.array([[0.4], [0.4]]), x0, np.random.default_rng(0),
                     keep_particles=True)
     kw = dict(step=linear_step, indicator=damage, threshold=1.0, dt=0.5, horizon=30.0)
-    for arr in (res.particles, res.particle_history[1], res.particle_history[0]):
-        with pytest.warns(UserWarning, match="weighted particle-filter estimate"):
-            propagate_to_threshold(arr, rng=np.random.default_rng(0), **kw)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        d = propagate_to_threshold(res, rng=np.random.default_rng(0), **kw)  # the result: fine
-        propagate_to_threshold(res.particle_history[1], rng=np.random.default_rng(0),
-                               weights=res.weight_history[1], **kw)
-        propagate_to_threshold(res.particles.copy(), rng=np.random.default_rng(0), **kw)
-    np.testing.assert_allclose(d.weights, res.weights)
+    for k in (0, 1, None):
+        post = res.posterior(k)
+        assert np.ptp(post.weights) > 0
+        d = propagate_to_threshold(post, rng=np.random.default_rng(0), **kw)
+        ref = propagate_to_threshold(post.samples, rng=np.random.default_rng(0), **kw)
+        np.testing.assert_array_equal(d.samples, ref.samples)
+        np.testing.assert_allclose(d.weights, post.weights)
+        assert not np.allclose(d.weights, ref.weights)
+    assert not hasattr(res, "particles") and not hasattr(res, "weights")
+
+
+def test_propagation_has_a_step_budget() -> None:
+    """dt = 1e-9 over a horizon of 500 used to set out on 5e11 steps: the budget
+    horizon / dt <= max_steps is checked before any step runs, naming dt."""
+    calls = []
+
+    def step(x, u, t, dt, rng):
+        calls.append(t)
+        return x
+
+    kw = dict(indicator=damage, threshold=1.0, horizon=500.0, rng=np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"dt: horizon / dt = 500 / 1e-09 = 5e\+11 steps "
+                                         r"exceeds the step budget max_steps = 1000000"):
+        propagate_to_threshold(np.zeros((2, 2)), step, dt=1e-9, **kw)
+    assert calls == []
+    with pytest.raises(ValueError, match="max_steps = 10"):
+        propagate_to_threshold(np.zeros((2, 2)), step, dt=1.0, max_steps=10, **kw)
+    d = propagate_to_threshold(np.zeros((2, 2)), step, dt=1.0, max_steps=500, **kw)
+    assert len(calls) == 500 and d.n_censored == 2

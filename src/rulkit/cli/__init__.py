@@ -34,6 +34,7 @@ COMMAND_MODULES = (
     "rulkit.fleet.store.cli",
     "rulkit.fleet.learned.cli",
     "rulkit.fleet.service.cli",
+    "rulkit.fleet.export.cli",
     "rulkit.systems.toy.cli",
 )
 

@@ -1,7 +1,7 @@
-"""Extended Kalman filter batched over B units (split from :mod:`rulkit.estimation.kalman`).
+"""Extended Kalman filter batched over B units.
 
 Same conventions as the KF of :mod:`rulkit.estimation.kalman` (states (B, n), step order,
-Joseph-form update, missing data, errors naming the argument); also importable from there.
+Joseph-form update, missing data, errors naming the argument).
 """
 
 from __future__ import annotations
@@ -11,23 +11,23 @@ from typing import Any
 
 import numpy as np
 
+from rulkit.estimation.base import refuse_model
 from rulkit.estimation.kalman import (
     _T,
     FloatArray,
     Innovation,
     MatrixLike,
+    NonlinearKalmanFilter,
     _apply,
     _check_finite,
     _MatrixSource,
-    _SigmaOrJacobianFilter,
     _sym,
     _update,
     _van_loan,
     numerical_jacobian,
 )
-from rulkit.estimation.particle import _refuse_model
 from rulkit.integrate import rk4_step
-from rulkit.model import InputLike, StateSpaceModel, kalman_functions_from_model
+from rulkit.model import InputLike, StateSpaceModel, kalman_functions_from_model, plain
 
 __all__ = ["ExtendedKalmanFilter"]
 
@@ -49,7 +49,7 @@ def _check_jacobian_at(where: str | np.ndarray, continuous: bool) -> str | np.nd
     return mask.copy()
 
 
-class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
+class ExtendedKalmanFilter(NonlinearKalmanFilter):
     """Extended Kalman filter for B units (first-order linearisation at the current estimate).
 
     Discrete model (default): ``x_k = f(x_{k-1}, u_k, k) + w``, ``Q`` the per-step covariance.
@@ -85,16 +85,17 @@ class ExtendedKalmanFilter(_SigmaOrJacobianFilter):
         substeps: int = 1,
         jacobian_at: str | np.ndarray = "start",
     ) -> None:
-        _refuse_model(f, "ExtendedKalmanFilter")
+        refuse_model(f, "ExtendedKalmanFilter")
         self.f, self.h, self.jac_f, self.jac_h = f, h, jac_f, jac_h
         self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
         self.R = _MatrixSource(R, None, None, "R", cov=True)
         self.continuous = bool(continuous)
         if self.continuous:
             if dt is None or not (np.isfinite(dt) and dt > 0):
-                raise ValueError(f"dt: a continuous model needs a positive finite dt, got {dt!r}")
+                raise ValueError(f"dt: a continuous model needs a positive finite dt, got "
+                                 f"{plain(dt)}")
             if int(substeps) != substeps or substeps < 1:
-                raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
+                raise ValueError(f"substeps: expected a positive integer, got {plain(substeps)}")
         self.dt = None if dt is None else float(dt)
         self.t0 = float(t0)
         self.substeps = int(substeps)

@@ -2,7 +2,11 @@
 
 This module holds the validation, the functional core (``kf_predict``, ``kf_update``) and the
 linear :class:`KalmanFilter`; the EKF is in :mod:`rulkit.estimation.ekf` and the UKF in
-:mod:`rulkit.estimation.ukf` (both importable from here too). Both have ``from_model``.
+:mod:`rulkit.estimation.ukf` (both with ``from_model``), on the shared loop
+:class:`NonlinearKalmanFilter` defined here. Every filter here is an
+:class:`~rulkit.estimation.base.Estimator`: ``filter`` returns a :class:`KalmanResult` whose
+``posterior(k, unit)`` is a Gaussian :class:`~rulkit.estimation.base.Posterior`, and a prior may
+be given as a ``Posterior`` instead of ``x0, P0``.
 
 Conventions (all arrays float64; a single unit is B = 1):
 
@@ -27,22 +31,23 @@ Conventions (all arrays float64; a single unit is B = 1):
   its ``loglik`` increment is 0 and ``skipped`` is True. Infinite measurements are an error.
   (Partially observed rows are treated as missing as a whole: simple and never biased.)
 * Bad input raises ``ValueError`` naming the argument (and the unit, where relevant): wrong
-  shapes, non-finite values, non-symmetric or not positive semi-definite covariances.
+  shapes, non-finite values, non-symmetric or not positive semi-definite covariances (the
+  engine's one state check :func:`rulkit.model.as_batch` and covariance check
+  :func:`rulkit.model.check_covariance`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, cast
+from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-if TYPE_CHECKING:  # at run time these come lazily from the module __getattr__ below
-    from rulkit.estimation.ekf import ExtendedKalmanFilter
-    from rulkit.estimation.ukf import UnscentedKalmanFilter
+from rulkit.estimation.base import Estimator, EstimatorState, FilterResult, Posterior
+from rulkit.model import as_batch, check_covariance, plain
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -51,12 +56,12 @@ MatrixLike = np.ndarray | Callable[[int], np.ndarray]
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 __all__ = [
-    "ExtendedKalmanFilter",
     "FilterStepError",
     "Innovation",
     "KalmanFilter",
     "KalmanResult",
-    "UnscentedKalmanFilter",
+    "KalmanState",
+    "NonlinearKalmanFilter",
     "discretise",
     "kf_predict",
     "kf_update",
@@ -94,13 +99,14 @@ class Innovation:
 
 
 @dataclass(frozen=True)
-class KalmanResult:
+class KalmanResult(FilterResult):
     """Output of ``filter``: per step k (T steps) and unit b (B units).
 
     ``x`` (T, B, n) / ``P`` (T, B, n, n) filtered moments after ``ys[k]``; ``x_pred`` /
     ``P_pred`` the predicted ones before it; ``innovations`` (T, B, m), ``S`` (T, B, m, m),
     ``nis`` (T, B), ``loglik_increments`` (T, B), ``skipped`` (T, B) and ``loglik`` (B,), the
     sum of the increments (the log marginal likelihood of the observed data).
+    ``posterior(k, unit)`` is step k's Gaussian :class:`Posterior` of one unit.
     """
 
     x: FloatArray
@@ -113,6 +119,31 @@ class KalmanResult:
     loglik_increments: FloatArray
     skipped: BoolArray
     loglik: FloatArray
+
+    @property
+    def n_steps(self) -> int:
+        """Number of steps ``T``."""
+        return int(self.x.shape[0])
+
+    def _unit(self, unit: int) -> int:
+        b = self.x.shape[1]
+        if not -b <= unit < b:
+            raise ValueError(f"unit: expected a unit in [0, {b - 1}], got {unit}")
+        return unit % b
+
+    def posterior(self, k: int | None = None, unit: int = 0) -> Posterior:
+        """``N(x[k, unit], P[k, unit])`` (k None: the last step)."""
+        t = self.n_steps
+        kk = t - 1 if k is None else k
+        if not -t <= kk < t:
+            raise ValueError(f"k: expected a step in [{-t}, {t - 1}], got {k}")
+        b = self._unit(unit)
+        return Posterior(self.x[kk, b], self.P[kk, b])
+
+    def moments(self, unit: int = 0) -> tuple[FloatArray, FloatArray]:
+        """``(x[:, unit] (T, n), P[:, unit] (T, n, n))``."""
+        b = self._unit(unit)
+        return self.x[:, b], self.P[:, b]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -133,11 +164,7 @@ def _check_finite(a: np.ndarray, name: str) -> None:
 
 
 def _as_state(x: Any, name: str = "x") -> FloatArray:
-    arr = np.asarray(x, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] == 0:
-        raise ValueError(f"{name}: expected shape (B, n), got {arr.shape}")
-    _check_finite(arr, name)
-    return arr
+    return as_batch(x, None, name, single=False, batch="B")
 
 
 def _as_matrix(a: Any, rows: int, cols: int, batch: int | None, name: str) -> FloatArray:
@@ -157,36 +184,10 @@ def _as_matrix(a: Any, rows: int, cols: int, batch: int | None, name: str) -> Fl
     return arr
 
 
-def _check_psd(c: FloatArray, name: str, definite: bool = False) -> None:
-    """Symmetric and positive semi-definite (or definite) for (n, n) or (B, n, n)."""
-    scale = max(1.0, float(np.abs(c).max(initial=0.0)))
-    close = np.isclose(c, _T(c), rtol=1e-10, atol=1e-13 * scale)
-    if not close.all():
-        unit = ""
-        if c.ndim == 3:  # same tolerances as the test above, so a unit is always found
-            unit = f" (unit {_first_bad(~close.all(axis=(-1, -2)))})"
-        raise ValueError(f"{name}: not symmetric{unit}")
-    eig = np.linalg.eigvalsh(_sym(c))
-    lo = eig[..., 0]
-    hi = np.abs(eig).max(axis=-1)
-    tol = 1e-10 * np.maximum(hi, np.finfo(np.float64).tiny)
-    bad = lo <= 0.0 if definite else lo < -tol
-    if np.any(bad):
-        what = "positive definite" if definite else "positive semi-definite"
-        if c.ndim == 2:
-            raise ValueError(f"{name}: not {what} (smallest eigenvalue {float(lo):.3g})")
-        b = _first_bad(bad)
-        raise ValueError(f"{name}: not {what} for unit {b} (smallest eigenvalue {lo[b]:.3g})")
-
-
-def _first_bad(mask: np.ndarray) -> int:
-    return int(np.flatnonzero(mask)[0])
-
-
 def _as_cov(c: Any, n: int, batch: int | None, name: str, definite: bool = False) -> FloatArray:
-    arr = _as_matrix(c, n, n, batch, name)
-    _check_psd(arr, name, definite)
-    return arr
+    """A shared (n, n) or per-unit (B, n, n) covariance (B = ``batch`` when known)."""
+    return check_covariance(c, n, name, units=True if batch is None else batch,
+                            definite=definite)
 
 
 def _as_measurements(y: Any, batch: int, m: int, name: str = "y") -> FloatArray:
@@ -367,7 +368,7 @@ def numerical_jacobian(
     B, n = x.shape
     rel = float(np.cbrt(np.finfo(np.float64).eps)) if eps is None else float(eps)
     if not (np.isfinite(rel) and rel > 0):
-        raise ValueError(f"eps: expected a positive finite step, got {eps!r}")
+        raise ValueError(f"eps: expected a positive finite step, got {plain(eps)}")
     h = rel * np.maximum(1.0, np.abs(x))
     h = (x + h) - x  # representable steps
     cols = []
@@ -400,7 +401,7 @@ def discretise(A: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[FloatArray, Fl
     n = A.shape[-1]
     Qc = _as_cov(Qc, n, A.shape[0] if A.ndim == 3 else None, "Qc")
     if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: expected a positive finite step, got {dt!r}")
+        raise ValueError(f"dt: expected a positive finite step, got {plain(dt)}")
     return _van_loan(A, Qc, float(dt))
 
 
@@ -421,7 +422,17 @@ def _van_loan(A: FloatArray, Qc: FloatArray, dt: float) -> tuple[FloatArray, Flo
 # ----------------------------------------------------------------------------------------------
 # filter classes
 # ----------------------------------------------------------------------------------------------
-def _check_x0_P0(x0: Any, P0: Any) -> tuple[FloatArray, FloatArray]:
+def _check_x0_P0(x0: Any, P0: Any, n_x: int | None = None) -> tuple[FloatArray, FloatArray]:
+    """The prior as (B, n) means and (B, n, n) covariances: ``x0`` (B, n), one unit (n,), or a
+    :class:`Posterior` (then ``P0`` is its covariance and must not be given)."""
+    if isinstance(x0, Posterior):
+        if P0 is not None:
+            raise ValueError("P0: the prior posterior carries its own covariance")
+        x0, P0 = x0.mean, x0.cov
+    elif P0 is None:
+        raise ValueError("P0: the prior covariance is required (or give a Posterior as prior)")
+    if n_x is not None and np.shape(x0)[-1:] != (n_x,):
+        raise ValueError(f"x0: expected {n_x} states (the model's), got shape {np.shape(x0)}")
     if np.ndim(x0) == 1:  # one unit needs no batch axis: (n,) is (1, n)
         x0 = np.asarray(x0, dtype=np.float64)[None, :]
     x0 = _as_state(x0, "x0")
@@ -518,14 +529,13 @@ class _MatrixSource:
             self.rows, self.cols = arr.shape[-2], arr.shape[-1]
             _check_finite(arr, name)
             if cov:
-                _check_psd(arr, name)
+                check_covariance(arr, arr.shape[-1], name, units=True)
             self.value = arr
 
     def validate(self, B: int, rows: int, cols: int) -> None:
         if self.value is not None:
-            self.value = _as_matrix(self.value, rows, cols, B, self.name)
-            if self.cov:
-                _check_psd(self.value, self.name)
+            self.value = (check_covariance(self.value, rows, self.name, units=B) if self.cov
+                          else _as_matrix(self.value, rows, cols, B, self.name))
         self.rows, self.cols = rows, cols
 
     def at(self, k: int, B: int) -> FloatArray:
@@ -536,7 +546,107 @@ class _MatrixSource:
         return val
 
 
-class KalmanFilter:
+@dataclass
+class KalmanState(EstimatorState):
+    """Running state of the per-step API of the Kalman family: ``x`` (B, n), ``P`` (B, n, n)
+    after step ``k`` (-1 after ``initialise``: the prior), ``loglik`` (B,) the running log
+    marginal likelihood, ``innovation`` the last step's (None before the first)."""
+
+    x: FloatArray
+    P: FloatArray
+    m: int
+    k: int = -1
+    loglik: FloatArray = field(default_factory=lambda: np.zeros(0))
+    innovation: Innovation | None = None
+
+    def posterior(self, unit: int = 0) -> Posterior:
+        """``N(x[unit], P[unit])``."""
+        b = self.x.shape[0]
+        if not -b <= unit < b:
+            raise ValueError(f"unit: expected a unit in [0, {b - 1}], got {unit}")
+        return Posterior(self.x[unit], self.P[unit])
+
+
+class _KalmanLoop(Estimator):
+    """The one loop of the Kalman family, shared by ``filter`` and the per-step API: a
+    subclass validates the prior and its matrices (``_start``) and advances one step
+    (``_advance``: predict, then update with ``ys[k]``)."""
+
+    n_y: int | None = None
+
+    def _start(self, prior: Any, P0: Any) -> tuple[FloatArray, FloatArray, int]:
+        raise NotImplementedError  # pragma: no cover - overridden
+
+    def _advance(
+        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, Innovation]:
+        raise NotImplementedError  # pragma: no cover - overridden
+
+    def _check_inputs(self, us: Any, name: str = "us") -> None:
+        """Refuse inputs the filter would ignore, or missing ones it needs."""
+
+    def _guarded(
+        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, Innovation]:
+        try:
+            return self._advance(x, P, y, k, u)
+        except (ValueError, np.linalg.LinAlgError) as err:
+            raise FilterStepError(k, err) from err
+
+    def initialise(self, prior: Any, rng: np.random.Generator | None = None, *,
+                   P0: Any = None) -> KalmanState:
+        """Start from ``prior``: a :class:`Posterior`, or means ``x0`` (B, n) / (n,) with
+        ``P0``. ``rng`` is unused (the Kalman filters are deterministic): it is accepted so
+        every estimator starts as ``initialise(prior, rng)``."""
+        x, P, m = self._start(prior, P0)
+        return KalmanState(x, P, m, loglik=np.zeros(x.shape[0]))
+
+    def step(self, state: KalmanState, y: Any, u: Any = None) -> KalmanState:
+        """Predict step ``k = state.k + 1`` and assimilate ``y`` (B, m) (one unit: (m,) or a
+        scalar); ``u`` the step's input. Mutates and returns ``state``; an error leaves it
+        as it was and names the step."""
+        B, m = state.x.shape[0], state.m
+        k = state.k + 1
+        arr = np.asarray(y, dtype=np.float64)
+        if arr.size != B * m or arr.ndim > 2 or (arr.ndim == 2 and arr.shape != (B, m)):
+            raise ValueError(f"y: expected shape ({B}, {m}), got {arr.shape}")
+        yk = _check_ys(arr.reshape(1, B, m), B, m)[0]
+        self._check_inputs(u, "u")
+        _, _, x, P, inn = self._guarded(state.x, state.P, yk, k, u)
+        state.x, state.P, state.k, state.innovation = x, P, k, inn
+        state.loglik = state.loglik + inn.loglik
+        return state
+
+    def filter(
+        self,
+        ys: np.ndarray,
+        prior: Any,
+        P0: Any = None,
+        us: np.ndarray | Callable[[int], Any] | None = None,
+    ) -> KalmanResult:
+        """Run over ``ys`` (T, B, m) (one unit: (T, m) or (T,)) from the prior one step before
+        ``ys[0]``: a :class:`Posterior`, or ``x0`` (B, n) with ``P0`` (n, n) or (B, n, n).
+        ``us[k]`` (or ``us(k)``) is step k's input."""
+        x, P, m = self._start(prior, P0)
+        B, n = x.shape
+        ys_arr = self._measurements(ys, B, m)
+        self._check_inputs(us)
+        T = ys_arr.shape[0]
+        out = _Stacker(T, B, n, m)
+        for k in range(T):
+            xp, Pp, x, P, inn = self._guarded(x, P, ys_arr[k], k, _input_at(us, k, T))
+            out.put(k, xp, Pp, x, P, inn)
+        return out.result()
+
+    def _measurements(self, ys: Any, B: int, m: int) -> FloatArray:
+        arr = _one_unit_ys(ys, B)
+        if arr.ndim != 3 or arr.shape[1:] != (B, m):
+            one = f" (or (T, {m}) for one unit)" if B == 1 else ""
+            raise ValueError(f"ys: expected shape (T, {B}, {m}){one}, got {np.shape(ys)}")
+        return _check_ys(arr, B, m)
+
+
+class KalmanFilter(_KalmanLoop):
     """Linear Kalman filter ``x_k = F x_{k-1} + G u_k + w``, ``y_k = H x_k + v`` for B units.
 
     ``F``, ``H``, ``Q``, ``R`` (and the optional control matrix ``G`` (n, n_u)) are shared arrays,
@@ -557,17 +667,11 @@ class KalmanFilter:
         self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
         self.R = _MatrixSource(R, None, None, "R", cov=True)
         self.G = None if G is None else _MatrixSource(G, None, None, "G", cov=False)
+        if G is not None and callable(G):
+            raise ValueError("G: a callable control matrix is not supported; pass an array")
 
-    def filter(
-        self,
-        ys: np.ndarray,
-        x0: np.ndarray,
-        P0: np.ndarray,
-        us: np.ndarray | Callable[[int], np.ndarray] | None = None,
-    ) -> KalmanResult:
-        """Run the filter over ``ys`` (T, B, m) from the prior ``x0`` (B, n), ``P0`` (n, n) or
-        (B, n, n) one step before ``ys[0]``. ``us``: inputs (T, n_u) / (T, B, n_u) or callable."""
-        x, P = _check_x0_P0(x0, P0)
+    def _start(self, prior: Any, P0: Any) -> tuple[FloatArray, FloatArray, int]:
+        x, P = _check_x0_P0(prior, P0)
         B, n = x.shape
         m = self.R.rows if self.R.value is not None else self.H.rows
         if m is None:  # both callables: ask R for its size
@@ -577,37 +681,43 @@ class KalmanFilter:
         self.H.validate(B, m, n)
         self.R.validate(B, m, m)
         if self.G is not None:
-            if self.G.value is None:
-                raise ValueError("G: a callable control matrix is not supported; pass an array")
-            n_u = self.G.value.shape[-1]
-            self.G.validate(B, n, n_u)
-        ys = _check_ys(ys, B, m)
+            self.G.validate(B, n, cast(FloatArray, self.G.value).shape[-1])
+        return x, P, m
+
+    def _measurements(self, ys: Any, B: int, m: int) -> FloatArray:
+        arr = _one_unit_ys(ys, B)
+        if arr.ndim != 3 or arr.shape[1:] != (B, m):
+            one = f" or (T, {m})" if B == 1 else ""
+            raise ValueError(f"ys: expected shape (T, {B}, {m}){one}, got {np.shape(ys)}")
+        return _check_ys(arr, B, m)
+
+    def _check_inputs(self, us: Any, name: str = "us") -> None:
         if us is None and self.G is not None:
-            raise ValueError("us: the filter has a control matrix G but no inputs were given")
+            raise ValueError(f"{name}: the filter has a control matrix G but no inputs were "
+                             "given")
         if us is not None and self.G is None:
-            raise ValueError("us: inputs were given but the filter has no control matrix G "
+            raise ValueError(f"{name}: inputs were given but the filter has no control matrix G "
                              "(pass G=... to KalmanFilter); they would be ignored")
-        T = ys.shape[0]
-        out = _Stacker(T, B, n, m)
-        for k in range(T):
-            bu = None
-            try:
-                if self.G is not None:
-                    u = np.asarray(_input_at(us, k, T), dtype=np.float64)
-                    _check_finite(u, f"us[{k}]")
-                    bu = _matvec(cast(FloatArray, self.G.value),  # G is constant
-                                 np.broadcast_to(u, (B, u.shape[-1])))
-                xp, Pp = _predict(x, P, self.F.at(k, B), self.Q.at(k, B), bu)
-                x, P, inn = _update(xp, Pp, ys[k], self.H.at(k, B), self.R.at(k, B), None)
-            except (ValueError, np.linalg.LinAlgError) as err:
-                raise FilterStepError(k, err) from err
-            out.put(k, xp, Pp, x, P, inn)
-        return out.result()
+
+    def _advance(
+        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, Innovation]:
+        B = x.shape[0]
+        bu = None
+        if self.G is not None:
+            ua = np.asarray(u, dtype=np.float64)
+            _check_finite(ua, f"us[{k}]")
+            bu = _matvec(cast(FloatArray, self.G.value),  # G is constant
+                         np.broadcast_to(ua, (B, ua.shape[-1])))
+        xp, Pp = _predict(x, P, self.F.at(k, B), self.Q.at(k, B), bu)
+        xn, Pn, inn = _update(xp, Pp, y, self.H.at(k, B), self.R.at(k, B), None)
+        return xp, Pp, xn, Pn, inn
 
 
 def _apply(
     fun: Callable[..., np.ndarray], x: FloatArray, u: Any, k: Any, rows: int, name: str
 ) -> FloatArray:
+    """``fun(x, u, k)`` as a (rows, ...) array (a (rows,) output is one column)."""
     val = np.asarray(fun(x, u, k), dtype=np.float64)
     if val.ndim == 1 and rows == x.shape[0]:
         val = val[:, None]
@@ -616,9 +726,9 @@ def _apply(
     return val
 
 
-class _SigmaOrJacobianFilter:
-    """Shared ``filter`` loop of the EKF and UKF (both define ``Q``, ``R``, ``predict``,
-    ``update``)."""
+class NonlinearKalmanFilter(_KalmanLoop):
+    """The shared loop of the EKF and UKF: a subclass defines ``Q``, ``R`` and the one-step
+    ``predict(x, P, k, u)`` and ``update(x, P, y, k, u)``."""
 
     Q: _MatrixSource
     R: _MatrixSource
@@ -628,58 +738,38 @@ class _SigmaOrJacobianFilter:
     def predict(
         self, x: FloatArray, P: FloatArray, k: int, u: Any = None
     ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - overridden
+        """Predict step ``k``: ``(x_pred (B, n), P_pred (B, n, n))``."""
         raise NotImplementedError
 
     def update(
         self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any = None
     ) -> tuple[FloatArray, FloatArray, Innovation]:  # pragma: no cover - overridden
+        """Assimilate ``y`` (B, m) (= ``ys[k]``): ``(x, P, Innovation)``."""
         raise NotImplementedError
 
-    def filter(
-        self,
-        ys: np.ndarray,
-        x0: np.ndarray,
-        P0: np.ndarray,
-        us: np.ndarray | Callable[[int], Any] | None = None,
-    ) -> KalmanResult:
-        """Run over ``ys`` (T, B, m) from ``x0``, ``P0`` one step before ``ys[0]``;
-        ``us[k]`` (or ``us(k)``) is passed as ``u`` to ``f`` and ``h`` at step k."""
-        if self.n_x is not None and np.shape(x0)[-1:] != (self.n_x,):
-            raise ValueError(f"x0: expected {self.n_x} states (the model's), got shape "
-                             f"{np.shape(x0)}")
-        x, P = _check_x0_P0(x0, P0)
+    def _start(self, prior: Any, P0: Any) -> tuple[FloatArray, FloatArray, int]:
+        x, P = _check_x0_P0(prior, P0, self.n_x)
         B, n = x.shape
         self.Q.validate(B, n, n)
-        ys_arr = _one_unit_ys(ys, B)
-        if ys_arr.ndim != 3 or (self.n_y is not None and ys_arr.shape[2] != self.n_y):
-            m_txt = "m" if self.n_y is None else str(self.n_y)
-            one = f" (or (T, {m_txt}) for one unit)" if B == 1 else ""
-            raise ValueError(f"ys: expected shape (T, {B}, {m_txt}){one}, got {np.shape(ys)}")
-        m = ys_arr.shape[2]
+        if self.R.value is not None:
+            m = self.R.value.shape[-1]
+        elif self.n_y is not None:
+            m = self.n_y
+        else:  # a callable R: ask it for its size
+            m = np.atleast_2d(np.asarray(self.R.fn(0))).shape[-1]  # type: ignore[misc]
         self.R.validate(B, m, m)
-        ys_arr = _check_ys(ys_arr, B, m)
-        T = ys_arr.shape[0]
-        out = _Stacker(T, B, n, m)
-        for k in range(T):
-            u = _input_at(us, k, T)
-            try:
-                xp, Pp = self.predict(x, P, k, u)
-                x, P, inn = self.update(xp, Pp, ys_arr[k], k, u)
-            except (ValueError, np.linalg.LinAlgError) as err:
-                raise FilterStepError(k, err) from err
-            out.put(k, xp, Pp, x, P, inn)
-        return out.result()
+        return x, P, m
 
+    def _measurements(self, ys: Any, B: int, m: int) -> FloatArray:
+        arr = _one_unit_ys(ys, B)
+        if arr.ndim != 3 or arr.shape[2] != m:
+            one = f" (or (T, {m}) for one unit)" if B == 1 else ""
+            raise ValueError(f"ys: expected shape (T, {B}, {m}){one}, got {np.shape(ys)}")
+        return _check_ys(arr, B, m)
 
-def __getattr__(name: str) -> Any:
-    """``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` live in :mod:`.ekf` and
-    :mod:`.ukf` (imported lazily here: they build on this module's core)."""
-    if name == "ExtendedKalmanFilter":
-        from rulkit.estimation.ekf import ExtendedKalmanFilter
-
-        return ExtendedKalmanFilter
-    if name == "UnscentedKalmanFilter":
-        from rulkit.estimation.ukf import UnscentedKalmanFilter
-
-        return UnscentedKalmanFilter
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    def _advance(
+        self, x: FloatArray, P: FloatArray, y: FloatArray, k: int, u: Any
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, Innovation]:
+        xp, Pp = self.predict(x, P, k, u)
+        xn, Pn, inn = self.update(xp, Pp, y, k, u)
+        return xp, Pp, xn, Pn, inn

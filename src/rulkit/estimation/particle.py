@@ -10,10 +10,13 @@ Design (docs/engine-api.md, ``rulkit.estimation.particle``; docs/guide.md "Conce
 - Log-weights throughout, normalised by log-sum-exp. A degenerate update (every weight zero,
   i.e. every log-weight -inf, or any NaN / +inf log-weight) raises ``DegenerateWeightsError``
   naming the step, unless ``recovery="reset"`` (equal weights, step flagged in ``reset``).
-- Order of one step ``k`` (``ys[k]``): propagate ``x_k = transition(x_{k-1}, k, rng)``; weight
+- One step ``k`` (``ys[k]``, :meth:`ParticleFilter.step`, the one loop ``filter`` runs): resample
+  if step ``k-1`` asked for it; propagate ``x_k = transition(x_{k-1}, k, rng)``; weight
   ``logw += log_likelihood(x_k, ys[k], k)`` (or the pluggable ``weight_update``); normalise;
-  ESS; summaries (of the weighted, not yet resampled set); then resample if
-  ``trigger(state)`` (when given) or ``ESS < ess_threshold * N``.
+  ESS; then the rule ``trigger(state)`` (when given) or ``ESS < ess_threshold * N`` decides
+  whether the set is resampled before the next propagation. The posterior after step ``k`` is
+  the weighted set before that resampling (the same random draws in the same order as
+  resampling at the end of step ``k``).
 - Missing measurements: a ``ys[k]`` with any NaN component skips the weight update at step
   ``k`` (the transition still runs; the log-likelihood increment is 0; ``skipped[k]`` is True)
   when ``missing="skip"`` (default); ``missing="raise"`` raises ``ValueError`` naming the row;
@@ -24,6 +27,8 @@ Design (docs/engine-api.md, ``rulkit.estimation.particle``; docs/guide.md "Conce
   gives the familiar "log mean of the likelihoods"). Its exponential is an unbiased estimate
   of the marginal likelihood for the standard (bootstrap) weight update. With a custom
   ``weight_update`` the same quantity is reported; it is then only a diagnostic.
+- Posteriors (:class:`rulkit.estimation.base.Posterior`) carry the particles with their
+  weights: ``result.posterior(k)``, ``state.posterior()``.
 
 No per-particle Python loop; the per-step cost is a handful of numpy calls on (N,) / (N, n_x)
 arrays plus whatever the user's ``transition`` and ``log_likelihood`` cost.
@@ -32,7 +37,6 @@ arrays plus whatever the user's ``transition`` and ``log_likelihood`` cost.
 from __future__ import annotations
 
 import math
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal, cast
@@ -40,42 +44,35 @@ from typing import Any, Literal, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.estimation.batched import (
-    normalise_rows,
-    normalise_weights,
-    systematic_indices,
+from rulkit.estimation.base import (
+    Estimator,
+    EstimatorState,
+    FilterResult,
+    Posterior,
+    refuse_model,
+    weighted_moments,
 )
+from rulkit.estimation.batched import normalise_rows, normalise_weights, systematic_indices
 from rulkit.estimation.resampling import _KERNELS, Resampler, get_resampler
 from rulkit.estimation.weights import (
     DegenerateWeightsError,
     _describe_degenerate,
-    _mean_cov,
     _weighted_quantile,
     effective_sample_size,
     log_normalise,
-    weighted_cov,
-    weighted_mean,
     weighted_quantile,
 )
 from rulkit.model import (
     InputLike,
     StateSpaceModel,
+    as_batch,
     check_measurements,
     loglik_from_model,
+    plain,
     transition_from_model,
 )
 
-__all__ = [
-    "DegenerateWeightsError",
-    "ParticleFilter",
-    "ParticleFilterResult",
-    "ParticleState",
-    "effective_sample_size",
-    "log_normalise",
-    "weighted_cov",
-    "weighted_mean",
-    "weighted_quantile",
-]
+__all__ = ["ParticleFilter", "ParticleFilterResult", "ParticleState"]
 
 FloatArray = NDArray[np.float64]
 Transition = Callable[[FloatArray, int, np.random.Generator], FloatArray]
@@ -92,16 +89,19 @@ DEFAULT_QUANTILES = (0.025, 0.5, 0.975)
 
 
 @dataclass
-class ParticleState:
+class ParticleState(EstimatorState):
     """Mutable state of a running particle filter (for the per-step API and the plug-ins).
 
     ``particles`` (N, n_x); ``logw`` normalised log-weights (log-sum-exp 0) and ``weights`` their
     exponentials; ``ess`` the effective sample size of ``weights``; ``k`` the last assimilated
     step (-1 after ``initialise``); ``y`` the measurement of step ``k``; ``rng`` the generator
     used for propagation and resampling; ``loglik`` the running log-likelihood estimate and
-    ``loglik_increment`` the last increment; flags of the last step: ``resampled``, ``skipped``
-    (NaN measurement), ``reset`` (degenerate weights reset to equal). ``info`` is a free dict for
-    plug-ins (e.g. an adaptive weight update may count clipped particles there).
+    ``loglik_increment`` the last increment; flags of the last step: ``resampled`` (the set was
+    resampled by :meth:`ParticleFilter.resample` since the last update), ``skipped`` (NaN
+    measurement), ``reset`` (degenerate weights reset to equal), ``resample_pending`` (the
+    resampling rule fired at step ``k``: :meth:`ParticleFilter.step` resamples before the next
+    propagation). ``info`` is a free dict for plug-ins (e.g. an adaptive weight update may count
+    clipped particles there).
 
     When a ``weight_update`` or ``trigger`` plug-in is called during step ``k``: ``particles``
     already holds the propagated ``x_k``, ``k`` and ``y`` are the current step's, and
@@ -121,6 +121,7 @@ class ParticleState:
     resampled: bool = False
     skipped: bool = False
     reset: bool = False
+    resample_pending: bool = False
     info: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -133,26 +134,37 @@ class ParticleState:
 
     def cov(self) -> FloatArray:
         """Weighted covariance of the particles (n_x, n_x) (as ``filter``'s summary)."""
-        return _mean_cov(self.particles, self.weights)[1]
+        return weighted_moments(self.particles, self.weights)[1]
 
     def quantile(self, q: float | FloatArray) -> FloatArray:
         """Weighted marginal quantiles per state component, shape ``q.shape + (n_x,)``."""
         return weighted_quantile(self.particles, self.weights, q)
 
+    def posterior(self, unit: int = 0) -> Posterior:
+        """The weighted particles of step ``k`` as a :class:`Posterior` (a copy)."""
+        _one_unit(unit)
+        return Posterior.from_samples(self.particles, self.weights)
+
+
+def _one_unit(unit: int) -> None:
+    if unit != 0:
+        raise ValueError(f"unit: a particle filter estimates one unit (unit 0), got {unit}")
+
 
 @dataclass(frozen=True)
-class ParticleFilterResult:
+class ParticleFilterResult(FilterResult):
     """Output of ``ParticleFilter.filter`` over ``T`` measurements.
 
-    Per step ``k`` (summaries of the weighted particle set after the update of step ``k`` and
-    before any resampling): ``mean`` (T, n_x), ``cov`` (T, n_x, n_x), ``quantiles``
-    (T, n_q, n_x) at ``quantile_levels`` (None when not requested), ``ess`` (T,),
-    ``resampled`` (T,) (resampling happened at the end of step k), ``skipped`` (T,) (NaN
-    measurement, no update), ``reset`` (T,) (degenerate weights reset to equal),
-    ``loglik_increments`` (T,) and their sum ``loglik``. ``particles`` (N, n_x), ``weights``
-    (N,) and ``log_weights`` are the final state (after any final resampling), ready to hand to a
-    prognosis; ``particle_history`` (T, N, n_x) and ``weight_history`` (T, N) hold the weighted
-    sets behind the summaries when ``keep_particles=True`` (else None).
+    Per step ``k`` (summaries of the weighted particle set after the update of step ``k``):
+    ``mean`` (T, n_x), ``cov`` (T, n_x, n_x), ``quantiles`` (T, n_q, n_x) at
+    ``quantile_levels`` (None when not requested), ``ess`` (T,), ``resampled`` (T,) (the
+    resampling rule fired at step k: the set was resampled before step k+1), ``skipped`` (T,)
+    (NaN measurement, no update), ``reset`` (T,) (degenerate weights reset to equal),
+    ``loglik_increments`` (T,) and their sum ``loglik``. ``final`` is the weighted set after the
+    last step as a :class:`Posterior` (particles with their weights), ready for a prognosis;
+    ``particle_history`` (T, N, n_x) and ``weight_history`` (T, N) hold the weighted sets behind
+    the summaries when ``keep_particles=True`` (else None). ``posterior(k)`` gives step ``k``'s
+    set as a ``Posterior`` (any ``k`` with the history, the last one without).
     """
 
     mean: FloatArray
@@ -164,9 +176,7 @@ class ParticleFilterResult:
     skipped: NDArray[np.bool_]
     reset: NDArray[np.bool_]
     loglik_increments: FloatArray
-    particles: FloatArray
-    weights: FloatArray
-    log_weights: FloatArray
+    final: Posterior
     particle_history: FloatArray | None = None
     weight_history: FloatArray | None = None
 
@@ -177,50 +187,81 @@ class ParticleFilterResult:
 
     @property
     def n_steps(self) -> int:
-        return self.mean.shape[0]
+        return int(self.mean.shape[0])
 
     @property
     def n_resampled(self) -> int:
         return int(self.resampled.sum())
 
+    def posterior(self, k: int | None = None, unit: int = 0) -> Posterior:
+        """Step ``k``'s weighted particles (None or the last step: ``final``; an earlier step
+        needs ``filter(..., keep_particles=True)``)."""
+        _one_unit(unit)
+        t = self.n_steps
+        if k is None:
+            return self.final
+        if not -t <= k < t:
+            raise ValueError(f"k: expected a step in [{-t}, {t - 1}], got {k}")
+        k = k % t
+        if k == t - 1:
+            return self.final
+        if self.particle_history is None or self.weight_history is None:
+            raise ValueError(f"k: the particles of step {k} were not kept; run "
+                             "filter(..., keep_particles=True) for posteriors before the last step")
+        return Posterior.from_samples(self.particle_history[k], self.weight_history[k])
 
-# A registry of the particle arrays a filter handed out with non-uniform weights, so that
-# propagating them without their weights can be noticed (issue 10, stumble 3). Keyed by id();
-# an entry dies with its array (weakref callback), and is only trusted while it is alive.
-_WEIGHTED: dict[int, tuple[weakref.ref[np.ndarray], FloatArray]] = {}
+    def moments(self, unit: int = 0) -> tuple[FloatArray, FloatArray]:
+        """``(mean (T, n_x), cov (T, n_x, n_x))``."""
+        _one_unit(unit)
+        return self.mean, self.cov
 
 
-def _register_weighted(particles: np.ndarray, weights: FloatArray) -> None:
-    key = id(particles)
+@dataclass
+class _Recorder:
+    """The per-step summaries ``filter`` writes (preallocated arrays of a run of T steps)."""
 
-    def forget(_r: object, k: int = key) -> None:
-        _WEIGHTED.pop(k, None)
+    mean: FloatArray
+    cov: FloatArray
+    q_levels: FloatArray | None
+    quantiles: FloatArray | None
+    ess: FloatArray
+    resampled: NDArray[np.bool_]
+    skipped: NDArray[np.bool_]
+    reset: NDArray[np.bool_]
+    incs: FloatArray
+    p_hist: FloatArray | None
+    w_hist: FloatArray | None
 
-    ref = weakref.ref(particles, forget)
-    _WEIGHTED[key] = (ref, weights)
+    @classmethod
+    def allocate(cls, t_len: int, n: int, n_x: int, q_levels: FloatArray | None,
+                 keep: bool) -> _Recorder:
+        return cls(np.empty((t_len, n_x)), np.empty((t_len, n_x, n_x)), q_levels,
+                   None if q_levels is None else np.empty((t_len, q_levels.size, n_x)),
+                   np.empty(t_len), np.zeros(t_len, dtype=bool), np.zeros(t_len, dtype=bool),
+                   np.zeros(t_len, dtype=bool), np.empty(t_len),
+                   np.empty((t_len, n, n_x)) if keep else None,
+                   np.empty((t_len, n)) if keep else None)
 
+    def record(self, k: int, state: ParticleState) -> None:
+        x, w = state.particles, state.weights
+        self.mean[k], self.cov[k] = weighted_moments(x, w)
+        if self.quantiles is not None and self.q_levels is not None:
+            self.quantiles[k] = _weighted_quantile(x, w, self.q_levels)
+        if self.p_hist is not None and self.w_hist is not None:
+            self.p_hist[k] = x
+            self.w_hist[k] = w
+        self.ess[k] = state.ess
+        self.resampled[k] = state.resample_pending
+        self.skipped[k] = state.skipped
+        self.reset[k] = state.reset
+        self.incs[k] = state.loglik_increment
 
-def weights_of(x: Any) -> FloatArray | None:
-    """The weights a particle filter returned together with ``x``, when ``x`` is its final
-    ``particles`` array or one step ``particle_history[k]`` of a ``ParticleFilterResult``
-    (None otherwise, or when those weights are uniform)."""
-    if not isinstance(x, np.ndarray):
-        return None
-    for cand in (x, x.base):
-        if not isinstance(cand, np.ndarray):
-            continue
-        entry = _WEIGHTED.get(id(cand))
-        if entry is None or entry[0]() is not cand:
-            continue
-        w = entry[1]
-        if cand is x:
-            return w if w.ndim == 1 else None
-        if cand.ndim == 3 and x.shape == cand.shape[1:] and w.ndim == 2:
-            off = x.__array_interface__["data"][0] - cand.__array_interface__["data"][0]
-            k, rem = divmod(off, cand.strides[0])
-            if rem == 0 and 0 <= k < cand.shape[0]:
-                return w[k]  # type: ignore[no-any-return]
-    return None
+    def result(self, state: ParticleState) -> ParticleFilterResult:
+        return ParticleFilterResult(
+            mean=self.mean, cov=self.cov, quantiles=self.quantiles,
+            quantile_levels=self.q_levels, ess=self.ess, resampled=self.resampled,
+            skipped=self.skipped, reset=self.reset, loglik_increments=self.incs,
+            final=state.posterior(), particle_history=self.p_hist, weight_history=self.w_hist)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -228,31 +269,7 @@ def weights_of(x: Any) -> FloatArray | None:
 # ---------------------------------------------------------------------------------------------
 
 
-def _check_particles(particles: FloatArray, name: str = "particles0") -> FloatArray:
-    x = np.asarray(particles, dtype=np.float64)
-    if x.ndim != 2:
-        hint = " (use x.reshape(-1, 1) for a scalar state)" if x.ndim == 1 else ""
-        raise ValueError(f"{name}: expected shape (N, n_x), got {x.shape}{hint}")
-    if x.shape[0] == 0 or x.shape[1] == 0:
-        raise ValueError(f"{name}: need at least one particle and one state, got {x.shape}")
-    finite = np.isfinite(x)
-    if not finite.all():
-        i, j = np.argwhere(~finite)[0]
-        raise ValueError(f"{name}: non-finite value {x[i, j]} at particle {i}, state {j}")
-    return x
-
-
-def _refuse_model(obj: Any, cls_name: str) -> None:
-    """A model (or its bound ``step``) where the low-level function form is expected is a
-    ``TypeError`` that names ``from_model`` (issue 10, stumble 2)."""
-    owner = getattr(obj, "__self__", None)
-    bound_step = isinstance(owner, StateSpaceModel) and getattr(obj, "__name__", "") == "step"
-    if isinstance(obj, StateSpaceModel) or bound_step:
-        raise TypeError(f"{cls_name}(...) takes the low-level functions; for a model use "
-                        f"{cls_name}.from_model(model, ...) (docs/engine-api.md, 'from_model')")
-
-
-class ParticleFilter:
+class ParticleFilter(Estimator):
     """SIR particle filter with log-weights, ESS-triggered resampling and plug-in points.
 
     Parameters
@@ -298,7 +315,7 @@ class ParticleFilter:
         recovery: Literal["raise", "reset"] = "raise",
         missing: Literal["skip", "raise", "pass"] = "skip",
     ) -> None:
-        _refuse_model(transition, "ParticleFilter")
+        refuse_model(transition, "ParticleFilter")
         if not callable(transition):
             raise TypeError("transition must be callable(x, k, rng) -> x_next")
         if not callable(log_likelihood):
@@ -370,18 +387,31 @@ class ParticleFilter:
 
     def initialise(
         self,
-        particles: FloatArray,
-        rng: np.random.Generator,
+        prior: FloatArray | Posterior,
+        rng: np.random.Generator | None = None,
         *,
         log_weights: FloatArray | None = None,
     ) -> ParticleState:
-        """Start a filter run from ``particles`` (N, n_x) (equal weights unless ``log_weights``).
+        """Start a filter run from ``prior``: particles (N, n_x) (equal weights unless
+        ``log_weights``) or a :class:`Posterior` with samples (its particles and weights).
 
         The particles are copied; the returned state is then advanced with ``step``/``update``.
         """
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-        x = _check_particles(particles).copy()
+        if isinstance(prior, Posterior):
+            if prior.samples is None or prior.weights is None:
+                raise ValueError("prior: a Gaussian posterior has no particles; draw them with "
+                                 "prior.with_samples(n_particles, rng)")
+            if log_weights is not None:
+                raise ValueError("log_weights: the prior posterior carries its own weights")
+            particles = prior.samples
+            if np.ptp(prior.weights) > 0:  # equal weights start exactly as a plain array
+                with np.errstate(divide="ignore"):
+                    log_weights = np.log(prior.weights)
+        else:
+            particles = prior
+        x = as_batch(particles, self.n_x, "particles0", single=False).copy()
         n = x.shape[0]
         if log_weights is None:
             w = np.full(n, 1.0 / n)
@@ -425,23 +455,20 @@ class ParticleFilter:
         state.k = k
         state.y = y
         try:
-            self._weight(state, x, y, k, n, missing)
+            self._weight(state, y, k, n, missing)
         except BaseException:
             # leave the state as it was before this step (no half-applied update)
             state.particles, state.k, state.y = prev
             raise
         return state
 
-    def _weight(
-        self, state: ParticleState, x: FloatArray, y: Any, k: int, n: int, missing: bool
-    ) -> None:
+    def _weight(self, state: ParticleState, y: Any, k: int, n: int, missing: bool) -> None:
+        state.resampled = state.reset = False
+        state.skipped = missing
         if missing:
-            state.resampled = False
-            state.reset = False
-            state.skipped = True
             state.loglik_increment = 0.0
             return
-        ll = self.log_likelihood(x, y, k)
+        ll = self.log_likelihood(state.particles, y, k)
         if getattr(ll, "shape", None) != (n,):
             raise ValueError(
                 f"log_likelihood at step {k}: returned shape {np.shape(ll)}, expected ({n},)"
@@ -454,38 +481,30 @@ class ParticleFilter:
                 raise ValueError(
                     f"weight_update at step {k}: returned shape {new.shape}, expected ({n},)"
                 )
-        m = new.max()
-        if not math.isfinite(m):
+        if not math.isfinite(new.max()):
             self._degenerate(state, new, ll, k)
             return
-        w = np.subtract(new, m)
-        np.exp(w, out=w)
-        s = w.sum()
-        w /= s
-        lse = m + math.log(s)
-        if self.weight_update is None:
-            inc = lse  # logsumexp(logw_{k-1} + ll), logw_{k-1} normalised
-            new -= lse  # our own temporary
-        else:
-            inc = _logsumexp(state.logw + ll)
-            new = new - lse  # the plug-in's array may be referenced elsewhere: not in place
-        state.logw = new
+        lwn, w, ls = normalise_rows(new)  # one row: the shared particle core
+        # the increment is logsumexp(logw_{k-1} + ll) (logw_{k-1} normalised): for the
+        # bootstrap update that is the normaliser itself
+        inc = float(ls) if self.weight_update is None else _logsumexp(state.logw + ll)
+        state.logw = lwn
         state.weights = w
         state.ess = 1.0 / float(np.dot(w, w))
         state.loglik_increment = inc
         state.loglik += inc
-        state.resampled = False
-        state.reset = False
-        state.skipped = False
+
+    def fires(self, state: ParticleState) -> bool:
+        """Whether the resampling rule fires for ``state``: ``trigger(state)`` when given, else
+        ``ESS < ess_threshold * N`` (every step for a threshold of 1)."""
+        if self.trigger is not None:
+            return bool(self.trigger(state))
+        n = state.logw.shape[0]
+        return self.ess_threshold >= 1.0 or state.ess < self.ess_threshold * n
 
     def resample_if_needed(self, state: ParticleState) -> ParticleState:
         """Apply the trigger (or the ESS rule) and resample in place when it fires."""
-        if self.trigger is not None:
-            fire = bool(self.trigger(state))
-        else:
-            n = state.logw.shape[0]
-            fire = self.ess_threshold >= 1.0 or state.ess < self.ess_threshold * n
-        if fire:
+        if self.fires(state):
             self.resample(state)
         return state
 
@@ -503,42 +522,67 @@ class ParticleFilter:
         state.weights = np.full(n, 1.0 / n)
         state.ess = float(n)
         state.resampled = True
+        state.resample_pending = False
         return state
 
-    def step(self, state: ParticleState, y: Any) -> ParticleState:
-        """One full filter step: ``update`` then ``resample_if_needed``; mutates ``state``."""
-        self.update(state, y)
-        return self.resample_if_needed(state)
+    def step(self, state: ParticleState, y: Any, *, missing: bool | None = None
+             ) -> ParticleState:
+        """One full filter step (module docstring): the resampling step ``k-1`` asked for,
+        ``update``, then the rule decides on the next resampling; mutates ``state``. Afterwards
+        ``state`` holds the weighted posterior of step ``k``."""
+        saved = (state.particles, state.logw, state.weights, state.ess, state.resampled,
+                 state.resample_pending)
+        try:
+            if state.resample_pending:
+                self.resample(state)
+            self.update(state, y, missing=missing)
+        except BaseException:  # a failed step leaves the weighted set as it was
+            (state.particles, state.logw, state.weights, state.ess, state.resampled,
+             state.resample_pending) = saved
+            raise
+        state.resample_pending = self.fires(state)
+        return state
 
     # -- whole-sequence API -------------------------------------------------------------------
 
     def filter(
         self,
         ys: Any,
-        particles0: FloatArray,
-        rng: np.random.Generator,
+        prior: FloatArray | Posterior,
+        rng: np.random.Generator | None = None,
         *,
         quantiles: tuple[float, ...] | FloatArray | None = DEFAULT_QUANTILES,
         keep_particles: bool = False,
         log_weights0: FloatArray | None = None,
     ) -> ParticleFilterResult:
-        """Run the filter over ``ys`` (T, ...) from ``particles0`` (N, n_x).
+        """Run the filter over ``ys`` (T, ...) from ``prior``: the initial particles
+        (N, n_x) or a :class:`Posterior` with samples (see :meth:`initialise`).
 
-        ``ys[k]`` is assimilated after the k-th transition. ``quantiles=None`` skips the
-        per-step sort. Same ``rng`` seed -> identical result.
+        ``ys[k]`` is assimilated after the k-th transition, by :meth:`step`. ``quantiles=None``
+        skips the per-step sort. Same ``rng`` seed -> identical result.
         """
+        y_arr, missing = self._measurements(ys)
+        q_levels = None
+        if quantiles is not None:
+            q_levels = np.atleast_1d(np.asarray(quantiles, dtype=np.float64))
+            if q_levels.ndim != 1 or np.any(~((q_levels >= 0) & (q_levels <= 1))):
+                raise ValueError(f"quantiles: expected levels in [0, 1], got {plain(quantiles)}")
+        state = self.initialise(prior, rng, log_weights=log_weights0)
+        n, n_x = state.particles.shape
+        rec = _Recorder.allocate(y_arr.shape[0], n, n_x, q_levels, keep_particles)
+        for k, miss in enumerate(missing):
+            self.step(state, y_arr[k], missing=miss)
+            rec.record(k, state)
+        return rec.result(state)
+
+    def _measurements(self, ys: Any) -> tuple[FloatArray, list[bool]]:
+        """``ys`` as a float array (T, ...) and, per row, whether it counts as missing."""
         if self.n_y is not None:
             ys = check_measurements(ys, self.n_y)
-        if self.n_x is not None:
-            p0 = np.asarray(particles0)
-            if p0.ndim != 2 or p0.shape[1] != self.n_x:
-                raise ValueError(f"particles0: expected shape (N, {self.n_x}) for the model's "
-                                 f"{self.n_x} states, got {p0.shape}")
         y_arr = np.asarray(ys, dtype=np.float64)
         if y_arr.ndim == 0 or y_arr.shape[0] == 0:
             raise ValueError(f"ys: expected a non-empty array of shape (T, ...), got {y_arr.shape}")
-        t_len = y_arr.shape[0]
-        flat = y_arr.reshape(t_len, -1)
+        flat = y_arr.reshape(y_arr.shape[0], -1)
         inf_rows = np.isinf(flat).any(axis=1)
         if inf_rows.any():
             raise ValueError(f"ys: infinite value in row {int(np.flatnonzero(inf_rows)[0])}")
@@ -550,158 +594,7 @@ class ParticleFilter:
             )
         if self.missing == "pass":
             nan_rows[:] = False
-        q_levels = None
-        if quantiles is not None:
-            q_levels = np.atleast_1d(np.asarray(quantiles, dtype=np.float64))
-            if q_levels.ndim != 1 or np.any(~((q_levels >= 0) & (q_levels <= 1))):
-                raise ValueError(f"quantiles: expected levels in [0, 1], got {quantiles!r}")
-
-        state = self.initialise(particles0, rng, log_weights=log_weights0)
-        n, n_x = state.particles.shape
-        mean = np.empty((t_len, n_x))
-        cov = np.empty((t_len, n_x, n_x))
-        qs = None if q_levels is None else np.empty((t_len, q_levels.size, n_x))
-        ess = np.empty(t_len)
-        resampled = np.zeros(t_len, dtype=bool)
-        skipped = np.zeros(t_len, dtype=bool)
-        reset = np.zeros(t_len, dtype=bool)
-        incs = np.empty(t_len)
-        p_hist = np.empty((t_len, n, n_x)) if keep_particles else None
-        w_hist = np.empty((t_len, n)) if keep_particles else None
-
-        missing_list = nan_rows.tolist()
-        if self.weight_update is None and self.trigger is None:
-            self._filter_loop(state, y_arr, missing_list, mean, cov, qs, q_levels, ess,
-                              resampled, skipped, reset, incs, p_hist, w_hist)
-        else:
-            self._filter_loop_plugins(state, y_arr, missing_list, mean, cov, qs, q_levels,
-                                      ess, resampled, skipped, reset, incs, p_hist, w_hist)
-
-        if np.ptp(state.weights) > 0:
-            _register_weighted(state.particles, state.weights)
-        if p_hist is not None and w_hist is not None:
-            _register_weighted(p_hist, w_hist)
-        return ParticleFilterResult(
-            mean=mean,
-            cov=cov,
-            quantiles=qs,
-            quantile_levels=q_levels,
-            ess=ess,
-            resampled=resampled,
-            skipped=skipped,
-            reset=reset,
-            loglik_increments=incs,
-            particles=state.particles,
-            weights=state.weights,
-            log_weights=state.logw,
-            particle_history=p_hist,
-            weight_history=w_hist,
-        )
-
-    def _filter_loop_plugins(
-        self, state: ParticleState, y_arr: FloatArray, missing_list: list[bool],
-        mean: FloatArray, cov: FloatArray, qs: FloatArray | None, q_levels: FloatArray | None,
-        ess: FloatArray, resampled: NDArray[np.bool_], skipped: NDArray[np.bool_],
-        reset: NDArray[np.bool_], incs: FloatArray, p_hist: FloatArray | None,
-        w_hist: FloatArray | None,
-    ) -> None:
-        """``filter``'s loop through the per-step API (a trigger or weight update sees the
-        state as documented on :class:`ParticleState`)."""
-        for k in range(len(missing_list)):
-            self.update(state, y_arr[k], missing=missing_list[k])
-            _record_step(k, state.particles, state.weights, state, mean, cov, qs, q_levels, ess,
-                         skipped, reset, incs, p_hist, w_hist)
-            self.resample_if_needed(state)
-            resampled[k] = state.resampled
-
-
-    def _filter_loop(
-        self, state: ParticleState, y_arr: FloatArray, missing_list: list[bool],
-        mean: FloatArray, cov: FloatArray, qs: FloatArray | None, q_levels: FloatArray | None,
-        ess: FloatArray, resampled: NDArray[np.bool_], skipped: NDArray[np.bool_],
-        reset: NDArray[np.bool_], incs: FloatArray, p_hist: FloatArray | None,
-        w_hist: FloatArray | None,
-    ) -> None:
-        """``filter``'s loop without plug-ins: ``update``, ``_weight`` and
-        ``resample_if_needed`` inlined (the same numpy operations on the same arrays in the same
-        order, hence the same numbers, with fewer Python calls per step); after a resampling
-        the equal weights are two read-only arrays made once per run (the state never leaves
-        ``filter``; writable copies are put back at the end)."""
-        transition, log_likelihood, rng = self.transition, self.log_likelihood, state.rng
-        n, n_x = state.particles.shape
-        shape = (n, n_x)
-        every = self.ess_threshold >= 1.0
-        n_thr = self.ess_threshold * n
-        systematic, kernel = self._systematic, self._resample_kernel
-        u_logw, u_w = np.full(n, -math.log(n)), np.full(n, 1.0 / n)
-        u_logw.flags.writeable = False
-        u_w.flags.writeable = False
-        for k in range(len(missing_list)):
-            y = y_arr[k]
-            x = transition(state.particles, k, rng)
-            if getattr(x, "shape", None) != shape:
-                raise ValueError(
-                    f"transition at step {k}: returned shape {np.shape(x)}, expected {shape}"
-                )
-            if not math.isfinite(x.sum()) and not np.isfinite(x).all():
-                i, j = np.argwhere(~np.isfinite(x))[0]
-                raise ValueError(
-                    f"transition at step {k}: non-finite value {x[i, j]} at particle {i}, "
-                    f"state {j} (the filter state is left at step {state.k})"
-                )
-            if missing_list[k]:
-                state.particles, state.k, state.y = x, k, y
-                state.resampled = state.reset = False
-                state.skipped = True
-                state.loglik_increment = 0.0
-            else:
-                ll = log_likelihood(x, y, k)
-                if getattr(ll, "shape", None) != (n,):
-                    raise ValueError(
-                        f"log_likelihood at step {k}: returned shape {np.shape(ll)}, "
-                        f"expected ({n},)"
-                    )
-                new = state.logw + ll
-                m = new.max()
-                if not math.isfinite(m):
-                    prev = (state.particles, state.k, state.y)
-                    state.particles, state.k, state.y = x, k, y
-                    try:
-                        self._degenerate(state, new, ll, k)
-                    except BaseException:
-                        state.particles, state.k, state.y = prev
-                        raise
-                else:
-                    state.particles, state.k, state.y = x, k, y
-                    lwn, w, ls = normalise_rows(new)  # one row: the shared particle core
-                    lse = float(ls)
-                    state.logw = lwn
-                    state.weights = w
-                    state.ess = 1.0 / float(np.dot(w, w))
-                    state.loglik_increment = lse
-                    state.loglik += lse
-                    state.resampled = state.reset = state.skipped = False
-            w = state.weights
-            _record_step(k, x, w, state, mean, cov, qs, q_levels, ess, skipped, reset, incs,
-                         p_hist, w_hist)
-            if every or state.ess < n_thr:
-                if systematic:
-                    idx = systematic_indices(w, rng.random())
-                else:
-                    idx = kernel(w, rng)
-                    if getattr(idx, "shape", None) != (n,):
-                        raise ValueError(
-                            f"resampler returned shape {np.shape(idx)}, expected ({n},)"
-                        )
-                state.particles = x.take(idx, axis=0)
-                state.logw = u_logw
-                state.weights = u_w
-                state.ess = float(n)
-                state.resampled = True
-            resampled[k] = state.resampled
-        if state.weights is u_w:
-            state.logw = np.full(n, -math.log(n))
-            state.weights = np.full(n, 1.0 / n)
+        return y_arr, nan_rows.tolist()
 
     # -- internals ----------------------------------------------------------------------------
 
@@ -731,8 +624,6 @@ class ParticleFilter:
             )
         n = new.shape[0]
         inc = _logsumexp(state.logw + ll)
-        state.resampled = False
-        state.skipped = False
         state.logw = np.full(n, -math.log(n))
         state.weights = np.full(n, 1.0 / n)
         state.ess = float(n)
@@ -746,21 +637,3 @@ def _logsumexp(a: FloatArray) -> float:
     if not math.isfinite(m):  # -inf (all zero), +inf or NaN: the value itself
         return float(m)
     return float(normalise_weights(a)[1])
-
-def _record_step(
-    k: int, x: FloatArray, w: FloatArray, state: ParticleState, mean: FloatArray,
-    cov: FloatArray, qs: FloatArray | None, q_levels: FloatArray | None, ess: FloatArray,
-    skipped: NDArray[np.bool_], reset: NDArray[np.bool_], incs: FloatArray,
-    p_hist: FloatArray | None, w_hist: FloatArray | None,
-) -> None:
-    """Write step ``k``'s summaries (both loops of ``ParticleFilter.filter``)."""
-    mean[k], cov[k] = _mean_cov(x, w)
-    if qs is not None and q_levels is not None:
-        qs[k] = _weighted_quantile(x, w, q_levels)
-    if p_hist is not None and w_hist is not None:
-        p_hist[k] = x
-        w_hist[k] = w
-    ess[k] = state.ess
-    skipped[k] = state.skipped
-    reset[k] = state.reset
-    incs[k] = state.loglik_increment

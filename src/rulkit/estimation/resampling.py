@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rulkit.estimation.batched import systematic_indices
+from rulkit.model import plain
 
 __all__ = [
     "RESAMPLERS",
@@ -72,7 +73,7 @@ def _check_weights(weights: NDArray[np.float64] | list[float]) -> NDArray[np.flo
     s = float(w.sum())
     if abs(s - 1.0) > WEIGHT_SUM_TOL:
         raise ValueError(
-            f"weights: must be normalised (sum to 1 within {WEIGHT_SUM_TOL:g}), got sum {s!r}"
+            f"weights: must be normalised (sum to 1 within {WEIGHT_SUM_TOL:g}), got sum {plain(s)}"
         )
     return w
 

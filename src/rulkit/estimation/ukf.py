@@ -1,7 +1,7 @@
-"""Unscented Kalman filter batched over B units (split from :mod:`rulkit.estimation.kalman`).
+"""Unscented Kalman filter batched over B units.
 
 Same conventions as the KF/EKF of :mod:`rulkit.estimation.kalman` (states (B, n), step order,
-missing data, errors naming the argument); also importable from there.
+missing data, errors naming the argument).
 """
 
 from __future__ import annotations
@@ -12,27 +12,32 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.estimation.base import refuse_model
 from rulkit.estimation.kalman import (
     _T,
     FloatArray,
     Innovation,
     MatrixLike,
+    NonlinearKalmanFilter,
     _as_measurements,
     _check_finite,
     _chol_S,
     _finish_innovation,
-    _first_bad,
     _MatrixSource,
-    _SigmaOrJacobianFilter,
     _sym,
 )
-from rulkit.estimation.particle import _refuse_model
-from rulkit.model import InputLike, StateSpaceModel, kalman_functions_from_model
+from rulkit.model import (
+    InputLike,
+    StateSpaceModel,
+    check_covariance,
+    kalman_functions_from_model,
+    plain,
+)
 
 __all__ = ["UnscentedKalmanFilter"]
 
 
-class UnscentedKalmanFilter(_SigmaOrJacobianFilter):
+class UnscentedKalmanFilter(NonlinearKalmanFilter):
     """Unscented Kalman filter for B units, additive noise (Wan & van der Merwe 2000).
 
     Model ``x_k = f(x_{k-1}, u_k, k) + w`` (``Q`` per step), ``y_k = h(x_k, u_k, k) + v``.
@@ -59,10 +64,10 @@ class UnscentedKalmanFilter(_SigmaOrJacobianFilter):
         kappa: float = 0.0,
     ) -> None:
         if not (np.isfinite(alpha) and alpha > 0):
-            raise ValueError(f"alpha: expected a positive finite value, got {alpha!r}")
+            raise ValueError(f"alpha: expected a positive finite value, got {plain(alpha)}")
         if not np.isfinite(beta) or not np.isfinite(kappa):
             raise ValueError("beta, kappa: expected finite values")
-        _refuse_model(f, "UnscentedKalmanFilter")
+        refuse_model(f, "UnscentedKalmanFilter")
         self.f, self.h = f, h
         self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
         self.R = _MatrixSource(R, None, None, "R", cov=True)
@@ -105,10 +110,8 @@ class UnscentedKalmanFilter(_SigmaOrJacobianFilter):
         try:
             return cast(FloatArray, np.linalg.cholesky(P))
         except np.linalg.LinAlgError:  # semi-definite P: symmetric square root
+            check_covariance(P, P.shape[-1], "P", units=True, rtol=1e-9)
             w, V = np.linalg.eigh(P)
-            if np.any(w[..., 0] < -1e-9 * np.maximum(1.0, np.abs(w[..., -1]))):
-                b = _first_bad(w[..., 0] < -1e-9 * np.maximum(1.0, np.abs(w[..., -1])))
-                raise ValueError(f"P: not positive semi-definite for unit {b}") from None
             return V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
 
     def _sigma(self, x: FloatArray, P: FloatArray, c: float) -> FloatArray:

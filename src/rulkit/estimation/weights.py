@@ -11,7 +11,9 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.estimation.base import weighted_moments
 from rulkit.estimation.batched import ess_rows, normalise_weights
+from rulkit.model import plain
 
 FloatArray = NDArray[np.float64]
 
@@ -91,7 +93,7 @@ def weighted_cov(x: FloatArray, w: FloatArray, mean: FloatArray | None = None) -
     if x.ndim == 1:
         x = x[:, None]
     if mean is None:
-        return _mean_cov(x, w)[1]
+        return weighted_moments(x, w)[1]
     return _cov(x, w, np.asarray(mean, dtype=np.float64))
 
 
@@ -125,7 +127,7 @@ def weighted_quantile(values: FloatArray, w: FloatArray, q: float | FloatArray) 
             f"got {v.shape} and {w.shape}"
         )
     if qa.ndim > 1 or np.any((qa < 0) | (qa > 1)) or np.any(np.isnan(qa)):
-        raise ValueError(f"weighted_quantile: q must be scalar or 1-D in [0, 1], got {q!r}")
+        raise ValueError(f"weighted_quantile: q must be scalar or 1-D in [0, 1], got {plain(q)}")
     if v.shape[0] == 0 or not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
         raise ValueError(
             "weighted_quantile: weights must be finite, non-negative and not all zero "
@@ -134,16 +136,6 @@ def weighted_quantile(values: FloatArray, w: FloatArray, q: float | FloatArray) 
     if np.isnan(v).any():
         raise ValueError("weighted_quantile: values contain NaN (no order is defined)")
     return _weighted_quantile(v, w, qa)
-
-
-def _mean_cov(x: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Weighted mean (n_x,) and covariance (n_x, n_x) of particles (N, n_x), as
-    :func:`weighted_mean` and :func:`weighted_cov`, from one transposed copy of ``x`` (see
-    :func:`_cov`)."""
-    xc = x.T.copy()  # (n_x, N), C-contiguous
-    m = xc @ w
-    xc -= m[:, None]
-    return m, (xc * w) @ xc.T
 
 
 def _weighted_quantile(v: FloatArray, w: FloatArray, qa: FloatArray) -> FloatArray:

@@ -5,6 +5,8 @@
   vectorised over components (docs/systems/embedded-rul.md);
 - :mod:`.learned`: degradation models learned from fleet histories, their evaluation
   (docs/fleet-models.md), ``rulkit fit`` and ``rulkit evaluate``;
+- :mod:`.monitoring`: what an operator reads: one RUL per component (a fitted model, the
+  per-unit trend without one, or the tracker chain by choice) and the alert rules;
 - :mod:`.store`: the component store (SQLite or PostgreSQL), validated all-or-nothing ingest,
   ``rulkit track`` and ``rulkit status``;
 - :mod:`.service`: ``rulkit serve``, the HTTP API and dashboard over the store;

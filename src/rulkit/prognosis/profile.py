@@ -2,8 +2,10 @@
 every prognostic metric of those predictions in one object (docs/engine-api.md, "Profile").
 
 One call, :func:`prognosis_profile`, runs a filter built from the model (or given) over the
-whole record, takes the posterior at each prediction time ``t_i`` (a measurement time), and
-predicts the RUL from there (Monte Carlo or unscented transform, :mod:`.predictors`). The
+whole record through the estimator contract (``initialise``, ``step``, ``posterior``:
+:mod:`rulkit.estimation.base`, the same code for every filter), takes the
+:class:`~rulkit.estimation.base.Posterior` at each prediction time ``t_i`` (a measurement time),
+and predicts the RUL from there (Monte Carlo or unscented transform, :mod:`.predictors`). The
 :class:`PrognosisProfile` it returns holds the RUL distributions per time and the metrics of
 Saxena et al. (2010) against the true end of life: alpha-lambda at every time (probability mass
 inside ``(1 -+ alpha) r*``), the prognostic horizon, relative accuracy and its cumulative form,
@@ -17,7 +19,7 @@ is the censored CRPS of :func:`rulkit.metrics.crps_rul`.
 
 Usage::
 
-    prof = prognosis_profile(model, sim.y, "pf", particles0, times=[10, 20, 30],
+    prof = prognosis_profile(model, sim.y, "pf", prior, times=[10, 20, 30],
                              t_eol=sim.event_time, horizon=100.0, rng=rng)
     prof.to_pandas(); prof.prognostic_horizon().horizon; prof.cra
 """
@@ -32,20 +34,20 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rulkit.estimation.base import Estimator, Posterior
 from rulkit.estimation.ekf import ExtendedKalmanFilter
-from rulkit.estimation.kalman import KalmanFilter
 from rulkit.estimation.particle import ParticleFilter
 from rulkit.estimation.ukf import UnscentedKalmanFilter
 from rulkit.metrics import (
     AlphaLambdaResult,
     PrognosticHorizonResult,
-    _mass_in,
     alpha_lambda,
     convergence,
     crps_rul,
+    mass_inside,
     prognostic_horizon,
 )
-from rulkit.model import check_measurements, model_dt
+from rulkit.model import check_covariance, check_measurements, model_dt, plain
 from rulkit.prognosis.predictors import monte_carlo_rul, unscented_rul
 from rulkit.prognosis.rul import RULDistribution
 
@@ -60,8 +62,8 @@ class PrognosisProfile:
 
     ``distributions[i]`` is the RUL distribution predicted at ``times[i]``; ``t_eol`` the true
     end of life (``failed=True``) or the end of the record of a unit still running
-    (``failed=False``), None when unknown; ``estimate`` the filter's result over the record
-    (``ParticleFilterResult`` or ``KalmanResult``) whose step k is at ``measurement_times[k]``;
+    (``failed=False``), None when unknown; ``estimate`` the filter's posteriors over the record
+    (one :class:`Posterior` per measurement, ``estimate[k]`` at ``measurement_times[k]``);
     ``alpha``, ``beta``: the accuracy cone ``(1 -+ alpha) r*`` and the probability mass needed
     inside it; ``level``: the central interval of ``lower``/``upper`` and of the coverage.
     """
@@ -70,7 +72,7 @@ class PrognosisProfile:
     distributions: tuple[RULDistribution, ...]
     t_eol: float | None
     failed: bool
-    estimate: Any
+    estimate: tuple[Posterior, ...]
     measurement_times: FloatArray
     predictor: str
     alpha: float = 0.2
@@ -136,7 +138,7 @@ class PrognosisProfile:
         """Probability mass inside ``[(1 - alpha) r*, (1 + alpha) r*]`` at every time (NaN
         where r* is unknown or not positive)."""
         r, ok = self.rul_true, self._valid
-        return np.array([_mass_in(d, (1 - self.alpha) * ri, (1 + self.alpha) * ri) if v
+        return np.array([mass_inside(d, (1 - self.alpha) * ri, (1 + self.alpha) * ri) if v
                          else np.nan for d, ri, v in zip(self.distributions, r, ok, strict=True)])
 
     @property
@@ -254,19 +256,40 @@ class PrognosisProfile:
         })
 
 
-def _build(estimator: Any, model: Any, dt: float, t0: float, u: Any) -> Any:
+def _build(estimator: Any, model: Any, dt: float, t0: float, u: Any) -> Estimator:
     if isinstance(estimator, str):
         makers = {"pf": ParticleFilter, "ekf": ExtendedKalmanFilter,
                   "ukf": UnscentedKalmanFilter}
         if estimator not in makers:
             raise ValueError(f"estimator: expected 'pf', 'ekf', 'ukf' or a filter, got "
                              f"{estimator!r}")
-        return makers[estimator].from_model(model, dt=dt, t0=t0, u=u)  # type: ignore[attr-defined]
-    ok = (ParticleFilter, ExtendedKalmanFilter, UnscentedKalmanFilter, KalmanFilter)
-    if not isinstance(estimator, ok):
+        return makers[estimator].from_model(model, dt=dt, t0=t0, u=u)  # type: ignore[attr-defined, no-any-return]
+    if not isinstance(estimator, Estimator):
         raise TypeError(f"estimator: expected 'pf', 'ekf', 'ukf' or a rulkit filter, got "
                         f"{type(estimator).__name__}")
     return estimator
+
+
+def _prior(prior: Any, P0: ArrayLike | None) -> Posterior:
+    """The prior as a :class:`Posterior`: given as one, as particles (N, n_x) (equally
+    weighted) or as a mean (n_x,) with ``P0``."""
+    if isinstance(prior, Posterior):
+        if P0 is not None:
+            raise ValueError("P0: the prior posterior carries its own covariance")
+        return prior
+    arr = np.asarray(prior, dtype=np.float64)
+    if arr.ndim == 2:
+        if P0 is not None:
+            raise ValueError("P0: particles (N, n_x) were given as the prior; give P0 with a "
+                             "mean (n_x,) only")
+        return Posterior.from_samples(arr)
+    if P0 is None:
+        raise ValueError("P0: a prior mean (n_x,) needs its covariance P0 (or give particles "
+                         "(N, n_x) or a Posterior)")
+    if arr.ndim != 1 or not np.all(np.isfinite(arr)):
+        raise ValueError(f"prior: expected a finite mean (n_x,), particles (N, n_x) or a "
+                         f"Posterior, got {plain(prior)}")
+    return Posterior(arr, check_covariance(P0, arr.size, "P0"))
 
 
 def _step_index(times: FloatArray, t_meas: FloatArray) -> NDArray[np.intp]:
@@ -276,9 +299,9 @@ def _step_index(times: FloatArray, t_meas: FloatArray) -> NDArray[np.intp]:
     bad = np.abs(t_meas[idx] - times) > 1e-9 * np.maximum(1.0, np.abs(times))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"times: {times[i]!r} is not a measurement time (measurement k is at "
-                         f"t0 + (k + 1) dt: {t_meas[0]!r}, {t_meas[min(1, t_meas.size - 1)]!r}, "
-                         f"..., {t_meas[-1]!r})")
+        raise ValueError(f"times: {plain(times[i])} is not a measurement time (measurement k is "
+                         f"at t0 + (k + 1) dt: {plain(t_meas[0])}, "
+                         f"{plain(t_meas[min(1, t_meas.size - 1)])}, ..., {plain(t_meas[-1])})")
     return idx
 
 
@@ -286,7 +309,7 @@ def prognosis_profile(
     model: Any,
     ys: ArrayLike,
     estimator: Any,
-    x0: ArrayLike,
+    prior: Any,
     *,
     times: Sequence[float] | ArrayLike,
     horizon: float,
@@ -305,23 +328,25 @@ def prognosis_profile(
 ) -> PrognosisProfile:
     """Estimate over the record ``ys`` and predict the RUL at each of ``times`` (module doc).
 
-    ``estimator``: ``"pf"``, ``"ekf"``, ``"ukf"`` (built by ``from_model``) or a filter.
-    ``x0``: the initial particles (N, n_x) for a particle filter, else the prior mean (n_x,)
-    with covariance ``P0``; both describe the state at ``t0``, one step before ``ys[0]``
-    (measurement k is at ``t0 + (k + 1) dt``, ``dt`` defaulting to ``model.dt``). ``times``
-    must be measurement times. At each the posterior is propagated from that time to the
-    threshold: ``"monte_carlo"`` (the weighted particles, or ``n_samples`` draws of the
-    Gaussian posterior, with process noise) or ``"unscented"`` (sigma points of the posterior
-    mean and covariance, noise-free). ``horizon``: the prediction window (RUL beyond it is
-    censored). ``t_eol``: true end of life (``failed=True``), or the time the unit was last
-    seen running (``failed=False``, a censored record). ``rng`` drives filter and predictor.
+    ``estimator``: ``"pf"``, ``"ekf"``, ``"ukf"`` (built by ``from_model``) or any rulkit
+    filter. ``prior``: the state at ``t0``, one step before ``ys[0]`` (measurement k is at
+    ``t0 + (k + 1) dt``, ``dt`` defaulting to ``model.dt``): a :class:`Posterior`, particles
+    (N, n_x) (a particle filter needs samples: ``Posterior.with_samples`` draws them), or a
+    mean (n_x,) with covariance ``P0``. ``times`` must be measurement times. At each the
+    posterior is propagated from that time to the threshold: ``"monte_carlo"`` (the weighted
+    particles, or ``n_samples`` draws of a Gaussian posterior, with process noise) or
+    ``"unscented"`` (sigma points of the posterior mean and covariance, noise-free).
+    ``horizon``: the prediction window (RUL beyond it is censored). ``t_eol``: true end of life
+    (``failed=True``), or the time the unit was last seen running (``failed=False``, a censored
+    record). ``rng`` drives filter and predictor.
     """
     h = model_dt(model, dt)
     y = check_measurements(ys, model.n_y)
     t_meas = t0 + h * np.arange(1, y.shape[0] + 1)
     tp = np.atleast_1d(np.asarray(times, dtype=np.float64))
     if tp.ndim != 1 or tp.size == 0 or not np.all(np.isfinite(tp)):
-        raise ValueError(f"times: expected a non-empty 1-D array of finite times, got {times!r}")
+        raise ValueError(f"times: expected a non-empty 1-D array of finite times, got "
+                         f"{plain(times)}")
     if np.any(np.diff(tp) <= 0):
         raise ValueError("times: expected strictly increasing prediction times")
     if predictor not in ("monte_carlo", "unscented"):
@@ -330,26 +355,20 @@ def prognosis_profile(
         t_eol = None  # e.g. a simulation whose unit never failed: truth unknown
     idx = _step_index(tp, t_meas)
     filt = _build(estimator, model, h, t0, u)
-    if isinstance(filt, ParticleFilter):
-        est = filt.filter(y, np.asarray(x0, dtype=np.float64), rng, keep_particles=True)
-        assert est.particle_history is not None and est.weight_history is not None
-        posts = [(est.particle_history[k], est.weight_history[k]) for k in idx]
-    else:
-        if P0 is None:
-            raise ValueError("P0: a Kalman-type estimator needs the prior covariance P0")
-        est = filt.filter(y, x0, P0)
-        posts = [(est.x[k, 0], est.P[k, 0]) for k in idx]
+    state = filt.initialise(_prior(prior, P0), rng)
+    posteriors = []
+    for yk in y:
+        filt.step(state, yk)
+        posteriors.append(state.posterior())
     dists = []
-    for (a, b), t_i in zip(posts, tp, strict=True):
+    for k, t_i in zip(idx, tp, strict=True):
         common = dict(model=model, horizon=horizon, t0=float(t_i), dt=h, u=u)
         if predictor == "unscented":
-            m, P = (a.T @ b, np.cov(a.T, aweights=b, bias=True)) if a.ndim == 2 else (a, b)
-            dists.append(unscented_rul(m, np.atleast_2d(P), **common))
-        elif a.ndim == 2:  # weighted particles
-            dists.append(monte_carlo_rul(a, rng=rng, weights=b, **common))
+            dists.append(unscented_rul(posteriors[k], **common))
         else:
-            dists.append(monte_carlo_rul(a, rng=rng, cov=b, n_samples=n_samples, **common))
+            dists.append(monte_carlo_rul(posteriors[k], rng=rng, n_samples=n_samples, **common))
     return PrognosisProfile(times=tp, distributions=tuple(dists),
                             t_eol=None if t_eol is None else float(t_eol), failed=bool(failed),
-                            estimate=est, measurement_times=t_meas, predictor=predictor,
-                            alpha=float(alpha), beta=float(beta), level=float(level))
+                            estimate=tuple(posteriors), measurement_times=t_meas,
+                            predictor=predictor, alpha=float(alpha), beta=float(beta),
+                            level=float(level))

@@ -23,11 +23,9 @@ its value set to the lower bound ``h`` and ``censored[i] = True``. Then
 from __future__ import annotations
 
 import csv
-import inspect
 import io
 import json
 import math
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +34,8 @@ from typing import Any, Literal, cast
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rulkit.model import input_at
+from rulkit.estimation.base import Posterior
+from rulkit.model import input_at, plain
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -139,14 +138,15 @@ class RULDistribution:
 
         h = float(self.horizon)
         if math.isnan(h) or h <= 0:
-            raise ValueError(f"horizon: expected a positive number or inf, got {self.horizon!r}")
+            raise ValueError(f"horizon: expected a positive number or inf, got "
+                             f"{plain(self.horizon)}")
         if math.isfinite(h):
             over = np.flatnonzero(~c & (s > h * (1 + 1e-12)))
             if over.size:
                 raise ValueError(
                     f"samples: uncensored sample {float(s[over[0]])!r} at index {over[0]} "
                     "exceeds "
-                    f"the horizon {h!r}; mark it censored or raise the horizon"
+                    f"the horizon {plain(h)}; mark it censored or raise the horizon"
                 )
 
         # sort once: censored samples go to +inf (module docstring)
@@ -216,7 +216,7 @@ class RULDistribution:
         """
         qa = np.asarray(q, dtype=np.float64)
         if not np.all(np.isfinite(qa)) or np.any((qa < 0) | (qa > 1)):
-            raise ValueError(f"q: expected probabilities in [0, 1], got {q!r}")
+            raise ValueError(f"q: expected probabilities in [0, 1], got {plain(q)}")
         # a small tolerance so that q exactly at a jump of F selects that sample despite
         # round-off in the cumulative sum
         idx = np.searchsorted(self._sorted_cumw, qa - 1e-12, side="left")
@@ -236,7 +236,7 @@ class RULDistribution:
     def interval(self, level: float = 0.9) -> tuple[float, float]:
         """Equal-tailed interval ``(Q((1 - level)/2), Q((1 + level)/2))``; bounds may be inf."""
         if not 0 < level < 1:
-            raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
+            raise ValueError(f"level: expected a probability in (0, 1), got {plain(level)}")
         lo, hi = np.asarray(self.quantile([(1 - level) / 2, (1 + level) / 2]))
         return float(lo), float(hi)
 
@@ -352,7 +352,7 @@ class RULDistribution:
         p = Path(path)
         buf = io.StringIO()
         buf.write(f"# {_FORMAT} v{_VERSION}\n")
-        buf.write(f"# horizon={self.horizon!r}\n")
+        buf.write(f"# horizon={plain(self.horizon)}\n")
         wr = csv.writer(buf, lineterminator="\n")
         wr.writerow(["rul", "weight", "censored"])
         for s, w, c in zip(self.samples.tolist(), self.weights.tolist(), self.censored.tolist(),
@@ -403,52 +403,53 @@ class RULDistribution:
         )
 
 
-LegacyStepFn = Callable[[FloatArray, float, float, np.random.Generator], FloatArray]
 IndicatorFn = Callable[[FloatArray], FloatArray]
 AfterCrossing = Literal["hold", "drop", "continue"]
 
-
-def _contract_step(step: Callable[..., FloatArray], u: Any) -> Callable[..., FloatArray]:
-    """``step`` as ``f(x, t, dt, rng)``: a contract step ``step(x, u, t, dt, rng)`` (five
-    positional parameters, or ``*args``) gets ``u(t)``; the older four-parameter form
-    ``step(x, t, dt, rng)`` is still accepted as is (docs/engine-api.md, "The calling
-    convention")."""
-    try:
-        params = list(inspect.signature(step).parameters.values())
-    except (TypeError, ValueError):  # no signature (a builtin): assume the contract
-        params = []
-    pos = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
-    var = any(p.kind == p.VAR_POSITIONAL for p in params)
-    if params and not var and len(pos) == 4:
-        if u is not None:
-            raise ValueError("u: the step takes no input (it has the form step(x, t, dt, rng)); "
-                             "write it as step(x, u, t, dt, rng) to receive u")
-        return step
-    if u is None:
-        return lambda x, t, dt, rng: step(x, None, t, dt, rng)
-    return lambda x, t, dt, rng: step(x, input_at(u, t), t, dt, rng)
+#: The default step budget of :func:`propagate_to_threshold` (``horizon / dt`` steps).
+MAX_STEPS = 1_000_000
 
 
-def _estimate_samples(x0: Any, weights: ArrayLike | None) -> tuple[Any, ArrayLike | None]:
-    """Samples and weights of ``x0``: an array, or a weighted estimate (an object with
-    ``particles`` and ``weights``, e.g. a ``ParticleFilterResult`` or ``ParticleState``), whose
-    weights are used; giving ``weights`` as well is refused (one source of truth)."""
-    if hasattr(x0, "particles") and hasattr(x0, "weights"):
-        if weights is not None:
-            raise ValueError("weights: x0 is a weighted estimate that carries its own weights; "
-                             "do not pass weights= as well")
-        return x0.particles, x0.weights
-    if weights is None:
-        from rulkit.estimation.particle import weights_of
+def _samples(x0: Any) -> tuple[FloatArray, FloatArray | None]:
+    """The samples (N, n) and weights (or None) to propagate: a :class:`Posterior`'s weighted
+    samples, or an array of equally likely states (a 1-D array: N samples of a scalar)."""
+    if isinstance(x0, Posterior):
+        if x0.samples is None:
+            raise ValueError("x0: a Gaussian posterior has no samples to propagate; use "
+                             "monte_carlo_rul(posterior, ..., n_samples=...) or "
+                             "x0.with_samples(n, rng)")
+        return np.array(x0.samples, dtype=np.float64), x0.weights
+    x = np.array(x0, dtype=np.float64, copy=True)
+    if x.ndim == 1:
+        x = x[:, None]
+    if x.ndim != 2:
+        raise ValueError(f"x0: expected shape (N, n) or a Posterior, got {np.shape(x0)}")
+    if x.shape[0] == 0:
+        raise ValueError("x0: empty batch (N = 0); nothing to propagate")
+    if not np.all(np.isfinite(x)):
+        r = np.argwhere(~np.isfinite(x))[0]
+        raise ValueError(f"x0: non-finite value at row {r[0]}, column {r[1]}")
+    return x, None
 
-        w = weights_of(x0)
-        if w is not None and np.ptp(w) > 0:
-            warnings.warn(
-                "x0 holds the particles of a weighted particle-filter estimate but no weights "
-                "were given: they would count as equally likely and change the RUL "
-                "distribution. Pass the result itself (x0=result) or weights=...",
-                UserWarning, stacklevel=3)
-    return x0, weights
+
+def _check_window(t0: float, dt: float, horizon: float, threshold: float,
+                  max_steps: int) -> None:
+    """Finite, positive ``dt`` and ``horizon``, finite ``t0`` and ``threshold``, and a step
+    budget ``horizon / dt <= max_steps`` (messages print plain numbers)."""
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: expected a positive finite step, got {float(dt):g}")
+    if not (np.isfinite(horizon) and horizon > 0):
+        raise ValueError(f"horizon: expected a positive finite length, got {float(horizon):g}")
+    if not np.isfinite(threshold):
+        raise ValueError(f"threshold: expected a finite number, got {float(threshold):g}")
+    if not np.isfinite(t0):
+        raise ValueError(f"t0: expected a finite time, got {float(t0):g}")
+    n_steps = math.ceil(horizon / dt - 1e-9)
+    if n_steps > max_steps:
+        raise ValueError(
+            f"dt: horizon / dt = {float(horizon):g} / {float(dt):g} = {n_steps:.3g} steps exceeds "
+            f"the step budget max_steps = {max_steps}; raise dt, shorten the horizon or pass "
+            f"a larger max_steps")
 
 
 def propagate_to_threshold(
@@ -464,28 +465,27 @@ def propagate_to_threshold(
     horizon: float,
     rng: np.random.Generator,
     direction: Literal["up", "down"] = "up",
-    weights: ArrayLike | None = None,
     after_crossing: AfterCrossing = "hold",
+    max_steps: int = MAX_STEPS,
 ) -> RULDistribution:
     """Monte Carlo time to threshold of a batch of states (engine-api.md, ``rulkit.prognosis``).
 
     With ``model=`` (a :class:`rulkit.model.StateSpaceModel`) the step is ``model.step``, the
     indicator ``model.health``, the threshold ``model.threshold`` and ``dt`` defaults to
     ``model.dt``; each may still be given explicitly. ``step`` follows the one calling
-    convention ``step(x, u, t, dt, rng)`` (``u`` is the input ``u`` or ``u(t)``); the older
-    form ``step(x, t, dt, rng)`` is accepted.
+    convention ``step(x, u, t, dt, rng)`` (``u`` is the input ``u`` or ``u(t)``).
 
-    ``x0`` is (N, n) (a 1-D ``x0`` is read as N samples of a scalar state), or a weighted
-    estimate such as a ``ParticleFilterResult`` or ``ParticleState``: its particles are
-    propagated *with its weights* (passing ``weights=`` as well is an error). All samples
-    advance together from ``t0`` until ``t0 + horizon`` (the last step is shortened to end
-    exactly at the horizon), stopping early once every sample has crossed. The health
-    indicator ``g = indicator(x)`` (shape (N,)) fails when ``g >= threshold``
-    (``direction="up"``) or ``g <= threshold`` (``"down"``). A sample crossing between ``t_k``
-    and ``t_k + h`` gets the linearly interpolated time ``t_k + h (thr - g_k) / (g_{k+1} -
-    g_k)``; its RUL is that time minus ``t0``. Samples failed already at ``t0`` have RUL 0.
-    Samples that never cross are censored at ``horizon`` (counted, never dropped; see the
-    module docstring).
+    ``x0`` is a :class:`~rulkit.estimation.base.Posterior` with samples (a particle filter's:
+    its particles are propagated *with their weights*) or an (N, n) array of equally likely
+    states (a 1-D ``x0`` is read as N samples of a scalar state). All samples advance together
+    from ``t0`` until ``t0 + horizon`` (the last step is shortened to end exactly at the
+    horizon), stopping early once every sample has crossed; ``horizon / dt`` must not exceed
+    ``max_steps``. The health indicator ``g = indicator(x)`` (shape (N,)) fails when
+    ``g >= threshold`` (``direction="up"``) or ``g <= threshold`` (``"down"``). A sample
+    crossing between ``t_k`` and ``t_k + h`` gets the linearly interpolated time ``t_k + h
+    (thr - g_k) / (g_{k+1} - g_k)``; its RUL is that time minus ``t0``. Samples failed already
+    at ``t0`` have RUL 0. Samples that never cross are censored at ``horizon`` (counted, never
+    dropped; see the module docstring).
 
     ``after_crossing`` says what happens to a sample once it has crossed:
 
@@ -495,11 +495,11 @@ def propagate_to_threshold(
       random draws and every RUL are bit-for-bit those of ``"continue"``.
     * ``"drop"``: it leaves the batch; later steps see only the running samples (fewest
       draws, fastest; the step and indicator must work row by row, as a model's do).
-    * ``"continue"``: the old behaviour, crossed samples keep being stepped.
+    * ``"continue"``: crossed samples keep being stepped.
 
-    Raises ``ValueError`` for an empty batch, bad shapes, non-positive ``dt``/``horizon``, or
-    a non-finite indicator of a not-yet-failed sample (naming the step and the first bad
-    sample).
+    Raises ``ValueError`` for an empty batch, bad shapes, non-finite inputs, non-positive
+    ``dt``/``horizon``, a step budget exceeded, or a non-finite indicator of a not-yet-failed
+    sample (naming the step and the first bad sample).
     """
     if model is not None:
         step = model.step if step is None else step
@@ -515,43 +515,26 @@ def propagate_to_threshold(
     if after_crossing not in ("hold", "drop", "continue"):
         raise ValueError(f"after_crossing: expected 'hold', 'drop' or 'continue', got "
                          f"{after_crossing!r}")
-    x0, weights = _estimate_samples(x0, weights)
-    fstep = _contract_step(step, u)
-    x = np.array(x0, dtype=np.float64, copy=True)
-    if x.ndim == 1:
-        x = x[:, None]
-    if x.ndim != 2:
-        raise ValueError(f"x0: expected shape (N, n), got {np.shape(x0)}")
-    n = x.shape[0]
-    if n == 0:
-        raise ValueError("x0: empty batch (N = 0); nothing to propagate")
-    if not np.all(np.isfinite(x)):
-        r = np.argwhere(~np.isfinite(x))[0]
-        raise ValueError(f"x0: non-finite value at row {r[0]}, column {r[1]}")
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: expected a positive finite step, got {dt!r}")
-    if not (np.isfinite(horizon) and horizon > 0):
-        raise ValueError(f"horizon: expected a positive finite length, got {horizon!r}")
-    if not np.isfinite(threshold):
-        raise ValueError(f"threshold: expected a finite number, got {threshold!r}")
     if direction not in ("up", "down"):
         raise ValueError(f"direction: expected 'up' or 'down', got {direction!r}")
-    if not np.isfinite(t0):
-        raise ValueError(f"t0: expected a finite time, got {t0!r}")
-    if weights is not None and np.shape(weights) != (n,):
-        raise ValueError(f"weights: expected shape ({n},) like x0, got {np.shape(weights)}")
+    x, weights = _samples(x0)
+    _check_window(t0, dt, horizon, threshold, int(max_steps))
+    n = x.shape[0]
     g0 = _indicator(indicator, x, n, 0)
     bad = np.flatnonzero(~np.isfinite(g0))
     if bad.size:
         raise ValueError(f"indicator: non-finite value at t0 for sample {bad[0]}")
+
+    def fstep(x: FloatArray, t: float, h: float, g: np.random.Generator) -> FloatArray:
+        return step(x, input_at(u, t), t, h, g)  # type: ignore[misc]
+
     run = _Run(fstep, indicator, float(threshold), direction == "up", float(t0), float(dt),
                float(horizon), rng)
     if after_crossing == "drop":
         rul, active = run.dropping(x, g0)
     else:
         rul, active = run.batch(x, g0, hold=after_crossing == "hold")
-    w = None if weights is None else np.asarray(weights, dtype=np.float64)
-    return RULDistribution(samples=rul, weights=cast(FloatArray, w), censored=active,
+    return RULDistribution(samples=rul, weights=cast(FloatArray, weights), censored=active,
                            horizon=horizon)
 
 
@@ -597,7 +580,7 @@ class _Run:
         badk = np.flatnonzero(running & ~np.isfinite(g))
         if badk.size:
             raise ValueError(
-                f"indicator: non-finite value at step {k + 1} (t = {self.t0 + tau + h!r}) for "
+                f"indicator: non-finite value at step {k + 1} (t = {self.t0 + tau + h:g}) for "
                 f"sample {badk[0]} ({badk.size} samples); the model diverged"
             )
 

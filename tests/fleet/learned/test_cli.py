@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sqlite3
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -43,24 +41,29 @@ def test_fit_then_track_writes_the_learned_rul(files):
     assert (h["rul_median"] >= 0).all() and np.isfinite(h["rul_median"]).any()
 
 
-def test_fit_into_an_older_database_migrates_and_rebuilds(files):
-    db = files / "old.db"
-    r = runner.invoke(app, ["track", "--db", str(db), str(files / "acq.csv")])
-    assert r.exit_code == 0, r.output
-    cols = [c[1] for c in sqlite3.connect(db).execute("PRAGMA table_info(history)")]
-    assert "rul_median" not in cols  # today's schema without a learned model
-    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
+def test_fit_into_a_database_with_history_replays_it(files):
+    """A model fitted into a database that already holds acquisitions replays them: the
+    RUL of every history row then equals what the model gives when fitted first (replay and
+    ingestion, two paths)."""
+    more = pd.read_csv(files / "acq.csv").assign(time=lambda d: d["time"] + 1000.0)
+    more.to_csv(files / "more.csv", index=False)
+    late, first = files / "late.db", files / "first.db"
+    assert runner.invoke(app, ["track", "--db", str(late), str(files / "acq.csv")]).exit_code == 0
+    r = runner.invoke(app, ["fit", "--db", str(late), str(files / "hist.csv"), "--model",
                             "linear"])
     assert r.exit_code == 0, r.output
     assert "2 components' state rebuilt" in r.output
-    more = pd.read_csv(files / "acq.csv").assign(time=lambda d: d["time"] + 1000.0)
-    more.to_csv(files / "more.csv", index=False)
-    r = runner.invoke(app, ["track", "--db", str(db), str(files / "more.csv")])
-    assert r.exit_code == 0, r.output
-    with ComponentStore(db, readonly=True) as s:
-        h = s.history()
-    assert h["rul_median"].isna().sum() == 8  # rows written before the model: NULL
-    assert h["rul_median"].notna().sum() == 8
+    assert runner.invoke(app, ["fit", "--db", str(first), str(files / "hist.csv"), "--model",
+                               "linear"]).exit_code == 0
+    for db, f in ((late, "more.csv"), (first, "acq.csv"), (first, "more.csv")):
+        r = runner.invoke(app, ["track", "--db", str(db), str(files / f)])
+        assert r.exit_code == 0, r.output
+    with ComponentStore(late, readonly=True) as s, ComponentStore(first, readonly=True) as f:
+        h, ref = s.history(), f.history()
+        assert s.status()["rul_median"].notna().all()
+    assert len(h) == 16 and h["rul_median"].notna().all()
+    for c in ("rul_median", "rul_low", "rul_high", "level"):
+        np.testing.assert_allclose(h[c], ref[c], rtol=1e-12, err_msg=c)
 
 
 def test_evaluate_prints_and_writes_the_table(files, tmp_path):

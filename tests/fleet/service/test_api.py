@@ -84,10 +84,14 @@ def test_ingest_matches_direct_store_and_is_idempotent(client, sdb, tokens, tmp_
     for c in page["items"]:
         ref = ref_status.loc[c["component"]]
         assert c["level"] == ["ok", "warning", "alarm"][int(ref["level"])]
-        for k, rk in [("hi", "hi"), ("fhi", "fhi"), ("rul", "frul"), ("rul_low", "rul_low"),
-                      ("rul_high", "rul_high"), ("last_time", "t")]:
-            assert c[k] == pytest.approx(ref[rk], rel=1e-12, abs=1e-12), k
-        assert c["n"] == 130 and c["valid"] == bool(ref["valid"])
+        for k, rk in [("hi", "hi"), ("fhi", "fhi"), ("rul", "rul_median"),
+                      ("rul_low", "rul_low"), ("rul_high", "rul_high"), ("last_time", "t")]:
+            if c[k] is None:  # JSON null: not finite
+                assert not np.isfinite(ref[rk]), k
+            else:
+                assert c[k] == pytest.approx(ref[rk], rel=1e-12, abs=1e-12), k
+        assert c["n"] == 130 and c["failed"] == (c["level"] == "alarm")
+        assert c["rul_state"] == ("failed" if c["failed"] else "estimated")
     alerts = [a for r in (r1, r2) for a in r.json()["alerts"]]
     assert [(a["component"], a["time"], a["level"]) for a in alerts] == [
         (a.component, a.t, a.name) for a in ref_alerts]
@@ -172,8 +176,16 @@ def test_listing_filters_pagination_and_lookup(client, tokens):
     post(client, tokens["write"], df)
     h = auth(tokens["read"])
     full = client.get("/api/v1/components", params={"limit": 100}, headers=h).json()["items"]
-    key = [({"alarm": 2, "warning": 1, "ok": 0}[c["level"]], c["fhi"]) for c in full]
-    assert key == sorted(key, reverse=True)
+    key = [(-{"alarm": 2, "warning": 1, "ok": 0}[c["level"]],
+            1e308 if c["rul"] is None else c["rul"], c["component"]) for c in full]
+    assert key == sorted(key)  # worst first: level, then RUL, then id
+    by_rul = client.get("/api/v1/components", params={"limit": 100, "sort": "rul"},
+                        headers=h).json()["items"]
+    assert [c["rul"] for c in by_rul] == sorted(c["rul"] for c in full)
+    summary = client.get("/api/v1/summary", headers=h).json()
+    assert summary["total"] == len(full) and summary["estimator"] == "trend"
+    assert summary["counts"] == {lv: sum(c["level"] == lv for c in full)
+                                 for lv in ("ok", "warning", "alarm")} | {"stale": 0}
     pages = [client.get("/api/v1/components", params={"limit": 4, "offset": o},
                         headers=h).json()["items"] for o in (0, 4)]
     assert pages[0] + pages[1] == full

@@ -1,13 +1,21 @@
 """The dashboard in a real headless browser (Debian's chromium driven by Selenium).
 
-Loads the page, enters a token, sees the fleet table worst first, opens a component (HI and RUL
-charts with alert marks), acknowledges an alert, and checks that ids holding HTML and terminal
-escape sequences are shown as text, never run. A screenshot is saved in the test's tmp dir.
+On a pump fleet (ages in hours, exponential HI growth with additive noise; one pump failed,
+one stale, one not estimated yet): the counts per level, the sort by RUL and by due date, the
+RUL as median [low, high] with its unit and due date, the staleness, a component's charts
+(measured HI, failure threshold, the HI forecast to it with its band and the RUL interval,
+axes titled with units and dates; the RUL history with its band), alerts whose RUL is the
+table's, and an acknowledgement. Every element is checked as drawn (the SVG and DOM nodes),
+not by pixels. Two screenshots are saved in the test's tmp dir, and into the directory named
+by RULKIT_DOCS_SCREENSHOTS when set (how docs/img/dashboard-*.png are made). Then ids holding
+HTML and terminal escape sequences are shown as text, never run.
 """
 
 import os
 import shutil
 import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -31,9 +39,50 @@ def _driver(user_dir):
     for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
               "--disable-background-networking", "--disable-component-update", "--disable-sync",
               "--no-first-run", "--disable-extensions", f"--user-data-dir={user_dir}",
-              "--window-size=1280,1400"):
+              "--window-size=1400,1500", "--hide-scrollbars"):
         opts.add_argument(a)
     return webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
+
+
+def pump_fleet(sdb, now):
+    """12 pumps, an acquisition every 12 h: HI = h0 exp(r t) + N(0, 0.02), at ages that put
+    them anywhere from healthy to near failure. P-108 crossed HI = 1; P-111's feed stopped 5
+    days ago; P-112 was installed 36 h ago (3 acquisitions: no RUL yet)."""
+    rng = np.random.default_rng(11)
+    frames = []
+    for i in range(11):
+        t = np.arange(0.0, 12.0 * rng.integers(30, 70), 12.0)
+        h0, last = rng.uniform(0.08, 0.12), (1.08 if i == 7 else rng.uniform(0.3, 0.85))
+        hi = h0 * np.exp(np.log(last / h0) * t / t[-1]) + rng.normal(0, 0.02, t.size)
+        frames.append(pd.DataFrame({"component": f"P-{101 + i}", "time": t,
+                                    "hi": np.clip(hi, 0.0, 5.0)}))
+    sdb.ingest(pd.concat(frames[:10]), source="feed", now=now)
+    sdb.ingest(frames[10], source="feed", now=now - 5 * 86400)
+    sdb.ingest(pd.DataFrame({"component": "P-112", "time": [0.0, 12.0, 24.0],
+                             "hi": [0.1, 0.11, 0.1]}), source="feed", now=now)
+
+
+def js_fmt(v):
+    """The page's fmt(v, 3) (3 significant digits, exponential beyond [1e-3, 1e5), "∞" for an
+    unbounded quantile), written again here."""
+    if v is None:
+        return "∞"
+    a = abs(v)
+    if a != 0 and (a >= 1e5 or a < 1e-3):
+        m, e = f"{v:.2e}".split("e")
+        return f"{m}e{int(e):+d}"
+    x = float(f"{v:.3g}")
+    return str(int(x)) if x == int(x) else repr(x)
+
+
+def rows_of(driver, by):
+    return driver.find_elements(by.CSS_SELECTOR, "#fleet-table tbody tr")
+
+
+def names_of(driver):
+    """The fleet table's component ids, read in one script (no stale row in between)."""
+    return driver.execute_script("return Array.from(document.querySelectorAll("
+                                 "'#fleet-table tbody tr'), (r) => r.dataset.component)")
 
 
 def test_dashboard_in_headless_chromium(tmp_path, live_server, need):
@@ -41,29 +90,24 @@ def test_dashboard_in_headless_chromium(tmp_path, live_server, need):
         need("chromium/chromedriver not installed: apt-get install chromium chromium-driver")
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support import expected_conditions as ec
-    from selenium.webdriver.support.ui import WebDriverWait
+    from selenium.webdriver.support.ui import Select, WebDriverWait
 
+    from rulkit.fleet.monitoring.rules import MonitoringRules
     from rulkit.fleet.service.app import create_app
     from rulkit.fleet.service.db import ServiceDB
-    from rulkit.fleet.store.sqlite import ROW_FIELDS
+    from rulkit.fleet.store.sqlite import ROW_FIELDS, ComponentStore
 
+    now = time.time()
+    rules = MonitoringRules(time_unit="h", lead_time=150.0, stale_after=36 * 3600.0)
+    ComponentStore(tmp_path / "fleet.db", rules=rules).close()
     sdb = ServiceDB(tmp_path / "fleet.db")
     _, token = sdb.create_token("write", "browser")
-    t = np.arange(0.0, 120.0)
-    frames = [pd.DataFrame({"component": "gearbox-7", "time": t, "hi": 0.3 * np.exp(0.012 * t)})]
-    frames.append(pd.DataFrame({"component": "pump-1", "time": t[:30], "hi": 0.2}))
-    res = sdb.ingest(pd.concat(frames), source="test")
-    assert [a["level"] for a in res["alerts"]] == ["warning", "alarm"]
-    # hostile ids written straight into the tables (whatever ingestion accepts, the page
-    # must show what the database holds as text): a component row and an open alert each
-    cols = ", ".join((*ROW_FIELDS, "max_level"))
-    with sdb.store() as s, s._transaction("IMMEDIATE") as conn:
-        for name in EVIL:
-            conn.execute(f"INSERT INTO components (component, {cols}) SELECT ?, {cols} "
-                         "FROM components WHERE component = 'pump-1'", (name,))
-        conn.execute("INSERT INTO alerts (component, t, level, previous, valid, raised) "
-                     "VALUES (?, 1.0, 1, 0, 1, 0.0)", (EVIL[1],))
+    pump_fleet(sdb, now)
+    summary = sdb.summary()
+    assert summary["counts"]["alarm"] >= 1 and summary["counts"]["warning"] >= 1
+    assert summary["counts"]["stale"] == 1
     user_dir = tempfile.mkdtemp(prefix="rulkit-chromium-")
+    shots = [tmp_path / "dashboard-fleet.png", tmp_path / "dashboard-component.png"]
     driver = None
     try:
         with live_server(create_app(sdb)) as srv:
@@ -72,55 +116,136 @@ def test_dashboard_in_headless_chromium(tmp_path, live_server, need):
             driver.get(srv.url + "/")
             driver.find_element(By.ID, "token").send_keys(token)
             driver.find_element(By.CSS_SELECTOR, "#token-form button").click()
-            wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#fleet-table tbody tr"))
-                       == 5)
-            rows = driver.find_elements(By.CSS_SELECTOR, "#fleet-table tbody tr")
-            first = rows[0].find_elements(By.TAG_NAME, "td")
-            assert first[0].text == "gearbox-7" and first[1].text == "alarm"
-            names = [r.find_element(By.CSS_SELECTOR, "button").text for r in rows]
-            # HTML shown as text; control characters shown as visible escapes
-            assert EVIL[0] in names and EVIL[1] in names
-            assert "\\x1b[2J\\x1b[31mALARM\\x1b]0;title\\x07\\x0aforged" in names
-            assert driver.execute_script("return window.__pwned === undefined")
-            assert len(driver.find_elements(By.TAG_NAME, "img")) == 0
-            assert len(driver.find_elements(By.TAG_NAME, "script")) == 1  # app.js only
-            # open a component: HI and RUL charts with two alert marks each
-            rows[0].find_element(By.CSS_SELECTOR, "button").click()
+            wait.until(lambda d: len(rows_of(d, By)) == 12)
+            # counts per level, as the API counts them
+            for lv in ("alarm", "warning", "ok", "stale"):
+                b = driver.find_element(By.CSS_SELECTOR, f'#counts button[data-level="{lv}"]')
+                assert b.find_element(By.TAG_NAME, "b").text == str(summary["counts"][lv])
+            assert "per-unit log-linear trend" in driver.find_element(By.ID, "estimator").text
+            assert "lead time 150 h" in driver.find_element(By.ID, "rules").text
+            api = {c["component"]: c for c in sdb.components(limit=50, offset=0)[1]}
+            cells = {}
+            for tr in rows_of(driver, By):
+                name = tr.get_attribute("data-component")
+                rul, due = (tr.find_element(By.CSS_SELECTOR, f"td.{k}").text
+                            for k in ("rul", "due"))
+                cells[name] = rul
+                c = api[name]
+                if c["rul_state"] == "estimated":  # median [low, high] h and a calendar date
+                    q = [js_fmt(c[k]) for k in ("rul", "rul_low", "rul_high")]
+                    assert rul == f"{q[0]} [{q[1]}, {q[2]}] h", rul
+                    assert due == time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(c["due"]))
+                else:
+                    assert rul == c["rul_state"]
+                assert ("stale" in tr.get_attribute("class")) == c["stale"]
+            assert cells["P-108"] == "failed" and cells["P-112"] == "pending"
+            assert rows_of(driver, By)[0].get_attribute("data-component") == "P-108"
+            shots[0].write_bytes(driver.get_screenshot_as_png())
+            # sort by RUL, then by due date: the API's orders
+            for sort in ("rul", "due"):
+                Select(driver.find_element(By.ID, "sort")).select_by_value(sort)
+                want = [c["component"] for c in sdb.components(limit=50, offset=0,
+                                                                sort=sort)[1]]
+                wait.until(lambda d, w=want: names_of(d) == w)
+            assert want[:2] != ["P-108", "P-112"]
+            # the stale count filters the table
+            driver.find_element(By.CSS_SELECTOR, '#counts button[data-level="stale"]').click()
+            wait.until(lambda d: names_of(d) == ["P-111"])
+            driver.find_element(By.CSS_SELECTOR, '#counts button[data-level=""]').click()
+            wait.until(lambda d: len(names_of(d)) == 12)
+            # a component's charts
+            warned = max((n for n, c in api.items() if c["level"] == "warning"),
+                         key=lambda n: api[n]["rul"])
+            row = next(r for r in rows_of(driver, By)
+                       if r.get_attribute("data-component") == warned)
+            row.find_element(By.CSS_SELECTOR, "button").click()
             wait.until(ec.visibility_of_element_located((By.ID, "detail")))
-            wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#hi-chart circle")) == 120)
-            assert driver.find_element(By.ID, "detail-name").text == "gearbox-7"
-            assert len(driver.find_elements(By.CSS_SELECTOR, "#hi-chart .alert-mark")) == 2
-            assert len(driver.find_elements(By.CSS_SELECTOR, "#rul-chart polygon.band")) == 1
-            # acknowledge the alarm
-            alarm = next(a for a in res["alerts"] if a["level"] == "alarm")
+            n_acq = api[warned]["n"]
+            wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#hi-chart circle.dot"))
+                       == n_acq)
+            hi_chart = driver.find_element(By.ID, "hi-chart")
+            for sel in ("line.threshold", "polyline.forecast", "polygon.forecast-band",
+                        "line.rul-interval", "circle.rul-median", "line.alert-mark"):
+                assert hi_chart.find_elements(By.CSS_SELECTOR, sel), sel
+            assert "failure threshold HI = 1" in hi_chart.find_element(
+                By.CSS_SELECTOR, "text.threshold-label").text
+            label = hi_chart.find_element(By.CSS_SELECTOR, "text.rul-label").text
+            assert label.startswith("RUL " + cells[warned] + ", due 20"), label
+            assert hi_chart.find_element(By.CSS_SELECTOR, "text.x-title").text.startswith(
+                "time (h) / date (UTC")
+            assert hi_chart.find_element(By.CSS_SELECTOR, "text.y-title").text == \
+                "health index"
+            dates = [e.text for e in hi_chart.find_elements(By.CSS_SELECTOR, "text.date-tick")]
+            assert len(dates) >= 3 and all(len(d) == 11 and d[2] == "-" for d in dates)
+            assert len(hi_chart.find_elements(By.CSS_SELECTOR, "text.x-tick")) >= 3
+            assert len(hi_chart.find_elements(By.CSS_SELECTOR, "text.y-tick")) >= 3
+            rul_chart = driver.find_element(By.ID, "rul-chart")
+            for sel in ("polygon.band", "polyline.rul-line", "text.date-tick"):
+                assert rul_chart.find_elements(By.CSS_SELECTOR, sel), sel
+            assert rul_chart.find_element(By.CSS_SELECTOR, "text.y-title").text == "RUL (h)"
+            assert "RUL " + cells[warned] in driver.find_element(By.ID, "detail-summary").text
+            driver.find_element(By.ID, "detail").screenshot(str(shots[1]))
+            # open alerts show the table's RUL for their component
             alert_rows = driver.find_elements(By.CSS_SELECTOR, "#alert-table tbody tr")
-            assert len(alert_rows) == 3
-            assert EVIL[1] in [r.find_elements(By.TAG_NAME, "td")[1].text for r in alert_rows]
+            assert len(alert_rows) == len(sdb.alerts(state="open", component=None, limit=200,
+                                                     offset=0)[1])
+            for tr in alert_rows:
+                name = tr.get_attribute("data-component")
+                assert tr.find_element(By.CSS_SELECTOR, "td.rul").text == cells[name], name
+            alarm = next(tr for tr in alert_rows if "level-alarm" in tr.get_attribute("class"))
+            assert "measured HI >= 1" in alarm.find_element(By.CSS_SELECTOR, "td.reason").text
+            # acknowledge the alarm
+            aid = alarm.get_attribute("data-alert-id")
             driver.find_element(By.ID, "ack-by").send_keys("night shift")
-            driver.find_element(By.ID, "ack-reason").send_keys("gearbox swapped")
+            driver.find_element(By.ID, "ack-reason").send_keys("pump swapped")
             driver.find_element(
-                By.CSS_SELECTOR, f'#alert-table tr[data-alert-id="{alarm["id"]}"] button.ack'
-            ).click()
+                By.CSS_SELECTOR, f'#alert-table tr[data-alert-id="{aid}"] button.ack').click()
             wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#alert-table tbody tr"))
-                       == 2)
+                       == len(alert_rows) - 1)
             assert "acknowledged" in driver.find_element(By.ID, "status").text
-            shot = tmp_path / "dashboard.png"
-            assert driver.save_screenshot(str(shot)) and shot.stat().st_size > 10_000
+            hostile_ids_shown_as_text(driver, wait, sdb, By, ROW_FIELDS)
             logs = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
             assert logs == [], logs
     finally:
         if driver is not None:
             driver.quit()
         shutil.rmtree(user_dir, ignore_errors=True)
+    for shot in shots:
+        assert shot.stat().st_size > 10_000
+    if os.environ.get("RULKIT_DOCS_SCREENSHOTS"):
+        for shot in shots:
+            shutil.copy(shot, Path(os.environ["RULKIT_DOCS_SCREENSHOTS"]) / shot.name)
     total, done = sdb.alerts(state="acknowledged", component=None, limit=10, offset=0)
     assert total == 1 and done[0]["acknowledged"]["by"] == "night shift"
-    assert done[0]["acknowledged"]["reason"] == "gearbox swapped"
+    assert done[0]["acknowledged"]["reason"] == "pump swapped"
     sdb.close()
+
+
+def hostile_ids_shown_as_text(driver, wait, sdb, by, row_fields):
+    """Ids written straight into the tables (whatever ingestion accepts, the page must show
+    what the database holds as text): a component row and an open alert each."""
+    cols = ", ".join((*row_fields, "max_level"))
+    with sdb.store() as s, s._transaction("IMMEDIATE") as conn:
+        for name in EVIL:
+            conn.execute(f"INSERT INTO components (component, {cols}) SELECT ?, {cols} "
+                         "FROM components WHERE component = 'P-101'", (name,))
+        conn.execute("INSERT INTO alerts (component, t, level, previous, valid, raised) "
+                     "VALUES (?, 1.0, 1, 0, 1, 0.0)", (EVIL[1],))
+    driver.find_element(by.CSS_SELECTOR, "#token-form button").click()
+    wait.until(lambda d: len(rows_of(d, by)) == 15)
+    names = [r.find_element(by.CSS_SELECTOR, "button").text for r in rows_of(driver, by)]
+    assert EVIL[0] in names and EVIL[1] in names
+    assert "\\x1b[2J\\x1b[31mALARM\\x1b]0;title\\x07\\x0aforged" in names
+    assert driver.execute_script("return window.__pwned === undefined")
+    assert len(driver.find_elements(by.TAG_NAME, "img")) == 0
+    assert len(driver.find_elements(by.TAG_NAME, "script")) == 1  # app.js only
+    alert_names = [r.find_elements(by.TAG_NAME, "td")[1].text
+                   for r in driver.find_elements(by.CSS_SELECTOR, "#alert-table tbody tr")]
+    assert EVIL[1] in alert_names
 
 
 @pytest.fixture(autouse=True)
 def _print_screenshot_dir(tmp_path):
     yield
-    shot = tmp_path / "dashboard.png"
-    if shot.exists():
+    for shot in sorted(tmp_path.glob("dashboard-*.png")):
         print(f"dashboard screenshot: {shot}")

@@ -34,7 +34,7 @@ def _fuzz(app, token, max_examples):
     headers = {"Authorization": f"Bearer {token}"}
     api = schemathesis.openapi.from_asgi("/openapi.json", app)
     ops = [r.ok() for r in api.get_all_operations()]
-    assert len(ops) == 7, [op.label for op in ops]
+    assert len(ops) == 8, [op.label for op in ops]
     for op in ops:
         @settings(max_examples=max_examples, **COMMON)
         @given(case=op.as_strategy())

@@ -36,29 +36,38 @@ def test_track_then_status_worst_first(tmp_path):
     a2 = fleet_csv(tmp_path / "a2.parquet.csv", 60, 120)
     pq = tmp_path / "a2.parquet"
     pd.read_csv(a2).to_parquet(pq)
-    r = runner.invoke(app, ["track", "--db", str(db), str(a1), "--warn-rul", "30"])
+    r = runner.invoke(app, ["track", "--db", str(db), str(a1), "--lead-time", "30",
+                            "--time-unit", "h"])
     assert r.exit_code == 0, r.output
     assert "ingested 180 acquisitions of 3 components (3 new)" in r.output
     assert "no new warnings or alarms" in r.output
     r = runner.invoke(app, ["track", "--db", str(db), str(pq)])
     assert r.exit_code == 0, r.output
     lines = [ln for ln in r.output.splitlines() if ln.startswith(("WARNING", "ALARM"))]
-    # gearA: HI = 0.3 e^{0.012 t} reaches 0.75 at t = 76 and 1 at t = 100.3;
-    # brg reaches 0.75 at t = 110; gearB stays below 0.75
-    assert [ln.split()[:2] for ln in lines] == [["WARNING", "gearA"], ["ALARM", "gearA"],
-                                                ["WARNING", "brg"]]
+    # HI = h0 e^{0.012 t} reaches 1 at t = 100.3 (gearA), 134.1 (brg), 191.9 (gearB): the RUL
+    # falls below the lead time 30 at t = 70.3 and 104.1 (gearB: after the data), and gearA's
+    # measured HI reaches 1 at t = 101
+    assert [ln.split()[:3] for ln in lines] == [["WARNING", "gearA", "t=71"],
+                                                ["ALARM", "gearA", "t=101"],
+                                                ["WARNING", "brg", "t=105"]]
+    assert "failed: measured HI >= 1" in lines[1] and " h: RUL 5 % quantile" in lines[0]
     r = runner.invoke(app, ["status", "--db", str(db)])
     assert r.exit_code == 0, r.output
     lines = r.output.splitlines()
-    body = lines[lines.index(next(ln for ln in lines if ln.startswith("---"))) + 1:-1]
-    assert [ln.split()[:2] for ln in body] == [["gearA", "alarm"], ["brg", "warning"],
-                                               ["gearB", "ok"]]
+    assert lines[0].endswith("3 components (1 alarm, 1 warning, 1 ok; 0 stale)")
+    body = lines[lines.index(next(ln for ln in lines if ln.startswith("---"))) + 1:][:3]
+    # true RULs at t = 119: 134.1 - 119 = 15.1 (brg), 191.9 - 119 = 72.9 (gearB)
+    assert [ln.split()[:3] for ln in body] == [["gearA", "alarm", "failed"],
+                                               ["brg", "warning", "15.1"],
+                                               ["gearB", "ok", "72.9"]]
+    assert "RUL in h: per-unit log-linear trend (no model fitted)" in r.output
     r = runner.invoke(app, ["status", "--db", str(db), "--limit", "1", "--format", "csv"])
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader(io.StringIO(r.output)))
     assert [row["component"] for row in rows] == ["gearA"] and rows[0]["level"] == "alarm"
+    assert rows[0]["failed"] == "true" and rows[0]["rul"] == "0" and rows[0]["time_unit"] == "h"
     r = runner.invoke(app, ["status", "--db", str(db), "--limit", "2"])
-    assert "3 components, worst first, the worst 2 shown" in r.output
+    assert "3 components (1 alarm, 1 warning, 1 ok; 0 stale), the first 2 shown" in r.output
 
 
 @pytest.mark.parametrize(

@@ -292,7 +292,16 @@ def test_time_interval_overflowing_float64_names_row_and_column(tmp_path):
 @pytest.mark.parametrize("chunk", [1, 7, 10_000])
 def test_blocked_ingest_matches_the_direct_tracker_run(tmp_path, monkeypatch, chunk):
     """History written block by block in key order equals one vectorised run over the panel
-    (tracker_update on all components at once), alerts in acquisition order."""
+    (tracker_update and trend_update on all components at once, the alert rules row by row),
+    alerts in acquisition order."""
+    from rulkit.fleet.monitoring.rules import MonitoringRules
+    from rulkit.fleet.monitoring.unit_trend import (
+        TrendConfig,
+        TrendState,
+        rul_quantiles,
+        trend_posterior,
+        trend_update,
+    )
     from rulkit.fleet.tracking.tracker_chain import TrackerState, tracker_update
 
     monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", chunk)
@@ -308,28 +317,37 @@ def test_blocked_ingest_matches_the_direct_tracker_run(tmp_path, monkeypatch, ch
     df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sample(frac=1, random_state=1)
     df = df.sort_values("time", kind="stable")  # interleaved, times increasing per component
     cfg = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, warn_rul=50.0)
-    res, _ = ingest_into(tmp_path / "b.db", df, config=cfg)
+    rules = MonitoringRules(lead_time=8.0)
+    res, _ = ingest_into(tmp_path / "b.db", df, config=cfg, rules=rules)
     with ComponentStore(tmp_path / "b.db", readonly=True) as s:
         hist = s.history()
-    state = TrackerState.empty(len(names))
+    state, trend = TrackerState.empty(len(names)), TrendState.empty(len(names))
     expect, alerts = [], []
-    level = np.zeros(len(names), dtype=int)
+    level, failed = np.zeros(len(names), dtype=int), np.zeros(len(names), dtype=bool)
     for s in range(max(steps)):
         tt = np.array([float(s) if s < k else np.nan for k in steps])
         hh = np.array([df[(df.component == n) & (df.time == s)].hi.sum() if s < k else np.nan
                        for n, k in zip(names, steps, strict=True)])
-        state, out = tracker_update(state, tt, hh, cfg)
+        state, _ = tracker_update(state, tt, hh, cfg)
+        trend = trend_update(trend, tt, hh, TrendConfig())
+        med, low, _ = rul_quantiles(trend_posterior(trend, TrendConfig()), rules.levels)
         for j, n in enumerate(names):
             if s < steps[j]:
-                expect.append((n, s, state.fhi[j], state.frul[j], out.rul_low[j]))
-                if out.level[j] > level[j]:
-                    alerts.append((n, int(out.level[j])))
-                    level[j] = out.level[j]
-    exp = pd.DataFrame(expect, columns=["component", "t", "fhi", "frul", "rul_low"])
+                failed[j] |= hh[j] >= 1.0
+                lv = 2 if failed[j] else int(np.isfinite(med[j]) and low[j] < 8.0)
+                m, lo = (0.0, 0.0) if failed[j] else (med[j], low[j])
+                expect.append((n, s, state.fhi[j], state.frul[j], m, lo, lv))
+                if lv > level[j]:
+                    alerts.append((n, lv))
+                    level[j] = lv
+    exp = pd.DataFrame(expect, columns=["component", "t", "fhi", "frul", "rul_median",
+                                        "rul_low", "level"])
     exp = exp.sort_values(["component", "t"]).reset_index(drop=True)
+    exp["rul_low"] = exp["rul_low"].where(exp["rul_median"].notna(), 0.0)  # stored: [0, inf)
     np.testing.assert_array_equal(hist["component"], exp["component"])
     np.testing.assert_array_equal(hist["t"], exp["t"])
-    for c in ("fhi", "frul", "rul_low"):
+    np.testing.assert_array_equal(hist["level"], exp["level"])
+    for c in ("fhi", "frul", "rul_median", "rul_low"):
         np.testing.assert_allclose(hist[c], exp[c], rtol=1e-12, atol=1e-12)
     assert alerts, "the fixture must raise alerts"
     got = [(a.component, a.level) for a in res.alerts]

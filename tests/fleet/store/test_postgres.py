@@ -61,7 +61,7 @@ def test_validation_first_and_rollback(db_url, monkeypatch):
         with pytest.raises(IngestError, match="component 'a'"):
             store.ingest(back)
 
-        def boom(rows):
+        def boom(*args):
             raise RuntimeError("disk full")
 
         monkeypatch.setattr(store, "_write_states", boom)  # after history rows were written

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.acquisitions import IngestError
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -74,15 +75,20 @@ def test_alerts_reported_once_per_upward_change(tmp_path):
     t = np.arange(0.0, 120.0)
     hi = 0.3 * np.exp(0.012 * t)  # crosses 1 at t = 100.3
     df = pd.DataFrame({"component": "gear", "time": t, "hi": hi + rng.normal(0, 1e-4, t.size)})
-    with ComponentStore(tmp_path / "a.db", config=CFG) as store:
+    rules = MonitoringRules(lead_time=30.0)
+    with ComponentStore(tmp_path / "a.db", config=CFG, rules=rules) as store:
         res = store.ingest(df.iloc[:60])
         assert res.alerts == []
         res = store.ingest(df.iloc[60:])
         names = [a.name for a in res.alerts]
         assert names == ["warning", "alarm"]
         warn, alarm = res.alerts
-        assert warn.fhi >= 0.75 and warn.valid and warn.frul < 30.0
-        assert alarm.fhi >= 1.0 and alarm.t >= 100.0
+        # the warning when the RUL's 5 % quantile passes 30 (true RUL 100.3 - t = 30 at 70.3),
+        # the alarm at the first measured HI >= 1 (t = 101), the RUL then 0 [0, 0]
+        assert warn.rul_low < 30.0 and 69.0 <= warn.t <= 72.0
+        assert alarm.hi >= 1.0 and alarm.t == 101.0
+        assert (alarm.rul, alarm.rul_low, alarm.rul_high) == (0.0, 0.0, 0.0)
+        assert "measured HI >= 1" in alarm.reason and "lead time 30" in warn.reason
         assert store.status()["level"].iloc[0] == 2
 
 
@@ -146,7 +152,7 @@ def test_exception_mid_batch_rolls_back(tmp_path, monkeypatch):
         store.ingest(batch(["a", "b"], 0, 5, rng))
     before = snapshot_tables(db)
 
-    def boom(self, rows):
+    def boom(self, *args):
         raise RuntimeError("injected failure after the history rows were written")
 
     with ComponentStore(db) as store:

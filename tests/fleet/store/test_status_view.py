@@ -1,8 +1,12 @@
 """`rulkit status` through rulkit.fleet.store.status_view (sqlite3, numpy, pyarrow without pandas)
-prints the same bytes as the implementation it replaced (ComponentStore.status() with pandas'
-to_json and pyarrow.Table.from_pandas, kept in rulkit.fleet.store.cli._status_from_frame as the
-fallback), for every format, with hostile ids, extreme floats and an empty database."""
+prints the same bytes as the pandas path kept for a table rulkit cannot have written
+(rulkit.fleet.store.cli._status_from_frame, through ComponentStore.status()), for every
+format, with hostile ids, extreme floats, missing values and an empty database; its JSON
+floats and strings are pandas' own."""
 
+import csv
+import io
+import json
 import math
 import sqlite3
 import subprocess
@@ -18,6 +22,7 @@ from rulkit.cli import app
 from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
 
 runner = CliRunner()
+NOW = "2024-05-01T12:00:00Z"
 
 HOSTILE_IDS = ["x\x1b[2Jy", "line\nbreak", 'q"uote', "com,ma", "sl/ash", "back\\slash",
                "del\x7fete", "ünïcødé", "bidi\u202eevil", "tab\tid", "😀 astral", "a" * 100,
@@ -27,7 +32,8 @@ EDGE = [0.0, -0.0, 1e-300, 5e-324, -1.5, 0.0005, 0.9995, 123456.789, 1e16, 1e16 
         1e-4, 1e-5, 1e-6, 1e-7, 1.5e-7, 1e9, 1e10, 1e15, 1e21, 1e-15, 9.99e-16, 0.5e-15,
         1.5e-15, 4503599627370497.0, 0.05, 2.0, -3.0, 1e15 + 0.5]
 EDGE += [np.nextafter(x, s) for x in (1e-4, 1e-6, 1e10, 1e16, 1e-15) for s in (0.0, np.inf)]
-FLOAT_COLS = ("t", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")
+FLOAT_COLS = ("t", "hi", "fhi", "rul_low", "rul_high")
+NULLABLE_COLS = ("rul_median", "failed_at", "seen")
 
 
 def _random_db(path, rng, n=60):
@@ -37,9 +43,12 @@ def _random_db(path, rng, n=60):
         "time": np.tile(t, n),
         "hi": np.clip(np.repeat(rng.uniform(0.05, 1.1, n), len(t))
                       * np.exp(0.05 * np.tile(t, n)) + rng.normal(0, 0.01, n * len(t)), 0, 5)})
-    ingest_into(path, frame)
+    from rulkit.fleet.monitoring.rules import MonitoringRules
+
+    ingest_into(path, frame, rules=MonitoringRules(time_unit="h", stale_after=3600.0))
     con = sqlite3.connect(path)
     ids = [r[0] for r in con.execute("SELECT component FROM components ORDER BY component")]
+    seen = [1714564800.0 - 7200.0, 1714564800.0, 1e9, None, -5.0]
     with con:
         for new, old in zip(HOSTILE_IDS, ids, strict=False):  # ids rulkit refuses to ingest
             con.execute("UPDATE components SET component = ? WHERE component = ?", (new, old))
@@ -48,31 +57,35 @@ def _random_db(path, rng, n=60):
                                  .fetchall()):
             sets = {c: values[(7 * i + 3 * j) % len(values)] for j, c in enumerate(FLOAT_COLS)
                     if rng.random() < 0.5}
+            for c in NULLABLE_COLS:
+                if rng.random() < 0.5:
+                    sets[c] = None if rng.random() < 0.3 else (
+                        seen[i % len(seen)] if c == "seen" else values[(5 * i) % len(values)])
             sets["level"] = int(rng.integers(0, 3))
-            sets["valid"] = int(rng.integers(0, 2))
             sets["n"] = int(rng.integers(0, 10**12))
-            if i % 9 == 0:  # ties on level and fHI: the id decides
-                sets["fhi"], sets["level"] = 0.5, 1
+            if i % 9 == 0:  # ties on level and RUL: the id decides
+                sets["rul_median"], sets["level"] = 5.0, 1
             con.execute(f"UPDATE components SET {', '.join(f'{c} = ?' for c in sets)} "
                         "WHERE component = ?", (*sets.values(), comp))
     con.close()
 
 
 def _both(db, args, monkeypatch):
-    new = runner.invoke(app, ["status", "--db", str(db), *args])
+    new = runner.invoke(app, ["status", "--db", str(db), "--now", NOW, *args])
     with monkeypatch.context() as m:  # force the pandas implementation
         m.setattr(sv, "read_status", lambda *a, **k: None)
-        old = runner.invoke(app, ["status", "--db", str(db), *args])
+        old = runner.invoke(app, ["status", "--db", str(db), "--now", NOW, *args])
     return new, old
 
 
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_same_output_as_the_pandas_implementation(tmp_path, monkeypatch, fmt, seed):
+def test_same_output_as_the_pandas_path(tmp_path, monkeypatch, fmt, seed):
     db = tmp_path / "s.db"
     _random_db(db, np.random.default_rng(seed))
-    assert sv.read_status(db) is not None  # the fast path is the one compared
-    for extra in ([], ["--limit", "7"], ["--limit", "1"]):
+    assert sv.read_status(db, now=0.0) is not None  # the fast path is the one compared
+    for extra in ([], ["--limit", "7"], ["--limit", "1"], ["--sort", "rul"],
+                  ["--sort", "due"]):
         new, old = _both(db, ["--format", fmt, *extra], monkeypatch)
         assert old.exit_code == 0, old.output
         assert new.exit_code == 0, new.output
@@ -80,6 +93,31 @@ def test_same_output_as_the_pandas_implementation(tmp_path, monkeypatch, fmt, se
         if fmt in ("table", "csv") and not extra:  # a non-printable id escaped: no raw ESC
             assert "\x1b" not in new.output and "\\x1b[2Jy" in new.output
             assert "line\nbreak" not in new.output and "line\\nbreak" in new.output
+
+
+def test_csv_and_json_hold_the_same_records(tmp_path):
+    """Both formats parse back to the same values (JSON null where CSV is empty or inf)."""
+    db = tmp_path / "s.db"
+    _random_db(db, np.random.default_rng(2))
+    csv_out = runner.invoke(app, ["status", "--db", str(db), "--format", "csv", "--now", NOW])
+    json_out = runner.invoke(app, ["status", "--db", str(db), "--format", "json", "--now", NOW])
+    rows = list(csv.DictReader(io.StringIO(csv_out.output)))
+    recs = json.loads(json_out.output)
+    assert list(rows[0]) == list(recs[0]) == list(sv.STATUS_COLUMNS)
+    assert len(rows) == len(recs) == 60
+    for r, j in zip(rows, recs, strict=True):
+        for c in ("rul", "rul_low", "rul_high", "hi", "t"):
+            v = float(r[c]) if r[c] else None
+            assert (j[c] is None) == (v is None or not math.isfinite(v)), (c, r[c], j[c])
+            if j[c] is not None:
+                assert j[c] == pytest.approx(v, rel=1e-14)
+        assert r["failed"] == str(j["failed"]).lower() and r["stale"] == str(j["stale"]).lower()
+        assert (r["due"] or None) == j["due"] and (r["last_seen"] or None) == j["last_seen"]
+        assert j["time_unit"] == "h" and "log-linear trend" in j["estimator"]
+    # staleness at NOW: seen 2 h before it is stale (stale after 1 h), at it is not
+    by_seen = {(j["last_seen"], j["stale"]) for j in recs if j["last_seen"]}
+    assert ("2024-05-01T10:00:00Z", True) in by_seen
+    assert ("2024-05-01T12:00:00Z", False) in by_seen
 
 
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
@@ -106,7 +144,7 @@ def test_row_rulkit_cannot_have_written_takes_the_pandas_path(tmp_path, monkeypa
         con.execute(f"UPDATE components SET {col} = {bad} WHERE rowid = 2")
     con.close()
     # '1.5' in a REAL column is stored as the number 1.5 (SQLite's type affinity)
-    assert (sv.read_status(db) is None) == (bad != "'1.5'")
+    assert (sv.read_status(db, now=0.0) is None) == (bad != "'1.5'")
     new, old = _both(db, ["--format", "json"], monkeypatch)
     assert (new.exit_code, new.output) == (old.exit_code, old.output)
     if bad != "'1.5'":

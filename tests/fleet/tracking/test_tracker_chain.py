@@ -21,6 +21,7 @@ from rulkit.fleet.tracking.tracker_chain import (
     paris_rul,
     rul_confidence_limits,
     track_series,
+    tracker_rul_interval,
     tracker_update,
     tracker_update_loop,
 )
@@ -350,3 +351,23 @@ def test_floor_initiation_is_quiet_on_noisy_healthy_components():
     two = track_series(t, hi, TrackerConfig(lambda_hi=0.01, lambda_rul=0.01,
                                             initiation="two-point"))
     assert two["level"].max() == 2
+
+
+@pytest.mark.parametrize("m", [2.0, 3.0, 1.0])
+def test_tracker_interval_around_its_own_rul(m):
+    """The limits taken from the filtered RUL (seed eq 27) bracket it, are never negative,
+    and equal the limits from (fHI, dHI) when the RUL is the Paris-law RUL of that state."""
+    rng = np.random.default_rng(3)
+    cfg = TrackerConfig(hi_sigma=0.03, paris_exponent=m)
+    fhi = rng.uniform(0.0, 1.2, 500)
+    dhi = rng.uniform(1e-4, 0.05, 500)
+    frul = rng.normal(50.0, 80.0, 500)  # the seed's unclipped filter goes negative
+    rul, low, high = tracker_rul_interval(fhi, frul, cfg)
+    assert np.all(rul == np.maximum(frul, 0.0)) and np.all(low >= 0.0)
+    assert np.all(low <= rul) and np.all(rul <= high)
+    paris = paris_rul(fhi, dhi, cfg.hi_floor, m)
+    ok = fhi < 1.0
+    _, low2, high2 = tracker_rul_interval(fhi[ok], paris[ok], cfg)
+    ref_low, ref_high = rul_confidence_limits(fhi[ok], dhi[ok], cfg)
+    np.testing.assert_allclose(low2, ref_low, rtol=1e-10)
+    np.testing.assert_allclose(high2, ref_high, rtol=1e-10)

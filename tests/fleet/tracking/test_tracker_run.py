@@ -87,11 +87,14 @@ def test_strategy_follows_the_shape_of_the_batch(monkeypatch):
 def test_ingest_history_and_alerts_equal_the_rank_by_rank_reference(tmp_path, monkeypatch, block,
                                                                     strategy):
     """The store's blocked ingestion (tracker_run per block of components, history in key
-    order, alerts from a running maximum) against tracker_update per rank: exact equality of
-    every stored number and the same alerts in the same order, over two batches."""
+    order, alerts from a running maximum) with the tracker chain as the chosen estimator,
+    against tracker_update per rank and the alert rules row by row: exact equality of every
+    stored number and the same alerts in the same order, over two batches."""
     import pandas as pd
 
+    from rulkit.fleet.monitoring.rules import MonitoringRules
     from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+    from rulkit.fleet.tracking.tracker_chain import tracker_rul_interval
 
     monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", block)
     import rulkit.fleet.store.sqlite as store_module
@@ -100,36 +103,46 @@ def test_ingest_history_and_alerts_equal_the_rank_by_rank_reference(tmp_path, mo
     rng = np.random.default_rng(5)
     cfg = TrackerConfig(dt=1.0, lambda_hi=0.1, lambda_rul=0.1, design_life=1e4, warn_rul=60.0,
                         hi_sigma=0.02, initiation="two-point")
+    rules = MonitoringRules(estimator="tracker", lead_time=60.0)
     b = 25
     names = np.array([f"c{i}" for i in rng.permutation(b)], dtype=object)
     seg, t, hi = random_fleet(rng, b, 50)
     cut = seg[:-1] + (np.diff(seg) + 1) // 3  # the first third of each series, then the rest
     state = TrackerState.empty(b)
     ref_rows, ref_alerts, level, n_alerts = [], [], np.zeros(b, dtype=np.int8), 0
+    failed = np.zeros(b, dtype=bool)
     for part in range(2):
         lo, hi_end = (seg[:-1], cut) if part == 0 else (cut, seg[1:])
         idx = np.concatenate([np.arange(a, e) for a, e in zip(lo, hi_end, strict=True)])
         comp = np.repeat(np.arange(b), hi_end - lo)
         sub_seg = np.concatenate([[0], np.cumsum(hi_end - lo)])
         state, rows = reference(state, sub_seg, t[idx], hi[idx], cfg)
+        med, low, high = tracker_rul_interval(rows["fhi"], rows["frul"], cfg)
+        for j in range(len(idx)):  # the rules, row by row in time order per component
+            c = comp[j]
+            failed[c] |= hi[idx][j] >= 1.0
+            rows["level"][j] = 2 if failed[c] else int(low[j] < 60.0)
+            if failed[c]:
+                med[j] = low[j] = high[j] = 0.0
+        rows.update(rul_median=med, rul_low=low, rul_high=high)
         order = np.lexsort((-comp, t[idx]))  # interleaved in time: as a feed delivers them
         df = pd.DataFrame({"component": names[comp[order]], "time": t[idx][order],
                            "hi": hi[idx][order]})
-        res, _ = ingest_into(tmp_path / "r.db", df, config=cfg)
+        res, _ = ingest_into(tmp_path / "r.db", df, config=cfg, rules=rules)
         for j in order:  # alerts in acquisition-rank order, then batch order
             c = comp[j]
             if rows["level"][j] > level[c]:
                 rank = j - sub_seg[c]
                 ref_alerts.append((rank, int(np.flatnonzero(order == j)[0]), names[c],
-                                   int(rows["level"][j]), int(level[c]), rows["frul"][j]))
+                                   int(rows["level"][j]), int(level[c]), med[j]))
                 level[c] = rows["level"][j]
-        got = [(a.component, a.level, a.previous, a.frul) for a in res.alerts]
+        got = [(a.component, a.level, a.previous, a.rul) for a in res.alerts]
         assert got == [a[2:] for a in sorted(ref_alerts)]
         n_alerts += len(got)
         ref_alerts = []
         ref_rows.append(pd.DataFrame({"component": names[comp], "t": t[idx], **{
-            k: rows[k] for k in ("fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low",
-                                 "rul_high", "valid", "level")}}))
+            k: rows[k] for k in ("fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_median",
+                                 "rul_low", "rul_high", "valid", "level")}}))
     with ComponentStore(tmp_path / "r.db", readonly=True) as s:
         hist = s.history()
         comps = s.status().set_index("component").sort_index()

@@ -264,7 +264,7 @@ def test_runs_reproducible_from_seed_and_independent_of_chunking() -> None:
 def test_micro_ekf_matches_engine_extended_kalman_filter(life, missing) -> None:
     """Oracle: the engine's EKF class with finite-difference Jacobians on the same model; with
     ``missing``, NaN measurements inside a cycle are skipped by both (not NaN-poisoned)."""
-    from rulkit.estimation.kalman import ExtendedKalmanFilter
+    from rulkit.estimation.ekf import ExtendedKalmanFilter
     from rulkit.systems.motor_damping.motor import measurement, rk4_step_with_jacobian
 
     consts = life.config.consts

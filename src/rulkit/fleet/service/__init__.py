@@ -2,6 +2,8 @@
 
 * :mod:`.db`: the service's tables (API tokens, alerts with acknowledgements) and the
   idempotent batch ingestion (duplicates, conflicts) on either backend;
+* :mod:`.fleet_view`: what the API and dashboard read (one RUL per component, counts, the HI
+  forecast);
 * :mod:`.app`: the FastAPI application (``/api/v1``, ``/healthz``, the dashboard at ``/``);
 * :mod:`.cli`: ``rulkit serve`` and ``rulkit token create|revoke|list``;
 * :mod:`.pgtemp`: a throwaway PostgreSQL server for tests and benchmarks.

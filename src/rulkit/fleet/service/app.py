@@ -4,8 +4,9 @@
 
 * ``GET /healthz`` (no auth), ``GET /openapi.json``, the dashboard at ``/`` (static files of this
   package; the page asks for a token and calls the API with it);
-* ``/api/v1``: ``POST acquisitions``, ``GET components``, ``GET components/{id}``,
-  ``GET components/{id}/history``, ``GET alerts``, ``POST alerts/{id}/ack``.
+* ``/api/v1``: ``POST acquisitions``, ``GET summary``, ``GET components``,
+  ``GET components/{id}``, ``GET components/{id}/history``, ``GET alerts``,
+  ``POST alerts/{id}/ack``.
 
 Every ``/api/v1`` endpoint requires ``Authorization: Bearer <token>`` (401 without a valid one);
 ``POST`` endpoints require a write token (403 with a read token). The access log written here
@@ -222,16 +223,26 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         except IngestError as err:
             raise _err(422, str(err)) from None
 
+    @app.get("/api/v1/summary", tags=["components"])
+    def get_summary(_tok: Annotated[Token, Depends(authenticated)]) -> dict[str, Any]:
+        """Counts per level and of stale components, what gives the RUL (estimator, time
+        unit, interval), the alert rules and the fitted model's warnings."""
+        return sdb.summary()
+
     @app.get("/api/v1/components", tags=["components"])
     def list_components(
         _tok: Annotated[Token, Depends(authenticated)],
         limit: Annotated[int, Query(ge=1, le=1000)] = 50,
         offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
-        level: Annotated[Literal["ok", "warning", "alarm"] | None, Query()] = None,
+        level: Annotated[Literal["ok", "warning", "alarm", "stale"] | None, Query()] = None,
+        sort: Annotated[Literal["worst", "rul", "due"], Query()] = "worst",
     ) -> dict[str, Any]:
-        """Components worst first (alert level, then filtered HI, descending)."""
-        total, items = sdb.components(limit=limit, offset=offset, level=level)
-        return {"total": total, "limit": limit, "offset": offset, "items": items}
+        """Components worst first (alert level, then RUL median ascending, unknown last), or
+        by RUL median or due date; each with its RUL median and interval, due date, level,
+        failed and stale flags."""
+        total, items = sdb.components(limit=limit, offset=offset, level=level, sort=sort)
+        return {"total": total, "limit": limit, "offset": offset, "sort": sort,
+                "items": items}
 
     def _component_id(component: str) -> str:
         if "\x00" in component:
@@ -250,8 +261,9 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         _tok: Annotated[Token, Depends(authenticated)],
         limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000,
     ) -> dict[str, Any]:
-        """The component's last ``limit`` acquisitions (HI, fHI, RUL and its interval,
-        validity, level; time ascending) and its alerts."""
+        """The component's last ``limit`` acquisitions (HI, fHI, the RUL median and
+        interval, level; time ascending), the component now, its HI forecast to the
+        threshold with its band, and its alerts."""
         tail = _raw_tail(request)
         try:
             if not tail.endswith("/history"):  # an id ending in %2Fhistory: the component

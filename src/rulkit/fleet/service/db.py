@@ -5,8 +5,11 @@ Tables the service adds next to the store's (created on first use, same database
 * ``api_tokens``: id, name, role (``read`` | ``write``), the SHA-256 of the token (the token
   itself is never stored), creation and revocation times;
 * ``alerts``: every alert the store reported for a committed batch (component, time, level,
-  the level before, HI, fHI, RUL and its interval, validity), when it was raised and, once
-  acknowledged, who acknowledged it, why, when and with which token name.
+  the level before, HI, the RUL median and interval then, the rule that raised it), when it
+  was raised and, once acknowledged, who acknowledged it, why, when and with which token name.
+
+What the reads return (one RUL per component, counts, the HI forecast) is
+:mod:`rulkit.fleet.service.fleet_view`.
 
 :func:`ingest` makes a batch idempotent: rows already stored (same component and time, same
 HI within 1e-12 relative) are skipped and counted as duplicates; a stored time with another HI,
@@ -33,18 +36,22 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rulkit.fleet.monitoring.rules import unit_seconds
+from rulkit.fleet.service import fleet_view
+from rulkit.fleet.service.fleet_view import num as _num
 from rulkit.fleet.store.acquisitions import IngestError, IngestResult, validate_acquisitions
 from rulkit.fleet.store.postgres import open_store, store_dialect
+from rulkit.fleet.store.prognosis import ALERT_COLUMNS, current_estimator, ensure_columns
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
 from rulkit.tables import cell_repr as _fmt
 
 ROLES = ("read", "write")
-LEVEL_CODES = {name: code for code, name in LEVEL_NAMES.items()}
-COMPONENT_FIELDS = ("component", "t", "n", "hi", "fhi", "dhi", "frul", "drul", "d2rul",
-                    "valid", "level", "rul_low", "rul_high")
-ALERT_FIELDS = ("id", "component", "t", "level", "previous", "hi", "fhi", "frul", "valid",
-                "rul_low", "rul_high", "raised", "ack_by", "ack_reason", "ack_at", "ack_token")
+ALERT_FIELDS = ("id", "component", "t", "level", "previous", "hi", "fhi", "rul", "valid",
+                "rul_low", "rul_high", "reason", "raised", "ack_by", "ack_reason", "ack_at",
+                "ack_token")
+_ALERT_NOW = ("level", "rul_median", "rul_low", "rul_high", "failed_at", "seen")
+"""The alerted component's current columns, read with each alert (the table's values)."""
 SAME_HI_RTOL = 1e-12
 
 _DDL = {
@@ -57,8 +64,7 @@ CREATE TABLE IF NOT EXISTS alerts (
     previous INTEGER NOT NULL, hi REAL, fhi REAL, frul REAL, valid INTEGER NOT NULL,
     rul_low REAL, rul_high REAL, raised REAL NOT NULL, ack_by TEXT, ack_reason TEXT,
     ack_at REAL, ack_token TEXT);
-CREATE INDEX IF NOT EXISTS alerts_component ON alerts (component, t);
-CREATE INDEX IF NOT EXISTS components_rank ON components (level DESC, fhi DESC, component)
+CREATE INDEX IF NOT EXISTS alerts_component ON alerts (component, t)
 """,
     "postgresql": """
 CREATE TABLE IF NOT EXISTS api_tokens (
@@ -71,8 +77,7 @@ CREATE TABLE IF NOT EXISTS alerts (
     hi DOUBLE PRECISION, fhi DOUBLE PRECISION, frul DOUBLE PRECISION, valid BOOLEAN NOT NULL,
     rul_low DOUBLE PRECISION, rul_high DOUBLE PRECISION, raised DOUBLE PRECISION NOT NULL,
     ack_by TEXT, ack_reason TEXT, ack_at DOUBLE PRECISION, ack_token TEXT);
-CREATE INDEX IF NOT EXISTS alerts_component ON alerts (component, t);
-CREATE INDEX IF NOT EXISTS components_rank ON components (level DESC, fhi DESC, component)
+CREATE INDEX IF NOT EXISTS alerts_component ON alerts (component, t)
 """,
 }
 
@@ -101,25 +106,17 @@ def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode("utf-8", "surrogatepass")).hexdigest()
 
 
-def _num(v: Any) -> Any:
-    """JSON-safe number: NaN and infinities become None."""
-    if v is None:
-        return None
-    if isinstance(v, (bool, np.bool_)):
-        return bool(v)
-    if isinstance(v, (int, np.integer)):
-        return int(v)
-    f = float(v)
-    return f if math.isfinite(f) else None
-
-
 def ensure_service_tables(store: ComponentStore) -> None:
-    """Create the service's tables and the ranking index if missing (idempotent)."""
+    """Create the service's tables, their columns and the ranking indexes if missing
+    (idempotent)."""
     ddl = _DDL[store_dialect(store)]
     with store._transaction("IMMEDIATE") as conn:
         for stmt in ddl.split(";"):
             if stmt.strip():
                 conn.execute(stmt)
+        ensure_columns(conn, "alerts", ALERT_COLUMNS)
+        for stmt in fleet_view.INDEXES:
+            conn.execute(stmt)
 
 
 class ServiceDB:
@@ -240,8 +237,11 @@ class ServiceDB:
         return Token(int(row[0]), str(row[1]), str(row[2])) if row else None
 
     # ------------------------------------------------------------------ ingestion
-    def ingest(self, df: pd.DataFrame, source: str) -> dict[str, Any]:
-        """Validate and apply one batch idempotently (module docstring); JSON-ready result."""
+    def ingest(self, df: pd.DataFrame, source: str, *, now: float | None = None
+               ) -> dict[str, Any]:
+        """Validate and apply one batch idempotently (module docstring); JSON-ready result.
+        ``now``: the calendar time of the ingestion (seconds since 1970; default the
+        clock), the time a batch of ages was acquired at."""
         for col in df.columns:
             if "\x00" in str(col):
                 raise IngestError("a column name contains a NUL character")
@@ -255,90 +255,122 @@ class ServiceDB:
             acq = validate_acquisitions(df, s.config, s.hi_model)
             with s._transaction("IMMEDIATE") as conn:
                 acq, n_dup = _drop_duplicates(conn, acq)
-                if len(acq):
-                    res = s._apply(acq.reset_index(drop=True), source)
-                else:
-                    res = IngestResult(n_rows=0, n_components=0, n_new_components=0)
-                now = time.time()
+                s.now = now
+                try:
+                    if len(acq):
+                        res = s._apply(acq.reset_index(drop=True), source)
+                    else:
+                        res = IngestResult(n_rows=0, n_components=0, n_new_components=0)
+                finally:
+                    s.now = None
+                raised = time.time() if now is None else now
                 alerts = []
                 for a in res.alerts:
+                    valid = math.isfinite(a.rul)  # the RUL is estimated
                     vals = (a.component, a.t, a.level, a.previous, _num(a.hi), _num(a.fhi),
-                            _num(a.frul), bool(a.valid) if self.dialect == "postgresql"
-                            else int(a.valid), _num(a.rul_low), _num(a.rul_high), now)
+                            _num(a.rul), valid if self.dialect == "postgresql" else int(valid),
+                            _num(a.rul_low), _num(a.rul_high), a.reason, raised)
                     aid = conn.execute(
-                        "INSERT INTO alerts (component, t, level, previous, hi, fhi, frul, "
-                        "valid, rul_low, rul_high, raised) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                        "?, ?) RETURNING id", vals).fetchone()[0]
+                        "INSERT INTO alerts (component, t, level, previous, hi, fhi, rul, "
+                        "valid, rul_low, rul_high, reason, raised) VALUES (?, ?, ?, ?, ?, ?, ?, "
+                        "?, ?, ?, ?, ?) RETURNING id", vals).fetchone()[0]
                     alerts.append(_alert_dict((aid, *vals, None, None, None, None)))
         return {"ingested": res.n_rows, "duplicates": n_dup, "components": res.n_components,
                 "new_components": res.n_new_components, "alerts": alerts}
 
     # ------------------------------------------------------------------ reading
-    def components(self, *, limit: int, offset: int, level: str | None = None
-                   ) -> tuple[int, list[dict[str, Any]]]:
-        """(total matching, one page worst first: level, then fHI descending, then id)."""
-        where, params = "", []
-        if level is not None:
-            where, params = " WHERE level = ?", [LEVEL_CODES[level]]
+    def summary(self, *, now: float | None = None) -> dict[str, Any]:
+        """Counts per level and of stale components, the estimator, the rules
+        (:func:`rulkit.fleet.service.fleet_view.summary`)."""
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            total = conn.execute(f"SELECT COUNT(*) FROM components{where}", params).fetchone()[0]
-            rows = conn.execute(
-                f"SELECT {', '.join(COMPONENT_FIELDS)} FROM components{where} "
-                "ORDER BY level DESC, fhi DESC, component LIMIT ? OFFSET ?",
-                [*params, limit, offset]).fetchall()
-        return int(total), [_component_dict(r) for r in rows]
+            return fleet_view.summary(conn, current_estimator(s), now)
 
-    def component(self, component: str) -> dict[str, Any]:
+    def components(self, *, limit: int, offset: int, level: str | None = None,
+                   sort: str = "worst", now: float | None = None
+                   ) -> tuple[int, list[dict[str, Any]]]:
+        """(total matching, one page: worst first (level, then RUL median ascending,
+        unknown last, then id), or by ``sort`` rul or due)."""
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            row = conn.execute(f"SELECT {', '.join(COMPONENT_FIELDS)} FROM components "
+            return fleet_view.list_components(conn, current_estimator(s), limit=limit,
+                                              offset=offset, level=level, sort=sort, now=now)
+
+    def component(self, component: str, *, now: float | None = None) -> dict[str, Any]:
+        now = time.time() if now is None else now
+        with self.store() as s, s.snapshot() as conn:
+            row = conn.execute(f"SELECT {', '.join(fleet_view.FIELDS)} FROM components "
                                "WHERE component = ?", (component,)).fetchone()
             if row is None:
                 raise NotFound(f"no component {component!r}")
             n_open = conn.execute("SELECT COUNT(*) FROM alerts WHERE component = ? AND "
                                   "ack_at IS NULL", (component,)).fetchone()[0]
-        out = _component_dict(row)
+            out = fleet_view.component_item(row, current_estimator(s), now)
         out["open_alerts"] = int(n_open)
         return out
 
-    def history(self, component: str, *, limit: int) -> dict[str, Any]:
-        """The last ``limit`` acquisitions (time ascending) and the component's alerts."""
-        fields = ("t", "hi", "fhi", "frul", "rul_low", "rul_high", "valid", "level")
+    def history(self, component: str, *, limit: int, now: float | None = None
+                ) -> dict[str, Any]:
+        """The last ``limit`` acquisitions (time ascending: HI, fHI, the RUL median and
+        interval, level), the component now, its HI forecast to the threshold and its
+        alerts."""
+        fields = ("t", "hi", "fhi", "rul_median", "rul_low", "rul_high", "valid", "level")
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            known = conn.execute("SELECT n FROM components WHERE component = ?",
-                                 (component,)).fetchone()
-            if known is None:
+            est = current_estimator(s)
+            row = conn.execute(f"SELECT {', '.join(fleet_view.FIELDS)} FROM components "
+                               "WHERE component = ?", (component,)).fetchone()
+            if row is None:
                 raise NotFound(f"no component {component!r}")
+            item = fleet_view.component_item(row, est, now)
             rows = conn.execute(
                 f"SELECT {', '.join(fields)} FROM history WHERE component = ? "
                 "ORDER BY t DESC LIMIT ?", (component, limit)).fetchall()
-            alerts = conn.execute(f"SELECT {', '.join(ALERT_FIELDS)} FROM alerts WHERE "
-                                  "component = ? ORDER BY t, id", (component,)).fetchall()
-        rows.reverse()
+            rows.reverse()
+            fc = fleet_view.forecast(conn, est, component, item,
+                                     float(rows[0][0]) if rows else math.nan)
+            alerts = self._alert_rows(conn, " WHERE a.component = ?", [component],
+                                      "a.t, a.id")
         cols = {f: [_num(r[i]) for r in rows] for i, f in enumerate(fields)}
         cols["valid"] = [bool(v) for v in cols["valid"]]
         cols["level"] = [LEVEL_NAMES[int(v)] for v in cols["level"]]
-        cols["rul"] = cols.pop("frul")  # the filtered RUL, named as in the components list
-        return {"component": component, "n": int(known[0]), "returned": len(rows),
-                "history": cols, "alerts": [_alert_dict(a) for a in alerts]}
+        cols["rul"] = cols.pop("rul_median")  # the RUL median, as in the components list
+        return {"component": component, "n": item["n"], "returned": len(rows),
+                "now": item, "history": cols, "forecast": fc, "threshold": 1.0,
+                "alarm_hi": est.rules.alarm_hi, "time_unit": est.time_unit,
+                "unit_seconds": unit_seconds(est.time_unit),
+                "time_origin": fleet_view.time_origin(item, est),
+                "alerts": [_alert_dict(a, est, now) for a in alerts]}
 
-    def alerts(self, *, state: str, component: str | None, limit: int, offset: int
-               ) -> tuple[int, list[dict[str, Any]]]:
+    def _alert_rows(self, conn: Any, where: str, params: list[Any], order: str,
+                    limit: int | None = None, offset: int = 0) -> list[tuple]:
+        cols = ", ".join([f"a.{f}" for f in ALERT_FIELDS] + [f"c.{f}" for f in _ALERT_NOW])
+        tail = "" if limit is None else " LIMIT ? OFFSET ?"
+        return list(conn.execute(
+            f"SELECT {cols} FROM alerts a LEFT JOIN components c ON c.component = a.component"
+            f"{where} ORDER BY {order}{tail}",
+            [*params, *([] if limit is None else [limit, offset])]).fetchall())
+
+    def alerts(self, *, state: str, component: str | None, limit: int, offset: int,
+               now: float | None = None) -> tuple[int, list[dict[str, Any]]]:
+        """Alerts, highest level then newest first, each with its component's current level
+        and RUL (as the fleet table shows them)."""
         conds, params = [], []
         if state == "open":
-            conds.append("ack_at IS NULL")
+            conds.append("a.ack_at IS NULL")
         elif state == "acknowledged":
-            conds.append("ack_at IS NOT NULL")
+            conds.append("a.ack_at IS NOT NULL")
         if component is not None:
-            conds.append("component = ?")
+            conds.append("a.component = ?")
             params.append(component)
         where = (" WHERE " + " AND ".join(conds)) if conds else ""
+        now = time.time() if now is None else now
         with self.store() as s, s.snapshot() as conn:
-            total = conn.execute(f"SELECT COUNT(*) FROM alerts{where}", params).fetchone()[0]
-            rows = conn.execute(
-                f"SELECT {', '.join(ALERT_FIELDS)} FROM alerts{where} "
-                "ORDER BY level DESC, id DESC LIMIT ? OFFSET ?",
-                [*params, limit, offset]).fetchall()
-        return int(total), [_alert_dict(r) for r in rows]
+            total = conn.execute(f"SELECT COUNT(*) FROM alerts a{where}", params).fetchone()[0]
+            rows = self._alert_rows(conn, where, params, "a.level DESC, a.id DESC", limit,
+                                    offset)
+            est = current_estimator(s)
+        return int(total), [_alert_dict(r, est, now) for r in rows]
 
     def ack(self, alert_id: int, *, by: str, reason: str, token_name: str) -> dict[str, Any]:
         """Acknowledge an open alert; raises NotFound, or ConflictError if already done."""
@@ -371,33 +403,28 @@ def _in_transaction(store: ComponentStore) -> bool:
     return bool(raw.info.transaction_status != psycopg.pq.TransactionStatus.IDLE)
 
 
-def _component_dict(r: tuple) -> dict[str, Any]:
-    d = dict(zip(COMPONENT_FIELDS, r, strict=True))
-    out: dict[str, Any] = {"component": d["component"], "level": LEVEL_NAMES[int(d["level"])]}
-    for k in ("hi", "fhi", "dhi"):
-        out[k] = _num(d[k])
-    out["rul"] = _num(d["frul"])
-    out["rul_low"] = _num(d["rul_low"])
-    out["rul_high"] = _num(d["rul_high"])
-    out["drul"] = _num(d["drul"])
-    out["d2rul"] = _num(d["d2rul"])
-    out["valid"] = bool(d["valid"])
-    out["last_time"] = _num(d["t"])
-    out["n"] = int(d["n"])
-    return out
-
-
-def _alert_dict(r: tuple) -> dict[str, Any]:
-    d = dict(zip(ALERT_FIELDS, r, strict=True))
+def _alert_dict(r: tuple, est: Any = None, now: float = 0.0) -> dict[str, Any]:
+    """An alert as the API returns it; with the estimator, the row's trailing
+    current-component columns become ``current`` (level and RUL as the fleet table shows)."""
+    d = dict(zip(ALERT_FIELDS, r[:len(ALERT_FIELDS)], strict=True))
     ack = None
     if d["ack_at"] is not None:
         ack = {"by": d["ack_by"], "reason": d["ack_reason"], "at": _num(d["ack_at"]),
                "token_name": d["ack_token"]}
-    return {"id": int(d["id"]), "component": d["component"], "time": _num(d["t"]),
-            "level": LEVEL_NAMES[int(d["level"])], "previous": LEVEL_NAMES[int(d["previous"])],
-            "hi": _num(d["hi"]), "fhi": _num(d["fhi"]), "rul": _num(d["frul"]),
-            "rul_low": _num(d["rul_low"]), "rul_high": _num(d["rul_high"]),
-            "valid": bool(d["valid"]), "raised": _num(d["raised"]), "acknowledged": ack}
+    out = {"id": int(d["id"]), "component": d["component"], "time": _num(d["t"]),
+           "level": LEVEL_NAMES[int(d["level"])], "previous": LEVEL_NAMES[int(d["previous"])],
+           "hi": _num(d["hi"]), "fhi": _num(d["fhi"]), "rul": _num(d["rul"]),
+           "rul_low": _num(d["rul_low"]), "rul_high": _num(d["rul_high"]),
+           "reason": d["reason"], "valid": bool(d["valid"]), "raised": _num(d["raised"]),
+           "acknowledged": ack}
+    now_cols = dict(zip(_ALERT_NOW, r[len(ALERT_FIELDS):], strict=False))
+    if est is not None and now_cols.get("level") is not None:
+        row = tuple({"component": d["component"], "t": None, "n": 0, "hi": None, "fhi": None,
+                     "frul": None, "valid": 0, **now_cols}[f] for f in fleet_view.FIELDS)
+        cur = fleet_view.component_item(row, est, now)
+        out["current"] = {k: cur[k] for k in ("level", "rul_state", "rul", "rul_low",
+                                              "rul_high", "due", "failed", "stale")}
+    return out
 
 
 def _drop_duplicates(conn: Any, acq: pd.DataFrame) -> tuple[pd.DataFrame, int]:

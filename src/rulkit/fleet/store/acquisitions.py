@@ -38,10 +38,13 @@ class ComponentIdError(IngestError):
 
 @dataclass(frozen=True)
 class Alert:
-    """A new alert: a component reached a level above any it had before (latched).
+    """A new alert: a component reached a level above any it had before (latched; the
+    rules of :mod:`rulkit.fleet.monitoring.rules`).
 
-    A warning whose validity flickers on and off is reported once; the alarm after it once.
-    ``previous`` is the highest level the component had reached before.
+    A warning that comes and goes is reported once; the alarm after it once. ``previous`` is
+    the highest level the component had reached before; ``rul``, ``rul_low``, ``rul_high``
+    the RUL median and interval at that acquisition (NaN median: not estimated yet; 0 once
+    failed); ``reason`` the rule that raised it; ``fhi`` the tracker chain's filtered HI.
     """
 
     component: str
@@ -49,11 +52,11 @@ class Alert:
     level: int
     previous: int
     hi: float
-    fhi: float
-    frul: float
-    valid: bool
+    rul: float
     rul_low: float
     rul_high: float
+    reason: str = ""
+    fhi: float = float("nan")
 
     @property
     def name(self) -> str:
@@ -146,7 +149,9 @@ def validate_acquisitions(
 ) -> pd.DataFrame:
     """Check a batch and return it as columns ``component`` (str), ``t``, ``hi``, ``row``.
 
-    ``row`` is the 1-based data row (header excluded) used in error messages. Expected columns:
+    ``row`` is the 1-based data row (header excluded) used in error messages; the frame's
+    ``attrs["calendar"]`` says whether the time column held date-times (then ``t`` is
+    seconds since 1970). Expected columns:
     ``component``, ``time`` and either ``hi`` or exactly the CI columns of the stored
     HI model. Rejected with :class:`IngestError`: an empty batch, missing / unknown / ambiguous
     columns, an empty component name, non-numeric / NaN / infinite values, HI outside
@@ -198,6 +203,7 @@ def validate_acquisitions(
     df["component"] = check_component_ids(df["component"])
     t = time_seconds(df["time"], "time", error=IngestError,
                      row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
+    calendar = t is not None
     if t is None:
         t = _numeric_column(df, "time")
     if mode == "hi":
@@ -241,4 +247,5 @@ def validate_acquisitions(
             f"row {i + 1} (component {out['component'].iloc[i]!r}), column 'time': the "
             f"interval from {_fmt(prev_t[i])} to {_fmt(t[i])} overflows float64; use a "
             "smaller time unit or offset")
+    out.attrs["calendar"] = calendar  # date-times: t is seconds since 1970, a calendar time
     return out

@@ -51,78 +51,110 @@ def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _echo_table(db: Path, n_all: int, cols: dict[str, Any], levels: list[str]) -> None:
+def rul_texts(med: Any, low: Any, high: Any, failed: Any) -> list[str]:
+    """``median [low, high]`` per component (``.3g``; ``-`` while not estimated, ``failed``
+    once the alarm rule held), vectorised."""
+    import numpy as np
+
+    m, lo, hi = _format_rul(med), _format_rul(low), _format_rul(high)
+    out = [f"{a} [{b}, {c}]" for a, b, c in zip(m, lo, hi, strict=True)]
+    for i in np.flatnonzero(np.isnan(np.asarray(med, dtype=np.float64))).tolist():
+        out[i] = "-"
+    for i in np.flatnonzero(np.asarray(failed, dtype=bool)).tolist():
+        out[i] = "failed"
+    return out
+
+
+def _duration(seconds: float) -> str:
+    for unit, scale in (("d", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= scale and seconds % scale == 0:
+            return f"{seconds / scale:g} {unit}"
+    return f"{seconds:g} s"
+
+
+def status_footer(info: Any) -> list[str]:
+    """The lines under the ``rulkit status`` table: what gave the RUL, the rules, the fitted
+    model's warnings."""
+    est = info.estimator
+    unit = est.time_unit
+    rules = est.rules
+    stale = (f"stale: no acquisition for {_duration(rules.stale_after)}"
+             if rules.stale_after is not None else "stale: not judged (no --stale-after)")
+    lines = [f"RUL in {unit or 'the time unit of the data'}: {est.label}",
+             f"alarm: {rules.alarm_text()}; warning: {rules.warning_text(unit)}; {stale}"]
+    lines += [f"model warning: {w}" for w in est.warnings]
+    return lines
+
+
+def _echo_table(db: Path, info: Any, cols: dict[str, Any]) -> None:
     """The ``rulkit status`` table of the columns of
-    :func:`rulkit.fleet.store.status_view.read_status` (every id through :func:`safe_text`) with the
-    level names ``levels``."""
+    :func:`rulkit.fleet.store.status_view.status_columns` (every id through
+    :func:`safe_text`)."""
+    from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
     from rulkit.tables import safe_text
 
     n = len(cols["component"])
-    shown = f", the worst {n} shown" if n < n_all else ""
+    shown = f", the first {n} shown" if n < info.n_all else ""
     ids = cols["component"]
     text = "".join(ids)
+    unit = info.estimator.time_unit
+    flags = [("stale" if s else "") for s in cols["stale"].tolist()]
     table = {
         "component": (ids if text.isprintable() and max(map(len, ids), default=0) <= 40
                       else [safe_text(c, 40) for c in ids]),  # safe_text changes nothing
-        "level": levels,
+        "level": [LEVEL_NAMES[v] for v in cols["level"].tolist()],
+        f"RUL{f' ({unit})' if unit else ''}": rul_texts(cols["rul"], cols["rul_low"],
+                                                        cols["rul_high"], cols["failed"]),
+        "due": [(d[:16] + "Z") if d else "-" for d in cols["due"]],
         "HI": _format_all("%.3f", cols["hi"].tolist()),
-        "fHI": _format_all("%.3f", cols["fhi"].tolist()),
-        "RUL": _format_rul(cols["rul"]), "RUL low": _format_rul(cols["rul_low"]),
-        "RUL high": _format_rul(cols["rul_high"]),
-        "valid": ["yes" if v else "no" for v in cols["valid"].tolist()],
-        "dRUL/dt": _format_rul(cols["drul"]), "d2RUL/dt2": _format_rul(cols["d2rul"]),
         "n": _format_all("%d", cols["n"].tolist()),
         "last t": _format_all("%g", cols["t"].tolist()),
+        "last seen": [(d[:16] + "Z") if d else "-" for d in cols["last_seen"]],
+        "": flags,
     }
-    typer.echo(f"{safe_text(db)}: {n_all} components, worst first{shown}")
-    typer.echo(_aligned_table(table, left=("component", "level")), nl=False)
-    typer.echo("RUL: the alpha-beta-gamma filtered RUL, trusted only when valid = yes; "
-               "RUL low/high: Paris-law RUL from fHI, dHI under HI +- hi_sigma and "
-               "load +- load_factor")
+    c = info.counts
+    typer.echo(f"{safe_text(db)}: {info.n_all} components ({c['alarm']} alarm, "
+               f"{c['warning']} warning, {c['ok']} ok; {c['stale']} stale){shown}")
+    typer.echo(_aligned_table(table, left=("component", "level", "")), nl=False)
+    for line in status_footer(info):
+        typer.echo(safe_text(line))
 
 
-def _status_from_frame(db: Path, limit: int, fmt: str) -> None:
-    """``rulkit status`` through :meth:`ComponentStore.status` (pandas) and pyarrow: the
-    implementation before :mod:`rulkit.fleet.store.status_view`, kept for a components table
-    rulkit cannot have written (it names the bad row, or coerces as it always did)."""
+def _status_from_frame(db: Path, limit: int, fmt: str, now: float, sort: str) -> None:
+    """``rulkit status`` through :meth:`ComponentStore.status` (pandas), for a components
+    table rulkit cannot have written: it names the bad row, or coerces as it always did;
+    printed by the same writers as the fast path."""
     from rulkit.cli.errors import fail
+    from rulkit.fleet.monitoring.estimators import estimator_in_force
     from rulkit.fleet.store.database_file import StoreError
     from rulkit.fleet.store.sqlite import ComponentStore
-    from rulkit.fleet.store.status_view import printable_id
-    from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
+    from rulkit.fleet.store.status_view import STORED_COLUMNS, status_columns
 
     try:
         with ComponentStore(db, readonly=True) as store:
             df = store.status()
+            est = estimator_in_force(store.rules, store.config, store.degradation, store.trend)
     except FileNotFoundError as err:
         fail(str(err))
     except StoreError as err:
         fail(str(err))
-    n_all = len(df)
-    if limit:
-        df = df.head(limit)
-    df = df.drop(columns="rul").rename(columns={"frul": "rul"}).assign(
-        level=df["level"].map(LEVEL_NAMES))
-    df = df[["component", "level", "hi", "fhi", "rul", "rul_low", "rul_high", "valid",
-             "dhi", "drul", "d2rul", "n", "t"]]
-    if fmt == "csv":
-        import io
+    stored = {c: df[c].tolist() if c == "component" else df[c].to_numpy()
+              for c in STORED_COLUMNS}
+    info, cols = status_columns(stored, est, now, sort)
+    _print_status(db, info, cols, limit, fmt)
 
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
 
-        buf = io.BytesIO()  # pyarrow: shortest round-trip floats, 5x pandas' to_csv
-        df = df.assign(component=df["component"].map(printable_id))
-        pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), buf,
-                        pacsv.WriteOptions(quoting_style="needed"))
-        typer.echo(buf.getvalue(), nl=False)  # UTF-8 bytes, written as they are
-        return
-    if fmt == "json":
-        typer.echo(df.to_json(orient="records", double_precision=15))
-        return
-    cols: dict[str, Any] = {c: df[c].to_numpy() for c in df.columns}
-    cols["component"] = [str(c) for c in df["component"].tolist()]
-    _echo_table(db, n_all, cols, [str(v) for v in df["level"].tolist()])
+def _print_status(db: Path, info: Any, cols: dict[str, Any], limit: int, fmt: str) -> None:
+    from rulkit.fleet.store.status_view import format_csv, format_json, limited
+
+    cols = limited(cols, limit)
+    if fmt == "csv":  # UTF-8 bytes, written as they are
+        typer.echo(format_csv(cols), nl=False)
+    elif fmt == "json":  # ASCII (non-ASCII and control characters escaped)
+        for chunk in [*format_json(cols), b"\n"]:
+            typer.echo(chunk, nl=False)
+    else:
+        _echo_table(db, info, cols)
 
 
 def _tracker_options(given: dict[str, float | str]):
@@ -185,8 +217,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                                                 help="Tracking index, RUL."),
         design_life: float | None = typer.Option(None, "--design-life",
                                                  help="dHI floor = 1/design life."),
-        warn_rul: float | None = typer.Option(None, "--warn-rul",
-                                              help="Warning when a valid RUL is below this."),
+        warn_rul: float | None = typer.Option(
+            None, "--warn-rul", help="The seed chain's own warning RUL (its reproduction; the "
+                                     "store warns on --lead-time)."),
         hi_sigma: float | None = typer.Option(None, "--hi-sigma",
                                               help="HI std for the confidence limits."),
         valid_d2rul: float | None = typer.Option(None, "--valid-d2rul",
@@ -195,19 +228,41 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                                                     help="Paris exponent m of the RUL."),
         initiation: str | None = typer.Option(None, "--initiation",
                                               help="Track start: floor or two-point."),
+        estimator: str | None = typer.Option(
+            None, "--estimator", help="RUL estimator: auto (a fitted model, else the per-unit "
+                                      "trend; default), trend, or tracker (the seed-004 chain)."),
+        time_unit: str | None = typer.Option(
+            None, "--time-unit", help="Unit of the time column (h, d, s, kcycles...), printed "
+                                      "with every RUL; a duration gives due dates."),
+        lead_time: float | None = typer.Option(
+            None, "--lead-time", help="Warning when the RUL's low quantile is below this "
+                                      "(time unit of the data; default 100)."),
+        alarm_hi: float | None = typer.Option(
+            None, "--alarm-hi", help="Alarm level of the measured HI (default 1)."),
+        alarm_persistence: str | None = typer.Option(
+            None, "--alarm-persistence", help="Alarm when the measured HI reached --alarm-hi "
+                                              "in K of the last N acquisitions: K/N "
+                                              "(default 1/1)."),
+        stale_after: str | None = typer.Option(
+            None, "--stale-after", help="Stale after this long without an acquisition: 36h, "
+                                        "2d, 90min or seconds (default: not judged)."),
+        interval: float | None = typer.Option(
+            None, "--interval", help="Probability of the RUL interval (default 0.9)."),
         wait: float = typer.Option(60.0, "--wait", min=0.0,
                                    help="Seconds to wait for another writer before giving up "
                                         "(exit code 75, retry)."),
     ) -> None:
         """Ingest acquisitions (one transaction) and print new warnings and alarms.
 
+        The estimator and alert options are stored with the database; given for an existing
+        one they replace the stored ones (every component's RUL and level recomputed).
         Exit codes: 0 done; 1 the file or database was refused (nothing written); 2 a bad
         option; 75 the database stayed busy (retry).
         """
         from rulkit.cli.errors import EXIT_BUSY, bad_option, fail
         from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
         from rulkit.fleet.store.database_file import StoreBusyError, StoreError
-        from rulkit.fleet.store.sqlite import ingest_into, read_settings
+        from rulkit.fleet.store.sqlite import ingest_into, read_rules, read_settings
         from rulkit.fleet.tracking.tracker_chain import TrackerConfig
         from rulkit.tables import safe_text
 
@@ -220,11 +275,17 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if offset not in ("cdf05", "none"):
             bad_option("--offset", f"expected cdf05 or none, got {offset!r}")
         new_cfg = _tracker_options(given)
+        rule_opts = {k: v for k, v in {
+            "estimator": estimator, "time_unit": time_unit, "lead_time": lead_time,
+            "alarm_hi": alarm_hi, "alarm_persistence": alarm_persistence,
+            "stale_after": stale_after, "interval": interval}.items() if v is not None}
+        _rules_options(None, rule_opts)  # refuse bad values before reading anything
         hi_model = _fit_baseline(baseline, pfa, offset) if baseline is not None else None
         nothing = f"nothing was written to {db}"
         try:
             df = read_acquisitions(acquisitions)
             settings = read_settings(db)
+            rules = _rules_options(read_rules(db), rule_opts)
         except IngestError as err:
             fail(f"{err} ({nothing})")
         except StoreError as err:
@@ -240,7 +301,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                      "the state is only meaningful with its own settings")
         try:
             res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
-                                       source=str(acquisitions), timeout=wait)
+                                       source=str(acquisitions), timeout=wait, rules=rules)
         except IngestError as err:
             msg = str(err)  # file-level errors already start with the path
             where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "
@@ -257,42 +318,82 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         for a in res.alerts:
             word = typer.style(f"{a.name.upper():7s}", fg="red" if a.name == "alarm"
                                else "yellow", bold=a.name == "alarm")
-            typer.echo(
-                f"{word} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  fHI={a.fhi:.3f}  "
-                f"RUL={_fmt(a.frul)} [{_fmt(a.rul_low)}, {_fmt(a.rul_high)}]  "
-                f"valid={'yes' if a.valid else 'no'}")
+            rul = "failed" if a.name == "alarm" else (
+                f"RUL={rul_texts([a.rul], [a.rul_low], [a.rul_high], [False])[0]}"
+                + (f" {safe_text(rules.time_unit)}" if rules.time_unit else ""))
+            typer.echo(f"{word} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  {rul}: "
+                       f"{safe_text(a.reason)}")
 
     @app.command("status")
     def status(
         db: Annotated[Path, typer.Option("--db", help="SQLite component database.")],
-        limit: int = typer.Option(0, "--limit", min=0, help="Show the worst N (0 = all)."),
+        limit: int = typer.Option(0, "--limit", min=0, help="Show the first N (0 = all)."),
         fmt: str = typer.Option("table", "--format",
                                 help="table (for people), csv or json (for scripts)."),
+        sort: str = typer.Option("worst", "--sort",
+                                 help="worst (level, then RUL), rul or due (date)."),
+        now: str | None = typer.Option(
+            None, "--now", help="Judge staleness at this ISO 8601 date-time (default: now)."),
     ) -> None:
-        """Components with HI, RUL, validity and alert level, worst first (read-only).
+        """Components with their alert level, RUL (median [interval] and due date), last HI
+        and acquisition, worst first (read-only).
 
         Exit codes: 0 done; 1 the database was refused; 2 a bad option.
         """
+        import time
+
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.database_file import StoreError
-        from rulkit.fleet.store.status_view import format_csv, format_json, limited, read_status
-        from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
+        from rulkit.fleet.store.status_view import SORTS, read_status
 
         if fmt not in ("table", "csv", "json"):
             bad_option("--format", f"expected table, csv or json, got {fmt!r}")
-        try:
-            got = read_status(db)  # sqlite3 only; None: a row rulkit cannot have written
+        if sort not in SORTS:
+            bad_option("--sort", f"expected one of {', '.join(SORTS)}, got {sort!r}")
+        at = time.time() if now is None else _iso_seconds(now)
+        try:  # sqlite3 only; None: a row rulkit cannot have written
+            got = read_status(db, now=at, sort=sort)
         except (FileNotFoundError, StoreError) as err:
             fail(str(err))
         if got is None:
-            _status_from_frame(db, limit, fmt)
+            _status_from_frame(db, limit, fmt, at, sort)
             return
-        n_all, cols = got
-        cols = limited(cols, limit)
-        if fmt == "csv":  # UTF-8 bytes, written as they are
-            typer.echo(format_csv(cols), nl=False)
-        elif fmt == "json":  # ASCII (non-ASCII and control characters escaped)
-            for chunk in [*format_json(cols), b"\n"]:
-                typer.echo(chunk, nl=False)
-        else:
-            _echo_table(db, n_all, cols, [LEVEL_NAMES[v] for v in cols["level"].tolist()])
+        _print_status(db, got[0], got[1], limit, fmt)
+
+
+def _iso_seconds(text: str) -> float:
+    """An ISO 8601 date-time (UTC when it names no zone) as seconds since 1970 (exit 2 when
+    it is not one)."""
+    from datetime import UTC, datetime
+
+    from rulkit.cli.errors import bad_option
+
+    try:
+        d = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        bad_option("--now", f"expected an ISO 8601 date-time such as 2024-05-01T12:00, got "
+                            f"{text!r}")
+    return (d if d.tzinfo else d.replace(tzinfo=UTC)).timestamp()
+
+
+def _rules_options(stored: Any, given: dict[str, Any]) -> Any:
+    """The monitoring rules: ``stored`` (or the defaults) with the given options, each refused
+    value naming its option (exit 2)."""
+    from rulkit.cli.errors import bad_option
+    from rulkit.fleet.monitoring.rules import MonitoringRules, parse_duration
+
+    base = (stored or MonitoringRules()).to_dict()
+    for key, value in given.items():
+        opt = "--" + key.replace("_", "-")
+        try:
+            if key == "alarm_persistence":
+                k, _, n = str(value).replace("of", "/").partition("/")
+                base["alarm_hits"], base["alarm_window"] = int(k), int(n)
+            elif key == "stale_after":
+                base[key] = parse_duration(str(value))
+            else:
+                base[key] = value
+            MonitoringRules.from_dict(base)
+        except ValueError as err:
+            bad_option(opt, str(err).split(": ", 1)[-1])
+    return MonitoringRules.from_dict(base)

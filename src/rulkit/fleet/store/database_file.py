@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -172,3 +173,16 @@ def _fsync_dir(path: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+def rows_of_components(conn: Any, table: str, cols: tuple[str, ...], names: list[str]
+                       ) -> Iterator[tuple[int, tuple]]:
+    """(index into ``names``, the row's ``cols``) of each of ``names`` stored in ``table``,
+    read in chunks of 500 ids (the SQL parameter limits)."""
+    pos = {n: i for i, n in enumerate(names)}
+    for i0 in range(0, len(names), 500):
+        chunk = names[i0:i0 + 500]
+        q = (f"SELECT component, {', '.join(cols)} FROM {table} WHERE component IN "
+             f"({','.join('?' * len(chunk))})")
+        for row in conn.execute(q, chunk).fetchall():
+            yield pos[row[0]], tuple(row[1:])

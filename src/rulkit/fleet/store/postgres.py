@@ -32,7 +32,18 @@ from typing import Any
 
 import pandas as pd
 
+from rulkit.fleet.monitoring.rules import MonitoringRules
+from rulkit.fleet.monitoring.unit_trend import TrendConfig
 from rulkit.fleet.store.database_file import SCHEMA_VERSION, StoreError
+from rulkit.fleet.store.prognosis import (
+    COMPONENT_COLUMNS,
+    HISTORY_COLUMNS,
+    ensure_columns,
+    monitoring_meta,
+    needs_upgrade,
+    read_monitoring,
+    upgrade,
+)
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -132,6 +143,7 @@ class PgComponentStore(ComponentStore):
         hi_model: HealthIndexModel | None = None,
         timeout: float = 30.0,
         create: bool = True,
+        rules: MonitoringRules | None = None,
     ) -> None:
         # for messages only (never holds a password); a str, since Path would fold the "//"
         self.path = _redact(url)  # type: ignore[assignment]
@@ -146,9 +158,12 @@ class PgComponentStore(ComponentStore):
                     if not create:
                         raise FileNotFoundError(f"{self.path}: not a rulkit component database")
                     self._conn.execute(_PG_SCHEMA)
+                    ensure_columns(self._conn, "components", COMPONENT_COLUMNS)
+                    ensure_columns(self._conn, "history", HISTORY_COLUMNS)
                     cfg = config or TrackerConfig()
                     rows = [("schema_version", str(SCHEMA_VERSION)),
-                            ("tracker_config", json.dumps(cfg.to_dict()))]
+                            ("tracker_config", json.dumps(cfg.to_dict())),
+                            monitoring_meta(rules or MonitoringRules(), TrendConfig())]
                     if hi_model is not None:
                         rows.append(("hi_model", json.dumps(hi_model.to_dict())))
                     self._conn.executemany("INSERT INTO meta VALUES (?, ?)", rows)
@@ -160,6 +175,8 @@ class PgComponentStore(ComponentStore):
             self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
                              if "hi_model" in meta else None)
             self.degradation = None
+            self.rules, self.trend = read_monitoring(meta)
+            self.now: float | None = None
             if "degradation_model" in meta:
                 raise StoreError(f"{self.path}: holds a learned degradation model (rulkit "
                                  "fit), which the PostgreSQL backend does not support yet")
@@ -177,10 +194,15 @@ class PgComponentStore(ComponentStore):
                     self._conn.execute("INSERT INTO meta VALUES ('hi_model', ?)",
                                        (json.dumps(hi_model.to_dict()),))
                 self.hi_model = hi_model
+            self.gains = self.config.gains()
+            if needs_upgrade(self._conn):  # a database written before the one-RUL columns
+                with self._transaction():
+                    upgrade(self)
+            if rules is not None and rules != self.rules:
+                self.set_rules(rules)
         except BaseException:
             self._conn.close()
             raise
-        self.gains = self.config.gains()
 
     def _read_meta(self) -> dict[str, str]:
         if self._conn.execute("SELECT to_regclass('meta')").fetchone()[0] is None:

@@ -9,7 +9,8 @@ file holds
   that maps condition indicators (CIs) to HI;
 * ``components``: one row per component with its tracker state (the seed's 7 numbers HI, fHI,
   dHI, RUL, fRUL, dRUL, d2RUL, plus the time of the last acquisition, the number of
-  acquisitions, validity, alert level and the confidence limits);
+  acquisitions and validity), and the one RUL of the estimator in force with the alert
+  rules' level (:mod:`rulkit.fleet.store.prognosis`, docs/systems/embedded-rul.md §6-7);
 * ``history``: one row per acquisition (same fields), primary key (component, t);
 * ``ingests``: one row per committed ingestion (audit).
 
@@ -61,6 +62,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from rulkit.fleet.monitoring.rules import MonitoringRules
+from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
 from rulkit.fleet.store.acquisitions import (
     Alert,
     IngestError,
@@ -79,6 +82,20 @@ from rulkit.fleet.store.database_file import (
     _probe,
     _read_meta,
     _store_error,
+)
+from rulkit.fleet.store.prognosis import (
+    COMPONENT_COLUMNS,
+    HISTORY_COLUMNS,
+    BatchPrognosis,
+    block_alerts,
+    ensure_columns,
+    monitoring_meta,
+    needs_upgrade,
+    read_monitoring,
+    replay,
+    stored_interval,
+    upgrade,
+    write_monitoring,
 )
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
@@ -137,7 +154,8 @@ def _check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
 
 
 def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexModel | None,
-                       acq: pd.DataFrame | None, source: str) -> IngestResult | None:
+                       acq: pd.DataFrame | None, source: str,
+                       rules: MonitoringRules | None = None) -> IngestResult | None:
     """Create the database in a temporary file beside ``path`` (schema, settings and, when
     given, the validated batch ``acq``), then hard-link it to ``path``, which fails if
     ``path`` appeared meanwhile. Returns the batch's result, or ``None`` when another process
@@ -163,10 +181,15 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
                 if stmt.strip():
                     conn.execute(stmt)
             conn.executemany("INSERT INTO meta VALUES (?, ?)", _meta_rows(config, hi_model))
+            ensure_columns(conn, "components", COMPONENT_COLUMNS)
+            ensure_columns(conn, "history", HISTORY_COLUMNS)
+            conn.execute("INSERT INTO meta VALUES (?, ?)",
+                         monitoring_meta(rules or MonitoringRules(), TrendConfig()))
             conn.execute("COMMIT")
             if acq is not None:
                 store = ComponentStore.__new__(ComponentStore)
                 store._attach(tmp, conn, config, hi_model, timeout=0.0)
+                store.rules, store.trend = rules or MonitoringRules(), TrendConfig()
                 with store._transaction("IMMEDIATE"):
                     result = store._apply(acq, source)
             # WAL mode is recorded in the file: every later connection uses the log
@@ -205,6 +228,16 @@ def read_settings(path: str | Path) -> tuple[TrackerConfig, HealthIndexModel | N
     return None if meta is None else _config_from_meta(path, meta)
 
 
+def read_rules(path: str | Path) -> MonitoringRules | None:
+    """The stored monitoring rules of the database at ``path`` (read-only), or ``None`` if
+    there is no file (:class:`StoreError` for a file that is not a rulkit database)."""
+    path = Path(path)
+    if _probe(path) is None:
+        return None
+    with ComponentStore(path, readonly=True) as store:  # sees the write-ahead log
+        return store.rules
+
+
 def ingest_into(
     path: str | Path,
     df: pd.DataFrame,
@@ -213,6 +246,7 @@ def ingest_into(
     hi_model: HealthIndexModel | None = None,
     source: str = "<dataframe>",
     timeout: float = 30.0,
+    rules: MonitoringRules | None = None,
 ) -> tuple[IngestResult, bool]:
     """Validate ``df`` and commit it to the database at ``path``, creating it if missing.
 
@@ -222,7 +256,10 @@ def ingest_into(
     the tracker settings of a new database (default ``TrackerConfig()``); for an existing one
     it must equal the stored settings if given (else :class:`StoreError`). ``hi_model``: the
     CI -> HI model; stored with the batch, in the same transaction, into a database without
-    one; a database holding a different one raises :class:`StoreError`.
+    one; a database holding a different one raises :class:`StoreError`. ``rules``: the
+    estimator choice and alert rules (:class:`~rulkit.fleet.monitoring.rules.MonitoringRules`;
+    default ones for a new database); rules other than the stored ones replace them before
+    the batch (:meth:`ComponentStore.set_rules`).
     """
     path = Path(path)
     for _attempt in range(2):
@@ -230,7 +267,7 @@ def ingest_into(
         if meta is None:
             cfg = config or TrackerConfig()
             acq = validate_acquisitions(df, cfg, hi_model)
-            res = _build_and_publish(path, cfg, hi_model, acq, source)
+            res = _build_and_publish(path, cfg, hi_model, acq, source, rules)
             if res is not None:
                 return res, True
             continue  # another process created it first: apply the batch to theirs
@@ -242,6 +279,8 @@ def ingest_into(
                 raise StoreError(f"{path} already holds a different HI model")
             acq = validate_acquisitions(df, store.config, stored_model or hi_model)
             new_model = hi_model if stored_model is None else None
+            if rules is not None and rules != store.rules:
+                store.set_rules(rules)
             return store._ingest_validated(acq, source, new_model=new_model), False
     raise AssertionError("unreachable: the database exists after a lost creation race")
 
@@ -292,6 +331,7 @@ class ComponentStore:
         timeout: float = 30.0,
         create: bool = True,
         readonly: bool = False,
+        rules: MonitoringRules | None = None,
     ) -> None:
         self.path = Path(path)
         create = create and not readonly
@@ -299,7 +339,7 @@ class ComponentStore:
         if meta is None:
             if not create:
                 raise FileNotFoundError(f"{self.path}: no such database")
-            _build_and_publish(self.path, config or TrackerConfig(), hi_model, None, "")
+            _build_and_publish(self.path, config or TrackerConfig(), hi_model, None, "", rules)
             meta = _probe(self.path)
             assert meta is not None
         conn = _connect(self.path, timeout, readonly)
@@ -323,6 +363,21 @@ class ComponentStore:
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
         self.degradation = _degradation_from_meta(self.path, meta)
+        try:
+            self.rules, self.trend = read_monitoring(meta)
+        except (ValueError, TypeError, KeyError) as err:
+            conn.close()
+            raise StoreError(f"{self.path}: unreadable monitoring rules in table meta: "
+                             f"{safe_text(err)}") from err
+        if not readonly and needs_upgrade(self._conn):
+            try:  # a database written before the one-RUL columns
+                with self._transaction():
+                    upgrade(self)
+            except BaseException:
+                self._conn.close()
+                raise
+        if rules is not None and rules != self.rules and not readonly:
+            self.set_rules(rules)
         if hi_model is not None and stored_model is None:
             try:
                 with self._transaction():
@@ -343,6 +398,8 @@ class ComponentStore:
         self.readonly = False
         self.gains = config.gains()
         self.degradation = None  # learned model (rulkit fit), set from meta by __init__
+        self.rules, self.trend = MonitoringRules(), TrendConfig()  # set from meta by __init__
+        self.now: float | None = None  # the calendar time of ingestion (None: the clock)
 
     # -- plumbing
     def close(self) -> None:
@@ -439,19 +496,25 @@ class ComponentStore:
         return df
 
     def status(self) -> pd.DataFrame:
-        """All components, worst first (alert level, then filtered HI, descending)."""
-        df = self._checked(self._query(
-            "SELECT component, " + ", ".join(ROW_FIELDS) + " FROM components"), "components")
-        return df.sort_values(["level", "fhi", "component"], ascending=[False, False, True],
-                              kind="stable").reset_index(drop=True)
+        """All components, worst first (alert level, then RUL median ascending, one not
+        estimated yet as 1e308, then id): the tracker chain's columns and the RUL and rules' columns
+        ``rul_median``, ``failed_at``, ``seen`` (NaN where NULL; docs/systems/embedded-rul.md
+        §6-7)."""
+        nullable = ("rul_median", "failed_at", "seen")
+        df = self._query("SELECT component, " + ", ".join((*ROW_FIELDS, *nullable))
+                         + " FROM components")
+        extra = {c: pd.to_numeric(df.pop(c), errors="coerce") for c in nullable}
+        df = self._checked(df, "components").assign(**extra)
+        return df.assign(_key=df["rul_median"].fillna(1e308)).sort_values(
+            ["level", "_key", "component"], ascending=[False, True, True],
+            kind="stable").drop(columns="_key").reset_index(drop=True)
 
     def history(self, component: str | None = None) -> pd.DataFrame:
-        """History rows (all components, or one), ordered by component and time; with a
-        learned model (``rulkit fit``) also ``rul_median`` (NULL/NaN before the model), and
-        ``rul_low``/``rul_high`` are then the model's 90 % interval."""
-        cols = "component, " + ", ".join(HISTORY_FIELDS) + ", ingest"
-        if getattr(self, "degradation", None) is not None:
-            cols += ", rul_median"
+        """History rows (all components, or one), ordered by component and time: the tracker
+        chain's columns, and the RUL of the estimator in force, ``rul_median`` (NaN: not
+        estimated yet) in ``rul_low``/``rul_high``, with the rules' ``level``
+        (docs/systems/embedded-rul.md §6-7)."""
+        cols = "component, " + ", ".join(HISTORY_FIELDS) + ", ingest, rul_median"
         if component is None:
             df = self._query(f"SELECT {cols} FROM history ORDER BY component, t")
         else:
@@ -521,7 +584,6 @@ class ComponentStore:
         pos = {name: i for i, name in enumerate(names)}
         b = len(names)
         state = TrackerState.empty(b)
-        level = np.zeros(b, dtype=np.int8)  # highest level reached so far (latched)
         for name, row in stored.items():
             i = pos[name]
             vals = dict(zip(ROW_FIELDS, row[:-1], strict=True))
@@ -529,7 +591,6 @@ class ComponentStore:
                 vals["t"], vals["n"], vals["hi"], vals["rul"])
             state.ab[i] = (vals["fhi"], vals["dhi"])
             state.abg[i] = (vals["frul"], vals["drul"], vals["d2rul"])
-            level[i] = row[-1]
         t = acq["t"].to_numpy(dtype=np.float64)
         hi = acq["hi"].to_numpy(dtype=np.float64)
         rows_all = acq["row"].to_numpy()
@@ -570,27 +631,10 @@ class ComponentStore:
         _check_spacing(self.config, gaps)
         del gaps
         ingest_id = self._insert_ingest(source, n, b)
-        # rulkit fit: the learned model's RUL median and 90 % interval per acquisition, in its
-        # own pass over the ranks (it does not depend on the trackers); the history then holds
-        # them in rul_median / rul_low / rul_high.
-        learned = None
-        learned_cols: np.ndarray | None = None
-        if getattr(self, "degradation", None) is not None:
-            from rulkit.fleet.store.learned_state import LearnedPass
-
-            fcodes = codes.astype(np.int64)
-            rank = pd.Series(fcodes).groupby(fcodes, sort=False).cumcount().to_numpy()
-            learned = LearnedPass(self._conn, self.degradation, names)
-            learned_cols = np.full((3, n), np.nan)
-            for r in range(int(rank.max()) + 1):
-                sel = np.flatnonzero(rank == r)
-                ci = fcodes[sel]
-                t_r = np.full(b, np.nan)
-                h_r = np.full(b, np.nan)
-                t_r[ci] = t[sel]
-                h_r[ci] = hi[sel]
-                learned_cols[:, sel] = np.asarray(learned.step(ci, t_r, h_r))
-            del rank, fcodes
+        # the RUL of the estimator in force and the alert rules (rulkit.fleet.monitoring), per
+        # block below; the history holds them in rul_median / rul_low / rul_high and level
+        prog = BatchPrognosis(self, names, state.t, state.hi, state.n,
+                              calendar=bool(acq.attrs.get("calendar", False)), now=self.now)
         del codes
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
@@ -605,7 +649,9 @@ class ComponentStore:
             k0 = k1
         # one way to run the trackers for the whole batch (tracker_run's cost model, with the
         # rank loops of all blocks against loading the compiled passes once)
-        strategy = tracker_strategy(sum(int(counts[k0:k1].max()) for k0, k1 in blocks), n)
+        n_ranks = sum(int(counts[k0:k1].max()) for k0, k1 in blocks)
+        strategy = tracker_strategy(n_ranks, n)
+        prog.strategy = trend_strategy(n_ranks, n)  # the same choice for the trend's pass
         for k0, k1 in blocks:
             rows_b = by_comp[comp_start[k0]:comp_start[k1]]  # block rows, key order
             comps = sorted_pos[k0:k1]  # component indices (into names / state)
@@ -628,24 +674,14 @@ class ComponentStore:
                     "interval since the previous acquisition or the time itself is too "
                     "large for float64 arithmetic); use a smaller time unit or offset")
             del finite
-            # alerts: a level above the highest the component reached before (latched); the
-            # running maximum per component is one accumulate over (component, level) keys
-            lv = out["level"]
-            lvl0 = level[comps]
-            run = np.maximum.accumulate(cidx * 4 + lv) - cidx * 4  # max level up to the row
-            before = np.empty_like(run)
-            before[1:] = run[:-1]
-            before[seg[:-1]] = -1
-            before = np.maximum(before, lvl0[cidx])
-            for q in np.flatnonzero(lv > before).tolist():
-                alerts.append((int(rank_b[q]), int(rows_b[q]), Alert(
-                    component=names[comps[cidx[q]]], t=float(t_b[q]), level=int(lv[q]),
-                    previous=int(before[q]), hi=float(hi_b[q]), fhi=float(out["fhi"][q]),
-                    frul=float(out["frul"][q]), valid=bool(out["valid"][q]),
-                    rul_low=float(out["rul_low"][q]), rul_high=float(out["rul_high"][q]),
-                )))
-            level[comps] = np.maximum(lvl0, run[seg[1:] - 1])
-            del run, before, rank_b
+            # the RUL and the rules' level per row; alerts where the level passes the highest
+            # the component reached before (latched)
+            got = prog.block(comps, seg, t_b, hi_b, out)
+            alerts += block_alerts(got, self.rules, prog.est.time_unit, [names[c] for c in comps],
+                                   seg, rank_b, rows_b, t_b, hi_b)
+            med_b, low_b, high_b = stored_interval(got.rules.median, got.rules.low,
+                                                   got.rules.high)
+            del rank_b
             for f in ("t", "n", "hi", "ab", "rul", "abg"):
                 getattr(state, f)[comps] = getattr(sub, f)
             comp_b = names_arr[comps][cidx]
@@ -655,26 +691,20 @@ class ComponentStore:
                 sl = slice(c0, c0 + self.HISTORY_CHUNK)
                 cols_out = [comp_b[sl], t_b[sl], hi_b[sl]]
                 cols_out += [out[f][sl] for f in out_fields[:6]]  # fhi .. d2rul
-                cols_out += [out["valid"][sl], out["level"][sl]]
-                if learned_cols is None:
-                    cols_out += [out["rul_low"][sl], out["rul_high"][sl]]
-                    extra_cols: tuple[str, ...] = ()
-                else:  # low, high, then the extra column rul_median
-                    rb = rows_b[sl]
-                    cols_out += [learned_cols[1, rb], learned_cols[2, rb], learned_cols[0, rb]]
-                    extra_cols = ("rul_median",)
-                self._write_history(HistoryChunk(cols_out, ingest_id, extra_cols))
+                cols_out += [out["valid"][sl], got.rules.level[sl]]
+                cols_out += [low_b[sl], high_b[sl], med_b[sl]]  # the extra column rul_median
+                self._write_history(HistoryChunk(cols_out, ingest_id, ("rul_median",)))
                 del cols_out
-            del out, comp_b, t_b, hi_b
+            del out, comp_b, t_b, hi_b, got, med_b, low_b, high_b
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
         fin = tracker_outputs(state, self.config)
-        final = {**state.columns(), "valid": fin.valid, "level": fin.level,
-                 "rul_low": fin.rul_low, "rul_high": fin.rul_high}
-        if learned is not None:
-            _, final["rul_low"], final["rul_high"] = learned.finish()
-        rows = [names] + [np.asarray(final[f]).tolist() for f in ROW_FIELDS]
-        rows.append(level.tolist())
-        self._write_states(list(zip(*rows, strict=True)))
+        extra = prog.finish()
+        final = {**{k: np.asarray(v).tolist() for k, v in state.columns().items()},
+                 "valid": fin.valid.tolist()}
+        final.update({k: extra.pop(k) for k in ("level", "rul_low", "rul_high")})
+        rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
+        rows += list(extra.values())
+        self._write_states(list(zip(*rows, strict=True)), tuple(extra))
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(stored),
                             alerts=[a for _, _, a in alerts])
 
@@ -715,8 +745,9 @@ class ComponentStore:
         if full < m:
             self._conn.executemany(head + one, obj[full:].tolist())
 
-    def _write_states(self, rows: list[tuple]) -> None:
-        cols = ("component", *ROW_FIELDS, "max_level")
+    def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+        """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``."""
+        cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
         self._conn.executemany(
             f"INSERT INTO components ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))}) "
@@ -725,15 +756,37 @@ class ComponentStore:
         )
 
     def set_degradation_model(self, model: Any) -> int:
-        """Store a learned model (:mod:`rulkit.fleet.learned.degradation`) in one transaction:
-        meta ``degradation_model``, the additive migration (history column ``rul_median``,
-        table ``model_state``) and every existing component's model state rebuilt by replaying
-        its stored history. Returns the number of components rebuilt."""
-        from rulkit.fleet.store.learned_state import install_model
+        """Store a fitted model (:mod:`rulkit.fleet.learned.degradation`) in one transaction:
+        meta ``degradation_model``, the table ``model_state``, and every component's model
+        state and RUL columns replayed from its stored history
+        (:func:`~rulkit.fleet.store.prognosis.replay`). Returns the number of components
+        replayed."""
+        from rulkit.fleet.store.learned_state import store_model
 
-        with self._transaction("IMMEDIATE"):
-            n = install_model(self._conn, model)
-        self.degradation = model
+        previous = self.degradation
+        try:
+            with self._transaction("IMMEDIATE"):
+                store_model(self._conn, model)
+                self.degradation = model
+                n = replay(self)
+        except BaseException:
+            self.degradation = previous
+            raise
+        return n
+
+    def set_rules(self, rules: MonitoringRules) -> int:
+        """Replace the estimator choice and alert rules in one transaction, every component's
+        RUL columns and levels replayed under them (no alert is raised again). Returns the
+        number of components replayed."""
+        previous = self.rules
+        try:
+            with self._transaction("IMMEDIATE"):
+                write_monitoring(self._conn, rules, self.trend)
+                self.rules = rules
+                n = replay(self)
+        except BaseException:
+            self.rules = previous
+            raise
         return n
 
     def meta(self) -> dict[str, Any]:

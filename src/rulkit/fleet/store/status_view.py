@@ -1,37 +1,39 @@
 """``rulkit status`` at fleet scale: read the ``components`` table with :mod:`sqlite3` and print
-it as a table, CSV or JSON without pandas or pyarrow.
+it as a table, CSV or JSON without pandas.
 
-docs/systems/embedded-rul.md §4 (the component state file). The command used to read through
-:meth:`rulkit.fleet.store.sqlite.ComponentStore.status` (pandas) and print with pyarrow's CSV writer
-and pandas' JSON writer; importing those alone took ~0.4 s of a one-second budget for 10^5
-components. This module gives the same bytes (tested against that implementation,
-tests/fleet/store/test_status_view.py):
+docs/systems/embedded-rul.md §6-7: one row per component with its alert level, the RUL of the
+estimator in force (median and interval, the data's time unit, the due date on the calendar),
+whether it has failed or is stale, its last HI and acquisition. :func:`status_columns` derives
+the printed columns from the stored ones; :func:`read_status` reads those with :mod:`sqlite3`
+(the same read-only opening as :class:`~rulkit.fleet.store.sqlite.ComponentStore` with
+``readonly=True``, one read transaction), and the pandas path of ``rulkit status`` (a table
+rulkit cannot have written: it names the bad row) feeds the same function, so both print the
+same bytes (tested, tests/fleet/store/test_status_view.py):
 
-* **Same rows, same order.** Worst first: alert level, then filtered HI, descending, then the
-  component id (code-point order). Only a table rulkit can have written takes this path: every
-  id text, every number column of its SQL type, every level 0, 1 or 2
-  (:func:`read_status` returns ``None`` otherwise, and the caller falls back to the pandas
-  path, which names the bad row or coerces as before).
-* **Same text.** Floats in CSV as Arrow writes them (shortest round-trip digits, positional
-  for decimal exponents -6 to 9, ``1e+10``/``1e-7`` otherwise, no ``.0``; :func:`arrow_float`),
-  in JSON as pandas' ujson writes them with ``double_precision=15`` (15 decimals by its own
-  rounding, trailing zeros cut, ``%.15g`` beyond 1e16 and below 1e-15, non-finite as
-  ``null``; :func:`_ujson_floats`), strings quoted as Arrow and ujson quote them.
-* **Read-only.** The database is opened as :class:`~rulkit.fleet.store.sqlite.ComponentStore`
-  opens it with ``readonly=True`` (:func:`~rulkit.fleet.store.database_file._probe` first,
-  ``query_only``) and read in one read transaction.
+* **Order.** Worst first: alert level descending, then RUL median ascending (not estimated
+  yet as 1e308: after every finite RUL), then the component id (code-point order); or by RUL
+  or due date (``sort``); the API's orders.
+* **Text.** Floats in CSV as Arrow writes them (shortest round-trip digits, positional for
+  decimal exponents -6 to 9, ``1e+10``/``1e-7`` otherwise, no ``.0``, ``inf``; a missing
+  value empty), in JSON as pandas' ujson writes them with ``double_precision=15`` (15
+  decimals by its own rounding, trailing zeros cut, ``%.15g`` beyond 1e16 and below 1e-15,
+  non-finite and missing as ``null``; :func:`_ujson_floats`), strings quoted as Arrow and
+  ujson quote them. Date-times as ISO 8601 UTC (``2024-05-01T12:00:00Z``).
 """
 
 from __future__ import annotations
 
 import json
 import sqlite3
+from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rulkit.fleet.monitoring.estimators import Estimator, estimator_in_force
+from rulkit.fleet.monitoring.rules import due_time, stale, unit_seconds
 from rulkit.fleet.store.database_file import (
     StoreError,
     _config_from_meta,
@@ -42,23 +44,54 @@ from rulkit.fleet.store.database_file import (
     _read_meta,
     _store_error,
 )
+from rulkit.fleet.store.prognosis import read_monitoring
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
 
-STATUS_COLUMNS = ("component", "level", "hi", "fhi", "rul", "rul_low", "rul_high", "valid",
-                  "dhi", "drul", "d2rul", "n", "t")
-"""The columns of ``rulkit status --format csv|json``, in order (``rul`` is the filtered
-RUL, the table's ``frul``)."""
-_SQL_COLUMNS = tuple("frul" if c == "rul" else c for c in STATUS_COLUMNS)
-FLOAT_COLUMNS = ("hi", "fhi", "rul", "rul_low", "rul_high", "dhi", "drul", "d2rul", "t")
-INT_COLUMNS = ("level", "valid", "n")
+STORED_COLUMNS = ("component", "level", "hi", "n", "t", "rul_median", "rul_low", "rul_high",
+                  "failed_at", "seen")
+"""The ``components`` columns ``rulkit status`` reads."""
+NULLABLE = ("rul_median", "failed_at", "seen")
+STATUS_COLUMNS = ("component", "level", "failed", "stale", "rul", "rul_low", "rul_high",
+                  "time_unit", "due", "hi", "n", "t", "last_seen", "estimator")
+"""The columns of ``rulkit status --format csv|json``, in order: ``rul`` the median (missing
+while not estimated), ``rul_low``/``rul_high`` its interval (``inf``: the quantile lies in the
+never-failing mass; JSON ``null``), ``due`` the calendar date-time the median runs out,
+``last_seen`` the calendar date-time of the last acquisition, ``estimator`` what gave the
+RUL."""
+FLOAT_COLUMNS = ("rul", "rul_low", "rul_high", "hi", "t")
+BOOL_COLUMNS = ("failed", "stale")
+TEXT_COLUMNS = ("time_unit", "due", "last_seen", "estimator")
+SORTS = ("worst", "rul", "due")
 
 
-def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str, Any]] | None:
-    """``(number of components, columns)`` of the database at ``path``, worst first:
-    ``component`` a list of str, the others numpy arrays (float64; int64 for ``level``,
-    ``valid`` and ``n``), keyed by :data:`STATUS_COLUMNS`; ``None`` when a row is not as
-    rulkit writes it (a text or NULL among numbers, an
-    unknown level): the caller then reads through
+@dataclass(frozen=True)
+class StatusInfo:
+    """What the table prints around the rows: the database's estimator, the counts per level
+    (and of stale components) over all components, the calendar time ``now`` staleness is
+    judged at, and the fitted model's warnings."""
+
+    estimator: Estimator
+    n_all: int
+    counts: dict[str, int] = field(default_factory=dict)
+    now: float = 0.0
+
+
+def estimator_of_meta(path: Path, meta: dict[str, str]) -> Estimator:
+    """The estimator in force of a database from its ``meta`` (StoreError when unreadable)."""
+    cfg, _ = _config_from_meta(path, meta)
+    model = _degradation_from_meta(path, meta)
+    try:
+        rules, trend = read_monitoring(meta)
+    except (ValueError, TypeError, KeyError) as err:
+        raise StoreError(f"{path}: unreadable monitoring rules in table meta: {err}") from err
+    return estimator_in_force(rules, cfg, model, trend)
+
+
+def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: float = 30.0
+                ) -> tuple[StatusInfo, dict[str, Any]] | None:
+    """``(info, columns)`` of the database at ``path`` (:func:`status_columns`), or ``None``
+    when a row is not as rulkit writes it (a text among numbers, a NULL where rulkit never
+    writes one, an unknown level): the caller then reads through
     :meth:`~rulkit.fleet.store.sqlite.ComponentStore.status`, which names the row.
 
     Raises ``FileNotFoundError`` (no database) and :class:`StoreError` as
@@ -73,54 +106,114 @@ def read_status(path: str | Path, timeout: float = 30.0) -> tuple[int, dict[str,
             meta = _read_meta(conn)  # through this connection: sees the write-ahead log
         except sqlite3.Error as err:
             raise StoreError(_db_error_message(path, err)) from err
-        _config_from_meta(path, meta)  # unreadable settings: the same error as the store's
-        _degradation_from_meta(path, meta)
+        est = estimator_of_meta(path, meta)
         try:
+            have = {r[1] for r in conn.execute("PRAGMA table_info(components)").fetchall()}
+            if not set(STORED_COLUMNS) <= have:
+                raise StoreError(f"{path}: written by an older rulkit (no one-RUL columns); "
+                                 "`rulkit track` or `rulkit serve` on it upgrades it in place")
             conn.execute("PRAGMA mmap_size = 1073741824")  # reads pages in place, no copies
             conn.execute("BEGIN DEFERRED")
             rows = conn.execute(
-                f"SELECT {', '.join(_SQL_COLUMNS)} FROM components").fetchall()
+                f"SELECT {', '.join(STORED_COLUMNS)} FROM components").fetchall()
             conn.execute("COMMIT")
         except sqlite3.Error as err:
             raise _store_error(path, err, timeout) from err
     finally:
         conn.close()
-    n = len(rows)
-    if n == 0:
-        return 0, {c: [] if c == "component" else np.zeros(
-            0, dtype=np.float64 if c in FLOAT_COLUMNS else np.int64) for c in STATUS_COLUMNS}
+    if not rows:
+        return status_columns({c: [] for c in STORED_COLUMNS}, est, now, sort)
     # one object per value already exists; a column-major copy of the references is the
-    # cheapest way to columns (zip(*rows) builds 13 tuples: ~2x slower)
+    # cheapest way to columns (zip(*rows) builds a tuple per column: ~2x slower)
     by_col = np.array(rows, dtype=object).T.copy()
     del rows
-    lists = dict(zip(STATUS_COLUMNS, (c.tolist() for c in by_col), strict=True))
+    lists = dict(zip(STORED_COLUMNS, (c.tolist() for c in by_col), strict=True))
     if not _canonical(lists):
         return None
-    arrays = {c: by_col[j].astype(np.float64 if c in FLOAT_COLUMNS else np.int64)
-              for j, c in enumerate(STATUS_COLUMNS) if j > 0}
-    del by_col
-    # worst first: level, then fHI, descending; ties by id (stable as pandas' sort_values)
-    comp = lists["component"]
-    rank = np.empty(n, dtype=np.int64)
-    rank[sorted(range(n), key=comp.__getitem__)] = np.arange(n)
-    order = np.lexsort((rank, -arrays["fhi"], -arrays["level"]))
-    out: dict[str, Any] = {"component": list(itemgetter(*order.tolist())(comp)) if n > 1
-                           else comp}
-    out.update({c: a[order] for c, a in arrays.items()})
-    return n, out
+    return status_columns(lists, est, now, sort)
 
 
 def _canonical(cols: dict[str, list]) -> bool:
     """Every value of the type rulkit writes (what the pandas path accepts unchanged)."""
     if set(map(type, cols["component"])) != {str}:
         return False
-    for c in FLOAT_COLUMNS:
+    for c in ("hi", "t", "rul_low", "rul_high"):
         if set(map(type, cols[c])) != {float}:
             return False
-    for c in INT_COLUMNS:
+    for c in NULLABLE:
+        if not set(map(type, cols[c])) <= {float, type(None)}:
+            return False
+    for c in ("level", "n"):
         if set(map(type, cols[c])) != {int}:
             return False
     return set(cols["level"]) <= set(LEVEL_NAMES)
+
+
+def _floats(values: Any) -> np.ndarray:
+    """A float64 array of ``values`` (None as NaN)."""
+    a = np.asarray(values, dtype=object) if isinstance(values, list) else np.asarray(values)
+    if a.dtype == object:
+        a = np.where(a == None, np.nan, a)  # noqa: E711 (elementwise)
+    return np.asarray(a, dtype=np.float64)
+
+
+def iso_times(seconds: np.ndarray) -> list[str | None]:
+    """Seconds since 1970 as ISO 8601 UTC date-times to the second (None where NaN)."""
+    s = np.asarray(seconds, dtype=np.float64)
+    ok = np.isfinite(s) & (np.abs(s) < 1e13)
+    stamps = np.datetime_as_string(np.where(ok, np.round(s), 0).astype("datetime64[s]"),
+                                   unit="s")
+    return [f"{v}Z" if k else None for v, k in zip(stamps.tolist(), ok.tolist(), strict=True)]
+
+
+def status_columns(stored: dict[str, Any], est: Estimator, now: float, sort: str = "worst"
+                   ) -> tuple[StatusInfo, dict[str, Any]]:
+    """The printed columns (:data:`STATUS_COLUMNS`) and :class:`StatusInfo` from the stored
+    ones (:data:`STORED_COLUMNS`; lists or arrays, None/NaN where missing), sorted by
+    ``sort`` (:data:`SORTS`)."""
+    if sort not in SORTS:
+        raise ValueError(f"sort: expected one of {SORTS}, got {sort!r}")
+    comp = [str(c) for c in stored["component"]]
+    n = len(comp)
+    a = {c: _floats(stored[c]) for c in ("hi", "t", "rul_median", "rul_low", "rul_high",
+                                          "failed_at", "seen")}
+    level = np.asarray(stored["level"], dtype=np.int64).reshape(n)
+    unit = est.time_unit
+    is_stale = stale(a["seen"], now, est.rules)
+    failed = np.isfinite(a["failed_at"])
+    due = np.where(failed, np.nan, due_time(a["seen"], a["rul_median"], unit))  # failed: none
+    counts = {name: int((level == k).sum()) for k, name in sorted(LEVEL_NAMES.items())}
+    counts["stale"] = int(is_stale.sum())
+    rank = np.empty(n, dtype=np.int64)
+    rank[sorted(range(n), key=comp.__getitem__)] = np.arange(n)
+    order = np.lexsort(_sort_keys(sort, rank, level, a["rul_median"], a["seen"], unit))
+    cols: dict[str, Any] = {
+        "component": list(itemgetter(*order.tolist())(comp)) if n > 1 else comp,
+        "level": level[order], "failed": failed[order],
+        "stale": is_stale[order], "rul": a["rul_median"][order], "rul_low": a["rul_low"][order],
+        "rul_high": a["rul_high"][order], "time_unit": [unit] * n,
+        "due": iso_times(due[order]), "hi": a["hi"][order],
+        "n": np.asarray(stored["n"], dtype=np.int64).reshape(n)[order], "t": a["t"][order],
+        "last_seen": iso_times(a["seen"][order]), "estimator": [est.label] * n}
+    return StatusInfo(estimator=est, n_all=n, counts=counts, now=now), cols
+
+
+def _sort_keys(sort: str, rank: np.ndarray, level: np.ndarray, median: np.ndarray,
+               seen: np.ndarray, unit: str) -> list[np.ndarray]:
+    """:func:`numpy.lexsort` keys (last = primary) of the orders of the API
+    (:data:`rulkit.fleet.service.fleet_view.ORDERS`): an unknown value sorts as 1e308."""
+    def known(x: np.ndarray) -> np.ndarray:
+        return np.where(np.isnan(x), 1e308, x)
+
+    if sort == "worst":
+        return [rank, known(median), -level]
+    if sort == "rul":
+        return [rank, known(median)]
+    scale = unit_seconds(unit)
+    if scale is None:  # no calendar: the id decides
+        return [rank]
+    with np.errstate(invalid="ignore"):
+        return [rank, known(seen + median * scale)]
 
 
 def limited(cols: dict[str, Any], limit: int) -> dict[str, Any]:
@@ -197,10 +290,26 @@ def printable_id(component: str) -> str:
     return safe_text(component)
 
 
+def _with_nulls(arr: Any, missing: np.ndarray) -> Any:
+    """``arr`` with the rows ``missing`` null (a validity bitmap on its buffers)."""
+    import pyarrow as pa
+
+    if not missing.any():
+        return arr
+    bits = np.packbits(~missing, bitorder="little")
+    return pa.Array.from_buffers(arr.type, len(arr), [pa.py_buffer(bits), *arr.buffers()[1:]])
+
+
+def _text(values: list[str | None]) -> Any:
+    """A ``large_string`` array, None as null."""
+    missing = np.fromiter((v is None for v in values), dtype=bool, count=len(values))
+    return _with_nulls(_strs([v or "" for v in values]), missing)
+
+
 def format_csv(cols: dict[str, Any]) -> bytes:
-    """The CSV bytes of ``rulkit status --format csv``: pyarrow's CSV writer with
-    ``quoting_style="needed"`` (strings quoted, shortest round-trip floats, booleans
-    ``true``/``false``), as before, on arrays built without pandas."""
+    """The CSV bytes of ``rulkit status --format csv`` (:data:`STATUS_COLUMNS`): pyarrow's
+    CSV writer with ``quoting_style="needed"`` (strings quoted, shortest round-trip floats,
+    booleans ``true``/``false``, a missing value empty), on arrays built without pandas."""
     import io
 
     import pyarrow as pa
@@ -208,12 +317,15 @@ def format_csv(cols: dict[str, Any]) -> bytes:
 
     arrays = [_strs([printable_id(c) for c in cols["component"]]), _levels(cols["level"])]
     for c in STATUS_COLUMNS[2:]:
-        if c == "valid":
-            arrays.append(_bools(cols[c] != 0))
+        if c in BOOL_COLUMNS:
+            arrays.append(_bools(cols[c]))
         elif c == "n":
             arrays.append(_num(cols[c].astype(np.int64), pa.int64()))
+        elif c in TEXT_COLUMNS:
+            arrays.append(_text(cols[c]))
         else:
-            arrays.append(_num(cols[c].astype(np.float64), pa.float64()))
+            v = np.asarray(cols[c], dtype=np.float64)
+            arrays.append(_with_nulls(_num(v, pa.float64()), np.isnan(v)))
     buf = io.BytesIO()
     pacsv.write_csv(pa.Table.from_arrays(arrays, names=list(STATUS_COLUMNS)), buf,
                     pacsv.WriteOptions(quoting_style="needed"))
@@ -269,10 +381,21 @@ def _ujson_floats(a: np.ndarray) -> Any:
     return out
 
 
+def _json_texts(values: list[str | None]) -> Any:
+    """JSON strings (or ``null``) of a text column: one literal when every value is the
+    same, else a ``large_string`` array."""
+    distinct = set(values)
+    if len(distinct) == 1:
+        (v,) = distinct
+        return "null" if v is None else _json_str(v)
+    return _strs(["null" if v is None else _json_str(v) for v in values])
+
+
 def format_json(cols: dict[str, Any]) -> list[bytes]:
-    """The JSON text of ``rulkit status --format json`` (what pandas'
-    ``to_json(orient="records", double_precision=15)`` wrote), without the final newline, as
-    byte chunks to write one after the other (no copy of the whole text to join them)."""
+    """The JSON text of ``rulkit status --format json`` (records, as pandas'
+    ``to_json(orient="records", double_precision=15)`` writes them), without the final
+    newline, as byte chunks to write one after the other (no copy of the whole text to join
+    them)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
@@ -288,10 +411,12 @@ def format_json(cols: dict[str, Any]) -> list[bytes]:
     parts += [_levels(cols["level"]), '"']
     for c in STATUS_COLUMNS[2:]:
         parts.append(f',"{c}":')
-        if c == "valid":
-            parts.append(pc.if_else(_bools(cols[c] != 0), _const("true", n), _const("false", n)))
+        if c in BOOL_COLUMNS:
+            parts.append(pc.if_else(_bools(cols[c]), _const("true", n), _const("false", n)))
         elif c == "n":
             parts.append(pc.cast(_num(cols[c].astype(np.int64), pa.int64()), pa.large_string()))
+        elif c in TEXT_COLUMNS:
+            parts.append(_json_texts(cols[c]))
         else:
             parts.append(_ujson_floats(cols[c]))
     parts.append("},")

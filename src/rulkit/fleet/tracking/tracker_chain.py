@@ -369,6 +369,73 @@ def rul_confidence_limits(
     return rul_low, rul_high
 
 
+def _interval_inputs(fhi: np.ndarray, frul: np.ndarray, config: TrackerConfig
+                     ) -> tuple[FloatArray, FloatArray, float, float]:
+    """fHI clipped to [hi_floor, 1], RUL = max(fRUL, 0), the exponents p = m/2 and q."""
+    h = np.clip(np.asarray(fhi, dtype=np.float64), config.hi_floor, 1.0)
+    rul = np.maximum(np.asarray(frul, dtype=np.float64), 0.0)
+    q = config.paris_exponent if config.load_exponent is None else config.load_exponent
+    return h, rul, 0.5 * config.paris_exponent, float(q)
+
+
+def tracker_rul_interval(fhi: np.ndarray, frul: np.ndarray, config: TrackerConfig
+                         ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The tracker chain's RUL with limits around that same RUL (docs/systems/embedded-rul.md
+    §6, (EI-14)).
+
+    The point is the filtered RUL, never negative: ``max(fRUL, 0)``. The seed's eq 27 takes
+    the growth rate from the RUL itself (dHI/dt = -ln(HI) HI / RUL for m = 2), so the limits
+    of eq 29 (HI +- one standard deviation s, load +- delta) scale the point by the ratio of
+    the times to HI = 1 at unit rate, T1(h) = -ln h (m = 2) or (1 - h^(1-p)) / (1 - p):
+
+        low = RUL T1(fHI + s) / T1(fHI) / (1 + delta)^q <= RUL <= RUL T1(fHI - s) / T1(fHI)
+              / (1 - delta)^q = high,
+
+    with the HI clipped to [hi_floor, 1] as in :func:`rul_confidence_limits`. At fHI >= 1
+    (T1 = 0) the interval is [0, RUL]. Limits, not a probability interval. Returns
+    (RUL, low, high); NaN stays NaN.
+    """
+    h, rul, p, q = _interval_inputs(fhi, frul, config)
+    s, d = config.hi_sigma, config.load_factor
+    one = np.ones_like(h)
+    t_mid = _time_to_one(h, one, p)
+    t_lo = _time_to_one(np.clip(h + s, config.hi_floor, 1.0), one, p)
+    t_hi = _time_to_one(np.clip(h - s, config.hi_floor, 1.0), one, p)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        low = np.where(t_mid > 0, rul * (t_lo / t_mid) / (1.0 + d) ** q, 0.0) + 0.0
+        high = np.where(t_mid > 0, rul * (t_hi / t_mid) / (1.0 - d) ** q, rul)
+    nan = np.isnan(rul)
+    return rul, np.where(nan, np.nan, np.minimum(low, rul)), np.where(
+        nan, np.nan, np.maximum(high, rul))
+
+
+def tracker_hi_forecast(fhi: np.ndarray, frul: np.ndarray, horizons: np.ndarray,
+                        config: TrackerConfig) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The HI the chain forecasts ``horizons`` (B, K) after the last acquisition (seed eq 28,
+    docs/systems/embedded-rul.md §6, (EI-15)): dHI/dt = c HI^(m/2) from fHI with the rate c
+    of :func:`tracker_rul_interval` (c = T1(fHI) / RUL), and the two paths of its limits
+    (from fHI + s at c (1 + delta)^q, from fHI - s at c (1 - delta)^q). Each path reaches
+    HI = 1 at the RUL, its low or its high limit. Returns (median path, lower, upper), HI
+    capped at 1 once reached."""
+    h, rul, p, q = _interval_inputs(fhi, frul, config)
+    s, d = config.hi_sigma, config.load_factor
+    r = np.asarray(horizons, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        c = (_time_to_one(h, np.ones_like(h), p) / rul)[:, None]
+
+        def path(h0: np.ndarray, rate: np.ndarray) -> FloatArray:
+            """h^(1-p) = h0^(1-p) + (1-p) c r (h0 exp(c r) at p = 1); past a blow-up, 1."""
+            h0 = np.clip(h0, config.hi_floor, 1.0)[:, None]
+            if p == 1.0:
+                out = h0 * np.exp(rate * r)
+            else:
+                base = h0 ** (1.0 - p) + (1.0 - p) * rate * r
+                out = np.where(base > 0, np.abs(base) ** (1.0 / (1.0 - p)), np.inf)
+            return np.minimum(np.where(np.isnan(out), 1.0, out), 1.0)
+
+        return (path(h, c), path(h - s, c * (1.0 - d) ** q), path(h + s, c * (1.0 + d) ** q))
+
+
 def rul_validity(drul: np.ndarray, d2rul: np.ndarray, config: TrackerConfig) -> NDArray[np.bool_]:
     """Seed section 6: RUL valid when lo < dRUL/dt < hi (-2, 0) and |d2RUL/dt2| < 0.01.
 
@@ -783,7 +850,9 @@ __all__ = [
     "rul_confidence_limits",
     "rul_validity",
     "track_series",
+    "tracker_hi_forecast",
     "tracker_outputs",
+    "tracker_rul_interval",
     "tracker_update",
     "tracker_update_loop",
 ]

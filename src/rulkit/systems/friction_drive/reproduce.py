@@ -2,7 +2,7 @@
 RUL (seed 003, Rodriguez Obando, Martinez & Berenguer, IFAC 2017; docs/systems/friction-drive.md).
 
 The experiment composes the physics of :mod:`rulkit.systems.friction_drive.drive` with the generic
-:class:`rulkit.estimation.kalman.ExtendedKalmanFilter` (continuous model, RK4 mean prediction,
+:class:`rulkit.estimation.ekf.ExtendedKalmanFilter` (continuous model, RK4 mean prediction,
 ``Phi = expm(F t_s)`` with the analytic F of seed eq. 19, Van Loan ``Q_d``), the consistency
 checks of :mod:`rulkit.estimation.consistency` and :class:`rulkit.prognosis.rul.RULDistribution`.
 
@@ -25,7 +25,7 @@ from rulkit.estimation.consistency import (
     check_innovations,
     state_error_check,
 )
-from rulkit.estimation.kalman import ExtendedKalmanFilter
+from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.model import FloatArray
 from rulkit.systems.friction_drive import drive as fd
 from rulkit.systems.friction_drive.drive import (

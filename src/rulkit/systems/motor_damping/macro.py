@@ -441,7 +441,8 @@ def rul_monte_carlo(
         # exact triple-integrated-random-walk noise over one cycle: q * chol(Q(1) / q)
         L3 = np.linalg.cholesky(_transition(1.0, 1.0, 3)[1])
 
-        def step3(xk: FloatArray, t: float, dt: float, rng_: np.random.Generator) -> FloatArray:
+        def step3(xk: FloatArray, u: object, t: float, dt: float, rng_: np.random.Generator
+                  ) -> FloatArray:
             out = np.empty_like(xk)
             out[:, 0] = xk[:, 0] + xk[:, 1] * dt + 0.5 * xk[:, 2] * dt * dt
             out[:, 1] = xk[:, 1] + xk[:, 2] * dt
@@ -454,7 +455,8 @@ def rul_monte_carlo(
                 out[:, 3] = out[:, 0] + s_sd * rng_.standard_normal(xk.shape[0])
             return out
 
-    def step(xk: FloatArray, t: float, dt: float, rng_: np.random.Generator) -> FloatArray:
+    def step(xk: FloatArray, u: object, t: float, dt: float, rng_: np.random.Generator
+             ) -> FloatArray:
         out = np.empty_like(xk)
         out[:, 0] = xk[:, 0] + xk[:, 1] * dt
         out[:, 1] = xk[:, 1]

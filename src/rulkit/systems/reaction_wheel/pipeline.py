@@ -506,32 +506,18 @@ def _notes(stream: Step1Stream) -> list[str]:
 def _fleet_task(task: tuple[WheelRecord, str, PipelineOptions], rng: np.random.Generator
                 ) -> dict[str, Any]:
     """One wheel of :func:`run_fleet` (``rng`` unused: the options carry the seed)."""
+    from rulkit.systems.reaction_wheel.record_report import summary_row
+
     record, out, opts = task
-    res = run_pipeline(record, Path(out), opts)
-    return summary_row(res)
-
-
-def summary_row(res: PipelineResult) -> dict[str, Any]:
-    """The fleet table's row of a record: rows, last temperature, last b and beta0 and the
-    median RUL of the two-step tracker (NaN where not run)."""
-    row: dict[str, Any] = {"wheel": res.record.name, "rows": res.rows}
-    h = res.hourly
-    row["T_last_C"] = float(h["T_mean"].iloc[-1]) if len(h) else float("nan")
-    tab = res.tracks.table if res.tracks is not None else None
-    for v in ("b", "beta0"):
-        row[f"{v}_last"] = float(tab[f"{v}_two_step"].iloc[-1]) if tab is not None else np.nan
-    r = res.ruls.get("two_step")
-    row["rul_median_days"] = float(r.median) if r is not None else float("nan")
-    lo, hi = r.interval(res.options.level) if r is not None else (np.nan, np.nan)
-    row["rul_lo_days"], row["rul_hi_days"] = float(lo), float(hi)
-    return row
+    return summary_row(run_pipeline(record, Path(out), opts))
 
 
 def run_fleet(records: list[WheelRecord], out: Path, options: PipelineOptions, *,
               workers: int = 1, scheduler: str | None = None, progress: Any = None) -> Any:
     """Every record into ``out/<name>/`` as independent tasks (serial, ``workers`` processes
     or a Dask ``scheduler``, :func:`rulkit.runner.run_independent`); writes and returns the
-    fleet table ``out/fleet.csv`` (one row per wheel, :func:`summary_row`)."""
+    fleet table ``out/fleet.csv`` (one row per wheel,
+    :func:`rulkit.systems.reaction_wheel.record_report.summary_row`)."""
     import pandas as pd
 
     from rulkit.runner import run_independent

@@ -46,8 +46,6 @@ def write_record_report(res: Any, out: Path) -> Path:
 
 
 def _summary(res: Any) -> dict[str, Any]:
-    from rulkit.systems.reaction_wheel.pipeline import summary_row
-
     return summary_row(res) | {"notes": res.notes, "files": [p.name for p in res.files]}
 
 
@@ -188,3 +186,19 @@ def _plot_rul(res: Any, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def summary_row(res: Any) -> dict[str, Any]:
+    """The fleet table's row of a record: rows, last temperature, last b and beta0 and the
+    median RUL of the two-step tracker (NaN where not run)."""
+    row: dict[str, Any] = {"wheel": res.record.name, "rows": res.rows}
+    h = res.hourly
+    row["T_last_C"] = float(h["T_mean"].iloc[-1]) if len(h) else float("nan")
+    tab = res.tracks.table if res.tracks is not None else None
+    for v in ("b", "beta0"):
+        row[f"{v}_last"] = float(tab[f"{v}_two_step"].iloc[-1]) if tab is not None else np.nan
+    r = res.ruls.get("two_step")
+    row["rul_median_days"] = float(r.median) if r is not None else float("nan")
+    lo, hi = r.interval(res.options.level) if r is not None else (np.nan, np.nan)
+    row["rul_lo_days"], row["rul_hi_days"] = float(lo), float(hi)
+    return row

@@ -180,21 +180,10 @@ def run(config: ToyConfig | None = None) -> ToyResult:
     kf_mean = kres.x[:, 0, :]
     kf_std = np.sqrt(np.einsum("tii->ti", kres.P[:, 0]))
 
-    def step(x: FloatArray, tt: float, h: float, rng: np.random.Generator) -> FloatArray:
-        return model.step(x, None, tt, h, rng)
-
     steps = [k for k in cfg.prediction_steps if k * dt < t_eol]
-    ruls = []
-    for k in steps:
-        assert res.particle_history is not None and res.weight_history is not None
-        parts = res.particle_history[k - 1]
-        w = res.weight_history[k - 1]
-        ruls.append(
-            propagate_to_threshold(
-                parts, step, model.health, model.threshold, t0=k * dt, dt=cfg.prognosis_dt,
-                horizon=cfg.horizon, rng=rng_prog, weights=w,
-            )
-        )
+    ruls = [propagate_to_threshold(res.posterior(k - 1), model=model, t0=k * dt,
+                                   dt=cfg.prognosis_dt, horizon=cfg.horizon, rng=rng_prog)
+            for k in steps]
     tp = np.array([k * dt for k in steps], dtype=np.float64)
     rul_true = t_eol - tp
 

@@ -30,7 +30,7 @@ def test_cycle_crossing_equals_the_engine_on_the_same_windows() -> None:
     d = predict_rul(PARTS, W, 1.0, cyc, 6.0, 3650.0)
     inc = cycle_increments(PARTS[:, 0], PARTS[:, 1], cyc)
 
-    def step(x, t, dt, g):
+    def step(x, u, t, dt, g):
         out = x.copy()
         out[:, 0] += inc[:, round(t / (6 * 3600.0)) % inc.shape[1]]
         return out

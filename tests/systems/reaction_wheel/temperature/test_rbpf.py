@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from rulkit.estimation.kalman import ExtendedKalmanFilter
+from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.systems.reaction_wheel.telemetry import table3_telemetry
 from rulkit.systems.reaction_wheel.temperature.ekf import run_ekf
 from rulkit.systems.reaction_wheel.temperature.estimator import estimate_temperature

@@ -142,19 +142,22 @@ class Forecaster:
     def rul(self, b: FloatArray, beta0: FloatArray, indicator0: FloatArray,
             rng: np.random.Generator, weights: FloatArray | None = None) -> Any:
         """RUL distribution (days) of particles by ``propagate_to_threshold`` (engine)."""
+        from rulkit.estimation.base import Posterior
         from rulkit.prognosis.rul import propagate_to_threshold
 
         x0 = np.column_stack([b, beta0, indicator0])
 
-        def step(x: FloatArray, t: float, dt: float, g: np.random.Generator) -> FloatArray:
+        def step(x: FloatArray, u: Any, t: float, dt: float, g: np.random.Generator
+                 ) -> FloatArray:
             j = min(round(t / self.window_s), self.n_windows - 1)
             out = x.copy()
             out[:, 2] += self.increments(x[:, 0], x[:, 1], j)
             return out
 
-        return propagate_to_threshold(x0, step, lambda x: x[:, 2], self.threshold, t0=0.0,
+        start = x0 if weights is None else Posterior.from_samples(x0, weights)
+        return propagate_to_threshold(start, step, lambda x: x[:, 2], self.threshold, t0=0.0,
                                       dt=self.window_s, horizon=self.n_windows * self.window_s,
-                                      rng=rng, weights=weights)
+                                      rng=rng)
 
     def trajectories(self, b: FloatArray, beta0: FloatArray, indicator0: FloatArray
                      ) -> FloatArray:

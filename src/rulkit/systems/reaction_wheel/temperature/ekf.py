@@ -1,7 +1,7 @@
 """Extended Kalman filters of step 1 on [I, w, T] (docs/systems/reaction-wheel.md §3.3).
 
 - :func:`run_ekf`: the reference, batched over units on the engine's
-  :class:`rulkit.estimation.kalman.ExtendedKalmanFilter` with the tangent-linear RK4 Jacobian.
+  :class:`rulkit.estimation.ekf.ExtendedKalmanFilter` with the tangent-linear RK4 Jacobian.
 - :func:`ekf_steps`: the same filter compiled (sequential scalar updates, tested equal to the
   reference), made for a user's record (docs/systems/reaction-wheel.md §3.4): time since the
   record's start (never epoch seconds) in the torque disturbance, any step between rows (a gap
@@ -67,7 +67,7 @@ def run_ekf(
     ``(sigma_w, sigma_I)`` or per unit (B, 2). Discrete model: one
     RK4 step of the wheel with T held, T a random walk of step ``q_T``; tiny process noise
     ``q_Iw`` on [I, w] keeps P well conditioned. Prior: [I, w] = y_0 with covariance R, T with
-    the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.kalman.ExtendedKalmanFilter`
+    the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.ekf.ExtendedKalmanFilter`
     with the tangent-linear RK4 Jacobian (:func:`rk4_wheel_step_jacobian`; finite differences
     when ``analytic_jacobian=False``).
     """
@@ -111,7 +111,7 @@ def ekf_setup(
     """The wheel EKF of :func:`run_ekf` for B units whose first sample is ``y0`` (B, 2) =
     [w, I_m]: (filter, prior mean x0 (B, 3), prior covariance P0 (B, 3, 3), its
     :class:`StepClock`)."""
-    from rulkit.estimation.kalman import ExtendedKalmanFilter
+    from rulkit.estimation.ekf import ExtendedKalmanFilter
 
     p = params or IthacoParams()
     y0 = np.asarray(y0, dtype=np.float64)

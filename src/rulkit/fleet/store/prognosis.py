@@ -1,0 +1,375 @@
+"""One RUL per component in the store: the estimator in force and the alert rules over a
+batch, the columns that hold them, and their replay (docs/systems/embedded-rul.md §6-7).
+
+The store keeps, beside the tracker chain's state (its 7 numbers, unchanged):
+
+* ``components``: ``rul_median`` and, in ``rul_low`` / ``rul_high``, the interval of the same
+  estimator (:mod:`rulkit.fleet.monitoring.estimators`); ``level`` / ``max_level`` from the
+  alert rules (:mod:`rulkit.fleet.monitoring.rules`); ``hits`` (crossings of the last
+  acquisitions), ``failed_at``, ``seen`` (calendar time of the last acquisition, seconds since
+  1970) and the trend estimator's 7 sums ``tr_*``;
+* ``history``: per acquisition ``rul_median``, ``rul_low``, ``rul_high`` and ``level`` as the
+  estimator in force and the rules gave them;
+* ``meta`` key ``monitoring``: the :class:`~rulkit.fleet.monitoring.rules.MonitoringRules` and
+  the :class:`~rulkit.fleet.monitoring.unit_trend.TrendConfig`.
+
+A RUL not estimated yet is stored as median NULL with the vacuous interval [0, inf) (the
+columns ``rul_low`` / ``rul_high`` are NOT NULL); a failed component as 0 [0, 0].
+
+Every column here is added to a database written before them, in one transaction, with the
+RUL columns of every component and history row replayed from the stored acquisitions
+(:func:`upgrade`, :func:`replay`); :func:`replay` also runs when a model is fitted or the rules
+change, so the table, the history and the charts always show one estimator.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rulkit.fleet.monitoring.estimators import Estimator, estimator_in_force
+from rulkit.fleet.monitoring.rules import MonitoringRules, RuleRows, RuleState, apply_rules
+from rulkit.fleet.monitoring.unit_trend import (
+    SUM_NAMES,
+    TrendConfig,
+    TrendState,
+    rul_quantiles,
+    trend_posterior,
+    trend_run,
+)
+from rulkit.fleet.store.database_file import rows_of_components
+from rulkit.fleet.tracking.tracker_chain import LEVEL_ALARM, tracker_rul_interval
+
+if TYPE_CHECKING:
+    from rulkit.fleet.store.acquisitions import Alert
+
+FloatArray = NDArray[np.float64]
+TREND_COLUMNS = tuple(f"tr_{k.lower()}" for k in SUM_NAMES)
+COMPONENT_COLUMNS = (("rul_median", "REAL"), ("hits", "INTEGER"), ("failed_at", "REAL"),
+                     ("seen", "REAL"), *((c, "REAL") for c in TREND_COLUMNS))
+"""Columns of ``components`` added for one RUL per component (name, SQLite type)."""
+HISTORY_COLUMNS = (("rul_median", "REAL"),)
+ALERT_COLUMNS = (("rul", "REAL"), ("reason", "TEXT"))
+"""Columns of the service's ``alerts`` table: the RUL median at the alert and why."""
+_PG_TYPES = {"REAL": "DOUBLE PRECISION", "INTEGER": "BIGINT", "TEXT": "TEXT"}
+META_KEY = "monitoring"
+REPLAY_ROWS = 200_000
+"""History rows replayed at once (bounds the memory of :func:`replay`)."""
+
+
+# ----------------------------------------------------------------------------- schema
+def _dialect(conn: Any) -> str:
+    return str(getattr(conn, "dialect", "sqlite"))
+
+
+def table_columns(conn: Any, table: str) -> list[str]:
+    """The columns of ``table`` (SQLite or PostgreSQL connection)."""
+    if _dialect(conn) == "postgresql":
+        rows = conn.execute("SELECT column_name FROM information_schema.columns WHERE "
+                            "table_name = ? AND table_schema = current_schema()",
+                            (table,)).fetchall()
+        return [str(r[0]) for r in rows]
+    return [str(r[1]) for r in conn.execute(f"PRAGMA table_info({table})").fetchall()]
+
+
+def ensure_columns(conn: Any, table: str, columns: tuple[tuple[str, str], ...]) -> list[str]:
+    """Add the missing ``columns`` (all nullable) to ``table``; returns the names added."""
+    have = set(table_columns(conn, table))
+    pg = _dialect(conn) == "postgresql"
+    added = []
+    for name, typ in columns:
+        if name not in have:
+            conn.execute(f"ALTER TABLE {table} ADD COLUMN {name} "
+                         f"{_PG_TYPES[typ] if pg else typ}")
+            added.append(name)
+    return added
+
+
+def read_monitoring(meta: dict[str, str]) -> tuple[MonitoringRules, TrendConfig]:
+    """The rules and trend settings stored in ``meta`` (defaults when absent)."""
+    raw = meta.get(META_KEY)
+    if raw is None:
+        return MonitoringRules(), TrendConfig()
+    d = json.loads(raw)
+    return MonitoringRules.from_dict(d["rules"]), TrendConfig.from_dict(d["trend"])
+
+
+def monitoring_meta(rules: MonitoringRules, trend: TrendConfig) -> tuple[str, str]:
+    """The ``meta`` row of the rules and trend settings."""
+    return META_KEY, json.dumps({"rules": rules.to_dict(), "trend": trend.to_dict()})
+
+
+def write_monitoring(conn: Any, rules: MonitoringRules, trend: TrendConfig) -> None:
+    """Store the rules (inside the caller's transaction)."""
+    key, value = monitoring_meta(rules, trend)
+    conn.execute("DELETE FROM meta WHERE key = ?", (key,))
+    conn.execute("INSERT INTO meta VALUES (?, ?)", (key, value))
+
+
+def needs_upgrade(conn: Any) -> bool:
+    """Whether the database lacks a column of this module (read, no lock taken)."""
+    have = set(table_columns(conn, "components"))
+    return any(name not in have for name, _ in COMPONENT_COLUMNS) or any(
+        name not in set(table_columns(conn, "history")) for name, _ in HISTORY_COLUMNS)
+
+
+def upgrade(store: Any) -> bool:
+    """Inside the caller's transaction: add the columns of this module to a database written
+    without them, store the rules in force (the defaults) and replay its RUL columns
+    (:func:`replay`); returns whether it did."""
+    conn = store._conn
+    added = ensure_columns(conn, "components", COMPONENT_COLUMNS)
+    added += ensure_columns(conn, "history", HISTORY_COLUMNS)
+    if added:
+        if conn.execute("SELECT 1 FROM meta WHERE key = ?", (META_KEY,)).fetchone() is None:
+            write_monitoring(conn, store.rules, store.trend)
+        replay(store)
+    return bool(added)
+
+
+# ----------------------------------------------------------------------------- one batch
+def current_estimator(store: Any) -> Estimator:
+    """The estimator in force as the database says now (another process may have fitted a
+    model or changed the rules since ``store`` was opened); the store's ``rules``, ``trend``
+    and ``degradation`` are brought up to date."""
+    rows = dict(store._conn.execute(
+        "SELECT key, value FROM meta WHERE key IN (?, 'degradation_model')",
+        (META_KEY,)).fetchall())
+    store.rules, store.trend = read_monitoring(rows)
+    if "degradation_model" in rows and getattr(store, "dialect", "sqlite") == "sqlite":
+        from rulkit.fleet.learned.degradation import DegradationModel
+
+        store.degradation = DegradationModel.from_dict(json.loads(rows["degradation_model"]))
+    return estimator_in_force(store.rules, store.config, store.degradation, store.trend)
+
+
+@dataclass(frozen=True)
+class BlockRows:
+    """One block of a batch's rows (time order per component): the rules' rows, and the
+    tracker's fHI per row (for the alerts)."""
+
+    rules: RuleRows
+    fhi: FloatArray
+
+
+class BatchPrognosis:
+    """The estimators and rules of one ingestion (inside its transaction): load the stored
+    state of the batch's components ``names``, run :meth:`block` over each block of
+    components, :meth:`finish` gives the final columns and stores the model states."""
+
+    def __init__(self, store: Any, names: list[str], t_last: FloatArray, hi_last: FloatArray,
+                 n_last: NDArray[np.int64], calendar: bool, now: float | None = None) -> None:
+        self.store, self.names = store, names
+        self.est = current_estimator(store)
+        self.calendar = calendar
+        self.now = time.time() if now is None else float(now)
+        b = len(names)
+        self.trend = TrendState(t=np.array(t_last, dtype=np.float64),
+                                hi=np.array(hi_last, dtype=np.float64),
+                                n=np.array(n_last, dtype=np.int64),
+                                s=np.zeros((b, len(SUM_NAMES))))
+        self.rule_state = RuleState.empty(b)
+        self.seen = np.full(b, np.nan)
+        self._load(names)
+        self.learned = None
+        if getattr(store, "degradation", None) is not None:
+            from rulkit.fleet.store.learned_state import LearnedPass
+
+            self.learned = LearnedPass(store._conn, store.degradation, names)
+        self.final = {k: np.full(b, np.nan) for k in ("rul_median", "rul_low", "rul_high")}
+        self.level = np.zeros(b, dtype=np.int8)
+        self.strategy: str | None = None  # trend_run's way (None: the cheapest per block)
+
+    def _load(self, names: list[str]) -> None:
+        cols = ("hits", "failed_at", "max_level", "seen", *TREND_COLUMNS)
+        for i, row in rows_of_components(self.store._conn, "components", cols, names):
+            self.rule_state.hits[i] = row[0] or 0
+            self.rule_state.failed_at[i] = np.nan if row[1] is None else row[1]
+            self.rule_state.max_level[i] = row[2]
+            self.seen[i] = np.nan if row[3] is None else row[3]
+            self.trend.s[i] = [np.nan if v is None else v for v in row[4:]]
+
+    def block(self, comps: np.ndarray, seg: np.ndarray, t: FloatArray, hi: FloatArray,
+              tracker_rows: dict[str, np.ndarray]) -> BlockRows:
+        """The rows of components ``comps`` (indices into ``names``; rows
+        ``seg[c]:seg[c + 1]`` of each, in time order): the estimator's RUL per row, then the
+        rules (RUL 0 once failed)."""
+        est, levels = self.est, self.est.rules.levels
+        new, rows = trend_run(self.trend.take(comps), seg, t, hi, est.trend,
+                              strategy=self.strategy)
+        for f in ("t", "hi", "n", "s"):
+            getattr(self.trend, f)[comps] = getattr(new, f)
+        learned = None
+        if self.learned is not None:
+            learned = self.learned.run(comps, seg, t, hi, levels)
+        if est.kind == "model":
+            assert learned is not None
+            med, low, high = learned
+        elif est.kind == "trend":
+            med, low, high = rul_quantiles(trend_posterior(rows, est.trend), levels)
+        else:
+            med, low, high = tracker_rul_interval(tracker_rows["fhi"], tracker_rows["frul"],
+                                                  est.tracker)
+        sub = RuleState(hits=self.rule_state.hits[comps],
+                        failed_at=self.rule_state.failed_at[comps],
+                        max_level=self.rule_state.max_level[comps])
+        new_rules, out = apply_rules(est.rules, seg, t, hi, med, low, high, sub)
+        self.rule_state.hits[comps] = new_rules.hits
+        self.rule_state.failed_at[comps] = new_rules.failed_at
+        self.rule_state.max_level[comps] = new_rules.max_level
+        last = seg[1:] - 1
+        for k, v in (("rul_median", out.median), ("rul_low", out.low), ("rul_high", out.high)):
+            self.final[k][comps] = v[last]
+        self.level[comps] = out.level[last]
+        self.seen[comps] = t[last] if self.calendar else self.now
+        return BlockRows(rules=out, fhi=np.asarray(tracker_rows["fhi"]))
+
+    def finish(self) -> dict[str, Any]:
+        """The columns of :data:`COMPONENT_COLUMNS` plus ``rul_low``, ``rul_high``, ``level``
+        and ``max_level`` per component of the batch (lists, NaN as None, ready for SQL);
+        stores the fitted model's states."""
+        if self.learned is not None:
+            self.learned.finish()
+        med, low, high = stored_interval(self.final["rul_median"], self.final["rul_low"],
+                                         self.final["rul_high"])
+        cols: dict[str, Any] = {"rul_median": med, "rul_low": low, "rul_high": high,
+                                "level": self.level, "max_level": self.rule_state.max_level,
+                                "hits": self.rule_state.hits,
+                                "failed_at": self.rule_state.failed_at, "seen": self.seen}
+        for j, c in enumerate(TREND_COLUMNS):
+            cols[c] = self.trend.s[:, j]
+        return {k: _sql_list(v) for k, v in cols.items()}
+
+
+def block_alerts(got: BlockRows, rules: MonitoringRules, unit: str, comps: list[str],
+                 seg: np.ndarray, rank: np.ndarray, rows: np.ndarray, t: FloatArray,
+                 hi: FloatArray) -> list[tuple[int, int, Alert]]:
+    """The alerts of a block: rows whose level passes the highest the component reached
+    before, as (acquisition rank, batch row, :class:`Alert`) for sorting."""
+    from rulkit.fleet.store.acquisitions import Alert  # pandas: not for rulkit status
+
+    r = got.rules
+    out = []
+    unit_of = np.repeat(np.arange(len(comps)), np.diff(seg))
+    for q in np.flatnonzero(r.level > r.previous).tolist():
+        level = int(r.level[q])
+        out.append((int(rank[q]), int(rows[q]), Alert(
+            component=comps[unit_of[q]], t=float(t[q]), level=level,
+            previous=int(r.previous[q]), hi=float(hi[q]), rul=float(r.median[q]),
+            rul_low=float(r.low[q]), rul_high=float(r.high[q]),
+            reason=rules.alarm_text() if level == LEVEL_ALARM else rules.warning_text(unit),
+            fhi=float(got.fhi[q]))))
+    return out
+
+
+def stored_interval(median: FloatArray, low: FloatArray, high: FloatArray
+                    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The RUL as stored: where there is no estimate (NaN median), the vacuous [0, inf)."""
+    none = np.isnan(median)
+    return median, np.where(none, 0.0, low), np.where(none, np.inf, high)
+
+
+def _sql_list(v: np.ndarray) -> list[Any]:
+    """Values for SQL: Python numbers, NaN as None (SQLite stores a bound NaN as NULL)."""
+    a = np.asarray(v)
+    out = a.tolist()
+    if a.dtype.kind == "f":
+        for i in np.flatnonzero(np.isnan(a)).tolist():
+            out[i] = None
+    return list(out)
+
+
+# ----------------------------------------------------------------------------- replay
+def _replay_names(conn: Any) -> list[tuple[str, int]]:
+    rows = conn.execute("SELECT component, n FROM components ORDER BY component").fetchall()
+    return [(str(c), int(n)) for c, n in rows]
+
+
+def _chunks(names: list[tuple[str, int]]) -> list[list[str]]:
+    out: list[list[str]] = [[]]
+    size = 0
+    for name, n in names:
+        if out[-1] and size + n > REPLAY_ROWS:
+            out.append([])
+            size = 0
+        out[-1].append(name)
+        size += n
+    return [c for c in out if c]
+
+
+def replay(store: Any) -> int:
+    """Inside the caller's transaction: every component's RUL columns and levels, in
+    ``history`` and ``components``, and the trend and model states, recomputed by replaying
+    its stored acquisitions through the estimator in force and the rules (alerts are not
+    raised again). Returns the number of components replayed."""
+    conn = store._conn
+    names = _replay_names(conn)
+    if store.degradation is not None:
+        from rulkit.fleet.store.learned_state import ensure_model_state
+
+        ensure_model_state(conn)
+    for chunk in _chunks(names):
+        _replay_chunk(store, chunk)
+    return len(names)
+
+
+def _replay_chunk(store: Any, names: list[str]) -> None:
+    conn = store._conn
+    ph = ",".join("?" * len(names))
+    rows = conn.execute(f"SELECT component, t, hi, fhi, frul FROM history WHERE component IN "
+                        f"({ph}) ORDER BY component, t", names).fetchall()
+    comp = [str(r[0]) for r in rows]
+    t, hi, fhi, frul = (np.array([r[k] for r in rows], dtype=np.float64) for k in range(1, 5))
+    pos = {n: i for i, n in enumerate(names)}
+    counts = np.bincount([pos[c] for c in comp], minlength=len(names)) if rows else \
+        np.zeros(len(names), dtype=np.int64)
+    seg = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    b = len(names)
+    empty = np.full(b, np.nan)
+    prog = BatchPrognosis(store, names, empty, empty, np.zeros(b, dtype=np.int64),
+                          calendar=False)
+    prog.trend = TrendState.empty(b)
+    prog.rule_state = RuleState(hits=np.zeros(b, dtype=np.int64), failed_at=np.full(b, np.nan),
+                                max_level=np.zeros(b, dtype=np.int8))
+    if prog.learned is not None:
+        prog.learned.reset()
+    seen = prog.seen.copy()
+    out = prog.block(np.arange(b), seg, t, hi, {"fhi": fhi, "frul": frul}).rules
+    final = prog.finish()
+    final["seen"] = _sql_list(seen)
+    med, low, high = stored_interval(out.median, out.low, out.high)
+    conn.executemany(
+        "UPDATE history SET rul_median = ?, rul_low = ?, rul_high = ?, level = ? "
+        "WHERE component = ? AND t = ?",
+        zip(_sql_list(med), _sql_list(low), _sql_list(high), out.level.tolist(), comp,
+            t.tolist(), strict=True))
+    cols = list(final)
+    conn.executemany(
+        f"UPDATE components SET {', '.join(f'{c} = ?' for c in cols)} WHERE component = ?",
+        zip(*(final[c] for c in cols), names, strict=True))
+
+
+__all__ = [
+    "ALERT_COLUMNS",
+    "COMPONENT_COLUMNS",
+    "HISTORY_COLUMNS",
+    "META_KEY",
+    "BatchPrognosis",
+    "BlockRows",
+    "block_alerts",
+    "current_estimator",
+    "ensure_columns",
+    "monitoring_meta",
+    "needs_upgrade",
+    "read_monitoring",
+    "replay",
+    "stored_interval",
+    "table_columns",
+    "upgrade",
+    "write_monitoring",
+]

@@ -1,0 +1,74 @@
+"""`rulkit export c` end to end: from a database the commands build, from a configuration
+file, and its refusals."""
+
+import subprocess
+
+import pytest
+from typer.testing import CliRunner
+
+from rulkit.cli import app
+from rulkit.fleet.learned.datasets import fatigue_histories
+
+runner = CliRunner()
+
+
+def _run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture
+def fleet_db(tmp_path):
+    csv = tmp_path / "fatigue.csv"
+    fatigue_histories().to_frame().drop(columns="failed").to_csv(csv, index=False)
+    db = tmp_path / "fleet.db"
+    assert _run("fit", csv, "--db", tmp_path / "t.db", "--model", "tracker").exit_code == 0
+    assert _run("track", "--db", db, csv).exit_code == 0
+    res = _run("fit", csv, "--db", db, "--model", "linear", "--time-unit", "kcycles")
+    assert res.exit_code == 0, res.output
+    return db
+
+
+def test_export_from_a_database_compiles(cc, tmp_path, fleet_db):
+    out = tmp_path / "c"
+    res = _run("export", "c", "--db", fleet_db, "--out", out, "--prefix", "crack",
+               "--number", "float")
+    assert res.exit_code == 0, res.output
+    assert "learned linear model (float)" in res.output
+    header = (out / "crack.h").read_text()
+    assert "int crack_update(crack_state *s, crack_time t, crack_real hi, crack_output *out);" \
+        in header
+    cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2", "-c",
+           str(out / "crack.c"), "-o", str(tmp_path / "crack.o")]
+    assert subprocess.run(cmd, capture_output=True, check=False).returncode == 0
+
+
+def test_refusals_write_nothing(tmp_path, fleet_db):
+    out = tmp_path / "c"
+    res = _run("export", "c", "--db", fleet_db, "--out", out, "--number", "fixed")
+    assert res.exit_code == 1 and "learned linear model" in res.output
+    assert not out.exists()
+    assert _run("export", "c", "--db", fleet_db, "--out", out, "--number", "fixed",
+                "--no-learned").exit_code == 0
+    assert _run("export", "c", "--db", fleet_db, "--out", out, "--number", "half"
+                ).exit_code == 2
+    assert _run("export", "c", "--out", out).exit_code == 2  # neither --db nor --config
+    assert _run("export", "c", "--db", fleet_db, "--out", out, "--prefix", "Bad").exit_code == 2
+    missing = _run("export", "c", "--db", tmp_path / "none.db", "--out", out)
+    assert missing.exit_code == 1 and "no such database" in missing.output
+
+
+def test_export_from_a_configuration_file(tmp_path):
+    cfg = tmp_path / "bearing.toml"
+    cfg.write_text('[component]\nname = "bearing"\n[tracker]\ndt = 1.0\ndesign_life = 2e4\n'
+                   'initiation = "measured"\nrul_clip = true\n'
+                   '[learned]\nkind = "exponential"\nshape = -0.1\nmean_a = -1.5\n'
+                   'mean_b = 1.0\ncov_aa = 0.1\ncov_bb = 0.2\nnoise_sd = 0.02\n'
+                   'time_scale = 500.0\ntime_unit = "h"\n')
+    out = tmp_path / "c"
+    res = _run("export", "c", "--config", cfg, "--out", out)
+    assert res.exit_code == 0, res.output
+    text = (out / "rk.c").read_text()
+    assert 'component type "bearing"' in text and "static const double L_TAU = 500.0;" in text
+    cfg.write_text("[tracker]\ndesing_life = 2e4\n")
+    res = _run("export", "c", "--config", cfg, "--out", out)
+    assert res.exit_code == 1 and "[tracker] unknown key(s) 'desing_life'" in res.output

@@ -1,0 +1,206 @@
+"""The default RUL estimator (rulkit.fleet.monitoring.unit_trend) against independent oracles:
+the posterior against weighted least squares by numpy's lstsq, the quantiles against a
+brute-force search of scipy's Student-t CDF, the closed-form t CDF and quantiles against
+scipy, the interval's coverage on fleets drawn from the model, the band against the
+interval, and the three ways of running it against one update per row."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from rulkit.fleet.monitoring.unit_trend import (
+    TrendConfig,
+    TrendPosterior,
+    TrendState,
+    first_crossing,
+    hi_quantiles,
+    rul_quantiles,
+    t_cdf,
+    t_quantile,
+    trend_posterior,
+    trend_run,
+    trend_update,
+)
+
+
+def fleet(rng, b, k, sd=0.01):
+    """b units, k irregular acquisitions each: HI = exp(a + b t) + additive noise."""
+    counts = rng.integers(1, k + 1, b)
+    seg = np.concatenate([[0], np.cumsum(counts)])
+    t, hi = [], []
+    for n in counts:
+        tt = np.cumsum(rng.uniform(0.5, 2.0, n)) + rng.uniform(0, 1e3)
+        rate = rng.uniform(0.005, 0.05)
+        a0 = np.log(rng.uniform(0.1, 0.5)) - rate * tt[0]
+        t.append(tt)
+        hi.append(np.clip(np.exp(a0 + rate * tt) + rng.normal(0, sd, n), 0.0, 3.0))
+    return seg, np.concatenate(t), np.concatenate(hi)
+
+
+@pytest.mark.parametrize("strategy", ["python", "jit", "ranks", None])
+def test_run_equals_one_update_per_row(strategy):
+    rng = np.random.default_rng(0)
+    cfg = TrendConfig(forgetting=0.9)
+    seg, t, hi = fleet(rng, 30, 25)
+    b = seg.size - 1
+    cut = seg[:-1] + np.diff(seg) // 2
+    ref = TrendState.empty(b)
+    rows_ref = []
+    for part in range(2):  # from fresh, then from the stored state
+        lo, hi_end = (seg[:-1], cut) if part == 0 else (cut, seg[1:])
+        counts = hi_end - lo
+        for r in range(int(counts.max(initial=0))):
+            have = counts > r
+            tt, hh = np.full(b, np.nan), np.full(b, np.nan)
+            tt[have], hh[have] = t[lo[have] + r], hi[lo[have] + r]
+            ref = trend_update(ref, tt, hh, cfg)
+            rows_ref += [(int(lo[u] + r), ref.s[u].copy()) for u in np.flatnonzero(have)]
+    state = TrendState.empty(b)
+    got = np.empty((t.size, 7))
+    for part in range(2):
+        lo, hi_end = (seg[:-1], cut) if part == 0 else (cut, seg[1:])
+        idx = np.concatenate([np.arange(a, e) for a, e in zip(lo, hi_end, strict=True)])
+        sub_seg = np.concatenate([[0], np.cumsum(hi_end - lo)])
+        state, rows = trend_run(state, sub_seg, t[idx], hi[idx], cfg, strategy=strategy)
+        got[idx] = rows.s
+    for i, s in rows_ref:
+        np.testing.assert_array_equal(got[i], s)
+    np.testing.assert_array_equal(state.s, ref.s)
+    np.testing.assert_array_equal(state.n, ref.n)
+    np.testing.assert_array_equal(state.t, ref.t)
+
+
+@pytest.mark.parametrize("forgetting", [1.0, 0.8])
+def test_posterior_is_weighted_least_squares(forgetting):
+    """a, b, their covariance and the degrees of freedom of (EI-17), computed from the raw
+    rows with numpy's lstsq (weights forgetting^age hi^2, x = t - t_last)."""
+    rng = np.random.default_rng(1)
+    cfg = TrendConfig(forgetting=forgetting, min_points=3)
+    t = np.cumsum(rng.uniform(0.5, 2.0, 12)) + 1e6  # epoch-like offsets: no cancellation
+    hi = np.exp(-1.5 + 0.03 * (t - t[0])) * np.exp(rng.normal(0, 0.05, t.size))
+    state, _ = trend_run(TrendState.empty(1), np.array([0, t.size]), t, hi, cfg)
+    post = trend_posterior(state, cfg)
+    w = forgetting ** np.arange(t.size)[::-1] * hi**2
+    x = np.column_stack([np.ones(t.size), t - t[-1]])
+    sw = np.sqrt(w)
+    coef, res, *_ = np.linalg.lstsq(x * sw[:, None], np.log(hi) * sw, rcond=None)
+    n_eff = (forgetting ** np.arange(t.size)).sum()
+    cov = res[0] / (n_eff - 2.0) * np.linalg.inv(x.T @ (w[:, None] * x))
+    assert post.a[0] == pytest.approx(coef[0], rel=1e-9)
+    assert post.b[0] == pytest.approx(coef[1], rel=1e-9)
+    np.testing.assert_allclose([post.vaa[0], post.vab[0], post.vbb[0]],
+                               [cov[0, 0], cov[0, 1], cov[1, 1]], rtol=1e-7)
+    assert post.nu[0] == np.floor(n_eff - 2.0)
+
+
+def test_no_estimate_before_min_points():
+    cfg = TrendConfig(min_points=5)
+    t = np.arange(6.0)
+    state = TrendState.empty(1)
+    for k in range(6):
+        state = trend_update(state, t[k:k + 1], np.array([0.2 + 0.01 * k]), cfg)
+        med = rul_quantiles(trend_posterior(state, cfg))[0]
+        assert np.isnan(med[0]) == (k < 4)
+
+
+def brute_quantile(post, p, grid):
+    """The smallest r with P(a + b r >= 0) = T_nu(h(r)) >= p (scipy's t CDF): the first grid
+    point past it, then bisection between the grid points around it."""
+    out = []
+    for i in range(post.a.size):
+        def cdf(r, i=i):
+            sd = np.sqrt(post.vaa[i] + 2 * r * post.vab[i] + r**2 * post.vbb[i])
+            return stats.t.cdf((post.a[i] + post.b[i] * r) / sd, post.nu[i])
+
+        hit = np.flatnonzero(cdf(grid) >= p)
+        if hit.size == 0 or hit[0] == 0:
+            out.append(np.inf if hit.size == 0 else 0.0)
+            continue
+        lo, hi = grid[hit[0] - 1], grid[hit[0]]
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if cdf(mid) >= p else (mid, hi)
+        out.append(hi)
+    return np.array(out)
+
+
+def random_posteriors(rng, n):
+    a = -rng.uniform(0.01, 3.0, n)
+    b = rng.normal(0.02, 0.03, n)
+    sa, sb = rng.uniform(0.01, 0.5, n), rng.uniform(1e-4, 0.02, n)
+    rho = rng.uniform(-0.9, 0.9, n)
+    return TrendPosterior(a=a, b=b, vaa=sa**2, vab=rho * sa * sb, vbb=sb**2,
+                          nu=rng.integers(1, 60, n).astype(float))
+
+
+def test_quantiles_against_a_brute_force_search():
+    rng = np.random.default_rng(2)
+    post = random_posteriors(rng, 60)
+    grid = np.linspace(0.0, 2000.0, 4001)
+    for p in (0.05, 0.5, 0.95):
+        got = rul_quantiles(post, (p,))[0]
+        ref = brute_quantile(post, p, grid)
+        inf = np.isinf(ref)
+        # a crossing past the grid's end counts as none on the grid
+        assert np.all(np.isinf(got[inf]) | (got[inf] > 2000.0)), p
+        np.testing.assert_allclose(got[~inf], ref[~inf], rtol=1e-8, atol=1e-9, err_msg=str(p))
+    med, low, high = rul_quantiles(post, (0.5, 0.05, 0.95))
+    assert np.all(low >= 0) and np.all(low <= med) and np.all(med <= high)
+
+
+def test_first_crossing_cases():
+    # a line without spread: the time the line reaches c * 0 = 0, for every c
+    assert first_crossing(-1.0, 0.5, 0.0, 0.0, 0.0, 0.0) == pytest.approx(2.0)
+    assert first_crossing(-1.0, -0.5, 1e-4, 0.0, 1e-6, 1.0) == np.inf  # moving away
+    assert first_crossing(0.5, 0.1, 1e-2, 0.0, 1e-4, 1.645) == 0.0  # already there
+    assert np.isnan(first_crossing(np.nan, 0.1, 1.0, 0.0, 1.0, 1.0))
+    # the margin (a + b r) / sd(r) rises to b / sqrt(v2) = 2 only: a level above is never met
+    assert first_crossing(-1.0, 0.2, 0.01, 0.0, 0.01, 2.5) == np.inf
+    r = first_crossing(-1.0, 0.2, 0.01, 0.0, 0.01, 1.5)
+    assert (-1.0 + 0.2 * r) / np.sqrt(0.01 + 0.01 * r * r) == pytest.approx(1.5)
+
+
+def test_t_cdf_and_quantiles_against_scipy():
+    nu = np.arange(1.0, 201.0)
+    for x in (-40.0, -2.5, -0.3, 0.0, 0.7, 3.0, 25.0):
+        np.testing.assert_allclose(t_cdf(x, nu), stats.t.cdf(x, nu), rtol=1e-12, atol=1e-15)
+    for p in (0.005, 0.05, 0.5, 0.9, 0.975):
+        np.testing.assert_allclose(t_quantile(nu, p), stats.t.ppf(p, nu), rtol=1e-12,
+                                   atol=1e-14, err_msg=str(p))
+    got = t_quantile(np.array([201.0, 1e6, np.nan]), 0.95)
+    assert got[0] == got[1] == pytest.approx(stats.norm.ppf(0.95), rel=1e-12)
+    assert np.isnan(got[2])
+
+
+def test_band_reaches_the_threshold_at_the_interval():
+    post = random_posteriors(np.random.default_rng(3), 40)
+    med, low, high = rul_quantiles(post, (0.5, 0.05, 0.95))
+    ok = np.isfinite(high) & (low > 0)
+    sub = TrendPosterior(*(getattr(post, f)[ok] for f in ("a", "b", "vaa", "vab", "vbb", "nu")))
+    at = np.column_stack([med[ok], low[ok], high[ok]])
+    h_med, h_up, h_low = hi_quantiles(sub, at, (0.5, 0.95, 0.05))
+    np.testing.assert_allclose(h_med[:, 0], 1.0, rtol=1e-9)  # the median line at the median
+    np.testing.assert_allclose(h_up[:, 1], 1.0, rtol=1e-9)  # the upper band at the low RUL
+    np.testing.assert_allclose(h_low[:, 2], 1.0, rtol=1e-9)  # the lower band at the high RUL
+
+
+def test_interval_coverage_on_fleets_drawn_from_the_model():
+    """HI = exp(a + b t) + additive noise (EI-16 with forgetting 1): the 90 % interval holds
+    the true RUL (the noise-free path's crossing) about 90 % of the time."""
+    rng = np.random.default_rng(4)
+    cfg = TrendConfig(forgetting=1.0, min_points=5)
+    n, k = 2000, 12
+    t = np.tile(np.arange(k, dtype=float), (n, 1)) * rng.uniform(0.5, 2.0, (n, 1))
+    rate = rng.uniform(0.02, 0.08, n)
+    a0 = np.log(rng.uniform(0.2, 0.5, n))
+    truth_path = np.exp(a0[:, None] + rate[:, None] * t)
+    hi = np.clip(truth_path + rng.normal(0, 0.01, (n, k)), 1e-3, None)
+    state, _ = trend_run(TrendState.empty(n), np.arange(0, n * k + 1, k), t.ravel(),
+                         hi.ravel(), cfg)
+    med, low, high = rul_quantiles(trend_posterior(state, cfg), (0.5, 0.05, 0.95))
+    true_rul = -a0 / rate - t[:, -1]
+    running = true_rul > 0  # units whose path has not crossed yet (the others have failed)
+    assert running.sum() > 1500
+    inside = ((low <= true_rul) & (true_rul <= high))[running]
+    assert 0.87 <= inside.mean() <= 0.93, inside.mean()
+    assert np.median(np.abs(med - true_rul)[running] / true_rul[running]) < 0.1
