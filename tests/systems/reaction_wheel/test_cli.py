@@ -104,7 +104,7 @@ def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeyp
                             forecast_horizon_days=40.0),
         table5_particles=(20,), table5_ekf=False, step1_error_runs=1, step1_particles=30,
         error_hours=0.1, table6_alt=False,
-        validation_hours=0.0, sensitivity_runs=0)
+        validation_hours=0.0, sensitivity_runs=0, eq28_seconds=5.0, real_step1_runs=0)
     monkeypatch.setattr(ReproductionConfig, "quick_config",
                         classmethod(lambda cls, seed=0, n_runs=None, **kw: tiny))
     out = tmp_path / "rwq"
@@ -126,6 +126,14 @@ def test_quick_reproduction_at_reduced_size_writes_files(tmp_path: Path, monkeyp
     assert "Table 6" in report and "[R]" in report and "not validated" in report
     assert "| RBPF | rbpf RBJ |" in report and "RBPF step-1 source (ours)" in report
     assert "Table 6: RMSPE" in res.output  # the tables are printed
+    # the seeds' filters complete, eq. 28 explained, one-step against two-step on every T^
+    for name in ("table5_seed_filters.csv", "eq28_weights.csv", "table6_one_vs_two_step.csv"):
+        assert (out / name).exists(), name
+    assert "### Why eq. 28 fails" in report and "### One-step against two-step" in report
+    filters = pd.read_csv(out / "table5_seed_filters.csv")
+    assert {"pf", "apf", "apf_eq28", "apf_tempered", "adaptive"} == set(filters["method"])
+    assert set(filters["design"]) == {"F1", "F2"}
+    assert set(pd.read_csv(out / "table6_one_vs_two_step.csv")["T^ source"]) >= {"APF", "IMM"}
 
 
 def test_reproduce_rejects_bad_options(tmp_path: Path) -> None:
