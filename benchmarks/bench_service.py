@@ -1,45 +1,53 @@
-"""Benchmark: the fleet service over HTTP on loopback (issue 12 goals, docs/service.md).
+"""Benchmark: the fleet service over HTTP on loopback (docs/service.md, "Load figures").
 
 For each backend (SQLite file; PostgreSQL: a throwaway server from the installed binaries):
 
-1. **Write load.** ``rulkit serve`` in a subprocess; ``--writers`` threads each POST
-   ``--batches`` JSON batches of ``--batch-size`` acquisitions (one per component, distinct
-   components per writer) while ``--readers`` threads poll ``GET /api/v1/components?limit=50``.
-   Prints acquisitions/s (all acquisitions / wall time until the last writer is done) and
-   p50/p99 latencies, then checks that every acquisition is stored exactly once.
-2. **Read latency at scale.** A fresh database with ``--components`` components (filled by
-   the store directly), then ``--readers`` threads x ``--reads`` requests of
-   ``GET /api/v1/components?limit=50`` (and the same with ``offset`` in the middle);
-   prints p50/p99.
+1. **Ingest.** ``rulkit serve`` in a subprocess; ``--writers`` threads each POST ``--batches``
+   JSON batches of each ``--batch-sizes`` (one acquisition per component, distinct components
+   per writer) while ``--readers`` threads poll ``GET /api/v1/components?limit=50``. Prints
+   acquisitions/s (wall time until the last writer is done), the service's CPU time per
+   acquisition (GETs included; the figure that does not depend on other jobs on the
+   machine), p50/p99 latencies, then checks every acquisition is stored exactly once.
+2. **Pages at scale.** A database of ``--components`` components (filled through the store),
+   then ``--readers`` threads x ``--reads`` requests of each page kind: the first page, a
+   middle page by ``offset``, a page filtered by level, a page sorted by RUL. Prints p50/p99
+   and service CPU per request.
+3. **History reads.** ``GET /api/v1/components/{id}/history?limit=1000`` on a database of
+   ``--history-rows`` rows and on one of 1 % of them: p50 of each and their ratio (flat = 1).
 
-Client and server share the machine (2 cores here), so the figures include the client's
-cost. Loopback only; every loop is bounded by its request count.
+Every figure is a median or percentile of one run; the load average at start and end is
+printed, since client and server share the machine's 2 cores with other jobs. Loopback only;
+every loop is bounded by its request count.
 
-    .venv/bin/python benchmarks/bench_service.py                  # ~1 min of load per backend
+    .venv/bin/python benchmarks/bench_service.py                  # both backends, minutes
     .venv/bin/python benchmarks/bench_service.py --quick          # a smoke run
-    .venv/bin/python benchmarks/bench_service.py --backend sqlite
+    .venv/bin/python benchmarks/bench_service.py --backend sqlite --batch-sizes 1000
 """
 
 from __future__ import annotations
 
 import argparse
+import http.client
 import os
 import platform
 import shutil
 import tempfile
+import threading
 import time
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from rulkit.fleet.service.db import ServiceDB
-from rulkit.fleet.service.loadgen import run_load, start_server, verify_exactly_once
+from rulkit.fleet.service.loadgen import request, run_load, start_server, verify_exactly_once
 from rulkit.fleet.service.pgtemp import TempPostgres, unavailable_reason
+from rulkit.fleet.store.postgres import open_store
 
 
-def write_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
+def write_phase(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
     sdb = ServiceDB(db)
     _, token = sdb.create_token("write", "bench")
     sdb.close()
@@ -47,50 +55,75 @@ def write_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
     try:
         cpu0, client0 = srv.cpu_seconds(), time.process_time()
         res = run_load(srv.port, token, writers=args.writers, readers=args.readers,
-                       batches=args.batches, batch_size=args.batch_size,
+                       batches=args.batches, batch_size=batch_size,
                        max_reads=args.batches * 4)
         cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
     finally:
         srv.stop()
     if res.errors:
         raise SystemExit(f"errors during the load: {res.errors[:5]}")
-    verify_exactly_once(db, args.writers, args.batches, args.batch_size)
+    verify_exactly_once(db, args.writers, args.batches, batch_size)
     return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client}
 
 
-def read_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
+def fill(db: str, n: int, steps: int = 1, chunk: int = 200_000) -> float:
+    """``n`` components with ``steps`` acquisitions each, through the store; seconds."""
+    rng = np.random.default_rng(0)
+    t0 = time.perf_counter()
+    with open_store(db) as store:
+        names = np.array([f"unit-{i:07d}" for i in range(n)], dtype=object)
+        per = max(1, chunk // steps)
+        for i0 in range(0, n, per):
+            comp = names[i0:i0 + per]
+            t = np.tile(np.arange(steps, dtype=float), len(comp))
+            hi = np.repeat(rng.uniform(0.1, 0.9, len(comp)), steps) * (1 + 1e-3 * t)
+            store.ingest(pd.DataFrame({"component": np.repeat(comp, steps), "time": t,
+                                       "hi": hi}), "bench-fill")
+    return time.perf_counter() - t0
+
+
+def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
+    n = args.components
+    out: dict[str, float] = {"components": n, "fill_s": fill(db, n)}
     sdb = ServiceDB(db)
     _, token = sdb.create_token("read", "bench")
-    n = args.components
-    rng = np.random.default_rng(0)
-    df = pd.DataFrame({"component": [f"unit-{i:06d}" for i in range(n)], "time": 0.0,
-                       "hi": rng.uniform(0.1, 1.2, n)})
-    t0 = time.perf_counter()
-    sdb.ingest(df, "bench-fill")
-    fill = time.perf_counter() - t0
     sdb.close()
+    kinds = [("first", "/api/v1/components?limit=50"),
+             ("middle_offset", f"/api/v1/components?limit=50&offset={n // 2}"),
+             ("level_alarm", "/api/v1/components?limit=50&level=alarm"),
+             ("sort_rul", "/api/v1/components?limit=50&sort=rul")]
     srv = start_server(db)
-    out: dict[str, float] = {"components": n, "fill_s": fill}
     try:
-        for label, path in [("first_page", "/api/v1/components?limit=50"),
-                            ("middle_page", f"/api/v1/components?limit=50&offset={n // 2}")]:
+        for label, path in kinds:
             cpu0 = srv.cpu_seconds()
             lat = _reads(srv.port, token, path, args.readers, args.reads)
             out[f"{label}_cpu_ms"] = (srv.cpu_seconds() - cpu0) / len(lat) * 1e3
             out[f"{label}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
             out[f"{label}_p99_ms"] = float(np.percentile(lat, 99)) * 1e3
-            out[f"{label}_requests"] = len(lat)
     finally:
         srv.stop()
     return out
 
 
+def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
+    """History reads at ``--history-rows`` and at 1 % of them (1000 rows per component)."""
+    out: dict[str, float] = {}
+    for db, rows in zip(dbs, (args.history_rows // 100, args.history_rows), strict=True):
+        out[f"fill_{rows}_s"] = fill(db, rows // 1000, steps=1000)
+        sdb = ServiceDB(db)
+        _, token = sdb.create_token("read", "bench")
+        sdb.close()
+        srv = start_server(db)
+        try:
+            path = "/api/v1/components/unit-0000000/history?limit=1000"
+            lat = _reads(srv.port, token, path, 1, args.reads)
+        finally:
+            srv.stop()
+        out[f"history_{rows}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
+    return out
+
+
 def _reads(port: int, token: str, path: str, threads: int, per_thread: int) -> list[float]:
-    import http.client
-    import threading
-
-    from rulkit.fleet.service.loadgen import request
-
     lat: list[float] = []
     lock = threading.Lock()
     errors: list[str] = []
@@ -119,68 +152,75 @@ def _reads(port: int, token: str, path: str, threads: int, per_thread: int) -> l
     return lat
 
 
+def _sqlite_path(tmp: Path, name: str) -> str:
+    return str(tmp / f"{name}.db")
+
+
+def _print_write(backend: str, size: int, w: dict[str, float]) -> None:
+    n = w["acquisitions"]
+    print(f"{backend} batch={size}: {int(n)} acquisitions in {w['seconds']:.1f} s = "
+          f"{w['acq_per_s']:.0f} acquisitions/s; service CPU {w['server_cpu_s']:.1f} s = "
+          f"{w['server_cpu_s'] / n * 1e6:.1f} us per acquisition (GETs included"
+          + ("" if backend == "sqlite" else "; PostgreSQL's processes not counted")
+          + f"), client CPU {w['client_cpu_s'] / n * 1e6:.1f} us per acquisition; POST p50 "
+          f"{w['post_p50_ms']:.0f} ms, p99 {w['post_p99_ms']:.0f} ms; GET p99 under load "
+          f"{w['get_p99_ms']:.0f} ms; exactly once: yes")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--backend", choices=["sqlite", "postgresql", "both"], default="both")
     ap.add_argument("--writers", type=int, default=8)
     ap.add_argument("--readers", type=int, default=8)
-    ap.add_argument("--batches", type=int, default=150, help="POSTs per writer.")
-    ap.add_argument("--batch-size", type=int, default=100)
-    ap.add_argument("--components", type=int, default=100_000)
-    ap.add_argument("--reads", type=int, default=100, help="GETs per reader thread.")
+    ap.add_argument("--batches", type=int, default=40, help="POSTs per writer and size.")
+    ap.add_argument("--batch-sizes", type=int, nargs="+", default=[100, 1000])
+    ap.add_argument("--components", type=int, default=1_000_000)
+    ap.add_argument("--history-rows", type=int, default=10_000_000)
+    ap.add_argument("--reads", type=int, default=50, help="GETs per reader thread and kind.")
+    ap.add_argument("--skip", nargs="*", default=[], choices=["ingest", "pages", "history"])
     ap.add_argument("--quick", action="store_true", help="Small counts (smoke run).")
     args = ap.parse_args()
     if args.quick:
-        args.batches, args.components, args.reads = 10, 10_000, 20
+        args.batches, args.components, args.reads = 5, 10_000, 10
+        args.history_rows = 100_000
     backends = ["sqlite", "postgresql"] if args.backend == "both" else [args.backend]
     print(f"# bench_service: {platform.node()}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.1f} at start; writers={args.writers} readers={args.readers} "
-          f"batches/writer={args.batches} batch={args.batch_size} "
-          f"components(read phase)={args.components}")
-    rows = []
+          f"batches/writer={args.batches} batch sizes={args.batch_sizes} "
+          f"components={args.components} history rows={args.history_rows}")
     for backend in backends:
         with ExitStack() as stack:
             tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-"))
             stack.callback(shutil.rmtree, tmp, True)
             if backend == "sqlite":
-                dbs = [str(tmp / "write.db"), str(tmp / "read.db")]
+                new_db = partial(_sqlite_path, tmp)
             else:
                 reason = unavailable_reason()
                 if reason:
                     print(f"postgresql: skipped ({reason})")
                     continue
                 pg = stack.enter_context(TempPostgres())
-                dbs = [pg.create_database("write"), pg.create_database("read")]
-            w = write_phase(dbs[0], args)
-            r = read_phase(dbs[1], args)
-            rows.append((backend, w, r))
+                new_db = pg.create_database
             print(f"\n## {backend}")
-            print(f"write load: {int(w['acquisitions'])} acquisitions in {w['seconds']:.1f} s = "
-                  f"{w['acq_per_s']:.0f} acquisitions/s; POST p50 {w['post_p50_ms']:.0f} ms, "
-                  f"p99 {w['post_p99_ms']:.0f} ms; concurrent GET limit=50 ({int(w['gets'])} "
-                  f"requests) p50 {w['get_p50_ms']:.0f} ms, p99 {w['get_p99_ms']:.0f} ms; "
-                  "every acquisition stored exactly once: yes")
-            print(f"CPU: service process {w['server_cpu_s']:.1f} s "
-                  f"({w['acquisitions'] / w['server_cpu_s']:.0f} acquisitions per service "
-                  f"CPU-second, GETs included), load client {w['client_cpu_s']:.1f} s"
-                  + ("" if backend == "sqlite" else "; PostgreSQL's own processes not counted"))
-            print(f"read latency, {int(r['components'])} components (filled in "
-                  f"{r['fill_s']:.1f} s), {args.readers} readers x {args.reads}: "
-                  f"first page p50 {r['first_page_p50_ms']:.1f} ms, p99 "
-                  f"{r['first_page_p99_ms']:.1f} ms; middle page p50 "
-                  f"{r['middle_page_p50_ms']:.1f} ms, p99 {r['middle_page_p99_ms']:.1f} ms; "
-                  f"service CPU per request {r['first_page_cpu_ms']:.1f} / "
-                  f"{r['middle_page_cpu_ms']:.1f} ms")
+            if "ingest" not in args.skip:
+                for size in args.batch_sizes:
+                    _print_write(backend, size, write_phase(new_db(f"w{size}"), args, size))
+            if "pages" not in args.skip:
+                r = pages_phase(new_db("pages"), args)
+                print(f"pages at {int(r['components'])} components (filled in "
+                      f"{r['fill_s']:.0f} s), {args.readers} readers x {args.reads} each:")
+                for kind in ("first", "middle_offset", "level_alarm", "sort_rul"):
+                    print(f"  {kind:14s} p50 {r[f'{kind}_p50_ms']:7.1f} ms  p99 "
+                          f"{r[f'{kind}_p99_ms']:7.1f} ms  service CPU "
+                          f"{r[f'{kind}_cpu_ms']:.1f} ms per request")
+            if "history" not in args.skip:
+                h = history_phase([new_db("h_small"), new_db("h_large")], args)
+                small, large = args.history_rows // 100, args.history_rows
+                print(f"history limit=1000: p50 {h[f'history_{small}_p50_ms']:.1f} ms at "
+                      f"{small} rows, {h[f'history_{large}_p50_ms']:.1f} ms at {large} rows "
+                      f"(filled in {h[f'fill_{large}_s']:.0f} s): ratio="
+                      f"{h[f'history_{large}_p50_ms'] / h[f'history_{small}_p50_ms']:.2f}")
     print(f"\nload average at end {os.getloadavg()[0]:.1f}")
-    print("\n| backend | acquisitions/s | per service CPU-s | POST p50 / p99 ms | GET p99 ms "
-          "under load | GET limit=50 p99 ms at N components (first / middle page) |")
-    print("|---|---|---|---|---|---|")
-    for backend, w, r in rows:
-        print(f"| {backend} | {w['acq_per_s']:.0f} | "
-              f"{w['acquisitions'] / w['server_cpu_s']:.0f} | {w['post_p50_ms']:.0f} / "
-              f"{w['post_p99_ms']:.0f} | {w['get_p99_ms']:.0f} | "
-              f"{r['first_page_p99_ms']:.1f} / {r['middle_page_p99_ms']:.1f} "
-              f"(N = {int(r['components'])}) |")
 
 
 if __name__ == "__main__":

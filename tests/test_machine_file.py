@@ -110,3 +110,24 @@ def test_range_text() -> None:
     assert Field("a", "", 1).range_text() == "a whole number"
     assert Field("a", "", 1.0, low=0.0).range_text() == "0 <= a"
     assert Field("a", "", 1.0, high=math.pi, high_open=True).range_text() == "a < 3.14159"
+
+
+def test_overrides_checked_and_named_by_their_label(tmp_path: Path) -> None:
+    from rulkit.machine_file import apply_overrides
+
+    values = read_machine_file(write(tmp_path, "[wheel]\nJ = 2\n"), SCHEMA)
+    got = apply_overrides(values, SCHEMA, {"--j": ("wheel", "J", 3), "--poles": ("wheel",
+                                                                                 "poles", None)})
+    assert got["wheel"] == {"J": 3.0, "poles": 8} and values["wheel"]["J"] == 2.0
+    with pytest.raises(MachineFileError, match=r"^--j = -1 \(kg m\^2\): outside its range"):
+        apply_overrides(values, SCHEMA, {"--j": ("wheel", "J", -1)})
+    with pytest.raises(ValueError, match=r"--x: \[wheel\] x is not in the schema"):
+        apply_overrides(values, SCHEMA, {"--x": ("wheel", "x", 1)})
+
+
+def test_template_with_values_reads_back_as_those_values(tmp_path: Path) -> None:
+    values = read_machine_file(write(tmp_path, "[wheel]\nJ = 2\n[filter]\ngate = false\n"),
+                               SCHEMA)
+    text = machine_file_template(SCHEMA, values=values)
+    assert "J = 2.0  # kg m^2" in text and "gate = false" in text
+    assert read_machine_file(write(tmp_path, text), SCHEMA) == values

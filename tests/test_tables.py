@@ -170,3 +170,31 @@ def test_readers_keep_their_error_class(tmp_path: Path, reader, error) -> None:
         with pytest.raises(error, match=words) as info:
             reader(tmp_path / name)
         assert type(info.value) is error and str(info.value).startswith(str(tmp_path / name))
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_boolean_cells_are_refused_not_read_as_one_and_zero(tmp_path: Path, fmt: str) -> None:
+    from rulkit.tables import numeric_columns
+
+    p = tmp_path / f"b.{fmt}"
+    df = pd.DataFrame({"x": [1.0, 2.0, 3.0], "flag": [False, True, True]})
+    df.to_csv(p, index=False) if fmt == "csv" else df.to_parquet(p)
+    back = read_table(p)
+    with pytest.raises(ValueError, match=r"column 'flag', row 1: False is a boolean "
+                                         r"\(true/false\), not a number \(3 boolean"):
+        numeric_columns(back, ["x", "flag"])
+    mixed = pd.DataFrame({"v": pd.Series([1.5, True], dtype=object)})
+    with pytest.raises(ValueError, match="column 'v', row 2: True is a boolean"):
+        numeric_columns(mixed, ["v"])
+    assert numeric_columns(back, ["x"])["x"].tolist() == [1.0, 2.0, 3.0]
+
+
+def test_match_columns_ignores_case_and_refuses_collisions() -> None:
+    from rulkit.tables import match_columns
+
+    assert match_columns(["Time", " SPEED", "other"], ["time", "speed", "current"]) == {
+        "time": "Time", "speed": " SPEED"}
+    with pytest.raises(KeyError, match=r"f.csv: columns 'speed' and 'SPEED' differ only in case"):
+        match_columns(["speed", "SPEED"], ["speed"], error=KeyError, source="f.csv")
+    # a collision among columns nobody asked for is not our business
+    assert match_columns(["a", "A", "speed"], ["speed"]) == {"speed": "speed"}

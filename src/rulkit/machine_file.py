@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Field", "MachineFileError", "machine_file_template", "read_machine_file",
-           "schema_table"]
+__all__ = ["Field", "MachineFileError", "apply_overrides", "machine_file_template",
+           "machine_values", "read_machine_file", "schema_table"]
 
 Schema = Mapping[str, Sequence["Field"]]
 
@@ -154,6 +154,23 @@ def machine_values(doc: Mapping[str, Any], schema: Schema, source: str = "<dict>
     return out
 
 
+def apply_overrides(values: dict[str, dict[str, Any]], schema: Schema,
+                    overrides: Mapping[str, tuple[str, str, Any]]) -> dict[str, dict[str, Any]]:
+    """``values`` (as :func:`read_machine_file` returns them) with single values replaced:
+    ``overrides`` maps a label (how the user gave it, e.g. a command-line flag ``"--j"``) to
+    ``(section, key, value)``; ``None`` values are skipped. Each value is checked by its field,
+    and an error names the label: ``--j = -0.003 (kg m^2): outside its range, ...``."""
+    out = {s: dict(v) for s, v in values.items()}
+    fields = {(s, f.name): f for s, fs in schema.items() for f in fs}
+    for label, (section, key, value) in overrides.items():
+        if value is None:
+            continue
+        if (section, key) not in fields:
+            raise ValueError(f"{label}: [{section}] {key} is not in the schema")
+        out[section][key] = fields[section, key].check(value, label)
+    return out
+
+
 def _closest(name: str, known: Mapping[str, Field]) -> str | None:
     low = {k.lower(): k for k in known}
     if name.lower() in low:
@@ -174,16 +191,19 @@ def _toml_value(v: float | int | str | bool) -> str:
     return repr(float(v))
 
 
-def machine_file_template(schema: Schema, title: str = "") -> str:
-    """The defaults of ``schema`` as a TOML file, each key with its unit, range and meaning
-    as a comment (reading it back gives the defaults)."""
+def machine_file_template(schema: Schema, title: str = "",
+                          values: Mapping[str, Mapping[str, Any]] | None = None) -> str:
+    """The defaults of ``schema`` (or ``values``, as :func:`read_machine_file` returns them)
+    as a TOML file, each key with its unit, range and meaning as a comment (reading it back
+    gives the same values)."""
     _check_schema(schema)
     lines = [f"# {title}", ""] if title else []
     for section, fields in schema.items():
         lines.append(f"[{section}]")
         for f in fields:
             note = "; ".join(x for x in (f.unit, f.range_text(), f.doc) if x)
-            lines.append(f"{f.name} = {_toml_value(f.default)}  # {note}")
+            v = f.default if values is None else values[section][f.name]
+            lines.append(f"{f.name} = {_toml_value(v)}  # {note}")
         lines.append("")
     return "\n".join(lines)
 

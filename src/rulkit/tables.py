@@ -37,6 +37,7 @@ __all__ = [
     "TableWriter",
     "cell_repr",
     "did_you_mean",
+    "match_columns",
     "numeric_columns",
     "read_table",
     "read_table_chunks",
@@ -326,8 +327,11 @@ def time_seconds(
     error: ErrorType = ValueError,
     source: str = "",
     row_label: Callable[[int], str] | None = None,
+    since_first: bool = False,
 ) -> NDArray[np.float64] | None:
-    """A date-time column as float64 seconds since 1970-01-01T00:00:00Z, or ``None`` when
+    """A date-time column as float64 seconds since 1970-01-01T00:00:00Z (``since_first``:
+    since the column's first value, computed in integer nanoseconds, so sub-microsecond steps
+    survive: seconds since the epoch are rounded to 2.4e-7 s in float64), or ``None`` when
     ``col`` holds no date-times (then the caller reads it as numbers).
 
     Date-times are: a ``datetime64`` column (Parquet timestamps, naive ones taken as UTC,
@@ -346,7 +350,8 @@ def time_seconds(
         ts = pd.to_datetime(s, utc=True)
     elif pd.api.types.is_timedelta64_dtype(s.dtype):
         ts = None
-        secs = s.dt.total_seconds().to_numpy(dtype=np.float64)
+        secs = ((s - s.iloc[0]) if since_first else s).dt.total_seconds().to_numpy(
+            dtype=np.float64)
         bad = ~np.isfinite(secs)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
@@ -371,8 +376,8 @@ def time_seconds(
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise error(f"{prefix}column {name!r}, {label(i)}: missing date-time (NaT or empty)")
-    epoch = pd.Timestamp("1970-01-01", tz="UTC")
-    return np.asarray((ts - epoch) / pd.Timedelta(seconds=1), dtype=np.float64)
+    origin = ts.iloc[0] if since_first else pd.Timestamp("1970-01-01", tz="UTC")
+    return np.asarray((ts - origin) / pd.Timedelta(seconds=1), dtype=np.float64)
 
 
 def cell_repr(v: object) -> str:
@@ -394,19 +399,26 @@ def numeric_columns(
     error: ErrorType = ValueError,
     source: str = "",
     row_label: Callable[[int], str] = _row_1_based,
+    missing_ok: Iterable[str] = (),
 ) -> dict[str, NDArray[np.float64]]:
     """Coerce columns of ``df`` to finite float64 arrays, or raise ``error`` at the first bad cell.
+    In the columns named in ``missing_ok`` an empty (NaN) cell is allowed and stays NaN (a
+    missing measurement); +-inf is refused there too.
 
     ``names`` lists the columns, in the order they are checked; a mapping ``{name: key}``
     names a column in the messages by ``name`` while reading ``df[key]`` (e.g. a
     case-insensitive match). Returns ``{name: array}`` (fresh float64 arrays, positional, the
     frame's index ignored).
 
-    For each column in turn: a cell that is not a number (after :func:`pandas.to_numeric`)
-    raises ``"<source>: column 'x', <row_label(i)>: 'abc' is not a number (k non-numeric
-    value(s) in this column)"``; then a NaN / +-inf (an empty cell reads as NaN) raises
-    ``"<source>: column 'x', <row_label(i)>: NaN (an empty or NaN cell) is not allowed: every
-    value must be a finite number, no NaN/inf (k non-finite value(s) in this column)"``.
+    For each column in turn: a true/false cell (a boolean column, as a CSV of ``True`` /
+    ``False`` or a Parquet boolean column reads, or a boolean inside a mixed column) raises
+    ``"<source>: column 'x', <row_label(i)>: True is a boolean (true/false), not a number"``
+    (pandas would read it as 1.0 / 0.0); a cell that is not a number (after
+    :func:`pandas.to_numeric`) raises ``"<source>: column 'x', <row_label(i)>: 'abc' is not a
+    number (k non-numeric value(s) in this column)"``; then a NaN / +-inf (an empty cell reads
+    as NaN) raises ``"<source>: column 'x', <row_label(i)>: NaN (an empty or NaN cell) is not
+    allowed: every value must be a finite number, no NaN/inf (k non-finite value(s) in this
+    column)"``.
     ``i`` is the 0-based position of the first offending row; ``row_label`` turns it into the
     reader's row wording (default ``row {i + 1}``, 1-based over the data rows).
     """
@@ -414,9 +426,11 @@ def numeric_columns(
 
     items = list(names.items()) if isinstance(names, Mapping) else [(n, n) for n in names]
     prefix = f"{source}: " if source else ""
+    allowed = set(missing_ok)
     out: dict[str, NDArray[np.float64]] = {}
     for name, key in items:
         col = df[key]
+        _refuse_booleans(col, name, error, prefix, row_label)
         num = pd.to_numeric(col, errors="coerce")
         bad = (num.isna() & col.notna()).to_numpy()
         if bad.any():
@@ -426,7 +440,7 @@ def numeric_columns(
                 f"number ({int(bad.sum())} non-numeric value(s) in this column)"
             )
         a = np.array(num.to_numpy(dtype=np.float64), dtype=np.float64, copy=True)
-        nonfinite = ~np.isfinite(a)
+        nonfinite = np.isinf(a) if name in allowed else ~np.isfinite(a)
         if nonfinite.any():
             i = int(np.flatnonzero(nonfinite)[0])
             what = "NaN (an empty or NaN cell)" if np.isnan(a[i]) else f"{a[i]}"
@@ -436,6 +450,54 @@ def numeric_columns(
                 f"value(s) in this column)"
             )
         out[name] = a
+    return out
+
+
+def _refuse_booleans(col: Any, name: str, error: ErrorType, prefix: str,
+                     row_label: Callable[[int], str]) -> None:
+    """Raise ``error`` at the first true/false cell of ``col`` (numeric_columns)."""
+    import pandas as pd
+
+    if pd.api.types.is_bool_dtype(col.dtype):
+        is_bool = col.notna().to_numpy()
+    elif col.dtype == object:
+        is_bool = col.map(lambda v: isinstance(v, bool | np.bool_)).to_numpy(dtype=bool)
+    else:
+        return
+    if is_bool.any():
+        i = int(np.flatnonzero(is_bool)[0])
+        raise error(f"{prefix}column {name!r}, {row_label(i)}: {cell_repr(col.iloc[i])} is a "
+                    f"boolean (true/false), not a number ({int(is_bool.sum())} boolean "
+                    "value(s) in this column)")
+
+
+def match_columns(
+    present: Iterable[Hashable],
+    wanted: Sequence[str],
+    *,
+    error: ErrorType = ValueError,
+    source: str = "",
+) -> dict[str, Hashable]:
+    """``{name: column}`` for each name of ``wanted`` found in ``present``, matched with case
+    and surrounding blanks ignored; names not found are left out (the caller says what is
+    missing).
+
+    Two present columns that match the same wanted name (``speed`` and ``SPEED``) raise
+    ``error`` naming both: which one was meant is a guess, and taking either would silently
+    drop the other."""
+    prefix = f"{source}: " if source else ""
+    found: dict[str, list[Hashable]] = {}
+    for c in present:
+        found.setdefault(str(c).strip().casefold(), []).append(c)
+    out: dict[str, Hashable] = {}
+    for name in wanted:
+        hits = found.get(name.strip().casefold(), [])
+        if len(hits) > 1:
+            listed = " and ".join(repr(safe_text(h)) for h in hits)
+            raise error(f"{prefix}columns {listed} differ only in case or blanks and both read "
+                        f"as {name!r}; keep one of them")
+        if hits:
+            out[name] = hits[0]
     return out
 
 

@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rulkit.cli import app
-from rulkit.cli.errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_USAGE
+from rulkit.cli.errors import EXIT_CORRUPT, EXIT_INPUT, EXIT_INTERNAL, EXIT_USAGE
 from rulkit.fleet.store.sqlite import ingest_into
 
 runner = CliRunner()
@@ -78,8 +78,8 @@ def test_truncated_database_and_a_bad_row(tmp_path):
                  ["track", "--db", str(db), str(acq_csv(tmp_path / "a.csv"))]):
         r = runner.invoke(app, args)
         no_traceback(r)
-        assert r.exit_code == EXIT_INPUT
-        assert "corrupt or truncated database" in r.output and str(db) in r.output
+        assert r.exit_code == EXIT_CORRUPT  # damaged: its own exit code
+        assert "reports the database damaged" in r.output and str(db) in r.output
 
 
 # ------------------------------------------------------------------ item 6: motor

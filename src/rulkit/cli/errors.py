@@ -10,7 +10,11 @@ codes"). One rule:
 * ``75`` (:data:`EXIT_BUSY`, ``EX_TEMPFAIL`` of sysexits.h): a resource was busy (the database
   held by another writer past the wait); nothing was written, the same command can be retried;
 * ``70`` (:data:`EXIT_INTERNAL`, ``EX_SOFTWARE``): a bug; a one-line message, the traceback
-  only with ``RULKIT_DEBUG=1``.
+  only with ``RULKIT_DEBUG=1``;
+* ``65`` (:data:`EXIT_CORRUPT`, ``EX_DATAERR``): SQLite reports the database damaged;
+* ``74`` (:data:`EXIT_IO`, ``EX_IOERR``): the disk is full or failed; nothing was written;
+* ``77`` (:data:`EXIT_NOPERM`, ``EX_NOPERM``): the database or its directory cannot be
+  written (or read) by this user.
 """
 
 from __future__ import annotations
@@ -24,6 +28,9 @@ EXIT_INPUT = 1
 EXIT_USAGE = 2
 EXIT_INTERNAL = 70
 EXIT_BUSY = 75
+EXIT_CORRUPT = 65
+EXIT_IO = 74
+EXIT_NOPERM = 77
 
 
 def fail(msg: str, code: int = EXIT_INPUT) -> NoReturn:

@@ -25,7 +25,7 @@ def test_groups_units_and_failure_times():
     (lambda d: d[d.component == "a"], "1 unit"),
     (lambda d: d.assign(hi=d.hi.clip(upper=0.9)), "no unit has failed"),
     (lambda d: d.assign(time=[0.0, 2.0, 1.0, 0.5, 1.5]), r"row 3 \(component 'a'\): time 1"),
-    (lambda d: d.assign(hi=[0.1, np.nan, 1.1, 0.2, 0.4]), r"row 2 .*'hi'.*not a finite"),
+    (lambda d: d.assign(hi=[0.1, np.nan, 1.1, 0.2, 0.4]), r"'hi', row 2 .*must be a finite number"),
     (lambda d: d.assign(hi=[0.1, 0.5, 1.1, -0.2, 0.4]), r"row 4 .*hi = -0.2 < 0"),
     (lambda d: d.drop(columns="time"), "missing column"),
     (lambda d: d.assign(time=pd.to_datetime(d.time, unit="h")), "dates"),

@@ -129,7 +129,7 @@ def test_conflicts_and_invalid_batches_change_nothing(client, sdb, tokens):
         ({"rows": [{"component": "x", "time": 2.0, "hi": 0.2},
                    {"component": "x", "time": 1.0, "hi": 0.2}]}, "row 2"),
         ({"rows": []}, "0 rows"),
-        ({"rows": [{"component": "a\x00b", "time": 1.0, "hi": 0.2}]}, "NUL"),
+        ({"rows": [{"component": "a\x00b", "time": 1.0, "hi": 0.2}]}, "non-printable"),
         ({"nope": 1}, "rows"),
     ]
     for body, needle in bad_rows:
@@ -288,3 +288,18 @@ def test_dashboard_served_from_package_with_csp(client):
     for asset in ("/static/app.js", "/static/style.css"):
         assert client.get(asset).status_code == 200
     assert ".innerHTML =" not in client.get("/static/app.js").text
+
+
+def test_components_named_dot_and_dotdot_are_reachable(client, tokens):
+    """Browsers rewrite the path segments '.' and '..' (also as %2E): the dashboard asks for
+    a history with the id in the query, which reaches every id."""
+    df = pd.DataFrame({"component": [".", "..", "a/.."] * 3,
+                       "time": np.repeat([0.0, 1.0, 2.0], 3), "hi": 0.3})
+    assert post(client, tokens["write"], df).status_code == 200
+    for name in (".", "..", "a/.."):
+        r = client.get("/api/v1/history", params={"component": name},
+                       headers=auth(tokens["read"]))
+        assert r.status_code == 200 and r.json()["component"] == name
+        assert r.json()["returned"] == 3
+    assert client.get("/api/v1/history", params={"component": "nope"},
+                      headers=auth(tokens["read"])).status_code == 404

@@ -15,8 +15,8 @@ import pytest
 from typer.testing import CliRunner
 
 from rulkit.cli import app
+from rulkit.fleet.rows import COMPONENT_ID_MAX_LEN
 from rulkit.fleet.store.acquisitions import (
-    COMPONENT_ID_MAX_LEN,
     ComponentIdError,
     IngestError,
     read_acquisitions,

@@ -123,9 +123,11 @@ def test_hi_from_ci_columns(tmp_path):
          r"of that component at 105.0"),
         (lambda d: d.assign(time=d.time.where(d.index != 6, 105.0)),
          r"row 7 .* time 105.0 repeats"),
-        (lambda d: d.assign(time=d.time - 100.0),
-         r"row 1 \(component 'a'\): time 0.0 is not after the component's last stored "
-         r"acquisition at 4.0"),
+        (lambda d: d.assign(time=d.time - 100.0),  # stored times, other values: a conflict
+         r"row 1 \(component 'a'\): time 0.0 is already stored with hi = "),
+        (lambda d: d.assign(time=d.time - 100.5),
+         r"row 1 \(component 'a'\): time -0.5 is before the component's last stored "
+         r"acquisition at 4.0 and is not stored"),
         (lambda d: d.iloc[:0], r"no acquisitions \(0 rows\)"),
         (lambda d: d.assign(time=d.time.astype(object).where(d.index != 1, "soon")),
          r"column 'time', row 2 \(component 'a'\): 'soon' is not a number \(1 non-numeric"),

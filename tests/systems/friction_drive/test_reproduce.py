@@ -300,3 +300,44 @@ def test_full_study_reproduces_the_spec_measurements():
     for key in (("tuned-consistent", "jump"), ("tuned-consistent", "constant"),
                 ("tuned-consistent-realistic", "jump")):
         assert by[key].max_nees_switch < 30.0 and by[key].max_nees_other < 30.0
+
+
+def test_tuning_study_rows_and_the_jump_burst() -> None:
+    from dataclasses import replace
+
+    from rulkit.systems.friction_drive.reproduce import SCENARIOS, simulate_truth, tuning_study
+
+    truths = {s: simulate_truth(replace(SCENARIOS[s], duration=2.0, t_jump=1.0), 1e-3, 5)
+              for s in ("constant", "jump")}
+    rows = tuning_study(truths, (1e-8, 1e-6), 2, np.random.default_rng(0))
+    assert len(rows) == 2 * 2 * 2
+    by = {(r.scenario, r.q_m, r.run): r for r in rows}
+    for q in (1e-8, 1e-6):
+        # the unmodelled jump of m: a burst of large innovations, tracked within a second
+        assert by["jump", q, 0].max_nis > 1.5 * by["constant", q, 0].max_nis
+        assert 0 < by["jump", q, 0].jump_tracking_s < 1.0
+        assert by["constant", q, 0].consistent_excl_jump is None
+    # a larger rate follows the jump faster and with a smaller burst
+    assert by["jump", 1e-6, 0].max_nis < by["jump", 1e-8, 0].max_nis
+
+
+def test_study_of_another_drive_from_its_constants(tmp_path) -> None:
+    from dataclasses import replace
+
+    from rulkit.systems.friction_drive.report import write_report
+
+    other = replace(fd.DEFAULT_PARAMS, r1=0.04, J1=4e-4, Km=0.055, alpha0=8.0)
+    res = E.run(E.FrictionDriveConfig(
+        n_runs=1, duration=3.0, pairs=(("tuned", "jump"),), rul_configs=("tuned",), n_rul=10,
+        n_validate=0, converge=False, params=other))
+    truth = res.truths["jump"]
+    assert truth.params == other and truth.X[0, 2] == 8.0
+    # the truth is the other drive's: not the seed drive's path from the same start
+    seed_truth = E.simulate_truth(replace(truth.scenario), truth.dt, 10)
+    assert abs(seed_truth.X[-1, 0] - truth.X[-1, 0]) > 1.0
+    run = res.runs[("tuned", "jump")]
+    err = np.abs(run.x[-1, 0, 2] - truth.X[-1, 2]) / np.sqrt(run.Pdiag[-1, 0, 2])
+    assert err < 3.0
+    assert np.isfinite(res.rul_truth_h) and res.rul["tuned"].rul.median > 0
+    rep = write_report(res, tmp_path).read_text()
+    assert "The drive is not the seed's" in rep and "r1 = 0.04" in rep

@@ -73,11 +73,13 @@ def test_motor_damping_bad_file_gives_specific_error(pullup_csv, tmp_path: Path)
 @pytest.mark.parametrize(
     ("options", "message"),
     [
-        (["--mc-samples", "0"], "--mc-samples: expected >= 1, got 0"),
-        (["--sigma-w", "0"], "--sigma-w: expected a positive finite number, got 0.0"),
-        (["--j", "-3e-3"], "--j: expected a positive finite number, got -0.003"),
-        (["--q-a", "-1"], "--q-a: expected a finite number >= 0, got -1.0"),
-        (["--min-samples", "2"], "--min-samples: expected >= 3, got 2"),
+        (["--mc-samples", "0"], "--mc-samples = 0: outside its range, expected 1 <= mc_samples"),
+        (["--sigma-w", "-1"], "--sigma-w = -1.0 (rad/s): outside its range, expected 0 <= "),
+        (["--j", "-3e-3"], "--j = -0.003 (kg m^2): outside its range, expected 1e-07 <= J"),
+        (["--q-a", "-1"], "--q-a = -1.0 ((N m s)^2/cycle^3): outside its range"),
+        (["--min-samples", "2"], "--min-samples = 2: outside its range, expected 3 <="),
+        (["--macro-model", "cubic"], "--macro-model = 'cubic': expected one of 'linear', "
+                                     "'quadratic'"),
     ],
 )
 def test_motor_damping_bad_options_named_by_flag(pullup_csv, options, message) -> None:
@@ -192,3 +194,100 @@ def test_macro_model_bad_value_named_by_flag(pullup_csv) -> None:
     res = runner.invoke(app, ["reproduce", "motor-damping", "--macro-model", "cubic"])
     assert res.exit_code != 0
     assert "cubic" in res.output
+
+
+def test_motor_damping_prints_brackets_as_written(pullup_csv) -> None:
+    # rich markup swallowed "[c, a]": the line read "state )"
+    path, _ = pullup_csv
+    res = runner.invoke(app, ["motor", "damping", str(path), "--mc-samples", "50"])
+    assert res.exit_code == 0, res.output
+    assert "(seed eq. 4, state [c, a])" in res.output and "state )" not in res.output
+    assert "Per-cycle damping [N m s]" in " ".join(res.output.split())
+    res = runner.invoke(app, ["motor", "damping", str(path), "--mc-samples", "50",
+                              "--macro-model", "quadratic"])
+    assert "(state [c, a, j])" in res.output
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"speed": 60 / (2 * np.pi)}, "is beyond the plausible 1000 rad/s"),
+        ({"current": 1000.0}, "current in mA?"),
+        ({"time": 1000.0}, "time in ms?"),
+    ],
+)
+def test_motor_damping_wrong_units_refused(pullup_csv, tmp_path: Path, change,
+                                           message) -> None:
+    path, _ = pullup_csv
+    df = pd.read_csv(path)
+    for col, f in change.items():
+        df[col] = df[col] * f
+    p = tmp_path / "units.csv"
+    df.to_csv(p, index=False)
+    res = runner.invoke(app, ["motor", "damping", str(p), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 1
+    assert message in " ".join(res.output.split())
+    assert not (tmp_path / "o").exists()  # nothing written
+
+
+def test_motor_damping_rpm_within_the_range_is_a_negative_damping_error(
+        pullup_csv, tmp_path: Path) -> None:
+    path, _ = pullup_csv
+    df = pd.read_csv(path)
+    rpm = 60 / (2 * np.pi)
+    df["speed"], df["acceleration"] = df["speed"] * rpm, df["acceleration"] * rpm
+    p = tmp_path / "rpm.csv"
+    df.to_csv(p, index=False)
+    machine = tmp_path / "m.toml"
+    machine.write_text("[limits]\nmax_speed = 10000\n")
+    res = runner.invoke(app, ["motor", "damping", str(p), "--machine", str(machine)])
+    assert res.exit_code == 1
+    assert "is negative, which is physically impossible" in " ".join(res.output.split())
+
+
+def test_motor_damping_refuses_colliding_and_boolean_columns(pullup_csv, tmp_path: Path) -> None:
+    path, _ = pullup_csv
+    df = pd.read_csv(path)
+    df["Speed"] = df["speed"]
+    p = tmp_path / "twice.csv"
+    df.to_csv(p, index=False)
+    res = runner.invoke(app, ["motor", "damping", str(p)])
+    assert res.exit_code == 1 and "differ only in case" in res.output
+    df = pd.read_csv(path)
+    df["current"] = df["current"] > 2.5
+    df.to_csv(p, index=False)
+    res = runner.invoke(app, ["motor", "damping", str(p)])
+    assert res.exit_code == 1 and "is a boolean (true/false), not a number" in res.output
+
+
+def test_motor_damping_machine_file_and_print_machine(pullup_csv, tmp_path: Path) -> None:
+    path, _ = pullup_csv
+    machine = tmp_path / "m.toml"
+    machine.write_text("[failure]\nc_fail = 2e-4\n[rul]\nmc_samples = 30\n")
+    res = runner.invoke(app, ["motor", "damping", str(path), "--machine", str(machine)])
+    assert res.exit_code == 0, res.output
+    assert "c_fail = 0.0002 N m s (given)" in res.output and f"machine: {machine}" in res.output
+    res = runner.invoke(app, ["motor", "damping", "--print-machine", "--machine", str(machine),
+                              "--j", "0.002"])
+    assert res.exit_code == 0, res.output
+    assert "c_fail = 0.0002  # N m s" in res.output and "J = 0.002  # kg m^2" in res.output
+    printed = tmp_path / "printed.toml"
+    printed.write_text(res.output)
+    from rulkit.systems.motor_damping.machine import read_motor_machine
+
+    assert read_motor_machine(printed).constants.J == 0.002
+    machine.write_text("[motor]\nJ = -1\n")
+    res = runner.invoke(app, ["motor", "damping", str(path), "--machine", str(machine)])
+    assert res.exit_code == 1 and "[motor] J = -1 (kg m^2): outside its range" in res.output
+    res = runner.invoke(app, ["motor", "damping"])
+    assert res.exit_code == 2 and "missing argument FILE" in res.output
+
+
+def test_reproduce_motor_damping_refuses_a_bad_machine_file(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text("[motor]\nK = 0.001\n")  # too weak to reach the design point
+    res = runner.invoke(app, ["reproduce", "motor-damping", "--machine", str(machine),
+                              "--out", str(tmp_path / "o")])
+    assert res.exit_code == 1
+    assert "the design point (300.0 rad/s, 0.016 N m) is above the undamped curve" in res.output
+    assert not (tmp_path / "o").exists()

@@ -168,3 +168,59 @@ def test_min_samples_below_three_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="min_samples: expected an integer >= 3"):
         pullup.from_frame(pd.DataFrame({"cycle": [1], "time": [0.0], "current": [1.0],
                                  "speed": [0.0]}), min_samples=2)
+
+
+def test_case_colliding_columns_refused(tmp_path: Path) -> None:
+    df = _frame()
+    df["SPEED"] = df["speed"] * 9.549  # the same channel in rpm beside it
+    with pytest.raises(PullupDataError, match="columns 'speed' and 'SPEED' differ only in case"):
+        read_pullup(_write(df, tmp_path))
+
+
+def test_boolean_column_refused(tmp_path: Path) -> None:
+    df = _frame()
+    df["current"] = df["current"] > 2.5
+    with pytest.raises(PullupDataError, match=r"column 'current', row 1: True is a boolean"):
+        read_pullup(_write(df, tmp_path, "b.parquet"))
+
+
+def test_timestamps_read_as_seconds_and_origin_does_not_matter(tmp_path: Path) -> None:
+    df = _frame()
+    base = read_pullup(_write(df, tmp_path))
+    stamps = pd.Timestamp("2024-05-01T00:00:00") + pd.to_timedelta(df["time"], unit="s")
+    dated = read_pullup(_write(df.assign(time=stamps), tmp_path, "d.parquet"))
+    np.testing.assert_allclose(dated.time, base.time, atol=1e-9)
+    shifted = read_pullup(_write(df.assign(time=df["time"] + 1.7e9), tmp_path, "s.csv"))
+    np.testing.assert_allclose(shifted.time, base.time, atol=1e-6)  # float64 at 1.7e9: 2.4e-7
+
+
+@pytest.mark.parametrize(
+    ("column", "factor", "message"),
+    [
+        ("speed", 60 / (2 * np.pi), r"column 'speed', cycle 1, sample 30: 1002\.68 is beyond "
+                                    r"the plausible 1000 rad/s .*speed in rpm\?"),
+        ("current", 1000.0, r"column 'current', cycle 1, sample 1: 3000 is beyond the "
+                            r"plausible 20 A .*current in mA\?"),
+        ("time", 1000.0, r"column 'time', cycle 1, sample 2: 100 is beyond the plausible 1 s "
+                         r"between samples .*time in ms\?"),
+        ("time", 1e-5, r"column 'time', cycle 1, sample 2: 1e-06 is below the plausible 1e-05 "
+                       r"s between samples"),
+    ],
+)
+def test_implausible_units_refused_with_the_likely_cause(tmp_path: Path, column: str,
+                                                         factor: float, message: str) -> None:
+    from rulkit.systems.motor_damping.pullup import (
+        ImplausiblePullupError,
+        PullupLimits,
+        check_plausible,
+    )
+
+    df = _frame()
+    df["speed"] = df["speed"] * 3.5  # up to 111 rad/s: plausible in rad/s, not in rpm
+    check_plausible(read_pullup(_write(df, tmp_path)), PullupLimits())
+    df[column] = df[column] * factor
+    data = read_pullup(_write(df, tmp_path, "bad.csv"))
+    with pytest.raises(ImplausiblePullupError, match=message):
+        check_plausible(data, PullupLimits())
+    wide = PullupLimits(max_speed=1e5, max_current=1e4, max_step=1e3, min_step=1e-9)
+    check_plausible(data, wide)  # the limits are the machine file's, not hard-wired

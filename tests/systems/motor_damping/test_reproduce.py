@@ -491,3 +491,28 @@ def test_quadratic_rul_covariance_and_monte_carlo_vs_analytic_crossing() -> None
                                    scatter_var=np.array([(2e-6) ** 2]), t0=10.0)
     assert not cen_f.any() and np.all(smp_f == np.round(smp_f))
     assert np.median(smp_f) <= np.ceil(q_cov[1]) and np.median(smp_f) >= q_cov[1] - 3
+
+
+def test_study_for_another_motor_keeps_the_crossing_cycle() -> None:
+    from rulkit.systems.motor_damping.micro import micro_ekf
+    from rulkit.systems.motor_damping.motor import (
+        LifeTestConfig,
+        MotorConstants,
+        failure_damping,
+        simulate_life_test,
+    )
+    from rulkit.systems.motor_damping.report import _motor_lines
+    from rulkit.systems.motor_damping.reproduce import MotorDampingConfig, study_for_motor
+
+    other = MotorConstants(K=0.05, J=4e-3, T_L=2e-3)
+    kw = study_for_motor(other, LifeTestConfig(n_cycles=12, duration=20.0))
+    ratio = failure_damping(other) / failure_damping(MotorConstants())
+    assert kw["life"].slope == pytest.approx(2e-6 * ratio) and kw["life"].consts == other
+    lt = simulate_life_test(kw["life"], np.random.default_rng(0))
+    assert lt.c_fail == pytest.approx(failure_damping(other))
+    assert lt.eol == pytest.approx(68.5)  # the synthetic motor's crossing cycle
+    est = micro_ekf(lt.time, lt.current, lt.speed, lt.acceleration, other)
+    assert np.all(np.abs(est.c - lt.damping) < 5 * np.sqrt(est.c_var) + 1e-9)
+    cfg = MotorDampingConfig.quick(**kw)
+    assert "not the synthetic one" in _motor_lines(cfg)[0]
+    assert _motor_lines(MotorDampingConfig.quick()) == []

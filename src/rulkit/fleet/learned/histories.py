@@ -20,6 +20,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
+
 FloatArray = NDArray[np.float64]
 
 
@@ -93,15 +95,12 @@ def _number_column(df: pd.DataFrame, col: str, where: str) -> FloatArray:
             f"{where}: column {col!r} holds dates/durations; convert it to a number in one time "
             "unit first (e.g. hours since the unit's first acquisition)"
         )
-    v = pd.to_numeric(s, errors="coerce").to_numpy(dtype=np.float64)
-    bad = ~np.isfinite(v)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise HistoryError(
-            f"{where}: row {i + 1} (component {df['component'].iloc[i]!r}): column {col!r} = "
-            f"{s.iloc[i]!r} is not a finite number (NaN, inf or text)"
-        )
-    return v
+    # the rules of every fleet table (rulkit.fleet.rows): numbers of a numeric type only
+    try:
+        return np.array(numeric_values(s, col, error=HistoryError, row_label=lambda i: (
+            f"row {i + 1} (component {df['component'].iloc[i]!r})")), dtype=np.float64)
+    except HistoryError as err:
+        raise HistoryError(f"{where}: {err}") from None
 
 
 def histories_from_frame(
@@ -117,11 +116,11 @@ def histories_from_frame(
     if len(df) == 0:
         raise HistoryError(f"{where}: no rows")
     df = df.reset_index(drop=True)
-    comp = df["component"]
-    empty = comp.isna().to_numpy() | (comp.astype(str).str.strip() == "").to_numpy()
-    if empty.any():
-        raise HistoryError(f"{where}: row {int(np.flatnonzero(empty)[0]) + 1}: empty component")
-    names_col = comp.astype(str).str.strip().to_numpy(dtype=object)
+    try:  # the id rules of every fleet table (rulkit.fleet.rows)
+        comp = check_component_ids(df["component"], error=HistoryError)
+    except HistoryError as err:
+        raise HistoryError(f"{where}: {err}") from None
+    names_col = comp.astype(str).to_numpy(dtype=object)
     df = df.assign(component=names_col)
     t = _number_column(df, "time", where)
     hi = _number_column(df, "hi", where)
@@ -188,8 +187,8 @@ def read_histories(path: str | Path, **kwargs: object) -> Histories:
     try:
         if p.is_dir() or p.suffix.lower() in (".parquet", ".pq"):
             df = pd.read_parquet(p)
-        elif p.suffix.lower() in (".csv", ".txt"):
-            df = pd.read_csv(p)
+        elif p.suffix.lower() in (".csv", ".txt"):  # field counts checked, ids kept as text
+            df = read_csv_rows(p, error=HistoryError)
         else:
             raise HistoryError(f"{p}: expected a .csv or .parquet file (or a Parquet directory)")
     except HistoryError:

@@ -2,20 +2,23 @@
 
 ``create_app(db)`` serves one component database (SQLite path or ``postgresql://`` URL):
 
-* ``GET /healthz`` (no auth), ``GET /openapi.json``, the dashboard at ``/`` (static files of this
-  package; the page asks for a token and calls the API with it);
+* ``GET /healthz`` (liveness: the process answers), ``GET /readyz`` (readiness: the database
+  answers), ``GET /metrics`` (Prometheus text format, :mod:`.metrics`), ``GET /openapi.json``,
+  the dashboard at ``/`` (static files of this package);
 * ``/api/v1``: ``POST acquisitions``, ``GET summary``, ``GET components``,
-  ``GET components/{id}``, ``GET components/{id}/history``, ``GET alerts``,
+  ``GET components/{id}``, ``GET components/{id}/history`` (also
+  ``GET history?component=id``), ``GET alerts``,
   ``POST alerts/{id}/ack``.
 
 Every ``/api/v1`` endpoint requires ``Authorization: Bearer <token>`` (401 without a valid one);
-``POST`` endpoints require a write token (403 with a read token). The access log written here
-names the route template (``/api/v1/components/{component}``), the status and the duration,
-never the path itself (component ids), a token or a body.
+``POST`` endpoints require a write token (403 with a read token). Bodies are read with bounded
+memory and time (:mod:`.bodies`); every response the API can give is in the OpenAPI schema,
+whose batch rows require ``hi`` or exactly the CI columns of the database's HI model. The
+access log names the route template (``/api/v1/components/{component}``), the status and the
+duration, never the path itself (component ids), a token or a body.
 """
 
 
-import io
 import logging
 import sqlite3
 import time
@@ -24,27 +27,42 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 from urllib.parse import unquote
 
-import pandas as pd
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi import Path as PathParam
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
 from rulkit import __version__
-from rulkit.fleet.service.db import ConflictError, NotFound, ServiceDB, Token
-from rulkit.fleet.store.acquisitions import IngestError
+from rulkit.fleet.service.bodies import batch_frame, http_error, read_body
+from rulkit.fleet.service.db import NotFound, ServiceDB, Token
+from rulkit.fleet.service.metrics import CONTENT_TYPE, Metrics
+from rulkit.fleet.store.acquisitions import ConflictError, IngestError
 from rulkit.fleet.store.database_file import StoreError
+from rulkit.fleet.tracking.health_index import HealthIndexModel
 
 log = logging.getLogger("rulkit.service")
 
-MAX_BODY = 64 * 1024 * 1024  # bytes of one upload
-MAX_ROWS = 1_000_000  # acquisitions in one batch
 STATIC = resources.files("rulkit.fleet.service") / "static"
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
        "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+
+
+class ErrorBody(BaseModel):
+    """An error response."""
+
+    detail: str | list[Any] = Field(description="What was refused and why.")
+
+
+def _responses(*codes: int) -> dict[int | str, dict[str, Any]]:
+    text = {401: "Missing, invalid or revoked token", 403: "Read-only token on a write",
+            404: "No such component or alert", 408: "The body did not arrive in time",
+            409: "Contradicts stored data; nothing written", 413: "Batch too large",
+            415: "Unsupported content type", 422: "Invalid request; nothing written",
+            503: "Database busy or unavailable; retry (Retry-After)"}
+    return {c: {"model": ErrorBody, "description": text[c]} for c in codes}
 
 
 class AckBody(BaseModel):
@@ -52,85 +70,49 @@ class AckBody(BaseModel):
     reason: str = Field(min_length=1, max_length=2000, description="Why (kept with the alert).")
 
 
-_ROW_SCHEMA = {
-    "type": "object",
-    "required": ["component", "time"],
-    "properties": {
-        "component": {"type": "string", "minLength": 1},
-        "time": {"type": "number"},
-        "hi": {"type": "number", "description": "Health index (or give the CI columns)."},
-    },
-    "additionalProperties": {"type": "number", "description": "A CI of the stored HI model."},
-}
-_ACQ_BODY = {
-    "required": True,
-    "description": (
-        "A batch: JSON {\"rows\": [{component, time, hi or the CI columns}, ...]}, or a CSV "
-        "(text/csv) or Parquet (application/vnd.apache.parquet) file with those columns."),
-    "content": {
-        "application/json": {"schema": {
-            "type": "object", "required": ["rows"],
-            "properties": {"rows": {"type": "array", "items": _ROW_SCHEMA, "minItems": 1}}}},
-        "text/csv": {"schema": {"type": "string"}},
-        "application/vnd.apache.parquet": {"schema": {"type": "string", "format": "binary"}},
-    },
-}
+def _row_schema(hi_model: HealthIndexModel | None) -> dict[str, Any]:
+    """The JSON schema of one batch row for this database: ``hi``, or exactly the CI
+    columns of its HI model."""
+    num = {"type": "number"}
+    base = {"component": {"type": "string", "minLength": 1, "maxLength": 128},
+            "time": {"type": "number", "description": "Acquisition time."}}
+    with_hi = {"type": "object", "required": ["component", "time", "hi"],
+               "properties": {**base, "hi": {**num, "minimum": 0,
+                                             "description": "Health index."}},
+               "additionalProperties": False}
+    if hi_model is None:
+        return with_hi
+    names = list(hi_model.names)
+    with_ci = {"type": "object", "required": ["component", "time", *names],
+               "properties": {**base, **dict.fromkeys(names, num)},
+               "additionalProperties": False}
+    return {"oneOf": [with_hi, with_ci]}
 
 
-def _err(status: int, detail: str, headers: dict[str, str] | None = None) -> HTTPException:
-    return HTTPException(status_code=status, detail=detail, headers=headers)
-
-
-def _parse_body(body: bytes, ctype: str) -> pd.DataFrame:
-    """The batch as a DataFrame; 415/422 for what cannot be read."""
-    if ctype in ("application/json", ""):
-        import json
-
-        try:
-            obj = json.loads(body)
-        except (ValueError, UnicodeDecodeError) as err:
-            raise _err(422, f"body: not valid JSON ({err})") from None
-        rows = obj.get("rows") if isinstance(obj, dict) else None
-        if not isinstance(rows, list):
-            raise _err(422, 'body: expected a JSON object {"rows": [...]}')
-        if len(rows) > MAX_ROWS:
-            raise _err(413, f"body: {len(rows)} rows, at most {MAX_ROWS} per batch")
-        for i, r in enumerate(rows):
-            if not isinstance(r, dict):
-                raise _err(422, f"row {i + 1}: expected an object with component, time, hi")
-            c = r.get("component")
-            if not isinstance(c, str):
-                raise _err(422, f"row {i + 1}: 'component' must be a string, got "
-                                f"{type(c).__name__}")
-            for k, v in r.items():
-                if k != "component" and not (
-                        v is None or (isinstance(v, (int, float)) and not isinstance(v, bool))):
-                    raise _err(422, f"row {i + 1} (component {c!r}): {k!r} must be a number, "
-                                    f"got {type(v).__name__}")
-        df = pd.DataFrame.from_records(rows) if rows else pd.DataFrame()
-        # from_records orders columns by first appearance; missing keys are NaN and the
-        # store's validation names the row
-        return df
-    if ctype in ("text/csv", "text/plain"):
-        try:
-            return pd.read_csv(io.BytesIO(body), dtype={"component": str},
-                               keep_default_na=False, na_values=[""])
-        except (ValueError, pd.errors.ParserError, UnicodeDecodeError) as err:
-            raise _err(422, f"CSV body: {str(err).strip()}") from None
-    if ctype in ("application/vnd.apache.parquet", "application/x-parquet",
-                 "application/octet-stream"):
-        try:
-            return pd.read_parquet(io.BytesIO(body))
-        except Exception as err:  # pyarrow raises many kinds on bad bytes
-            raise _err(422, f"Parquet body: cannot read ({type(err).__name__}: "
-                            f"{str(err).strip()[:200]})") from None
-    raise _err(415, f"unsupported content type {ctype!r}: use application/json, text/csv or "
-                    "application/vnd.apache.parquet")
+def _acq_body(hi_model: HealthIndexModel | None) -> dict[str, Any]:
+    row = _row_schema(hi_model)
+    return {
+        "required": True,
+        "description": (
+            "A batch: JSON {\"rows\": [{component, time, hi or the CI columns}, ...]}, or a "
+            "CSV (text/csv) or Parquet (application/vnd.apache.parquet) file with those "
+            "columns."),
+        "content": {
+            "application/json": {"schema": {
+                "type": "object", "required": ["rows"], "additionalProperties": False,
+                "properties": {"rows": {"type": "array", "items": row, "minItems": 1}}}},
+            "text/csv": {"schema": {"type": "string"}},
+            "application/vnd.apache.parquet": {"schema": {"type": "string",
+                                                          "format": "binary"}},
+        },
+    }
 
 
 def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
     """The service app over ``db`` (a path, URL, or an open :class:`ServiceDB`)."""
     sdb = db if isinstance(db, ServiceDB) else ServiceDB(db, pool_size=pool_size)
+    with sdb.store() as s:
+        hi_model = s.hi_model
     app = FastAPI(
         title="rulkit fleet service",
         version=__version__,
@@ -140,32 +122,43 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         docs_url=None, redoc_url=None,
     )
     app.state.db = sdb
+    app.state.metrics = metrics = Metrics()
     bearer = HTTPBearer(auto_error=False, description="A token from `rulkit token create`.")
 
     def authenticated(
         creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
     ) -> Token:
         if creds is None or creds.scheme.lower() != "bearer":
-            raise _err(401, "missing bearer token", {"WWW-Authenticate": "Bearer"})
+            raise http_error(401, "missing bearer token", {"WWW-Authenticate": "Bearer"})
         tok = sdb.check_token(creds.credentials)
         if tok is None:
-            raise _err(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
+            raise http_error(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
         return tok
 
     def writer(tok: Annotated[Token, Depends(authenticated)]) -> Token:
         if not tok.can_write:
-            raise _err(403, "this token is read-only; writes and acknowledgements need a "
-                            "write token")
+            raise http_error(403, "this token is read-only; writes and acknowledgements need "
+                                  "a write token")
         return tok
 
     @app.middleware("http")
     async def access_log(request: Request, call_next: Any) -> Any:
         t0 = time.perf_counter()
-        response = await call_next(request)
-        route = request.scope.get("route")
-        template = getattr(route, "path", "<unmatched>")
-        log.info("%s %s %d %.1f ms", request.method, template, response.status_code,
-                 1e3 * (time.perf_counter() - t0))
+        try:
+            response = await call_next(request)
+        except Exception:
+            metrics.inc("rulkit_errors_total", "bug")
+            log.exception("%s %s failed", request.method,
+                          getattr(request.scope.get("route"), "path", "<unmatched>"))
+            response = JSONResponse({"detail": "internal error (logged)"}, status_code=500)
+        dt = time.perf_counter() - t0
+        template = getattr(request.scope.get("route"), "path", "<unmatched>")
+        metrics.inc("rulkit_http_requests_total", request.method, template,
+                    str(response.status_code))
+        metrics.observe("rulkit_http_request_seconds", dt, request.method, template)
+        log.info("%s %s %d %.1f ms", request.method, template, response.status_code, 1e3 * dt,
+                 extra={"method": request.method, "route": template,
+                        "status": response.status_code, "ms": round(1e3 * dt, 1)})
         if not request.url.path.startswith("/api/"):
             response.headers["Content-Security-Policy"] = CSP
         response.headers["X-Content-Type-Options"] = "nosniff"
@@ -173,6 +166,7 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
 
     def _busy(request: Request, exc: Exception) -> JSONResponse:
         log.warning("database busy or unavailable: %s", type(exc).__name__)
+        metrics.inc("rulkit_errors_total", "database")
         return JSONResponse({"detail": "database busy or unavailable, retry"}, status_code=503,
                             headers={"Retry-After": "1"})
 
@@ -188,17 +182,24 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
 
     @app.get("/healthz", tags=["service"])
     def healthz() -> dict[str, Any]:
-        """Liveness and database reachability (no auth)."""
+        """Liveness: the process answers (no auth, no database access)."""
+        return {"status": "ok", "version": __version__}
+
+    @app.get("/readyz", tags=["service"], responses=_responses(503))
+    def readyz() -> dict[str, Any]:
+        """Readiness: the database answers (no auth); 503 while it does not."""
         with sdb.store() as s:
             s._conn.execute("SELECT 1").fetchone()
         return {"status": "ok", "backend": sdb.dialect, "version": __version__}
 
-    @app.post("/api/v1/acquisitions", tags=["acquisitions"], openapi_extra={
-        "requestBody": _ACQ_BODY},
-        responses={409: {"description": "A row contradicts stored acquisitions"},
-                   413: {"description": "Batch too large"},
-                   415: {"description": "Unsupported content type"},
-                   422: {"description": "Invalid batch (nothing written)"}})
+    @app.get("/metrics", tags=["service"], response_class=PlainTextResponse)
+    def prometheus() -> PlainTextResponse:
+        """Counters and latency histograms in the Prometheus text format (no auth)."""
+        return PlainTextResponse(metrics.render(), media_type=CONTENT_TYPE)
+
+    @app.post("/api/v1/acquisitions", tags=["acquisitions"],
+              openapi_extra={"requestBody": _acq_body(hi_model)},
+              responses=_responses(401, 403, 408, 409, 413, 415, 422, 503))
     async def post_acquisitions(
         request: Request, tok: Annotated[Token, Depends(writer)]
     ) -> dict[str, Any]:
@@ -207,29 +208,38 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         Rows already stored (same component, time and HI) are skipped and counted in
         ``duplicates``; the response lists the new alerts."""
         ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-        size = request.headers.get("content-length")
-        if size is not None and size.isdigit() and int(size) > MAX_BODY:
-            raise _err(413, f"body larger than {MAX_BODY} bytes")
-        body = await request.body()
-        if len(body) > MAX_BODY:
-            raise _err(413, f"body larger than {MAX_BODY} bytes")
-        df = await run_in_threadpool(_parse_body, body, ctype)
-        if len(df) > MAX_ROWS:
-            raise _err(413, f"{len(df)} rows, at most {MAX_ROWS} per batch")
+        t0 = time.perf_counter()
         try:
-            return await run_in_threadpool(sdb.ingest, df, f"api:{tok.name}")
+            body = await read_body(request)
+            df = await run_in_threadpool(batch_frame, body, ctype)
+            del body
+            out = await run_in_threadpool(sdb.ingest, df, f"api:{tok.name}")
         except ConflictError as err:
-            raise _err(409, str(err)) from None
+            metrics.inc("rulkit_ingest_batches_total", "conflict")
+            raise http_error(409, str(err)) from None
         except IngestError as err:
-            raise _err(422, str(err)) from None
+            metrics.inc("rulkit_ingest_batches_total", "invalid")
+            raise http_error(422, str(err)) from None
+        except HTTPException as err:
+            metrics.inc("rulkit_ingest_batches_total",
+                        "too_large" if err.status_code == 413 else "invalid")
+            raise
+        except StoreError:
+            metrics.inc("rulkit_ingest_batches_total", "busy")
+            raise
+        metrics.inc("rulkit_ingest_batches_total", "applied")
+        metrics.inc("rulkit_ingested_acquisitions_total", by=out["ingested"])
+        metrics.inc("rulkit_duplicate_acquisitions_total", by=out["duplicates"])
+        metrics.observe("rulkit_ingest_seconds", time.perf_counter() - t0)
+        return out
 
-    @app.get("/api/v1/summary", tags=["components"])
+    @app.get("/api/v1/summary", tags=["components"], responses=_responses(401, 503))
     def get_summary(_tok: Annotated[Token, Depends(authenticated)]) -> dict[str, Any]:
         """Counts per level and of stale components, what gives the RUL (estimator, time
         unit, interval), the alert rules and the fitted model's warnings."""
         return sdb.summary()
 
-    @app.get("/api/v1/components", tags=["components"])
+    @app.get("/api/v1/components", tags=["components"], responses=_responses(401, 422, 503))
     def list_components(
         _tok: Annotated[Token, Depends(authenticated)],
         limit: Annotated[int, Query(ge=1, le=1000)] = 50,
@@ -246,7 +256,7 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
 
     def _component_id(component: str) -> str:
         if "\x00" in component:
-            raise _err(404, "no such component")
+            raise http_error(404, "no such component")
         return component
 
     def _raw_tail(request: Request) -> str:
@@ -254,7 +264,8 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         raw = request.scope.get("raw_path") or request.url.path.encode()
         return raw.decode("latin-1").split("?", 1)[0][len("/api/v1/components/"):]
 
-    @app.get("/api/v1/components/{component:path}/history", tags=["components"])
+    @app.get("/api/v1/components/{component:path}/history", tags=["components"],
+             responses=_responses(401, 404, 422, 503))
     def component_history(
         component: Annotated[str, PathParam(description="Component id, '/' encoded as %2F")],
         request: Request,
@@ -270,9 +281,10 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
                 return sdb.component(_component_id(unquote(tail)))
             return sdb.history(_component_id(unquote(tail[:-len("/history")])), limit=limit)
         except NotFound as err:
-            raise _err(404, str(err)) from None
+            raise http_error(404, str(err)) from None
 
-    @app.get("/api/v1/components/{component:path}", tags=["components"])
+    @app.get("/api/v1/components/{component:path}", tags=["components"],
+             responses=_responses(401, 404, 422, 503))
     def get_component(
         component: Annotated[str, PathParam(description="Component id, '/' encoded as %2F")],
         request: Request,
@@ -282,9 +294,24 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         try:
             return sdb.component(_component_id(unquote(_raw_tail(request))))
         except NotFound as err:
-            raise _err(404, str(err)) from None
+            raise http_error(404, str(err)) from None
 
-    @app.get("/api/v1/alerts", tags=["alerts"])
+    @app.get("/api/v1/history", tags=["components"], responses=_responses(401, 404, 422, 503))
+    def history_by_query(
+        component: Annotated[str, Query(min_length=1, max_length=512,
+                                        description="Component id (any, also '.' or '..')")],
+        _tok: Annotated[Token, Depends(authenticated)],
+        limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000,
+    ) -> dict[str, Any]:
+        """As ``GET /api/v1/components/{id}/history``, the id in the query: browsers rewrite
+        the path segments ``.`` and ``..`` (also percent-encoded), so a component named so
+        is only reachable this way."""
+        try:
+            return sdb.history(_component_id(component), limit=limit)
+        except NotFound as err:
+            raise http_error(404, str(err)) from None
+
+    @app.get("/api/v1/alerts", tags=["alerts"], responses=_responses(401, 422, 503))
     def list_alerts(
         _tok: Annotated[Token, Depends(authenticated)],
         state: Annotated[Literal["open", "acknowledged", "all"], Query()] = "open",
@@ -300,8 +327,7 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         return {"total": total, "limit": limit, "offset": offset, "items": items}
 
     @app.post("/api/v1/alerts/{alert_id}/ack", tags=["alerts"],
-              responses={404: {"description": "No such alert"},
-                         409: {"description": "Already acknowledged"}})
+              responses=_responses(401, 403, 404, 409, 422, 503))
     def ack_alert(
         alert_id: Annotated[int, PathParam(ge=1, le=2**53)],
         body: AckBody,
@@ -310,13 +336,13 @@ def create_app(db: str | Path | ServiceDB, *, pool_size: int = 8) -> FastAPI:
         """Acknowledge an alert: who and why are kept with it (and the token's name)."""
         for v in (body.by, body.reason):
             if "\x00" in v:
-                raise _err(422, "'by' and 'reason' must not contain NUL characters")
+                raise http_error(422, "'by' and 'reason' must not contain NUL characters")
         try:
             return sdb.ack(alert_id, by=body.by, reason=body.reason, token_name=tok.name)
         except NotFound as err:
-            raise _err(404, str(err)) from None
+            raise http_error(404, str(err)) from None
         except ConflictError as err:
-            raise _err(409, str(err)) from None
+            raise http_error(409, str(err)) from None
 
     @app.get("/", include_in_schema=False)
     def dashboard() -> FileResponse:

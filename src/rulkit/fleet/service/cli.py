@@ -12,9 +12,9 @@ import typer
 DB_HELP = "Component database: a SQLite path (created if new) or a postgresql:// URL."
 
 
-def _fail(msg: str) -> None:
+def _fail(msg: str, code: int = 1) -> None:
     typer.echo(f"error: {msg}", err=True)
-    raise typer.Exit(code=1)
+    raise typer.Exit(code=code)
 
 
 def _open(db: str, create: bool = True):
@@ -25,7 +25,7 @@ def _open(db: str, create: bool = True):
     try:
         return ServiceDB(db, pool_size=1, create=create)
     except (ValueError, FileNotFoundError, ConnectionError, RuntimeError) as err:
-        _fail(str(err))
+        _fail(str(err), getattr(err, "exit_code", 1))
     raise AssertionError  # unreachable
 
 
@@ -42,25 +42,32 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         port: Annotated[int, typer.Option("--port", min=0, max=65535)] = 8000,
         pool: Annotated[int, typer.Option("--pool", min=1, max=64,
                                           help="Database connections.")] = 8,
+        log_format: Annotated[str, typer.Option(
+            "--log-format", help="text or json (one JSON object per line).")] = "text",
+        header_timeout: Annotated[float, typer.Option(
+            "--header-timeout", min=0.1, max=3600,
+            help="Seconds a client has to send a request's headers.")] = 10.0,
+        grace: Annotated[float, typer.Option(
+            "--grace", min=0, max=3600,
+            help="On SIGTERM/SIGINT, seconds the requests in flight get to finish.")] = 30.0,
     ) -> None:
-        """HTTP API (/api/v1, /openapi.json, /healthz) and dashboard (/) over the database."""
-        import logging
-
+        """HTTP API (/api/v1, /openapi.json, /healthz, /readyz, /metrics) and dashboard (/)
+        over the database."""
+        if log_format not in ("text", "json"):
+            _fail(f"--log-format: expected text or json, got {log_format!r}", 2)
         try:
-            import uvicorn
-
             from rulkit.fleet.service.app import create_app
+            from rulkit.fleet.service.server import serve as run
+            from rulkit.fleet.service.server import setup_logging
         except ImportError as err:
             _fail(f"the service needs its extra: pip install 'rulkit[service]' ({err})")
         sdb = _open(db)
         sdb.pool_size = pool
-        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+        setup_logging(log_format)
         api = create_app(sdb)
         typer.echo(f"rulkit service on http://{host}:{port}/ ({sdb.dialect})", err=True)
         try:
-            # access_log off: uvicorn's would print paths (component ids); the app logs
-            # route templates instead
-            uvicorn.run(api, host=host, port=port, access_log=False, log_level="info")
+            run(api, host, port, header_timeout=header_timeout, grace=grace)
         finally:
             sdb.close()
 

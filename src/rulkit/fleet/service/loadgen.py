@@ -41,6 +41,15 @@ class Server:
             fields = f.read().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
+    def memory_mb(self) -> tuple[float, float]:
+        """(resident, peak resident) memory of the server process, MB (Linux /proc)."""
+        vals = {}
+        with open(f"/proc/{self.proc.pid}/status") as f:
+            for line in f:
+                if line.startswith(("VmRSS:", "VmHWM:")):
+                    vals[line.split(":")[0]] = int(line.split()[1]) / 1024.0
+        return vals["VmRSS"], vals["VmHWM"]
+
     def kill(self) -> None:
         """``kill -9``: no shutdown handler runs."""
         if self.proc.poll() is None:
@@ -56,11 +65,13 @@ class Server:
                 self.kill()
 
 
-def start_server(db: str, *, pool: int = 8, timeout: float = 60.0) -> Server:
-    """``rulkit serve --db DB`` on 127.0.0.1 and a free port; waits for /healthz."""
+def start_server(db: str, *, pool: int = 8, timeout: float = 60.0,
+                 options: tuple[str, ...] = ()) -> Server:
+    """``rulkit serve --db DB [options]`` on 127.0.0.1 and a free port; waits for
+    /readyz."""
     port = free_port()
     cmd = [sys.executable, "-c", "from rulkit.cli import main; main()", "serve", "--db", str(db),
-           "--port", str(port), "--pool", str(pool)]
+           "--port", str(port), "--pool", str(pool), *options]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     srv = Server(proc, port)
     deadline = time.monotonic() + timeout
@@ -69,14 +80,14 @@ def start_server(db: str, *, pool: int = 8, timeout: float = 60.0) -> Server:
             err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
             raise RuntimeError(f"rulkit serve exited with {proc.returncode}: {err[-2000:]}")
         try:
-            status, _ = request(srv.port, "GET", "/healthz", timeout=2)
+            status, _ = request(srv.port, "GET", "/readyz", timeout=2)
             if status == 200:
                 break
         except OSError:
             pass
         if time.monotonic() > deadline:
             srv.kill()
-            raise RuntimeError("rulkit serve did not answer /healthz in time")
+            raise RuntimeError("rulkit serve did not answer /readyz in time")
         time.sleep(0.1)
     # the server's log goes to a pipe nobody reads: drain it so the server never blocks
     threading.Thread(target=_drain, args=(proc,), daemon=True).start()

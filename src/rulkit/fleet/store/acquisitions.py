@@ -3,9 +3,10 @@
 An acquisition file has one row per (component, time) with the health index ``hi`` or the
 condition-indicator columns of the database's HI model (docs/file-formats.md). Everything here
 runs before the database is touched: :func:`validate_acquisitions` names the file, column and
-row of the first problem, and :func:`check_component_ids` enforces the id alphabet (1 to
-:data:`COMPONENT_ID_MAX_LEN` printable characters), so a crafted id can neither forge terminal
-output nor bloat the database. :mod:`rulkit.fleet.store.sqlite` applies a validated batch.
+row of the first problem, and :func:`rulkit.fleet.rows.check_component_ids` enforces the id
+alphabet (1 to :data:`rulkit.fleet.rows.COMPONENT_ID_MAX_LEN` printable characters), so a
+crafted id can neither forge terminal output nor bloat the database.
+:mod:`rulkit.fleet.store.sqlite` applies a validated batch.
 """
 
 from __future__ import annotations
@@ -16,24 +17,32 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
     TrackerConfig,
 )
 from rulkit.tables import cell_repr as _fmt
-from rulkit.tables import numeric_columns, read_table, safe_text, time_seconds
+from rulkit.tables import safe_text, table_format, time_seconds
 
-COMPONENT_ID_MAX_LEN = 128
-"""Longest accepted component id, in characters (ids are names, not payloads)."""
+PARQUET_BYTES_PER_ROW = 512
+"""Decoded bytes per allowed row a Parquet input may declare in its metadata (a row is a
+component id of at most 128 characters and a few numbers)."""
 
 
 class IngestError(ValueError):
     """A batch of acquisitions was rejected; the database is unchanged."""
 
 
+class ConflictError(IngestError):
+    """The batch contradicts stored acquisitions (a stored time with another HI, or a time
+    before the component's last acquisition that is not stored); nothing was written."""
+
+
 class ComponentIdError(IngestError):
-    """A component id outside the accepted alphabet or length (:func:`check_component_ids`)."""
+    """A component id outside the accepted alphabet or length
+    (:func:`rulkit.fleet.rows.check_component_ids`)."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +66,10 @@ class Alert:
     rul_high: float
     reason: str = ""
     fhi: float = float("nan")
+    id: int | None = None
+    """Its row in table ``alerts`` once recorded."""
+    raised: float | None = None
+    """When it was recorded (seconds since the epoch)."""
 
     @property
     def name(self) -> str:
@@ -72,76 +85,84 @@ class IngestResult:
     n_components: int
     n_new_components: int
     alerts: list[Alert] = field(default_factory=list)
+    n_duplicates: int = 0
+    """Rows already stored (same component, time and HI), skipped."""
 
 
 # --------------------------------------------------------------------------- validation
-def read_acquisitions(path: str | Path) -> pd.DataFrame:
+def read_acquisitions(source: str | Path | bytes | memoryview, fmt: str | None = None, *,
+                      max_rows: int | None = None, name: str | None = None) -> pd.DataFrame:
     """Read a CSV (``.csv``, ``.csv.gz``, ``.txt``) or Parquet (``.parquet``, ``.pq``)
-    acquisition file (``component`` kept as text); file-level problems raise
-    :class:`IngestError` (see :func:`rulkit.tables.read_table`)."""
-    return read_table(path, error=IngestError, csv_suffixes=(".csv", ".csv.gz", ".txt"),
-                      expected_columns=("component", "time", "hi"),
-                      csv_dtype={"component": "category"}, text_columns=("component",))
+    acquisition file, or the bytes of one (``fmt`` ``"csv"`` / ``"parquet"``; what the
+    service receives), ``component`` kept as text. The one reader of ``rulkit track`` and of
+    the service's uploads. CSV rows must have as many fields as the header
+    (:func:`rulkit.fleet.rows.read_csv_rows`); a Parquet input's row count is read from its
+    metadata and refused above ``max_rows`` before any column is decoded. File-level
+    problems raise :class:`IngestError` naming ``name`` (default: the path)."""
+    if isinstance(source, bytes | memoryview):
+        where = name or f"{fmt} body"
+    else:
+        where = name or str(source)
+        fmt = fmt or table_format(source, error=IngestError,
+                                  csv_suffixes=(".csv", ".csv.gz", ".txt"))
+        _check_file(Path(source))
+    if fmt == "csv":
+        return read_csv_rows(source, error=IngestError, name=where, max_rows=max_rows)
+    if fmt != "parquet":
+        raise IngestError(f"{where}: unknown format {fmt!r}; expected csv or parquet")
+    return _read_parquet(source, where, max_rows)
 
 
-def check_component_ids(comp: pd.Series) -> pd.Series:
-    """Component ids as a categorical of stripped ``str``, or :class:`ComponentIdError` at the
-    first bad row.
+def _check_file(p: Path) -> None:
+    if not p.exists():
+        raise IngestError(f"{p}: file not found (no such file or directory)")
+    if p.is_dir():
+        raise IngestError(f"{p}: is a directory, expected a CSV or Parquet file")
+    if p.stat().st_size == 0:
+        raise IngestError(f"{p}: empty file (no header, no rows; expected a header with "
+                          "columns ['component', 'time', 'hi'])")
 
-    Accepted: 1 to :data:`COMPONENT_ID_MAX_LEN` characters after stripping surrounding blanks,
-    every one printable (:meth:`str.isprintable`). Refused, naming the 1-based row: a missing
-    or empty id, a non-text id (e.g. a number in a Parquet column is taken as its text, but
-    bytes are refused), a control or format character (ESC, newline, tab, bidi override), and
-    an id longer than the limit. The check runs once per distinct id.
-    """
-    missing = comp.isna().to_numpy()
-    if missing.any():
-        i = int(np.flatnonzero(missing)[0])
-        raise ComponentIdError(f"row {i + 1}: empty component name")
-    codes, uniques = pd.factorize(comp, sort=False)
-    bad_code = None
-    reason = ""
-    clean: list[str] = []
-    for k, v in enumerate(uniques):
-        if isinstance(v, bytes | bytearray):
-            bad_code, reason = k, "is binary data, not text"
-            break
-        text = str(v).strip()
-        if not text:
-            bad_code, reason = k, "empty component name"
-            break
-        if len(text) > COMPONENT_ID_MAX_LEN:
-            bad_code, reason = k, (f"component id of {len(text)} characters, longer than the "
-                                   f"limit of {COMPONENT_ID_MAX_LEN}")
-            break
-        if not text.isprintable():
-            c = next(c for c in text if not c.isprintable())
-            bad_code, reason = k, (f"component id '{safe_text(text, 60)}' holds the "
-                                   f"non-printable character {safe_text(c)} (control and "
-                                   "format characters are not allowed)")
-            break
-        clean.append(text)
-    if bad_code is not None:
-        i = int(np.flatnonzero(codes == bad_code)[0])
-        raise ComponentIdError(f"row {i + 1}: {reason}")
-    # ids equal after stripping share one category; the frame keeps int codes, not 2M strings
-    ucodes, ucats = pd.factorize(pd.Index(clean, dtype=object))
-    return pd.Series(pd.Categorical.from_codes(np.asarray(ucodes)[codes], categories=ucats),
-                     index=comp.index)
+
+def _read_parquet(source: str | Path | bytes | memoryview, where: str, max_rows: int | None
+                  ) -> pd.DataFrame:
+    """A Parquet input as a frame; the row count from the metadata is checked first, so a
+    small file that decodes to millions of rows is refused before it is decoded."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        pf = pq.ParquetFile(pa.BufferReader(pa.py_buffer(source))
+                            if isinstance(source, bytes | memoryview) else str(source))
+        n = pf.metadata.num_rows
+        if max_rows is not None and n > max_rows:
+            raise IngestError(f"{where}: {n} rows, at most {max_rows} per batch")
+        size = sum(pf.metadata.row_group(i).total_byte_size
+                   for i in range(pf.metadata.num_row_groups))
+        if max_rows is not None and size > PARQUET_BYTES_PER_ROW * max_rows:
+            raise IngestError(f"{where}: decodes to {size} bytes, at most "
+                              f"{PARQUET_BYTES_PER_ROW * max_rows} per batch")
+        table = pf.read()
+    except IngestError:
+        raise
+    except Exception as err:  # pyarrow raises many kinds on bad bytes
+        raise IngestError(f"{where}: cannot be read as Parquet ({type(err).__name__}: "
+                          f"{str(err).strip()[:200]})") from None
+    if table.num_rows == 0:
+        raise IngestError(f"{where}: no data rows (header only)")
+    names = [str(c) for c in table.column_names]
+    dup = pd.Index(names).duplicated()
+    if dup.any():
+        raise IngestError(f"{where}: column {names[int(np.flatnonzero(dup)[0])]!r} appears "
+                          "twice; rename or drop one")
+    return table.to_pandas()
 
 
 def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
-    """``df[col]`` as finite float64; the error names row (1-based), component and column.
-
-    A float64 column that is all finite (what a CSV of numbers gives) is returned without a
-    copy (read-only use: 16 MB less per column of 2M rows)."""
-    if df[col].dtype == np.float64:
-        a = df[col].to_numpy()
-        if np.isfinite(a).all():
-            return a
-    return numeric_columns(
-        df, [col], error=IngestError,
-        row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")[col]
+    """``df[col]`` as finite float64 (:func:`rulkit.fleet.rows.numeric_values`: numbers of a
+    numeric type only); the error names row (1-based), component and column."""
+    return numeric_values(
+        df[col], col, error=IngestError,
+        row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
 
 
 def validate_acquisitions(
@@ -200,7 +221,7 @@ def validate_acquisitions(
         raise IngestError("no value column: expected 'hi'" + (
             f" or the CI columns {ci_names}" if ci_names else ""))
 
-    df["component"] = check_component_ids(df["component"])
+    df["component"] = check_component_ids(df["component"], error=ComponentIdError)
     t = time_seconds(df["time"], "time", error=IngestError,
                      row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
     calendar = t is not None

@@ -137,7 +137,7 @@ def _status_from_frame(db: Path, limit: int, fmt: str, now: float, sort: str) ->
     except FileNotFoundError as err:
         fail(str(err))
     except StoreError as err:
-        fail(str(err))
+        fail(str(err), code=err.exit_code)
     stored = {c: df[c].tolist() if c == "component" else df[c].to_numpy()
               for c in STORED_COLUMNS}
     info, cols = status_columns(stored, est, now, sort)
@@ -200,8 +200,9 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     @app.command("track")
     def track(
         acquisitions: Annotated[Path, typer.Argument(
-            help="CSV or Parquet with columns component, time and hi (or the CI columns "
-                 "of the database's HI model); see docs/file-formats.md.")],
+            help="CSV or Parquet file (or a directory of Parquet partitions) with columns "
+                 "component, time and hi (or the CI columns of the database's HI model); "
+                 "see docs/file-formats.md.")],
         db: Annotated[Path, typer.Option(
             "--db", help="SQLite component database (created with the first accepted batch).")],
         baseline: Annotated[Path | None, typer.Option(
@@ -251,15 +252,22 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         wait: float = typer.Option(60.0, "--wait", min=0.0,
                                    help="Seconds to wait for another writer before giving up "
                                         "(exit code 75, retry)."),
+        scheduler: str | None = typer.Option(
+            None, "--scheduler", help="Dask scheduler address (tcp://host:port): track a "
+                                      "directory of Parquet partitions on its workers."),
+        buckets: int = typer.Option(0, "--buckets", min=0,
+                                    help="Tasks to split the components into with "
+                                         "--scheduler (0: 4 per worker)."),
     ) -> None:
         """Ingest acquisitions (one transaction) and print new warnings and alarms.
 
         The estimator and alert options are stored with the database; given for an existing
         one they replace the stored ones (every component's RUL and level recomputed).
         Exit codes: 0 done; 1 the file or database was refused (nothing written); 2 a bad
-        option; 75 the database stayed busy (retry).
+        option; 65 the database is damaged; 74 disk full or I/O error; 75 the database stayed
+        busy (retry); 77 the database or its directory cannot be written.
         """
-        from rulkit.cli.errors import EXIT_BUSY, bad_option, fail
+        from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
         from rulkit.fleet.store.database_file import StoreBusyError, StoreError
         from rulkit.fleet.store.sqlite import ingest_into, read_rules, read_settings
@@ -282,14 +290,16 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         _rules_options(None, rule_opts)  # refuse bad values before reading anything
         hi_model = _fit_baseline(baseline, pfa, offset) if baseline is not None else None
         nothing = f"nothing was written to {db}"
+        if scheduler is not None and not acquisitions.is_dir():
+            bad_option("--scheduler", "needs a directory of Parquet partitions")
         try:
-            df = read_acquisitions(acquisitions)
+            df = None if acquisitions.is_dir() else read_acquisitions(acquisitions)
             settings = read_settings(db)
             rules = _rules_options(read_rules(db), rule_opts)
         except IngestError as err:
             fail(f"{err} ({nothing})")
         except StoreError as err:
-            fail(str(err))
+            fail(str(err), code=err.exit_code)
         if settings is None:
             cfg = new_cfg
         else:
@@ -300,19 +310,28 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 fail(f"{db} was created with other tracker settings (stored, given): {diff}; "
                      "the state is only meaningful with its own settings")
         try:
-            res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
-                                       source=str(acquisitions), timeout=wait, rules=rules)
+            if df is None:  # a directory of partitions, serially or on Dask workers
+                from rulkit.fleet.store.partitions import track_directory
+
+                res, created = track_directory(db, acquisitions, config=cfg, hi_model=hi_model,
+                                               scheduler=scheduler, buckets=buckets,
+                                               timeout=wait)
+            else:
+                res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
+                                           source=str(acquisitions), timeout=wait, rules=rules)
         except IngestError as err:
             msg = str(err)  # file-level errors already start with the path
             where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "
             fail(f"{where}{msg} ({nothing})")
         except StoreBusyError as err:
-            fail(f"{err}; retry the same command", code=EXIT_BUSY)
+            fail(f"{err}; retry the same command", code=err.exit_code)
         except StoreError as err:
-            fail(f"{err} ({nothing})")
+            fail(f"{err} ({nothing})", code=err.exit_code)
         typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
                    f"({res.n_new_components} new) into {safe_text(db)}"
-                   + (" (new database)" if created else ""))
+                   + (" (new database)" if created else "")
+                   + (f"; {res.n_duplicates} already stored, skipped" if res.n_duplicates
+                      else ""))
         if not res.alerts:
             typer.echo("no new warnings or alarms")
         for a in res.alerts:
@@ -338,7 +357,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         """Components with their alert level, RUL (median [interval] and due date), last HI
         and acquisition, worst first (read-only).
 
-        Exit codes: 0 done; 1 the database was refused; 2 a bad option.
+        Exit codes: 0 done; 1 the database was refused; 2 a bad option; 65 the database is
+        damaged; 74 I/O error; 75 busy (retry); 77 it cannot be read by this user.
         """
         import time
 
@@ -353,8 +373,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         at = time.time() if now is None else _iso_seconds(now)
         try:  # sqlite3 only; None: a row rulkit cannot have written
             got = read_status(db, now=at, sort=sort)
-        except (FileNotFoundError, StoreError) as err:
+        except FileNotFoundError as err:
             fail(str(err))
+        except StoreError as err:
+            fail(str(err), code=err.exit_code)
         if got is None:
             _status_from_frame(db, limit, fmt, at, sort)
             return

@@ -1,10 +1,29 @@
-"""The component database as a file: read-only probing, meta settings, durability.
+"""The component database as a file: opening it through SQLite, meta settings, durability.
 
-Helpers of :mod:`rulkit.fleet.store.sqlite` that look at a database before it is opened for writing:
-:func:`_probe` checks an existing file read-only (SQLite header, ``meta`` table, schema
-version) so a foreign, empty or corrupt file keeps its bytes and gets a named
-:class:`StoreError`; the tracker settings, HI model and learned
-model are read from ``meta``; :func:`_fsync_dir` makes a published file durable.
+docs/systems/embedded-rul.md §4. Helpers of :mod:`rulkit.fleet.store.sqlite` that open a database
+and look at it before it is used for writing.
+
+**The file is only ever opened through SQLite.** On Linux, closing *any* descriptor of a file
+drops every POSIX lock the process holds on it, SQLite's included; a process that read the
+database header with a plain ``open()`` while it held SQLite connections lost their locks, and
+another process then deleted the write-ahead log the first one was still writing to
+(acknowledged rows lost). So :func:`open_database` learns everything (no file, a directory, an
+empty file, not an SQLite file, not a rulkit database, corrupt) from ``os.stat`` and from
+SQLite's own answers, and reads ``meta`` through the write-ahead log (a database killed during
+a checkpoint has a main file that only the log makes whole).
+
+**Each failure has its own class, message and exit code** (docs/file-formats.md):
+:class:`StoreBusyError` (another writer; retry, 75), :class:`StoreCorruptError` (SQLite
+itself finds the file damaged, write-ahead log included; 65), :class:`StoreFullError` (no
+space left; nothing written, 74), :class:`StoreReadOnlyError` (the file or its directory
+cannot be written; 77), and :class:`StoreError` for the rest (not a rulkit database, other
+settings; 1). :func:`store_error` maps an ``sqlite3.Error`` by its SQLite result code.
+
+**Readers who cannot write** (another user's database, a read-only directory): when no
+writer is active (no ``-wal`` file) the file is read as SQLite's ``immutable`` (no lock, no
+``-wal``/``-shm`` created, which would otherwise be left behind owned by the reader and block
+the owner's next write); when a writer is active its log is read through SQLite's read-only
+mode. :func:`read_verified` repeats a read whose file changed meanwhile.
 """
 
 from __future__ import annotations
@@ -12,32 +31,89 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 from rulkit.tables import safe_text
 
 SCHEMA_VERSION = 1
-SQLITE_HEADER = b"SQLite format 3\x00"
-
+T = TypeVar("T")
 
 class StoreError(ValueError):
-    """The database file cannot be used as a rulkit component database (missing directory,
-    not a rulkit database, corrupt, other settings); the file is left as it was."""
+    """The database cannot be used as a rulkit component database (missing directory, not a
+    rulkit database, other settings); the file is left as it was. ``exit_code``: what a
+    command exits with (the codes of :mod:`rulkit.cli.errors`)."""
+
+    exit_code = 1
 
 
 class StoreBusyError(StoreError):
     """Another writer held the database longer than the timeout; nothing was written and the
     same call can be retried."""
 
+    exit_code = 75  # EXIT_BUSY
 
-def _uri(path: Path, mode: str) -> str:
+
+class StoreCorruptError(StoreError):
+    """SQLite reports the database damaged (read through its write-ahead log)."""
+
+    exit_code = 65  # EXIT_CORRUPT
+
+
+class StoreFullError(StoreError):
+    """The disk (or a size limit) is full, or the device failed; nothing was written."""
+
+    exit_code = 74  # EXIT_IO
+
+
+class StoreReadOnlyError(StoreError):
+    """The database file or its directory cannot be written by this user."""
+
+    exit_code = 77  # EXIT_NOPERM
+
+
+_BUSY = ("SQLITE_BUSY", "SQLITE_LOCKED")
+_READONLY = ("SQLITE_READONLY", "SQLITE_CANTOPEN", "SQLITE_PERM", "SQLITE_AUTH")
+
+
+def store_error(path: Path | str, err: sqlite3.Error, timeout: float | None = None
+                ) -> StoreError:
+    """``err`` as the :class:`StoreError` subclass of its SQLite result code, with a message
+    naming ``path`` and what to do (``timeout``: how long a busy writer was waited for)."""
+    name = getattr(err, "sqlite_errorname", "") or ""
+    text = safe_text(str(err))
+    if name.startswith(_BUSY) or (not name and ("locked" in text or "busy" in text)):
+        waited = "" if timeout is None else f" (waited {timeout:g} s)"
+        return StoreBusyError(f"{path}: the database is busy (another process is writing to "
+                              f"it); nothing was written, retry when it has finished{waited}")
+    if name.startswith("SQLITE_FULL"):
+        return StoreFullError(f"{path}: the disk is full ({text}); nothing was written, free "
+                              "space and retry (the database is intact)")
+    if name.startswith("SQLITE_IOERR"):
+        return StoreFullError(f"{path}: input/output error ({text}; {name}); nothing was "
+                              "written: check the disk and free space, then retry")
+    if name.startswith(_READONLY) or "readonly" in text.replace("-", ""):
+        return StoreReadOnlyError(f"{path}: cannot be written by this user (read-only file, "
+                                  f"directory or file system: {text})")
+    if name.startswith("SQLITE_NOTADB"):
+        return StoreError(f"{path}: not an SQLite database (no SQLite header), so not a rulkit "
+                          "component database; left unchanged")
+    if name.startswith("SQLITE_CORRUPT"):
+        return StoreCorruptError(
+            f"{path}: SQLite reports the database damaged ({text}), reading it with its "
+            "write-ahead log; keep the file and its -wal beside it, check it with sqlite3 "
+            "'PRAGMA integrity_check', and restore it from a backup (SQLite's .recover can "
+            "salvage rows)")
+    return StoreError(f"{path}: cannot be used ({text}; {name or type(err).__name__})")
+
+
+def _uri(path: Path, params: str) -> str:
     from urllib.parse import quote
 
-    return f"file:{quote(str(path.absolute()))}?mode={mode}"
+    return f"file:{quote(str(path.absolute()))}?{params}"
 
 
 def _read_meta(conn: sqlite3.Connection) -> dict[str, str]:
@@ -46,39 +122,67 @@ def _read_meta(conn: sqlite3.Connection) -> dict[str, str]:
     return dict(conn.execute("SELECT key, value FROM meta").fetchall()) if has_meta else {}
 
 
-def _probe(path: Path) -> dict[str, str] | None:
-    """The ``meta`` of the rulkit database at ``path``, ``None`` if there is no file; anything
-    else raises :class:`StoreError`. Read-only: the file's bytes never change."""
-    if not path.exists():
-        if not path.parent.is_dir():
-            raise StoreError(f"{path}: the directory {path.parent} does not exist")
-        return None
-    if path.is_dir():
-        raise StoreError(f"{path}: is a directory, expected a rulkit component database file")
+def _file_state(path: Path) -> tuple[int, int, int, bool]:
+    """What changes when a writer touches the database: inode, size, modification time of the
+    main file, and whether a write-ahead log exists (``os.stat`` only, never ``open``)."""
+    st = os.stat(path)
+    return st.st_ino, st.st_size, st.st_mtime_ns, os.path.exists(f"{path}-wal")
+
+
+def _writable(path: Path) -> bool:
+    return os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)
+
+
+def _check_file(path: Path) -> bool:
+    """``False`` if there is no file at ``path``; :class:`StoreError` for a missing directory,
+    a directory or an empty file (``os.stat`` only)."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(len(SQLITE_HEADER))
+        st = os.stat(path)
+    except FileNotFoundError:
+        if not path.parent.is_dir():
+            raise StoreError(f"{path}: the directory {path.parent} does not exist") from None
+        return False
     except OSError as err:
-        raise StoreError(f"{path}: cannot be read: {err.strerror or err}") from err
-    if len(head) == 0:
+        raise StoreReadOnlyError(f"{path}: cannot be read: {err.strerror or err}") from err
+    if os.path.isdir(path):
+        raise StoreError(f"{path}: is a directory, expected a rulkit component database file")
+    if st.st_size == 0:
         raise StoreError(f"{path}: empty file (0 bytes), not a rulkit component database; "
                          "refusing to write into it (remove it or choose another --db)")
-    if head != SQLITE_HEADER:
-        raise StoreError(f"{path}: not an SQLite database (no SQLite header), so not a rulkit "
-                         "component database; left unchanged")
+    return True
+
+
+def _connect(path: Path, timeout: float, readonly: bool) -> tuple[sqlite3.Connection, bool]:
+    """A connection to the existing file ``path`` and whether it is SQLite's ``immutable``
+    read (module docstring). Writable by this user: a normal connection (``query_only`` when
+    ``readonly``; the last connection to close checkpoints and removes ``-wal``/``-shm``).
+    Otherwise, ``readonly`` only: ``immutable`` when no writer is active, else ``mode=ro``
+    over the writer's log."""
+    kw: dict[str, Any] = {"timeout": timeout, "isolation_level": None,
+                          "check_same_thread": False}
+    immutable = False
     try:
-        # immutable: no lock, no -wal/-shm beside a file that may not be ours; the meta a
-        # rulkit database is created with is in the main file (checkpointed before it is
-        # linked into place), and an open store re-reads it through its own connection
-        con = sqlite3.connect(_uri(path, "ro") + "&immutable=1", uri=True, timeout=5.0)
+        if _writable(path) or not readonly:
+            conn = sqlite3.connect(str(path), **kw)
+            conn.execute("PRAGMA synchronous=FULL")
+        elif not os.path.exists(f"{path}-wal"):
+            conn = sqlite3.connect(_uri(path, "mode=ro&immutable=1"), uri=True, **kw)
+            immutable = True
+        else:
+            conn = sqlite3.connect(_uri(path, "mode=ro"), uri=True, **kw)
+        if readonly:
+            conn.execute("PRAGMA query_only=1")
     except sqlite3.Error as err:
-        raise StoreError(f"{path}: cannot be opened read-only: {err}") from err
+        raise store_error(path, err) from err
+    return conn, immutable
+
+
+def _checked_meta(path: Path, conn: sqlite3.Connection) -> dict[str, str]:
+    """``meta`` read through ``conn`` (write-ahead log included), checked to be rulkit's."""
     try:
-        meta = _read_meta(con)
-    except sqlite3.DatabaseError as err:
-        raise StoreError(_db_error_message(path, err)) from err
-    finally:
-        con.close()
+        meta = _read_meta(conn)
+    except sqlite3.Error as err:
+        raise store_error(path, err) from err
     if "schema_version" not in meta or "tracker_config" not in meta:
         raise StoreError(f"{path}: an SQLite database without rulkit's meta table, so not a "
                          "rulkit component database; left unchanged")
@@ -88,45 +192,54 @@ def _probe(path: Path) -> dict[str, str] | None:
     return meta
 
 
-def _db_error_message(path: Path, err: sqlite3.Error) -> str:
-    text = str(err)
-    if isinstance(err, sqlite3.OperationalError) and ("locked" in text or "busy" in text):
-        return (f"{path}: the database is busy (another process is writing to it); nothing "
-                "was written, retry when it has finished")
-    if isinstance(err, sqlite3.OperationalError) and "readonly" in text.replace("-", ""):
-        return f"{path}: cannot be written (read-only file or directory): {text}"
-    return (f"{path}: corrupt or truncated database ({text}); restore it from a backup "
-            "(SQLite's .recover can salvage rows)")
-
-
-def _connect(path: Path, timeout: float, readonly: bool) -> sqlite3.Connection:
-    """A connection to the rulkit database at ``path`` (already checked by :func:`_probe`);
-    ``readonly``: SQLite's ``mode=ro`` when the file or its directory is not writable (it may
-    leave -shm/-wal), ``query_only`` always. SQLite errors raise :class:`StoreError`."""
+def open_database(path: Path, *, timeout: float = 30.0, readonly: bool = False
+                  ) -> tuple[sqlite3.Connection, dict[str, str]] | None:
+    """An open connection to the rulkit database at ``path`` and its checked ``meta``, or
+    ``None`` if there is no file. Everything is learned through ``os.stat`` and SQLite
+    (module docstring); the file's bytes never change when it is refused."""
+    if not _check_file(path):
+        return None
+    conn, _ = _connect(path, timeout, readonly)
     try:
-        writable = os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)
-        if readonly and not writable:  # SQLite's read-only mode (may leave -shm/-wal)
-            conn = sqlite3.connect(_uri(path, "ro"), uri=True, timeout=timeout,
-                                   isolation_level=None, check_same_thread=False)
-        else:  # the last connection to close removes -wal/-shm
-            conn = sqlite3.connect(str(path), timeout=timeout, isolation_level=None,
-                                   check_same_thread=False)
-            conn.execute("PRAGMA synchronous=FULL")
-        if readonly:
-            conn.execute("PRAGMA query_only=1")
-    except sqlite3.Error as err:
-        raise StoreError(_db_error_message(path, err)) from err
-    return conn
+        return conn, _checked_meta(path, conn)
+    except BaseException:
+        conn.close()
+        raise
 
 
-def _store_error(path: Path, err: sqlite3.Error, timeout: float) -> StoreError:
-    """``err`` as :class:`StoreBusyError` (another writer held the lock past ``timeout``) or
-    :class:`StoreError`, with the path."""
-    msg = _db_error_message(path, err)
-    if isinstance(err, sqlite3.OperationalError) and (
-            "locked" in str(err) or "busy" in str(err)):
-        return StoreBusyError(f"{msg} (waited {timeout:g} s)")
-    return StoreError(msg)
+def read_verified(path: Path, timeout: float, read: Callable[[sqlite3.Connection], T]) -> T:
+    """``read(conn)`` on a read-only connection to ``path`` (checked rulkit database), with
+    ``meta`` checked first. An ``immutable`` read (module docstring) is repeated through the
+    writer's log when the file changed while it ran, so a reader never returns, or reports as
+    corrupt, a state a concurrent checkpoint was rewriting."""
+    if not _check_file(path):
+        raise FileNotFoundError(f"{path}: no such database")
+    for _attempt in range(3):
+        before = _file_state(path)
+        conn, immutable = _connect(path, timeout, readonly=True)
+        try:
+            try:
+                _checked_meta(path, conn)
+                out = read(conn)
+            except StoreError:
+                if immutable and _file_state(path) != before:
+                    continue
+                raise
+            if immutable and _file_state(path) != before:
+                continue
+            return out
+        finally:
+            conn.close()
+    raise StoreBusyError(f"{path}: the database kept changing while it was read; retry")
+
+
+def _probe(path: Path) -> dict[str, str] | None:
+    """The checked ``meta`` of the rulkit database at ``path``, ``None`` if there is no file
+    (:func:`read_verified`: read-only, through SQLite)."""
+    try:
+        return read_verified(path, 30.0, _read_meta)
+    except FileNotFoundError:
+        return None
 
 
 def _config_from_meta(path: Path, meta: dict[str, str]

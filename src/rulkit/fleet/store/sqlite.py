@@ -41,7 +41,7 @@ Guarantees (tested in tests/fleet/store/test_sqlite.py):
 * **Busy, not broken.** A writer waits up to ``timeout`` seconds for another one to commit,
   then raises :class:`StoreBusyError` (nothing written; retry), never a raw ``sqlite3`` error.
 
-Component ids (:func:`check_component_ids`): 1 to :data:`COMPONENT_ID_MAX_LEN` printable
+Component ids (:func:`rulkit.fleet.rows.check_component_ids`): 1 to 128 printable
 characters (:meth:`str.isprintable`: no control characters such as ESC, newline, tab, no
 Unicode format characters such as bidirectional overrides), surrounding blanks stripped.
 Anything else raises :class:`ComponentIdError` naming the row, so a crafted id cannot forge
@@ -50,12 +50,16 @@ terminal output; printing still goes through :func:`rulkit.tables.safe_text`.
 
 from __future__ import annotations
 
+import glob
 import json
+import math
 import os
 import sqlite3
+import time
 import uuid
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +70,7 @@ from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
 from rulkit.fleet.store.acquisitions import (
     Alert,
+    ConflictError,
     IngestError,
     IngestResult,
     read_acquisitions,
@@ -74,14 +79,12 @@ from rulkit.fleet.store.acquisitions import (
 from rulkit.fleet.store.database_file import (
     StoreError,
     _config_from_meta,
-    _connect,
-    _db_error_message,
     _degradation_from_meta,
     _fsync_dir,
     _meta_rows,
     _probe,
-    _read_meta,
-    _store_error,
+    open_database,
+    store_error,
 )
 from rulkit.fleet.store.prognosis import (
     COMPONENT_COLUMNS,
@@ -97,6 +100,7 @@ from rulkit.fleet.store.prognosis import (
     upgrade,
     write_monitoring,
 )
+from rulkit.fleet.store.schema import create_statements, migrate, needs_migration
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
@@ -112,29 +116,14 @@ STATE_FIELDS = ("t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul")
 OUTPUT_FIELDS = ("valid", "level", "rul_low", "rul_high")
 ROW_FIELDS = (*STATE_FIELDS, *OUTPUT_FIELDS)
 HISTORY_FIELDS = tuple(f for f in ROW_FIELDS if f != "n")
+SAME_HI_RTOL = 1e-12
+"""Relative tolerance under which a re-sent acquisition's HI equals the stored one."""
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS components (
-    component TEXT PRIMARY KEY,
-    t REAL NOT NULL, n INTEGER NOT NULL, hi REAL NOT NULL, fhi REAL NOT NULL, dhi REAL NOT NULL,
-    rul REAL NOT NULL, frul REAL NOT NULL, drul REAL NOT NULL, d2rul REAL NOT NULL,
-    valid INTEGER NOT NULL, level INTEGER NOT NULL, rul_low REAL NOT NULL, rul_high REAL NOT NULL,
-    max_level INTEGER NOT NULL
-);
-CREATE TABLE IF NOT EXISTS history (
-    component TEXT NOT NULL, t REAL NOT NULL,
-    hi REAL NOT NULL, fhi REAL NOT NULL, dhi REAL NOT NULL,
-    rul REAL NOT NULL, frul REAL NOT NULL, drul REAL NOT NULL, d2rul REAL NOT NULL,
-    valid INTEGER NOT NULL, level INTEGER NOT NULL, rul_low REAL NOT NULL, rul_high REAL NOT NULL,
-    ingest INTEGER NOT NULL,
-    PRIMARY KEY (component, t)
-) WITHOUT ROWID;
-CREATE TABLE IF NOT EXISTS ingests (
-    id INTEGER PRIMARY KEY, source TEXT NOT NULL, n_rows INTEGER NOT NULL,
-    n_components INTEGER NOT NULL
-);
-"""
+
+def _finite(v: float) -> float | None:
+    """``v``, or ``None`` (SQL NULL) when it is NaN or infinite."""
+    return v if math.isfinite(v) else None
+
 
 
 def _check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
@@ -161,6 +150,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     ``path`` appeared meanwhile. Returns the batch's result, or ``None`` when another process
     created ``path`` first (then nothing of ours is kept and the caller applies the batch to
     that database)."""
+    _remove_stale_creations(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
     result: IngestResult | None = None
     try:
@@ -177,9 +167,8 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             conn.execute("PRAGMA journal_mode=MEMORY")
             conn.execute("PRAGMA synchronous=OFF")
             conn.execute("BEGIN IMMEDIATE")
-            for stmt in _SCHEMA.split(";"):
-                if stmt.strip():
-                    conn.execute(stmt)
+            for stmt in create_statements("sqlite"):
+                conn.execute(stmt)
             conn.executemany("INSERT INTO meta VALUES (?, ?)", _meta_rows(config, hi_model))
             ensure_columns(conn, "components", COMPONENT_COLUMNS)
             ensure_columns(conn, "history", HISTORY_COLUMNS)
@@ -191,7 +180,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
                 store._attach(tmp, conn, config, hi_model, timeout=0.0)
                 store.rules, store.trend = rules or MonitoringRules(), TrendConfig()
                 with store._transaction("IMMEDIATE"):
-                    result = store._apply(acq, source)
+                    result = store._ingest_in_transaction(acq, source)
             # WAL mode is recorded in the file: every later connection uses the log
             if conn.execute("PRAGMA journal_mode=WAL").fetchone()[0] != "wal":
                 raise sqlite3.OperationalError("cannot switch the new database to WAL mode")
@@ -202,8 +191,11 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             conn.close()
         for side in ("-wal", "-shm"):
             Path(f"{tmp}{side}").unlink(missing_ok=True)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
+        fd = os.open(tmp, os.O_RDWR)  # no SQLite connection holds this private file
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         try:
             os.link(tmp, path)
         except FileExistsError:
@@ -217,6 +209,23 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     finally:
         for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm"), Path(f"{tmp}-journal")):
             p.unlink(missing_ok=True)
+
+
+def _remove_stale_creations(path: Path) -> None:
+    """Delete the temporary files of creations of ``path`` whose process is gone (a first
+    ingest killed before it published its database leaves ``.NAME.PID.XXXXXXXX.creating``
+    and its journals; the PID in the name tells whether it is still running)."""
+    for tmp in path.parent.glob(f".{glob.escape(path.name)}.*.creating*"):
+        parts = tmp.name[len(path.name) + 2:].split(".")
+        if len(parts) < 3 or not parts[0].isdigit():
+            continue
+        pid = int(parts[0])
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            tmp.unlink(missing_ok=True)
+        except PermissionError:  # another user's process: alive
+            continue
 
 
 def read_settings(path: str | Path) -> tuple[TrackerConfig, HealthIndexModel | None] | None:
@@ -335,16 +344,15 @@ class ComponentStore:
     ) -> None:
         self.path = Path(path)
         create = create and not readonly
-        meta = _probe(self.path)
-        if meta is None:
+        opened = open_database(self.path, timeout=timeout, readonly=readonly)
+        if opened is None:
             if not create:
                 raise FileNotFoundError(f"{self.path}: no such database")
             _build_and_publish(self.path, config or TrackerConfig(), hi_model, None, "", rules)
-            meta = _probe(self.path)
-            assert meta is not None
-        conn = _connect(self.path, timeout, readonly)
+            opened = open_database(self.path, timeout=timeout, readonly=readonly)
+            assert opened is not None
+        conn, meta = opened  # meta read through this connection: sees the write-ahead log
         try:
-            meta = _read_meta(conn)  # through this connection: sees the write-ahead log
             stored_cfg, stored_model = _config_from_meta(self.path, meta)
             if config is not None and config != stored_cfg:
                 raise StoreError(
@@ -354,14 +362,18 @@ class ComponentStore:
             if hi_model is not None and stored_model is not None and (
                     hi_model.to_dict() != stored_model.to_dict()):
                 raise StoreError(f"{self.path} already holds a different HI model")
-        except sqlite3.Error as err:
-            conn.close()
-            raise StoreError(_db_error_message(self.path, err)) from err
         except BaseException:
             conn.close()
             raise
         self._attach(self.path, conn, stored_cfg, stored_model, timeout)
         self.readonly = readonly
+        if not readonly and needs_migration(conn, "sqlite"):
+            try:
+                with self._transaction("IMMEDIATE"):
+                    migrate(conn, "sqlite")
+            except BaseException:
+                conn.close()
+                raise
         self.degradation = _degradation_from_meta(self.path, meta)
         try:
             self.rules, self.trend = read_monitoring(meta)
@@ -437,7 +449,7 @@ class ComponentStore:
                 raise self._error(err) from err
 
     def _error(self, err: sqlite3.Error) -> StoreError:
-        return _store_error(self.path, err, self.timeout)
+        return store_error(self.path, err, self.timeout)
 
     @contextmanager
     def snapshot(self) -> Iterator[sqlite3.Connection]:
@@ -553,16 +565,114 @@ class ComponentStore:
 
     def _ingest_validated(self, acq: pd.DataFrame, source: str,
                           new_model: HealthIndexModel | None = None) -> IngestResult:
+        """The one ingestion path (``rulkit track`` and the service): one validated batch in
+        one write transaction (:meth:`_ingest_in_transaction`)."""
         with self._transaction("IMMEDIATE"):
             if new_model is not None:
                 self._conn.execute("INSERT INTO meta VALUES ('hi_model', ?)",
                                    (json.dumps(new_model.to_dict()),))
-            res = self._apply(acq, source)
+            res = self._ingest_in_transaction(acq, source)
         if new_model is not None:
             self.hi_model = new_model
         return res
 
-    def _apply(self, acq: pd.DataFrame, source: str) -> IngestResult:
+    def ingest_many(self, batches: list[tuple[pd.DataFrame, str, float | None]]
+                    ) -> list[IngestResult | IngestError]:
+        """Validated batches (:func:`validate_acquisitions` frames, their sources and the
+        calendar times ``now`` they were received at, ``None``: the clock) in one write
+        transaction, each under its own savepoint: a batch that fails (conflict, a
+        non-finite tracker output) is rolled back alone and gets its error, the others are
+        committed together (one commit, one sync: group commit). A failing commit raises
+        for all of them; nothing is then stored."""
+        out: list[IngestResult | IngestError] = []
+        with self._transaction("IMMEDIATE"):
+            for acq, source, now in batches:
+                self._conn.execute("SAVEPOINT batch")
+                self.now = now
+                try:
+                    out.append(self._ingest_in_transaction(acq, source))
+                except IngestError as err:
+                    self._conn.execute("ROLLBACK TO SAVEPOINT batch")
+                    out.append(err)
+                finally:
+                    self.now = None
+                self._conn.execute("RELEASE SAVEPOINT batch")
+        return out
+
+    def _ingest_in_transaction(self, acq: pd.DataFrame, source: str) -> IngestResult:
+        """Inside the caller's write transaction: skip the rows already stored
+        (:meth:`_split_duplicates`; a contradiction raises :class:`ConflictError`), run and
+        store the trackers (:meth:`_apply`) and record the new alerts in table ``alerts``
+        with their ids."""
+        comp = acq["component"]
+        names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
+                                  else pd.unique(comp))]
+        stored = self._load_states(names)
+        acq, n_dup = self._split_duplicates(acq, {k: float(v[0]) for k, v in stored.items()})
+        if len(acq):
+            res = self._apply(acq.reset_index(drop=True), source, stored)
+        else:
+            res = IngestResult(n_rows=0, n_components=0, n_new_components=0)
+        alerts = self._record_alerts(res.alerts)
+        return replace(res, alerts=alerts, n_duplicates=n_dup)
+
+    def _record_alerts(self, alerts: list[Alert]) -> list[Alert]:
+        """Insert ``alerts`` into table ``alerts`` (inside the caller's transaction); the
+        same alerts with their ids and the time they were raised (the ingestion's calendar
+        time ``now``, default the clock)."""
+        now = time.time() if self.now is None else self.now
+        out = []
+        for a in alerts:
+            vals = (a.component, a.t, a.level, a.previous, _finite(a.hi), _finite(a.fhi),
+                    _finite(a.rul), math.isfinite(a.rul), _finite(a.rul_low),
+                    _finite(a.rul_high), a.reason, now)
+            aid = self._conn.execute(
+                "INSERT INTO alerts (component, t, level, previous, hi, fhi, rul, valid, "
+                "rul_low, rul_high, reason, raised) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                "?) RETURNING id", vals).fetchone()[0]
+            out.append(replace(a, id=int(aid), raised=now))
+        return out
+
+    def _split_duplicates(self, acq: pd.DataFrame, last: dict[str, float]
+                          ) -> tuple[pd.DataFrame, int]:
+        """Split off rows at or before a component's stored last time (inside the write
+        transaction): rows stored with the same HI (to :data:`SAME_HI_RTOL`) are
+        duplicates, skipped and counted; anything else raises :class:`ConflictError`
+        naming the row (acquisitions are appended in time order). ``last``: the stored last
+        time of each stored component of the batch."""
+        comp = acq["component"]
+        names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
+                                  else pd.unique(comp))]
+        if not last:
+            return acq, 0
+        codes = (comp.cat.codes.to_numpy() if hasattr(comp, "cat")
+                 else pd.factorize(comp)[0])
+        last_t = np.array([last.get(c, np.nan) for c in names])[codes]  # NaN: new
+        old = np.flatnonzero(acq["t"].to_numpy() <= last_t)
+        if old.size == 0:
+            return acq, 0
+        sub = acq.iloc[old]
+        for name, grp in sub.groupby("component", sort=False, observed=True):
+            stored = dict(self._conn.execute(
+                "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
+                (str(name), float(grp["t"].min()), float(grp["t"].max()))).fetchall())
+            for row, t, hi in zip(grp["row"], grp["t"], grp["hi"], strict=True):
+                if float(t) not in stored:
+                    raise ConflictError(
+                        f"row {row} (component {str(name)!r}): time {_fmt(t)} is before the "
+                        f"component's last stored acquisition at {_fmt(last[str(name)])} and "
+                        "is not stored (acquisitions are appended in time order)")
+                h = float(stored[float(t)])
+                if abs(h - hi) > SAME_HI_RTOL * max(1.0, abs(h), abs(hi)):
+                    raise ConflictError(
+                        f"row {row} (component {str(name)!r}): time {_fmt(t)} is already "
+                        f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
+        keep = np.ones(len(acq), dtype=bool)
+        keep[old] = False
+        return acq[keep], int(old.size)
+
+    def _apply(self, acq: pd.DataFrame, source: str,
+               stored: dict[str, tuple] | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction).
 
@@ -580,17 +690,18 @@ class ComponentStore:
         codes = codes_raw.astype(np.int32)  # 8 bytes less per acquisition
         del codes_raw
         names = [str(u) for u in uniq]
-        stored = self._load_states(names)
-        pos = {name: i for i, name in enumerate(names)}
+        if stored is None:
+            stored = self._load_states(names)
         b = len(names)
         state = TrackerState.empty(b)
-        for name, row in stored.items():
-            i = pos[name]
-            vals = dict(zip(ROW_FIELDS, row[:-1], strict=True))
-            state.t[i], state.n[i], state.hi[i], state.rul[i] = (
-                vals["t"], vals["n"], vals["hi"], vals["rul"])
-            state.ab[i] = (vals["fhi"], vals["dhi"])
-            state.abg[i] = (vals["frul"], vals["drul"], vals["d2rul"])
+        known = [i for i, name in enumerate(names) if name in stored]
+        if known:  # one array of the stored rows, columns ROW_FIELDS + max_level
+            vals = np.array([stored[names[i]] for i in known], dtype=np.float64)
+            col = {f: vals[:, j] for j, f in enumerate(ROW_FIELDS)}
+            state.t[known], state.n[known] = col["t"], col["n"]
+            state.hi[known], state.rul[known] = col["hi"], col["rul"]
+            state.ab[known] = np.column_stack([col["fhi"], col["dhi"]])
+            state.abg[known] = np.column_stack([col["frul"], col["drul"], col["d2rul"]])
         t = acq["t"].to_numpy(dtype=np.float64)
         hi = acq["hi"].to_numpy(dtype=np.float64)
         rows_all = acq["row"].to_numpy()
@@ -639,8 +750,8 @@ class ComponentStore:
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
         alerts: list[tuple[int, int, Alert]] = []
-        blocks = []  # components k0 .. k1-1 (in key order) form a block
-        k0 = 0
+        blocks = [] if n > self.BLOCK_ROWS else [(0, b)]  # components k0 .. k1-1 (key order)
+        k0 = 0 if blocks == [] else b
         while k0 < b:
             k1 = k0 + 1
             while k1 < b and comp_start[k1 + 1] - comp_start[k0] <= self.BLOCK_ROWS:
@@ -705,7 +816,7 @@ class ComponentStore:
         rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
         rows += list(extra.values())
         self._write_states(list(zip(*rows, strict=True)), tuple(extra))
-        return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(stored),
+        return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:

@@ -19,6 +19,10 @@ same bytes (tested, tests/fleet/store/test_status_view.py):
   decimals by its own rounding, trailing zeros cut, ``%.15g`` beyond 1e16 and below 1e-15,
   non-finite and missing as ``null``; :func:`_ujson_floats`), strings quoted as Arrow and
   ujson quote them. Date-times as ISO 8601 UTC (``2024-05-01T12:00:00Z``).
+* **Read-only.** The database is opened as :class:`~rulkit.fleet.store.sqlite.ComponentStore`
+  opens it with ``readonly=True``
+  (:func:`~rulkit.fleet.store.database_file.read_verified`: through SQLite, ``query_only``)
+  and read in one read transaction.
 """
 
 from __future__ import annotations
@@ -37,12 +41,10 @@ from rulkit.fleet.monitoring.rules import due_time, stale, unit_seconds
 from rulkit.fleet.store.database_file import (
     StoreError,
     _config_from_meta,
-    _connect,
-    _db_error_message,
     _degradation_from_meta,
-    _probe,
     _read_meta,
-    _store_error,
+    read_verified,
+    store_error,
 )
 from rulkit.fleet.store.prognosis import read_monitoring
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
@@ -98,15 +100,11 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
     ``ComponentStore(path, readonly=True)`` does.
     """
     path = Path(path)
-    if _probe(path) is None:
-        raise FileNotFoundError(f"{path}: no such database")
-    conn = _connect(path, timeout, readonly=True)
-    try:
-        try:
-            meta = _read_meta(conn)  # through this connection: sees the write-ahead log
-        except sqlite3.Error as err:
-            raise StoreError(_db_error_message(path, err)) from err
-        est = estimator_of_meta(path, meta)
+    est_box: list[Any] = []
+
+    def read(conn: sqlite3.Connection) -> list[tuple]:
+        meta = _read_meta(conn)
+        est_box[:] = [estimator_of_meta(path, meta)]
         try:
             have = {r[1] for r in conn.execute("PRAGMA table_info(components)").fetchall()}
             if not set(STORED_COLUMNS) <= have:
@@ -118,9 +116,11 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
                 f"SELECT {', '.join(STORED_COLUMNS)} FROM components").fetchall()
             conn.execute("COMMIT")
         except sqlite3.Error as err:
-            raise _store_error(path, err, timeout) from err
-    finally:
-        conn.close()
+            raise store_error(path, err, timeout) from err
+        return rows
+
+    rows = read_verified(path, timeout, read)
+    est = est_box[0]
     if not rows:
         return status_columns({c: [] for c in STORED_COLUMNS}, est, now, sort)
     # one object per value already exists; a column-major copy of the references is the

@@ -97,7 +97,7 @@ def observability(
     if k1 >= truth.X.shape[0]:
         raise ValueError(f"observability: window [{t_start}, {t_start + window}] s exceeds the "
                          f"truth ({truth.t[-1]} s)")
-    sens = output_sensitivities_jacobian(truth.X[k0 : k1 + 1], truth.dt)
+    sens = output_sensitivities_jacobian(truth.X[k0 : k1 + 1], truth.dt, truth.params)
     crb = cramer_rao(sens, R)
     fisher = fisher_information(sens, R)
     F = fd.jacobian(truth.X[k0 : k0 + 1])[0]

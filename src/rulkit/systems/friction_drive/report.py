@@ -22,6 +22,7 @@ from rulkit.estimation.consistency import (
 )
 from rulkit.reporting import markdown_table
 from rulkit.systems.friction_drive.drive import DEFAULT_PARAMS, SPEED_Q_RATE
+from rulkit.systems.friction_drive.machine import DRIVE_Q_RATE
 from rulkit.systems.friction_drive.reproduce import (
     MAX_LAG,
     SEED_VALUES,
@@ -101,6 +102,21 @@ def tables(res: FrictionDriveResult) -> dict:
          "sigma_m": o.sigma[3], "pointwise_rank": o.pointwise_rank}
         for o in res.observability
     ])
+    rul = _rul_table(res)
+    conv = pd.DataFrame([c.__dict__ for c in res.convergence])
+    out = {"consistency": consistency, "verdicts": verdicts, "ellipsoid": ellipsoid,
+           "observability": obs, "rul": rul, "convergence": conv}
+    if res.tuning:
+        out["tuning"] = pd.DataFrame([r.__dict__ for r in res.tuning])
+        out["tuning_summary"] = tuning_summary(out["tuning"])
+    return out
+
+
+def _rul_table(res: FrictionDriveResult) -> pd.DataFrame:
+    """One row per RUL configuration: the distribution's summaries beside the seed's and
+    scored against the true RUL (:func:`tables`)."""
+    import pandas as pd
+
     from rulkit.metrics import crps_samples, relative_accuracy
 
     rul_rows = []
@@ -128,10 +144,24 @@ def tables(res: FrictionDriveResult) -> dict:
             "CRPS_h": float(crps_samples(r.rul.samples, truth, r.rul.weights)),
             "mc_seconds": r.seconds,
         })
-    rul = pd.DataFrame(rul_rows)
-    conv = pd.DataFrame([c.__dict__ for c in res.convergence])
-    return {"consistency": consistency, "verdicts": verdicts, "ellipsoid": ellipsoid,
-            "observability": obs, "rul": rul, "convergence": conv}
+    return pd.DataFrame(rul_rows)
+
+
+def tuning_summary(tuning: pd.DataFrame) -> pd.DataFrame:
+    """Per (scenario, q_m): runs and the fractions of runs with the time-averaged NIS inside
+    its interval, white innovations, both (consistent), both without the second after a jump;
+    the median largest per-step NIS, median time to track a jump within 5 % and the median
+    |error of m| / sd at the end."""
+    t = tuning.assign(abs_m_error_sd=tuning["m_error_sd"].abs(),
+                      consistent_excl_jump=tuning["consistent_excl_jump"].astype(float))
+    return (t.groupby(["scenario", "q_m"], sort=False)
+            .agg(runs=("run", "size"), frac_NIS_ok=("nis_ok", "mean"),
+                 frac_white=("white", "mean"), frac_consistent=("consistent", "mean"),
+                 frac_consistent_excl_jump=("consistent_excl_jump", "mean"),
+                 median_max_NIS=("max_nis", "median"),
+                 median_jump_tracking_s=("jump_tracking_s", "median"),
+                 median_abs_m_error_sd=("abs_m_error_sd", "median"))
+            .reset_index())
 
 
 def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
@@ -206,7 +236,7 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
             t_end = 300.0
         grid = np.linspace(0.0, t_end, 400)
         n_show = min(100, r.samples.shape[0])
-        Db = deterioration_bundle(r.samples[:n_show], grid)
+        Db = deterioration_bundle(r.samples[:n_show], grid, params=res.params)
         ext = np.repeat(r.x_hat[None, :], 3, axis=0)
         sa, sm = np.sqrt(r.P[2, 2]), np.sqrt(r.P[3, 3])
         ext[1, 2] += 3 * sa
@@ -215,14 +245,14 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
         ext[2, 3] += 3 * sm
         never = ext[1, 3] <= 0
         ext[:, 3] = np.maximum(ext[:, 3], 0.0)
-        De = deterioration_bundle(ext, grid)
+        De = deterioration_bundle(ext, grid, params=res.params)
         fig, ax = plt.subplots(figsize=(8, 4))
         ax.plot(grid, Db.T, color="0.7", lw=0.5)
         ax.plot(grid, De[0], "k-", lw=2, label="nominal (x_hat)")
         ax.plot(grid, De[1], "g--", label="optimistic (alpha+3s, m-3s)"
                 + (": m <= 0, never fails" if never else ""))
         ax.plot(grid, De[2], "r--", label="pessimistic (alpha-3s, m+3s)")
-        d_f = DEFAULT_PARAMS.failure_level  # the level predict_rul and the bundle use
+        d_f = res.params.failure_level  # the level predict_rul and the bundle use
         ax.axhline(d_f, color="b", lw=0.8, label=f"D_f = {d_f:g}")
         ax.set_xlabel(f"hours after t = {r.t_pred:g} s")
         ax.set_ylabel("D")
@@ -399,6 +429,78 @@ def _observability_text(res: FrictionDriveResult) -> str:
     )
 
 
+def _tuning_section(tabs: dict) -> list[str]:
+    """The tuning study of ``rulkit drive``'s filter: table and verdict
+    (docs/systems/friction-drive.md §4)."""
+    if "tuning_summary" not in tabs:
+        return []
+    t = tabs["tuning_summary"]
+    lines = [
+        "## Tuning of `rulkit drive`'s filter: q_m against consistency",
+        "",
+        "The compiled filter of `rulkit drive` (midpoint Jacobian, process noise q_w = "
+        f"({SPEED_Q_RATE[0]:g}, {SPEED_Q_RATE[1]:g}) /s on the speeds, seed R, no gate) with "
+        "each process-noise rate q_m on m, on the same noise draws (per-run rows in "
+        "tuning.csv). A consistent filter passes both tests in about 94 % of runs (NIS 95 %, "
+        "whiteness 99 %).",
+        "",
+        _md(t),
+        "",
+    ]
+    verdict = []
+    for scen in t["scenario"].unique():
+        sub = t[t["scenario"] == scen]
+        best = sub.loc[sub["frac_consistent"].idxmax()]
+        good = sub[sub["frac_consistent"] >= 0.75]["q_m"].tolist()
+        verdict.append(
+            f"{scen}: consistent in at least 75 % of runs for q_m in "
+            f"{{{', '.join(f'{q:g}' for q in good)}}}" if good else
+            f"{scen}: no q_m is consistent in 75 % of runs (best {best['q_m']:g}: "
+            f"{best['frac_consistent']:.0%})")
+    default = t[t["q_m"] == DRIVE_Q_RATE]
+    lines += [
+        "Measured: " + "; ".join(verdict) + ".",
+        "",
+        f"`rulkit drive` uses q_m = {DRIVE_Q_RATE:g} /s by default (`[filter] q_m` of the "
+        "machine file): "
+        + ", ".join(f"{r['scenario']} consistent in {r['frac_consistent']:.0%} of runs"
+                    for _, r in default.iterrows())
+        + ". Smaller rates lag a drifting m (its innovations are not white), larger ones let m "
+        "wander where it is constant.",
+        "",
+        "Why no random-walk rate is consistent through the seed's jump of m: a random walk "
+        "spreads its variance evenly over time, the jump puts it at one instant. Until the "
+        "filter has moved m, alpha falls faster than predicted and the speed innovations are "
+        "correlated (a burst of per-step NIS in the hundreds, column median_max_NIS); a rate "
+        "large enough to follow the jump at once makes m wander between samples where it is "
+        "constant, which correlates the innovations there. Over 20000 steps the Ljung-Box test "
+        "detects either. Without the second after the jump (frac_consistent_excl_jump) up to "
+        f"{_frac_excl(t)} of the runs pass. A filter consistent through the jump would model "
+        "it (a "
+        "jump process for m, e.g. an interacting multiple model), which the seed's "
+        "random-walk EKF does not.",
+        "",
+    ]
+    return lines
+
+
+def _machine_lines(res: FrictionDriveResult) -> list[str]:
+    """A note when the drive is not the seed's (a machine file): its constants, and that the
+    seed's numbers beside ours are for the seed's drive."""
+    if res.params == DEFAULT_PARAMS:
+        return []
+    p = res.params
+    consts = ", ".join(f"{k} = {getattr(p, k):g}" for k in
+                       ("r1", "r2", "B1", "B2", "J1", "J2", "Km", "alpha0", "failure_level"))
+    return [f"**The drive is not the seed's** (from a machine file: {consts}); the seed's "
+            "numbers quoted beside ours are for the seed's drive.", ""]
+
+
+def _frac_excl(t: pd.DataFrame) -> str:
+    v = t["frac_consistent_excl_jump"].dropna()
+    return f"{v.max():.0%}" if v.size else "none"
+
+
 def _md(df: pd.DataFrame) -> str:
     """A markdown table with 5 significant digits (the seed's 106.09 h must print as given)."""
     return markdown_table(df, ".5g")
@@ -448,6 +550,7 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         f"Runs per (filter, scenario): {res.n_runs}; seed {res.seed}; filter step {res.dt} s; "
         f"settings {res.settings}. Filter wall time {res.filter_seconds:.1f} s.",
         "",
+        *_machine_lines(res),
         "## RUL at t = {:g} s (seed section 6, Figs. 7-8)".format(
             next(iter(res.rul.values())).t_pred if res.rul else float("nan")),
         "",
@@ -477,7 +580,7 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         f"{SEED_VALUES['rul_std_h']} h on {SEED_VALUES['rul_mean_h']} h implies sigma_m / m ~ "
         f"{seed_ratio:.1%}; the seed does not print the sigma_m it used, so this cannot be "
         f"matched, only compared. {never_text}",
-        f"- RUL uses D_f = {DEFAULT_PARAMS.failure_level:g} (D = 1 is never reached, "
+        f"- RUL uses D_f = {res.params.failure_level:g} (D = 1 is never reached, "
         "docs/systems/friction-drive.md §2). "
         f"Fast propagation: {res.settings.get('transient', 10.0):g} s of the full model (RK4, "
         f"{res.settings.get('transient_dt', float('nan')) * 1e3:g} ms, numba) then the "
@@ -513,6 +616,7 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         "interval; the 4-D ellipsoid holds P(chi2_4 <= 9) = 93.9 %. Chebyshev's 1 - n/c^2 = "
         "55.6 % (printed as 55.5 %) is a distribution-free lower bound.",
         "",
+        *_tuning_section(tabs),
         "## Observability (windowed Cramer-Rao bound, 2 s of measurements, seed R)",
         "",
         _md(tabs["observability"]),

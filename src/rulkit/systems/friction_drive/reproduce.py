@@ -28,6 +28,7 @@ from rulkit.estimation.consistency import (
 from rulkit.estimation.ekf import ExtendedKalmanFilter
 from rulkit.model import FloatArray
 from rulkit.systems.friction_drive import drive as fd
+from rulkit.systems.friction_drive.deterioration import DriveTrack, EKFSettings, track
 from rulkit.systems.friction_drive.drive import (
     REALISTIC_R,
     SEED_P0,
@@ -51,6 +52,9 @@ ADDED_CONFIGS = ("tuned-consistent", "tuned-consistent-realistic")
 # of the whitened innovations, white when every component's p > WHITENESS_ALPHA / m.
 MAX_LAG = 20
 WHITENESS_ALPHA = 0.01
+# The tuning study of ``rulkit drive``'s filter: process-noise rates on m and scenarios.
+TUNING_Q_M = (1e-9, 1e-8, 3e-8, 1e-7, 3e-7, 1e-6, 1e-5)
+TUNING_SCENARIOS = ("constant", "drift", "jump")
 
 # Seed values quoted in the report (seed sections 4.3, 6 and Fig. 8).
 SEED_VALUES = {
@@ -215,16 +219,18 @@ DEFAULT_PAIRS = (
 @dataclass(frozen=True)
 class Truth:
     """A simulated truth: times ``t`` (K+1,), states ``X`` (K+1, 4) at the sample times,
-    ``currents`` (K,) held over each step."""
+    ``currents`` (K,) held over each step, of the drive ``params``."""
 
     scenario: Scenario
     dt: float
     t: FloatArray
     X: FloatArray
     currents: FloatArray
+    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
 
 
-def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10) -> Truth:
+def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10,
+                   params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS) -> Truth:
     """Integrate the full model with ``n_sub`` RK4 sub-steps per sample
     (docs/systems/friction-drive.md §4: the truth uses finer sub-steps than the filter). m follows
     the scenario's schedule, evaluated at the middle of each sample interval (exact for constant m
@@ -236,9 +242,9 @@ def simulate_truth(scenario: Scenario, dt: float = 1e-3, n_sub: int = 10) -> Tru
     if scenario.m_kind == "jump":  # the jump falls on a sample time: use the step-start value
         m_path = scenario.m_of_t(t[:-1])
     x0 = np.array([[0.0, 0.0, scenario.alpha0, scenario.m0]])
-    X = fd.integrate_path(x0, currents, dt, n_sub=n_sub, m_path=m_path)[:, 0, :]
+    X = fd.integrate_path(x0, currents, dt, n_sub=n_sub, m_path=m_path, params=params)[:, 0, :]
     X[:, 3] = scenario.m_of_t(t)
-    return Truth(scenario, dt, t, X, currents)
+    return Truth(scenario, dt, t, X, currents, params)
 
 
 def one_step_discretisation_error(truth: Truth, n_sub: int = 1) -> FloatArray:
@@ -246,7 +252,7 @@ def one_step_discretisation_error(truth: Truth, n_sub: int = 1) -> FloatArray:
     RK4 sub-steps from ``truth.X[k]`` under the truth's held current, shape (K, 4) (the
     discretisation mismatch between a fine truth and the filter; sizes ``SPEED_Q_RATE``)."""
     m_fixed = truth.X[:-1].copy()
-    pred = fd.rk4_step(m_fixed, truth.currents, truth.dt, n_sub=n_sub)
+    pred = fd.rk4_step(m_fixed, truth.currents, truth.dt, truth.params, n_sub=n_sub)
     pred[:, 3] = truth.X[1:, 3]  # m follows the scenario's schedule, not the model
     return truth.X[1:] - pred
 
@@ -294,12 +300,14 @@ def make_ekf(
     params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS,
     q_speed: FloatArray | None = None,
     midpoint: FloatArray | None = None,
+    substeps: int = 1,
 ) -> ExtendedKalmanFilter:
     """The augmented EKF of seed 4.2 for B units (continuous model, Q as spectral density).
 
     ``q_m`` (B,) process-noise rates on m, ``f44`` (B,) Jacobian-only (4,4) entries, ``R``
-    (B, 2, 2), ``q_speed`` (B, 2) rates on (w1, w2) (default 0, as in the seed). Inputs are
-    passed as ``u`` (B, 1) currents.
+    (B, 2, 2), ``q_speed`` (B, 2) rates on (w1, w2) (default 0, as in the seed), ``substeps``
+    RK4 sub-steps of the mean prediction per sample. Inputs are passed as ``u`` (B, 1)
+    currents.
 
     ``midpoint`` (B,) bool (default all False): evaluate the Jacobian of ``Phi = expm(F t_s)``
     at the mean after half an RK4 step under the step's current instead of at the prior mean
@@ -340,6 +348,7 @@ def make_ekf(
         continuous=True,
         dt=dt,
         jacobian_at=mid,
+        substeps=substeps,
     )
 
 
@@ -425,7 +434,8 @@ def convergence_study(
     ys = truth.X[1 : K + 1, None, :2] + rng.standard_normal((K, B, 2)) * np.sqrt(np.diag(SEED_R))
     cur = np.repeat(truth.currents[:K, None], B, axis=1)
     x0 = np.array([[0.0, 0.0, a, m] for a, m in combos])
-    ekf = make_ekf(np.full(B, q_m), np.zeros(B), np.broadcast_to(SEED_R, (B, 2, 2)), truth.dt)
+    ekf = make_ekf(np.full(B, q_m), np.zeros(B), np.broadcast_to(SEED_R, (B, 2, 2)), truth.dt,
+                   truth.params)
     run = run_filter(ekf, ys, cur, x0, SEED_P0)
     t = run.t
     tx = truth.X[: K + 1]
@@ -488,6 +498,8 @@ class FrictionDriveResult:
     rul_truth_h: float
     filter_seconds: float
     settings: dict
+    tuning: list[TuningRow] = field(default_factory=list)
+    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
 
 
 def _time_within(t: FloatArray, est: FloatArray, target: FloatArray,
@@ -504,14 +516,19 @@ def _time_within(t: FloatArray, est: FloatArray, target: FloatArray,
 
 @dataclass(frozen=True)
 class FrictionDriveConfig:
-    """Settings of the seed-003 study (defaults: the full run; the CLI's ``--quick`` uses
-    ``n_runs=1, n_validate=3``).
+    """Settings of the seed-003 study (defaults: the full run without the tuning study; the CLI
+    runs it with ``tuning_runs=8``, and ``--quick`` uses ``n_runs=1, n_validate=3,
+    tuning_runs=2``).
 
     ``n_runs`` runs per (filter config, scenario) pair of ``pairs``, filtered over ``duration``
     s at ``dt``; the Monte Carlo RUL (``n_rul`` trajectories, ``n_validate`` of them checked
     against LSODA) for ``rul_configs`` on the jump scenario; ``truth_substeps`` RK4 sub-steps
     of the truth per filter step; ``converge``: also the convergence study from wrong initial
-    estimates. ``seed`` drives every draw."""
+    estimates; ``tuning_runs`` runs per (q_m of ``tuning_q_m``, scenario) of the tuning study of
+    ``rulkit drive``'s filter (:func:`tuning_study`; 0: none). ``params``: the drive (the seed's
+    by default; another one from a machine file: its constants and failure level for the truth,
+    every filter and the RUL; the scenarios start at its ``alpha0``). ``seed`` drives every
+    draw."""
 
     n_runs: int = 1
     seed: int = 0
@@ -523,6 +540,9 @@ class FrictionDriveConfig:
     n_validate: int = 5
     truth_substeps: int = 10
     converge: bool = True
+    tuning_q_m: tuple[float, ...] = TUNING_Q_M
+    tuning_runs: int = 0
+    params: fd.FrictionDriveParams = fd.DEFAULT_PARAMS
 
     def __post_init__(self) -> None:
         if self.n_runs < 1:
@@ -571,6 +591,7 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
         np.array([configs[c].f44 for c, _, _ in units]),
         np.stack([configs[c].R_filter for c, _, _ in units]),
         cfg.dt,
+        cfg.params,
         q_speed=np.array([configs[c].q_speed for c, _, _ in units]),
         midpoint=np.array([configs[c].jacobian_at == "midpoint" for c, _, _ in units]),
     )
@@ -589,10 +610,13 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
         if b is None:
             continue
         rul[c] = predict_rul(res.x[-1, b], res.P_final[b], rng, t_pred=duration,
-                             n_samples=cfg.n_rul, n_validate=cfg.n_validate)
-    rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:])[0] / HOUR)
+                             n_samples=cfg.n_rul, n_validate=cfg.n_validate, params=cfg.params)
+    rul_truth = float(time_to_failure_reference(truths["jump"].X[-1:], params=cfg.params)[0]
+                      / HOUR)
     conv = (convergence_study(truths["jump"], rng, duration=min(3.0, duration))
             if cfg.converge else [])
+    tuning = (tuning_study(_tuning_truths(cfg, truths), cfg.tuning_q_m, cfg.tuning_runs,
+                           np.random.default_rng([cfg.seed, 2])) if cfg.tuning_runs else [])
     return FrictionDriveResult(
         dt=dt, n_runs=cfg.n_runs, seed=cfg.seed, pairs=tuple(cfg.pairs), truths=truths,
         runs=runs, summaries=summaries, observability=obs, rul=rul, convergence=conv,
@@ -600,6 +624,7 @@ def run(config: FrictionDriveConfig | None = None) -> FrictionDriveResult:
         settings={"dt": dt, "duration": duration, "n_rul": cfg.n_rul,
                   "truth_substeps": cfg.truth_substeps, "n_validate": cfg.n_validate,
                   "B": len(units), "transient": 10.0, "transient_dt": TRANSIENT_DT},
+        tuning=tuning, params=cfg.params,
     )
 
 
@@ -609,9 +634,9 @@ def _simulate_truths(cfg: FrictionDriveConfig) -> dict[str, Truth]:
     scen_names = sorted({s for _, s in cfg.pairs} | {"jump", "constant-current"})
     truths = {}
     for s in scen_names:
-        sc = SCENARIOS[s]
-        sc = Scenario(**{**sc.__dict__, "duration": cfg.duration})
-        truths[s] = simulate_truth(sc, cfg.dt, cfg.truth_substeps)
+        sc = Scenario(**{**SCENARIOS[s].__dict__, "duration": cfg.duration,
+                         "alpha0": cfg.params.alpha0})
+        truths[s] = simulate_truth(sc, cfg.dt, cfg.truth_substeps, cfg.params)
     return truths
 
 
@@ -691,3 +716,80 @@ def _first_run(res: FilterRun, b: int) -> FilterRun:
         P_final=res.P_final[b : b + 1], nu=res.nu[:, b][:, None], S=res.S[:, b][:, None],
         nees=res.nees[:, b : b + 1], seconds=res.seconds,
     )
+
+
+# ------------------------------------------------------------------------------------------
+# Tuning of the command's filter: q_m against consistency (docs/systems/friction-drive.md §4)
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TuningRow:
+    """One run of the tuning study: the innovation checks of the whole run and (jump
+    scenario) without the second after the jump, the largest per-step NIS, the error of m at
+    the end in its standard deviations and the time to track a jump of m within 5 %."""
+
+    q_m: float
+    scenario: str
+    run: int
+    mean_nis: float
+    nis_ok: bool
+    white: bool
+    consistent: bool
+    consistent_excl_jump: bool | None
+    ljung_box_p_min: float
+    max_nis: float
+    m_error_sd: float
+    jump_tracking_s: float
+
+
+def _tuning_truths(cfg: FrictionDriveConfig, truths: dict[str, Truth]) -> dict[str, Truth]:
+    out = {}
+    for s in TUNING_SCENARIOS:
+        sc = Scenario(**{**SCENARIOS[s].__dict__, "duration": cfg.duration,
+                         "alpha0": cfg.params.alpha0})
+        out[s] = (truths[s] if s in truths
+                  else simulate_truth(sc, cfg.dt, cfg.truth_substeps, cfg.params))
+    return out
+
+
+def tuning_study(truths: dict[str, Truth], q_ms: tuple[float, ...], runs: int,
+                 rng: np.random.Generator) -> list[TuningRow]:
+    """``rulkit drive``'s filter (the compiled kernel of
+    :mod:`rulkit.systems.friction_drive.deterioration`: midpoint Jacobian, ``SPEED_Q_RATE`` on
+    the speeds, no gate) with each process-noise rate ``q_m`` on each scenario of ``truths``,
+    ``runs`` noise draws each (the same draws for every q_m): which tuning is consistent where
+    (docs/systems/friction-drive.md §4). The prior is the first measured speeds (variance R)
+    and alpha, m drawn from the seed's P0 around the truth."""
+    rows = []
+    for name, tr in truths.items():
+        T = tr.t.size
+        cur = np.append(tr.currents, tr.currents[-1])
+        for r in range(runs):
+            ys = tr.X[:, :2] + rng.standard_normal((T, 2)) * np.sqrt(np.diag(SEED_R))
+            x0 = tr.X[0] + rng.standard_normal(4) * np.sqrt(np.diag(SEED_P0))
+            x0[:2] = ys[0]
+            P0 = SEED_P0.copy()
+            P0[0, 0], P0[1, 1] = SEED_R[0, 0], SEED_R[1, 1]
+            for q in q_ms:
+                run = track(ys, cur, x0, P0, EKFSettings(tr.dt, 1, 0.0, 0.0, True),
+                            tr.params, np.array([*SPEED_Q_RATE, 0.0, q]), SEED_R)
+                rows.append(_tuning_row(run, tr, q, name, r))
+    return rows
+
+
+def _tuning_row(run: DriveTrack, tr: Truth, q: float, name: str, r: int) -> TuningRow:
+    sc = tr.scenario
+    nu, S = run.nu[1:], run.S[1:]
+    full = check_innovations(nu, S, max_lag=MAX_LAG, whiteness_alpha=WHITENESS_ALPHA)
+    excl = None
+    track_s = float("nan")
+    if sc.m_kind == "jump" and sc.t_jump < tr.t[-1]:
+        cut = (tr.t[1:] >= sc.t_jump) & (tr.t[1:] < sc.t_jump + 1.0)
+        excl = check_innovations(np.where(cut[:, None], np.nan, nu), S, max_lag=MAX_LAG,
+                                 whiteness_alpha=WHITENESS_ALPHA).consistent
+        track_s = _time_within(tr.t, run.x[:, 3], tr.X[:, 3], 0.05 * sc.m_jump, sc.t_jump)
+    return TuningRow(
+        q_m=q, scenario=name, run=r, mean_nis=full.mean_nis, nis_ok=full.nis_ok,
+        white=full.white, consistent=full.consistent, consistent_excl_jump=excl,
+        ljung_box_p_min=float(min(full.ljung_box_p)), max_nis=float(np.nanmax(run.nis)),
+        m_error_sd=float((run.x[-1, 3] - tr.X[-1, 3]) / run.sd[-1, 3]),
+        jump_tracking_s=track_s)

@@ -21,11 +21,39 @@ from rulkit.systems.motor_damping.macro import (
     rul_covariance_quantiles,
     rul_monte_carlo,
 )
-from rulkit.systems.motor_damping.micro import MicroEKFSettings, micro_ekf
+from rulkit.systems.motor_damping.micro import MicroEKFResult, MicroEKFSettings, micro_ekf
 from rulkit.systems.motor_damping.motor import MotorConstants, failure_damping
-from rulkit.systems.motor_damping.pullup import PullupData, estimate_noise_sd
+from rulkit.systems.motor_damping.pullup import PullupData, PullupDataError, estimate_noise_sd
 
-__all__ = ["PullupAnalysis", "analyse_pullup", "steady_current"]
+__all__ = ["IMPOSSIBLE_SDS", "NegativeDampingError", "PullupAnalysis", "analyse_pullup",
+           "check_damping_physical", "steady_current"]
+
+IMPOSSIBLE_SDS = 5.0
+"""A cycle's damping estimate more than this many of its standard deviations below zero is
+physically impossible (viscous damping dissipates energy: c >= 0), not a chance draw."""
+
+
+class NegativeDampingError(PullupDataError):
+    """The micro EKF found a clearly negative damping: the record and the machine file
+    disagree with the physics (MD-1), usually through a unit (speed in rpm, time in ms) or a
+    wrong motor constant."""
+
+
+def check_damping_physical(cycles: np.ndarray, c: np.ndarray, c_var: np.ndarray,
+                           source: str = "") -> None:
+    """Raise :class:`NegativeDampingError` when some cycle's damping ``c`` lies more than
+    :data:`IMPOSSIBLE_SDS` standard deviations below zero (docs/systems/motor-damping.md §8),
+    naming the first such cycle, how many there are and what to check."""
+    sd = np.sqrt(np.maximum(c_var, 0.0))
+    bad = np.flatnonzero(c + IMPOSSIBLE_SDS * sd < 0)
+    if bad.size:
+        k = int(bad[0])
+        where = f"{source}: " if source else ""
+        raise NegativeDampingError(
+            f"{where}cycle {cycles[k]:g}: estimated damping c = {c[k]:.4g} N m s (sd "
+            f"{sd[k]:.2g}) is negative, which is physically impossible ({bad.size} of "
+            f"{c.size} cycles); check the units (speed in rad/s, not rpm; time in s; current "
+            "in A) and the motor constants K, J, T_L ([motor] of the machine file)")
 
 
 @dataclass(frozen=True)
@@ -74,6 +102,9 @@ def analyse_pullup(
     micro: MicroEKFSettings | None = None,
 ) -> PullupAnalysis:
     """Run the multi-scale EKF on validated pull-up data.
+
+    A clearly negative damping in any cycle raises :class:`NegativeDampingError`
+    (:func:`check_damping_physical`) before any trend or RUL is computed.
 
     Motor constants default to :class:`MotorConstants` (the synthetic motor: pass your own).
     ``c_fail`` defaults to the design-point algebra with the steady current measured in the
@@ -125,10 +156,28 @@ def analyse_pullup(
         data.time, data.current, data.speed,
         data.acceleration if settings.use_acceleration else None, consts, settings,
     )
+    check_damping_physical(data.cycle, res.c, res.c_var, data.source)
     z = res.c[None, :]
     r = res.c_var[None, :]
     macro = MacroSettings(q_a=q_a, model=macro_model)
     track = macro_track(data.cycle, z, r, macro)
+    rows, last_s, last_c = _cycle_rows(data, res, track, macro, cf, rng,
+                                       (q_a, mc_samples, horizon, n_min))
+    return PullupAnalysis(
+        table=pd.DataFrame(rows), track=track, c_fail=cf, sigma_w=sw, sigma_dw=sdw,
+        steady_current=i_s, acceleration_source=data.acceleration_source,
+        last_rul_samples=last_s, last_rul_censored=last_c, horizon=horizon,
+    )
+
+
+def _cycle_rows(data: PullupData, res: MicroEKFResult, track: MacroTrack, macro: MacroSettings,
+                cf: float, rng: np.random.Generator, rul: tuple[float, int, float, int]
+                ) -> tuple[list[dict[str, Any]], np.ndarray, np.ndarray]:
+    """One row per cycle of :func:`analyse_pullup`'s table (the damping, the trend after the
+    cycle and, from cycle ``n_min`` on, the RUL quantiles from the covariance and by Monte
+    Carlo), and the Monte Carlo samples after the last cycle. ``rul``: ``(q_a, mc_samples,
+    horizon, n_min)``."""
+    q_a, mc_samples, horizon, n_min = rul
     n = data.n_cycles
     rows = []
     last_s = np.array([])
@@ -149,6 +198,7 @@ def analyse_pullup(
                 x[0, 0], x[0, 1], x[0, 2] if macro.dim == 3 else 0.0, cf
             )),
             "scatter_sd": float(np.sqrt(track.scatter_var[k, 0])),
+            "gated": int(res.n_gated[k]) if res.n_gated is not None else 0,
         }
         if k + 1 >= n_min:
             q = rul_covariance_quantiles(
@@ -171,8 +221,4 @@ def analyse_pullup(
                 "rul_median", "rul_p05", "rul_p95", "rul_mc_median", "rul_mc_p05",
                 "rul_mc_p95", "rul_mc_fraction_censored")})
         rows.append(row)
-    return PullupAnalysis(
-        table=pd.DataFrame(rows), track=track, c_fail=cf, sigma_w=sw, sigma_dw=sdw,
-        steady_current=i_s, acceleration_source=data.acceleration_source,
-        last_rul_samples=last_s, last_rul_censored=last_c, horizon=horizon,
-    )
+    return rows, last_s, last_c

@@ -52,7 +52,11 @@ class MicroEKFSettings:
     (model error, e.g. current interpolation), ``q_c`` per-step random-walk variance of ``c``
     (0: ``c`` constant within a cycle, as in the generator). ``sigma_w``, ``sigma_dw``:
     measurement noise sds. ``use_acceleration``: False filters the speed channel alone (used
-    when the acceleration was derived from the speed, whose noise it shares).
+    when the acceleration was derived from the speed, whose noise it shares). ``gate``: a
+    sample whose normalised innovation squared exceeds it is not used for ``c``: the speed is
+    reset to its measurement (variance ``sigma_w^2``, no correlation with ``c``), so a spike in
+    a channel or a glitch of the current costs a sample, not the cycle's damping (0: off, as in
+    the seed and the reproduction; ``rulkit motor damping`` uses 100, a 10-sigma innovation).
     """
 
     scheme: str = "rk4"
@@ -63,6 +67,7 @@ class MicroEKFSettings:
     sigma_w: float = 0.05
     sigma_dw: float = 0.5
     use_acceleration: bool = True
+    gate: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scheme not in ("rk4", "seed-euler"):
@@ -70,7 +75,7 @@ class MicroEKFSettings:
         for name in ("c_prior_sd", "sigma_w", "sigma_dw"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected > 0, got {getattr(self, name)}")
-        for name in ("q_w", "q_c"):
+        for name in ("q_w", "q_c", "gate"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")
 
@@ -79,7 +84,8 @@ class MicroEKFSettings:
 class MicroEKFResult:
     """Per-unit end-of-cycle posterior: ``c`` (B,), ``c_var`` (B,), ``speed`` (B,) and
     ``mean_nis`` (B,) (average normalised innovation squared over the cycle, ~ m for a
-    consistent filter). With ``keep_history``: ``x_hist`` (T, B, 2) and ``p_hist`` (T, B, 2, 2).
+    consistent filter), ``n_gated`` (B,) samples outside the gate. With ``keep_history``:
+    ``x_hist`` (T, B, 2) and ``p_hist`` (T, B, 2, 2).
     """
 
     c: FloatArray
@@ -88,6 +94,7 @@ class MicroEKFResult:
     mean_nis: FloatArray
     x_hist: FloatArray | None = None
     p_hist: FloatArray | None = None
+    n_gated: NDArray[np.int64] | None = None
 
 
 def _check_inputs(
@@ -179,6 +186,7 @@ def micro_ekf(
     R = np.diag([s.sigma_w**2, s.sigma_dw**2])[:m, :m]
     nis_sum = np.zeros(b)
     n_upd = np.zeros(b)
+    n_gated = np.zeros(b, dtype=np.int64)
     n_hist = n_t if keep_history else 0
     x_hist = np.empty((n_hist, b, 2))
     p_hist = np.empty((n_hist, b, 2, 2))
@@ -202,7 +210,15 @@ def micro_ekf(
         if acc is not None:  # use_acc
             y[:, 1] = acc[:, k]
         y = np.where(ok[:, None], y, zp[:, :m])  # padded samples: no innovation
+        gated = ok & _outside_gate(y, zp[:, :m], Pp, H[:, :m, :], R, s.gate)
+        y = np.where(gated[:, None], np.nan, y)  # not used for c
         xu, Pu, inn = kf_update(xp, Pp, y, H[:, :m, :], R, h_of_x=zp[:, :m], check=False)
+        if gated.any():  # the speed restarts from its measurement (class docstring)
+            xu[gated, 0] = speed[gated, k]
+            Pu[gated, 0, :] = 0.0
+            Pu[gated, :, 0] = 0.0
+            Pu[gated, 0, 0] = s.sigma_w**2
+            n_gated += gated
         x = np.where(ok[:, None], xu, x)
         P = np.where(ok[:, None, None], Pu, P)
         upd = ok & ~inn.skipped  # a NaN measurement is skipped (prediction only)
@@ -218,4 +234,18 @@ def micro_ekf(
         mean_nis=nis_sum / np.maximum(n_upd, 1),
         x_hist=x_hist if keep_history else None,
         p_hist=p_hist if keep_history else None,
+        n_gated=n_gated,
     )
+
+
+def _outside_gate(y: FloatArray, zp: FloatArray, P: FloatArray, H: FloatArray, R: FloatArray,
+                  gate: float) -> NDArray[np.bool_]:
+    """Units (B,) whose measurement ``y`` (B, m) lies beyond ``gate`` in normalised innovation
+    squared (never when ``gate`` is 0 or a channel is missing)."""
+    if gate <= 0:
+        return np.zeros(y.shape[0], bool)
+    nu = y - zp
+    S = H @ P @ np.swapaxes(H, 1, 2) + R
+    with np.errstate(invalid="ignore"):
+        nis = np.einsum("bi,bi->b", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+    return np.isfinite(nis) & (nis > gate)

@@ -1,11 +1,14 @@
 """Reader and validator for a user's motor pull-up test data (seed 002 section 2; issue #4).
 
 File format (CSV or Parquet), one row per sample, columns (names case-insensitive, extra
-columns ignored):
+columns ignored; two columns whose names differ only in case, such as ``speed`` and ``SPEED``,
+are refused, and so are true/false values):
 
 - ``cycle``: the life-test cycle the sample belongs to (integer-valued); the rows of a cycle are
   contiguous and cycles appear in increasing order;
-- ``time`` [s]: strictly increasing within a cycle (it may restart at every cycle);
+- ``time`` [s]: strictly increasing within a cycle (it may restart at every cycle), or
+  date-times (a Parquet timestamp column, ISO 8601 text); only the time since each cycle's
+  first sample is used, so the time origin does not matter;
 - ``current`` [A], ``speed`` [rad/s];
 - ``acceleration`` [rad/s^2], optional. When it is missing it is derived from the speed by
   second-order central differences on the (possibly non-uniform) time grid
@@ -14,7 +17,9 @@ columns ignored):
   correlated with the speed noise; the micro EKF then uses the speed channel only.
 
 Errors are :class:`PullupDataError` (a ``ValueError``) naming the column, the row (1-based data
-row, header excluded) or the cycle, and what was expected.
+row, header excluded) or the cycle, and what was expected. :func:`check_plausible` then refuses
+values outside the machine file's plausible ranges (:class:`ImplausiblePullupError`: speed in
+rpm, current in mA, time in ms).
 """
 
 from __future__ import annotations
@@ -25,16 +30,26 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.tables import did_you_mean, numeric_columns, read_table
+from rulkit.tables import (
+    did_you_mean,
+    match_columns,
+    numeric_columns,
+    read_table,
+    time_seconds,
+)
 
 FloatArray = NDArray[np.float64]
 
 __all__ = [
     "ACCELERATION_DERIVED",
     "ACCELERATION_MEASURED",
+    "MAX_MAGNITUDE",
     "REQUIRED_COLUMNS",
+    "ImplausiblePullupError",
     "PullupData",
     "PullupDataError",
+    "PullupLimits",
+    "check_plausible",
     "estimate_noise_sd",
     "from_frame",
     "read_pullup",
@@ -51,6 +66,11 @@ ACCELERATION_DERIVED = (
 
 class PullupDataError(ValueError):
     """A pull-up data file that cannot be used, with the reason (column, row, cycle)."""
+
+
+class ImplausiblePullupError(PullupDataError):
+    """A well-formed pull-up record with a value outside its plausible range (a unit or sensor
+    error: speed in rpm, current in mA, time in ms)."""
 
 
 @dataclass(frozen=True)
@@ -93,7 +113,8 @@ def from_frame(df, *, source: str = "", min_samples: int = 20) -> PullupData:
             f"min_samples: expected an integer >= 3 (the derived acceleration needs 3 samples "
             f"per cycle), got {min_samples!r}"
         )
-    cols = {str(c).strip().lower(): c for c in df.columns}
+    cols = match_columns(df.columns, (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS),
+                         error=PullupDataError, source=source)
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:
         raise PullupDataError(
@@ -106,6 +127,11 @@ def from_frame(df, *, source: str = "", min_samples: int = 20) -> PullupData:
         raise PullupDataError(f"{where}no data rows (header only)")
     has_acc = "acceleration" in cols
     names = list(REQUIRED_COLUMNS) + (["acceleration"] if has_acc else [])
+    stamps = time_seconds(df[cols["time"]], "time", error=PullupDataError, source=source,
+                          since_first=True)
+    if stamps is not None:  # date-times: only differences are used
+        df = df.assign(**{str(cols["time"]): stamps})
+        cols["time"] = str(cols["time"])
     arrays = numeric_columns(df, {name: cols[name] for name in names}, error=PullupDataError,
                              source=source)
     cyc = arrays["cycle"]
@@ -185,3 +211,59 @@ def estimate_noise_sd(signal: np.ndarray) -> float:
         raise ValueError("estimate_noise_sd: fewer than 3 finite samples")
     mad = np.median(np.abs(d2 - np.median(d2)))
     return float(1.4826 * mad / np.sqrt(6.0))
+
+
+
+@dataclass(frozen=True)
+class PullupLimits:
+    """Plausible ranges of a pull-up record (the machine file's ``[limits]``,
+    :mod:`rulkit.systems.motor_damping.machine`): a value outside them is refused as a unit or
+    sensor error before any estimate is made."""
+
+    max_speed: float = 1000.0
+    max_current: float = 20.0
+    max_step: float = 1.0
+    min_step: float = 1e-5
+    min_samples: int = 20
+
+
+MAX_MAGNITUDE = 1e150
+"""Largest accepted |acceleration|: the filters square the data, and float64 overflows above
+~1.3e154 (speed and current have tighter, physical limits)."""
+
+
+def check_plausible(data: PullupData, limits: PullupLimits) -> None:
+    """Refuse a record with a value outside ``limits``: a speed beyond ``max_speed`` (rpm?), a
+    current beyond ``max_current`` (mA?), a sampling step within a cycle outside
+    ``[min_step, max_step]`` (ms?), an acceleration beyond :data:`MAX_MAGNITUDE`.
+    :class:`ImplausiblePullupError` names the column, cycle and sample, the value, the limit
+    and the likely unit mix-up."""
+    step = np.diff(data.time, axis=1)
+    checks = (
+        ("speed", np.abs(data.speed), limits.max_speed, "rad/s",
+         "speed in rpm? (rad/s = rpm / 9.549)"),
+        ("current", np.abs(data.current), limits.max_current, "A",
+         "current in mA? (A = mA / 1000)"),
+        ("acceleration", np.abs(data.acceleration), MAX_MAGNITUDE, "rad/s^2",
+         "beyond it float64 arithmetic overflows; check the unit"),
+        ("time", step, limits.max_step, "s between samples", "time in ms? (s = ms / 1000)"),
+    )
+    for col, a, limit, unit, hint in checks:
+        bad = np.nan_to_num(a, nan=-np.inf) > limit
+        if bad.any():
+            _implausible(data, col, a, bad, f"beyond the plausible {limit:g} {unit}", hint)
+    small = np.nan_to_num(step, nan=np.inf) < limits.min_step
+    if small.any():
+        _implausible(data, "time", step, small, f"below the plausible {limits.min_step:g} s "
+                     "between samples", "time in another unit than seconds?")
+
+
+def _implausible(data: PullupData, col: str, a: FloatArray, bad: NDArray[np.bool_], what: str,
+                 hint: str) -> None:
+    k, j = (int(v[0]) for v in np.nonzero(bad))
+    sample = j + 2 if col == "time" else j + 1  # a step ends at the next sample
+    where = f"{data.source}: " if data.source else ""
+    raise ImplausiblePullupError(
+        f"{where}column {col!r}, cycle {data.cycle[k]:g}, sample {sample}: {a[k, j]:.6g} is "
+        f"{what} ({int(bad.sum())} such value(s)); {hint} Or change [limits] in the machine "
+        "file.")

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from rulkit.reporting import markdown_table
+from rulkit.systems.motor_damping.motor import MotorConstants
 from rulkit.systems.motor_damping.reproduce import SEED_VALUES, MotorDampingResult
 
 __all__ = ["write_outputs", "write_report"]
@@ -90,6 +91,18 @@ def _model_summary(df: Any) -> str:
     return "\n".join(out)
 
 
+def _motor_lines(cfg: Any) -> list[str]:
+    """A note when the motor is not the synthetic one (a machine file)."""
+    c, base = cfg.life.consts, MotorConstants()
+    if (c.K, c.J, c.T_L) == (base.K, base.J, base.T_L):
+        return []
+    return [f"**The motor is not the synthetic one** (machine file: K = {c.K:g} N m/A, J = "
+            f"{c.J:g} kg m^2, T_L = {c.T_L:g} N m); its damping trend starts at "
+            f"{cfg.life.c0:.4g} and grows by {cfg.life.slope:.4g} per cycle (the synthetic "
+            "trend scaled to its failure damping). The seed's numbers beside ours are for the "
+            "seed's motor.", ""]
+
+
 def _report(res: MotorDampingResult, command: str) -> str:
     cfg = res.config
     t = res.tables
@@ -117,6 +130,7 @@ def _report(res: MotorDampingResult, command: str) -> str:
         "",
         f"Command: `{command or 'rulkit reproduce motor-damping'}`",
         "",
+        *_motor_lines(cfg),
         f"Runs: {cfg.runs} per scenario, seeds `numpy.random.SeedSequence({cfg.seed}).spawn("
         f"{cfg.runs})` (linear) and `SeedSequence({cfg.seed + 1})` (accelerating); Monte Carlo "
         f"RUL with {cfg.mc_samples} samples per unit and cycle, horizon {cfg.horizon:g} cycles.",

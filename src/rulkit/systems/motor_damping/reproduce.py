@@ -124,6 +124,21 @@ class MotorDampingConfig:
             raise ValueError(f"n_min: expected >= 3, got {self.n_min}")
 
 
+def study_for_motor(consts: MotorConstants, life: LifeTestConfig | None = None,
+                    accel_curvature: float = 2.0e-8) -> dict[str, Any]:
+    """``MotorDampingConfig`` fields for another motor (a machine file): the life test of
+    docs/systems/motor-damping.md §5 with its constants ``consts``, and the damping trend, its
+    scatter and the accelerating scenario's curvature scaled by ``c_fail(consts) /
+    c_fail(synthetic motor)`` (both at the design point, docs/systems/motor-damping.md §4),
+    so the trend still crosses the failure damping at the same cycle and every scenario keeps
+    its meaning (docs/systems/motor-damping.md §7)."""
+    base = life or LifeTestConfig()
+    ratio = failure_damping(consts) / failure_damping(base.consts)
+    scaled = replace(base, consts=consts, c0=base.c0 * ratio, slope=base.slope * ratio,
+                     scatter_sd=base.scatter_sd * ratio, curvature=base.curvature * ratio)
+    return {"life": scaled, "accel_curvature": accel_curvature * ratio}
+
+
 @dataclass
 class ScenarioResult:
     """One scenario over all runs: cycles (n,), estimates ``z``/``r`` (R, n), true damping

@@ -339,7 +339,8 @@ function rulChart(h) {
 
 async function loadDetail(name) {
   state.selected = name;
-  const h = await api("/api/v1/components/" + encodeURIComponent(name) + "/history");
+  // the id in the query: a browser rewrites the path segments "." and ".."
+  const h = await api("/api/v1/history?component=" + encodeURIComponent(name));
   $("detail").hidden = false;
   $("detail-name").textContent = visible(name);
   const c = h.now;

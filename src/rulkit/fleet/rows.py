@@ -1,0 +1,314 @@
+"""Rows of fleet tables, read and checked one way everywhere: component ids, numeric columns,
+CSV rows.
+
+``rulkit track``, the service's uploads (:mod:`rulkit.fleet.store.acquisitions`) and ``rulkit
+fit`` / ``rulkit evaluate`` (:mod:`rulkit.fleet.learned.histories`) take their rows through
+these functions, so a row is stored exactly as written or refused, with the same rules in
+every command (docs/file-formats.md):
+
+* **Component ids** (:func:`check_component_ids`): 1 to :data:`COMPONENT_ID_MAX_LEN` printable
+  characters after stripping surrounding blanks; ``NA``, ``None``, ``null`` are ids like any
+  other text, only an empty cell is missing.
+* **Numbers** (:func:`numeric_values`): a numeric column holds numbers of a numeric type.
+  A boolean (``True`` in a CSV, a Parquet boolean column), text (``'0.5'`` stored as a string
+  in Parquet, a typo in a CSV) or a date is refused, naming the column, the row and the value;
+  so are NaN and infinities.
+* **CSV rows** (:func:`read_csv_rows`): every row has as many fields as the header. A row
+  with one extra field was read shifted one column by pandas (``c0,0,0.1,9`` became component
+  ``0``, time 0.1, HI 9); here it is refused with its line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from rulkit.tables import cell_repr, safe_text
+
+COMPONENT_ID_MAX_LEN = 128
+"""Longest accepted component id, in characters (ids are names, not payloads)."""
+
+ErrorType = type[Exception]
+CSV_BLOCK_BYTES = 1 << 22
+"""Bytes of CSV text parsed at a time (the text is never held whole beside the table)."""
+
+
+def _row_1_based(i: int) -> str:
+    return f"row {i + 1}"
+
+
+def check_component_ids(comp: pd.Series, error: ErrorType = ValueError) -> pd.Series:
+    """Component ids as a categorical of stripped ``str``, or ``error`` at the first bad row.
+
+    Accepted: 1 to :data:`COMPONENT_ID_MAX_LEN` characters after stripping surrounding blanks,
+    every one printable (:meth:`str.isprintable`). Refused, naming the 1-based row: a missing
+    or empty id, a non-text id (a number in a Parquet column is taken as its text, but bytes
+    are refused), text that is not valid Unicode (a lone surrogate), a control or format
+    character (ESC, newline, tab, bidi override), and an id longer than the limit. The check
+    runs once per distinct id.
+    """
+    missing = comp.isna().to_numpy()
+    if missing.any():
+        i = int(np.flatnonzero(missing)[0])
+        raise error(f"row {i + 1}: empty component name")
+    codes, uniques = pd.factorize(comp, sort=False)
+    clean = _plain_ids(uniques)
+    if clean is None:
+        clean = []
+        for k, v in enumerate(uniques):
+            text, reason = _clean_id(v)
+            if reason:
+                i = int(np.flatnonzero(codes == k)[0])
+                raise error(f"row {i + 1}: {reason}")
+            clean.append(text)
+    # ids equal after stripping share one category; the frame keeps int codes, not 2M strings
+    ucodes, ucats = pd.factorize(pd.Index(clean, dtype=object))
+    return pd.Series(pd.Categorical.from_codes(np.asarray(ucodes)[codes], categories=ucats),
+                     index=comp.index)
+
+
+def _plain_ids(uniques: Any) -> list[str] | None:
+    """The ids as they are when every one is accepted unchanged (text of 1 to 128 printable
+    ASCII characters without surrounding blanks), checked with a few C-level string
+    operations on all of them at once; ``None`` otherwise (then each is checked)."""
+    values = list(uniques)
+    if not values or not all(type(v) is str for v in values):
+        return None
+    text = "\x1f".join(values)  # a separator that is not printable
+    if text.count("\x1f") != len(values) - 1:  # an id holds it: refused below
+        return None
+    if not (text.isascii() and text.replace("\x1f", "").isprintable()):
+        return None
+    if "\x1f " in text or " \x1f" in text or text[0] == " " or text[-1] == " ":
+        return None
+    lengths = np.fromiter(map(len, values), dtype=np.int64, count=len(values))
+    if lengths.min() < 1 or lengths.max() > COMPONENT_ID_MAX_LEN:
+        return None
+    return values
+
+
+def _clean_id(v: object) -> tuple[str, str]:
+    """``(stripped id, "")`` or ``("", why it is refused)``."""
+    if isinstance(v, bytes | bytearray):
+        return "", "is binary data, not text"
+    text = str(v).strip()
+    if not text:
+        return "", "empty component name"
+    if len(text) > COMPONENT_ID_MAX_LEN:
+        return "", (f"component id of {len(text)} characters, longer than the limit of "
+                    f"{COMPONENT_ID_MAX_LEN}")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return "", (f"component id '{safe_text(text.encode('utf-8', 'backslashreplace'), 60)}'"
+                    " is not valid Unicode text (a lone surrogate)")
+    if not text.isprintable():
+        c = next(c for c in text if not c.isprintable())
+        return "", (f"component id '{safe_text(text, 60)}' holds the non-printable character "
+                    f"{safe_text(c)} (control and format characters are not allowed)")
+    return text, ""
+
+
+def numeric_values(
+    col: pd.Series,
+    name: str,
+    *,
+    error: ErrorType = ValueError,
+    row_label: Callable[[int], str] = _row_1_based,
+) -> NDArray[np.float64]:
+    """``col`` as finite float64, or ``error`` naming the column, the row and the value.
+
+    Accepted: integer and floating columns (numpy or pandas' nullable ones), and object
+    columns whose every cell is an int or float. Refused: booleans, text (also numbers
+    written as text), dates, and NaN / infinities (module docstring). A float64 column that is
+    all finite is returned without a copy (read-only use)."""
+    dtype = col.dtype
+    label = f"column {name!r}, "
+    if pd.api.types.is_bool_dtype(dtype):
+        raise error(f"{label}{row_label(0)}: {cell_repr(col.iloc[0])} is a boolean, not a "
+                    "number (a numeric column holds numbers only)")
+    if dtype == np.float64:
+        a = col.to_numpy()
+    elif isinstance(dtype, np.dtype) and dtype.kind in "iuf":
+        a = col.to_numpy(dtype=np.float64)
+    elif not isinstance(dtype, np.dtype) and dtype.kind in "iuf":  # nullable Int64, Float64
+        a = col.to_numpy(dtype=np.float64, na_value=np.nan)
+    elif isinstance(dtype, np.dtype) and dtype.kind == "O":
+        a = _object_numbers(col, label, error, row_label)
+    elif pd.api.types.is_string_dtype(dtype):
+        _refuse_text(col.to_numpy(dtype=object), col.notna().to_numpy(), label, error,
+                     row_label)
+        raise AssertionError  # unreachable: text is refused
+    else:
+        raise error(f"{label}{row_label(0)}: {cell_repr(col.iloc[0])} is of type {dtype}, not "
+                    "a number (a numeric column holds numbers only)")
+    nonfinite = ~np.isfinite(a)
+    if nonfinite.any():
+        i = int(np.flatnonzero(nonfinite)[0])
+        what = "NaN (an empty or NaN cell)" if np.isnan(a[i]) else f"{a[i]}"
+        raise error(f"{label}{row_label(i)}: {what} is not allowed: every value must be a "
+                    f"finite number, no NaN/inf ({int(nonfinite.sum())} non-finite value(s) "
+                    "in this column)")
+    return a
+
+
+def _object_numbers(col: pd.Series, label: str, error: ErrorType,
+                    row_label: Callable[[int], str]) -> NDArray[np.float64]:
+    """An object column of Python / numpy numbers (None = missing) as float64."""
+    values = col.to_numpy()
+    kinds = np.fromiter((isinstance(v, int | float | np.integer | np.floating)
+                         and not isinstance(v, bool | np.bool_) for v in values),
+                        dtype=bool, count=len(values))
+    missing = col.isna().to_numpy()
+    bad = ~kinds & ~missing
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        v = values[i]
+        if isinstance(v, str):
+            _refuse_text(values, bad, label, error, row_label)
+        what = "a boolean" if isinstance(v, bool | np.bool_) else f"of type {type(v).__name__}"
+        raise error(f"{label}{row_label(i)}: {cell_repr(v)} is {what}, not a number "
+                    f"({int(bad.sum())} such value(s) in this column)")
+    out = np.full(len(values), np.nan)
+    out[~missing] = values[~missing].astype(np.float64)
+    return out
+
+
+def _refuse_text(values: NDArray[np.object_], text: NDArray[np.bool_], label: str,
+                 error: ErrorType, row_label: Callable[[int], str]) -> None:
+    """Raise ``error`` at the first text cell that is not a number (a typo in a CSV), or else
+    at the first text cell (numbers stored as text)."""
+    idx = np.flatnonzero(text)
+    num = pd.to_numeric(pd.Series(values[idx], dtype=object), errors="coerce").to_numpy()
+    typo = np.flatnonzero(np.isnan(num.astype(np.float64)))
+    if typo.size:
+        i = int(idx[typo[0]])
+        raise error(f"{label}{row_label(i)}: {cell_repr(values[i])} is not a number "
+                    f"({typo.size} non-numeric value(s) in this column)")
+    i = int(idx[0])
+    raise error(f"{label}{row_label(i)}: {cell_repr(values[i])} is text, not a number (a "
+                "numeric column holds numbers of a numeric type)")
+
+
+def read_csv_rows(
+    source: str | Path | bytes | memoryview,
+    *,
+    error: ErrorType = ValueError,
+    name: str | None = None,
+    text_columns: Sequence[str] = ("component",),
+    max_rows: int | None = None,
+) -> pd.DataFrame:
+    """A CSV file (path, ``.gz`` and other compressions by ending) or CSV bytes as a frame.
+
+    pyarrow's reader, with every row checked to have as many fields as the header (module
+    docstring) and ``text_columns`` read verbatim as text (categorical: one string per
+    distinct id); only an empty cell is missing, in every column (``NA`` in a numeric column
+    is text, reported by :func:`numeric_values`). Refused, naming ``name`` (the path, or
+    ``"CSV body"``): no header, a duplicated column name, a row with too few or too many
+    fields (its line number and text), more than ``max_rows`` rows, unparseable bytes."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    where = name or str(source)
+    header = _csv_header(source, error, where)
+    if not header:
+        raise error(f"{where}: empty file (no header, no rows)")
+    seen: dict[str, int] = {}
+    for j, c in enumerate(header):
+        if c in seen:
+            raise error(f"{where}: column {safe_text(c)!r} appears twice in the header "
+                        f"(columns {seen[c] + 1} and {j + 1}); rename or drop one")
+        seen[c] = j
+    bad: list[Any] = []
+
+    def invalid(row: Any) -> str:
+        bad.append(row)
+        return "skip"
+
+    text = pa.dictionary(pa.int32(), pa.string())
+    convert = pacsv.ConvertOptions(
+        column_types={c: text for c in text_columns if c in seen},
+        null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True)
+    parse = pacsv.ParseOptions(invalid_row_handler=invalid)
+    try:
+        try:  # streamed in blocks: the text is not held whole beside the table
+            reader = pacsv.open_csv(_csv_input(source), convert_options=convert,
+                                    read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES),
+                                    parse_options=parse)
+            batches = list(reader)
+            table = pa.Table.from_batches(batches, schema=reader.schema).unify_dictionaries()
+            del batches
+        except pa.ArrowInvalid as err:
+            if "conversion error" not in str(err):
+                raise
+            # a later block holds text in a column the first typed as numbers: read the
+            # whole file, typed over all rows, so the cell is named by numeric_values
+            bad.clear()
+            table = pacsv.read_csv(_csv_input(source), convert_options=convert,
+                                   parse_options=parse)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as err:
+        raise error(f"{where}: cannot be read as CSV: {safe_text(err, 300)}") from None
+    if bad:
+        _raise_bad_row(source, error, where, len(bad), convert)
+    if max_rows is not None and table.num_rows > max_rows:
+        raise error(f"{where}: {table.num_rows} rows, at most {max_rows} per batch")
+    if table.num_rows == 0:
+        raise error(f"{where}: no data rows (header only)")
+    return table.to_pandas()
+
+
+def _csv_input(source: str | Path | bytes | memoryview) -> Any:
+    import pyarrow as pa
+
+    if isinstance(source, bytes | memoryview):
+        return pa.BufferReader(pa.py_buffer(source))  # no copy of the bytes
+    return str(source)
+
+
+def _csv_header(source: str | Path | bytes | memoryview, error: ErrorType, where: str) -> list[str]:
+    """The names of the first line, verbatim (an empty list for an empty input)."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    try:
+        reader = pacsv.open_csv(
+            _csv_input(source),
+            read_options=pacsv.ReadOptions(block_size=1 << 16, use_threads=False),
+            parse_options=pacsv.ParseOptions(invalid_row_handler=lambda row: "skip"),
+            convert_options=pacsv.ConvertOptions(column_types={}, null_values=[""]))
+    except pa.ArrowInvalid as err:
+        if "Empty CSV file" in str(err):
+            return []
+        raise error(f"{where}: cannot be read as CSV: {safe_text(err, 300)}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise error(f"{where}: cannot be read as CSV: {safe_text(err, 300)}") from None
+    return [str(c) for c in reader.schema.names]
+
+
+def _raise_bad_row(source: str | Path | bytes | memoryview, error: ErrorType, where: str,
+                   n_bad: int, convert: Any) -> None:
+    """Read again on one thread (which numbers the lines) and raise ``error`` at the first row
+    whose field count differs from the header's."""
+    import pyarrow.csv as pacsv
+
+    first: list[Any] = []
+
+    def invalid(row: Any) -> str:
+        if not first:
+            first.append(row)
+        return "skip"
+
+    pacsv.read_csv(_csv_input(source), read_options=pacsv.ReadOptions(use_threads=False),
+                   convert_options=convert,
+                   parse_options=pacsv.ParseOptions(invalid_row_handler=invalid))
+    row = first[0]
+    line = f"line {row.number}" if row.number is not None else "a line"
+    raise error(f"{where}: {line} (data row {row.number - 1 if row.number else '?'}) has "
+                f"{row.actual_columns} fields, the header {row.expected_columns}: "
+                f"{safe_text(row.text, 120)!r} ({n_bad} such row(s); nothing is read from a "
+                "file whose rows do not match its header)")

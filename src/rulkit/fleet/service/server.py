@@ -1,0 +1,128 @@
+"""The HTTP server of ``rulkit serve``: uvicorn with a header deadline and a graceful stop.
+
+uvicorn bounds the idle time between requests (keep-alive) but not the time a client may take
+to send a request's headers, so a thousand half-sent requests held the server's connections
+for as long as their clients liked. :class:`DeadlineH11Protocol` closes a connection whose
+request line and headers are not complete within ``header_timeout`` seconds of the connection
+(or of the previous response), and one whose body stalls (no data for ``header_timeout``
+seconds); the acquisitions' body also has its own deadline
+(:func:`rulkit.fleet.service.bodies.read_body`). On SIGTERM or SIGINT, :func:`serve` stops
+accepting connections and lets the requests in flight finish (an ingestion commits and is
+answered) for up to ``grace`` seconds before it exits.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Any
+
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+HEADER_TIMEOUT = 10.0
+"""Seconds a client has to send a request line and its headers."""
+GRACE = 30.0
+"""Seconds the requests in flight get to finish on shutdown."""
+
+
+class DeadlineH11Protocol(H11Protocol):
+    """uvicorn's HTTP/1.1 protocol with a deadline on each request's headers."""
+
+    header_timeout = HEADER_TIMEOUT
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        """Accept the connection and start the headers' deadline."""
+        super().connection_made(transport)
+        self._deadline: asyncio.TimerHandle | None = None
+        self._last_data = self.loop.time()
+        self._arm()
+
+    def _arm(self) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+        self._deadline = self.loop.call_later(self.header_timeout, self._expire)
+
+    def _expire(self) -> None:
+        if self.transport.is_closing():
+            return
+        if self.cycle is None or self.cycle.response_complete:  # headers not in time
+            self.transport.close()
+        elif self.cycle.more_body and (
+                self.loop.time() - self._last_data > self.header_timeout):
+            self.transport.close()  # a body that stalled
+        else:  # the app is answering: look again later
+            self._arm()
+
+    def data_received(self, data: bytes) -> None:
+        """Note when data last arrived (a stalled body is cut off)."""
+        self._last_data = self.loop.time()
+        super().data_received(data)
+
+    def on_response_complete(self) -> None:
+        """After each response the next request's headers get a new deadline."""
+        super().on_response_complete()
+        self._arm()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        """Stop the deadline with the connection."""
+        if self._deadline is not None:
+            self._deadline.cancel()
+        super().connection_lost(exc)
+
+
+def protocol(header_timeout: float) -> type[DeadlineH11Protocol]:
+    """:class:`DeadlineH11Protocol` with ``header_timeout``."""
+    return type("DeadlineH11Protocol", (DeadlineH11Protocol,),
+                {"header_timeout": header_timeout})
+
+
+def config(app: Any, host: str, port: int, *, header_timeout: float = HEADER_TIMEOUT,
+           grace: float = GRACE, log_level: str = "info") -> Any:
+    """The uvicorn configuration of ``rulkit serve`` (access log off: it would print paths,
+    hence component ids; the app logs route templates)."""
+    import uvicorn
+
+    return uvicorn.Config(app, host=host, port=port, access_log=False, log_level=log_level,
+                          http=protocol(header_timeout), timeout_keep_alive=5,
+                          timeout_graceful_shutdown=int(grace), log_config=None)
+
+
+class JsonFormatter(logging.Formatter):
+    """One JSON object per log line (``--log-format json``): time (ISO 8601, UTC), level,
+    logger, message and the request fields the access log adds (method, route, status,
+    ms)."""
+
+    FIELDS = ("method", "route", "status", "ms")
+
+    def format(self, record: logging.LogRecord) -> str:
+        """The record as one line of JSON."""
+        import datetime as dt
+        import json
+
+        out: dict[str, Any] = {
+            "time": dt.datetime.fromtimestamp(record.created, dt.UTC).isoformat(
+                timespec="milliseconds"),
+            "level": record.levelname.lower(), "logger": record.name,
+            "message": record.getMessage()}
+        out.update({k: getattr(record, k) for k in self.FIELDS if hasattr(record, k)})
+        if record.exc_info:
+            out["error"] = self.formatException(record.exc_info)
+        return json.dumps(out, ensure_ascii=True)
+
+
+def setup_logging(fmt: str) -> None:
+    """Log INFO and above to stderr as text lines or, for ``fmt == "json"``, JSON lines."""
+    handler = logging.StreamHandler()
+    handler.setFormatter(JsonFormatter() if fmt == "json" else logging.Formatter(
+        "%(asctime)s %(name)s %(levelname)s %(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(logging.INFO)
+
+
+def serve(app: Any, host: str, port: int, **kwargs: Any) -> None:
+    """Run ``app`` until SIGTERM / SIGINT, then finish the requests in flight (module
+    docstring)."""
+    import uvicorn
+
+    uvicorn.Server(config(app, host, port, **kwargs)).run()

@@ -1,0 +1,346 @@
+"""``rulkit track`` over a directory of Parquet partitions, serially or on Dask workers.
+
+docs/systems/embedded-rul.md §4; cost model in docs/service.md ("Fleet batch on Dask"). A
+component's trackers run in time order, but components are independent: the work splits by
+component. :func:`track_directory` without a scheduler reads the whole directory (every
+``*.parquet`` / ``*.pq`` file under it, in name order) as one batch and ingests it like a file.
+With a scheduler, the components are hashed into ``buckets``; each Dask task reads the rows of
+its bucket from every partition (a pyarrow filter, so no task holds the whole fleet), runs the
+store's one ingestion path on a private SQLite database seeded with those components' stored
+state (tracker state, learned-model state, the stored history they overlap, the settings),
+and returns that database's bytes. The client then copies each bucket's new history rows,
+states and alerts into the database in one transaction. Every bucket ran exactly the code of
+the serial run on exactly its rows, so the stored numbers are the same (tested).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import tempfile
+import time
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
+from rulkit.fleet.store.schema import COMPONENTS, HISTORY, MODEL_STATE
+from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.tracking.health_index import HealthIndexModel
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+
+
+def partition_files(directory: str | Path) -> list[Path]:
+    """The Parquet files under ``directory`` (recursively), in name order; IngestError if
+    there are none."""
+    d = Path(directory)
+    files = sorted(p for p in d.rglob("*") if p.suffix.lower() in (".parquet", ".pq")
+                   and p.is_file())
+    if not files:
+        raise IngestError(f"{d}: no .parquet / .pq files in this directory")
+    return files
+
+
+def read_directory(directory: str | Path, components: list[str] | None = None
+                   ) -> pd.DataFrame:
+    """The rows of every partition (file order, then row order), optionally only those of
+    ``components``; the columns of the first partition."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+
+    files = partition_files(directory)
+    try:
+        dataset = ds.dataset([str(f) for f in files], format="parquet")
+        flt = None if components is None else pc.field("component").isin(components)
+        table = dataset.to_table(filter=flt)
+    except Exception as err:  # pyarrow raises many kinds on bad partitions
+        raise IngestError(f"{directory}: cannot be read as Parquet partitions "
+                          f"({type(err).__name__}: {str(err).strip()[:200]})") from None
+    return table.to_pandas()
+
+
+def _bucket_of(names: np.ndarray, buckets: int) -> np.ndarray:
+    """A stable bucket per component id (CRC-32 of its UTF-8 bytes)."""
+    return np.array([zlib.crc32(str(n).encode("utf-8")) % buckets for n in names])
+
+
+def track_directory(db: str | Path, directory: str | Path, *, config: TrackerConfig,
+                    hi_model: HealthIndexModel | None = None, scheduler: Any = None,
+                    buckets: int = 0, timeout: float = 30.0) -> tuple[IngestResult, bool]:
+    """Ingest the partitions under ``directory`` into the SQLite database ``db`` (created if
+    missing); ``(result, created)`` as :func:`~rulkit.fleet.store.sqlite.ingest_into`.
+    ``scheduler``: a Dask scheduler address or ``distributed.Client`` (module docstring);
+    ``buckets``: tasks to split the components into (default: 4 per worker). Nothing is
+    written (or created) when a bucket's rows are refused."""
+    source = str(directory)
+    if scheduler is None:
+        return ingest_into(db, read_directory(directory), config=config, hi_model=hi_model,
+                           source=source, timeout=timeout)
+    import pyarrow.dataset as ds
+    from distributed import Client
+
+    path = Path(db)
+    client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+    try:
+        files = [str(f) for f in partition_files(directory)]
+        comp = ds.dataset(files, format="parquet").to_table(columns=["component"])
+        names = pd.unique(comp.column("component").to_pandas().astype(str))
+        n_buckets = buckets or 4 * max(1, len(client.scheduler_info()["workers"]))
+        bucket = _bucket_of(names, n_buckets)
+        groups = [names[bucket == b].tolist() for b in range(n_buckets) if (bucket == b).any()]
+        seeds = _seeds(path, groups, config, hi_model, timeout)
+        now = time.time()  # one calendar time of ingestion for every bucket
+        parts = client.gather(client.map(_run_bucket, [files] * len(groups), groups, seeds,
+                                         [now] * len(groups), pure=False))
+    finally:
+        if not isinstance(scheduler, Client):
+            client.close()
+    if not path.exists():  # the combined buckets become the new database
+        res = _publish(path, parts, seeds[0]["meta"] if seeds else [], source)
+        if res is not None:
+            return res, True
+    with ComponentStore(path, config=config, hi_model=hi_model, timeout=timeout) as store:
+        return _merge(store, parts, seeds, source), False
+
+
+def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, str]],
+             source: str) -> IngestResult | None:
+    """A new database at ``path`` from the buckets (:func:`_combine` written beside it, the
+    settings and the ingestion's audit row added, then linked into place as
+    :func:`~rulkit.fleet.store.sqlite.ingest_into` publishes one: complete or absent).
+    ``None`` when another process created ``path`` meanwhile (then the caller merges)."""
+    import os
+    import uuid
+
+    from rulkit.fleet.store.database_file import _fsync_dir
+
+    tmp_db = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
+    try:
+        with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
+            _, n_rows, n_comp = _combine(parts, Path(tmp), tmp_db)
+        conn = sqlite3.connect(str(tmp_db), isolation_level=None)
+        try:
+            conn.execute("BEGIN")
+            conn.executemany("INSERT INTO meta VALUES (?, ?)", meta)
+            conn.execute("INSERT INTO ingests (id, source, n_rows, n_components) VALUES "
+                         "(1, ?, ?, ?)", (source, n_rows, n_comp))
+            alerts = [_alert(r) for r in conn.execute(
+                "SELECT id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
+                "reason, raised FROM alerts ORDER BY id").fetchall()]
+            conn.execute("COMMIT")
+            conn.execute("PRAGMA journal_mode=WAL")
+        finally:
+            conn.close()
+        fd = os.open(tmp_db, os.O_RDWR)  # private until linked: no SQLite connection holds it
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        try:
+            os.link(tmp_db, path)
+        except FileExistsError:
+            return None
+        _fsync_dir(path.parent)
+    finally:
+        for side in ("", "-wal", "-shm", "-journal"):
+            Path(f"{tmp_db}{side}").unlink(missing_ok=True)
+    return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=n_comp,
+                        alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
+                        n_duplicates=sum(d for _, d in parts))
+
+
+def _seeds(path: Path, groups: list[list[str]], config: TrackerConfig,
+           hi_model: HealthIndexModel | None, timeout: float) -> list[dict[str, Any]]:
+    """Each bucket's starting point: the settings (``meta``) and, for an existing database,
+    the stored rows of its components (states, learned states, history), every column."""
+    from rulkit.fleet.monitoring.rules import MonitoringRules
+    from rulkit.fleet.monitoring.unit_trend import TrendConfig
+    from rulkit.fleet.store.database_file import _meta_rows
+    from rulkit.fleet.store.prognosis import monitoring_meta
+
+    empty: dict[str, Any] = {t.name: ([], []) for t in (COMPONENTS, MODEL_STATE, HISTORY)}
+    if not path.exists():
+        meta = [*_meta_rows(config, hi_model), monitoring_meta(MonitoringRules(), TrendConfig())]
+        return [{"meta": meta, **empty} for _ in groups]
+    with ComponentStore(path, config=config, readonly=True, timeout=timeout) as store:
+        meta = store._conn.execute("SELECT key, value FROM meta").fetchall()
+        if hi_model is not None and store.hi_model is None:
+            meta.append(("hi_model", json.dumps(hi_model.to_dict())))
+        return [{"meta": meta, **{t.name: _rows(store._conn, t.name, g)
+                                  for t in (COMPONENTS, MODEL_STATE, HISTORY)}}
+                for g in groups]
+
+
+def _columns(conn: Any, table: str, schema: str = "main") -> list[str]:
+    return [r[1] for r in conn.execute(f"PRAGMA {schema}.table_info({table})").fetchall()]
+
+
+def _rows(conn: Any, table: str, names: list[str]) -> tuple[list[str], list[tuple]]:
+    """(columns, rows) of ``names`` in ``table``; stored history keeps ingest 0 in a bucket,
+    so only the bucket's own rows are copied back."""
+    cols = _columns(conn, table)
+    if not cols:
+        return [], []
+    use = ["0" if table == "history" and c == "ingest" else c for c in cols]
+    out: list[tuple] = []
+    for i in range(0, len(names), 500):
+        chunk = names[i:i + 500]
+        out += conn.execute(f"SELECT {', '.join(use)} FROM {table} WHERE component IN "
+                            f"({','.join('?' * len(chunk))})", chunk).fetchall()
+    return cols, out
+
+
+def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any], now: float
+                ) -> tuple[bytes, int]:
+    """On a worker: the bucket's rows through the one ingestion path, on a private database
+    seeded with ``seed``; the database's bytes and the number of rows already stored."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+
+    df = ds.dataset(files, format="parquet").to_table(
+        filter=pc.field("component").isin(names)).to_pandas()
+    with tempfile.TemporaryDirectory(prefix="rulkit-bucket-") as tmp:
+        path = Path(tmp) / "bucket.db"
+        _write_seed(path, seed)
+        with ComponentStore(path, create=False) as store:
+            store._conn.execute("PRAGMA synchronous=OFF")  # a private scratch file
+            store.now = now
+            res = store.ingest(df, "bucket")
+        return path.read_bytes(), res.n_duplicates
+
+
+def _write_seed(path: Path, seed: dict[str, Any]) -> None:
+    from rulkit.fleet.store.prognosis import COMPONENT_COLUMNS, HISTORY_COLUMNS, ensure_columns
+    from rulkit.fleet.store.schema import create_statements
+
+    conn = sqlite3.connect(str(path), isolation_level=None)
+    try:
+        conn.execute("BEGIN")
+        for stmt in create_statements("sqlite"):
+            conn.execute(stmt)
+        ensure_columns(conn, "components", COMPONENT_COLUMNS)
+        ensure_columns(conn, "history", HISTORY_COLUMNS)
+        conn.executemany("INSERT INTO meta VALUES (?, ?)", seed["meta"])
+        for table in (COMPONENTS, MODEL_STATE, HISTORY):
+            cols, rows = seed[table.name]
+            if rows:
+                conn.executemany(f"INSERT INTO {table.name} ({', '.join(cols)}) VALUES "
+                                 f"({', '.join('?' * len(cols))})", rows)
+        conn.execute("COMMIT")
+    finally:
+        conn.close()
+
+
+def _copy(conn: Any, table: str, where: str = "", params: tuple = (), *,
+          replace: bool = False, skip: tuple[str, ...] = (), set_ingest: bool = False,
+          returning: str = "") -> list[tuple]:
+    """``INSERT INTO main.table SELECT ... FROM part.table`` over the columns both have."""
+    have = set(_columns(conn, table, "main"))
+    cols = [c for c in _columns(conn, table, "part") if c in have and c not in skip]
+    target = ", ".join(cols + (["ingest"] if set_ingest else []))
+    source = ", ".join(cols + (["?"] if set_ingest else []))
+    verb = "INSERT OR REPLACE" if replace else "INSERT"
+    sql = (f"{verb} INTO main.{table} ({target}) SELECT {source} FROM part.{table} {where}"
+           + (f" RETURNING {returning}" if returning else ""))
+    return conn.execute(sql, params).fetchall()
+
+
+def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
+             ) -> tuple[Path, int, int]:
+    """One private database (``path``, default in ``tmp``) of every bucket's new rows
+    (history of its ingestion, final states, learned states, alerts); (its path,
+    acquisitions, components)."""
+    from rulkit.fleet.store.prognosis import COMPONENT_COLUMNS, HISTORY_COLUMNS, ensure_columns
+    from rulkit.fleet.store.schema import create_statements
+
+    path = path or tmp / "all.db"
+    conn = sqlite3.connect(str(path), isolation_level=None)
+    n_rows = n_comp = 0
+    try:
+        conn.execute("PRAGMA journal_mode=OFF")
+        conn.execute("PRAGMA synchronous=OFF")
+        for stmt in create_statements("sqlite"):
+            conn.execute(stmt)
+        ensure_columns(conn, "components", COMPONENT_COLUMNS)
+        ensure_columns(conn, "history", HISTORY_COLUMNS)
+        for k, (data, _) in enumerate(parts):
+            f = tmp / f"b{k}.db"
+            f.write_bytes(data)
+            conn.execute("ATTACH DATABASE ? AS part", (str(f),))
+            (bid,) = conn.execute("SELECT MAX(id) FROM part.ingests").fetchone()
+            got = conn.execute("SELECT n_rows, n_components FROM part.ingests WHERE id = ?",
+                               (bid,)).fetchone()
+            n, c = got if got is not None else (0, 0)  # every row already stored
+            n_rows, n_comp = n_rows + n, n_comp + c
+            _copy(conn, "history", "WHERE ingest = ?", (1, bid), skip=("ingest",),
+                  set_ingest=True)
+            _copy(conn, "components")
+            _copy(conn, "model_state")
+            _copy(conn, "alerts", "ORDER BY id", skip=("id",))
+            conn.execute("DETACH DATABASE part")
+            f.unlink()
+    finally:
+        conn.close()
+    return path, n_rows, n_comp
+
+
+def _merge(store: ComponentStore, parts: list[tuple[bytes, int]], seeds: list[dict[str, Any]],
+           source: str) -> IngestResult:
+    """Copy the buckets' new rows (:func:`_combine`) into the store in one transaction.
+    Refused (nothing written) when a seeded component changed meanwhile (another writer):
+    retry."""
+    with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
+        path, n_rows, n_comp = _combine(parts, Path(tmp))
+        conn = store._conn
+        conn.execute("ATTACH DATABASE ? AS part", (str(path),))
+        try:
+            with store._transaction("IMMEDIATE"):
+                _check_unchanged(store, seeds)
+                ingest_id = store._insert_ingest(source, n_rows, n_comp)
+                alerts = _copy_part(conn, ingest_id)
+        finally:
+            conn.execute("DETACH DATABASE part")
+    n_new = n_comp - sum(len(seed["components"][1]) for seed in seeds)
+    return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=max(n_new, 0),
+                        alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
+                        n_duplicates=sum(d for _, d in parts))
+
+
+def _check_unchanged(store: ComponentStore, seeds: list[dict[str, Any]]) -> None:
+    """StoreBusyError when a seeded component's stored state changed since it was read."""
+    from rulkit.fleet.store.database_file import StoreBusyError
+
+    for seed in seeds:
+        cols, rows = seed["components"]
+        for row in rows:
+            now = store._conn.execute("SELECT t FROM components WHERE component = ?",
+                                      (row[0],)).fetchone()
+            if now is None or now[0] != row[cols.index("t")]:
+                raise StoreBusyError(f"{store.path}: component {row[0]!r} changed while the "
+                                     "partitions were tracked; nothing was written, retry")
+
+
+def _copy_part(conn: sqlite3.Connection, ingest_id: int) -> list[Alert]:
+    """Inside the caller's transaction: the attached ``part``'s rows into the store."""
+    _copy(conn, "history", "", (ingest_id,), skip=("ingest",), set_ingest=True)
+    _copy(conn, "components", replace=True)
+    _copy(conn, "model_state", replace=True)
+    return [_alert(r) for r in _copy(
+        conn, "alerts", "ORDER BY id", skip=("id",),
+        returning="id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
+                  "reason, raised")]
+
+
+def _alert(row: tuple) -> Alert:
+    aid, comp, t, level, prev, hi, fhi, rul, low, high, reason, raised = row
+    nan = float("nan")
+    return Alert(component=comp, t=t, level=int(level), previous=int(prev),
+                 hi=nan if hi is None else hi, fhi=nan if fhi is None else fhi,
+                 rul=nan if rul is None else rul, rul_low=nan if low is None else low,
+                 rul_high=nan if high is None else high, reason=reason or "",
+                 id=int(aid), raised=raised)
+
+
