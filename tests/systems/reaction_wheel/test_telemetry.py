@@ -48,8 +48,9 @@ def test_missing_and_misnamed_columns_suggest_names() -> None:
 def test_nan_inf_name_column_and_row(tmp_path, value: float, word: str) -> None:
     df = _frame()
     df.loc[17, "current_A"] = value
-    with pytest.raises(TelemetryError, match=r"'current_A', row 17:.*NaN/inf"):
+    with pytest.raises(TelemetryError, match=r"'current_A', row 17:.*NaN/inf") as err:
         validate_wheel_telemetry(df)
+    assert ("use the default method 'imm'" in str(err.value)) == (word == "nan")
     df.to_csv(tmp_path / "b.csv", index=False)
     with pytest.raises(TelemetryError, match=r"row 17 \(file line 19\)"):
         read_wheel_telemetry(tmp_path / "b.csv")

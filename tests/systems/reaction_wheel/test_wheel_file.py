@@ -62,3 +62,11 @@ def test_bad_values_are_refused_naming_file_section_and_key(tmp_path: Path, text
     with pytest.raises(MachineFileError, match=match) as err:
         read_wheel_file(f)
     assert str(f) in str(err.value)
+
+
+def test_the_command_page_shows_every_key() -> None:
+    from rulkit.machine_file import schema_table
+    from rulkit.systems.reaction_wheel.wheel_file import WHEEL_SCHEMA
+
+    page = Path(__file__).resolve().parents[3] / "docs" / "commands" / "rw-wheel-template.md"
+    assert schema_table(WHEEL_SCHEMA) in page.read_text()

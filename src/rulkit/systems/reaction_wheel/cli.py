@@ -252,8 +252,9 @@ def _register_step1(rw: typer.Typer) -> None:
         for line in summary.notes:
             typer.echo(line, err=True)
         typer.echo(f"{summary.rows} samples, T_lub {summary.last['T_mean']:.2f} C at t = "
-                   f"{summary.last['time_s']:g} s ({level:.0%} interval "
-                   f"{summary.last['T_lo']:.2f} .. {summary.last['T_hi']:.2f} C); wrote {dest}")
+                   f"{summary.last['time_s']:.10g} s ({level:.0%} interval "
+                   f"{summary.last['T_lo']:.2f} .. {summary.last['T_hi']:.2f} C)")
+        typer.echo(f"wrote {dest}")
 
     @rw.command("wheel-template")
     def wheel_template_cmd(
@@ -432,7 +433,8 @@ def _run_one(rec: Any, out: Path, opts: Any) -> None:
         fail(f"cannot read or write: {err}")
     for n in res.notes:
         typer.echo(f"note: {n}", err=True)
-    typer.echo(_result_line(res) + f"; wrote {out / 'report.md'}")
+    typer.echo(_result_line(res))
+    typer.echo(f"wrote {out / 'report.md'}")
 
 
 def _result_line(res: Any) -> str:

@@ -421,7 +421,7 @@ def future_cycle(wheel: Any, profile: Path | None, losses: Any, sums: Any,
     if profile is not None:
         ts, T = read_profile(profile)
         return cycle_from_profile(ts, T, wheel.rul["forecast_window_h"] * 3600.0,
-                                  description=f"the profile {profile}, repeated")
+                                  description=f"the profile {Path(profile).name}, repeated")
     keep = np.asarray(sums.present, dtype=bool)
     q = sums.quad
     quad = WindowQuadrature(q.center[:, keep], q.scale[:, keep], q.nodes[:, keep],
@@ -615,7 +615,7 @@ def estimate_notes(est: Any, out_of_range: int = 0) -> list[str]:
     if out_of_range:
         counts.append(f"{out_of_range} values beyond the plausibility limits (kept as missing)")
     if counts:
-        first = (f", the first speed sample not used at time_s = {est.first_untrusted:g}"
+        first = (f", the first speed sample not used at time_s = {est.first_untrusted:.10g}"
                  if est.first_untrusted is not None else "")
         notes.append("note: " + "; ".join(counts) + first + " (column 'flags')")
     return notes

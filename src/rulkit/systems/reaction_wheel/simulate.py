@@ -119,13 +119,15 @@ def telemetry_columns(df: Any) -> Any:
 def simulate_record(out_dir: str | Path, days: float, rng: np.random.Generator, *,
                     scenario: int = 1, v_comm: float = 2.0, file_days: float = 1.0,
                     t0: float = 1.7e9, dt: float = 0.05, loss_noise_rel: float = 0.01,
-                    sigma: tuple[float, float] = NOISE_LEVELS["low"]) -> dict[str, Any]:
+                    sigma: tuple[float, float] = NOISE_LEVELS["low"],
+                    params: IthacoParams | None = None) -> dict[str, Any]:
     """A wheel directory for ``rulkit rw pipeline`` with known truth: ``telemetry/`` holds
     ``days`` of telemetry at ``dt`` in Parquet files of ``file_days`` each (epoch-second times
     from ``t0``), the wheel at ``v_comm`` along the temperature path of fault ``scenario``
     (docs/systems/reaction-wheel.md §4), simulated file by file (memory: one file);
     ``losses.csv`` the loss of every 4-minute window (the true increments plus noise of
-    ``loss_noise_rel`` of the healthy window loss). Returns the truth: the path, the scenario,
+    ``loss_noise_rel`` of the healthy window loss); ``params`` the wheel (default the seed's).
+    Returns the truth: the path, the scenario,
     the loss noise, the files and their rows."""
     import pandas as pd
 
@@ -139,7 +141,7 @@ def simulate_record(out_dir: str | Path, days: float, rng: np.random.Generator, 
 
     out = Path(out_dir)
     (out / "telemetry").mkdir(parents=True, exist_ok=True)
-    path, p = PATHS[scenario], IthacoParams()
+    path, p = PATHS[scenario], params or IthacoParams()
     P = pack_params(p)
     n_total = round(days * 86400.0 / dt)
     per_file = round(file_days * 86400.0 / dt)

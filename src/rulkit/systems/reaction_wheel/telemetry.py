@@ -229,8 +229,14 @@ class TelemetryCheck:
         if self.lenient:
             cols = _numbers_with_gaps(df, src, lambda r: self.where(row0 + r))
         else:
-            cols = numeric_columns(df, COLUMNS, error=TelemetryError, source=src,
-                                   row_label=lambda r: self.where(row0 + r))
+            try:
+                cols = numeric_columns(df, COLUMNS, error=TelemetryError, source=src,
+                                       row_label=lambda r: self.where(row0 + r))
+            except TelemetryError as err:
+                if "NaN (an empty" not in str(err):
+                    raise
+                raise TelemetryError(f"{err}; this method needs every cell, use the default "
+                                     "method 'imm', which skips an empty cell's update") from None
         out = pd.DataFrame(cols, index=pd.RangeIndex(rec0, rec0 + len(df)))
         t = out[TIME].to_numpy()
         first = rec0 == 0  # the record's first chunk: nothing before it to compare with

@@ -324,7 +324,7 @@ class TemperatureEstimator:
             r = int(np.flatnonzero(bad)[0])
             raise ImplausibleEstimateError(
                 f"{self.source}: the temperature estimate is {m[r]:.6g} C at time_s = "
-                f"{est['time_s'].iloc[r]:g} (row {row0 + r}), below absolute zero or not "
+                f"{est['time_s'].iloc[r]:.10g} (row {row0 + r}), below absolute zero or not "
                 "finite: the telemetry does not follow the wheel model (wrong units, wrong "
                 "noise level, or not this wheel); nothing written")
         lo, hi = MODEL_RANGE_C
@@ -332,7 +332,7 @@ class TemperatureEstimator:
         if out.any():
             if not self._n_out:
                 r = int(np.flatnonzero(out)[0])
-                self._first_out = f"{m[r]:.4g} C at time_s = {est['time_s'].iloc[r]:g}"
+                self._first_out = f"{m[r]:.4g} C at time_s = {est['time_s'].iloc[r]:.10g}"
             self._n_out += int(out.sum())
             self.warning = (
                 f"{self._n_out} estimates outside {lo:g}..{hi:g} C, the range the wheel model "
