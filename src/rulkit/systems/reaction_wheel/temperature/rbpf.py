@@ -495,8 +495,8 @@ def _rbpf_steps(  # type: ignore[no-untyped-def]
     return o_mean, o_std, o_lo, o_hi, o_ess, o_act, o_ll, o_Iw
 
 
-#: Said with every RBPF estimate: its interval is not calibrated (docs/systems/reaction-wheel.md
-#: §3.5: too wide on the battery of simulated records, too narrow on some slowly varying ones).
+#: Said with every RBPF estimate: its interval is not calibrated, too wide on the battery of
+#: simulated records, too narrow on some slowly varying ones (docs/systems/reaction-wheel.md §3.5).
 RBPF_INTERVAL_NOTE = ("the RBPF interval is not calibrated: its 95 % interval covers more or "
                       "less than 95 % of the truth depending on the record "
                       "(docs/systems/reaction-wheel.md section 3.5); the default method imm's "
