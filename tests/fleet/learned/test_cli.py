@@ -76,6 +76,7 @@ def test_evaluate_prints_and_writes_the_table(files, tmp_path):
     s = pd.read_csv(out / "summary.csv")
     assert list(s["method"]) == ["linear", "origin", "last2"]
     assert "90 % coverage" in r.output and "median rel. error" in r.output
+    assert "coverage_90_last_half" in s.columns
 
 
 @pytest.mark.parametrize(("edit", "match"), [
@@ -93,16 +94,89 @@ def test_bad_histories_are_named(files, tmp_path, edit, match):
     assert not (tmp_path / "x.db").exists()
 
 
-def test_fit_tracker_creates_a_database_with_fitted_settings(files, tmp_path):
-    db = tmp_path / "t.db"
-    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
-                            "tracker"])
+def test_fit_tracker_and_model_in_either_order_or_one_command(files, tmp_path):
+    hist = str(files / "hist.csv")
+    tracker = ["--model", "tracker"]
+    model = ["--model", "linear", "--folds", "2"]
+    for order in ((tracker, model), (model, tracker)):
+        db = tmp_path / f"{len(order[0])}{order[0][1]}.db"
+        for args in order:
+            r = runner.invoke(app, ["fit", "--db", str(db), hist, *args])
+            assert r.exit_code == 0, r.output
+        with ComponentStore(db, readonly=True) as s:
+            assert s.config.initiation == "measured" and s.config.rul_clip
+            assert s.degradation is not None and s.degradation.name == "linear"
+    db = tmp_path / "one.db"
+    r = runner.invoke(app, ["fit", "--db", str(db), hist, *model, "--tracker"])
+    assert r.exit_code == 0, r.output
+    assert "fitted tracker settings" in r.output
+    with ComponentStore(db, readonly=True) as s:
+        assert s.config.rul_clip and s.degradation is not None
+    r = runner.invoke(app, ["track", "--db", str(db), str(files / "acq.csv")])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["fit", "--db", str(db), hist, *tracker])
+    assert r.exit_code == 1 and "fixed once a component is tracked" in r.output
+
+
+def test_fit_prints_the_candidates_table_choice_and_unit(files, tmp_path):
+    db = tmp_path / "auto.db"
+    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--candidates",
+                            "linear,regression", "--folds", "3", "--time-unit", "kcycles"])
+    assert r.exit_code == 0, r.output
+    for text in ("candidate", "held-out rel. error", "90 % coverage", "score", "<- chosen",
+                 "chosen: ", "RUL in kcycles"):
+        assert text in r.output
+    with ComponentStore(db, readonly=True) as s:
+        assert s.degradation.time_unit == "kcycles"
+    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--candidates",
+                            "linear,arima"])
+    assert r.exit_code == 2 and "--candidates" in r.output
+
+
+def test_warnings_are_printed_and_stored(files, tmp_path):
+    epoch = pd.read_csv(files / "hist.csv").assign(time=lambda d: d["time"] + 1.7e9)
+    epoch.to_csv(tmp_path / "epoch.csv", index=False)
+    db = tmp_path / "w.db"
+    r = runner.invoke(app, ["fit", "--db", str(db), str(tmp_path / "epoch.csv"), "--model",
+                            "linear", "--folds", "2"])
+    assert r.exit_code == 0, r.output
+    assert "warning: time: every unit starts at an age above" in r.output
+    with ComponentStore(db, readonly=True) as s:
+        assert any("epoch timestamps" in w for w in s.degradation.warnings)
+
+
+def test_date_times_in_fit_track_and_evaluate(files, tmp_path):
+    def stamped(name):
+        d = pd.read_csv(files / name)
+        d["time"] = (pd.Timestamp("2024-03-01") + pd.to_timedelta(d["time"], unit="h")
+                     ).dt.strftime("%Y-%m-%dT%H:%M:%S")
+        d.to_csv(tmp_path / name, index=False)
+        return str(tmp_path / name)
+
+    hist, acq = stamped("hist.csv"), stamped("acq.csv")
+    db = tmp_path / "ts.db"
+    r = runner.invoke(app, ["fit", "--db", str(db), hist, "--model", "linear", "--folds", "2",
+                            "--time-unit", "h", "--tracker"])
+    assert r.exit_code == 0, r.output
+    assert "date-times, converted to h; age since each unit's first acquisition" in r.output
+    r = runner.invoke(app, ["track", "--db", str(db), acq])
     assert r.exit_code == 0, r.output
     with ComponentStore(db, readonly=True) as s:
-        assert s.config.initiation == "measured" and s.config.rul_clip
-    r = runner.invoke(app, ["fit", "--db", str(db), str(files / "hist.csv"), "--model",
-                            "tracker"])
-    assert r.exit_code == 1 and "new database" in r.output
+        h = s.history()
+    assert np.isfinite(h["rul_median"]).all() and (h["rul_low"] <= h["rul_median"]).all()
+    r = runner.invoke(app, ["track", "--db", str(db), str(files / "acq.csv")])
+    assert r.exit_code == 1 and "holds numbers, but the time axis is date-times" in r.output
+    num = tmp_path / "num.db"
+    r = runner.invoke(app, ["fit", "--db", str(num), str(files / "hist.csv"), "--model",
+                            "linear", "--folds", "2"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["track", "--db", str(num), acq])
+    assert r.exit_code == 1 and "holds date-times" in r.output
+    assert "design_life" not in r.output
+    r = runner.invoke(app, ["evaluate", hist, "--model", "linear", "--folds", "3", "--out",
+                            str(tmp_path / "ev")])
+    assert r.exit_code == 0, r.output
+    assert "RUL and CRPS in h" in r.output
 
 
 @pytest.mark.slow

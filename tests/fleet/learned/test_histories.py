@@ -28,12 +28,22 @@ def test_groups_units_and_failure_times():
     (lambda d: d.assign(hi=[0.1, np.nan, 1.1, 0.2, 0.4]), r"'hi', row 2 .*must be a finite number"),
     (lambda d: d.assign(hi=[0.1, 0.5, 1.1, -0.2, 0.4]), r"row 4 .*hi = -0.2 < 0"),
     (lambda d: d.drop(columns="time"), "missing column"),
-    (lambda d: d.assign(time=pd.to_datetime(d.time, unit="h")), "dates"),
+    (lambda d: d.assign(installed=[0.0, 0.0, 0.1, 0.0, 0.0]), "not constant within"),
+    (lambda d: d.assign(time=["2024-01-01", "x", "2024-01-03", "2024-01-01", "2024-01-02"]),
+     r"'time', row 2 \(component 'a'\): 'x' is not a date-time"),
     (lambda d: d.assign(failed=["x", "x", "x", 0, 0]), "failed = 'x'"),
 ])
 def test_named_errors(edit, match):
     with pytest.raises(HistoryError, match=match):
         histories_from_frame(edit(_frame()), "h.csv")
+
+
+def test_date_times_become_ages():
+    d = _frame().assign(time=pd.to_datetime(_frame().time, unit="h"))
+    h = histories_from_frame(d, unit="h")
+    assert list(h.t) == [0.0, 1.0, 2.0, 0.0, 1.0]  # since each unit's first acquisition
+    inst = histories_from_frame(_frame().assign(installed=[-1.0] * 3 + [0.5] * 2))
+    assert list(inst.t) == [1.0, 2.0, 3.0, 0.0, 1.0] and inst.axis.origin == "installed"
 
 
 def test_failed_column_overrides_the_threshold(tmp_path):

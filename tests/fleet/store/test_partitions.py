@@ -8,9 +8,10 @@ import pytest
 from typer.testing import CliRunner
 
 from rulkit.cli import app
+from rulkit.fleet.learned.onset import OnsetModel
 from rulkit.fleet.store.acquisitions import IngestError
 from rulkit.fleet.store.partitions import track_directory
-from rulkit.fleet.store.sqlite import ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
 CFG = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e4, warn_rul=40.0)
@@ -81,6 +82,33 @@ def test_dask_run_stores_what_the_serial_run_stores(tmp_path, cluster):
     serial, dask = tables(tmp_path / "new-serial.db"), tables(tmp_path / "new-dask.db")
     for t in serial:
         pd.testing.assert_frame_equal(dask[t], serial[t], check_exact=True)
+
+
+def test_a_learned_models_own_state_columns_come_back_from_the_buckets(tmp_path, cluster):
+    # the onset mixture's state columns (weights and Gaussians per onset) differ from the
+    # growth models': the buckets' databases and the merge take the stored model's columns
+    model = OnsetModel(noise="additive", grid=(0.0, 10.0, 20.0), onset_mean=10.0, onset_sd=8.0,
+                       shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2), hi_noise_sd=0.02,
+                       log_noise_sd=0.0, walk_sd=0.05, time_scale=60.0)
+    df = fleet(n_comp=12, steps=30)
+    first, rest = df[df.time < 10], df[df.time >= 10]
+    d = partitions(rest, tmp_path / "parts")
+    got = {}
+    for name, scheduler in (("serial", None), ("dask", cluster)):
+        db = tmp_path / f"{name}.db"
+        ingest_into(db, first, config=CFG)
+        with ComponentStore(db) as s:
+            assert s.set_degradation_model(model) == 12
+        track_directory(db, d, config=CFG, scheduler=scheduler, buckets=3)
+        con = sqlite3.connect(db)
+        got[name] = {**tables(db), "model_state": pd.read_sql(
+            "SELECT * FROM model_state ORDER BY component", con)}
+        con.close()
+    assert list(got["dask"]["model_state"].columns) == ["component", "t0",
+                                                        *model.state_columns]
+    assert got["serial"]["history"]["rul_median"].notna().all()
+    for t in got["serial"]:
+        pd.testing.assert_frame_equal(got["dask"][t], got["serial"][t], check_exact=True)
 
 
 def test_a_bad_partition_writes_and_creates_nothing(tmp_path, cluster):

@@ -41,7 +41,10 @@ class LearnedDevice:
 
 
 _KNOWN_FIELDS = {"kind", "shape", "mean", "cov", "noise_sd", "walk_sd", "time_scale",
-                 "time_unit", "n_units", "n_failed", "log_likelihood"}
+                 "time_unit", "n_units", "n_failed", "log_likelihood", "warnings",
+                 "diagnostics"}
+"""Fields the template implements or that do not change the numbers (the fit's warnings and
+optimiser report); ``time_axis`` is accepted when the time column is the age itself."""
 
 
 def _check_known_fields(model: DegradationModel) -> None:
@@ -50,6 +53,10 @@ def _check_known_fields(model: DegradationModel) -> None:
     that silently ignores it."""
     for f in dataclasses.fields(model):
         if f.name in _KNOWN_FIELDS:
+            continue
+        axis = model.time_axis or {}
+        if f.name == "time_axis" and axis.get("origin", "time") == "time" and not axis.get(
+                "timestamps", False):
             continue
         default = f.default if f.default is not dataclasses.MISSING else None
         if getattr(model, f.name) != default:

@@ -6,6 +6,10 @@
   (c log-normal across units, common m), measured with Gaussian HI noise at irregular times,
   some units stopped before failure (censored); the true failure time is known in closed form.
 * :func:`synthetic_linear_fleet`: linear wear hi = a + b t + noise with random (a, b).
+* :func:`synthetic_growth_fleet`: Paris-law growth after an optional onset (a healthy, flat
+  period of random length per unit), measured with additive, multiplicative or mixed noise;
+  :data:`GOAL_FLEETS` names the four fleets of the goals table (docs/fleet-models.md
+  section 7).
 
 All generators take a ``numpy.random.Generator`` and return the histories frame (component,
 time, hi) with the true failure times.
@@ -98,6 +102,87 @@ def synthetic_linear_fleet(
     return pd.concat(rows, ignore_index=True), truth
 
 
+def paris_life(h0: float, c: np.ndarray, m: float) -> np.ndarray:
+    """Time for dh/dt = c h^(m/2) to grow from h0 to 1 (closed form)."""
+    p = 0.5 * m
+    if abs(p - 1.0) < 1e-12:
+        return np.log(1.0 / h0) / c
+    return (1.0 - h0 ** (1.0 - p)) / (c * (1.0 - p))
+
+
+def paris_curve(h0: float, c: float, m: float, t: np.ndarray) -> np.ndarray:
+    """h(t) of dh/dt = c h^(m/2), h(0) = h0 (t >= 0; beyond the blow-up of m > 2: inf)."""
+    p = 0.5 * m
+    if abs(p - 1.0) < 1e-12:
+        return h0 * np.exp(c * t)
+    base = h0 ** (1.0 - p) + c * (1.0 - p) * t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(base > 0, np.power(np.maximum(base, 1e-300), 1.0 / (1.0 - p)), np.inf)
+
+
+def synthetic_growth_fleet(
+    rng: np.random.Generator, n_units: int = 40, *, m: float = 2.0, h0: float = 0.1,
+    life_median: float = 300.0, life_cv: float = 0.25, noise: str = "additive",
+    hi_noise_sd: float = 0.02, log_noise_sd: float = 0.05, onset_frac: float = 0.0,
+    onset_cv: float = 0.3, n_acq: float = 50.0, censor_frac: float = 0.4,
+) -> tuple[pd.DataFrame, np.ndarray]:
+    """A fleet of Paris-law growth dh/dt = c_u h^(m/2) from h0 (module docstring).
+
+    The growth time from h0 to 1 is log-normal (median ``life_median``, sd of its log
+    ``life_cv``); with ``onset_frac`` > 0 the HI stays at h0 for a normal onset time (mean
+    ``onset_frac`` x life_median, coefficient of variation ``onset_cv``, at least 0) first.
+    Measured: ``noise`` additive (h + N(0, hi_noise_sd^2)), multiplicative (h exp(N(0,
+    log_noise_sd^2))) or mixed (both), clipped at 0, at irregular times (exponential gaps,
+    ``n_acq`` per life on average). A fraction ``censor_frac`` of units stop at 30-90 % of
+    their life; the others run to the first measured hi >= 1. Returns (frame, true failure
+    time of each unit, NaN if censored).
+    """
+    if noise not in ("additive", "multiplicative", "mixed"):
+        raise ValueError(f"noise: expected additive, multiplicative or mixed, got {noise!r}")
+    grow = life_median * np.exp(life_cv * rng.standard_normal(n_units))
+    c = paris_life(h0, np.ones(1), m)[0] / grow
+    onset = (np.maximum(onset_frac * life_median * (1.0 + onset_cv * rng.standard_normal(
+        n_units)), 0.0) if onset_frac > 0 else np.zeros(n_units))
+    t_fail = onset + grow
+    censored = rng.random(n_units) < censor_frac
+    add = noise in ("additive", "mixed")
+    mult = noise in ("multiplicative", "mixed")
+    rows, truth = [], np.full(n_units, np.nan)
+    for u in range(n_units):
+        t_end = t_fail[u] * (rng.uniform(0.3, 0.9) if censored[u] else 1.05)
+        t = _sample_times(rng, t_end, n_acq * t_end / t_fail[u])
+        h = paris_curve(h0, float(c[u]), m, np.maximum(t - onset[u], 0.0))
+        h = np.minimum(h, 10.0)
+        e1 = log_noise_sd * rng.standard_normal(t.size) if mult else 0.0
+        e2 = hi_noise_sd * rng.standard_normal(t.size) if add else 0.0
+        hi = np.maximum(h * np.exp(e1) + e2, 0.0)
+        if not censored[u]:
+            t, hi = _to_failure(t, hi, t_fail[u], hi_noise_sd if add else log_noise_sd, rng)
+            truth[u] = t_fail[u]
+        rows.append(pd.DataFrame({"component": f"g{u:04d}", "time": t, "hi": hi}))
+    return pd.concat(rows, ignore_index=True), truth
+
+
+GOAL_FLEETS: dict[str, dict[str, float | str]] = {
+    "additive": {"noise": "additive", "m": 2.0, "h0": 0.1, "hi_noise_sd": 0.02},
+    "multiplicative": {"noise": "multiplicative", "m": 3.0, "h0": 0.2, "log_noise_sd": 0.05},
+    "mixed": {"noise": "mixed", "m": 2.5, "h0": 0.15, "hi_noise_sd": 0.01,
+              "log_noise_sd": 0.04},
+    "onset": {"noise": "additive", "m": 2.0, "h0": 0.1, "hi_noise_sd": 0.02,
+              "onset_frac": 0.6},
+}
+"""The synthetic fleets of the goals (docs/fleet-models.md section 7): keyword arguments of
+:func:`synthetic_growth_fleet`, fixed before any model was evaluated on them."""
+
+
+def goal_fleet(name: str, rng: np.random.Generator, n_units: int = 40
+               ) -> tuple[pd.DataFrame, np.ndarray]:
+    """One of :data:`GOAL_FLEETS`, drawn with ``rng``."""
+    if name not in GOAL_FLEETS:
+        raise ValueError(f"goal fleet: expected one of {sorted(GOAL_FLEETS)}, got {name!r}")
+    return synthetic_growth_fleet(rng, n_units, **GOAL_FLEETS[name])  # type: ignore[arg-type]
+
+
 def write_partitioned(frame: pd.DataFrame, out: str, n_parts: int = 4) -> str:
     """Write a histories frame as a Parquet directory with ``n_parts`` partitions (units
     kept whole within a partition), for the Dask example."""
@@ -111,5 +196,6 @@ def write_partitioned(frame: pd.DataFrame, out: str, n_parts: int = 4) -> str:
     return str(d)
 
 
-__all__ = ["fatigue_histories", "synthetic_linear_fleet", "synthetic_paris_fleet",
+__all__ = ["GOAL_FLEETS", "fatigue_histories", "goal_fleet", "paris_curve", "paris_life",
+           "synthetic_growth_fleet", "synthetic_linear_fleet", "synthetic_paris_fleet",
            "write_partitioned"]

@@ -47,18 +47,59 @@ Usage::
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
-from typing import Any, cast
+from dataclasses import dataclass, field, fields
+from typing import Any, Protocol, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
+from rulkit.fleet.learned.growth_fit import (
+    FitDiagnostics,
+    GrowthFit,
+    OptimResult,
+    minimize_bounded,
+    profile_shape,
+    two_stage_start,
+)
 from rulkit.fleet.learned.histories import Histories
 
 FloatArray = NDArray[np.float64]
 KINDS = ("linear", "exponential", "paris")
 HI_MIN = 1e-6
 """HI values below this are evaluated at it by the log / power transforms (defined behaviour)."""
+
+
+class GrowthLaw(Protocol):
+    """What the RUL of eq. (5) reads from a model: the random walk, the failure level g(1)
+    and the time scale."""
+
+    @property
+    def walk_sd(self) -> float:
+        """sigma_w, per sqrt of scaled age."""
+
+    @property
+    def threshold(self) -> float:
+        """g(1), the failure level on the growth scale."""
+
+    @property
+    def time_scale(self) -> float:
+        """tau, the scaled age's unit in the file's time unit."""
+
+
+class GrowthPrior(GrowthLaw, Protocol):
+    """A :class:`GrowthLaw` with the fleet prior a unit state starts from."""
+
+    @property
+    def mean(self) -> tuple[float, float]:
+        """Prior mean of (level at age 0, rate)."""
+
+    @property
+    def cov(self) -> tuple[float, float, float]:
+        """Prior covariance (S_aa, S_ab, S_bb)."""
+
+
+STATE_COLUMNS = ("m_z", "m_b", "p_zz", "p_zb", "p_bb", "t", "hi", "n")
+"""The per-unit state of the Gaussian models, as stored (:meth:`UnitState.columns`)."""
 
 
 # ------------------------------------------------------------------------------ unit state
@@ -79,7 +120,7 @@ class UnitState:
     n: NDArray[np.int64]
 
     @classmethod
-    def empty(cls, model: DegradationModel, size: int) -> UnitState:
+    def empty(cls, model: GrowthPrior, size: int) -> UnitState:
         return cls(m=np.tile(np.asarray(model.mean, dtype=np.float64), (size, 1)),
                    p=np.tile(np.asarray(model.cov, dtype=np.float64), (size, 1)),
                    t=np.full(size, np.nan), hi=np.full(size, np.nan),
@@ -87,6 +128,11 @@ class UnitState:
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+    def take(self, idx: np.ndarray) -> UnitState:
+        """The states of the units ``idx`` (an index array or boolean mask)."""
+        return UnitState(m=self.m[idx], p=self.p[idx], t=self.t[idx], hi=self.hi[idx],
+                         n=self.n[idx])
 
     def columns(self) -> dict[str, np.ndarray]:
         return {"m_z": self.m[:, 0], "m_b": self.m[:, 1], "p_zz": self.p[:, 0],
@@ -107,10 +153,6 @@ def _inv2(a: FloatArray, b: FloatArray, d: FloatArray) -> tuple[FloatArray, ...]
     return d / det, -b / det, a / det, np.log(det)
 
 
-def _stat_rows(x: FloatArray, z: FloatArray) -> FloatArray:
-    return np.stack([np.ones_like(x), x, x * x, z, x * z, z * z], axis=-1)
-
-
 # ------------------------------------------------------------------------------ the model
 @dataclass(frozen=True)
 class DegradationModel:
@@ -119,9 +161,11 @@ class DegradationModel:
     ``kind`` linear | exponential | paris; ``shape`` phi (exponential), lam = 1 - m/2 (paris),
     0 (linear); ``mean`` (m_a, m_b) and ``cov`` (S_aa, S_ab, S_bb) of the prior over the
     intercept at age 0 and the rate; ``noise_sd`` sigma_e; ``walk_sd`` sigma_w (per sqrt of
-    scaled time); ``time_scale`` tau in the file's time unit (``time_unit`` is a label).
+    scaled time); ``time_scale`` tau in the file's time unit (``time_unit`` is a label,
+    ``time_axis`` the :class:`~rulkit.fleet.time_axis.TimeAxis` as a dict).
     ``n_units``/``n_failed`` and ``log_likelihood`` (of the HI, Jacobian included) describe the
-    fit.
+    fit; ``warnings`` are what the fit's checks found (stored with the model, shown by
+    ``rulkit status``).
     """
 
     kind: str
@@ -135,6 +179,16 @@ class DegradationModel:
     n_units: int = 0
     n_failed: int = 0
     log_likelihood: float = math.nan
+    warnings: tuple[str, ...] = ()
+    time_axis: dict[str, Any] | None = None
+    diagnostics: FitDiagnostics | None = field(default=None, compare=False, repr=False)
+
+    state_columns = STATE_COLUMNS
+
+    @property
+    def name(self) -> str:
+        """The candidate's name (``linear``, ``exponential``, ``paris``)."""
+        return self.kind
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -169,15 +223,48 @@ class DegradationModel:
         """
         return rul_quantiles(self, state, levels, method=method)
 
+    def rul_cdf(self, state: UnitState, r: FloatArray) -> FloatArray:
+        """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5))."""
+        return rul_cdf(self, state, r)
+
+    def empty_state(self, size: int) -> UnitState:
+        """``size`` units before their first acquisition (the prior)."""
+        return UnitState.empty(self, size)
+
+    def state_from_columns(self, c: dict[str, Any]) -> UnitState:
+        """A state from its stored columns (:data:`STATE_COLUMNS`)."""
+        return UnitState.from_columns(c)
+
+    def update(self, state: UnitState, t: np.ndarray, hi: np.ndarray) -> UnitState:
+        """One acquisition per unit (:func:`update_state`); ``t`` is the unit's age."""
+        return update_state(state, self, t, hi)
+
+    def log_likelihood_of(self, hist: Histories) -> float:
+        """Log-likelihood of ``hist``'s HI under this model's prior (eq. (3) with the
+        Jacobian of eq. (4)): how well the model predicts units it was not fitted on."""
+        x = hist.t / self.time_scale
+        z = self.transform(hist.hi)
+        nll = _nll_kernel(np.asarray(self.mean, dtype=np.float64),
+                          np.asarray(self.cov, dtype=np.float64), self.walk_sd**2,
+                          self.noise_sd**2, x, z, hist.start.astype(np.int64))
+        return -nll + log_jacobian(self.kind, self.shape, hist.hi)
+
+    def replay(self, hist: Histories) -> UnitState:
+        """The state after each row of ``hist`` (:func:`filtered_states`)."""
+        return filtered_states(self, hist)
+
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "diagnostics"}
         d["mean"], d["cov"] = list(self.mean), list(self.cov)
+        d["warnings"] = list(self.warnings)
         return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DegradationModel:
         d = dict(d)
+        d.pop("type", None)
         d["mean"], d["cov"] = tuple(d["mean"]), tuple(d["cov"])
+        d["warnings"] = tuple(d.get("warnings", ()))
         return cls(**d)
 
     def describe(self) -> str:
@@ -288,74 +375,17 @@ def final_states(model: DegradationModel, hist: Histories) -> UnitState:
     return UnitState(m=st.m[last], p=st.p[last], t=st.t[last], hi=st.hi[last], n=st.n[last])
 
 
-def _kernels() -> tuple[Any, Any]:
-    import numba
-
-    @numba.njit(cache=True)
-    def nll(mu, cov, q, r, x, z, start):  # pragma: no cover - compiled
-        total = 0.0
-        for u in range(start.shape[0] - 1):
-            mz, mb = mu[0], mu[1]
-            pzz, pzb, pbb = cov[0], cov[1], cov[2]
-            xp = 0.0
-            for k in range(start[u], start[u + 1]):
-                dx = x[k] - xp
-                xp = x[k]
-                mz = mz + mb * dx
-                pzz = pzz + 2.0 * dx * pzb + dx * dx * pbb + q * abs(dx)
-                pzb = pzb + dx * pbb
-                s = pzz + r
-                inn = z[k] - mz
-                total += 0.5 * (math.log(2.0 * math.pi * s) + inn * inn / s)
-                kz, kb = pzz / s, pzb / s
-                mz, mb = mz + kz * inn, mb + kb * inn
-                pbb = pbb - kb * pzb
-                pzb = pzb - kz * pzb
-                pzz = pzz - kz * pzz
-        return total
-
-    @numba.njit(cache=True)
-    def filt(x, z, start, mu, cov, q, r, m_out, p_out):  # pragma: no cover - compiled
-        for u in range(start.shape[0] - 1):
-            mz, mb = mu[0], mu[1]
-            pzz, pzb, pbb = cov[0], cov[1], cov[2]
-            xp = 0.0
-            for k in range(start[u], start[u + 1]):
-                dx = x[k] - xp
-                xp = x[k]
-                mz = mz + mb * dx
-                pzz = pzz + 2.0 * dx * pzb + dx * dx * pbb + q * abs(dx)
-                pzb = pzb + dx * pbb
-                s = pzz + r
-                inn = z[k] - mz
-                kz, kb = pzz / s, pzb / s
-                mz, mb = mz + kz * inn, mb + kb * inn
-                pbb = pbb - kb * pzb
-                pzb = pzb - kz * pzb
-                pzz = pzz - kz * pzz
-                m_out[k, 0], m_out[k, 1] = mz, mb
-                p_out[k, 0], p_out[k, 1], p_out[k, 2] = pzz, pzb, pbb
-        return 0
-
-    return nll, filt
-
-
-_KERNELS: tuple[Any, Any] | None = None
-
-
-def _get_kernels() -> tuple[Any, Any]:
-    global _KERNELS
-    if _KERNELS is None:
-        _KERNELS = _kernels()
-    return _KERNELS
-
-
 def _nll_kernel(*args: Any) -> float:
-    return float(_get_kernels()[0](*args))
+    """-log-likelihood of eq. (3) (compiled, :mod:`rulkit.fleet.learned.filter_kernels`)."""
+    from rulkit.fleet.learned.filter_kernels import kf_nll
+
+    return float(kf_nll(*args))
 
 
 def _filter_kernel(*args: Any) -> None:
-    _get_kernels()[1](*args)
+    from rulkit.fleet.learned.filter_kernels import kf_replay
+
+    kf_replay(*args)
 
 
 # ------------------------------------------------------------------------------ RUL
@@ -368,11 +398,25 @@ def _log_surv(m: FloatArray, p: FloatArray, w: FloatArray, q: float, zs: float) 
     return log_ndtr(-num / np.sqrt(np.maximum(var, 1e-300)))
 
 
-def rul_cdf(model: DegradationModel, state: UnitState, r: FloatArray) -> FloatArray:
+def _measured(model: Any, state: UnitState) -> UnitState:
+    """The state with the measurement noise at the threshold added to the level's variance
+    (``model.measured_var``, 0 for the transformed models): the RUL is then that of the
+    first measurement >= 1 (eq. (5) on the measured HI), the event that ends a run-to-failure
+    history."""
+    r = float(getattr(model, "measured_var", 0.0))
+    if r == 0.0:
+        return state
+    p = state.p.copy()
+    p[:, 0] += r
+    return UnitState(m=state.m, p=p, t=state.t, hi=state.hi, n=state.n)
+
+
+def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
     """P(RUL <= r) (eq. (5)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1."""
     from scipy.special import log_ndtr
 
     q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
+    state = _measured(model, state)
     w = np.asarray(r, dtype=np.float64) / tau
     ls0 = log_ndtr(-(state.m[:, 0] - zs) / np.sqrt(state.p[:, 0]))
     out = np.empty_like(w)
@@ -384,7 +428,7 @@ def rul_cdf(model: DegradationModel, state: UnitState, r: FloatArray) -> FloatAr
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
 
-def rul_quantiles(model: DegradationModel, state: UnitState,
+def rul_quantiles(model: GrowthLaw, state: UnitState,
                   levels: tuple[float, ...] = (0.5, 0.05, 0.95), *,
                   method: str = "closed-form", iterations: int = 48) -> tuple[FloatArray, ...]:
     """Quantiles of eq. (5); see :meth:`DegradationModel.rul_quantiles`.
@@ -405,6 +449,7 @@ def rul_quantiles(model: DegradationModel, state: UnitState,
     if method not in ("closed-form", "bisect"):
         raise ValueError(f"method: expected 'closed-form' or 'bisect', got {method!r}")
     q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
+    state = _measured(model, state)
     m, p = state.m, state.p
     failed = state.hi >= 1.0
     missing = state.n == 0
@@ -466,14 +511,15 @@ def _quadratic_root(m: FloatArray, p: FloatArray, q: float, zs: float, target: F
     return np.where(target >= 0.0, 0.0, w)
 
 
-def crps(model: DegradationModel, state: UnitState, y: FloatArray, cap: float,
+def crps(model: Any, state: Any, y: FloatArray, cap: float,
          n_grid: int = 600) -> FloatArray:
-    """CRPS of eq. (5) at the true RUL ``y (B,)``: int_0^cap (F(r) - 1{r >= y})^2 dr by the
-    trapezoidal rule on ``n_grid`` points (the never-failing mass is inside F's deficit, so
-    the integral is capped at ``cap``, the same cap as the baselines' errors)."""
+    """CRPS of a model's RUL distribution (``model.rul_cdf``) at the true RUL ``y (B,)``:
+    int_0^cap (F(r) - 1{r >= y})^2 dr by the trapezoidal rule on ``n_grid`` points (the
+    never-failing mass is inside F's deficit, so the integral is capped at ``cap``, the same
+    cap as the baselines' errors)."""
     r = np.linspace(0.0, cap, n_grid)
     rr = np.broadcast_to(r, (len(state), n_grid))
-    f = rul_cdf(model, state, rr)
+    f = model.rul_cdf(state, rr)
     step = (f - (rr >= np.asarray(y)[:, None])) ** 2
     return cast(FloatArray, np.trapezoid(step, r, axis=1))
 
@@ -486,67 +532,48 @@ def _theta_to_params(th: FloatArray) -> tuple[FloatArray, FloatArray, float, flo
     return np.array([ma, mb]), cov, math.exp(lq), math.exp(lr)
 
 
-def _two_stage(x: FloatArray, z: FloatArray, hist: Histories) -> FloatArray:
-    """Starting point: per-unit least squares (units with >= 2 points), their mean and cov
-    (the two-stage estimate of docs/fleet-models.md section 4)."""
-    s = np.zeros((hist.n_units, 6))
-    np.add.at(s, hist.unit, _stat_rows(x, z))
-    n, sx, sxx, sz, sxz, szz = s.T
-    det = n * sxx - sx * sx
-    ok = (n >= 2) & (det > 1e-12 * np.maximum(n * sxx, 1e-300))
-    if ok.sum() >= 1:
-        b = (n[ok] * sxz[ok] - sx[ok] * sz[ok]) / det[ok]
-        a = (sz[ok] - b * sx[ok]) / n[ok]
-        res = szz[ok] - a * sz[ok] - b * sxz[ok]
-        dof = np.maximum(n[ok] - 2, 0).sum()
-        v = max(float(res.sum() / dof) if dof > 0 else 1e-4, 1e-10)
-        ma, mb = float(a.mean()), float(b.mean())
-        saa = max(float(a.var()), 1e-4 * v)
-        sbb = max(float(b.var()), 1e-4 * v)
-    else:
-        ma, mb, saa, sbb, v = float(z.mean()), 0.0, float(z.var()) + 1e-6, 1.0, 1e-2
-    return np.array([ma, mb, 0.5 * math.log(saa), 0.0, 0.5 * math.log(sbb), math.log(v),
-                     math.log(v) - 4.0])
+PRIOR_NAMES = ("m_a", "m_b", "log_l11", "l21", "log_l22", "log_noise_var", "log_walk_var")
 
 
-def fit_prior(x: FloatArray, z: FloatArray, hist: Histories) -> tuple[FloatArray, float]:
+def fit_prior(x: FloatArray, z: FloatArray, hist: Histories,
+              start: FloatArray | None = None) -> tuple[FloatArray, float, OptimResult]:
     """Maximise eq. (3) over (mu, Sigma, sigma_e^2, sigma_w^2) for transformed data ``z``.
 
-    L-BFGS-B from the two-stage estimate (and from a start with a larger random walk; the
-    better optimum is kept); log-Cholesky parameters keep Sigma positive definite; bounds keep
-    the variances finite. Returns (theta, log-likelihood of z).
+    L-BFGS-B from the two-stage estimate and from a start with a larger random walk (the better
+    optimum is kept), or from ``start`` alone (a warm start); log-Cholesky parameters keep Sigma
+    positive definite; bounds keep the variances finite. Returns (theta, log-likelihood of z,
+    the optimiser's diagnostics).
     """
-    from scipy.optimize import minimize
+    start_idx = hist.start.astype(np.int64)
+    from rulkit.fleet.learned.filter_kernels import kf_nll_grad as nll_grad
 
-    start = hist.start.astype(np.int64)
+    steps = np.full(7, 1e-5)
 
-    def f(th: FloatArray) -> float:
-        mu, cov, q, r = _theta_to_params(th)
-        val = _nll_kernel(mu, cov, q, r, x, z, start)
-        return val if math.isfinite(val) else 1e300
+    def fg(th: FloatArray) -> tuple[float, FloatArray]:
+        f, g = nll_grad(th, steps, x, z, start_idx)
+        return float(f), np.asarray(g)
 
-    x0 = _two_stage(x, z, hist)
     # variance floors relative to the data's spread (sd(z) * 1e-4): keeps the optimiser off
     # degenerate corners (e.g. zero noise on quantised readings) without biting a real fit
     lz = math.log(max(float(np.std(z)), 1e-12))
     lo_sd, lo_var = lz - 9.2, 2.0 * lz - 18.4
-    bounds = [(None, None), (None, None), (lo_sd, lz + 9.2), (None, None), (lo_sd, lz + 9.2),
+    inf = math.inf
+    bounds = [(-inf, inf), (-inf, inf), (lo_sd, lz + 9.2), (-inf, inf), (lo_sd, lz + 9.2),
               (lo_var, 2 * lz + 9.2), (lo_var, 2 * lz + 9.2)]
-    x0[2:] = np.clip(x0[2:], [b[0] if b[0] is not None else -np.inf for b in bounds[2:]],
-                     [b[1] if b[1] is not None else np.inf for b in bounds[2:]])
-    from threadpoolctl import threadpool_limits
-
-    best_th, best_f = x0, f(x0)
-    # L-BFGS-B's tiny dense algebra is ~100x slower with threaded BLAS on a busy machine
-    with threadpool_limits(limits=1, user_api="blas"):
-        for lq_shift in (0.0, 4.0):
-            start_th = x0.copy()
-            start_th[6] += lq_shift
-            res = minimize(f, start_th, method="L-BFGS-B", bounds=bounds,
-                           options={"maxiter": 300, "maxfun": 3000})
-            if res.fun < best_f:
-                best_th, best_f = res.x, float(res.fun)
-    return best_th, -best_f
+    if start is not None:
+        starts = [np.asarray(start, dtype=np.float64)]
+    else:
+        x0 = two_stage_start(x, z, hist)
+        shifted = x0.copy()
+        shifted[6] += 4.0
+        starts = [x0, shifted]
+    best: OptimResult | None = None
+    for st in starts:
+        res = minimize_bounded(fg, st, bounds, list(PRIOR_NAMES))
+        if best is None or res.fun < best.fun:
+            best = res
+    assert best is not None
+    return best.x, -best.fun, best
 
 
 def shape_grid(kind: str, hist: Histories) -> list[float]:
@@ -576,35 +603,69 @@ def time_scale_of(hist: Histories) -> float:
 
 
 def fit_model(hist: Histories, kind: str = "linear", *, time_unit: str = "",
-              shape: float | None = None) -> DegradationModel:
+              shape: float | None = None, start: DegradationModel | None = None
+              ) -> DegradationModel:
     """Learn a model from histories (all units, failed and censored), eqs. (3)-(4).
 
-    ``shape`` fixes phi / lam instead of the profile-likelihood grid.
+    ``shape`` fixes phi / lam instead of the profile likelihood; ``start`` warm-starts from a
+    fitted model of the same kind (its parameters, and for paris a local search of m from its
+    exponent). The optimiser's report is the result's ``diagnostics`` (stalls, parameters at a
+    bound, the shape at an end of its range).
     """
     if kind not in KINDS:
         raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
     tau = time_scale_of(hist)
     x = hist.t / tau
-    best: DegradationModel | None = None
-    for sh in ([shape] if shape is not None else shape_grid(kind, hist)):
-        z = transform(kind, float(sh), hist.hi)
-        th, ll = fit_prior(x, z, hist)
-        ll += log_jacobian(kind, float(sh), hist.hi)
-        if best is None or ll > best.log_likelihood:
-            mu, cov, q, r = _theta_to_params(th)
-            best = DegradationModel(
-                kind=kind, shape=float(sh), mean=(float(mu[0]), float(mu[1])),
-                cov=(float(cov[0]), float(cov[1]), float(cov[2])), noise_sd=math.sqrt(r),
-                walk_sd=math.sqrt(q), time_scale=tau, time_unit=time_unit,
-                n_units=hist.n_units, n_failed=int(hist.failed.sum()), log_likelihood=ll)
-    assert best is not None
-    return best
+    theta0 = None if start is None else _params_to_theta(start)
+    fits: dict[float, tuple[FloatArray, float, OptimResult]] = {}
+
+    def at(sh: float) -> GrowthFit:
+        if sh not in fits:
+            z = transform(kind, sh, hist.hi)
+            th, ll, res = fit_prior(x, z, hist, theta0)
+            fits[sh] = (th, ll + log_jacobian(kind, sh, hist.hi), res)
+        th, ll, res = fits[sh]
+        return GrowthFit(lam=sh, theta=th, log_likelihood=ll, optim=res)
+
+    edge = False
+    if shape is not None:
+        best = at(float(shape))
+    elif kind == "paris":
+        m0 = None if start is None else start.paris_exponent
+        best, edge = profile_shape(at, m0)
+    else:
+        grid = shape_grid(kind, hist)
+        for sh in grid:
+            at(float(sh))
+        best = max((at(float(sh)) for sh in grid), key=lambda f: f.log_likelihood)
+        edge = kind == "exponential" and best.lam in (grid[0], grid[-1])
+    mu, cov, q, r = _theta_to_params(best.theta)
+    model = DegradationModel(
+        kind=kind, shape=float(best.lam), mean=(float(mu[0]), float(mu[1])),
+        cov=(float(cov[0]), float(cov[1]), float(cov[2])), noise_sd=math.sqrt(r),
+        walk_sd=math.sqrt(q), time_scale=tau, time_unit=time_unit, n_units=hist.n_units,
+        n_failed=int(hist.failed.sum()), log_likelihood=best.log_likelihood,
+        diagnostics=FitDiagnostics(best.optim, edge))
+    return model
+
+
+def _params_to_theta(m: DegradationModel) -> FloatArray:
+    saa, sab, sbb = m.cov
+    l11 = math.sqrt(saa)
+    l21 = sab / l11
+    l22 = math.sqrt(max(sbb - l21 * l21, 1e-300))
+    return np.array([m.mean[0], m.mean[1], math.log(l11), l21, math.log(l22),
+                     2.0 * math.log(m.noise_sd), 2.0 * math.log(max(m.walk_sd, 1e-150))])
 
 
 __all__ = [
     "HI_MIN",
     "KINDS",
+    "PRIOR_NAMES",
+    "STATE_COLUMNS",
     "DegradationModel",
+    "GrowthLaw",
+    "GrowthPrior",
     "UnitState",
     "crps",
     "filtered_states",

@@ -61,7 +61,8 @@ class Estimator:
         tail = 100.0 * 0.5 * (1.0 - self.rules.interval)
         q = f"median [{tail:g} %, {100 - tail:g} %]"
         if self.kind == "model":
-            return f"fitted {getattr(self.model, 'kind', '')} model: {q}".replace("  ", " ")
+            name = getattr(self.model, "name", getattr(self.model, "kind", ""))
+            return f"fitted {name} model: {q}".replace("  ", " ")
         if self.kind == "trend":
             why = "chosen" if self.rules.estimator == "trend" else "no model fitted"
             return f"per-unit log-linear trend ({why}): {q}"

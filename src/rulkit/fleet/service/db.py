@@ -226,7 +226,7 @@ class ServiceDB:
         of the ingestion (seconds since 1970; default the clock), the time a batch of ages
         was acquired at."""
         with self.store() as s:  # validation needs no lock: it runs beside the writer
-            acq = validate_acquisitions(df, s.config, s.hi_model)
+            acq = validate_acquisitions(df, s.config, s.hi_model, s.time_axis)
         req = _Pending(acq, source, now)
         with self._queue_lock:
             self._queue.append(req)

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
+from rulkit.fleet.time_axis import INSTALLED_COLUMN, TimeAxis, TimeAxisError
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
@@ -166,17 +167,23 @@ def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
 
 
 def validate_acquisitions(
-    df: pd.DataFrame, config: TrackerConfig, hi_model: HealthIndexModel | None
+    df: pd.DataFrame, config: TrackerConfig, hi_model: HealthIndexModel | None,
+    time_axis: TimeAxis | None = None,
 ) -> pd.DataFrame:
-    """Check a batch and return it as columns ``component`` (str), ``t``, ``hi``, ``row``.
+    """Check a batch and return it as columns ``component`` (str), ``t``, ``hi``, ``row``
+    (and ``installed`` when the time axis counts ages from it).
 
     ``row`` is the 1-based data row (header excluded) used in error messages; the frame's
-    ``attrs["calendar"]`` says whether the time column held date-times (then ``t`` is
-    seconds since 1970). Expected columns:
+    ``attrs["calendar"]`` says whether the time column held date-times (then ``t`` is the
+    time since 1970 in units of ``attrs["seconds_per_unit"]`` seconds). Expected columns:
     ``component``, ``time`` and either ``hi`` or exactly the CI columns of the stored
     HI model. Rejected with :class:`IngestError`: an empty batch, missing / unknown / ambiguous
     columns, an empty component name, non-numeric / NaN / infinite values, HI outside
     [0, hi_max], and time not strictly increasing for a component (unsorted or duplicated).
+    ``time_axis`` (stored by ``rulkit fit``): the time column is read on it
+    (:meth:`~rulkit.fleet.time_axis.TimeAxis.values`: date-times converted into its unit, and
+    refused where numbers were fitted, or the reverse); without one, date-times are seconds
+    since 1970 and numbers are taken as they are.
     """
     if len(df) == 0:
         raise IngestError("the batch holds no acquisitions (0 rows)")
@@ -190,7 +197,12 @@ def validate_acquisitions(
     if missing:
         raise IngestError(f"missing required column(s) {missing}; got {cols}")
     ci_names = list(hi_model.names) if hi_model is not None else []
-    value_cols = [c for c in cols if c not in ("component", "time")]
+    installed = time_axis is not None and time_axis.origin == "installed"
+    if installed and INSTALLED_COLUMN not in cols:
+        raise IngestError(f"missing column {INSTALLED_COLUMN!r}: the database's model counts "
+                          "each component's age from its install time")
+    value_cols = [c for c in cols if c not in ("component", "time")
+                  and not (installed and c == INSTALLED_COLUMN)]
     if "hi" in value_cols:
         extra = [c for c in value_cols if c != "hi"]
         if extra:
@@ -222,9 +234,20 @@ def validate_acquisitions(
             f" or the CI columns {ci_names}" if ci_names else ""))
 
     df["component"] = check_component_ids(df["component"], error=ComponentIdError)
-    t = time_seconds(df["time"], "time", error=IngestError,
-                     row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
-    calendar = t is not None
+    label = lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})"  # noqa: E731
+    inst = None
+    t: np.ndarray | None
+    if time_axis is not None:
+        try:
+            t = time_axis.values(df["time"], "time", "batch", row_label=label)
+            if installed:
+                inst = time_axis.values(df[INSTALLED_COLUMN], INSTALLED_COLUMN, "batch",
+                                        row_label=label)
+        except TimeAxisError as err:
+            raise IngestError(str(err).removeprefix("batch: ")) from err
+    else:
+        t = time_seconds(df["time"], "time", error=IngestError, row_label=label)
+    calendar = time_axis.timestamps if time_axis is not None else t is not None
     if t is None:
         t = _numeric_column(df, "time")
     if mode == "hi":
@@ -247,6 +270,8 @@ def validate_acquisitions(
                         "row": np.arange(1, len(df) + 1,
                                          dtype=np.int32 if len(df) < 2**31 - 1 else np.int64)},
                        copy=False)  # no 2M-row copies
+    if inst is not None:
+        out["installed"] = inst
     # time strictly increasing per component, in file order
     codes = np.asarray(comp.cat.codes)
     prev_t = pd.Series(t).groupby(codes, sort=False).shift(1).to_numpy()
@@ -268,5 +293,6 @@ def validate_acquisitions(
             f"row {i + 1} (component {out['component'].iloc[i]!r}), column 'time': the "
             f"interval from {_fmt(prev_t[i])} to {_fmt(t[i])} overflows float64; use a "
             "smaller time unit or offset")
-    out.attrs["calendar"] = calendar  # date-times: t is seconds since 1970, a calendar time
+    out.attrs["calendar"] = calendar  # date-times: t is a calendar time (units since 1970)
+    out.attrs["seconds_per_unit"] = time_axis.seconds_per_unit if time_axis else 1.0
     return out

@@ -255,15 +255,29 @@ def _config_from_meta(path: Path, meta: dict[str, str]
 
 
 def _degradation_from_meta(path: Path, meta: dict[str, str]) -> Any:
-    """The learned degradation model stored by ``rulkit fit`` (None if there is none)."""
+    """The learned model stored by ``rulkit fit`` (None if there is none)."""
     if "degradation_model" not in meta:
         return None
-    from rulkit.fleet.learned.degradation import DegradationModel
+    from rulkit.fleet.learned.candidates import model_from_dict
 
     try:
-        return DegradationModel.from_dict(json.loads(meta["degradation_model"]))
+        return model_from_dict(json.loads(meta["degradation_model"]))
     except (ValueError, TypeError, KeyError) as err:
         raise StoreError(f"{path}: unreadable learned model in table meta: "
+                         f"{safe_text(err)}") from err
+
+
+def time_axis_from_meta(path: Path, meta: dict[str, str]) -> Any:
+    """The :class:`~rulkit.fleet.time_axis.TimeAxis` stored by ``rulkit fit`` (None: a
+    database from before, whose time column is read as it always was)."""
+    if "time_axis" not in meta:
+        return None
+    from rulkit.fleet.time_axis import TimeAxis
+
+    try:
+        return TimeAxis.from_dict(json.loads(meta["time_axis"]))
+    except (ValueError, TypeError, KeyError) as err:
+        raise StoreError(f"{path}: unreadable time axis in table meta: "
                          f"{safe_text(err)}") from err
 
 

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
-from rulkit.fleet.store.schema import COMPONENTS, HISTORY, MODEL_STATE
+from rulkit.fleet.store.schema import COMPONENTS, HISTORY, MODEL_STATE, model_state_table
 from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -224,6 +224,7 @@ def _write_seed(path: Path, seed: dict[str, Any]) -> None:
         ensure_columns(conn, "components", COMPONENT_COLUMNS)
         ensure_columns(conn, "history", HISTORY_COLUMNS)
         conn.executemany("INSERT INTO meta VALUES (?, ?)", seed["meta"])
+        _model_state_like(conn, seed[MODEL_STATE.name][0])
         for table in (COMPONENTS, MODEL_STATE, HISTORY):
             cols, rows = seed[table.name]
             if rows:
@@ -232,6 +233,16 @@ def _write_seed(path: Path, seed: dict[str, Any]) -> None:
         conn.execute("COMMIT")
     finally:
         conn.close()
+
+
+def _model_state_like(conn: Any, cols: list[str]) -> None:
+    """Table ``main.model_state`` (still empty) made with the columns ``cols`` of the stored
+    model's states (their columns are the model's own: :func:`model_state_table`)."""
+    if not cols or _columns(conn, "model_state") == cols:
+        return
+    conn.execute("DROP TABLE main.model_state")
+    for stmt in model_state_table(tuple(cols[1:])).create("sqlite"):
+        conn.execute(stmt)
 
 
 def _copy(conn: Any, table: str, where: str = "", params: tuple = (), *,
@@ -278,6 +289,7 @@ def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
             _copy(conn, "history", "WHERE ingest = ?", (1, bid), skip=("ingest",),
                   set_ingest=True)
             _copy(conn, "components")
+            _model_state_like(conn, _columns(conn, "model_state", "part"))
             _copy(conn, "model_state")
             _copy(conn, "alerts", "ORDER BY id", skip=("id",))
             conn.execute("DETACH DATABASE part")

@@ -155,6 +155,7 @@ class PgComponentStore(ComponentStore):
             self.hi_model = (HealthIndexModel.from_dict(json.loads(meta["hi_model"]))
                              if "hi_model" in meta else None)
             self.degradation = None
+            self.time_axis = None  # rulkit fit (which stores one) is SQLite's
             self.rules, self.trend = read_monitoring(meta)
             self.now: float | None = None
             if "degradation_model" in meta:

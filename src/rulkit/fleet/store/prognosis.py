@@ -142,9 +142,9 @@ def current_estimator(store: Any) -> Estimator:
         (META_KEY,)).fetchall())
     store.rules, store.trend = read_monitoring(rows)
     if "degradation_model" in rows and getattr(store, "dialect", "sqlite") == "sqlite":
-        from rulkit.fleet.learned.degradation import DegradationModel
+        from rulkit.fleet.learned.candidates import model_from_dict
 
-        store.degradation = DegradationModel.from_dict(json.loads(rows["degradation_model"]))
+        store.degradation = model_from_dict(json.loads(rows["degradation_model"]))
     return estimator_in_force(store.rules, store.config, store.degradation, store.trend)
 
 
@@ -163,10 +163,13 @@ class BatchPrognosis:
     components, :meth:`finish` gives the final columns and stores the model states."""
 
     def __init__(self, store: Any, names: list[str], t_last: FloatArray, hi_last: FloatArray,
-                 n_last: NDArray[np.int64], calendar: bool, now: float | None = None) -> None:
+                 n_last: NDArray[np.int64], calendar: bool, now: float | None = None,
+                 seconds_per_unit: float = 1.0, installed: dict[str, float] | None = None
+                 ) -> None:
         self.store, self.names = store, names
         self.est = current_estimator(store)
         self.calendar = calendar
+        self.seconds_per_unit = seconds_per_unit  # a calendar t in this many seconds
         self.now = time.time() if now is None else float(now)
         b = len(names)
         self.trend = TrendState(t=np.array(t_last, dtype=np.float64),
@@ -180,7 +183,7 @@ class BatchPrognosis:
         if getattr(store, "degradation", None) is not None:
             from rulkit.fleet.store.learned_state import LearnedPass
 
-            self.learned = LearnedPass(store._conn, store.degradation, names)
+            self.learned = LearnedPass(store._conn, store.degradation, names, installed)
         self.final = {k: np.full(b, np.nan) for k in ("rul_median", "rul_low", "rul_high")}
         self.level = np.zeros(b, dtype=np.int8)
         self.strategy: str | None = None  # trend_run's way (None: the cheapest per block)
@@ -226,7 +229,7 @@ class BatchPrognosis:
         for k, v in (("rul_median", out.median), ("rul_low", out.low), ("rul_high", out.high)):
             self.final[k][comps] = v[last]
         self.level[comps] = out.level[last]
-        self.seen[comps] = t[last] if self.calendar else self.now
+        self.seen[comps] = t[last] * self.seconds_per_unit if self.calendar else self.now
         return BlockRows(rules=out, fhi=np.asarray(tracker_rows["fhi"]))
 
     def finish(self) -> dict[str, Any]:
@@ -312,7 +315,7 @@ def replay(store: Any) -> int:
     if store.degradation is not None:
         from rulkit.fleet.store.learned_state import ensure_model_state
 
-        ensure_model_state(conn)
+        ensure_model_state(conn, store.degradation)
     for chunk in _chunks(names):
         _replay_chunk(store, chunk)
     return len(names)

