@@ -41,6 +41,8 @@ bench-all: $(STAMP)
 	$(BIN)/python benchmarks/bench_rw_degradation.py --workers 2
 	$(BIN)/python benchmarks/bench_particle_core.py
 	$(BIN)/python benchmarks/bench_rw_telemetry.py
+	$(BIN)/python benchmarks/rw_step1_accuracy.py --seed 1
+	$(BIN)/python benchmarks/bench_rw_mission.py
 	$(BIN)/python benchmarks/bench_friction_rul.py
 	$(BIN)/python benchmarks/bench_trackers.py
 	$(BIN)/python benchmarks/bench_scale.py

@@ -43,9 +43,9 @@ if which == "old":
     from rulkit.models import lubrication as lub
     Deg = deg.Step2Settings
 else:
-    from rulkit.systems.reaction_wheel.temperature import filter_temperature as filt
-    from rulkit.systems.reaction_wheel.temperature import TemperatureConfig as Cfg
-    from rulkit.systems.reaction_wheel.rbpf import run_rbpf, RBPF_DESIGNS
+    from rulkit.systems.reaction_wheel.temperature.particle import filter_temperature as filt
+    from rulkit.systems.reaction_wheel.temperature.particle import TemperatureConfig as Cfg
+    from rulkit.systems.reaction_wheel.temperature.rbpf import run_rbpf, RBPF_DESIGNS
     from rulkit.systems.reaction_wheel.wheel import simulate_table3
     from rulkit.systems.reaction_wheel import degradation as deg
     from rulkit.systems.reaction_wheel import lubrication as lub

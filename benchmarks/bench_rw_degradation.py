@@ -25,12 +25,12 @@ from timing import median_time
 def bench_window_sums(n_particles: int = 150, n_windows: int = 20, n_nodes: int = 4,
                       repeats: int = 5) -> dict[str, float]:
     """Direct vs quadrature window sums on 0.05 s T^ windows (true path + AR(1) error)."""
-    from rulkit.systems.reaction_wheel.lubrication import (
-        PATH_SCENARIO_1,
-        EstimateErrorProcess,
+    from rulkit.systems.reaction_wheel.degradation.quadrature import (
         direct_log_sums,
         window_quadrature,
     )
+    from rulkit.systems.reaction_wheel.degradation.shortcut import EstimateErrorProcess
+    from rulkit.systems.reaction_wheel.lubrication import PATH_SCENARIO_1
 
     rng = np.random.default_rng(0)
     err = EstimateErrorProcess(std_c=1.0, tau_s=60.0, hold_samples=1)
@@ -61,12 +61,12 @@ def bench_table6(runs: int, days: float, workers: int) -> dict[str, float]:
     from dataclasses import replace
 
     from rulkit.runner import run_independent
-    from rulkit.systems.reaction_wheel.degradation import DegradationConfig
-    from rulkit.systems.reaction_wheel.degradation_study import (
+    from rulkit.systems.reaction_wheel.degradation.study import (
         CaseTask,
         measure_temperature_errors,
         run_case,
     )
+    from rulkit.systems.reaction_wheel.degradation.trackers import DegradationConfig
 
     st = DegradationConfig(horizon_days=days)
     errors = {s: measure_temperature_errors(s, 3, 0) for s in ("APF", "PF")}

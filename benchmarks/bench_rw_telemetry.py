@@ -23,7 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
+from rulkit.systems.reaction_wheel.temperature.particle import (
+    TemperatureConfig,
+    filter_temperature,
+)
 from rulkit.systems.reaction_wheel.wheel import (
     NOISE_LEVELS,
     IthacoParams,

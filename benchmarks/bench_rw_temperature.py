@@ -7,10 +7,10 @@ time, since the machine may be shared) for
 1. the fused numba kernel (whole time loop compiled: T random walk, RK4 per particle per step,
    Gaussian likelihood, log-sum-exp weights, ESS, systematic resampling, mean/std),
 2. the numpy reference path (the engine's ParticleFilter with numpy plug-ins; same numbers),
-3. the Rao-Blackwellised PF (:mod:`rulkit.systems.reaction_wheel.rbpf`, beyond the seeds; a
-   Kalman filter on [I, w] per particle): its fused kernel and its numpy reference, and the
-   wall time of one Table-5-sized grid of it (7 N x 2 noise levels x ``--rbpf-runs`` runs)
-   extrapolated from the measured rate,
+3. the Rao-Blackwellised PF (:mod:`rulkit.systems.reaction_wheel.temperature.rbpf`, beyond
+   the seeds; a Kalman filter on [I, w] per particle): its fused kernel and its numpy
+   reference, and the wall time of one Table-5-sized grid of it (7 N x 2 noise levels x
+   ``--rbpf-runs`` runs) extrapolated from the measured rate,
 4. optionally ProgPy 1.9.0's ParticleFilter on the same wheel written as a vectorised ProgPy
    model (``--progpy``; needs ``pip install progpy==1.9.0``),
 
@@ -38,12 +38,12 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf  # noqa: E402
-from rulkit.systems.reaction_wheel.temperature import (  # noqa: E402
+from rulkit.systems.reaction_wheel.temperature.particle import (  # noqa: E402
     TemperatureConfig,
     filter_temperature,
 )
-from rulkit.systems.reaction_wheel.temperature_study import TABLE5_N  # noqa: E402
+from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf  # noqa: E402
+from rulkit.systems.reaction_wheel.temperature.study import TABLE5_N  # noqa: E402
 from rulkit.systems.reaction_wheel.wheel import IthacoParams, simulate_table3  # noqa: E402
 
 # Flops per particle-step of the F2 filter, counted from the kernel source (an add, multiply,

@@ -22,9 +22,10 @@ def _shown_runs(page: Path) -> list[tuple[str, str]]:
     return [(m.group(1), m.group(2)) for m in BLOCK.finditer(page.read_text())]
 
 
-def test_the_drive_and_motor_pages_show_a_run() -> None:
+def test_the_drive_motor_and_wheel_pages_show_a_run() -> None:
     shown = {p.stem for p in PAGES if _shown_runs(p)}
-    assert shown >= {"drive", "motor-damping"}
+    assert shown >= {"drive", "motor-damping", "rw-estimate-temperature", "rw-degradation",
+                     "rw-rul", "rw-pipeline", "rw-wheel-template"}
 
 
 @pytest.mark.parametrize("page", [p for p in PAGES if MARKER in p.read_text()],

@@ -8,7 +8,9 @@ drift from the code. Every fenced block must name its language: ```python runs, 
 block right after a line ``<!-- slow -->`` (invisible on the site) runs only with
 ``-m slow`` (`make test-slow`): longer tutorial steps stay out of the default run. A python
 block right after ``<!-- continue -->`` continues the previous python block of its page: the
-chain runs as one test in one namespace (line numbers in tracebacks are the page's).
+chain runs as one test in one namespace (line numbers in tracebacks are the page's). A block
+whose printed output a page shows (``<!-- output of the block above -->`` after it) runs in
+tests/test_command_pages.py, which also compares what it prints; not a second time here.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```[ \t]*$", flags=re.S | re.M)
 
 SLOW = "<!-- slow -->"
 CONTINUE = "<!-- continue -->"
+SHOWN = "<!-- output of the block above -->"
 
 
 def _fences(page: Path) -> list[tuple[int, str, str]]:
@@ -52,12 +55,24 @@ def _is_slow(page: Path, line: int) -> bool:
     return _marker(page, line) == SLOW
 
 
+def _output_shown(page: Path, line: int, code: str) -> bool:
+    """Whether the page shows the output of the block at ``line``: the output marker comes
+    after the block and before the next fence."""
+    after = page.read_text().splitlines()[line + code.count("\n") + 1:]
+    for ln in after:
+        if ln.startswith("```"):
+            return False
+        if ln.strip() == SHOWN:
+            return True
+    return False
+
+
 def _python_blocks(page: Path) -> list[tuple[Path, int, str]]:
     """(page, first fence line, code) per test: a <!-- continue --> block joins the previous
     one, padded with blank lines so that the code sits at its line numbers in the page."""
     out: list[tuple[Path, int, str]] = []
     for line, lang, code in _fences(page):
-        if lang != "python":
+        if lang != "python" or _output_shown(page, line, code):
             continue
         if _marker(page, line) == CONTINUE:
             assert out, f"{page}:{line}: {CONTINUE} without a python block before it"

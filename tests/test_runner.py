@@ -36,7 +36,7 @@ def test_processes_and_dask_equal_serial() -> None:
 
 def test_table5_runs_identical_on_dask_and_serial() -> None:
     distributed = pytest.importorskip("distributed")
-    from rulkit.systems.reaction_wheel.temperature_study import run_table5
+    from rulkit.systems.reaction_wheel.temperature.study import run_table5
 
     kw = dict(runs=2, seed=3, methods=[("apf_eq28", "F1")], n_particles=(50,), ekf=False)
     serial = run_table5(**kw)

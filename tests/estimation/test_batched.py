@@ -138,8 +138,11 @@ _CACHE_SCRIPT = textwrap.dedent("""
     import hashlib
     import numpy as np
     from rulkit.estimation import batched
-    from rulkit.systems.reaction_wheel import lubrication
-    from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
+    from rulkit.systems.reaction_wheel.degradation import quadrature
+    from rulkit.systems.reaction_wheel.temperature.particle import (
+        TemperatureConfig,
+        filter_temperature,
+    )
     from rulkit.systems.reaction_wheel.wheel import simulate_table3
     h = hashlib.sha256()
     for speed in ("low", "high"):
@@ -153,7 +156,7 @@ _CACHE_SCRIPT = textwrap.dedent("""
     lw = np.random.default_rng(2).normal(size=(3, 9))
     h.update(batched.normalise_rows_numba(lw)[2].tobytes())
     u = np.random.default_rng(3).normal(20.0, 3.0, size=(50, 200))
-    for a in lubrication._stieltjes_kernel(u, 12):
+    for a in quadrature._stieltjes_kernel(u, 12):
         h.update(np.ascontiguousarray(a).tobytes())
     print(h.hexdigest())
 """)

@@ -48,8 +48,9 @@ def test_missing_and_misnamed_columns_suggest_names() -> None:
 def test_nan_inf_name_column_and_row(tmp_path, value: float, word: str) -> None:
     df = _frame()
     df.loc[17, "current_A"] = value
-    with pytest.raises(TelemetryError, match=r"'current_A', row 17:.*NaN/inf"):
+    with pytest.raises(TelemetryError, match=r"'current_A', row 17:.*NaN/inf") as err:
         validate_wheel_telemetry(df)
+    assert ("use the default method 'imm'" in str(err.value)) == (word == "nan")
     df.to_csv(tmp_path / "b.csv", index=False)
     with pytest.raises(TelemetryError, match=r"row 17 \(file line 19\)"):
         read_wheel_telemetry(tmp_path / "b.csv")
@@ -160,3 +161,36 @@ def test_physically_implausible_records_are_refused(change, match) -> None:
     df["speed_rad_s"] = 90 + 0.5 * df["time_s"]  # 90 -> 95 rad/s over the record
     with pytest.raises(ImplausibleTelemetryError, match=match):
         validate_wheel_telemetry(change(df))
+
+
+@pytest.mark.parametrize("lenient", [False, True])
+def test_booleans_and_case_colliding_columns_are_refused(tmp_path, lenient: bool) -> None:
+    """v_comm_V = True is not a command of 1 V, and 'speed_rad_s' next to 'SPEED_RAD_S' leaves
+    it open which one holds the speed: both refused, in both modes (CSV and Parquet)."""
+    df = _frame().drop(columns="note")
+    df["v_comm_V"] = True
+    df.to_parquet(tmp_path / "b.parquet")
+    with pytest.raises(TelemetryError, match=r"'v_comm_V', row 0: .*boolean"):
+        read_wheel_telemetry(tmp_path / "b.parquet", lenient=lenient)
+    df.to_csv(tmp_path / "b.csv", index=False)
+    with pytest.raises(TelemetryError, match=r"v_comm_V.*boolean"):
+        read_wheel_telemetry(tmp_path / "b.csv", lenient=lenient)
+    twice = _frame().drop(columns="note")
+    twice["SPEED_RAD_S"] = twice["speed_rad_s"] * 9.55
+    with pytest.raises(TelemetryError, match="differ only by case"):
+        validate_wheel_telemetry(twice, lenient=lenient)
+
+
+def test_lenient_mode_keeps_dropouts_gaps_and_rare_out_of_range_values() -> None:
+    df = _frame(200).drop(columns="note")
+    df.loc[5, "current_A"] = np.nan
+    df = df.drop(index=range(50, 60)).reset_index(drop=True)  # a 0.5 s gap
+    df.loc[100, "speed_rad_s"] = 5e4  # one impossible sample: kept as missing
+    out = validate_wheel_telemetry(df, lenient=True)
+    assert np.isnan(out.loc[5, "current_A"]) and np.isnan(out.loc[100, "speed_rad_s"])
+    assert out.attrs["n_out_of_range"] == 1
+    with pytest.raises(TelemetryError, match="irregular"):
+        validate_wheel_telemetry(df.assign(current_A=0.19, speed_rad_s=90.0))
+    rpm = df.assign(speed_rad_s=df["speed_rad_s"] * 60)  # every value: wrong units
+    with pytest.raises(TelemetryError, match="looks like rpm"):
+        validate_wheel_telemetry(rpm, lenient=True)

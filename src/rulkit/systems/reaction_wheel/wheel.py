@@ -31,7 +31,9 @@ import numpy as np
 from rulkit.integrate import rk4_step
 from rulkit.model import FloatArray, GaussianNoise, StateSpaceModel, as_batch
 
-FrictionLaw = Literal["spec", "seed_literal"]
+FrictionLaw = Literal["spec", "seed_literal", "linear"]
+#: The viscous friction laws :func:`viscous_coefficient` knows.
+FRICTION_LAWS: tuple[str, ...] = ("spec", "seed_literal", "linear")
 
 #: Measurement noise standard deviations of seed Table 5 (sigma_w rad/s, sigma_I A).
 NOISE_LEVELS: dict[str, tuple[float, float]] = {
@@ -64,14 +66,27 @@ class IthacoParams:
     R_B: float = 2.0  # bus resistance, ohm [R]
     P_q: float = 3.0  # quiescent power, W [R]
     friction_law: FrictionLaw = "spec"
+    #: b_v(T) = viscous_at_0C + viscous_per_C T for ``friction_law="linear"`` (another wheel);
+    #: the defaults are the law (RW-7) of docs/systems/reaction-wheel.md written that way.
+    viscous_at_0C: float = 1e-3 * (0.049 - 0.0002 * 30.0)  # N m s/rad
+    viscous_per_C: float = -1e-3 * 0.0002  # N m s/rad per deg C
 
     def __post_init__(self) -> None:
-        if self.friction_law not in ("spec", "seed_literal"):
-            raise ValueError(
-                f"friction_law: expected 'spec' or 'seed_literal', got {self.friction_law!r}"
-            )
+        if self.friction_law not in FRICTION_LAWS:
+            raise ValueError(f"friction_law: expected one of {FRICTION_LAWS}, got "
+                             f"{self.friction_law!r}")
         if self.J <= 0 or self.V_bus <= 0:
             raise ValueError("J and V_bus must be positive")
+
+    @property
+    def viscous_slope(self) -> float:
+        """d b_v / dT of the law in use, N m s/rad per deg C (docs/systems/reaction-wheel.md
+        §1, (RW-7))."""
+        if self.friction_law == "spec":
+            return -1e-3 * 0.0002
+        if self.friction_law == "seed_literal":
+            return -0.0002
+        return self.viscous_per_C
 
 
 def check_measurements(
@@ -104,19 +119,25 @@ def check_measurements(
     return y, V, sw, sI
 
 
-def viscous_coefficient(T: FloatArray | float, law: FrictionLaw = "spec") -> FloatArray:
+def viscous_coefficient(T: FloatArray | float, law: FrictionLaw = "spec",
+                        params: IthacoParams | None = None) -> FloatArray:
     """Viscous friction coefficient b_v(T) in N m s/rad (docs/systems/reaction-wheel.md §1, seed eq.
     2).
 
     ``"spec"``: 1e-3 [0.049 - 0.0002 (T + 30)], positive from -30 to 215 C [R].
     ``"seed_literal"``: 0.0049 - 0.0002 (T + 30) as printed (negative above -5.5 C).
+    ``"linear"``: ``params.viscous_at_0C + params.viscous_per_C T`` (another wheel's law).
     """
     T = np.asarray(T, dtype=np.float64)
     if law == "spec":
         return 1e-3 * (0.049 - 0.0002 * (T + 30.0))
     if law == "seed_literal":
         return 0.0049 - 0.0002 * (T + 30.0)
-    raise ValueError(f"friction_law: expected 'spec' or 'seed_literal', got {law!r}")
+    if law == "linear":
+        if params is None:
+            raise ValueError("friction_law 'linear' needs the wheel's params (its coefficients)")
+        return params.viscous_at_0C + params.viscous_per_C * T
+    raise ValueError(f"friction_law: expected one of {FRICTION_LAWS}, got {law!r}")
 
 
 def wheel_derivatives(
@@ -145,7 +166,7 @@ def wheel_derivatives(
             p.N_poles * theta / 2.0
         )
     tau_noise = p.J * p.theta_a * p.w_a**2 * np.sin(p.w_a * t)
-    b = viscous_coefficient(T, p.friction_law)
+    b = viscous_coefficient(T, p.friction_law, p)
     dw = (torque - b * w - p.tau_c * np.sign(w) + tau_noise) / p.J
     if x.shape[1] == 3:
         return np.stack([dI, dw, w], axis=1)
@@ -184,8 +205,8 @@ def wheel_jacobian(
     df3_dI = neg * (-p.K_f * p.R_in * dIbus_dI * on)
     df3_dw = neg * p.K_f * (-p.R_in * dIbus_dw * on - p.K_e * sw)
     df5_dw = p.K_s * (np.abs(w) >= p.w_s)
-    b = viscous_coefficient(T, p.friction_law)
-    db = -1e-3 * 0.0002 if p.friction_law == "spec" else -0.0002
+    b = viscous_coefficient(T, p.friction_law, p)
+    db = p.viscous_slope
     Jm = np.zeros((n, 3, 3))
     Jm[:, 0, 0] = p.w_d * (p.G_d * df3_dI - 1.0)
     Jm[:, 0, 1] = p.w_d * p.G_d * (df3_dw - df5_dw)
@@ -296,7 +317,7 @@ class ReactionWheel(StateSpaceModel):
         0.2 rad/s) torque noise: I = G_d V, K_t I = b_v(T) w + tau_c (below w_s, limiter off)."""
         p = self.params
         I = p.G_d * V_comm
-        w = (p.K_t * I - p.tau_c * np.sign(p.K_t * I)) / viscous_coefficient(T, p.friction_law)
+        w = (p.K_t * I - p.tau_c * np.sign(p.K_t * I)) / viscous_coefficient(T, p.friction_law, p)
         return np.array([I, float(w)])
 
 

@@ -1,5 +1,5 @@
-"""Step 2 of the reaction-wheel study: batched trackers against oracles (exact Kalman filter,
-the engine's resampler and ParticleFilter), numba == numpy, batching invariance."""
+"""The Table 6 study: grouping-independent cases, the truth per window, the shortcut validation
+and the error statistics measured on real step-1 runs."""
 
 from __future__ import annotations
 
@@ -8,28 +8,26 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rulkit.systems.reaction_wheel.degradation import (
-    DegradationConfig,
-    one_step_pf,
-    rbpf,
-    rbpf_engine,
-    two_step_pf,
-    unit_rng,
+from rulkit.systems.reaction_wheel.degradation.shortcut import (
+    EstimateErrorProcess,
+    synthetic_estimate_quadrature,
 )
-from rulkit.systems.reaction_wheel.degradation_study import (
+from rulkit.systems.reaction_wheel.degradation.study import (
     CaseTask,
     run_case,
     run_table6,
     truth_parameters,
 )
+from rulkit.systems.reaction_wheel.degradation.trackers import (
+    DegradationConfig,
+    rbpf,
+    unit_rng,
+)
 from rulkit.systems.reaction_wheel.lubrication import (
     PATHS,
-    SAMPLE_DT,
     SCENARIOS,
-    EstimateErrorProcess,
     LubricationSetup,
     simulate_measurements,
-    synthetic_estimate_quadrature,
     true_window_increments,
 )
 
@@ -52,104 +50,6 @@ def _problem(U: int, days: float, err_std: float = 0.0, seed: int = 0, sid: int 
 
 def _rngs(tag: int, U: int) -> list[np.random.Generator]:
     return [np.random.default_rng([tag, r]) for r in range(U)]
-
-
-@pytest.mark.parametrize("tracker", ["one_step", "two_step", "rbpf"])
-def test_numba_kernels_equal_numpy_path(tracker: str) -> None:
-    # 300 windows cross a noise-block boundary (256); a snapshot splits a segment
-    st, setup, y, q = _problem(3, 300 * 240 / 86400, err_std=0.5)
-    out = {}
-    for be in ("numba", "numpy"):
-        kw = dict(beta_ref=BETA_REF, snapshot_windows=(100,), backend=be)
-        if tracker == "one_step":
-            out[be] = one_step_pf(y, q, setup.sigma_y, st, _rngs(1, 3), **kw)
-        elif tracker == "two_step":
-            out[be] = two_step_pf(y, q, setup.sigma_y, st, _rngs(1, 3), _rngs(2, 3), **kw)
-        else:
-            out[be] = rbpf(y, q, setup.sigma_y, st, _rngs(1, 3), **kw)
-    a, b = out["numba"], out["numpy"]
-    for name in ("b_mean", "b_std", "beta0_mean", "beta0_std"):
-        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-20)
-    assert a.n_resampled == b.n_resampled > 0
-    np.testing.assert_allclose(a.snapshots[100][0], b.snapshots[100][0], rtol=1e-9)
-
-
-def test_rbpf_with_known_b_is_the_exact_kalman_filter() -> None:
-    from rulkit.estimation.kalman import kf_predict, kf_update
-
-    st, setup, y, q = _problem(1, 1.0)
-    W = st.n_windows
-    b_true = 37.0
-    st = replace(st, q_b=0.0, b_prior=(b_true, b_true), n_particles=8)
-    # scenario 1 changes beta0 at window 39: the random walk has to absorb it
-    out = rbpf(y, q, setup.sigma_y, st, _rngs(3, 1), beta_ref=BETA_REF)
-    plo, phi = st.beta0_prior_rel
-    x = np.array([[0.5 * (plo + phi) * BETA_REF]])
-    P = np.array([[[((phi - plo) * BETA_REF) ** 2 / 12.0]]])
-    Qb = np.array([[(st.q_beta0_rel * BETA_REF) ** 2]])
-    Rm = np.array([[setup.sigma_y**2]])
-    ref_m, ref_s = np.empty(W), np.empty(W)
-    for k in range(W):
-        x, P = kf_predict(x, P, np.eye(1), Qb)
-        H = q.sums(np.array([[b_true]]), k)[0, 0] * SAMPLE_DT
-        x, P, _ = kf_update(x, P, y[:, k:k + 1], np.array([[H]]), Rm)
-        ref_m[k], ref_s[k] = x[0, 0], np.sqrt(P[0, 0, 0])
-    np.testing.assert_allclose(out.beta0_mean[0], ref_m, rtol=1e-9)
-    np.testing.assert_allclose(out.beta0_std[0], ref_s, rtol=1e-7)
-
-
-def test_pf2_with_known_b_approaches_the_kalman_posterior() -> None:
-    # two-step PF2 alone (PF1's b forced to the truth by a degenerate prior) vs the exact KF,
-    # before the fault (38 windows, constant parameters)
-    st, setup, y, q = _problem(1, 38 * 240 / 86400)
-    st = replace(st, q_b=0.0, b_prior=(37.0, 37.0), n_particles=4000, q_beta0_rel=0.01)
-    two = two_step_pf(y, q, setup.sigma_y, st, _rngs(4, 1), _rngs(5, 1), beta_ref=BETA_REF)
-    rb = rbpf(y, q, setup.sigma_y, replace(st, n_particles=4), _rngs(6, 1), beta_ref=BETA_REF)
-    # after the uniform prior is forgotten (10 windows) the PF mean is within ~MC error of KF
-    err = np.abs(two.beta0_mean[0, 10:] - rb.beta0_mean[0, 10:]) / rb.beta0_std[0, 10:]
-    assert np.median(err) < 0.15 and err.max() < 0.5
-    np.testing.assert_allclose(two.beta0_std[0, 10:], rb.beta0_std[0, 10:], rtol=0.15)
-    np.testing.assert_allclose(two.b_mean[0], 37.0, rtol=1e-12)
-
-
-def test_rbpf_engine_path_agrees_with_batched_rbpf() -> None:
-    st, setup, y, q = _problem(1, 1.0)
-    st = replace(st, n_particles=400)
-    bat = rbpf(y, q, setup.sigma_y, st, _rngs(7, 1), beta_ref=BETA_REF)
-    from rulkit.systems.reaction_wheel.lubrication import WindowQuadrature
-
-    q1 = WindowQuadrature(q.center[0], q.scale[0], q.nodes[0], q.weights[0], q.count)
-    b_eng, beta_eng = rbpf_engine(y[0], q1, setup.sigma_y, st, np.random.default_rng(8),
-                                  beta_ref=BETA_REF)
-    # different random streams: compare late-window estimates within posterior spread
-    late = slice(200, None)
-    assert abs(b_eng[late].mean() - bat.b_mean[0, late].mean()) < 3 * bat.b_std[0, late].mean()
-    rel = abs(beta_eng[late].mean() / bat.beta0_mean[0, late].mean() - 1)
-    assert rel < 0.1
-
-
-def test_trackers_recover_b_with_exact_temperature() -> None:
-    # exact T^: b (25 after the fault) is identifiable from the orbital cycle. The two-step
-    # PF re-converges within hours; the RB-PF, whose beta0 random walk is small, within days.
-    st, setup, y, q = _problem(2, 5.0, err_std=0.0, noise_rel=0.01)
-    st = replace(st, n_particles=200)
-    two = two_step_pf(y, q, setup.sigma_y, st, _rngs(10, 2), _rngs(11, 2), beta_ref=BETA_REF)
-    rb = rbpf(y, q, setup.sigma_y, st, _rngs(9, 2), beta_ref=BETA_REF)
-    assert np.abs(two.b_mean[:, 300:400].mean(axis=1) / 25.0 - 1).max() < 0.05
-    for out in (rb, two):
-        assert np.abs(out.b_mean[:, -100:].mean(axis=1) / 25.0 - 1).max() < 0.1
-        assert np.abs(out.beta0_mean[:, -100:].mean(axis=1) / 8.054e-6 - 1).max() < 0.1
-
-
-def test_biased_temperature_biases_b() -> None:
-    # errors-in-variables: a T^ biased 3 C low biases b low (what drives our Table 6)
-    st, setup, y, q0 = _problem(1, 2.0, noise_rel=0.003)
-    _, _, _, qb = _problem(1, 2.0, noise_rel=0.003)
-    qb = replace(qb, center=1.0 / (1.0 / q0.center - 3.0))
-    st = replace(st, n_particles=200)
-    ok = rbpf(y, q0, setup.sigma_y, st, _rngs(12, 1), beta_ref=BETA_REF)
-    bad = rbpf(y, qb, setup.sigma_y, st, _rngs(12, 1), beta_ref=BETA_REF)
-    assert bad.b_mean[0, -100:].mean() < 0.9 * ok.b_mean[0, -100:].mean()
 
 
 def test_run_case_independent_of_grouping_and_table6() -> None:
@@ -205,7 +105,7 @@ def test_truth_per_window_and_bad_inputs() -> None:
 
 @pytest.mark.parametrize("source", ["PF", "RBPF"])
 def test_validate_shortcut_runs_the_real_step1_estimator(source: str) -> None:
-    from rulkit.systems.reaction_wheel.degradation_study import validate_shortcut
+    from rulkit.systems.reaction_wheel.degradation.study import validate_shortcut
 
     err = EstimateErrorProcess(bias_c=-1.0, std_c=0.5, tau_s=100.0)
     v = validate_shortcut(err, source, hours=0.14, n_runs=1, seed=0,
@@ -221,13 +121,13 @@ def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> N
     """The RBPF source's T^ error process is fitted to real step-1 runs of the RBJ RBPF: equal
     to a fit of errors of run_rbpf called directly on the same simulated data, and it follows
     the estimator's output (a shifted estimator shifts the measured bias)."""
-    from rulkit.systems.reaction_wheel import rbpf
-    from rulkit.systems.reaction_wheel.degradation_study import (
+    from rulkit.systems.reaction_wheel.degradation.shortcut import fit_error_process
+    from rulkit.systems.reaction_wheel.degradation.study import (
         RBPF_STEP1_DESIGN,
         SOURCES,
         measure_temperature_errors,
     )
-    from rulkit.systems.reaction_wheel.lubrication import fit_error_process
+    from rulkit.systems.reaction_wheel.temperature import rbpf
     from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, simulate_table3
 
     seed, N = 4, 30
@@ -257,3 +157,30 @@ def test_rbpf_error_statistics_are_measured_from_real_rbj_runs(monkeypatch) -> N
     monkeypatch.setattr(rbpf, "run_rbpf", shifted)
     e3 = measure_temperature_errors("RBPF", 2, seed, n_particles=N, on="table3", hold_samples=40)
     assert e3.bias_c == pytest.approx(e.bias_c + 3.0)
+
+
+def test_one_step_beside_two_step_on_every_source() -> None:
+    from rulkit.systems.reaction_wheel.degradation.shortcut import EstimateErrorProcess
+    from rulkit.systems.reaction_wheel.degradation.study import one_vs_two_step, run_table6
+    from rulkit.systems.reaction_wheel.degradation.trackers import DegradationConfig
+
+    err = {s: EstimateErrorProcess(std_c=0.1, tau_s=10.0) for s in ("APF", "RBPF", "IMM")}
+    t6 = run_table6(1, 0, DegradationConfig(n_particles=30, horizon_days=0.3), err)
+    t = one_vs_two_step(t6)
+    assert list(t["T^ source"]) == ["APF", "RBPF", "IMM"]
+    assert {"S1 b one-step", "S1 b two-step", "S2 beta two-step"} <= set(t.columns)
+    assert t.loc[0, "S1 b paper one/two"] == "136.999 / 3.947"
+    # Table 6 keeps the rows of the seeds' methods and ours (no one-step row on RBPF, IMM)
+    assert not t6.table["method"].str.contains("IMM").any()
+
+
+def test_real_step1_over_the_horizon_against_the_shortcut() -> None:
+    from rulkit.systems.reaction_wheel.degradation.real_step1 import compare_real_and_shortcut
+    from rulkit.systems.reaction_wheel.degradation.shortcut import EstimateErrorProcess
+    from rulkit.systems.reaction_wheel.degradation.trackers import DegradationConfig
+
+    t = compare_real_and_shortcut(1, 0, DegradationConfig(n_particles=30, horizon_days=0.05),
+                                  EstimateErrorProcess(std_c=0.05, tau_s=5.0))
+    assert set(t["scenario"]) == {1, 2} and set(t["tracker"]) == {"two_step", "one_step", "rbpf"}
+    assert np.isfinite(t[["b real", "b shortcut", "beta real", "beta shortcut"]]).all().all()
+    assert (t["step-1 s per run"] > 0).all()

@@ -13,11 +13,12 @@ Three trackers of ``theta = [b, beta0]`` (random walks) from the window losses
   particle carries an exact scalar Kalman filter ``(m, P)`` for ``beta0`` and is weighted by the
   Kalman predictive likelihood ``N(y_k; H m, H^2 P + sigma_y^2)``.
 
-The window sums use :class:`rulkit.systems.reaction_wheel.lubrication.WindowQuadrature` (n Gauss
+The window sums use :class:`rulkit.systems.reaction_wheel.degradation.quadrature.WindowQuadrature`
+(n Gauss
 nodes per window
 instead of 4,800 exponentials per particle). ``T^`` over three months comes from the error-process
 shortcut (docs/systems/reaction-wheel.md §4); it and the Table 6 study are in
-:mod:`rulkit.systems.reaction_wheel.degradation_study`.
+:mod:`rulkit.systems.reaction_wheel.degradation.study`.
 
 Batched over units: every array has a leading unit axis U (runs x scenarios x T^ sources) and a
 particle axis N, so the 32,400-window loop runs once per tracker for all 20 runs. Each unit has its
@@ -49,14 +50,12 @@ from rulkit.estimation.batched import (
     systematic_row,
     systematic_rows,
 )
-from rulkit.systems.reaction_wheel.lubrication import (
-    DAY_S,
-    SAMPLE_DT,
-    WINDOW_S,
-    WindowQuadrature,
-)
+from rulkit.systems.reaction_wheel.degradation.quadrature import WindowQuadrature
+from rulkit.systems.reaction_wheel.lubrication import DAY_S, SAMPLE_DT, WINDOW_S
 
 FloatArray = NDArray[np.float64]
+
+
 Progress = Callable[[str, int, int], None]
 
 
@@ -90,10 +89,6 @@ class DegradationConfig:
         return round(self.horizon_days * DAY_S / WINDOW_S)
 
 
-# ---------------------------------------------------------------------------------------------
-# Random streams: one generator per (purpose, scenario, source, run)
-# ---------------------------------------------------------------------------------------------
-
 _STREAMS = {"measurement": 0, "estimate": 1, "one_step": 2, "pf1": 3, "pf2": 4, "rbpf": 5,
             "forecast": 6}
 
@@ -103,11 +98,6 @@ def unit_rng(seed: int, stream: str, scenario_id: int, source: int, run: int
     """Generator for one unit and purpose, independent of batching (SeedSequence spawn keys)."""
     ss = np.random.SeedSequence(seed, spawn_key=(_STREAMS[stream], scenario_id, source, run))
     return np.random.default_rng(ss)
-
-
-# ---------------------------------------------------------------------------------------------
-# Batched particle-filter pieces
-# ---------------------------------------------------------------------------------------------
 
 
 def _progress(progress: Progress | None, label: str, done: int, W: int) -> None:
@@ -201,11 +191,6 @@ def _np_resample(logw: FloatArray, ess: FloatArray, states: list[FloatArray], u:
     return do
 
 
-# ---------------------------------------------------------------------------------------------
-# Compiled kernels (same algebra and draws as the numpy path, tested equal)
-# ---------------------------------------------------------------------------------------------
-
-
 @numba.njit(cache=True)
 def _k_logsum(bb, c, s, nodes, weights, lcount):  # pragma: no cover - compiled
     acc = 0.0
@@ -266,7 +251,8 @@ def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_bet
                 b[r, p] = bb
                 be = abs(beta[r, p] + q_beta * eps[r, i, p, 1])
                 beta[r, p] = be
-                mu = be * np.exp(_k_logsum(bb, qc[r, k], qs[r, k], qn[r, k], qw[r, k], lcount)) * dt
+                mu = be * np.exp(_k_logsum(bb, qc[r, k], qs[r, k], qn[r, k], qw[r, k],
+                                            lcount[r, k])) * dt
                 z = (y[r, k] - mu) / sigma_y
                 logw[r, p] -= 0.5 * z * z
             ess = _k_normalise(r, logw, w)
@@ -293,9 +279,9 @@ def _k_pf1(k0, k1, koff, dlny, sd, ok, qc, qs, qn, qw, lcount, q_b, thr, b, logw
                 bb = b[r, p] + q_b * eps[r, i, p, 0]
                 b[r, p] = bb
                 if ok[r, k]:
-                    pred = (_k_logsum(bb, qc[r, k], qs[r, k], qn[r, k], qw[r, k], lcount)
+                    pred = (_k_logsum(bb, qc[r, k], qs[r, k], qn[r, k], qw[r, k], lcount[r, k])
                             - _k_logsum(bb, qc[r, k - 1], qs[r, k - 1], qn[r, k - 1],
-                                        qw[r, k - 1], lcount))
+                                        qw[r, k - 1], lcount[r, k - 1]))
                     z = (dlny[r, k] - pred) / sd[r, k]
                     logw[r, p] -= 0.5 * z * z
             ess = _k_normalise(r, logw, w)
@@ -345,7 +331,8 @@ def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, 
                 bb = b[r, p] + q_b * eps[r, i, p, 0]
                 b[r, p] = bb
                 Pp = P[r, p] + q2
-                H = np.exp(_k_logsum(bb, qc[r, k], qs[r, k], qn[r, k], qw[r, k], lcount)) * dt
+                H = np.exp(_k_logsum(bb, qc[r, k], qs[r, k], qn[r, k], qw[r, k],
+                                       lcount[r, k])) * dt
                 s = H * H * Pp + R
                 nu = y[r, k] - H * m[r, p]
                 logw[r, p] -= 0.5 * (np.log(s) + nu * nu / s)
@@ -381,11 +368,13 @@ def _quad_arrays(quad: WindowQuadrature) -> tuple[FloatArray, ...]:
             np.ascontiguousarray(quad.nodes), np.ascontiguousarray(quad.weights))
 
 
-def _log_sums_np(b: FloatArray, qa: tuple[FloatArray, ...], k: int, lcount: float) -> FloatArray:
-    """numpy twin of ``_k_logsum`` for all units/particles at window k (b (U, N))."""
+def _log_sums_np(b: FloatArray, qa: tuple[FloatArray, ...], k: int, lcount: FloatArray
+                 ) -> FloatArray:
+    """numpy twin of ``_k_logsum`` for all units/particles at window k (b (U, N)); ``lcount``
+    (U, W) the log sample counts."""
     c, s, x, w = (a[:, k] for a in qa)
     inner = (w[:, None, :] * np.exp(-(b * s[:, None])[..., None] * x[:, None, :])).sum(axis=-1)
-    return lcount - b * c[:, None] + np.log(inner)
+    return lcount[:, k:k + 1] - b * c[:, None] + np.log(inner)
 
 
 def _check_backend(backend: str) -> None:
@@ -428,7 +417,7 @@ def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     qb, qbeta, thr = settings.q_b, settings.q_beta0_rel * beta_ref, settings.ess_threshold
     noise = _Noise(rngs, N, 2)
     qa = _quad_arrays(quad)
-    lcount = float(np.log(quad.count))
+    lcount = np.ascontiguousarray(np.broadcast_to(quad.log_counts(), (U, W)))
     for a, e in _segments(W, snapshot_windows):
         koff = (a // CHUNK) * CHUNK
         eps, unif = noise.block(a // CHUNK)
@@ -475,7 +464,7 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     N = settings.n_particles
     thr = settings.ess_threshold
     qa = _quad_arrays(quad)
-    lcount = float(np.log(quad.count))
+    lcount = np.ascontiguousarray(np.broadcast_to(quad.log_counts(), (U, W)))
     out = _alloc(U, W)
     nres = np.zeros(U, np.int64)
     # PF1 on b from ratios of consecutive window losses
@@ -580,7 +569,7 @@ def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Degrad
     out = _alloc(U, W)
     nres = np.zeros(U, np.int64)
     qa = _quad_arrays(quad)
-    lcount = float(np.log(quad.count))
+    lcount = np.ascontiguousarray(np.broadcast_to(quad.log_counts(), (U, W)))
     noise = _Noise(rngs, N, 1)
     for a, e in _segments(W, snapshot_windows):
         koff = (a // CHUNK) * CHUNK

@@ -1,7 +1,8 @@
 """The Table 6 study of the lubricant-loss trackers (seed 001 Table 6;
 docs/systems/reaction-wheel.md §4, §6).
 
-:func:`run_table6` runs the trackers of :mod:`rulkit.systems.reaction_wheel.degradation` on every
+:func:`run_table6` runs the trackers of :mod:`rulkit.systems.reaction_wheel.degradation.trackers`
+on every
 (scenario, T^ source) case (:func:`run_case`) and prints our RMSPE of b and beta0 beside the
 paper's (:data:`PAPER_TABLE6`). The T^ of each source comes from the error-process shortcut: its
 statistics are measured on real step-1 runs (:func:`measure_temperature_errors`) and the shortcut
@@ -18,7 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from rulkit.systems.reaction_wheel.degradation import (
+from rulkit.systems.reaction_wheel.degradation.shortcut import (
+    EstimateErrorProcess,
+    synthetic_estimate_quadrature,
+)
+from rulkit.systems.reaction_wheel.degradation.trackers import (
     DegradationConfig,
     FloatArray,
     Progress,
@@ -32,10 +37,8 @@ from rulkit.systems.reaction_wheel.lubrication import (
     SAMPLE_DT,
     SCENARIOS,
     WINDOW_S,
-    EstimateErrorProcess,
     LubricationSetup,
     simulate_measurements,
-    synthetic_estimate_quadrature,
     true_window_increments,
 )
 
@@ -46,21 +49,23 @@ PAPER_TABLE6: dict[str, tuple[float, float, float, float]] = {
     "APF + one-step PF": (136.999, 23.896, 66.172, 24.303),
 }
 
+
 #: Step-1 estimators whose error statistics feed the shortcut, and their Table 5 labels.
 #: "APF" and "PF" are the seed's; "RBPF" (ours, beyond the seeds) is the Rao-Blackwellised PF
-#: of :mod:`rulkit.systems.reaction_wheel.rbpf`, design :data:`RBPF_STEP1_DESIGN`. A source's
-#: index here keys its random streams, so adding a source leaves the others' numbers unchanged.
-SOURCES = ("APF", "PF", "RBPF")
+#: of :mod:`rulkit.systems.reaction_wheel.temperature.rbpf`, design :data:`RBPF_STEP1_DESIGN`;
+#: "IMM" (ours) the default estimator on a user's record (docs/systems/reaction-wheel.md §3.4).
+#: A source's index here keys its random streams, so adding a source leaves the others' numbers
+#: unchanged.
+SOURCES = ("APF", "PF", "RBPF", "IMM")
 
-
-# ---------------------------------------------------------------------------------------------
-# The Table 6 experiment
-# ---------------------------------------------------------------------------------------------
-
-#: Trackers run on the T^ of each step-1 estimator; the seed's three rows plus our RBPF.
+#: Trackers run on the T^ of each step-1 estimator: the seed's three rows, our RB-PF, and the
+#: one-step beside the two-step on the good estimates (the one-vs-two-step table).
 METHODS: dict[str, tuple[str, ...]] = {"APF": ("two_step", "one_step", "rbpf"),
                                        "PF": ("two_step", "rbpf"),
-                                       "RBPF": ("two_step", "rbpf")}
+                                       "RBPF": ("two_step", "rbpf", "one_step"),
+                                       "IMM": ("two_step", "one_step", "rbpf")}
+
+
 ROW_LABELS: dict[tuple[str, str], str] = {
     ("APF", "two_step"): "APF + two-step PF",
     ("PF", "two_step"): "PF + two-step PF",
@@ -70,6 +75,12 @@ ROW_LABELS: dict[tuple[str, str], str] = {
     ("RBPF", "two_step"): "RBPF + two-step PF (ours)",
     ("RBPF", "rbpf"): "RBPF + RB-PF (ours)",
 }
+
+
+def row_label(source: str, method: str) -> str:
+    """The row name of a (T^ source, tracker) pair: Table 6's, else "<source> + <tracker>"."""
+    names = {"two_step": "two-step PF", "one_step": "one-step PF", "rbpf": "RB-PF"}
+    return ROW_LABELS.get((source, method), f"{source} + {names.get(method, method)} (ours)")
 
 
 @dataclass(frozen=True)
@@ -142,16 +153,26 @@ def run_case(task: CaseTask, rng: np.random.Generator | None = None) -> CaseResu
     how runs are grouped into tasks or which worker runs them.
     """
     st = task.settings
+    sid, si = task.scenario_id, SOURCES.index(task.source)
+    t0 = time.perf_counter()
+    est_rngs = [unit_rng(task.seed, "estimate", sid, si, r) for r in task.runs]
+    quad = synthetic_estimate_quadrature(PATHS[sid], replace(task.error,
+                                         hold_samples=st.hold_samples), st.n_windows, est_rngs,
+                                         n_nodes=st.n_nodes)
+    return track_case(task, quad, {"data": time.perf_counter() - t0})
+
+
+def track_case(task: CaseTask, quad: Any, seconds: dict[str, float] | None = None
+               ) -> CaseResult:
+    """The step-2 trackers of ``task`` on the window rules ``quad`` of its runs' T^ (the
+    shortcut's, or the real step-1 estimator's), against the task's measured losses; the
+    trackers' streams are the task's (:func:`unit_rng`)."""
+    st = task.settings
     sid, src = task.scenario_id, task.source
     si = SOURCES.index(src)
     W = st.n_windows
-    t0 = time.perf_counter()
     y, sigma_y = measurements(task)
-    est_rngs = [unit_rng(task.seed, "estimate", sid, si, r) for r in task.runs]
-    quad = synthetic_estimate_quadrature(PATHS[sid], replace(task.error,
-                                         hold_samples=st.hold_samples), W, est_rngs,
-                                         n_nodes=st.n_nodes)
-    seconds = {"data": time.perf_counter() - t0}
+    seconds = dict(seconds or {})
     beta_ref = SCENARIOS[sid].beta0_healthy
     b_true, beta_true = truth_parameters(sid, W)
     methods = task.methods or METHODS[src]
@@ -264,15 +285,15 @@ def run_table6(n_runs: int, seed: int, settings: DegradationConfig,
                         time.perf_counter() - t0)
 
 
-# ---------------------------------------------------------------------------------------------
-# Error statistics of the real step-1 estimator, and validation of the shortcut
-# ---------------------------------------------------------------------------------------------
-
 #: Step-1 variants behind the T^ sources: names of
-#: rulkit.systems.reaction_wheel.temperature.TemperatureConfig
-#: variants, and for "RBPF" the design name in rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS.
+#: rulkit.systems.reaction_wheel.temperature.particle.TemperatureConfig
+#: variants, and for "RBPF" the design name in
+#: rulkit.systems.reaction_wheel.temperature.rbpf.RBPF_DESIGNS.
 RBPF_STEP1_DESIGN = "RBJ"
-STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive", "RBPF": f"rbpf {RBPF_STEP1_DESIGN}"}
+
+
+STEP1_VARIANTS = {"APF": "apf_eq28", "PF": "adaptive", "RBPF": f"rbpf {RBPF_STEP1_DESIGN}",
+                  "IMM": "imm"}
 
 
 def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
@@ -281,27 +302,49 @@ def estimate_temperature_for_source(source: str, y: FloatArray, V: FloatArray,
                       ) -> FloatArray:
     """T^ (K,) of the real step-1 estimator behind ``source`` on telemetry ``y`` (K, 2), ``V``.
 
-    "APF", "PF": ``rulkit.systems.reaction_wheel.temperature.filter_temperature`` (variant
+    "APF", "PF": ``rulkit.systems.reaction_wheel.temperature.particle.filter_temperature`` (variant
     :data:`STEP1_VARIANTS`,
-    F2 design, its default settings); "RBPF": ``rulkit.systems.reaction_wheel.rbpf.run_rbpf``
+    F2 design, its default settings); "RBPF":
+    ``rulkit.systems.reaction_wheel.temperature.rbpf.run_rbpf``
     with design :data:`RBPF_STEP1_DESIGN` (its settings, ``n_particles`` particles).
     """
+    if source == "IMM":
+        return imm_estimate(y, V, sigma=sigma, dt=dt)
     if source == "RBPF":
-        from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf
+        from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf
 
         rcfg = replace(RBPF_DESIGNS[RBPF_STEP1_DESIGN], n_particles=n_particles)
         return run_rbpf(y, V, rng, rcfg, sigma=sigma, dt=dt, quantiles=False).T_mean
     if source not in STEP1_VARIANTS:
         raise ValueError(f"source: expected one of {SOURCES}, got {source!r}")
-    from rulkit.systems.reaction_wheel.temperature import TemperatureConfig, filter_temperature
+    from rulkit.systems.reaction_wheel.temperature.particle import (
+        TemperatureConfig,
+        filter_temperature,
+    )
 
     variant: Any = STEP1_VARIANTS[source]  # a TemperatureConfig variant for the PF sources
     cfg = TemperatureConfig(variant=variant, n_particles=n_particles)
     return filter_temperature(y, V, rng, cfg, sigma=sigma, dt=dt, quantiles=False).T_mean
 
 
+def imm_estimate(y: FloatArray, V: FloatArray, *, sigma: tuple[float, float],
+                 dt: float = SAMPLE_DT) -> FloatArray:
+    """T^ (K,) of the default step-1 estimator (the compiled IMM EKF, its default settings) on
+    the seed's wheel, times from 0 every ``dt``."""
+    from rulkit.systems.reaction_wheel.temperature.ekf import EKFConfig, ekf_start, ekf_steps
+    from rulkit.systems.reaction_wheel.wheel import IthacoParams
+    from rulkit.systems.reaction_wheel.wheel_kernels import pack_params
+
+    cfg = EKFConfig()
+    t = dt * np.arange(y.shape[0], dtype=np.float64)
+    m, _, _ = ekf_steps(t, np.ascontiguousarray(V, dtype=np.float64),
+                        np.ascontiguousarray(y, dtype=np.float64), ekf_start(len(cfg.q_T)),
+                        cfg.settings(dt, sigma), np.array(cfg.q_T), pack_params(IthacoParams()))
+    return np.asarray(m)
+
+
 def _step1_name(source: str) -> str:
-    return STEP1_VARIANTS[source] + ("" if source == "RBPF" else ", F2")
+    return STEP1_VARIANTS[source] + ("" if source in ("RBPF", "IMM") else ", F2")
 
 
 def measure_temperature_errors(source: str, n_runs: int, seed: int, *, n_particles: int = 200,
@@ -318,7 +361,7 @@ def measure_temperature_errors(source: str, n_runs: int, seed: int, *, n_particl
     ``hours`` (the conditions of step 2); ``on="table3"``: the 500 s Table 3 validation path of
     step 1 (a temperature step and a voltage step: transients that the months-long path lacks).
     """
-    from rulkit.systems.reaction_wheel.lubrication import fit_error_process
+    from rulkit.systems.reaction_wheel.degradation.shortcut import fit_error_process
     from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, ReactionWheel, simulate_table3
 
     errs = []
@@ -405,11 +448,9 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     Reports the window-mean error std of both and the b RMSPE of the two-step PF and the RB-PF
     on each; also fits the error process to the real errors of these runs (``fitted_on_path``).
     """
-    from rulkit.systems.reaction_wheel.lubrication import (
-        WINDOW_SAMPLES,
-        fit_error_process,
-        window_quadrature,
-    )
+    from rulkit.systems.reaction_wheel.degradation.quadrature import window_quadrature
+    from rulkit.systems.reaction_wheel.degradation.shortcut import fit_error_process
+    from rulkit.systems.reaction_wheel.lubrication import WINDOW_SAMPLES
     from rulkit.systems.reaction_wheel.wheel import ReactionWheel
 
     t0 = time.perf_counter()
@@ -461,10 +502,6 @@ def validate_shortcut(error_table3: EstimateErrorProcess, source: str, *, hours:
     return ShortcutValidation(hours, n_runs, win_err_real, float(d.std()), out_real, out_syn,
                               fitted, time.perf_counter() - t0)
 
-
-# ---------------------------------------------------------------------------------------------
-# Sensitivity of Table 6 to the unstated settings
-# ---------------------------------------------------------------------------------------------
 
 #: Variations of the sensitivity study: (label, field, values). Fields of DegradationConfig, of the
 #: error process ("error.std_c", "error.tau_s" as multiples) or of the path ("path.orbit").
@@ -520,3 +557,31 @@ def sensitivity_study(base: DegradationConfig, error: EstimateErrorProcess, *, n
 def settings_dict(settings: DegradationConfig) -> dict[str, Any]:
     """The settings as a plain dict (for report.md)."""
     return asdict(settings)
+
+
+def one_vs_two_step(t6: Table6Result) -> Any:
+    """The one-step PF beside the two-step PF on every T^ source of ``t6`` (seed 001's claim
+    that two-step beats one-step, tested beyond the biased APF estimate): one row per source,
+    RMSPE (%) of b and beta0 per scenario, means over the runs; the paper's APF values beside
+    (docs/systems/reaction-wheel.md §4)."""
+    import pandas as pd
+
+    rows = []
+    for src in SOURCES:
+        cases = [c for c in t6.cases if c.source == src]
+        if not cases or not all("one_step" in c.rmspe_b for c in cases):
+            continue
+        row: dict[str, Any] = {"T^ source": src, "step-1 estimator": _step1_name(src)}
+        for c in sorted(cases, key=lambda c: c.scenario_id):
+            s = c.scenario_id
+            for meth, label in (("one_step", "one-step"), ("two_step", "two-step")):
+                row[f"S{s} b {label}"] = float(np.mean(c.rmspe_b[meth]))
+                row[f"S{s} beta {label}"] = float(np.mean(c.rmspe_beta0[meth]))
+        if src == "APF":
+            for s in (1, 2):
+                one, two = PAPER_TABLE6["APF + one-step PF"], PAPER_TABLE6["APF + two-step PF"]
+                row[f"S{s} b paper one/two"] = f"{one[2 * (s - 1)]} / {two[2 * (s - 1)]}"
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    table["runs"], table["seed"] = t6.n_runs, t6.seed
+    return table

@@ -1,6 +1,6 @@
 """Rao-Blackwellised particle filter for step 1 of the reaction-wheel lubrication prognostics
 (docs/systems/reaction-wheel.md §3, "beyond the seeds"; the seeds' PFs are in
-:mod:`rulkit.systems.reaction_wheel.temperature`).
+:mod:`rulkit.systems.reaction_wheel.temperature.particle`).
 
 Why: given the temperature path T_{0:k}, the wheel [I, w] (docs/systems/reaction-wheel.md §1) is
 deterministic and nearly linear, so p([I, w]_k | T_{0:k}, y_{0:k}) is close to Gaussian and a Kalman
@@ -49,13 +49,18 @@ from rulkit.estimation.batched import (
     weighted_quantile_pair_row,
     weighted_quantile_rows,
 )
-from rulkit.systems.reaction_wheel import kernels as kern
 from rulkit.systems.reaction_wheel.wheel import (
     NOISE_LEVELS,
     IthacoParams,
     check_measurements,
     rk4_wheel_step,
     rk4_wheel_step_jacobian,
+)
+from rulkit.systems.reaction_wheel.wheel_kernels import (
+    pack_params,
+    rk4_tangent_linear,
+    viscous_law,
+    wheel_constants,
 )
 
 FloatArray = np.ndarray
@@ -188,7 +193,7 @@ def run_rbpf(
         float(cfg.T_prior[1]), float(cfg.q_T), float(cfg.p_jump), float(cfg.jump_sd),
         float(rho), bool(reweight),
         float(cfg.q_I), float(cfg.q_w), sw, sI, float(cfg.ess_threshold), bool(quantiles),
-        float(cfg.quantiles[0]), float(cfg.quantiles[1]), kern.pack_params(p), rng,
+        float(cfg.quantiles[0]), float(cfg.quantiles[1]), pack_params(p), rng,
     )
     t = t0 + dt * np.arange(y.shape[0])
     (T_mean, T_std, T_lo, T_hi, ess, action, loglik, Iw_mean) = out
@@ -205,7 +210,7 @@ class RBPFStream:
                  t0: float = 0.0, params: IthacoParams | None = None) -> None:
         self.cfg = config or RBPFConfig()
         self.rng, self.sigma, self.dt, self.t0 = rng, sigma, float(dt), float(t0)
-        self.P = kern.pack_params(params or IthacoParams())
+        self.P = pack_params(params or IthacoParams())
         self.rows = 0
         self._state: RBPFState | None = None
         self._last: tuple[FloatArray, float] | None = None
@@ -233,10 +238,6 @@ class RBPFStream:
         self.rows += y.shape[0] - (0 if first else 1)
         cut = 0 if first else 1
         return out[0][cut:], out[2][cut:], out[3][cut:]
-
-
-# --------------------------------------------------------------------------------------------
-# numpy reference
 
 
 def _proposal(cfg: RBPFConfig) -> tuple[float, bool]:
@@ -328,61 +329,6 @@ def _run_numpy(
                       out["ll"], Iw, config=cfg)
 
 
-# --------------------------------------------------------------------------------------------
-# fused numba kernel
-
-
-@nb.njit(cache=True, inline="always")
-def _jac2(I, w, b, C):  # type: ignore[no-untyped-def]
-    """2x2 Jacobian of the wheel derivatives w.r.t. [I, w] (T held), as
-    :func:`rulkit.systems.reaction_wheel.wheel.wheel_jacobian` (one-sided at the kinks)."""
-    G_d, w_d, K_t, K_e, K_s, w_s, _tau_c, inv_J, R_in, K_f, V_bus, R_B, P_q, inv_Vbus = C
-    sI = (1.0 if I > 0.0 else 0.0) - (1.0 if I < 0.0 else 0.0)
-    sw = (1.0 if w > 0.0 else 0.0) - (1.0 if w < 0.0 else 0.0)
-    I_bus = (R_B * I * I + 0.04 * abs(I) * V_bus + P_q + K_e * w * I) * inv_Vbus
-    on = 1.0 if I_bus > 0.0 else 0.0
-    dbI = (2.0 * R_B * I + 0.04 * sI * V_bus + K_e * w) * inv_Vbus
-    dbw = K_e * I * inv_Vbus
-    V_h = K_f * (V_bus - 6.0 - (1.0 + R_in * I_bus) * on - K_e * abs(w))
-    neg = 1.0 if V_h < 0.0 else 0.0
-    df3_dI = neg * (-K_f * R_in * dbI * on)
-    df3_dw = neg * K_f * (-R_in * dbw * on - K_e * sw)
-    df5_dw = K_s * (1.0 if abs(w) >= w_s else 0.0)
-    return (w_d * (G_d * df3_dI - 1.0), w_d * G_d * (df3_dw - df5_dw), K_t * inv_J, -b * inv_J)
-
-
-@nb.njit(cache=True, inline="always")
-def _mul(a, b):  # type: ignore[no-untyped-def]
-    return (a[0] * b[0] + a[1] * b[2], a[0] * b[1] + a[1] * b[3],
-            a[2] * b[0] + a[3] * b[2], a[2] * b[1] + a[3] * b[3])
-
-
-@nb.njit(cache=True)
-def _rk4_tl(I, w, V, b, tn0, tn1, tn2, dt, C):  # type: ignore[no-untyped-def]
-    """RK4 step of [I, w] and its tangent-linear Jacobian F (row-major 2x2 tuple), as
-    :func:`rulkit.systems.reaction_wheel.wheel.rk4_wheel_step_jacobian` restricted to [I, w]."""
-    h = 0.5 * dt
-    k1I, k1w = kern._deriv(I, w, V, b, tn0, C)
-    A1 = _jac2(I, w, b, C)
-    I2, w2 = I + h * k1I, w + h * k1w
-    k2I, k2w = kern._deriv(I2, w2, V, b, tn1, C)
-    A2 = _mul(_jac2(I2, w2, b, C), (1.0 + h * A1[0], h * A1[1], h * A1[2], 1.0 + h * A1[3]))
-    I3, w3 = I + h * k2I, w + h * k2w
-    k3I, k3w = kern._deriv(I3, w3, V, b, tn1, C)
-    A3 = _mul(_jac2(I3, w3, b, C), (1.0 + h * A2[0], h * A2[1], h * A2[2], 1.0 + h * A2[3]))
-    I4, w4 = I + dt * k3I, w + dt * k3w
-    k4I, k4w = kern._deriv(I4, w4, V, b, tn2, C)
-    A4 = _mul(_jac2(I4, w4, b, C), (1.0 + dt * A3[0], dt * A3[1], dt * A3[2],
-                                    1.0 + dt * A3[3]))
-    c = dt / 6.0
-    F = (1.0 + c * (A1[0] + 2.0 * (A2[0] + A3[0]) + A4[0]),
-         c * (A1[1] + 2.0 * (A2[1] + A3[1]) + A4[1]),
-         c * (A1[2] + 2.0 * (A2[2] + A3[2]) + A4[2]),
-         1.0 + c * (A1[3] + 2.0 * (A2[3] + A3[3]) + A4[3]))
-    return (I + c * (k1I + 2.0 * k2I + 2.0 * k3I + k4I),
-            w + c * (k1w + 2.0 * k2w + 2.0 * k3w + k4w), F)
-
-
 @nb.njit(cache=True, inline="always")
 def _log_mix1(d, p, sd_j, sd):  # type: ignore[no-untyped-def]
     """Scalar :func:`_log_mix` (same operations, np.logaddexp as max + log1p(exp(-|a - b|)))."""
@@ -441,10 +387,8 @@ def _rbpf_steps(  # type: ignore[no-untyped-def]
     the particles are at (global index ``k0``; its estimates are output only when ``first``),
     rows 1.. the new ones. Chunks overlapping by one row give the numbers of one call."""
     K = y.shape[0]
-    C = kern._consts(Pp)
-    law = Pp[15]
-    b0 = 1e-3 * (0.049 - 0.0002 * 30.0) if law == 0.0 else 0.0049 - 0.0002 * 30.0
-    b1 = -1e-3 * 0.0002 if law == 0.0 else -0.0002
+    C = wheel_constants(Pp)
+    b0, b1 = viscous_law(Pp)
     J, th_a, w_a = Pp[7], Pp[10], Pp[11]
     T, mI, mw, P11, P12, P22, lw, wn = st
     QI, Qw, RI, Rw = q_I * q_I, q_w * q_w, sI * sI, sw * sw
@@ -488,7 +432,7 @@ def _rbpf_steps(  # type: ignore[no-untyped-def]
             for i in range(N):
                 T[i] += s[i]
                 b = b0 + b1 * T[i]
-                I1, w1, F = _rk4_tl(mI[i], mw[i], Vk, b, tn0, tn1, tn2, dt, C)
+                I1, w1, F = rk4_tangent_linear(mI[i], mw[i], Vk, b, tn0, tn1, tn2, dt, C)
                 # P^- = F P F^T + Q
                 a11 = F[0] * P11[i] + F[1] * P12[i]
                 a12 = F[0] * P12[i] + F[1] * P22[i]
@@ -549,3 +493,11 @@ def _rbpf_steps(  # type: ignore[no-untyped-def]
                 wn[i] = 1.0 / N
             o_act[kk] = 1.0
     return o_mean, o_std, o_lo, o_hi, o_ess, o_act, o_ll, o_Iw
+
+
+#: Said with every RBPF estimate: its interval is not calibrated, too wide on the battery of
+#: simulated records, too narrow on some slowly varying ones (docs/systems/reaction-wheel.md §3.5).
+RBPF_INTERVAL_NOTE = ("the RBPF interval is not calibrated: its 95 % interval covers more or "
+                      "less than 95 % of the truth depending on the record "
+                      "(docs/systems/reaction-wheel.md section 3.5); the default method imm's "
+                      "is calibrated")

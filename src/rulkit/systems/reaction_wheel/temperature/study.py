@@ -2,7 +2,8 @@
 docs/systems/reaction-wheel.md section 3) and its figures (like seed 001 Figs 9-11).
 
 :func:`run_table5` runs every (variant, design, noise, N, run) cell of the grid with
-:func:`rulkit.systems.reaction_wheel.temperature.filter_temperature` (the Rao-Blackwellised PF
+:func:`rulkit.systems.reaction_wheel.temperature.particle.filter_temperature` (the
+Rao-Blackwellised PF
 and the EKF reference beside them) and prints our RMSPE beside the paper's
 (:func:`format_table5`); :func:`plot_temperature_estimates` draws one run per estimator.
 """
@@ -16,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from rulkit.systems.reaction_wheel import kernels as kern
-from rulkit.systems.reaction_wheel.temperature import (
+from rulkit.systems.reaction_wheel.temperature import kernels as kern
+from rulkit.systems.reaction_wheel.temperature.ekf import run_ekf
+from rulkit.systems.reaction_wheel.temperature.particle import (
     Design,
     FloatArray,
     TemperatureConfig,
     filter_temperature,
-    run_ekf,
 )
 from rulkit.systems.reaction_wheel.wheel import simulate_table3
 
@@ -33,11 +34,10 @@ PAPER_TABLE5: dict[tuple[str, str], tuple[float, ...]] = {
     ("adaptive", "high"): (3.596, 3.118, 2.745, 2.742, 2.735, 2.707, 2.748),
     ("apf_eq28", "high"): (3.048, 2.691, 2.697, 2.605, 2.589, 2.496, 2.480),
 }
+
+
 TABLE5_N: tuple[int, ...] = (50, 100, 150, 200, 250, 300, 350)
 
-
-# --------------------------------------------------------------------------------------------
-# Table 5 experiment (docs/systems/reaction-wheel.md section 6)
 
 _NOISES = ("low", "high")
 
@@ -82,7 +82,7 @@ def _table5_pf_task(task: tuple[Any, ...], rng: np.random.Generator) -> dict[str
 def _table5_rbpf_task(task: tuple[Any, ...], rng: np.random.Generator) -> dict[str, Any]:
     """One Rao-Blackwellised PF run (design ``RBPF_DESIGNS[design]``, beyond the seeds) of the
     Table 5 grid; its generator is ``SeedSequence([seed, 2, design index, noise, N, run])``."""
-    from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf
+    from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf
 
     _, design, noise, n, run, seed, t_burn, _overrides, initial, *rest = task
     coverage = bool(rest[0]) if rest else False
@@ -178,7 +178,8 @@ def run_table5(
     ``scheduler`` (the runner only distributes). ``initial``: "rest" ([R]) or
     "equilibrium" start of the truth; ``overrides``: TemperatureConfig fields for every seed-PF run.
     Beyond the seeds: a design named in
-    :data:`rulkit.systems.reaction_wheel.rbpf.RBPF_DESIGNS` ("RB", "RB05", "RBJ", "RBJ0") adds the
+    :data:`rulkit.systems.reaction_wheel.temperature.rbpf.RBPF_DESIGNS` ("RB", "RB05", "RBJ",
+    "RBJ0") adds the
     Rao-Blackwellised PF (method "rbpf") in that design (e.g. ``designs=("F1", "RBJ")``);
     its generator is ``SeedSequence([seed, 2, design index, noise, N, r])``. ``coverage``:
     also compute each run's 90 % interval and report the fraction of samples in which it
@@ -197,7 +198,7 @@ def run_table5(
         n_list = tuple(n_particles) if n_particles else (50, 200, 350)
     else:
         n_list = tuple(n_particles) if n_particles else TABLE5_N
-    from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS
+    from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS
 
     if methods is None:
         variants = ["adaptive", "apf_eq28"] + (["pf", "apf_tempered"] if extra else [])
@@ -299,11 +300,6 @@ def format_table5(df: Any, column: str = "rmspe_mean") -> str:
     return "\n".join(lines)
 
 
-
-# --------------------------------------------------------------------------------------------
-# figures like seed 001 Figs 9-11
-
-
 _TITLES = {"pf": "PF", "adaptive": "PF + adaptive resampling", "apf_eq28": "APF (eq. 28)",
            "apf_tempered": "APF (tempering)",
            "rbpf": "Rao-Blackwellised PF (beyond the seeds)"}
@@ -328,7 +324,7 @@ def plot_temperature_estimates(
     ``"rbpf"`` draws the Rao-Blackwellised PF in design ``rbpf_design`` (beyond the seeds)."""
     import matplotlib
 
-    from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, run_rbpf
+    from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, run_rbpf
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -377,3 +373,75 @@ def plot_temperature_estimates(
         paths.append(path)
     return paths
 
+
+# --------------------------------------------------------------------------------------------
+# the seeds' filters complete: every weighting in both designs, and why eq. 28 fails
+
+#: The five weightings of docs/systems/reaction-wheel.md §3.2 (Fig. 9 is the plain PF).
+SEED_VARIANTS = ("pf", "adaptive", "apf", "apf_eq28", "apf_tempered")
+
+
+def run_seed_filters(runs: int, seed: int, n_particles: Sequence[int], *, workers: int = 1,
+                     scheduler: str | None = None, progress: Any = None) -> Any:
+    """Table 5 for all five weightings (:data:`SEED_VARIANTS`) in both designs F1 and F2, with
+    the coverage of the 90 % interval (:func:`run_table5`'s cells: the paper's two methods in
+    F1 have the numbers of Table 5 itself)."""
+    t = run_table5(runs=runs, seed=seed, n_particles=tuple(n_particles), ekf=False,
+                   methods=[(v, d) for d in ("F1", "F2") for v in SEED_VARIANTS],
+                   workers=workers, scheduler=scheduler, progress=progress, coverage=True)
+    t.loc[t["design"] != "F1", "paper"] = np.nan  # the paper's rows are design F1
+    return t
+
+
+def eq28_weight_analysis(seed: int, n_particles: int = 200, t_end: float = 500.0) -> Any:
+    """What eq. 28 does to the weights (docs/systems/reaction-wheel.md §3.2), measured on the
+    Table 3 path (run 0 of :func:`run_table5`'s data, both noise levels): a plain F2 particle
+    filter runs, and at every step the same prior weights ``w_prev`` and likelihoods ``p`` are
+    weighted both ways, by Bayes (``w_prev p``) and by eq. 28 (:func:`rulkit.systems.
+    reaction_wheel.temperature.particle.apf_eq28_weights`). Returns one row per noise level:
+    the mean effective sample size (ESS / N) after each, the median log10 ratio of the largest
+    to the smallest non-zero weight, and the mean fraction of weights eq. 28 clips to zero."""
+    import pandas as pd
+
+    from rulkit.estimation.batched import ess_rows, normalise_rows, systematic_rows
+    from rulkit.systems.reaction_wheel.temperature.particle import apf_eq28_weights
+    from rulkit.systems.reaction_wheel.wheel import IthacoParams, rk4_wheel_step
+
+    p = IthacoParams()
+    rows = []
+    for noise in _NOISES:
+        d = simulate_table3(_data_rng(seed, noise, 0), noise, t_end=t_end)
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 28, _NOISES.index(noise)]))
+        N, (sw, sI) = n_particles, (d.sigma_w, d.sigma_I)
+        T = rng.uniform(15.0, 45.0, N)
+        X = np.column_stack([d.y[0, 1] + sI * rng.standard_normal(N),
+                             d.y[0, 0] + sw * rng.standard_normal(N)])
+        logw = np.full(N, -np.log(N))
+        log_norm = np.log(2 * np.pi * sw * sI)
+        stats: dict[str, list[float]] = {k: [] for k in ("ess_bayes", "ess_eq28", "r_bayes",
+                                                         "r_eq28", "clipped")}
+        for k in range(1, d.t.size):
+            T = T + 0.02 * rng.standard_normal(N)
+            X = rk4_wheel_step(X, d.V[k - 1], T, d.t[k - 1], d.dt, p)
+            ll = -0.5 * (((d.y[k, 0] - X[:, 1]) / sw) ** 2 + ((d.y[k, 1] - X[:, 0]) / sI) ** 2)
+            ll -= log_norm
+            w_prev = np.exp(logw)
+            logw, w, _ = normalise_rows(logw + ll)
+            w28, n_clip = apf_eq28_weights(w_prev, np.exp(ll), float(d.V[k - 1]))
+            w28 = w28 / w28.sum() if w28.sum() > 0 else w
+            stats["ess_bayes"].append(float(ess_rows(w)) / N)
+            stats["ess_eq28"].append(float(ess_rows(w28)) / N)
+            for key, ww in (("r_bayes", w), ("r_eq28", w28)):
+                nz = ww[ww > 0]
+                stats[key].append(float(np.log10(nz.max() / nz.min())))
+            stats["clipped"].append(n_clip / N)
+            if stats["ess_bayes"][-1] < 0.5:
+                idx = systematic_rows(w, rng.random())
+                T, X, logw = T[idx], X[idx], np.full(N, -np.log(N))
+        rows.append({"noise": noise, "N": N, "steps": d.t.size - 1,
+                     "ess_over_N_bayes": float(np.mean(stats["ess_bayes"])),
+                     "ess_over_N_eq28": float(np.mean(stats["ess_eq28"])),
+                     "log10_weight_ratio_bayes": float(np.median(stats["r_bayes"])),
+                     "log10_weight_ratio_eq28": float(np.median(stats["r_eq28"])),
+                     "clipped_fraction_eq28": float(np.mean(stats["clipped"])), "seed": seed})
+    return pd.DataFrame(rows)

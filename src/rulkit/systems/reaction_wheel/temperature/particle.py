@@ -2,7 +2,7 @@
 T_lub from wheel speed and motor current (docs/systems/reaction-wheel.md §3; seed 001 section
 3.1, eqs 13-17 and 28; seed 000 section 3.2 and eq. 27). The Table 5 experiment and its
 figures (docs/systems/reaction-wheel.md §6) are in
-:mod:`rulkit.systems.reaction_wheel.temperature_study`.
+:mod:`rulkit.systems.reaction_wheel.temperature.study`.
 
 Estimators (all with the temperature random walk T_k = T_{k-1} + q_T xi_k):
 
@@ -19,6 +19,11 @@ Estimators (all with the temperature random walk T_k = T_{k-1} + q_T xi_k):
   plain update w_prev p; then normalised.
 - ``variant="apf_tempered"``: the intent of eq. 28 in a well-defined form: w ~ w_prev p^gamma
   with the largest gamma in [1, temper_gamma_max] keeping ESS >= temper_target N.
+- ``variant="apf"``: the auxiliary particle filter of Pitt and Shephard (1999), which eq. 28
+  names but does not implement: first-stage weights w_{k-1} p(y_k | mu_k^i) from each
+  particle's point prediction mu (its T held, [I, w] one RK4 step ahead) choose the ancestors,
+  which are then propagated and weighted by p(y_k | x_k) / p(y_k | mu_k^ancestor). Why eq. 28
+  as printed fails: :func:`apf_eq28_weights` and docs/systems/reaction-wheel.md §3.2.
 
 Prediction designs (docs/systems/reaction-wheel.md §3): ``"F1"`` each particle predicts y_k by one
 RK4 step from the measured y_{k-1} with its own T; the likelihood covariance is inflated to
@@ -26,11 +31,12 @@ S = R + Phi R Phi^T for the noise in that start (Phi the Jacobian of the RK4 ste
 differences at the 1 V / 23 C steady state). ``"F2"`` particles carry their own [I, w].
 
 Two implementations give the same numbers (tested): the fused numba kernel
-(:mod:`rulkit.systems.reaction_wheel.kernels`, default) and a vectorised numpy reference path
+(:mod:`rulkit.systems.reaction_wheel.temperature.kernels`, default) and a vectorised numpy
+reference path
 built on the engine (:func:`filter_temperature_numpy`).
 
 Beyond the seeds: the Rao-Blackwellised PF over T with a Kalman filter on [I, w] per particle
-(:mod:`rulkit.systems.reaction_wheel.rbpf`), as Table 5 designs "RB", "RB05", "RBJ"
+(:mod:`rulkit.systems.reaction_wheel.temperature.rbpf`), as Table 5 designs "RB", "RB05", "RBJ"
 (``run_table5(designs=...)``) and ``estimate_temperature(method="rbpf")``.
 """
 
@@ -43,20 +49,23 @@ from typing import Any, Literal
 import numpy as np
 
 from rulkit.estimation.batched import ess_rows, normalise_rows, weighted_quantile_rows
-from rulkit.systems.reaction_wheel import kernels as kern
+from rulkit.systems.reaction_wheel.temperature import kernels as kern
 from rulkit.systems.reaction_wheel.wheel import (
     NOISE_LEVELS,
     IthacoParams,
     ReactionWheel,
     check_measurements,
     rk4_wheel_step,
-    rk4_wheel_step_jacobian,
-    simulate_table3,
 )
+from rulkit.systems.reaction_wheel.wheel_kernels import pack_params
 
 FloatArray = np.ndarray
+
+
 Design = Literal["F1", "F2"]
-Variant = Literal["pf", "adaptive", "apf_eq28", "apf_tempered"]
+
+
+Variant = Literal["pf", "adaptive", "apf_eq28", "apf_tempered", "apf"]
 
 
 #: Outlier gate of :func:`estimate_temperature`'s particle filters (squared Mahalanobis
@@ -64,11 +73,6 @@ Variant = Literal["pf", "adaptive", "apf_eq28", "apf_tempered"]
 #: probability e^-12.5 ~ 4e-6 per sample for a particle on the truth). Beyond the seeds; the
 #: paper's filters (Table 5) run without it.
 DEFAULT_GATE_D2 = 25.0
-
-#: Said with every RBPF estimate: its interval is not calibrated (issue 13 measured 75 %
-#: coverage of the truth by the 95 % interval on a slowly varying temperature).
-RBPF_INTERVAL_NOTE = ("the RBPF interval is not calibrated: its 95 % interval covered only "
-                      "75 % of the true temperature on a slowly varying record")
 
 
 @dataclass(frozen=True)
@@ -158,10 +162,6 @@ class TemperatureResult:
     config: TemperatureConfig = field(repr=False)
 
 
-# --------------------------------------------------------------------------------------------
-# likelihood covariance
-
-
 def _rk4_jacobian(sigma: tuple[float, float], params: IthacoParams, dt: float) -> np.ndarray:
     """Jacobian (in output order [w, I]) of one RK4 step w.r.t. its start, by central
     differences at the 1 V, 23 C steady state (near-constant: the wheel is almost linear)."""
@@ -235,6 +235,11 @@ def filter_temperature(
     cfg = config or TemperatureConfig()
     p = params or IthacoParams()
     d = _prepare(y, V, cfg, sigma, p, dt)
+    if backend == "numpy" and cfg.variant == "apf":
+        if math.isfinite(cfg.gate_d2):
+            raise ValueError("backend 'numpy' (the reference path) has no outlier gate: "
+                             "use gate_d2=inf")
+        return apf_numpy(d, cfg, rng, p, dt, t0, quantiles)
     if backend == "numpy":
         if math.isfinite(cfg.gate_d2):
             raise ValueError("backend 'numpy' (the reference path) has no outlier gate: "
@@ -242,7 +247,7 @@ def filter_temperature(
         return filter_temperature_numpy(d, cfg, rng, p, dt, t0, quantiles)
     if backend != "numba":
         raise ValueError(f"backend: expected 'numba' or 'numpy', got {backend!r}")
-    inp = kern.KernelInputs(d["y"], d["V"], d["S_inv"], d["init_sd"], kern.pack_params(p))
+    inp = kern.KernelInputs(d["y"], d["V"], d["S_inv"], d["init_sd"], pack_params(p))
     settings = kernel_settings(cfg, d, t0, dt, quantiles)
     out = kern.pf_kernel(inp, settings, rng)
     t = t0 + dt * np.arange(d["y"].shape[0])
@@ -269,16 +274,12 @@ def kernel_settings(cfg: TemperatureConfig, d: dict[str, Any], t0: float, dt: fl
     )
 
 
-# --------------------------------------------------------------------------------------------
-# numpy reference path: the engine's ParticleFilter (per-step API) with plug-ins; same random
-# draws and algebra as the fused kernel
-
-
 def filter_temperature_numpy(
     d: dict[str, Any], cfg: TemperatureConfig, rng: np.random.Generator, p: IthacoParams, dt: float,
     t0: float, quantiles: bool,
 ) -> TemperatureResult:
-    """Vectorised numpy reference of :func:`rulkit.systems.reaction_wheel.kernels.pf_kernel`.
+    """Vectorised numpy reference of
+    :func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_kernel`.
 
     Built on :class:`rulkit.estimation.particle.ParticleFilter`: ``transition`` (T random walk,
     F2 RK4 via :func:`rulkit.integrate.rk4_step`), ``log_likelihood``, ``weight_update`` for
@@ -398,6 +399,67 @@ def filter_temperature_numpy(
                        clip, gam, lls, np.zeros(K, dtype=np.int8), config=cfg)
 
 
+def apf_numpy(
+    d: dict[str, Any], cfg: TemperatureConfig, rng: np.random.Generator, p: IthacoParams,
+    dt: float, t0: float, quantiles: bool,
+) -> TemperatureResult:
+    """Vectorised numpy reference of the auxiliary particle filter (variant "apf") of
+    :func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_steps`, without the outlier
+    gate; the same draws in the same order (per step: one uniform for the first-stage
+    systematic resampling, then the N normals of the T random walk)."""
+    from rulkit.estimation.batched import systematic_rows
+
+    y, V, S_inv, log_norm = d["y"], d["V"], d["S_inv"], d["log_norm"]
+    K, N = y.shape[0], int(cfg.n_particles)
+    lo, hi = cfg.T_prior
+    f2 = cfg.design == "F2"
+    T = lo + (hi - lo) * rng.random(N)
+    Iw = np.zeros((N, 2))  # [I, w] per particle (F2)
+    if f2:
+        Z = rng.standard_normal((N, 2))
+        Iw = np.column_stack([y[0, 1] + d["init_sd"][0] * Z[:, 0],
+                              y[0, 0] + d["init_sd"][1] * Z[:, 1]])
+    lw = np.full(N, -math.log(N))
+
+    def loglik(X: FloatArray, k: int) -> FloatArray:
+        e0, e1 = y[k, 0] - X[:, 1], y[k, 1] - X[:, 0]
+        ll = -0.5 * (S_inv[0, 0] * e0 * e0 + 2.0 * S_inv[0, 1] * e0 * e1
+                     + S_inv[1, 1] * e1 * e1) - log_norm
+        return np.where(np.isnan(ll), -np.inf, ll)
+
+    out = {c: np.full(K, np.nan) for c in ("mean", "std", "qlo", "qhi", "ess")}
+    lls = np.zeros(K)
+
+    def record(k: int) -> None:
+        _, w, _ = normalise_rows(lw)
+        out["mean"][k] = m = float(np.sum(w * T))
+        out["std"][k] = math.sqrt(float(np.sum(w * (T - m) ** 2)))
+        if quantiles:
+            out["qlo"][k], out["qhi"][k] = weighted_quantile_rows(T, w, np.array(cfg.quantiles))
+        out["ess"][k] = float(ess_rows(w))
+
+    record(0)
+    for k in range(1, K):
+        tk = t0 + (k - 1) * dt
+        start = Iw if f2 else np.broadcast_to(np.array([y[k - 1, 1], y[k - 1, 0]]), (N, 2))
+        ll1 = loglik(rk4_wheel_step(start, V[k - 1], T, tk, dt, p), k)
+        _, fw, ls_first = normalise_rows(lw + ll1)
+        a = systematic_rows(fw, rng.random())
+        T, Iw, ll1 = T[a] + cfg.q_T * rng.standard_normal(N), Iw[a], ll1[a]
+        start = Iw if f2 else np.broadcast_to(np.array([y[k - 1, 1], y[k - 1, 0]]), (N, 2))
+        X = rk4_wheel_step(start, V[k - 1], T, tk, dt, p)
+        if f2:
+            Iw = X
+        lw, _, ls = normalise_rows(np.full(N, -math.log(N)) + loglik(X, k) - ll1)
+        lls[k] = float(ls_first) + float(ls)
+        record(k)
+    act = np.full(K, 6, dtype=np.int8)
+    act[0] = 0
+    return TemperatureResult(t0 + dt * np.arange(K), out["mean"], out["std"], out["qlo"],
+                             out["qhi"], out["ess"], act, np.zeros(K, dtype=np.int64), np.ones(K),
+                             lls, np.zeros(K, dtype=np.int8), config=cfg)
+
+
 def apf_eq28_weights(
     w_prev: FloatArray, p: FloatArray, V_comm: float, c0: float = 10.0, c1: float = 0.6
 ) -> tuple[FloatArray, int]:
@@ -445,135 +507,3 @@ def _temper_gamma_np(lw: FloatArray, ll: FloatArray, cfg: TemperatureConfig, N: 
         else:
             hi = mid
     return math.exp(lo)
-
-
-# --------------------------------------------------------------------------------------------
-# reference estimator that is not a particle filter (docs/systems/reaction-wheel.md §3)
-
-
-@dataclass(frozen=True)
-class EKFResult:
-    """EKF estimates of T for B units: ``T_mean``/``T_std`` (K, B); row 0 is the prior."""
-
-    t: FloatArray
-    T_mean: FloatArray
-    T_std: FloatArray
-
-
-def run_ekf(
-    ys: FloatArray,
-    V: FloatArray,
-    *,
-    sigma: Any = NOISE_LEVELS["low"],
-    dt: float = 0.05,
-    t0: float = 0.0,
-    q_T: float = 0.02,
-    q_Iw: tuple[float, float] = (1e-6, 1e-6),
-    T_prior: tuple[float, float] = (15.0, 45.0),
-    params: IthacoParams | None = None,
-    analytic_jacobian: bool = True,
-) -> EKFResult:
-    """Extended Kalman filter on [I, w, T] (docs/systems/reaction-wheel.md §3 reference), batched
-    over B units.
-
-    ``ys`` (K, 2) or (K, B, 2) = [w, I_m] sharing the voltage ``V`` (K,); ``sigma`` is
-    ``(sigma_w, sigma_I)`` or per unit (B, 2). Discrete model: one
-    RK4 step of the wheel with T held, T a random walk of step ``q_T``; tiny process noise
-    ``q_Iw`` on [I, w] keeps P well conditioned. Prior: [I, w] = y_0 with covariance R, T with
-    the mean and variance of U(T_prior). Uses :class:`rulkit.estimation.ekf.ExtendedKalmanFilter`
-    with the tangent-linear RK4 Jacobian (:func:`rk4_wheel_step_jacobian`; finite differences
-    when ``analytic_jacobian=False``).
-    """
-    Y = np.asarray(ys, dtype=np.float64)
-    if Y.ndim == 2:
-        Y = Y[:, None, :]
-    if Y.ndim != 3 or Y.shape[2] != 2 or Y.shape[0] < 2:
-        raise ValueError(f"ys: expected shape (K, 2) or (K, B, 2), got {np.shape(ys)}")
-    V = np.asarray(V, dtype=np.float64)
-    K = Y.shape[0]
-    if V.shape != (K,):
-        raise ValueError(f"V: expected shape ({K},), got {V.shape}")
-    ekf, x0, P0, clock = ekf_setup(Y[0], sigma, params, q_T=q_T, q_Iw=q_Iw, T_prior=T_prior,
-                                   analytic_jacobian=analytic_jacobian)
-    clock.t0, clock.dt = t0, dt
-    res = ekf.filter(Y[1:], x0, P0, us=V[:-1])
-    T_mean = np.vstack([x0[None, :, 2], res.x[:, :, 2]])
-    T_std = np.vstack([np.sqrt(P0[None, :, 2, 2]), np.sqrt(res.P[:, :, 2, 2])])
-    return EKFResult(t0 + dt * np.arange(K), T_mean, T_std)
-
-
-@dataclass
-class StepClock:
-    """Time of step ``j`` of an EKF run: ``t0 + j dt`` (mutable, so one filter object can
-    continue a record chunk after chunk)."""
-
-    t0: float = 0.0
-    dt: float = 0.05
-
-
-def ekf_setup(
-    y0: FloatArray,
-    sigma: tuple[float, float] | FloatArray,
-    params: IthacoParams | None = None,
-    *,
-    q_T: float = 0.02,
-    q_Iw: tuple[float, float] = (1e-6, 1e-6),
-    T_prior: tuple[float, float] = (15.0, 45.0),
-    analytic_jacobian: bool = True,
-) -> tuple[Any, FloatArray, FloatArray, StepClock]:
-    """The wheel EKF of :func:`run_ekf` for B units whose first sample is ``y0`` (B, 2) =
-    [w, I_m]: (filter, prior mean x0 (B, 3), prior covariance P0 (B, 3, 3), its
-    :class:`StepClock`)."""
-    from rulkit.estimation.ekf import ExtendedKalmanFilter
-
-    p = params or IthacoParams()
-    y0 = np.asarray(y0, dtype=np.float64)
-    B = y0.shape[0]
-    clock = StepClock()
-
-    def f(x: FloatArray, u: float, j: int) -> FloatArray:
-        X = rk4_wheel_step(x[:, :2], u, x[:, 2], clock.t0 + j * clock.dt, clock.dt, p)
-        return np.column_stack([X, x[:, 2]])
-
-    def jac_f(x: FloatArray, u: float, j: int) -> FloatArray:
-        return rk4_wheel_step_jacobian(x, u, x[:, 2], clock.t0 + j * clock.dt, clock.dt, p)
-
-    def h(x: FloatArray, u: float, j: int) -> FloatArray:
-        return np.column_stack([x[:, 1], x[:, 0]])
-
-    H = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
-
-    sg = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (B, 2))  # per unit [sw, sI]
-    if not np.all(sg > 0):
-        raise ValueError(f"sigma: expected positive (sigma_w, sigma_I), got {sigma}")
-    sw, sI = sg[:, 0], sg[:, 1]
-    Q = np.diag([q_Iw[0] ** 2, q_Iw[1] ** 2, q_T**2])
-    R = np.zeros((B, 2, 2))
-    R[:, 0, 0], R[:, 1, 1] = sw**2, sI**2
-    ekf = ExtendedKalmanFilter(f, h, Q, R, jac_f=jac_f if analytic_jacobian else None,
-                               jac_h=lambda x, u, j: H)
-    lo, hi = T_prior
-    x0 = np.column_stack([y0[:, 1], y0[:, 0], np.full(B, 0.5 * (lo + hi))])
-    P0 = np.zeros((B, 3, 3))
-    P0[:, 0, 0], P0[:, 1, 1], P0[:, 2, 2] = sI**2, sw**2, (hi - lo) ** 2 / 12.0
-    return ekf, x0, P0, clock
-
-
-# --------------------------------------------------------------------------------------------
-# user telemetry
-
-
-def table3_telemetry(
-    rng: np.random.Generator, noise: str = "low", *, t_end: float = 500.0
-) -> Any:
-    """A simulated telemetry frame of the Table 3 path in the
-    :mod:`rulkit.systems.reaction_wheel.telemetry`
-    format (columns time_s, v_comm_V, speed_rad_s, current_A) plus the true ``T_lub_C``."""
-    import pandas as pd
-
-    from rulkit.systems.reaction_wheel.telemetry import COLUMNS
-
-    d = simulate_table3(rng, noise, t_end=t_end)
-    return pd.DataFrame(dict(zip(COLUMNS, (d.t, d.V, d.y[:, 0], d.y[:, 1]), strict=True))
-                        | {"T_lub_C": d.T})
-

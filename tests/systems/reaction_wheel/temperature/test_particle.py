@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from rulkit.systems.reaction_wheel.temperature import (
+from rulkit.systems.reaction_wheel.telemetry import table3_telemetry
+from rulkit.systems.reaction_wheel.temperature.ekf import run_ekf
+from rulkit.systems.reaction_wheel.temperature.estimator import estimate_temperature
+from rulkit.systems.reaction_wheel.temperature.particle import (
     TemperatureConfig,
     apf_eq28_weights,
     filter_temperature,
     likelihood_covariance,
-    run_ekf,
-    table3_telemetry,
 )
-from rulkit.systems.reaction_wheel.temperature_estimate import estimate_temperature
-from rulkit.systems.reaction_wheel.temperature_study import (
+from rulkit.systems.reaction_wheel.temperature.study import (
     PAPER_TABLE5,
     format_table5,
     plot_temperature_estimates,
@@ -33,7 +33,31 @@ def short_run():
     return simulate_table3(np.random.default_rng(11), "low", t_end=25.0)
 
 
-CASES = [(d, v) for d in ("F1", "F2") for v in ("pf", "adaptive", "apf_eq28", "apf_tempered")]
+CASES = [(d, v) for d in ("F1", "F2")
+         for v in ("pf", "adaptive", "apf_eq28", "apf_tempered", "apf")]
+
+
+def _constant_record(T: float = 30.0, V: float = 1.0, K: int = 4000, seed: int = 0,
+                     noise: str = "low") -> tuple[object, np.ndarray]:
+    """Telemetry frame of the wheel at equilibrium at constant T and V, and the true T."""
+    import pandas as pd
+
+    from rulkit.systems.reaction_wheel.telemetry import COLUMNS
+    from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, ReactionWheel, rk4_wheel_step
+
+    p = IthacoParams()
+    sw, sI = NOISE_LEVELS[noise]
+    x = ReactionWheel(p, noise=(sw, sI)).steady_state(V, T)[None]
+    X = np.empty((K, 2))
+    X[0] = x[0]
+    for k in range(K - 1):
+        x = rk4_wheel_step(x, V, T, k * 0.05, 0.05, p)
+        X[k + 1] = x[0]
+    rng = np.random.default_rng(seed)
+    t = 0.05 * np.arange(K)
+    df = pd.DataFrame(dict(zip(COLUMNS, (t, np.full(K, V), X[:, 1] + sw * rng.standard_normal(K),
+                                         X[:, 0] + sI * rng.standard_normal(K)), strict=True)))
+    return df, np.full(K, T)
 
 
 @pytest.mark.parametrize(("design", "variant"), CASES)
@@ -67,6 +91,8 @@ def test_kernel_equals_numpy_reference(short_run, design: str, variant: str) -> 
         assert a.n_clipped.sum() > 0
     if variant == "apf_tempered":
         assert a.gamma.max() > 1.0
+    if variant == "apf":  # the auxiliary PF resamples in its first stage at every step
+        assert np.all(a.action[1:] == 6)
 
 
 def test_same_seed_same_result_different_seed_differs(short_run) -> None:
@@ -126,9 +152,11 @@ def test_estimators_track_constant_temperature_from_equilibrium() -> None:
         x[k + 1] = rk4_wheel_step(x[k : k + 1], 1.0, 30.0, k * dt, dt, m.params)[0]
     y = m.output(x) + m.noise.sample_measurement(K, np.random.default_rng(0))
     V = np.ones(K)
-    cfg = TemperatureConfig(design="F2", variant="pf", n_particles=300, T_prior=(10.0, 40.0))
-    r = filter_temperature(y, V, np.random.default_rng(1), cfg)
-    assert abs(r.T_mean[-200:].mean() - 30.0) < 1.5
+    for variant in ("pf", "apf"):  # the plain PF and the auxiliary PF (Pitt and Shephard)
+        cfg = TemperatureConfig(design="F2", variant=variant,  # type: ignore[arg-type]
+                                n_particles=300, T_prior=(10.0, 40.0))
+        r = filter_temperature(y, V, np.random.default_rng(1), cfg)
+        assert abs(r.T_mean[-200:].mean() - 30.0) < 1.5, variant
     e = run_ekf(y, V, T_prior=(10.0, 40.0))
     assert abs(e.T_mean[-200:, 0].mean() - 30.0) < 0.5
     assert e.T_std[-1, 0] < 0.5
@@ -146,7 +174,7 @@ def test_run_step1_rejects_bad_input(short_run) -> None:
     with pytest.raises(ValueError, match="finite"):
         filter_temperature(bad, V, rng)
     with pytest.raises(ValueError, match="variant"):
-        TemperatureConfig(variant="apf")  # type: ignore[arg-type]
+        TemperatureConfig(variant="apf_pitt")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="T_prior"):
         TemperatureConfig(T_prior=(30.0, 20.0))
     with pytest.raises(ValueError, match="backend"):
@@ -170,7 +198,7 @@ def test_table5_quick_grid_serial_equals_workers_and_carries_paper_values() -> N
 def test_estimate_temperature_from_telemetry_frame(tmp_path) -> None:
     df = table3_telemetry(np.random.default_rng(2), "low", t_end=10.0)
     out = estimate_temperature(df, "adaptive", 50, np.random.default_rng(0))
-    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted"]
+    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted", "flags"]
     assert len(out) == len(df) and np.all(out["T_lo"] <= out["T_hi"])
     assert np.all(np.isfinite(out[["T_mean", "T_lo", "T_hi"]].to_numpy()))
     ekf = estimate_temperature(df.iloc[:60], "ekf")
@@ -189,33 +217,10 @@ def test_plot_temperature_estimates_writes_figures(tmp_path) -> None:
     assert len(paths) == 1 and paths[0].exists() and paths[0].stat().st_size > 10_000
 
 
-def _constant_record(T: float = 30.0, V: float = 1.0, K: int = 4000, seed: int = 0,
-                     noise: str = "low") -> tuple[object, np.ndarray]:
-    """Telemetry frame of the wheel at equilibrium at constant T and V, and the true T."""
-    import pandas as pd
-
-    from rulkit.systems.reaction_wheel.telemetry import COLUMNS
-    from rulkit.systems.reaction_wheel.wheel import NOISE_LEVELS, ReactionWheel, rk4_wheel_step
-
-    p = IthacoParams()
-    sw, sI = NOISE_LEVELS[noise]
-    x = ReactionWheel(p, noise=(sw, sI)).steady_state(V, T)[None]
-    X = np.empty((K, 2))
-    X[0] = x[0]
-    for k in range(K - 1):
-        x = rk4_wheel_step(x, V, T, k * 0.05, 0.05, p)
-        X[k + 1] = x[0]
-    rng = np.random.default_rng(seed)
-    t = 0.05 * np.arange(K)
-    df = pd.DataFrame(dict(zip(COLUMNS, (t, np.full(K, V), X[:, 1] + sw * rng.standard_normal(K),
-                                         X[:, 0] + sI * rng.standard_normal(K)), strict=True)))
-    return df, np.full(K, T)
-
-
 @pytest.mark.parametrize("noise", ["low", "high"])
-def test_default_method_survives_one_corrupted_command_sample(noise: str) -> None:
+def test_gated_adaptive_pf_survives_one_corrupted_command_sample(noise: str) -> None:
     """Issue 13: +1 V on one command sample early in a record. Without the outlier gate the
-    default adaptive PF carries the wrong [I, w] it predicted and its RMSPE roughly quadruples
+    adaptive PF carries the wrong [I, w] it predicted and its RMSPE roughly quadruples
     (before the gate: 4.8 % vs 1.2 % clean at low noise, 4.6 % vs 1.0 % at high); with it the
     glitch is flagged, the cloud recovers, and the RMSPE stays within 1.5x the clean one."""
     from rulkit.metrics import rmspe
@@ -223,7 +228,7 @@ def test_default_method_survives_one_corrupted_command_sample(noise: str) -> Non
     df, T = _constant_record(noise=noise)
     bad = df.copy()
     bad.loc[20, "v_comm_V"] += 1.0
-    kw = dict(noise=noise)
+    kw = dict(noise=noise, method="adaptive")
     clean = estimate_temperature(df, rng=np.random.default_rng(1), **kw)
     glitch = estimate_temperature(bad, rng=np.random.default_rng(1), **kw)
     e_clean = rmspe(clean["T_mean"].to_numpy()[1:], T[1:])

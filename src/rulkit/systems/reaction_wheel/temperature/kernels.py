@@ -7,7 +7,7 @@ update of the chosen variant, the estimates, the ESS and systematic resampling. 
 from the
 ``numpy.random.Generator`` passed in (numba draws from the same bit generator, in the same
 order as the numpy reference path
-:func:`rulkit.systems.reaction_wheel.temperature.filter_temperature_numpy`, so both
+:func:`rulkit.systems.reaction_wheel.temperature.particle.filter_temperature_numpy`, so both
 give the same numbers; tested).
 
 Draw order (both paths): T0 = lo + (hi - lo) U (N uniforms); for F2 the initial [I, w] as
@@ -33,67 +33,17 @@ from rulkit.estimation.batched import (
     systematic_row,
     weighted_quantile_pair_row,
 )
-from rulkit.systems.reaction_wheel.wheel import IthacoParams
+from rulkit.systems.reaction_wheel.wheel_kernels import (
+    rk4,
+    viscous_law,
+    wheel_constants,
+)
 
 # variants and designs (integer codes used by the kernel)
-VARIANTS = {"pf": 0, "adaptive": 1, "apf_eq28": 2, "apf_tempered": 3}
+VARIANTS = {"pf": 0, "adaptive": 1, "apf_eq28": 2, "apf_tempered": 3, "apf": 4}
+
+
 DESIGNS = {"F1": 0, "F2": 1}
-
-
-def pack_params(p: IthacoParams) -> np.ndarray:
-    """Pack :class:`IthacoParams` into the kernel's float64 parameter vector."""
-    if p.B != 0.0 or p.C != 0.0:
-        raise ValueError("the step-1 kernels model no ripple "
-                         "(B = C = 0, docs/systems/reaction-wheel.md §1.2)")
-    return np.array(
-        [p.G_d, p.w_d, p.K_t, p.K_e, p.K_s, p.w_s, p.tau_c, p.J, p.R_in, p.K_f, p.theta_a,
-         p.w_a, p.V_bus, p.R_B, p.P_q, 0.0 if p.friction_law == "spec" else 1.0],
-        dtype=np.float64,
-    )
-
-
-# No fastmath: with reassociation the kernel compiled in this process and the same kernel loaded
-# from numba's on-disk cache rounded differently, so a command's first run on a machine (cold
-# cache) and its later runs wrote different last digits. FMA contraction alone is deterministic
-# but gains only ~6% here. Strict IEEE order costs about a tenth of the kernel's speed
-# (benchmarks/bench_rw_temperature.py, numba F2 and F1 rows) and keeps the golden tables far
-# inside their tolerance on other processors (tests/test_golden_tables.py).
-
-
-@nb.njit(cache=True, inline="always")
-def _deriv(I, w, V, b, tn, C):  # type: ignore[no-untyped-def]
-    """Wheel derivatives for one particle: the algebra of ``wheel_derivatives`` written
-    branch-free (comparisons as 0/1 factors, docs/systems/reaction-wheel.md §1: Heavisides are exact
-    steps) so the particle loop vectorises. ``C`` is the tuple from :func:`_consts` (inverses
-    precomputed)."""
-    G_d, w_d, K_t, K_e, K_s, w_s, tau_c, inv_J, R_in, K_f, V_bus, R_B, P_q, inv_Vbus = C
-    aI = abs(I)
-    aw = abs(w)
-    sw = (1.0 if w > 0.0 else 0.0) - (1.0 if w < 0.0 else 0.0)
-    I_bus = (R_B * I * I + 0.04 * aI * V_bus + P_q + K_e * w * I) * inv_Vbus
-    V_h = K_f * (V_bus - 6.0 - (1.0 + R_in * I_bus) * (1.0 if I_bus > 0.0 else 0.0) - K_e * aw)
-    f3 = min(V_h, 0.0)
-    f5 = sw * K_s * (aw - w_s) * (1.0 if aw >= w_s else 0.0)
-    dI = w_d * (G_d * (V + f3 - f5) - I)
-    dw = (K_t * I - b * w - tau_c * sw + tn) * inv_J
-    return dI, dw
-
-
-@nb.njit(cache=True)
-def _consts(P):  # type: ignore[no-untyped-def]
-    return (P[0], P[1], P[2], P[3], P[4], P[5], P[6], 1.0 / P[7], P[8], P[9], P[12], P[13],
-            P[14], 1.0 / P[12])
-
-
-@nb.njit(cache=True, inline="always")
-def _rk4(I, w, V, b, tn0, tn1, tn2, dt, C):  # type: ignore[no-untyped-def]
-    """Classical RK4 step; tn0/tn1/tn2: torque noise at t, t + dt/2, t + dt."""
-    k1I, k1w = _deriv(I, w, V, b, tn0, C)
-    k2I, k2w = _deriv(I + 0.5 * dt * k1I, w + 0.5 * dt * k1w, V, b, tn1, C)
-    k3I, k3w = _deriv(I + 0.5 * dt * k2I, w + 0.5 * dt * k2w, V, b, tn1, C)
-    k4I, k4w = _deriv(I + dt * k3I, w + dt * k3w, V, b, tn2, C)
-    return (I + dt / 6.0 * (k1I + 2.0 * k2I + 2.0 * k3I + k4I),
-            w + dt / 6.0 * (k1w + 2.0 * k2w + 2.0 * k3w + k4w))
 
 
 @nb.njit(cache=True)
@@ -103,14 +53,31 @@ def _predict_loglik(I, W, T, ll, N, design, yprev_w, yprev_I, yw, yI, Vk, tn0, t
     for i in range(N):
         b = b0 + b1 * T[i]
         if design == 0:
-            Ii, Wi = _rk4(yprev_I, yprev_w, Vk, b, tn0, tn1, tn2, dt, C)
+            Ii, Wi = rk4(yprev_I, yprev_w, Vk, b, tn0, tn1, tn2, dt, C)
         else:
-            Ii, Wi = _rk4(I[i], W[i], Vk, b, tn0, tn1, tn2, dt, C)
+            Ii, Wi = rk4(I[i], W[i], Vk, b, tn0, tn1, tn2, dt, C)
         I[i] = Ii
         W[i] = Wi
         e0 = yw - Wi
         e1 = yI - Ii
         ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - log_norm
+
+
+@nb.njit(cache=True)
+def _point_loglik(I, W, T, ll1, N, design, yprev_w, yprev_I, yw, yI, Vk, tn0, tn1, tn2, dt,
+                  b0, b1, a11, a12, a22, log_norm, C):  # type: ignore[no-untyped-def]
+    """The auxiliary PF's first-stage log-likelihoods log p(y_k | mu_k^i), ``mu`` the point
+    prediction of particle i (its T held, [I, w] by one RK4 step; the state is not changed)."""
+    for i in range(N):
+        b = b0 + b1 * T[i]
+        if design == 0:
+            Ii, Wi = rk4(yprev_I, yprev_w, Vk, b, tn0, tn1, tn2, dt, C)
+        else:
+            Ii, Wi = rk4(I[i], W[i], Vk, b, tn0, tn1, tn2, dt, C)
+        e0 = yw - Wi
+        e1 = yI - Ii
+        v = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - log_norm
+        ll1[i] = v if v == v else -np.inf
 
 
 class KernelInputs(NamedTuple):
@@ -163,14 +130,6 @@ class KernelSettings(NamedTuple):
     gate_d2: float
     reanchor_after: int
     rollback: int
-
-
-@nb.njit(cache=True)
-def _friction_law(P):  # type: ignore[no-untyped-def]
-    """(b0, b1) of b_v(T) = b0 + b1 T (docs/systems/reaction-wheel.md §1, (RW-7))."""
-    if P[15] > 0.5:  # seed literal viscous law b = 0.0049 - 0.0002 (T + 30)
-        return 0.0049 - 0.0002 * 30.0, -0.0002
-    return 1e-3 * (0.049 - 0.0002 * 30.0), -1e-3 * 0.0002  # b = 1e-3 (0.049 - 0.0002 (T + 30))
 
 
 @nb.njit(cache=True)
@@ -347,6 +306,133 @@ def pf_kernel(inp, s, rng):  # type: ignore[no-untyped-def]
 
 
 @nb.njit(cache=True)
+def _untrusted(T, I, W, lw, wn, ring_T, ring_lw, k, n_bad, yw, yI, init_sd, s, rng
+               ):  # type: ignore[no-untyped-def]
+    """A sample no particle explains: keep the weights; after ``reanchor_after`` in a row
+    redraw the F2 [I, w] around the measurement and roll T and the weights back. Returns
+    (n_bad, action)."""
+    n_bad += 1
+    act = 4
+    R = ring_T.shape[0]
+    if s.design == 1 and n_bad >= s.reanchor_after:
+        for i in range(T.size):
+            I[i] = yI + init_sd[0] * rng.standard_normal()
+            W[i] = yw + init_sd[1] * rng.standard_normal()
+        back = k - n_bad - s.rollback  # the cloud after step back, if still kept
+        if R > 1 and back >= 0:
+            T[:] = ring_T[back % R]
+            lw[:] = ring_lw[back % R]
+            normalise_row(lw, wn)
+        n_bad = 0
+        act = 5
+    return n_bad, act
+
+
+@nb.njit(cache=True)
+def _renew(T, I, W, lw, wn, m, ess, spread, s, rng, idx, T2, I2, W2, cw
+           ):  # type: ignore[no-untyped-def]
+    """After the update: the adaptive spread around the estimate ``m`` (``spread``), or
+    ESS-triggered systematic resampling (not for the auxiliary PF, which resampled in its
+    first stage). Returns the action (0, 1 or 2)."""
+    N = T.size
+    logN = math.log(N)
+    if spread:
+        for i in range(N):
+            T[i] = m + s.adapt_spread * rng.standard_normal()
+            lw[i] = -logN
+            wn[i] = 1.0 / N
+        return 2
+    if s.variant != 4 and ess < s.ess_frac * N:
+        _resample(T, I, W, idx, wn, rng.random(), s.design, T2, I2, W2, cw)
+        for i in range(N):
+            lw[i] = -logN
+            wn[i] = 1.0 / N
+        return 1
+    return 0
+
+
+@nb.njit(cache=True)
+def _apf_first_stage(T, I, W, lw, wn, ll1, u, s, idx, T2, I2, W2, cw
+                     ):  # type: ignore[no-untyped-def]
+    """The auxiliary PF's first stage (Pitt and Shephard 1999): resample the ancestors by
+    w_{k-1} p(y_k | mu_k), keep each survivor's ``ll1`` for its second-stage weight
+    p(y_k | x_k) / p(y_k | mu_k), set equal weights. Returns log sum_i w_i p(y_k | mu_k^i),
+    the first factor of the data likelihood."""
+    N = T.size
+    for i in range(N):
+        T2[i] = lw[i] + ll1[i]
+    ls = normalise_row(T2, cw)
+    fw = np.empty(N)
+    fw[:] = cw
+    _resample(T, I, W, idx, fw, u, s.design, T2, I2, W2, cw)
+    for j in range(N):
+        T2[j] = ll1[idx[j]]
+    logN = math.log(N)
+    for i in range(N):
+        ll1[i] = T2[i]
+        lw[i] = -logN
+        wn[i] = 1.0 / N
+    return ls
+
+
+@nb.njit(cache=True)
+def _outputs(K):  # type: ignore[no-untyped-def]
+    """The per-sample outputs of :func:`pf_steps`, unfilled."""
+    return (np.full(K, np.nan), np.full(K, np.nan), np.full(K, np.nan), np.full(K, np.nan),
+            np.full(K, np.nan), np.zeros(K, dtype=np.int8), np.zeros(K, dtype=np.int64),
+            np.ones(K), np.zeros(K), np.zeros(K, dtype=np.int8))
+
+
+@nb.njit(cache=True)
+def _record(outs, kk, T, wn, s, ibuf, fbuf):  # type: ignore[no-untyped-def]
+    """Write the estimates of row ``kk`` (mean, sd, interval, ESS); returns (mean, ESS)."""
+    m, sd = _mean_std(T, wn)
+    outs[0][kk] = m
+    outs[1][kk] = sd
+    if s.want_quantiles:
+        outs[2][kk], outs[3][kk] = _interval(T, wn, s, ibuf, fbuf)
+    ess = ess_row(wn)
+    outs[4][kk] = ess
+    return m, ess
+
+
+@nb.njit(cache=True)
+def _propagate(T, I, W, ll, I2, W2, s, rng, yprev_w, yprev_I, yw, yI, Vk, tn0, tn1, tn2, b0, b1,
+               S_inv, C):  # type: ignore[no-untyped-def]
+    """The prediction of one step: T random walk, then RK4 per particle with its own T (plus
+    the F2 process noise of [I, w]), and the log-likelihood of the sample; returns the largest
+    log-likelihood (NaN predictions count as zero likelihood)."""
+    N = T.size
+    a11, a12, a22 = S_inv[0, 0], S_inv[0, 1], S_inv[1, 1]
+    for i in range(N):
+        T[i] += s.q_T * rng.standard_normal()
+    if s.design == 1 and s.q_I > 0.0:
+        for i in range(N):
+            I2[i] = s.q_I * rng.standard_normal()
+    if s.design == 1 and s.q_w > 0.0:
+        for i in range(N):
+            W2[i] = s.q_w * rng.standard_normal()
+    _predict_loglik(I, W, T, ll, N, s.design, yprev_w, yprev_I, yw, yI, Vk,
+                    tn0, tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
+    if s.design == 1 and (s.q_I > 0.0 or s.q_w > 0.0):
+        for i in range(N):
+            if s.q_I > 0.0:
+                I[i] += I2[i]
+            if s.q_w > 0.0:
+                W[i] += W2[i]
+            e0 = yw - W[i]
+            e1 = yI - I[i]
+            ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) - s.log_norm
+    llmax = -np.inf
+    for i in range(N):
+        if ll[i] != ll[i]:  # NaN prediction (diverged particle): zero likelihood
+            ll[i] = -np.inf
+        if ll[i] > llmax:
+            llmax = ll[i]
+    return llmax
+
+
+@nb.njit(cache=True)
 def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     """Advance the cloud ``st`` (a :class:`PFState`, updated in place) over ``inp.y`` (K, 2) =
     [w, I_m]: row 0 is the sample the cloud is at (global index ``k0``), rows 1..K-1 the new
@@ -357,48 +443,33 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
     the step ending at t_k = t0 + k dt (and sets the APF gain c = c0 / (c0 - V)). Design F1:
     each particle predicts y_k by one RK4 step from the measured y_{k-1}; F2: particles carry
     [I, w], initialised at y_0 + init_sd * normal. Likelihood log p = -d^2/2 - log_norm.
+    The auxiliary PF (variant 4) first resamples by the point predictions' likelihoods (one
+    uniform, drawn before the step's normals), then weights by p(y | x) / p(y | mu).
 
     Returns (T_mean, T_std, T_qlo, T_qhi, ess, action, n_clipped, gamma, loglik, untrusted),
     each (K,), row 0 not filled (NaN / 0). ``action``: 0 none, 1 ESS resampling, 2 adaptive
     spread, 3 all weights zero (reset to equal weights), 4 untrusted sample (gated: weights
-    kept), 5 untrusted and the F2 [I, w] redrawn around the measurement. ``untrusted`` (int8)
-    is 1 for a gated sample.
+    kept), 5 untrusted and the F2 [I, w] redrawn around the measurement, 6 auxiliary PF
+    first-stage resampling. ``untrusted`` (int8) is 1 for a gated sample.
     """
     y, V, S_inv, init_sd, P = inp
     K = y.shape[0]
     N = s.n
     T, I, W, lw, wn, ring_T, ring_lw, sc = st
-    ll = np.empty(N)
-    T2 = np.empty(N)
-    I2 = np.empty(N)
-    W2 = np.empty(N)
-    cw = np.empty(N)
-    idx = np.empty(N, dtype=np.int64)
-    ibuf = np.empty(N, dtype=np.int64)
-    fbuf = np.empty(3 * N)
-    out_mean = np.full(K, np.nan)
-    out_std = np.full(K, np.nan)
-    out_qlo = np.full(K, np.nan)
-    out_qhi = np.full(K, np.nan)
-    out_ess = np.full(K, np.nan)
-    out_act = np.zeros(K, dtype=np.int8)
-    out_clip = np.zeros(K, dtype=np.int64)
-    out_gamma = np.ones(K)
-    out_ll = np.zeros(K)
-    out_flag = np.zeros(K, dtype=np.int8)
-    a11 = S_inv[0, 0]
-    a12 = S_inv[0, 1]
-    a22 = S_inv[1, 1]
+    ll, ll1, T2, I2, W2, cw = (np.empty(N), np.empty(N), np.empty(N), np.empty(N),
+                               np.empty(N), np.empty(N))
+    idx, ibuf, fbuf = np.empty(N, dtype=np.int64), np.empty(N, dtype=np.int64), np.empty(3 * N)
+    outs = _outputs(K)
+    out_act, out_clip, out_gamma, out_ll, out_flag = outs[5:]
+    a11, a12, a22 = S_inv[0, 0], S_inv[0, 1], S_inv[1, 1]
     logN = math.log(N)
-    C = _consts(P)
-    b0, b1 = _friction_law(P)
+    C = wheel_constants(P)
+    b0, b1 = viscous_law(P)
     tn_amp = P[7] * P[10] * P[11] * P[11]
     w_a = P[11]
     ll_gate = -0.5 * s.gate_d2 - s.log_norm
     R = ring_T.shape[0]
-    win_sum = sc[0]
-    win_cnt = int(sc[1])
-    n_bad = int(sc[2])
+    win_sum, win_cnt, n_bad = sc[0], int(sc[1]), int(sc[2])
 
     for kk in range(1, K):
         k = k0 + kk  # the global sample index
@@ -412,73 +483,39 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
         tn2 = tn_amp * math.sin(w_a * (t + s.dt))
         yw = y[kk, 0]
         yI = y[kk, 1]
-        # --- prediction: T random walk, then RK4 per particle with its own T
-        for i in range(N):
-            T[i] += s.q_T * rng.standard_normal()
-        if s.design == 1 and s.q_I > 0.0:
-            for i in range(N):
-                I2[i] = s.q_I * rng.standard_normal()
-        if s.design == 1 and s.q_w > 0.0:
-            for i in range(N):
-                W2[i] = s.q_w * rng.standard_normal()
-        _predict_loglik(I, W, T, ll, N, s.design, y[kk - 1, 0], y[kk - 1, 1], yw, yI, Vk,
-                        tn0, tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
-        if s.design == 1 and (s.q_I > 0.0 or s.q_w > 0.0):
-            for i in range(N):
-                if s.q_I > 0.0:
-                    I[i] += I2[i]
-                if s.q_w > 0.0:
-                    W[i] += W2[i]
-                e0 = yw - W[i]
-                e1 = yI - I[i]
-                ll[i] = -0.5 * (a11 * e0 * e0 + 2.0 * a12 * e0 * e1 + a22 * e1 * e1) \
-                    - s.log_norm
-        llmax = -np.inf
-        for i in range(N):
-            if ll[i] != ll[i]:  # NaN prediction (diverged particle): zero likelihood
-                ll[i] = -np.inf
-            if ll[i] > llmax:
-                llmax = ll[i]
-        act = 0
-        if llmax < ll_gate:
+        ls_first = 0.0
+        first = False
+        if s.variant == 4:  # auxiliary PF: resample by the point predictions first
+            _point_loglik(I, W, T, ll1, N, s.design, y[kk - 1, 0], y[kk - 1, 1], yw, yI, Vk,
+                          tn0, tn1, tn2, s.dt, b0, b1, a11, a12, a22, s.log_norm, C)
+            if ll1.max() >= ll_gate:
+                ls_first = _apf_first_stage(T, I, W, lw, wn, ll1, rng.random(), s, idx, T2,
+                                            I2, W2, cw)
+                first = True
+        llmax = _propagate(T, I, W, ll, I2, W2, s, rng, y[kk - 1, 0], y[kk - 1, 1], yw, yI,
+                           Vk, tn0, tn1, tn2, b0, b1, S_inv, C)
+        if llmax < ll_gate or (s.variant == 4 and not first):
             # --- untrusted sample: no particle explains it; keep the weights
             out_flag[kk] = 1
-            n_bad += 1
-            act = 4
-            if s.design == 1 and n_bad >= s.reanchor_after:
-                for i in range(N):
-                    I[i] = yI + init_sd[0] * rng.standard_normal()
-                    W[i] = yw + init_sd[1] * rng.standard_normal()
-                back = k - n_bad - s.rollback  # the cloud after step back, if still kept
-                if R > 1 and back >= 0:
-                    T[:] = ring_T[back % R]
-                    lw[:] = ring_lw[back % R]
-                    normalise_row(lw, wn)
-                n_bad = 0
-                act = 5
-            out_mean[kk], out_std[kk] = _mean_std(T, wn)
-            if s.want_quantiles:
-                out_qlo[kk], out_qhi[kk] = _interval(T, wn, s, ibuf, fbuf)
-            out_ess[kk] = ess_row(wn)
-            out_act[kk] = act
+            n_bad, out_act[kk] = _untrusted(T, I, W, lw, wn, ring_T, ring_lw, k, n_bad, yw, yI,
+                                            init_sd, s, rng)
+            _record(outs, kk, T, wn, s, ibuf, fbuf)
             continue
         n_bad = 0
+        if first:  # second-stage weight p(y | x) / p(y | mu) of the auxiliary PF
+            for i in range(N):
+                ll[i] -= ll1[i]
         # --- weight update; ls_data = log sum_i exp(lw_i + ll_i), the data log-likelihood
         ls, ls_data, out_clip[kk], out_gamma[kk] = _weight_update(lw, wn, ll, Vk, s, T2, cw)
+        act = 6 if first else 0
         if not ls > -np.inf:  # every weight zero: documented reset to equal weights
             for i in range(N):
                 lw[i] = -logN
                 wn[i] = 1.0 / N
             act = 3
-        out_ll[kk] = ls_data
+        out_ll[kk] = ls_data + ls_first
         # --- estimates
-        m, sd = _mean_std(T, wn)
-        out_mean[kk] = m
-        out_std[kk] = sd
-        if s.want_quantiles:
-            out_qlo[kk], out_qhi[kk] = _interval(T, wn, s, ibuf, fbuf)
-        ess = ess_row(wn)
-        out_ess[kk] = ess
+        m, ess = _record(outs, kk, T, wn, s, ibuf, fbuf)
         # --- resampling / adaptive spread
         spread = False
         if s.variant == 1:
@@ -486,23 +523,11 @@ def pf_steps(inp, s, rng, st, k0):  # type: ignore[no-untyped-def]
             win_cnt += 1
             if win_cnt >= s.adapt_window and math.log(win_sum / win_cnt) < s.log_p_eff:
                 spread = True
-        if spread:
-            for i in range(N):
-                T[i] = m + s.adapt_spread * rng.standard_normal()
-                lw[i] = -logN
-                wn[i] = 1.0 / N
-            win_sum = 0.0
-            win_cnt = 0
-            act = 2
-        elif ess < s.ess_frac * N:
-            _resample(T, I, W, idx, wn, rng.random(), s.design, T2, I2, W2, cw)
-            for i in range(N):
-                lw[i] = -logN
-                wn[i] = 1.0 / N
-            act = 1
-        out_act[kk] = act
+                win_sum = 0.0
+                win_cnt = 0
+        renewed = _renew(T, I, W, lw, wn, m, ess, spread, s, rng, idx, T2, I2, W2, cw)
+        out_act[kk] = renewed if renewed else act
     sc[0] = win_sum
     sc[1] = win_cnt
     sc[2] = n_bad
-    return (out_mean, out_std, out_qlo, out_qhi, out_ess, out_act, out_clip, out_gamma, out_ll,
-            out_flag)
+    return outs

@@ -16,9 +16,9 @@ from rulkit.systems.reaction_wheel.telemetry import (
     TelemetryError,
     iter_wheel_telemetry,
     read_wheel_telemetry,
+    table3_telemetry,
 )
-from rulkit.systems.reaction_wheel.temperature import table3_telemetry
-from rulkit.systems.reaction_wheel.temperature_estimate import (
+from rulkit.systems.reaction_wheel.temperature.estimator import (
     EstimationError,
     TemperatureEstimator,
     estimate_temperature,
@@ -57,7 +57,7 @@ def read_clean(df: pd.DataFrame) -> pd.DataFrame:
 
 @pytest.mark.parametrize(("method", "design"), [
     ("adaptive", "F2"), ("pf", "F1"), ("apf_eq28", "F2"), ("apf_tempered", "F1"), ("ekf", "F2"),
-    ("rbpf", "F2")])
+    ("rbpf", "F2"), ("imm", "F2"), ("apf", "F2")])
 def test_chunks_give_the_numbers_of_one_pass(record, method: str, design: str) -> None:
     whole = estimate_temperature(record, method, 40, np.random.default_rng(7), design=design)
     # boundaries at the glitch, inside the gate's run of untrusted samples, and 1-row chunks
@@ -129,16 +129,16 @@ def test_cli_streams_the_same_numbers_and_leaves_nothing_on_failure(tmp_path: Pa
         assert res.exit_code == 0, res.output
         outs[chunk] = pd.read_csv(dest)
     pd.testing.assert_frame_equal(outs["7"], outs["100000"], check_exact=True)
-    whole = estimate_temperature(record, "adaptive", 40, np.random.default_rng(0))
-    pd.testing.assert_frame_equal(outs["7"], whole, check_exact=True)
+    whole = estimate_temperature(record)  # the default: imm
+    pd.testing.assert_frame_equal(outs["7"], whole, check_exact=True, check_dtype=False)
     pq = tmp_path / "e.parquet"
     assert runner.invoke(app, ["rw", "estimate-temperature", str(f), "--out", str(pq),
                                "--particles", "40", "--chunk-rows", "9"]).exit_code == 0
     pd.testing.assert_frame_equal(pd.read_parquet(pq), whole, check_exact=True)
 
     # a bad row in the last chunk: exit 1 naming it, the old output untouched, no partial file
-    bad = record.copy()
-    bad.loc[len(bad) - 3, "speed_rad_s"] = np.nan
+    bad = record.astype({"speed_rad_s": object})
+    bad.loc[len(bad) - 3, "speed_rad_s"] = "fast"
     bad.to_csv(f, index=False)
     dest = tmp_path / "e7.csv"
     before = dest.read_bytes()
@@ -152,32 +152,25 @@ def test_cli_streams_the_same_numbers_and_leaves_nothing_on_failure(tmp_path: Pa
 
 
 def test_a_filter_failure_names_the_file_row_and_time(record, monkeypatch) -> None:
-    """Issue 13: "innovation covariance ..." from inside the EKF becomes a message naming the
-    source, the record row and its time (the step index mapped through the chunking)."""
+    """Issue 13: an error from inside a filter step becomes a message naming the source, the
+    record row and its time (the step index mapped through the chunking)."""
     from rulkit.estimation.kalman import FilterStepError
-    from rulkit.systems.reaction_wheel import temperature_estimate as te
+    from rulkit.systems.reaction_wheel.temperature import estimator as te
 
-    real = te.ekf_setup
+    real = te.ekf_steps
 
-    def failing(*a, **kw):
-        ekf, x0, P0, clock = real(*a, **kw)
+    def failing(t, V, y, *a):
+        if len(t) > 3:
+            raise FilterStepError(3, ValueError("innovation covariance is not positive"))
+        return real(t, V, y, *a)
 
-        class Failing:
-            def filter(self, ys, x, P, us):
-                if len(ys) > 3:
-                    raise FilterStepError(3, ValueError("innovation covariance S = H P H^T + R "
-                                                        "is not positive definite for unit 0"))
-                return ekf.filter(ys, x, P, us=us)
-
-        return Failing(), x0, P0, clock
-
-    monkeypatch.setattr(te, "ekf_setup", failing)
+    monkeypatch.setattr(te, "ekf_steps", failing)
     clean = read_clean(record)
-    est = TemperatureEstimator("ekf", dt=clean.attrs["dt"], source="wheel.csv")
-    with pytest.raises(EstimationError, match=r"^wheel.csv: row 4 \(time_s = 0.2\): the ekf "
+    est = TemperatureEstimator("imm", dt=clean.attrs["dt"], source="wheel.csv")
+    with pytest.raises(EstimationError, match=r"^wheel.csv: row 3 \(time_s = 0.15\): the imm "
                                               r"filter failed \(step 3: innovation covariance"):
         est.update(clean.iloc[:10])
-    est = TemperatureEstimator("ekf", dt=clean.attrs["dt"], source="wheel.csv")
+    est = TemperatureEstimator("imm", dt=clean.attrs["dt"], source="wheel.csv")
     est.update(clean.iloc[:3])
     later = clean.iloc[3:13]
     later.attrs["row0"] = 3
@@ -187,15 +180,15 @@ def test_a_filter_failure_names_the_file_row_and_time(record, monkeypatch) -> No
 
 def test_a_record_the_model_cannot_explain_is_refused(tmp_path: Path) -> None:
     """Full command, full speed and full negative current all along: no wheel does that. The
-    gated PF trusts no sample (its output would be the prior) and the EKF runs to millions of
-    degrees: both exit 1 with a message, and nothing is written."""
+    gated PF trusts no sample (its output would be the prior), nor does the IMM's outlier gate:
+    both exit 1 with a message, and nothing is written."""
     K = 400
     f = tmp_path / "t.csv"
     pd.DataFrame({"time_s": 0.05 * np.arange(K), "v_comm_V": np.full(K, 5.0),
                   "speed_rad_s": np.full(K, 999.0), "current_A": np.full(K, -5.0)}).to_csv(
         f, index=False)
-    for method, match in (("adaptive", "trusted only 1 of 400 samples"),
-                          ("ekf", "399 of 400 estimates are outside -30..215 C")):
+    for method, match in (("adaptive", "only 1 of 400 speed samples could be used"),
+                          ("imm", "only 1 of 400 speed samples could be used")):
         res = runner.invoke(app, ["rw", "estimate-temperature", str(f), "--out",
                                   str(tmp_path / "e.csv"), "--method", method,
                                   "--particles", "40"])

@@ -12,16 +12,31 @@ import numpy as np
 import pytest
 
 from rulkit.estimation.ekf import ExtendedKalmanFilter
-from rulkit.systems.reaction_wheel.rbpf import RBPF_DESIGNS, RBPFConfig, run_rbpf
-from rulkit.systems.reaction_wheel.temperature import run_ekf, table3_telemetry
-from rulkit.systems.reaction_wheel.temperature_estimate import estimate_temperature
-from rulkit.systems.reaction_wheel.temperature_study import format_table5, run_table5
+from rulkit.systems.reaction_wheel.telemetry import table3_telemetry
+from rulkit.systems.reaction_wheel.temperature.ekf import run_ekf
+from rulkit.systems.reaction_wheel.temperature.estimator import estimate_temperature
+from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS, RBPFConfig, run_rbpf
+from rulkit.systems.reaction_wheel.temperature.study import format_table5, run_table5
 from rulkit.systems.reaction_wheel.wheel import IthacoParams, rk4_wheel_step, simulate_table3
 
 
 @pytest.fixture(scope="module")
 def short_run():
     return simulate_table3(np.random.default_rng(21), "low", t_end=20.0)
+
+
+def _model_draw(rng: np.random.Generator, M: int, K: int, q_T: float,
+                sigma: tuple[float, float]):
+    """M truths drawn from the filter's own model: T_0 ~ U(15, 45), Gaussian random walk,
+    wheel from rest at 1 V, measurement noise (the posterior is calibrated by construction)."""
+    p = IthacoParams()
+    T = rng.uniform(15.0, 45.0, M)[:, None] + np.concatenate(
+        [np.zeros((M, 1)), np.cumsum(q_T * rng.standard_normal((M, K - 1)), axis=1)], axis=1)
+    x = np.zeros((M, K, 2))
+    for k in range(1, K):  # batched over the M runs
+        x[:, k] = rk4_wheel_step(x[:, k - 1], 1.0, T[:, k], (k - 1) * 0.05, 0.05, p)
+    y = x[:, :, ::-1] + rng.standard_normal((M, K, 2)) * np.array(sigma)
+    return y, np.ones(K), T
 
 
 @pytest.mark.parametrize(("p_jump", "propose"), [(0.0, 0.0), (0.02, 0.0), (1e-3, 0.05)])
@@ -84,20 +99,6 @@ def test_posterior_matches_ekf_in_nearly_linear_regime() -> None:
     assert 0.7 < ratio < 1.4, ratio
 
 
-def _model_draw(rng: np.random.Generator, M: int, K: int, q_T: float,
-                sigma: tuple[float, float]):
-    """M truths drawn from the filter's own model: T_0 ~ U(15, 45), Gaussian random walk,
-    wheel from rest at 1 V, measurement noise (the posterior is calibrated by construction)."""
-    p = IthacoParams()
-    T = rng.uniform(15.0, 45.0, M)[:, None] + np.concatenate(
-        [np.zeros((M, 1)), np.cumsum(q_T * rng.standard_normal((M, K - 1)), axis=1)], axis=1)
-    x = np.zeros((M, K, 2))
-    for k in range(1, K):  # batched over the M runs
-        x[:, k] = rk4_wheel_step(x[:, k - 1], 1.0, T[:, k], (k - 1) * 0.05, 0.05, p)
-    y = x[:, :, ::-1] + rng.standard_normal((M, K, 2)) * np.array(sigma)
-    return y, np.ones(K), T
-
-
 def test_interval_coverage_on_data_from_the_model() -> None:
     """Over 60 seeded runs drawn from the model, the 90 % interval holds the true final T in
     46..60 of them (binomial(60, 0.9): mean 54, sd 2.3) and the errors are unbiased."""
@@ -151,7 +152,7 @@ def test_table5_rows_and_telemetry_entry_point() -> None:
     tel = table3_telemetry(np.random.default_rng(1), "low", t_end=10.0)
     out = estimate_temperature(tel, "rbpf", n_particles=30, rng=np.random.default_rng(2),
                                level=0.9)
-    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted"]
+    assert list(out.columns) == ["time_s", "T_mean", "T_lo", "T_hi", "untrusted", "flags"]
     assert "not calibrated" in out.attrs["note"]
     assert np.all(out["T_lo"] <= out["T_hi"])
     with pytest.raises(ValueError, match="design"):
@@ -160,7 +161,7 @@ def test_table5_rows_and_telemetry_entry_point() -> None:
 
 
 def test_plot_includes_rbpf_variant(tmp_path) -> None:
-    from rulkit.systems.reaction_wheel.temperature_study import plot_temperature_estimates
+    from rulkit.systems.reaction_wheel.temperature.study import plot_temperature_estimates
 
     paths = plot_temperature_estimates(tmp_path, n_particles=30, variants=("rbpf",),
                                        with_ekf=False, t_end=5.0)
@@ -171,7 +172,7 @@ def test_jump_proposal_reweighting_targets_the_prior_model(short_run) -> None:
     """Proposing jumps 20x more often than the prior and reweighting gives the same posterior
     as proposing from the prior (N = 2000, within Monte-Carlo error); without the reweighting
     (a prior with that jump rate) the posterior is visibly wider: the check has power."""
-    from rulkit.systems.reaction_wheel.rbpf import _log_mix
+    from rulkit.systems.reaction_wheel.temperature.rbpf import _log_mix
 
     d = np.linspace(-12, 12, 101)
     from scipy.stats import norm
