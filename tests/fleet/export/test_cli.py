@@ -57,6 +57,36 @@ def test_refusals_write_nothing(tmp_path, fleet_db):
     assert missing.exit_code == 1 and "no such database" in missing.output
 
 
+def test_a_learned_type_without_c_export_is_refused_by_name(tmp_path):
+    from rulkit.fleet.export.learned_device import EXPORTERS
+    from rulkit.fleet.learned.degradation import KINDS
+    from rulkit.fleet.learned.hi_noise import HiNoiseModel
+    from rulkit.fleet.learned.onset import OnsetModel
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    assert sorted(EXPORTERS) == sorted(KINDS)  # the refusal names what is exported
+    csv = tmp_path / "fatigue.csv"
+    fatigue_histories().to_frame().to_csv(csv, index=False)
+    growth = {"shape": 0.0, "mean": (-2.3, 1.5), "cov": (0.01, 0.0, 0.2), "hi_noise_sd": 0.02,
+              "log_noise_sd": 0.0, "walk_sd": 0.05, "time_scale": 300.0}
+    stored = {"paris-additive": HiNoiseModel(noise="additive", **growth),
+              "onset": OnsetModel(noise="additive", grid=(0.0, 0.5), onset_mean=0.4,
+                                  onset_sd=0.3, **growth)}
+    for name in ("regression", *stored):
+        db, out = tmp_path / f"{name}.db", tmp_path / f"c-{name}"
+        if name in stored:
+            with ComponentStore(db) as s:
+                s.set_degradation_model(stored[name])
+        else:  # a model rulkit fit chose
+            fit = _run("fit", csv, "--db", db, "--model", name, "--time-unit", "kcycles")
+            assert fit.exit_code == 0, fit.output
+        res = _run("export", "c", "--db", db, "--out", out)
+        assert res.exit_code == 1, res.output
+        assert f"learned model type {name!r}" in res.output
+        assert "runs the learned types linear, exponential, paris" in res.output
+        assert "--no-learned" in res.output and not out.exists()
+
+
 def test_export_from_a_configuration_file(tmp_path):
     cfg = tmp_path / "bearing.toml"
     cfg.write_text('[component]\nname = "bearing"\n[tracker]\ndt = 1.0\ndesign_life = 2e4\n'

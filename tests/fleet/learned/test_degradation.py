@@ -220,3 +220,20 @@ def test_closed_form_quantiles_equal_bisection(kind, shape):
         np.testing.assert_array_equal(np.isinf(x), np.isinf(y))
         fin = np.isfinite(y)
         np.testing.assert_allclose(x[fin], y[fin], rtol=1e-6, atol=1e-9)
+
+
+def test_quantiles_nondecreasing_in_level_for_a_nearly_exact_line():
+    # a spread of 1e-8 around the crossing: eq. (6)'s near-double root carries ~1e-8
+    # relative roundoff, more than the distance between the median and its 5 % / 95 %
+    rng = np.random.default_rng(0)
+    sd = 1e-8
+    model = DegradationModel("linear", 0.0, (0.2, 0.5), (sd**2, 0.0, sd**2), sd, 0.0, 10.0)
+    st = UnitState.empty(model, 2000)
+    st.m[:] = np.column_stack([rng.uniform(0.1, 0.9, 2000), rng.uniform(0.01, 1.0, 2000)])
+    st.p[:] = (sd**2, 0.0, sd**2)
+    st.t[:], st.hi[:], st.n[:] = rng.uniform(0.0, 10.0, 2000), 0.5, 5
+    levels = (0.5, 0.05, 0.95, 0.25)
+    med, lo, hi, q25 = model.rul_quantiles(st, levels)
+    assert np.all((lo <= q25) & (q25 <= med) & (med <= hi))
+    # the same numbers up to that roundoff: against the line's own crossing time
+    np.testing.assert_allclose(med, (1.0 - st.m[:, 0]) / st.m[:, 1] * 10.0, rtol=1e-6)

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from rulkit.fleet.learned.degradation import DegradationModel
+from rulkit.fleet.learned.degradation import KINDS, DegradationModel
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 from rulkit.machine_file import Field, MachineFileError, read_machine_file
@@ -54,8 +54,11 @@ def spec_from_database(path: str | Path, name: str | None = None) -> DeviceSpec:
     except StoreError as err:
         raise ExportError(str(err)) from err
     if learned is not None and not isinstance(learned, DegradationModel):
-        raise ExportError(f"{p}: the learned model is a {type(learned).__name__}, which has no "
-                          "C export")
+        raise ExportError(
+            f"{p}: the learned model type {learned.name!r} ({type(learned).__name__}) has no C "
+            f"export; the device runs the learned types {', '.join(KINDS)} (rulkit fit "
+            "--model NAME); refit with one of them, or export the tracker chain alone with "
+            "--no-learned")
     return DeviceSpec(name=name or p.stem, source=str(p), config=config, hi_model=hi_model,
                       learned=learned)
 

@@ -468,6 +468,21 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
             r = np.where(never, np.inf, np.maximum(w, 0.0) * tau)
             r = np.where(failed, 0.0, r)
             out.append(np.where(missing, np.nan, r))
+    return monotone_in_level(levels, out)
+
+
+def monotone_in_level(levels: tuple[float, ...], quantiles: list[FloatArray]
+                      ) -> tuple[FloatArray, ...]:
+    """``quantiles`` (one array per level, in the order of ``levels``) made nondecreasing in
+    the level, unit by unit. Eq. (6) is a near-double root where the RUL's spread is tiny
+    (a unit whose line is known almost exactly): its roundoff, ~1e-8 relative, could put a
+    median above its 95 % quantile; a quantile is raised to the largest of the lower levels'."""
+    if len(levels) < 2:
+        return tuple(quantiles)
+    order = np.argsort(np.asarray(levels), kind="stable")
+    q = np.maximum.accumulate(np.stack(quantiles)[order], axis=0)
+    out = np.empty_like(q)
+    out[order] = q
     return tuple(out)
 
 
