@@ -39,12 +39,9 @@ from rulkit.fleet.export.verify import (
 )
 from rulkit.fleet.learned.datasets import fatigue_histories
 from rulkit.fleet.learned.degradation import fit_model
-from rulkit.fleet.tracking.tracker_chain import (
-    TrackerState,
-    fit_tracker_config,
-    tracker_update,
-)
+from rulkit.fleet.tracking.tracker_chain import TrackerState, tracker_update
 from rulkit.fleet.tracking.tracker_run import tracker_run
+from rulkit.fleet.tracking.tracker_settings import fit_tracker_config
 from timing import median_time
 
 ARM_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",

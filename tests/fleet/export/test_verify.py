@@ -25,7 +25,8 @@ from rulkit.fleet.learned.degradation import fit_model
 from rulkit.fleet.learned.histories import histories_from_frame
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.health_index import HealthIndexModel
-from rulkit.fleet.tracking.tracker_chain import TrackerConfig, fit_tracker_config
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+from rulkit.fleet.tracking.tracker_settings import fit_tracker_config
 
 REAL = ("fhi", "dhi", "rul", "frul", "drul", "d2rul")
 

@@ -101,7 +101,7 @@ def fmt_candidates(table: Any) -> str:
 
 
 def _fit_tracker(hist: Any, histories: Path) -> Any:
-    from rulkit.fleet.tracking.tracker_chain import fit_tracker_config
+    from rulkit.fleet.tracking.tracker_settings import fit_tracker_config
 
     try:
         return fit_tracker_config(hist)

@@ -79,7 +79,8 @@ def _predict_model(train: Histories, test: Histories, kind: str, cap: float,
 
 
 def _predict_unit_tracker(train: Histories, test: Histories) -> pd.DataFrame:
-    from rulkit.fleet.tracking.tracker_chain import fit_tracker_config, track_series
+    from rulkit.fleet.tracking.tracker_chain import track_series
+    from rulkit.fleet.tracking.tracker_settings import fit_tracker_config
 
     cfg = fit_tracker_config(train)
     rows = []

@@ -125,10 +125,10 @@ def _finite(v: float) -> float | None:
 
 def _check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
     """The batch's acquisition spacing against ``design_life`` (time-unit check,
-    :func:`rulkit.fleet.tracking.tracker_chain.check_time_unit`), as an :class:`IngestError`.
+    :func:`rulkit.fleet.tracking.tracker_settings.check_time_unit`), as an :class:`IngestError`.
     ``gaps``: each acquisition's interval since the previous one of its component (NaN for a
     component's first ever), in batch order."""
-    from rulkit.fleet.tracking.tracker_chain import check_time_unit
+    from rulkit.fleet.tracking.tracker_settings import check_time_unit
 
     gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
     try:

@@ -14,12 +14,11 @@ from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import (
     TrackerConfig,
     TrackerState,
-    check_time_unit,
-    fit_tracker_config,
     track_series,
     tracker_update,
     tracker_update_loop,
 )
+from rulkit.fleet.tracking.tracker_settings import check_time_unit, fit_tracker_config
 
 T0 = np.arange(0, 10.0)
 HI0 = np.array([0.0, 0.0, 0.0, 0.01, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5])  # starts at the HI floor
