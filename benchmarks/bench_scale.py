@@ -184,7 +184,7 @@ def main() -> None:
             "component": np.repeat([f"c{i:07d}" for i in range(n)], 3),
             "time": np.tile([0.0, 1.0, 2.0], n),
             "hi": np.repeat(rng.uniform(0.05, 1.2, n), 3)})
-        from rulkit.fleet.store.sqlite import ingest_into
+        from rulkit.fleet.store.ingest import ingest_into
 
         ingest_into(sdb, frame)
         for fmt in ("table", "csv", "json"):

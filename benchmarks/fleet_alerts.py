@@ -32,7 +32,8 @@ import pandas as pd
 from rulkit.fleet.learned.degradation import fit_model
 from rulkit.fleet.learned.histories import histories_from_frame
 from rulkit.fleet.monitoring.rules import MonitoringRules
-from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.store.ingest import ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.store.status_view import read_status
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 from rulkit.reporting import markdown_table

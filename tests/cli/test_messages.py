@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from rulkit.cli import app
 from rulkit.cli.errors import EXIT_CORRUPT, EXIT_INPUT, EXIT_INTERNAL, EXIT_USAGE
-from rulkit.fleet.store.sqlite import ingest_into
+from rulkit.fleet.store.ingest import ingest_into
 
 runner = CliRunner()
 

@@ -11,7 +11,7 @@ from rulkit.cli import app
 from rulkit.fleet.learned.histories import HistoryError, histories_from_frame, read_histories
 from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
 from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
-from rulkit.fleet.store.sqlite import ingest_into
+from rulkit.fleet.store.ingest import ingest_into
 
 runner = CliRunner()
 

@@ -30,7 +30,8 @@ from rulkit.fleet.store.database_file import (
     StoreFullError,
     StoreReadOnlyError,
 )
-from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.store.ingest import ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.store.status_view import read_status
 
 runner = CliRunner()

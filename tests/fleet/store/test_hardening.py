@@ -22,7 +22,8 @@ from rulkit.fleet.store.acquisitions import (
     read_acquisitions,
 )
 from rulkit.fleet.store.database_file import StoreBusyError, StoreError
-from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.store.ingest import ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
 runner = CliRunner()
@@ -90,7 +91,7 @@ _WORKER = """
 import json, sys
 import pandas as pd
 from rulkit.fleet.store.database_file import StoreBusyError
-from rulkit.fleet.store.sqlite import ingest_into
+from rulkit.fleet.store.ingest import ingest_into
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 db, k = sys.argv[1], int(sys.argv[2])
 rows = [(f"p{k}-{i}", float(t), 0.3) for i in range(100) for t in range(10)]

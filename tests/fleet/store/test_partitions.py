@@ -11,8 +11,9 @@ from rulkit.cli import app
 from rulkit.fleet.learned.onset import OnsetModel
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.acquisitions import IngestError
+from rulkit.fleet.store.ingest import ingest_into
 from rulkit.fleet.store.partitions import track_directory
-from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
 CFG = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e4, warn_rul=40.0)

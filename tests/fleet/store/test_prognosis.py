@@ -20,8 +20,9 @@ from rulkit.fleet.learned.regression import fit_regression
 from rulkit.fleet.learned.similarity import fit_similarity
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, rul_quantiles, trend_posterior
+from rulkit.fleet.store.ingest import ingest_into
 from rulkit.fleet.store.schema import COMPONENTS, RUL_COLUMNS
-from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.store.status_view import read_status
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig, tracker_rul_interval
 

@@ -19,7 +19,8 @@ from typer.testing import CliRunner
 
 import rulkit.fleet.store.status_view as sv
 from rulkit.cli import app
-from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.store.ingest import ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore
 
 runner = CliRunner()
 NOW = "2024-05-01T12:00:00Z"

@@ -93,7 +93,8 @@ def test_ingest_history_and_alerts_equal_the_rank_by_rank_reference(tmp_path, mo
     import pandas as pd
 
     from rulkit.fleet.monitoring.rules import MonitoringRules
-    from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+    from rulkit.fleet.store.ingest import ingest_into
+    from rulkit.fleet.store.sqlite import ComponentStore
     from rulkit.fleet.tracking.tracker_chain import tracker_rul_interval
 
     monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", block)

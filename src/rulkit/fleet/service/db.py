@@ -60,7 +60,6 @@ ALERT_FIELDS = ("id", "component", "t", "level", "previous", "hi", "fhi", "rul",
                 "ack_token")
 _ALERT_NOW = ("level", "rul_median", "rul_low", "rul_high", "failed_at", "seen")
 """The alerted component's current columns, read with each alert (the table's values)."""
-SAME_HI_RTOL = 1e-12
 
 class NotFound(LookupError):
     """No such component or alert (HTTP 404)."""

@@ -273,7 +273,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         from rulkit.cli.errors import bad_option, fail
         from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
         from rulkit.fleet.store.database_file import StoreBusyError, StoreError, is_postgres_url
-        from rulkit.fleet.store.sqlite import ingest_into
+        from rulkit.fleet.store.ingest import ingest_into
         from rulkit.fleet.tracking.tracker_chain import TrackerConfig
         from rulkit.tables import safe_text
 
@@ -404,8 +404,8 @@ def _stored_settings(db: str) -> tuple[Any, Any]:
     """``((tracker config, HI model), rules)`` stored in the database ``db`` (a SQLite path or
     a ``postgresql://`` URL), ``(None, None)`` when there is none yet."""
     from rulkit.fleet.store.database_file import is_postgres_url
+    from rulkit.fleet.store.ingest import read_rules, read_settings
     from rulkit.fleet.store.postgres import open_store
-    from rulkit.fleet.store.sqlite import read_rules, read_settings
 
     if not is_postgres_url(db):
         return read_settings(db), read_rules(db)

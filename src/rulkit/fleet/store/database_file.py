@@ -28,6 +28,7 @@ mode. :func:`read_verified` repeats a read whose file changed meanwhile.
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import sqlite3
@@ -322,3 +323,20 @@ def rows_of_components(conn: Any, table: str, cols: tuple[str, ...], names: list
              f"({','.join('?' * len(chunk))})")
         for row in conn.execute(q, chunk).fetchall():
             yield pos[row[0]], tuple(row[1:])
+
+
+def remove_stale_creations(path: Path) -> None:
+    """Delete the temporary files of creations of ``path`` whose process is gone (a first
+    ingest killed before it published its database leaves ``.NAME.PID.XXXXXXXX.creating``
+    and its journals; the PID in the name tells whether it is still running)."""
+    for tmp in path.parent.glob(f".{glob.escape(path.name)}.*.creating*"):
+        parts = tmp.name[len(path.name) + 2:].split(".")
+        if len(parts) < 3 or not parts[0].isdigit():
+            continue
+        pid = int(parts[0])
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            tmp.unlink(missing_ok=True)
+        except PermissionError:  # another user's process: alive
+            continue

@@ -28,6 +28,7 @@ import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
+from rulkit.fleet.store.ingest import ingest_into
 from rulkit.fleet.store.schema import (
     COMPONENTS,
     HISTORY,
@@ -36,7 +37,7 @@ from rulkit.fleet.store.schema import (
     model_state_table,
     recount_levels,
 )
-from rulkit.fleet.store.sqlite import ComponentStore, ingest_into
+from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
@@ -80,7 +81,7 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
                     buckets: int = 0, timeout: float = 30.0,
                     rules: MonitoringRules | None = None) -> tuple[IngestResult, bool]:
     """Ingest the partitions under ``directory`` into the SQLite database ``db`` (created if
-    missing); ``(result, created)`` as :func:`~rulkit.fleet.store.sqlite.ingest_into`.
+    missing); ``(result, created)`` as :func:`~rulkit.fleet.store.ingest.ingest_into`.
     ``scheduler``: a Dask scheduler address or ``distributed.Client`` (module docstring);
     ``buckets``: tasks to split the components into (default: 4 per worker). ``rules``: the
     estimator choice and alert rules, as for ``ingest_into`` (rules other than the stored
@@ -123,7 +124,7 @@ def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, s
              source: str) -> IngestResult | None:
     """A new database at ``path`` from the buckets (:func:`_combine` written beside it, the
     settings and the ingestion's audit row added, then linked into place as
-    :func:`~rulkit.fleet.store.sqlite.ingest_into` publishes one: complete or absent).
+    :func:`~rulkit.fleet.store.ingest.ingest_into` publishes one: complete or absent).
     ``None`` when another process created ``path`` meanwhile (then the caller merges)."""
     import os
     import uuid

@@ -27,13 +27,13 @@ Guarantees (tested in tests/fleet/store/test_sqlite.py):
 * **Consistent readers.** The database runs in WAL mode: a reader inside a read transaction
   (:meth:`ComponentStore.snapshot`) sees one committed state, never a half-applied batch,
   while a writer proceeds.
-* **Nothing created on rejection, atomic creation.** :func:`ingest_into` validates a batch
-  before touching the database; a new database is built beside its final name (schema,
-  settings and first batch in a temporary file) and linked into place only once complete, so
-  a rejected batch creates nothing and concurrent first ingests never see a half-made file
-  (the loser of the race applies its batch to the winner's database). The private temporary
-  file is written without the write-ahead log and without syncs (one ``fsync`` before it is
-  linked; WAL mode is switched on last), which nothing can observe.
+* **Nothing created on rejection, atomic creation.** :func:`~rulkit.fleet.store.ingest.ingest_into`
+  validates a batch before touching the database; a new database is built beside its final name
+  (schema, settings and first batch in a temporary file) and linked into place only once complete,
+  so a rejected batch creates nothing and concurrent first ingests never see a half-made file (the
+  loser of the race applies its batch to the winner's database). The private temporary file is
+  written without the write-ahead log and without syncs (one ``fsync`` before it is linked; WAL mode
+  is switched on last), which nothing can observe.
 * **Foreign files are never modified.** An existing file is checked read-only (SQLite header,
   ``meta`` table, schema version) before it is opened for writing; a 0-byte file, a
   non-SQLite file or an SQLite file of another application raises :class:`StoreError` and
@@ -50,7 +50,6 @@ terminal output; printing still goes through :func:`rulkit.tables.safe_text`.
 
 from __future__ import annotations
 
-import glob
 import json
 import math
 import os
@@ -70,11 +69,17 @@ from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
 from rulkit.fleet.store.acquisitions import (
     Alert,
-    ConflictError,
     IngestError,
     IngestResult,
     read_acquisitions,
     validate_acquisitions,
+)
+from rulkit.fleet.store.batch_order import (
+    check_spacing,
+    component_blocks,
+    gaps_after_stored,
+    order_by_component,
+    split_duplicates,
 )
 from rulkit.fleet.store.database_file import (
     StoreError,
@@ -82,8 +87,8 @@ from rulkit.fleet.store.database_file import (
     _degradation_from_meta,
     _fsync_dir,
     _meta_rows,
-    _probe,
     open_database,
+    remove_stale_creations,
     store_error,
     time_axis_from_meta,
 )
@@ -113,30 +118,12 @@ STATE_FIELDS = ("t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul")
 OUTPUT_FIELDS = ("valid", "level", "rul_low", "rul_high")
 ROW_FIELDS = (*STATE_FIELDS, *OUTPUT_FIELDS)
 HISTORY_FIELDS = tuple(f for f in ROW_FIELDS if f != "n")
-SAME_HI_RTOL = 1e-12
-"""Relative tolerance under which a re-sent acquisition's HI equals the stored one."""
 
 
 def _finite(v: float) -> float | None:
     """``v``, or ``None`` (SQL NULL) when it is NaN or infinite."""
     return v if math.isfinite(v) else None
 
-
-
-def _check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
-    """The batch's acquisition spacing against ``design_life`` (time-unit check,
-    :func:`rulkit.fleet.tracking.tracker_settings.check_time_unit`), as an :class:`IngestError`.
-    ``gaps``: each acquisition's interval since the previous one of its component (NaN for a
-    component's first ever), in batch order."""
-    from rulkit.fleet.tracking.tracker_settings import check_time_unit
-
-    gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
-    try:
-        # a cumulative sum of positive numbers is nondecreasing in floating point too
-        check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column",
-                        assume_sorted=True)
-    except ValueError as err:
-        raise IngestError(str(err)) from err
 
 
 def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexModel | None,
@@ -147,7 +134,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     ``path`` appeared meanwhile. Returns the batch's result, or ``None`` when another process
     created ``path`` first (then nothing of ours is kept and the caller applies the batch to
     that database)."""
-    _remove_stale_creations(path)
+    remove_stale_creations(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
     result: IngestResult | None = None
     try:
@@ -203,90 +190,6 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     finally:
         for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm"), Path(f"{tmp}-journal")):
             p.unlink(missing_ok=True)
-
-
-def _remove_stale_creations(path: Path) -> None:
-    """Delete the temporary files of creations of ``path`` whose process is gone (a first
-    ingest killed before it published its database leaves ``.NAME.PID.XXXXXXXX.creating``
-    and its journals; the PID in the name tells whether it is still running)."""
-    for tmp in path.parent.glob(f".{glob.escape(path.name)}.*.creating*"):
-        parts = tmp.name[len(path.name) + 2:].split(".")
-        if len(parts) < 3 or not parts[0].isdigit():
-            continue
-        pid = int(parts[0])
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            tmp.unlink(missing_ok=True)
-        except PermissionError:  # another user's process: alive
-            continue
-
-
-def read_settings(path: str | Path) -> tuple[TrackerConfig, HealthIndexModel | None] | None:
-    """The stored tracker settings and HI model of the database at ``path`` (read-only), or
-    ``None`` if there is no file; a file that is not a rulkit database raises
-    :class:`StoreError`."""
-    path = Path(path)
-    meta = _probe(path)
-    return None if meta is None else _config_from_meta(path, meta)
-
-
-def read_rules(path: str | Path) -> MonitoringRules | None:
-    """The stored monitoring rules of the database at ``path`` (read-only), or ``None`` if
-    there is no file (:class:`StoreError` for a file that is not a rulkit database)."""
-    path = Path(path)
-    if _probe(path) is None:
-        return None
-    with ComponentStore(path, readonly=True) as store:  # sees the write-ahead log
-        return store.rules
-
-
-def ingest_into(
-    path: str | Path,
-    df: pd.DataFrame,
-    *,
-    config: TrackerConfig | None = None,
-    hi_model: HealthIndexModel | None = None,
-    source: str = "<dataframe>",
-    timeout: float = 30.0,
-    rules: MonitoringRules | None = None,
-) -> tuple[IngestResult, bool]:
-    """Validate ``df`` and commit it to the database at ``path``, creating it if missing.
-
-    Returns ``(result, created)``. Nothing is created or written when the batch is rejected
-    (:class:`IngestError`), and a new database appears complete with its first batch or not
-    at all, also when several processes create it at once (module docstring). ``config``:
-    the tracker settings of a new database (default ``TrackerConfig()``); for an existing one
-    it must equal the stored settings if given (else :class:`StoreError`). ``hi_model``: the
-    CI -> HI model; stored with the batch, in the same transaction, into a database without
-    one; a database holding a different one raises :class:`StoreError`. ``rules``: the
-    estimator choice and alert rules (:class:`~rulkit.fleet.monitoring.rules.MonitoringRules`;
-    default ones for a new database); rules other than the stored ones replace them before
-    the batch (:meth:`ComponentStore.set_rules`).
-    """
-    path = Path(path)
-    for _attempt in range(2):
-        meta = _probe(path, timeout)
-        if meta is None:
-            cfg = config or TrackerConfig()
-            acq = validate_acquisitions(df, cfg, hi_model)
-            res = _build_and_publish(path, cfg, hi_model, acq, source, rules)
-            if res is not None:
-                return res, True
-            continue  # another process created it first: apply the batch to theirs
-        # the settings checks and the HI model come from the store's own connection
-        with ComponentStore(path, config=config, create=False, timeout=timeout) as store:
-            stored_model = store.hi_model
-            if hi_model is not None and stored_model is not None and (
-                    hi_model.to_dict() != stored_model.to_dict()):
-                raise StoreError(f"{path} already holds a different HI model")
-            acq = validate_acquisitions(df, store.config, stored_model or hi_model,
-                                        store.time_axis)
-            new_model = hi_model if stored_model is None else None
-            if rules is not None and rules != store.rules:
-                store.set_rules(rules)
-            return store._ingest_validated(acq, source, new_model=new_model), False
-    raise AssertionError("unreachable: the database exists after a lost creation race")
 
 
 class HistoryChunk:
@@ -594,14 +497,15 @@ class ComponentStore:
 
     def _ingest_in_transaction(self, acq: pd.DataFrame, source: str) -> IngestResult:
         """Inside the caller's write transaction: skip the rows already stored
-        (:meth:`_split_duplicates`; a contradiction raises :class:`ConflictError`), run and
-        store the trackers (:meth:`_apply`) and record the new alerts in table ``alerts``
-        with their ids."""
+        (:func:`~rulkit.fleet.store.batch_order.split_duplicates`; a contradiction raises
+        :class:`ConflictError`), run and store the trackers (:meth:`_apply`) and record the new
+        alerts in table ``alerts`` with their ids."""
         comp = acq["component"]
         names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
                                   else pd.unique(comp))]
         stored = self._load_states(names)
-        acq, n_dup = self._split_duplicates(acq, {k: float(v[0]) for k, v in stored.items()})
+        acq, n_dup = split_duplicates(self._conn, acq,
+                                      {k: float(v[0]) for k, v in stored.items()})
         if len(acq):
             res = self._apply(acq.reset_index(drop=True), source, stored)
         else:
@@ -625,44 +529,6 @@ class ComponentStore:
                 "?) RETURNING id", vals).fetchone()[0]
             out.append(replace(a, id=int(aid), raised=now))
         return out
-
-    def _split_duplicates(self, acq: pd.DataFrame, last: dict[str, float]
-                          ) -> tuple[pd.DataFrame, int]:
-        """Split off rows at or before a component's stored last time (inside the write
-        transaction): rows stored with the same HI (to :data:`SAME_HI_RTOL`) are
-        duplicates, skipped and counted; anything else raises :class:`ConflictError`
-        naming the row (acquisitions are appended in time order). ``last``: the stored last
-        time of each stored component of the batch."""
-        comp = acq["component"]
-        names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
-                                  else pd.unique(comp))]
-        if not last:
-            return acq, 0
-        codes = (comp.cat.codes.to_numpy() if hasattr(comp, "cat")
-                 else pd.factorize(comp)[0])
-        last_t = np.array([last.get(c, np.nan) for c in names])[codes]  # NaN: new
-        old = np.flatnonzero(acq["t"].to_numpy() <= last_t)
-        if old.size == 0:
-            return acq, 0
-        sub = acq.iloc[old]
-        for name, grp in sub.groupby("component", sort=False, observed=True):
-            stored = dict(self._conn.execute(
-                "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
-                (str(name), float(grp["t"].min()), float(grp["t"].max()))).fetchall())
-            for row, t, hi in zip(grp["row"], grp["t"], grp["hi"], strict=True):
-                if float(t) not in stored:
-                    raise ConflictError(
-                        f"row {row} (component {str(name)!r}): time {_fmt(t)} is before the "
-                        f"component's last stored acquisition at {_fmt(last[str(name)])} and "
-                        "is not stored (acquisitions are appended in time order)")
-                h = float(stored[float(t)])
-                if abs(h - hi) > SAME_HI_RTOL * max(1.0, abs(h), abs(hi)):
-                    raise ConflictError(
-                        f"row {row} (component {str(name)!r}): time {_fmt(t)} is already "
-                        f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
-        keep = np.ones(len(acq), dtype=bool)
-        keep[old] = False
-        return acq[keep], int(old.size)
 
     def _apply(self, acq: pd.DataFrame, source: str,
                stored: dict[str, tuple] | None = None) -> IngestResult:
@@ -699,41 +565,13 @@ class ComponentStore:
         hi = acq["hi"].to_numpy(dtype=np.float64)
         rows_all = acq["row"].to_numpy()
         n = len(acq)
-        # rows grouped by component in key order, batch order (= time order) inside
-        sorted_pos = np.argsort(np.array(names, dtype=object), kind="stable")
-        name_order = np.empty(b, dtype=np.int32)
-        name_order[sorted_pos] = np.arange(b, dtype=np.int32)
-        key = name_order[codes]
-        by_comp = np.argsort(key, kind="stable")
-        counts = np.bincount(key, minlength=b)
-        del key
-        comp_start = np.concatenate([[0], np.cumsum(counts)])
-        # the first acquisition of each component in this batch must follow its stored last
-        first = by_comp[comp_start[:-1]]  # batch position of each component's first row
-        last_t = state.t[sorted_pos]
-        with np.errstate(over="ignore", invalid="ignore"):
-            huge = np.isfinite(last_t) & ~np.isfinite(t[first] - last_t)
-        back = np.isfinite(last_t) & ~(t[first] > last_t)
-        for bad, what in ((huge, "huge"), (back, "back")):
-            if bad.any():
-                k = int(np.argmin(np.where(bad, first, n)))  # first in batch order
-                i, g = int(first[k]), int(sorted_pos[k])
-                raise IngestError(
-                    f"row {rows_all[i]} (component {names[g]!r}), column 'time': the interval "
-                    f"from the last stored acquisition at {_fmt(last_t[k])} to {_fmt(t[i])} "
-                    "overflows float64; use a smaller time unit or offset" if what == "huge"
-                    else f"row {rows_all[i]} (component {names[g]!r}): time {_fmt(t[i])} is "
-                    f"not after the component's last stored acquisition at {_fmt(last_t[k])}")
-        # the spacing check sees every interval, in batch order
-        ts = t[by_comp]
-        prev = np.empty(n)
-        prev[1:] = ts[:-1]
-        prev[comp_start[:-1]] = last_t
-        gaps = np.empty(n)
-        gaps[by_comp] = ts - prev
-        del ts, prev, first, last_t
-        _check_spacing(self.config, gaps)
-        del gaps
+        # rows grouped by component in key order, batch order (= time order) inside; the
+        # spacing check sees every interval, in batch order
+        order = order_by_component(codes, names)
+        sorted_pos, by_comp, counts, comp_start = (order.sorted_pos, order.by_comp,
+                                                   order.counts, order.start)
+        check_spacing(self.config, gaps_after_stored(order, t, rows_all, names,
+                                                     state.t[sorted_pos]))
         ingest_id = self._insert_ingest(source, n, b)
         # the RUL of the estimator in force and the alert rules (rulkit.fleet.monitoring), per
         # block below; the history holds them in rul_median / rul_low / rul_high and level
@@ -750,14 +588,7 @@ class ComponentStore:
         out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
         alerts: list[tuple[int, int, Alert]] = []
-        blocks = [] if n > self.BLOCK_ROWS else [(0, b)]  # components k0 .. k1-1 (key order)
-        k0 = 0 if blocks == [] else b
-        while k0 < b:
-            k1 = k0 + 1
-            while k1 < b and comp_start[k1 + 1] - comp_start[k0] <= self.BLOCK_ROWS:
-                k1 += 1
-            blocks.append((k0, k1))
-            k0 = k1
+        blocks = component_blocks(order, self.BLOCK_ROWS)
         # one way to run the trackers for the whole batch (tracker_run's cost model, with the
         # rank loops of all blocks against loading the compiled passes once)
         n_ranks = sum(int(counts[k0:k1].max()) for k0, k1 in blocks)

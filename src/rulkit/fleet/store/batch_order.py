@@ -1,0 +1,155 @@
+"""A validated batch grouped by component in the store's key order, and the checks of its
+times against the stored last acquisitions (docs/systems/embedded-rul.md §4).
+
+The store writes history sorted by (component, t), so SQLite appends to its B-tree; components
+are ordered by SQLite's BINARY collation (UTF-8 byte order = code point order = Python's
+``str`` order) and processed in blocks of consecutive components.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from rulkit.fleet.store.acquisitions import ConflictError, IngestError
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+from rulkit.fleet.tracking.tracker_settings import check_time_unit
+from rulkit.tables import cell_repr as _fmt
+
+IntArray = NDArray[np.int64]
+SAME_HI_RTOL = 1e-12
+"""Relative tolerance under which a re-sent acquisition's HI equals the stored one."""
+
+
+@dataclass(frozen=True)
+class ComponentOrder:
+    """Rows of a batch grouped by component. ``sorted_pos[k]``: the component (index into the
+    batch's names) at key-order position ``k``; ``by_comp``: batch positions grouped by
+    component in key order, batch (= time) order inside; ``counts[k]``: acquisitions of the
+    component at position ``k``; ``start``: offsets into ``by_comp`` (length b + 1)."""
+
+    sorted_pos: IntArray
+    by_comp: IntArray
+    counts: IntArray
+    start: IntArray
+
+
+def order_by_component(codes: NDArray[np.int32], names: list[str]) -> ComponentOrder:
+    """The :class:`ComponentOrder` of rows whose component is ``names[codes[i]]``."""
+    b = len(names)
+    sorted_pos = np.argsort(np.array(names, dtype=object), kind="stable")
+    name_order = np.empty(b, dtype=np.int32)
+    name_order[sorted_pos] = np.arange(b, dtype=np.int32)
+    key = name_order[codes]
+    by_comp = np.argsort(key, kind="stable")
+    counts = np.bincount(key, minlength=b)
+    start = np.concatenate([[0], np.cumsum(counts)])
+    return ComponentOrder(sorted_pos, by_comp, counts, start)
+
+
+def gaps_after_stored(order: ComponentOrder, t: np.ndarray, rows: np.ndarray,
+                      names: list[str], last_t: np.ndarray) -> np.ndarray:
+    """Each acquisition's interval since the previous one of its component (NaN for a
+    component's first ever), in batch order. ``last_t``: the stored last time of each
+    component in key order (NaN: new). A component's first acquisition of the batch that is
+    not after its stored last, or whose interval overflows float64, raises
+    :class:`IngestError` naming the first such row in batch order."""
+    n = t.size
+    first = order.by_comp[order.start[:-1]]  # batch position of each component's first row
+    with np.errstate(over="ignore", invalid="ignore"):
+        huge = np.isfinite(last_t) & ~np.isfinite(t[first] - last_t)
+    back = np.isfinite(last_t) & ~(t[first] > last_t)
+    for bad, what in ((huge, "huge"), (back, "back")):
+        if bad.any():
+            k = int(np.argmin(np.where(bad, first, n)))  # first in batch order
+            i, g = int(first[k]), int(order.sorted_pos[k])
+            raise IngestError(
+                f"row {rows[i]} (component {names[g]!r}), column 'time': the interval "
+                f"from the last stored acquisition at {_fmt(last_t[k])} to {_fmt(t[i])} "
+                "overflows float64; use a smaller time unit or offset" if what == "huge"
+                else f"row {rows[i]} (component {names[g]!r}): time {_fmt(t[i])} is "
+                f"not after the component's last stored acquisition at {_fmt(last_t[k])}")
+    ts = t[order.by_comp]
+    prev = np.empty(n)
+    prev[1:] = ts[:-1]
+    prev[order.start[:-1]] = last_t
+    gaps = np.empty(n)
+    gaps[order.by_comp] = ts - prev
+    return gaps
+
+
+def check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
+    """The batch's acquisition spacing against ``design_life`` (time-unit check,
+    :func:`rulkit.fleet.tracking.tracker_settings.check_time_unit`), as an
+    :class:`IngestError`. ``gaps``: as :func:`gaps_after_stored` gives them."""
+    gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
+    try:
+        # a cumulative sum of positive numbers is nondecreasing in floating point too
+        check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column",
+                        assume_sorted=True)
+    except ValueError as err:
+        raise IngestError(str(err)) from err
+
+
+def component_blocks(order: ComponentOrder, block_rows: int) -> list[tuple[int, int]]:
+    """Blocks ``(k0, k1)`` of consecutive components (key order) holding at most
+    ``block_rows`` acquisitions each (a component with more is a block of its own); one block
+    for a batch of at most ``block_rows`` rows."""
+    b = order.counts.size
+    if order.start[-1] <= block_rows:
+        return [(0, b)]
+    blocks, k0 = [], 0
+    while k0 < b:
+        k1 = k0 + 1
+        while k1 < b and order.start[k1 + 1] - order.start[k0] <= block_rows:
+            k1 += 1
+        blocks.append((k0, k1))
+        k0 = k1
+    return blocks
+
+
+def split_duplicates(conn: Any, acq: pd.DataFrame, last: dict[str, float]
+                     ) -> tuple[pd.DataFrame, int]:
+    """Split off rows at or before a component's stored last time (inside the write
+    transaction on ``conn``, a DB-API connection): rows stored with the same HI (to
+    :data:`SAME_HI_RTOL`) are duplicates, skipped and counted; anything else raises
+    :class:`ConflictError` naming the row (acquisitions are appended in time order).
+    ``last``: the stored last time of each stored component of the batch."""
+    comp = acq["component"]
+    names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
+                              else pd.unique(comp))]
+    if not last:
+        return acq, 0
+    codes = (comp.cat.codes.to_numpy() if hasattr(comp, "cat")
+             else pd.factorize(comp)[0])
+    last_t = np.array([last.get(c, np.nan) for c in names])[codes]  # NaN: new
+    old = np.flatnonzero(acq["t"].to_numpy() <= last_t)
+    if old.size == 0:
+        return acq, 0
+    sub = acq.iloc[old]
+    for name, grp in sub.groupby("component", sort=False, observed=True):
+        stored = dict(conn.execute(
+            "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
+            (str(name), float(grp["t"].min()), float(grp["t"].max()))).fetchall())
+        for row, t, hi in zip(grp["row"], grp["t"], grp["hi"], strict=True):
+            if float(t) not in stored:
+                raise ConflictError(
+                    f"row {row} (component {str(name)!r}): time {_fmt(t)} is before the "
+                    f"component's last stored acquisition at {_fmt(last[str(name)])} and "
+                    "is not stored (acquisitions are appended in time order)")
+            h = float(stored[float(t)])
+            if abs(h - hi) > SAME_HI_RTOL * max(1.0, abs(h), abs(hi)):
+                raise ConflictError(
+                    f"row {row} (component {str(name)!r}): time {_fmt(t)} is already "
+                    f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
+    keep = np.ones(len(acq), dtype=bool)
+    keep[old] = False
+    return acq[keep], int(old.size)
+
+
+__all__ = ["SAME_HI_RTOL", "ComponentOrder", "check_spacing", "component_blocks",
+           "gaps_after_stored", "order_by_component", "split_duplicates"]
