@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,9 +40,11 @@ HI_FLOOR = 1e-3
 
 @dataclass
 class SumsState:
-    """Per unit: the forgotten weighted sums ``s (B, 6)`` (:data:`SUM_COLUMNS`) and ``t``,
-    ``hi``, ``n`` as :class:`~rulkit.fleet.learned.degradation.UnitState`'s."""
+    """Per unit: forgotten weighted sums ``s (B, K)`` named :attr:`NAMES` (this module's
+    :data:`SUM_COLUMNS`; a subclass names others) and ``t``, ``hi``, ``n`` as
+    :class:`~rulkit.fleet.learned.degradation.UnitState`'s."""
 
+    NAMES: ClassVar[tuple[str, ...]] = SUM_COLUMNS
     s: FloatArray
     t: FloatArray
     hi: FloatArray
@@ -53,11 +55,11 @@ class SumsState:
 
     def take(self, idx: np.ndarray) -> SumsState:
         """The states of the units ``idx``."""
-        return SumsState(s=self.s[idx], t=self.t[idx], hi=self.hi[idx], n=self.n[idx])
+        return type(self)(s=self.s[idx], t=self.t[idx], hi=self.hi[idx], n=self.n[idx])
 
     def columns(self) -> dict[str, np.ndarray]:
         """Named columns, as stored."""
-        out: dict[str, np.ndarray] = {c: self.s[:, j] for j, c in enumerate(SUM_COLUMNS)}
+        out: dict[str, np.ndarray] = {c: self.s[:, j] for j, c in enumerate(self.NAMES)}
         out.update({"t": self.t, "hi": self.hi, "n": self.n})
         return out
 

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from rulkit.fleet.learned.degradation import time_scale_of
 from rulkit.fleet.learned.hi_noise import check_forward
 from rulkit.fleet.learned.histories import Histories
+from rulkit.fleet.learned.regression import SumsState, forgotten_sums
 
 FloatArray = NDArray[np.float64]
 SUM_COLUMNS = ("s_1", "s_x", "s_x2", "s_x3", "s_x4", "s_h", "s_hx", "s_hx2", "s_hh")
@@ -42,27 +43,10 @@ TEMPERATURES = (1.0, 10.0, 100.0)
 BANDWIDTHS = (0.1, 0.2, 0.35)
 
 
-@dataclass
-class SimilarityState:
+class SimilarityState(SumsState):
     """Per unit: forgotten sums ``s (B, 9)`` (:data:`SUM_COLUMNS`), ``t``, ``hi``, ``n``."""
 
-    s: FloatArray
-    t: FloatArray
-    hi: FloatArray
-    n: NDArray[np.int64]
-
-    def __len__(self) -> int:
-        return int(self.t.shape[0])
-
-    def take(self, idx: np.ndarray) -> SimilarityState:
-        """The states of the units ``idx``."""
-        return SimilarityState(s=self.s[idx], t=self.t[idx], hi=self.hi[idx], n=self.n[idx])
-
-    def columns(self) -> dict[str, np.ndarray]:
-        """Named columns, as stored."""
-        out: dict[str, np.ndarray] = {c: self.s[:, j] for j, c in enumerate(SUM_COLUMNS)}
-        out.update({"t": self.t, "hi": self.hi, "n": self.n})
-        return out
+    NAMES = SUM_COLUMNS
 
 
 @dataclass(frozen=True)
@@ -122,8 +106,6 @@ class SimilarityModel:
 
     def replay(self, hist: Histories) -> SimilarityState:
         """The state after each row of ``hist``."""
-        from rulkit.fleet.learned.regression import forgotten_sums
-
         rows = self._rows(hist.t, hist.hi)
         rho = 1.0 - 1.0 / self.window
         s = np.empty_like(rows)
