@@ -82,3 +82,68 @@ def test_state_columns_round_trip_and_dict():
     assert OnsetModel.from_dict(m.to_dict()) == m
     st2 = m.update(st, np.array([10.0, np.nan, 30.0]), np.array([0.1, np.nan, 0.12]))
     assert list(st2.n) == [1, 0, 1] and np.isnan(m.rul_quantiles(st2)[0][1])
+
+
+def _onset_fleet(n_units):
+    """A small fleet of the onset kind (flat at 0.1 for about 180 time units, then exponential
+    growth over about 300) and the generator's parameters in scaled age."""
+    from rulkit.fleet.learned.datasets import synthetic_growth_fleet
+    from rulkit.fleet.learned.degradation import time_scale_of
+    from rulkit.fleet.learned.growth_filter import GrowthParams
+    from rulkit.fleet.learned.histories import histories_from_frame
+
+    df, _ = synthetic_growth_fleet(np.random.default_rng(3), n_units, n_acq=25, onset_frac=0.6)
+    hist = histories_from_frame(df, "onset fleet")
+    tau = time_scale_of(hist)
+    rate = np.log(10.0) / 300.0 * tau
+    truth = GrowthParams(mean=(np.log(0.1), rate), cov=(1e-6, 0.0, (0.25 * rate) ** 2),
+                         r_log=0.0, r_hi=0.02**2, q=1e-8, onset_mean=180.0 / tau,
+                         onset_sd=54.0 / tau)
+    return hist, tau, truth
+
+
+def _log_lik(hist, tau, theta, lam, grid):
+    from rulkit.fleet.learned.filter_kernels import negative_log_likelihood
+
+    return -negative_log_likelihood(theta, hist.t / tau, hist.hi, hist.start.astype(np.int64),
+                                    lam, np.asarray(grid))
+
+
+def test_halved_keeps_the_grid_and_halves_its_step():
+    from rulkit.fleet.learned.onset import halved
+
+    assert halved((0.0, 1.0, 2.0)) == (0.0, 0.5, 1.0, 1.5, 2.0)
+
+
+def test_twelve_onsets_are_too_coarse_and_halving_converges_to_the_quadrature():
+    """Eq. (9) at the generator's own parameters: the sum over 12 onsets misses the
+    brute-force quadrature (385 onsets) by more than ONSET_GRID_TOL, which grid_error sees;
+    halving the step until grid_error is below the tolerance lands within it of the reference."""
+    from rulkit.fleet.learned.onset import ONSET_GRID_TOL, grid_error, halved, onset_grid
+
+    hist, tau, truth = _onset_fleet(8)
+    theta = truth.theta()
+    grid = onset_grid(hist, tau)
+    ref = _log_lik(hist, tau, theta, 0.0, np.linspace(0.0, grid[-1], 12 * 32 + 1))
+    assert abs(_log_lik(hist, tau, theta, 0.0, grid) - ref) > 5 * ONSET_GRID_TOL
+    assert grid_error(theta, hist, hist.t / tau, 0.0, grid) > ONSET_GRID_TOL
+    while grid_error(theta, hist, hist.t / tau, 0.0, grid) > ONSET_GRID_TOL:
+        grid = halved(grid)
+    assert len(grid) < 12 * 32
+    assert abs(_log_lik(hist, tau, theta, 0.0, grid) - ref) < 2 * ONSET_GRID_TOL
+
+
+@pytest.mark.slow
+def test_the_fitted_grid_resolves_the_true_onset_distribution():
+    """The grid fit_onset keeps is a converged quadrature of eq. (9): at the generator's own
+    parameters its log-likelihood is within 2 ONSET_GRID_TOL of the brute-force one (the
+    12-value grid is more than 5 nats off, test above), and at the fitted parameters too."""
+    from rulkit.fleet.learned.onset import ONSET_GRID_TOL, fit_onset
+
+    hist, tau, truth = _onset_fleet(8)
+    model = fit_onset(hist)
+    assert model.time_scale == tau and len(model.grid) > 12
+    brute = np.linspace(0.0, model.grid[-1], 12 * 32 + 1)
+    for theta, lam in ((truth.theta(), 0.0), (model.params().theta(), model.shape)):
+        err = _log_lik(hist, tau, theta, lam, model.grid) - _log_lik(hist, tau, theta, lam, brute)
+        assert abs(err) < 2 * ONSET_GRID_TOL

@@ -43,6 +43,12 @@ from rulkit.fleet.learned.histories import Histories
 
 FloatArray = NDArray[np.float64]
 ONSET_GRID_SIZE = 12
+"""Onset values of the first grid; :func:`fit_onset` refines it until the likelihood converges."""
+ONSET_GRID_TOL = 1.0
+"""Nats: a grid is fine enough when halving its step changes the fleet's log-likelihood at the
+fitted parameters by less than this (the quadrature of eq. (9) has converged)."""
+ONSET_GRID_MAX = 96
+"""The finest grid :func:`fit_onset` tries (95 values: 12 halved three times)."""
 
 
 @dataclass
@@ -286,13 +292,38 @@ def onset_grid(hist: Histories, tau: float, size: int = ONSET_GRID_SIZE) -> tupl
     return tuple(float(v) for v in np.linspace(0.0, t_max / tau, size))
 
 
+def halved(grid: tuple[float, ...]) -> tuple[float, ...]:
+    """The grid with a value inserted midway between each pair of neighbours (2K - 1 values,
+    the old ones among them)."""
+    return tuple(float(v) for v in np.linspace(grid[0], grid[-1], 2 * len(grid) - 1))
+
+
+def grid_error(theta: FloatArray, hist: Histories, x: FloatArray, lam: float,
+               grid: tuple[float, ...]) -> float:
+    """|log-likelihood on :func:`halved` ``grid`` - on ``grid``| at ``theta`` (nats): the
+    quadrature error of eq. (9)'s sum over the onset grid, estimated by halving its step."""
+    from rulkit.fleet.learned.filter_kernels import negative_log_likelihood
+
+    start = hist.start.astype(np.int64)
+    coarse, fine = (negative_log_likelihood(theta, x, hist.hi, start, lam, np.asarray(g))
+                    for g in (grid, halved(grid)))
+    return abs(fine - coarse)
+
+
 def fit_onset(hist: Histories, noise: str = "additive", *, start: OnsetModel | None = None,
               base: HiNoiseModel | None = None, grid_size: int = ONSET_GRID_SIZE,
               fixed_shape: bool = False) -> OnsetModel:
     """Learn an :class:`OnsetModel` (all units): maximum likelihood of eq. (9), the shape by a
     local profile from the no-onset fit ``base`` (fitted here when not given), or from
     ``start`` (a warm start: its grid, parameters and exponent; ``fixed_shape`` keeps its
-    exponent)."""
+    exponent).
+
+    Without ``start`` the grid starts with ``grid_size`` values and its step is halved, the fit
+    warm-started from the coarser one's, until halving it once more changes the log-likelihood
+    at the fitted parameters by less than :data:`ONSET_GRID_TOL` (or the grid reaches
+    :data:`ONSET_GRID_MAX` values): a coarse grid forces each unit's onset onto a value far from
+    its own, and the growth law bends to fit the kink (a lower Paris exponent, a slower rate,
+    optimistic RULs; docs/fleet-models.md section 7)."""
     tau = time_scale_of(hist)
     x = hist.t / tau
     if start is not None:
@@ -313,6 +344,11 @@ def fit_onset(hist: Histories, noise: str = "additive", *, start: OnsetModel | N
         best, edge = at(start.shape), False
     else:
         best, edge = profile_shape(at, m0)
+    while start is None and 2 * len(grid) - 1 <= ONSET_GRID_MAX \
+            and grid_error(best.theta, hist, x, best.lam, grid) > ONSET_GRID_TOL:
+        grid, theta0 = halved(grid), best.theta
+        setup = GrowthSpec(noise=noise, walk=True, onset_grid=grid)
+        best, edge = profile_shape(at, 2.0 * (1.0 - best.lam))
     p = GrowthParams.from_theta(best.theta)
     return OnsetModel(
         noise=noise, shape=best.lam, mean=p.mean, cov=p.cov, hi_noise_sd=math.sqrt(p.r_hi),
@@ -322,5 +358,5 @@ def fit_onset(hist: Histories, noise: str = "additive", *, start: OnsetModel | N
         diagnostics=FitDiagnostics(best.optim, edge))
 
 
-__all__ = ["ONSET_GRID_SIZE", "MixtureState", "OnsetModel", "fit_onset", "mixture_columns",
-           "onset_grid"]
+__all__ = ["ONSET_GRID_MAX", "ONSET_GRID_SIZE", "ONSET_GRID_TOL", "MixtureState", "OnsetModel",
+           "fit_onset", "grid_error", "halved", "mixture_columns", "onset_grid"]
