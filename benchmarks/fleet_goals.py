@@ -71,6 +71,55 @@ def goals(row: pd.Series, summary: pd.DataFrame) -> list[str]:
     return out
 
 
+FRACTIONS = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0)
+
+
+def unit_bootstrap_sd(hit: pd.Series, units: pd.Series, rng: np.random.Generator,
+                      n_boot: int = 2000) -> float:
+    """Standard deviation of the coverage ``hit.mean()`` when the failed units are resampled
+    with replacement: a unit's predictions share one truth, so they are not independent and
+    the spread of a fleet's coverage is that of its units, not of its predictions."""
+    codes, uniq = pd.factorize(units)
+    k = np.bincount(codes, weights=hit.to_numpy(dtype=float), minlength=len(uniq))
+    n = np.bincount(codes, minlength=len(uniq)).astype(float)
+    draw = rng.integers(0, len(uniq), size=(n_boot, len(uniq)))
+    return float(np.std(k[draw].sum(axis=1) / n[draw].sum(axis=1)))
+
+
+def breakdown(pred: pd.DataFrame, kind: str) -> pd.DataFrame:
+    """Where a model's misses are: per fraction of life, the predictions, the median relative
+    error, the coverage and the share of truths above the interval (``optimistic``: failure
+    came before the 5 % quantile) and below it (``pessimistic``: after the 95 % quantile)."""
+    p = pred[np.isfinite(pred["true_rul"])]
+    frac = (p["t"] - p["t_first"]) / (p["t_fail"] - p["t_first"])
+    tr = p["true_rul"]
+    bins = pd.cut(frac, FRACTIONS, include_lowest=True, right=False)
+    return pd.DataFrame({
+        "fraction": bins, "error": (p[kind] - tr).abs() / tr,
+        "covered": (p[f"{kind}_low"] <= tr) & (tr <= p[f"{kind}_high"]),
+        "optimistic": tr < p[f"{kind}_low"], "pessimistic": tr > p[f"{kind}_high"],
+    }).groupby("fraction", observed=True).agg(
+        n=("error", "size"), error=("error", "median"), coverage=("covered", "mean"),
+        optimistic=("optimistic", "mean"), pessimistic=("pessimistic", "mean"))
+
+
+def print_breakdown(pred: pd.DataFrame, kind: str) -> None:
+    """:func:`breakdown`, then the late coverage's spread over units (unit bootstrap) and the
+    units whose late predictions miss most often."""
+    with pd.option_context("display.width", 160, "display.float_format", "{:.3g}".format):
+        print(f"  {kind} by fraction of life:")
+        print("    " + breakdown(pred, kind).to_string().replace("\n", "\n    "))
+    p = pred[np.isfinite(pred["true_rul"])]
+    late = p[p["t"] >= p["t_first"] + 0.5 * (p["t_fail"] - p["t_first"])]
+    hit = (late[f"{kind}_low"] <= late["true_rul"]) & (late["true_rul"] <= late[f"{kind}_high"])
+    sd = unit_bootstrap_sd(hit, late["unit"], np.random.default_rng(0))
+    per_unit = hit.groupby(late["unit"]).mean().sort_values()
+    print(f"  late coverage {hit.mean():.3f}, sd over a resampling of the "
+          f"{per_unit.size} failed units {sd:.3f}; units covered in under half of their late "
+          f"predictions: {int((per_unit < 0.5).sum())} "
+          f"({', '.join(f'{u} {c:.2f}' for u, c in per_unit[per_unit < 0.5].items())})")
+
+
 def run(name: str, seed: int, units: int, folds: int) -> pd.DataFrame:
     """Selection, then the leave-one-out table of every candidate, for one data set."""
     hist = load(name, seed, units)
@@ -96,6 +145,7 @@ def run(name: str, seed: int, units: int, folds: int) -> pd.DataFrame:
     chosen = summary[summary["selected"]].iloc[0]
     for g in goals(chosen, summary):
         print(f"  goal ({sel.chosen}): {g}")
+    print_breakdown(pred, sel.chosen)
     return summary
 
 

@@ -116,8 +116,21 @@ def paris_curve(h0: float, c: float, m: float, t: np.ndarray) -> np.ndarray:
     if abs(p - 1.0) < 1e-12:
         return h0 * np.exp(c * t)
     base = h0 ** (1.0 - p) + c * (1.0 - p) * t
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         return np.where(base > 0, np.power(np.maximum(base, 1e-300), 1.0 / (1.0 - p)), np.inf)
+
+
+def growth_fleet_laws(
+    rng: np.random.Generator, n_units: int, *, life_median: float = 300.0,
+    life_cv: float = 0.25, onset_frac: float = 0.0, onset_cv: float = 0.3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each unit's growth time (from h0 to 1) and onset time: the first draws of
+    :func:`synthetic_growth_fleet` (same arguments), so with a generator in the same state the
+    true laws of the units it generates (the oracle of ``benchmarks/fleet_oracle.py``)."""
+    grow = life_median * np.exp(life_cv * rng.standard_normal(n_units))
+    onset = (np.maximum(onset_frac * life_median * (1.0 + onset_cv * rng.standard_normal(
+        n_units)), 0.0) if onset_frac > 0 else np.zeros(n_units))
+    return grow, onset
 
 
 def synthetic_growth_fleet(
@@ -139,10 +152,9 @@ def synthetic_growth_fleet(
     """
     if noise not in ("additive", "multiplicative", "mixed"):
         raise ValueError(f"noise: expected additive, multiplicative or mixed, got {noise!r}")
-    grow = life_median * np.exp(life_cv * rng.standard_normal(n_units))
+    grow, onset = growth_fleet_laws(rng, n_units, life_median=life_median, life_cv=life_cv,
+                                    onset_frac=onset_frac, onset_cv=onset_cv)
     c = paris_life(h0, np.ones(1), m)[0] / grow
-    onset = (np.maximum(onset_frac * life_median * (1.0 + onset_cv * rng.standard_normal(
-        n_units)), 0.0) if onset_frac > 0 else np.zeros(n_units))
     t_fail = onset + grow
     censored = rng.random(n_units) < censor_frac
     add = noise in ("additive", "mixed")
@@ -196,6 +208,7 @@ def write_partitioned(frame: pd.DataFrame, out: str, n_parts: int = 4) -> str:
     return str(d)
 
 
-__all__ = ["GOAL_FLEETS", "fatigue_histories", "goal_fleet", "paris_curve", "paris_life",
+__all__ = ["GOAL_FLEETS", "fatigue_histories", "goal_fleet", "growth_fleet_laws", "paris_curve",
+           "paris_life",
            "synthetic_growth_fleet", "synthetic_linear_fleet", "synthetic_paris_fleet",
            "write_partitioned"]

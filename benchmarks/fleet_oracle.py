@@ -1,0 +1,150 @@
+"""What a perfect predictive scores on the goal fleets: the coverage goals' sampling spread.
+
+``benchmarks/fleet_goals.py`` scores a model's 90 % intervals on one draw of each synthetic goal
+fleet (``rulkit.fleet.learned.datasets.GOAL_FLEETS``, 40 units). This script scores the
+*oracle*: the RUL distribution each prediction would have if the model knew the unit's true
+growth law and onset (``growth_fleet_laws``), computed by brute-force Monte Carlo from the
+generator itself (future acquisitions at the generator's cadence, its HI noise, the event that
+ends a history and defines the truth: the first measured HI >= 1, the time interpolated from the
+acquisition before it). It is calibrated by construction: over many fleets its coverage is
+90 %. On one fleet its predictions share each unit's one future, so its coverage varies from
+fleet to fleet; the script prints it for the fleet of the goals (seed 0, as ``rulkit fleet-data``
+writes it) and for ``--fleets`` other seeds, with the same columns as the goals table:
+
+    .venv/bin/python benchmarks/fleet_oracle.py                       # 20 fleets of each kind
+    .venv/bin/python benchmarks/fleet_oracle.py --datasets multiplicative --fleets 50
+
+A model scores its intervals against the same truths with less knowledge (wider intervals), so
+a goal fleet on which even the oracle falls outside [0.85, 0.95] says more about the fleet than
+about the model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+import pandas as pd
+
+from rulkit.fleet.learned.datasets import (
+    GOAL_FLEETS,
+    goal_fleet,
+    growth_fleet_laws,
+    paris_curve,
+    paris_life,
+)
+from rulkit.fleet.learned.histories import histories_from_frame
+from rulkit.fleet.learned.scoring import truth_rul
+
+LEVELS = (0.5, 0.05, 0.95)
+N_ACQ = 50.0  # synthetic_growth_fleet's default acquisitions per life
+
+
+def measured_crossing(t0: np.ndarray, hi0: np.ndarray, times: np.ndarray, his: np.ndarray
+                      ) -> np.ndarray:
+    """Time from ``t0`` to the first ``his >= 1`` along each row of ``times (N, J)``,
+    interpolated from the acquisition before it (``t0``, ``hi0`` for the first), as
+    :meth:`~rulkit.fleet.learned.histories.Histories.failure_time` does; +inf if none."""
+    above = his >= 1.0
+    j = np.argmax(above, axis=1)
+    rows = np.arange(his.shape[0])
+    tp = np.where(j > 0, times[rows, j - 1], t0)
+    hp = np.where(j > 0, his[rows, j - 1], hi0)
+    tj, hj = times[rows, j], his[rows, j]
+    crossing = tp + (1.0 - hp) * (tj - tp) / (hj - hp)
+    return np.where(above.any(axis=1), crossing - t0, np.inf)
+
+
+def generator_future(times: np.ndarray, his: np.ndarray, life: float, end_hi: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The acquisitions a run-to-failure unit of ``synthetic_growth_fleet`` gets: none after
+    1.05 ``life``; if none of them measured hi >= 1, one more at 1.1 ``life`` with hi
+    ``end_hi`` (>= 1). The columns past 1.05 ``life`` become that last acquisition."""
+    late = times > 1.05 * life
+    return (np.where(late, 1.1 * life, times), np.where(late, end_hi[:, None], his))
+
+
+def oracle_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float, onset: float,
+                     life: float, rng: np.random.Generator, draws: int) -> np.ndarray:
+    """RUL quantiles (``LEVELS``) after each acquisition ``(t, hi)`` of one unit whose true law
+    is (``c``, ``onset``) and true life ``life``: ``draws`` futures from the generator."""
+    kw = GOAL_FLEETS[name]
+    m, h0 = float(kw["m"]), float(kw["h0"])
+    add = float(kw.get("hi_noise_sd", 0.02)) if kw["noise"] != "multiplicative" else 0.0
+    mult = float(kw.get("log_noise_sd", 0.05)) if kw["noise"] != "additive" else 0.0
+    steps = int(3 * N_ACQ)  # three lives of acquisitions: past any crossing
+    out = np.empty((t.size, len(LEVELS)))
+    for i in range(t.size):
+        times = t[i] + np.cumsum(rng.exponential(life / N_ACQ, (draws, steps)), axis=1)
+        h = np.minimum(paris_curve(h0, c, m, np.maximum(times - onset, 0.0)), 10.0)
+        e1 = mult * rng.standard_normal(h.shape)
+        e2 = add * rng.standard_normal(h.shape)
+        end_hi = 1.0 + np.abs((add if add > 0 else mult) * rng.standard_normal(draws))
+        times, his = generator_future(times, np.maximum(h * np.exp(e1) + e2, 0.0), life, end_hi)
+        r = measured_crossing(np.full(draws, t[i]), np.full(draws, hi[i]), times, his)
+        out[i] = np.quantile(r, LEVELS)
+    return out
+
+
+def oracle_scores(name: str, seed: int, units: int, draws: int) -> dict[str, float]:
+    """The oracle's median relative error over the last half of life and 90 % coverage (all
+    predictions, last half) on the goal fleet ``name`` drawn from ``seed`` (as
+    ``benchmarks/fleet_goals.py`` and ``rulkit fleet-data`` draw it)."""
+    ss = np.random.SeedSequence(seed).spawn(2 + len(GOAL_FLEETS))
+    k = list(GOAL_FLEETS).index(name)
+    df, t_fail = goal_fleet(name, np.random.default_rng(ss[2 + k]), units)
+    kw = GOAL_FLEETS[name]
+    grow, onset = growth_fleet_laws(np.random.default_rng(ss[2 + k]), units,
+                                    onset_frac=float(kw.get("onset_frac", 0.0)))
+    c = paris_life(float(kw["h0"]), np.ones(1), float(kw["m"]))[0] / grow
+    hist = histories_from_frame(df, name)
+    truth = truth_rul(hist)
+    rng = np.random.default_rng([seed, k])
+    err, cover, late = [], [], []
+    for u in np.flatnonzero(hist.failed):
+        s = hist.rows(int(u))
+        g = int(hist.names[u][1:])  # synthetic_growth_fleet names unit g as f"g{g:04d}"
+        ok = np.isfinite(truth[s])
+        t, hi, y = hist.t[s][ok], hist.hi[s][ok], truth[s][ok]
+        q = oracle_quantiles(name, t, hi, float(c[g]), float(onset[g]), float(t_fail[g]),
+                             rng, draws)
+        err.append(np.abs(q[:, 0] - y) / y)
+        cover.append((q[:, 1] <= y) & (y <= q[:, 2]))
+        late.append(t >= t[0] + 0.5 * (hist.failure_time()[u] - t[0]))
+    e, cv, lt = (np.concatenate(a) for a in (err, cover, late))
+    return {"dataset": name, "seed": seed, "failed": len(err),
+            "median_rel_err_last_half": float(np.median(e[lt])),
+            "coverage_90": float(cv.mean()), "coverage_90_last_half": float(cv[lt].mean())}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    names = [n for n in GOAL_FLEETS]
+    ap.add_argument("--datasets", nargs="+", default=names, choices=names)
+    ap.add_argument("--fleets", type=int, default=20, help="fleets (seeds 0 .. fleets-1)")
+    ap.add_argument("--units", type=int, default=40, help="units per fleet")
+    ap.add_argument("--draws", type=int, default=400, help="Monte Carlo futures per prediction")
+    a = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.1f}; {a.units} units per fleet, "
+          f"{a.draws} futures per prediction")
+    t0 = time.perf_counter()
+    for name in a.datasets:
+        rows = pd.DataFrame([oracle_scores(name, s, a.units, a.draws)
+                             for s in range(a.fleets)])
+        first = rows.iloc[0]
+        late = rows["coverage_90_last_half"]
+        inside = ((late >= 0.85) & (late <= 0.95)).mean()
+        print(f"\n== {name}: oracle on the goal fleet (seed 0, {int(first['failed'])} failed): "
+              f"error {first['median_rel_err_last_half']:.3f}, coverage "
+              f"{first['coverage_90']:.3f} / {first['coverage_90_last_half']:.3f}")
+        print(f"over {a.fleets} fleets: coverage (last half) mean {late.mean():.3f}, sd "
+              f"{late.std():.3f}, 5-95 % {late.quantile(0.05):.3f} - {late.quantile(0.95):.3f};"
+              f" inside [0.85, 0.95] in {inside:.0%}; coverage (all) mean "
+              f"{rows['coverage_90'].mean():.3f}, sd {rows['coverage_90'].std():.3f}", flush=True)
+    print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
