@@ -279,14 +279,17 @@ function alertMarks(u, alerts, x) {
   ctx.restore();
 }
 
-function canvasText(u, text, x, y, color, align) {
+// text on the canvas, right-aligned at x but never left of minX; returns its right end
+function canvasText(u, text, x, minX, y, color) {
   const ctx = u.ctx, dpr = window.devicePixelRatio || 1;
   ctx.save();
   ctx.font = 12 * dpr + "px system-ui, sans-serif";
   ctx.fillStyle = color;
-  ctx.textAlign = align;
-  ctx.fillText(text, x, y);
+  const right = Math.max(x, minX + ctx.measureText(text).width);
+  ctx.textAlign = "right";
+  ctx.fillText(text, right, y);
   ctx.restore();
+  return right;
 }
 
 // draw (or redraw) a uPlot chart into the element id; record() gives the data-chart extras
@@ -310,7 +313,12 @@ function plot(id, opts, data, record) {
   }];
   Object.assign(opts, { width: 900, legend: { live: false },
     tzDate: (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC") });
-  charts[id] = new uPlot(opts, data, el);
+  const u = charts[id] = new uPlot(opts, data, el);
+  // a band's upper edge is drawn as the band, named once in the legend (its lower edge)
+  const hide = new Set(opts.series.filter((s) => s.inLegend === false).map((s) => s.label));
+  for (const row of u.root.querySelectorAll(".u-legend .u-series")) {
+    if (hide.has(row.querySelector(".u-label").textContent)) row.classList.add("unlisted");
+  }
 }
 
 // where the RUL interval meets the threshold: [low, median, high] end times (null if none)
@@ -342,24 +350,27 @@ function hiChart(h) {
   const thrLabel = "failure threshold HI = " + fmt(thr);
   plot("hi-chart", {
     height: 320, axes: (drawn) => axes(ta, "health index", drawn),
-    scales: { x: xScale(ta), y: { range: [0, Math.min(top * 1.05, 2 * thr)] } },
+    scales: { x: xScale(ta), y: { range: [0, Math.max(Math.min(top * 1.05, 2 * thr),
+      1.15 * thr)] } },
     series: [{ label: ta.title },
       { label: "measured HI", stroke: COLOR.measured, paths: () => null,
         points: { show: true, size: 4, fill: COLOR.measured } },
       line("filtered HI", COLOR.filtered),
       line("HI forecast (median)", COLOR.forecast, { width: 2, dash: [6, 4] }),
-      line("forecast band (low)", COLOR.band, { width: 0 }),
-      line("forecast band (high)", COLOR.band, { width: 0 }),
+      line("forecast band", COLOR.band, { width: 0 }),
+      line("forecast band (upper)", COLOR.band, { width: 0, inLegend: false }),
       line(thrLabel, COLOR.threshold, { dash: [8, 4] }),
-      line("RUL interval", COLOR.warning, { width: 6 }),
+      line("RUL interval on the threshold", COLOR.warning, { width: 6 }),
       { label: "RUL median", stroke: COLOR.threshold, paths: () => null,
         points: { show: true, size: 9, fill: COLOR.threshold } }],
     bands: [{ series: [5, 4], fill: COLOR.band }],
     hooks: { draw: [(u) => {
       alertMarks(u, h.alerts, ta.x);
-      const y = u.valToPos(thr, "y", true) - 6 * (window.devicePixelRatio || 1);
-      canvasText(u, thrLabel, u.bbox.left + 6, y, COLOR.threshold, "left");
-      if (label) canvasText(u, label, u.bbox.left + u.bbox.width - 6, y, "#222", "right");
+      const dpr = window.devicePixelRatio || 1, y = u.valToPos(thr, "y", true) - 6 * dpr;
+      const end = canvasText(u, thrLabel, 0, u.bbox.left + 6 * dpr, y, COLOR.threshold);
+      // left of the interval, where the band is still under the threshold
+      if (label) canvasText(u, label, u.valToPos(ta.x(on[0]), "x", true) - 10 * dpr,
+        end + 16 * dpr, y, "#222");
     }] },
   }, data, () => ({ threshold: thr, threshold_label: thrLabel, rul_label: label,
     alerts: h.alerts.length }));
@@ -385,8 +396,8 @@ function rulChart(h) {
     scales: { x: xScale(ta), y: { range: [0, Math.max(...high.filter(
       (v) => v !== null), ...medians) * 1.05 || 1] } },
     series: [{ label: ta.title }, line("RUL median", COLOR.rul, { width: 2 }),
-      line("RUL interval (low)", COLOR.rulBand, { width: 0 }),
-      line("RUL interval (high)", COLOR.rulBand, { width: 0 })],
+      line("RUL interval", COLOR.rulBand, { width: 0 }),
+      line("RUL interval (upper)", COLOR.rulBand, { width: 0, inLegend: false })],
     bands: [{ series: [3, 2], fill: COLOR.rulBand }],
     hooks: { draw: [(p) => alertMarks(p, h.alerts, ta.x)] },
   }, data, () => ({ alerts: h.alerts.length, rul_now: rulText(h.now) }));
