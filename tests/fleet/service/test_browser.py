@@ -3,12 +3,16 @@
 On a pump fleet (ages in hours, exponential HI growth with additive noise; one pump failed,
 one stale, one not estimated yet): the counts per level, the sort by RUL and by due date, the
 RUL as median [low, high] with its unit and due date, the staleness, a component's charts
-(measured HI, failure threshold, the HI forecast to it with its band and the RUL interval,
-axes titled with units and dates; the RUL history with its band), alerts whose RUL is the
-table's, and an acknowledgement. Every element is checked as drawn (the SVG and DOM nodes),
-not by pixels. Two screenshots are saved in the test's tmp dir, and into the directory named
-by RULKIT_DOCS_SCREENSHOTS when set (how docs/img/dashboard-*.png are made). Then ids holding
-HTML and terminal escape sequences are shown as text, never run.
+(measured and filtered HI, failure threshold, the HI forecast to it with its band and the
+RUL interval, axes titled with units and dates; the RUL history with its band), alerts whose
+RUL is the table's, and an acknowledgement. Every element is checked as drawn, not by
+pixels: through the DOM, the charting library's legend and each chart's data-chart record
+of what it drew (points per series, tick labels), against the API's history. The browser
+must report no Content-Security-Policy violation. Two screenshots are saved in the test's
+tmp dir, and into the directory named by RULKIT_DOCS_SCREENSHOTS when set (how
+docs/img/dashboard-*.png are made). Then ids holding HTML and terminal escape sequences are
+shown as text, never run. The vendored charting library's files are the ones whose hashes
+its README and the page record.
 """
 
 import base64

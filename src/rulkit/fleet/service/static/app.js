@@ -330,19 +330,28 @@ function rulOnThreshold(h, xEnd) {
     now.rul_high === null ? xEnd : Math.min(t0 + now.rul_high, Math.max(xEnd, t0 + now.rul))];
 }
 
+// the HI chart's columns: measured, filtered, forecast median, low, high, the threshold,
+// the RUL interval and median on it, and the alarm rule's HI when it is not the threshold
+function hiColumns(h, fc, on, x) {
+  const H = h.history, thr = h.threshold, X = (ts) => ts.map(x);
+  const ends = on ? [on[0], on[2]] : [];
+  const median = on && on[1] !== null ? [on[1]] : [];
+  const allT = H.t.concat(fc.t, ends, median);
+  const cols = [[X(H.t), H.hi], [X(H.t), H.fhi], [X(fc.t), fc.hi], [X(fc.t), fc.hi_low],
+    [X(fc.t), fc.hi_high], [X(allT), allT.map(() => thr)], [X(ends), ends.map(() => thr)],
+    [X(median), median.map(() => thr)]];
+  if (h.alarm_hi !== thr) cols.push([X(allT), allT.map(() => h.alarm_hi)]);
+  return align(cols);
+}
+
 function hiChart(h) {
   const H = h.history, fc = h.forecast || { t: [], hi: [], hi_low: [], hi_high: [] };
   if (H.t.length === 0) { plot("hi-chart", "no acquisition yet", null); return; }
-  const ta = timeAxis(h), X = (ts) => ts.map(ta.x), thr = h.threshold;
-  const xEnd = Math.max(...H.t, ...fc.t);
-  const on = rulOnThreshold(h, xEnd);
-  const ends = on ? [on[0], on[2]] : [];
-  const allT = H.t.concat(fc.t, ends, on && on[1] !== null ? [on[1]] : []);
-  const data = align([
-    [X(H.t), H.hi], [X(H.t), H.fhi], [X(fc.t), fc.hi], [X(fc.t), fc.hi_low],
-    [X(fc.t), fc.hi_high], [X(allT), allT.map(() => thr)], [X(ends), ends.map(() => thr)],
-    on && on[1] !== null ? [X([on[1]]), [thr]] : [[], []],
-  ]);
+  const ta = timeAxis(h), thr = h.threshold;
+  const on = rulOnThreshold(h, Math.max(...H.t, ...fc.t));
+  const data = hiColumns(h, fc, on, ta.x);
+  const alarmLine = h.alarm_hi === thr ? [] : [line("alarm rule HI = " + fmt(h.alarm_hi),
+    COLOR.warning, { dash: [2, 3] })];
   const top = Math.max(...H.hi.filter((v) => v !== null), ...fc.hi_high.filter(
     (v) => v !== null), thr);
   const label = on ? "RUL " + rulText(h.now) + (h.now.due === null ? ""
@@ -362,7 +371,7 @@ function hiChart(h) {
       line(thrLabel, COLOR.threshold, { dash: [8, 4] }),
       line("RUL interval on the threshold", COLOR.warning, { width: 6 }),
       { label: "RUL median", stroke: COLOR.threshold, paths: () => null,
-        points: { show: true, size: 9, fill: COLOR.threshold } }],
+        points: { show: true, size: 9, fill: COLOR.threshold } }, ...alarmLine],
     bands: [{ series: [5, 4], fill: COLOR.band }],
     hooks: { draw: [(u) => {
       alertMarks(u, h.alerts, ta.x);
