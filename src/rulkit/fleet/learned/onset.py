@@ -48,7 +48,8 @@ ONSET_GRID_TOL = 1.0
 """Nats: a grid is fine enough when halving its step changes the fleet's log-likelihood at the
 fitted parameters by less than this (the quadrature of eq. (9) has converged)."""
 ONSET_GRID_MAX = 96
-"""The finest grid :func:`fit_onset` tries (95 values: 12 halved three times)."""
+"""A bound on the grid :func:`fit_onset` refines to (89 values: 12 with the step halved three
+times)."""
 
 
 @dataclass
