@@ -298,29 +298,20 @@ def test_micro_ekf_refuses_input_that_would_poison_the_state(life) -> None:
     t = np.tile(life.time, (2, 1))
     cur, sp, acc = life.current[:2].copy(), life.speed[:2].copy(), life.acceleration[:2].copy()
 
-    def run(t_=t, cur_=cur, sp_=sp, acc_=acc):
-        return micro_ekf(t_, cur_, sp_, acc_, consts)
+    clean = {"t": t, "current": cur, "speed": sp, "acceleration": acc}
 
-    bad_t = t.copy()
-    bad_t[1, 50] = bad_t[1, 49]
-    with pytest.raises(ValueError, match=r"unit 1 does not increase at sample 50"):
-        run(t_=bad_t)
-    gap = t.copy()
-    gap[0, 10] = np.nan
-    with pytest.raises(ValueError, match=r"unit 0 is valid again at sample 11"):
-        run(t_=gap)
-    bad_i = cur.copy()
-    bad_i[1, 7] = np.nan
-    with pytest.raises(ValueError, match=r"current of unit 1 is nan at sample 7"):
-        run(cur_=bad_i)
-    inf_a = acc.copy()
-    inf_a[0, 3] = np.inf
-    with pytest.raises(ValueError, match=r"acceleration of unit 0 is infinite at sample 3"):
-        run(acc_=inf_a)
-    nan0 = sp.copy()
-    nan0[1, 0] = np.nan
-    with pytest.raises(ValueError, match=r"speed of unit 1 is nan at sample 0"):
-        run(sp_=nan0)
+    def refused(name: str, unit: int, k: int, value: float, message: str) -> None:
+        """micro_ekf with one cell of input ``name`` set to ``value`` raises ``message``."""
+        args = {key: a.copy() for key, a in clean.items()}
+        args[name][unit, k] = value
+        with pytest.raises(ValueError, match=message):
+            micro_ekf(args["t"], args["current"], args["speed"], args["acceleration"], consts)
+
+    refused("t", 1, 50, t[1, 49], r"unit 1 does not increase at sample 50")
+    refused("t", 0, 10, np.nan, r"unit 0 is valid again at sample 11")
+    refused("current", 1, 7, np.nan, r"current of unit 1 is nan at sample 7")
+    refused("acceleration", 0, 3, np.inf, r"acceleration of unit 0 is infinite at sample 3")
+    refused("speed", 1, 0, np.nan, r"speed of unit 1 is nan at sample 0")
 
 
 def test_macro_refuses_unsorted_or_repeated_cycles_and_bad_estimates() -> None:
