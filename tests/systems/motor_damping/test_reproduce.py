@@ -140,6 +140,17 @@ def test_macro_slope_recovery_and_coverage() -> None:
     assert np.sqrt(tr.scatter_var[-1].mean()) == pytest.approx(2e-6, rel=0.05)
 
 
+def _assert_predictions_are_the_kalman_filter(x: np.ndarray, P: np.ndarray, F: np.ndarray,
+                                              Q: np.ndarray, q: float, cycles: int) -> None:
+    """predicted_damping m cycles ahead equals m Kalman predictions with (F, Q), m = 1..cycles."""
+    xm, Pm = x, P
+    for m in range(1, cycles + 1):
+        xm, Pm = kf_predict(xm, Pm, F, Q)
+        mu, v = predicted_damping(x, P, np.array([float(m)]), q)
+        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
+        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+
+
 def test_predicted_variance_matches_iterated_kalman_prediction() -> None:
     x = np.array([[5e-5, 2e-6], [6e-5, 1e-6]])
     P = np.array([[[4e-12, -1e-13], [-1e-13, 1e-14]], [[1e-12, 0.0], [0.0, 4e-14]]])
@@ -147,12 +158,7 @@ def test_predicted_variance_matches_iterated_kalman_prediction() -> None:
     A = np.array([[0.0, 1.0], [0.0, 0.0]])
     F, Q = discretise(A, np.diag([0.0, q_a]), 1.0)  # Van Loan oracle for the model's Q
     np.testing.assert_allclose(Q, q_a * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]), rtol=1e-12)
-    xm, Pm = x, P
-    for m in range(1, 11):
-        xm, Pm = kf_predict(xm, Pm, F, Q)
-        mu, v = predicted_damping(x, P, np.array([float(m)]), q_a)
-        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
-        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+    _assert_predictions_are_the_kalman_filter(x, P, F, Q, q_a, cycles=10)
 
 
 def test_rul_quantiles_covariance_vs_exact_crossing_and_monte_carlo() -> None:
@@ -411,12 +417,7 @@ def test_quadratic_predicted_variance_matches_iterated_kalman_prediction() -> No
     F_m, Q_m = _transition(1.0, q, 3)
     np.testing.assert_allclose(F_m, F, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(Q_m, Q, rtol=1e-10)
-    xm, Pm = x, P
-    for m in range(1, 13):
-        xm, Pm = kf_predict(xm, Pm, F, Q)
-        mu, v = predicted_damping(x, P, np.array([float(m)]), q)
-        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
-        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+    _assert_predictions_are_the_kalman_filter(x, P, F, Q, q, cycles=12)
 
 
 def test_quadratic_crossing_against_hand_computed_roots() -> None:
