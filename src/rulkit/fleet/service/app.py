@@ -48,7 +48,8 @@ log = logging.getLogger("rulkit.service")
 
 STATIC = resources.files("rulkit.fleet.service") / "static"
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
-       "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+       "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'; "
+       "require-trusted-types-for 'script'; trusted-types 'none'")
 
 
 class ErrorBody(BaseModel):
