@@ -347,6 +347,7 @@ def fit_onset(hist: Histories, noise: str = "additive", *, start: OnsetModel | N
         best, edge = profile_shape(at, m0)
     while start is None and 2 * len(grid) - 1 <= ONSET_GRID_MAX \
             and grid_error(best.theta, hist, x, best.lam, grid) > ONSET_GRID_TOL:
+        # at() reads setup and theta0: the halved grid, warm-started from the coarser fit
         grid, theta0 = halved(grid), best.theta
         setup = GrowthSpec(noise=noise, walk=True, onset_grid=grid)
         best, edge = profile_shape(at, 2.0 * (1.0 - best.lam))
