@@ -40,6 +40,8 @@ one index of :data:`rulkit.fleet.store.schema.COMPONENTS`."""
 
 def num(v: Any) -> Any:
     """JSON-safe number: NaN, infinities and None become None."""
+    if type(v) is float:  # the common case first: a column value of SQLite or psycopg
+        return v if math.isfinite(v) else None
     if v is None:
         return None
     if isinstance(v, (bool, np.bool_)):
@@ -54,20 +56,42 @@ def _float(v: Any) -> float:
     return math.nan if v is None else float(v)
 
 
+_SEEN, _MEDIAN, _FAILED = FIELDS.index("seen"), FIELDS.index("rul_median"), \
+    FIELDS.index("failed_at")
+
+
+def component_items(rows: list[tuple], est: Estimator, now: float) -> list[dict[str, Any]]:
+    """The components as the API returns them (rows of :data:`FIELDS`): the due dates and
+    stale flags of the whole page in one array operation each (docs/systems/embedded-rul.md
+    §7), the rest copied per row."""
+    if not rows:
+        return []
+    seen = np.array([r[_SEEN] for r in rows], dtype=np.float64)  # None -> NaN
+    med = np.array([r[_MEDIAN] for r in rows], dtype=np.float64)
+    failed = np.array([r[_FAILED] is not None for r in rows])
+    due = np.where(failed, np.nan, due_time(seen, med, est.time_unit)).tolist()
+    stale_flags = stale(seen, now, est.rules).tolist()
+    out = []
+    for r, d, st in zip(rows, due, stale_flags, strict=True):
+        (component, t, n, hi, fhi, _frul, _valid, level, rul_median, rul_low, rul_high,
+         failed_at, last_seen) = r
+        is_failed = failed_at is not None
+        rul = num(rul_median)
+        out.append({
+            "component": component, "level": LEVEL_NAMES[int(level)], "failed": is_failed,
+            "failed_at": num(failed_at), "stale": st,
+            "rul_state": "failed" if is_failed else ("pending" if rul_median is None
+                                                     or rul_median != rul_median
+                                                     else "estimated"),
+            "rul": rul, "rul_low": num(rul_low), "rul_high": num(rul_high), "due": num(d),
+            "hi": num(hi), "fhi": num(fhi), "last_time": num(t), "last_seen": num(last_seen),
+            "n": int(n)})
+    return out
+
+
 def component_item(row: tuple, est: Estimator, now: float) -> dict[str, Any]:
     """One component as the API returns it (a row of :data:`FIELDS`)."""
-    d = dict(zip(FIELDS, row, strict=True))
-    med, seen = _float(d["rul_median"]), _float(d["seen"])
-    failed = d["failed_at"] is not None
-    state = "failed" if failed else ("pending" if math.isnan(med) else "estimated")
-    due = math.nan if failed else due_time(np.array([seen]), np.array([med]), est.time_unit)[0]
-    return {"component": d["component"], "level": LEVEL_NAMES[int(d["level"])],
-            "failed": failed, "failed_at": num(d["failed_at"]),
-            "stale": bool(stale(np.array([seen]), now, est.rules)[0]),
-            "rul_state": state, "rul": num(med), "rul_low": num(d["rul_low"]),
-            "rul_high": num(d["rul_high"]), "due": num(due), "hi": num(d["hi"]),
-            "fhi": num(d["fhi"]), "last_time": num(d["t"]), "last_seen": num(d["seen"]),
-            "n": int(d["n"])}
+    return component_items([row], est, now)[0]
 
 
 def _filter(level: str | None, est: Estimator, now: float) -> tuple[str, list[Any]]:
@@ -174,7 +198,7 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     sql, params = page_query(sort, level, est, now, key, offset + limit)
     rows = conn.execute(sql, params).fetchall()[offset:]
     nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
-    items = [component_item(r[:len(FIELDS)], est, now) for r in rows]
+    items = component_items([r[:len(FIELDS)] for r in rows], est, now)
     return level_total(conn, level, est, now), items, nxt
 
 
@@ -245,6 +269,6 @@ def time_origin(item: dict[str, Any], est: Estimator) -> float | None:
     return float(item["last_seen"] - item["last_time"] * scale)
 
 
-__all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "cursor_of", "decode_cursor",
-           "forecast", "level_total", "list_components", "num", "page_query", "summary",
-           "time_origin"]
+__all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "component_items", "cursor_of",
+           "decode_cursor", "forecast", "level_total", "list_components", "num", "page_query",
+           "summary", "time_origin"]
