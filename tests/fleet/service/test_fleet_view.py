@@ -137,3 +137,36 @@ def test_level_counts_follow_every_write(sdb):
         s.set_rules(MonitoringRules(time_unit="h", alarm_hi=0.5))
     kept3, real3 = counts()
     assert kept3 == real3 and real3 != real2
+
+
+def test_the_stale_total_equals_a_count_whatever_the_clock_and_the_writes(sdb, tmp_path):
+    """The stale total reuses its last count while the data is unchanged: against a count of
+    the table at every step, with the clock moving forth and back, writes through the
+    service's own connections and through another process's connection."""
+    from rulkit.fleet.store.postgres import open_store
+
+    fleet(sdb, 60)
+
+    def brute(now):
+        with sdb.store() as s, s.snapshot() as conn:
+            return conn.execute("SELECT COUNT(*) FROM components WHERE seen < ?",
+                                (now - 3600.0,)).fetchone()[0]
+
+    def check(now):
+        total = sdb.components(limit=1, level="stale", now=now)[0]
+        assert total == sdb.summary(now=now)["counts"]["stale"] == brute(now), now
+
+    steps = [NOW, NOW + 10.0, NOW + 7200.0, NOW - 3600.0, NOW + 3600.0 - 1.0, NOW + 3600.0]
+    for now in steps:
+        check(now)
+    assert brute(NOW + 3600.0 + 1.0) == 60 > brute(NOW) > 0  # the range moved the total
+    late = pd.DataFrame({"component": ["c001", "c002", "new"], "time": 30.0, "hi": 0.3})
+    sdb.ingest(late, "late", now=NOW + 5000.0)  # through the service: seen moves
+    for now in steps:
+        check(now)
+    with open_store(sdb.db) as other:  # another connection, as another process has
+        other.now = NOW + 9000.0
+        other.ingest(pd.DataFrame({"component": ["c003", "c004"], "time": 40.0, "hi": 0.3}),
+                     "elsewhere")
+    for now in steps:
+        check(now)

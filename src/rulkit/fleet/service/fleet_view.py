@@ -176,15 +176,52 @@ def decode_cursor(cursor: str, sort: str) -> list[Any]:
 
 def level_total(conn: Any, level: str | None, est: Estimator, now: float) -> int:
     """Components under the ``level`` filter: from table ``level_counts`` (kept by every
-    write), stale ones by a range of the ``seen`` index."""
+    write), stale ones by :func:`stale_total`."""
     if level == "stale":
-        cond, params = _filter(level, est, now)
-        return int(conn.execute(f"SELECT COUNT(*) FROM components WHERE {cond}",
-                                params).fetchone()[0])
+        after = est.rules.stale_after
+        return 0 if after is None else stale_total(conn, now - after)
     counts = dict(conn.execute("SELECT level, n FROM level_counts").fetchall())
     if level is None:
         return int(sum(counts.values()))
     return int(counts.get(LEVEL_CODES[level], 0))
+
+
+_STALE_COUNTS: dict[Any, tuple[Any, float, int]] = {}
+"""Per open connection: (the version of the data its snapshot sees, a cutoff, the number of
+components seen before that cutoff)."""
+
+
+def data_version(conn: Any) -> Any:
+    """A value that is equal for two snapshots only if they see the same data: on SQLite the
+    connection's ``PRAGMA data_version`` (moved by other connections' commits; read inside a
+    read transaction, it is that snapshot's) with its own ``total_changes``; on PostgreSQL
+    the transaction's snapshot (``pg_current_snapshot()``: the transactions it sees)."""
+    if getattr(conn, "dialect", "sqlite") == "postgresql":
+        return conn.execute("SELECT pg_current_snapshot()::text").fetchone()[0]
+    return (conn.execute("PRAGMA data_version").fetchone()[0], conn.total_changes)
+
+
+def stale_total(conn: Any, cutoff: float) -> int:
+    """Components whose last acquisition is before ``cutoff`` (``seen < cutoff``), inside the
+    caller's snapshot. Staleness moves with the clock, so it has no stored count; the count
+    of the last call on this connection is reused while the data is unchanged
+    (:func:`data_version`), moved by the components seen between the two cutoffs (a short
+    range of the ``seen`` index) instead of counted again over the whole range."""
+    version = data_version(conn)
+    cached = _STALE_COUNTS.get(conn)
+    if cached is not None and cached[0] == version:
+        _, c0, n0 = cached
+        lo, hi = min(c0, cutoff), max(c0, cutoff)
+        moved = int(conn.execute("SELECT COUNT(*) FROM components WHERE seen >= ? AND "
+                                 "seen < ?", (lo, hi)).fetchone()[0])
+        n = n0 + moved if cutoff >= c0 else n0 - moved
+    else:
+        n = int(conn.execute("SELECT COUNT(*) FROM components WHERE seen < ?",
+                             (cutoff,)).fetchone()[0])
+    if len(_STALE_COUNTS) >= 64:  # connections closed and replaced: forget them all
+        _STALE_COUNTS.clear()
+    _STALE_COUNTS[conn] = (version, cutoff, n)
+    return n
 
 
 def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
@@ -270,5 +307,5 @@ def time_origin(item: dict[str, Any], est: Estimator) -> float | None:
 
 
 __all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "component_items", "cursor_of",
-           "decode_cursor", "forecast", "level_total", "list_components", "num", "page_query",
-           "summary", "time_origin"]
+           "data_version", "decode_cursor", "forecast", "level_total", "list_components", "num",
+           "page_query", "stale_total", "summary", "time_origin"]
