@@ -1,4 +1,4 @@
-"""Benchmark of step 2 of the reaction-wheel study (issue #3).
+"""Benchmark of step 2 of the reaction-wheel study (docs/systems/reaction-wheel.md).
 
 1. Window sums S_k(b) for N particles: the direct sum (4,800 exponentials per particle per
    window) against the Gauss quadrature on the window's distribution of 1/T^ (building the rule

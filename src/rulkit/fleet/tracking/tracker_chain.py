@@ -32,6 +32,34 @@ alpha-beta-gamma tracker after a two-point initiation (before it d2RUL is 0 by c
 not estimated, and would pass |d2RUL| < 0.01 trivially); the same rule for both initiations."""
 LEVEL_NAMES = {LEVEL_NONE: "ok", LEVEL_WARNING: "warning", LEVEL_ALARM: "alarm"}
 INITIATIONS = ("floor", "two-point", "measured")
+"""How a new component's trackers start (``TrackerConfig.initiation``; the seed initialises
+everything to zero, which would put log(0) into step 2 of :func:`tracker_update`):
+
+``"floor"`` (default): 1st acquisition (n = 0): fHI = HI, dHI = 1/design_life (no
+degradation assumed until the tracker measures one), fRUL = RUL, dRUL = d2RUL = 0; then the
+steady-state updates 1-3 of :func:`tracker_update`. Safe on noisy HI: no slope is taken
+from two noisy points.
+
+``"two-point"``: two-point differencing, the standard initiation of alpha-beta trackers
+(Bar-Shalom), applied to both trackers; for short, clean series (few acquisitions per
+fault), where the floor start's transient would dominate. On noisy HI the differenced slope
+is noise that persists for ~1/beta1 steps under a small tracking index (and can raise
+spurious warnings or alarms on healthy components):
+
+* 1st acquisition (n = 0): fHI = HI, dHI = 1/design_life; fRUL = RUL, dRUL = d2RUL = 0;
+* 2nd (n = 1): fHI = HI, dHI = max((HI - HI_1) / dt, 1/design_life); the RUL tracker
+  restarts at fRUL = RUL, dRUL = d2RUL = 0 (the first RUL that rests on a measured slope);
+* 3rd (n = 2): the alpha-beta update as usual; fRUL = RUL, dRUL = (RUL - RUL_2) / dt,
+  d2RUL = 0;
+* from the 4th on the steady-state updates 1-3.
+
+``"measured"``: the HI tracker starts as in ``"two-point"``; the RUL tracker is (re)started
+at (RUL, 0, 0) at every acquisition where no degradation is measured yet (dHI at its floor
+1/design_life, or fHI <= hi_floor), so it never starts from, nor carries the dynamics of,
+the floor's RUL (e.g. -h ln h / dHI = 690 at h = 1e-3, dHI = 1e-5): it restarts once more
+at the first acquisition with a measured slope (the previous state was still flat), and
+from there on runs the steady-state updates. dRUL = 0 after a restart makes the RUL invalid
+(the validity band is open at 0) until the tracker has estimated a rate."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -487,33 +515,7 @@ def tracker_update(
        model; the seed's pseudo-code omits the rate prediction and divides by 2 dt^2, half the
        Kalman gain, see docs/systems/embedded-rul.md §2 and rulkit.estimation.trackers).
 
-    Track initiation (``config.initiation``; the seed initialises everything to zero, which
-    would put log(0) into step 2):
-
-    ``"floor"`` (default): 1st acquisition (n = 0): fHI = HI, dHI = 1/design_life (no
-    degradation assumed until the tracker measures one), fRUL = RUL, dRUL = d2RUL = 0; then the
-    steady-state updates 1-3 above. Safe on noisy HI: no slope is taken from two noisy points.
-
-    ``"two-point"``: two-point differencing, the standard initiation of alpha-beta trackers
-    (Bar-Shalom), applied to both trackers; for short, clean series (few acquisitions per
-    fault), where the floor start's transient would dominate. On noisy HI the differenced slope
-    is noise that persists for ~1/beta1 steps under a small tracking index (and can raise
-    spurious warnings or alarms on healthy components):
-
-    * 1st acquisition (n = 0): fHI = HI, dHI = 1/design_life; fRUL = RUL, dRUL = d2RUL = 0;
-    * 2nd (n = 1): fHI = HI, dHI = max((HI - HI_1) / dt, 1/design_life); the RUL tracker
-      restarts at fRUL = RUL, dRUL = d2RUL = 0 (the first RUL that rests on a measured slope);
-    * 3rd (n = 2): the alpha-beta update as usual; fRUL = RUL, dRUL = (RUL - RUL_2) / dt,
-      d2RUL = 0;
-    * from the 4th on the steady-state updates 1-3 above.
-
-    ``"measured"``: the HI tracker starts as in ``"two-point"``; the RUL tracker is (re)started
-    at (RUL, 0, 0) at every acquisition where no degradation is measured yet (dHI at its floor
-    1/design_life, or fHI <= hi_floor), so it never starts from, nor carries the dynamics of,
-    the floor's RUL (e.g. -h ln h / dHI = 690 at h = 1e-3, dHI = 1e-5): it restarts once more
-    at the first acquisition with a measured slope (the previous state was still flat), and
-    from there on runs the steady-state updates. dRUL = 0 after a restart makes the RUL invalid
-    (the validity band is open at 0) until the tracker has estimated a rate.
+    Track initiation (``config.initiation``): see :data:`INITIATIONS`.
 
     With ``config.rul_clip`` fRUL is clipped at 0 after the update (a filtered RUL never goes
     negative); :attr:`TrackerOutput.clipped` counts the clips.
@@ -541,22 +543,7 @@ def tracker_update(
     n_init = 3 if config.initiation == "two-point" else (2 if measured else 1)
     initiating = bool((n_prev < n_init).any())
     all_have = bool(have.all())
-    dt = t - state.t
-    if initiating:
-        fresh = n_prev == 0
-        dt = np.where(fresh, config.dt, dt)  # placeholder; fresh rows are overwritten below
-    bad = have & ~(dt > 0)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(
-            f"component index {i}: time {float(t[i])!r} is not after its last acquisition "
-            f"{float(state.t[i])!r} (dt must be > 0)"
-        )
-    if not all_have:
-        dt = np.where(have, dt, config.dt)
-        zz = np.where(have, z, 0.0)
-    else:
-        zz = z
+    dt, zz = _steps(state, t, z, have, config, initiating)
     dhi_min = 1.0 / config.design_life
 
     ab = alpha_beta_update(state.ab, zz, dt, gains.alpha1, gains.beta1)
@@ -569,20 +556,8 @@ def tracker_update(
         ab[:, 1] = np.where(first, dhi_min, np.where(second, slope, ab[:, 1]))
     rul = paris_rul(ab[:, 0], ab[:, 1], config.hi_floor, config.paris_exponent)
     abg = alpha_beta_gamma_update(state.abg, rul, dt, gains.alpha2, gains.beta2, gains.gamma2)
-    if initiating:  # (re)start of the RUL tracker, then its two-point slope
-        zero = np.zeros(b)
-        third = (n_prev == 2) if config.initiation == "two-point" else np.zeros(b, dtype=bool)
-        with np.errstate(invalid="ignore"):
-            rate = np.where(third, (rul - state.rul) / dt, 0.0)
-        init = np.column_stack([rul, rate, zero])
-        abg = np.where((n_prev < n_init)[:, None], init, abg)
-    if measured:  # restart the RUL tracker while no degradation is measured, and at the
-        # first measured slope (so the tracker never carries the floor's RUL)
-        with np.errstate(invalid="ignore"):
-            flat = ((ab[:, 1] <= dhi_min) | (ab[:, 0] <= config.hi_floor)
-                    | (state.ab[:, 1] <= dhi_min) | (state.ab[:, 0] <= config.hi_floor))
-        if flat.any():
-            abg = np.where(flat[:, None], np.column_stack([rul, np.zeros(b), np.zeros(b)]), abg)
+    if initiating or measured:
+        abg = _start_rul_tracker(state, ab, rul, abg, dt, config, n_init)
     clipped = None
     if config.rul_clip:
         clipped = have & (abg[:, 0] < 0.0)
@@ -607,6 +582,52 @@ def tracker_update(
         out = TrackerOutput(updated=out.updated, valid=out.valid, level=out.level,
                             rul_low=out.rul_low, rul_high=out.rul_high, clipped=clipped)
     return new, out
+
+
+def _steps(state: TrackerState, t: np.ndarray, z: np.ndarray, have: np.ndarray,
+           config: TrackerConfig, initiating: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The time steps and measurements of :func:`tracker_update`: ``ValueError`` naming the
+    first updated component whose time is not after its last; components without an
+    acquisition get a placeholder step and HI (their state is kept)."""
+    dt = t - state.t
+    if initiating:
+        fresh = state.n == 0
+        dt = np.where(fresh, config.dt, dt)  # placeholder; fresh rows are overwritten later
+    bad = have & ~(dt > 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"component index {i}: time {float(t[i])!r} is not after its last acquisition "
+            f"{float(state.t[i])!r} (dt must be > 0)"
+        )
+    if bool(have.all()):
+        return dt, z
+    return np.where(have, dt, config.dt), np.where(have, z, 0.0)
+
+
+def _start_rul_tracker(state: TrackerState, ab: np.ndarray, rul: np.ndarray, abg: np.ndarray,
+                       dt: np.ndarray, config: TrackerConfig, n_init: int) -> np.ndarray:
+    """The RUL tracker's (re)starts of :func:`tracker_update`'s initiation modes: at (RUL, 0,
+    0) during initiation, with the two-point slope at the third acquisition, and, in mode
+    ``"measured"``, while no degradation is measured and at the first measured slope (so the
+    tracker never carries the floor's RUL)."""
+    b = len(state)
+    n_prev = state.n
+    dhi_min = 1.0 / config.design_life
+    if bool((n_prev < n_init).any()):
+        zero = np.zeros(b)
+        third = (n_prev == 2) if config.initiation == "two-point" else np.zeros(b, dtype=bool)
+        with np.errstate(invalid="ignore"):
+            rate = np.where(third, (rul - state.rul) / dt, 0.0)
+        init = np.column_stack([rul, rate, zero])
+        abg = np.where((n_prev < n_init)[:, None], init, abg)
+    if config.initiation == "measured":
+        with np.errstate(invalid="ignore"):
+            flat = ((ab[:, 1] <= dhi_min) | (ab[:, 0] <= config.hi_floor)
+                    | (state.ab[:, 1] <= dhi_min) | (state.ab[:, 0] <= config.hi_floor))
+        if flat.any():
+            abg = np.where(flat[:, None], np.column_stack([rul, np.zeros(b), np.zeros(b)]), abg)
+    return abg
 
 
 def tracker_outputs(

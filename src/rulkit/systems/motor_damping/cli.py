@@ -1,4 +1,4 @@
-"""Commands of the reaction-wheel motor damping system (seed 002, issue #4).
+"""Commands of the reaction-wheel motor damping system (seed 002; docs/systems/motor-damping.md).
 
 - ``rulkit reproduce motor-damping [--quick] [--runs N] [--seed S] [--out DIR]
   [--macro-model linear|quadratic]``: the seed reproduction (tables, report.md with the seed's

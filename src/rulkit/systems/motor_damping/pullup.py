@@ -1,4 +1,4 @@
-"""Reader and validator for a user's motor pull-up test data (seed 002 section 2; issue #4).
+"""Reader and validator for a user's motor pull-up test data (seed 002 section 2).
 
 File format (CSV or Parquet), one row per sample, columns (names case-insensitive, extra
 columns ignored; two columns whose names differ only in case, such as ``speed`` and ``SPEED``,

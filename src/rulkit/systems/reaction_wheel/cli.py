@@ -1,4 +1,4 @@
-"""Commands of the reaction-wheel lubrication system (seeds 000/001, issue #3).
+"""Commands of the reaction-wheel lubrication system (docs/systems/reaction-wheel.md).
 
 - ``rulkit reproduce rw-lubrication [--quick] [--runs N] [--seed S] [--out DIR] [--workers N]
   [--scheduler ADDRESS]``: steps 1-3, Tables 5-7 beside the paper's, figures, report.md.

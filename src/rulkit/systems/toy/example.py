@@ -1,4 +1,4 @@
-"""End-to-end example on the 2-state toy degradation model (issue #2; engine-api.md).
+"""End-to-end example on the 2-state toy degradation model (engine-api.md).
 
 telemetry (simulated noisy damage) -> particle filter (posterior of [damage, rate]) ->
 Monte Carlo propagation to the failure threshold -> RUL distributions at several prediction

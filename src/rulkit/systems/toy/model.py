@@ -12,7 +12,7 @@ The model is linear and Gaussian, which gives an exact Kalman filter as the orac
 particle filter (``F = [[1, dt], [0, 1]]``, ``H = [1, 0]``), and without process noise the
 time to failure is ``(1 - damage) / rate`` in closed form.
 
-This is the 2-state problem of issue #2 (engine example and the ProgPy benchmarks).
+It is the 2-state problem of the engine example and of the ProgPy benchmarks.
 """
 
 from __future__ import annotations
