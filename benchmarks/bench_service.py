@@ -178,7 +178,7 @@ def _reads(port: int, token: str, path: str, threads: int, per_thread: int) -> l
     errors: list[str] = []
 
     def run() -> None:
-        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=600)  # offset pages: s
         try:
             for _ in range(per_thread):
                 t0 = time.perf_counter()
