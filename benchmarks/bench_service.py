@@ -39,13 +39,20 @@ import time
 from contextlib import ExitStack
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.service.db import ServiceDB
-from rulkit.fleet.service.loadgen import request, run_load, start_server, verify_exactly_once
+from rulkit.fleet.service.loadgen import (
+    request,
+    run_load,
+    start_server,
+    verify_exactly_once,
+    writer_batch,
+)
 from rulkit.fleet.service.pgtemp import TempPostgres, unavailable_reason
 from rulkit.fleet.store.postgres import open_store
 
@@ -67,6 +74,63 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int) -> dict[str,
         raise SystemExit(f"errors during the load: {res.errors[:5]}")
     verify_exactly_once(db, args.writers, args.batches, batch_size)
     return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client}
+
+
+def bare_floor(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
+    """The hardware estimate under the ingest phase: the same acquisitions' rows written bare
+    into a new database of the same schema, one transaction per batch as the service commits
+    them (the store's own connection: WAL and synchronous=FULL on SQLite, the write lock on
+    PostgreSQL): the history rows (15 columns) by ``executemany`` of 50-row INSERTs
+    (SQLite) or COPY (PostgreSQL), then one upsert per component of its row in
+    ``components`` (tracker state and RUL columns, the five secondary indexes). No HTTP, no
+    validation, no tracker, no rules. CPU of this process (PostgreSQL's own not counted)."""
+    from rulkit.fleet.store.schema import COMPONENTS, HISTORY
+
+    hcols, ccols = HISTORY.names, COMPONENTS.names
+    with open_store(db) as store:
+        pg = getattr(store, "dialect", "sqlite") == "postgresql"
+        one = "(" + ", ".join("?" * len(hcols)) + ")"
+        k = 50
+        many = f"INSERT INTO history ({', '.join(hcols)}) VALUES " + ", ".join([one] * k)
+        upsert = (f"INSERT INTO components ({', '.join(ccols)}) VALUES "
+                  f"({', '.join('?' * len(ccols))}) ON CONFLICT(component) DO UPDATE SET "
+                  + ", ".join(f"{c} = excluded.{c}" for c in ccols[1:]))
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        for kb in range(args.batches):
+            for w in range(args.writers):
+                rows = writer_batch(w, kb, batch_size)
+                hist = [tuple(_bare_value(c, r) for c in hcols) for r in rows]
+                comps = [tuple(_bare_value(c, r) for c in ccols) for r in rows]
+                with store._transaction("IMMEDIATE") as conn:
+                    if pg:
+                        with store._conn.raw.cursor() as cur, cur.copy(  # type: ignore[attr-defined]
+                                f"COPY history ({', '.join(hcols)}) FROM STDIN") as copy:
+                            for row in hist:
+                                copy.write_row(row)
+                    else:
+                        full = len(hist) - len(hist) % k
+                        flat = [v for row in hist[:full] for v in row]
+                        step = k * len(hcols)
+                        conn.executemany(many, [flat[i:i + step]
+                                                for i in range(0, len(flat), step)])
+                        conn.executemany(f"INSERT INTO history ({', '.join(hcols)}) VALUES "
+                                         f"{one}", hist[full:])
+                    conn.executemany(upsert, comps)
+        cpu, wall = time.process_time() - cpu0, time.perf_counter() - t0
+    return {"cpu_s": cpu, "wall_s": wall,
+            "acquisitions": float(args.batches * args.writers * batch_size)}
+
+
+def _bare_value(col: str, row: dict[str, Any]) -> Any:
+    """A value of the column's type for the bare floor's rows (the acquisition's own
+    component, time and HI; 1 or True in integer and boolean columns, the HI elsewhere)."""
+    if col in ("component", "hi"):
+        return row[col]
+    if col == "t":
+        return row["time"]
+    if col == "valid":
+        return True
+    return 1 if col in ("n", "level", "ingest", "max_level", "hits") else row["hi"]
 
 
 def fill(db: str, n: int, steps: int = 1, chunk: int = 200_000,
@@ -205,8 +269,12 @@ def _sqlite_path(tmp: Path, name: str) -> str:
     return str(tmp / f"{name}.db")
 
 
-def _print_write(backend: str, size: int, w: dict[str, float]) -> None:
+def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, float]
+                 ) -> None:
     n = w["acquisitions"]
+    ours = w["server_cpu_s"] / n * 1e6
+    floor = bare["cpu_s"] / bare["acquisitions"] * 1e6
+    cores = os.cpu_count() or 1
     print(f"{backend} batch={size}: {int(n)} acquisitions in {w['seconds']:.1f} s = "
           f"{w['acq_per_s']:.0f} acquisitions/s; service CPU {w['server_cpu_s']:.1f} s = "
           f"{w['server_cpu_s'] / n * 1e6:.1f} us per acquisition (GETs included"
@@ -214,6 +282,13 @@ def _print_write(backend: str, size: int, w: dict[str, float]) -> None:
           + f"), client CPU {w['client_cpu_s'] / n * 1e6:.1f} us per acquisition; POST p50 "
           f"{w['post_p50_ms']:.0f} ms, p99 {w['post_p99_ms']:.0f} ms; GET p99 under load "
           f"{w['get_p99_ms']:.0f} ms; exactly once: yes")
+    print(f"  beside it, the same rows written bare (one transaction per batch, no HTTP, no "
+          f"validation, no tracker): {floor:.1f} us of CPU per acquisition "
+          f"({bare['acquisitions'] / bare['wall_s']:.0f} acquisitions/s on one thread); "
+          f"service / bare CPU = {ours / floor:.1f}; CPU-bound ceiling of the service on "
+          f"{cores} cores: {cores * 1e6 / ours:.0f} acquisitions/s "
+          f"(bare: {cores * 1e6 / floor:.0f}/s); load average "
+          f"{os.getloadavg()[0]:.1f}")
 
 
 def main() -> None:
@@ -253,7 +328,9 @@ def main() -> None:
             print(f"\n## {backend}")
             if "ingest" not in args.skip:
                 for size in args.batch_sizes:
-                    _print_write(backend, size, write_phase(new_db(f"w{size}"), args, size))
+                    w = write_phase(new_db(f"w{size}"), args, size)
+                    _print_write(backend, size, w, bare_floor(new_db(f"bare{size}"), args,
+                                                              size))
             if "pages" not in args.skip:
                 r = pages_phase(new_db("pages"), args)
                 print(f"pages at {int(r['components'])} components (filled in "

@@ -4,13 +4,17 @@ with the file, section, key, unit and what was expected."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
 from rulkit.machine_file import (
     Field,
+    Machine,
     MachineFileError,
+    Schema,
     machine_file_template,
     read_machine_file,
     schema_table,
@@ -131,3 +135,23 @@ def test_template_with_values_reads_back_as_those_values(tmp_path: Path) -> None
     text = machine_file_template(SCHEMA, values=values)
     assert "J = 2.0  # kg m^2" in text and "gate = false" in text
     assert read_machine_file(write(tmp_path, text), SCHEMA) == values
+
+
+@dataclass(frozen=True)
+class _Wheel(Machine):
+    schema: ClassVar[Schema] = SCHEMA
+
+
+def test_a_machine_subclass_reads_its_schema_and_keeps_its_type(tmp_path: Path) -> None:
+    p = write(tmp_path, "[wheel]\npoles = 12\n")
+    m = _Wheel.read(p)
+    assert (m.source, m.values["wheel"]["poles"], m.values["wheel"]["J"]) == (str(p), 12, 0.0106)
+    assert _Wheel.read(None) == _Wheel(read_machine_file(write(tmp_path, ""), SCHEMA))
+    o = m.with_overrides({"--j": ("wheel", "J", 2.0), "--poles": ("wheel", "poles", None)})
+    assert type(o) is _Wheel and o.source == str(p)
+    assert (o.values["wheel"]["J"], o.values["wheel"]["poles"]) == (2.0, 12)
+    assert m.values["wheel"]["J"] == 0.0106  # the original is unchanged
+    with pytest.raises(MachineFileError, match=r"--j = -1 \(kg m\^2\): outside its range"):
+        m.with_overrides({"--j": ("wheel", "J", -1)})
+    with pytest.raises(MachineFileError, match=r"\[filter\] unknown key"):
+        _Wheel.read(write(tmp_path, "[filter]\nmetod = 'ekf'\n"))

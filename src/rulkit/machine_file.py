@@ -25,9 +25,9 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Self
 
-__all__ = ["Field", "MachineFileError", "apply_overrides", "machine_file_template",
+__all__ = ["Field", "Machine", "MachineFileError", "apply_overrides", "machine_file_template",
            "machine_values", "read_machine_file", "schema_table"]
 
 Schema = Mapping[str, Sequence["Field"]]
@@ -169,6 +169,34 @@ def apply_overrides(values: dict[str, dict[str, Any]], schema: Schema,
             raise ValueError(f"{label}: [{section}] {key} is not in the schema")
         out[section][key] = fields[section, key].check(value, label)
     return out
+
+
+@dataclass(frozen=True)
+class Machine:
+    """A machine file, read and checked against the subclass's :attr:`schema`: ``values`` holds
+    every section's values (the defaults filled in), ``source`` the file (or ``"defaults"``).
+
+    A system subclasses it with its schema and typed views of the values, e.g.
+    :class:`rulkit.systems.friction_drive.machine.DriveMachine`.
+    """
+
+    schema: ClassVar[Schema] = {}
+    values: dict[str, dict[str, Any]]
+    source: str = "defaults"
+
+    @classmethod
+    def read(cls, path: str | Path | None = None) -> Self:
+        """The machine file at ``path`` checked against :attr:`schema`, the defaults filled in
+        (``None``: the defaults alone). Raises :class:`MachineFileError` naming the file,
+        section and key."""
+        if path is None:
+            return cls(machine_values({}, cls.schema, "defaults"))
+        return cls(read_machine_file(path, cls.schema), str(path))
+
+    def with_overrides(self, overrides: Mapping[str, tuple[str, str, Any]]) -> Self:
+        """This machine with single values replaced (:func:`apply_overrides`: ``{label:
+        (section, key, value)}``, ``None`` values skipped, errors naming the label)."""
+        return type(self)(apply_overrides(self.values, self.schema, overrides), self.source)
 
 
 def _closest(name: str, known: Mapping[str, Field]) -> str | None:

@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from rulkit.estimation.base import refuse_model
 from rulkit.estimation.kalman import (
     _T,
     FloatArray,
@@ -20,7 +19,6 @@ from rulkit.estimation.kalman import (
     NonlinearKalmanFilter,
     _apply,
     _check_finite,
-    _MatrixSource,
     _sym,
     _update,
     _van_loan,
@@ -85,10 +83,8 @@ class ExtendedKalmanFilter(NonlinearKalmanFilter):
         substeps: int = 1,
         jacobian_at: str | np.ndarray = "start",
     ) -> None:
-        refuse_model(f, "ExtendedKalmanFilter")
-        self.f, self.h, self.jac_f, self.jac_h = f, h, jac_f, jac_h
-        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
-        self.R = _MatrixSource(R, None, None, "R", cov=True)
+        self._set_functions(f, h, Q, R)
+        self.jac_f, self.jac_h = jac_f, jac_h
         self.continuous = bool(continuous)
         if self.continuous:
             if dt is None or not (np.isfinite(dt) and dt > 0):
@@ -124,9 +120,7 @@ class ExtendedKalmanFilter(NonlinearKalmanFilter):
         ``ValueError`` before any model code runs. Results keep the unit axis (B = 1).
         """
         fn = kalman_functions_from_model(model, dt, t0, u, Q, R, jacobian)
-        ekf = cls(fn.f, fn.h, fn.Q, fn.R, jac_f=fn.jac_f, jac_h=fn.jac_h)
-        ekf.n_x, ekf.n_y = model.n_x, model.n_y
-        return ekf
+        return cls(fn.f, fn.h, fn.Q, fn.R, jac_f=fn.jac_f, jac_h=fn.jac_h)._sized_for(model)
 
     # -- time arguments -------------------------------------------------------------------
     def _tf(self, k: int) -> float | int:

@@ -40,14 +40,20 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any, Self, cast
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from rulkit.estimation.base import Estimator, EstimatorState, FilterResult, Posterior
-from rulkit.model import as_batch, check_covariance, plain
+from rulkit.estimation.base import (
+    Estimator,
+    EstimatorState,
+    FilterResult,
+    Posterior,
+    refuse_model,
+)
+from rulkit.model import StateSpaceModel, as_batch, check_covariance, plain
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -734,6 +740,21 @@ class NonlinearKalmanFilter(_KalmanLoop):
     R: _MatrixSource
     n_x: int | None = None  # known when built from a model: shapes checked before any call
     n_y: int | None = None
+
+    def _set_functions(self, f: Callable[..., np.ndarray], h: Callable[..., np.ndarray],
+                       Q: MatrixLike, R: MatrixLike) -> None:
+        """Keep the step ``f``, the output ``h`` and the covariances ``Q``, ``R`` (shared, per
+        unit or callables of k); a model given as ``f`` is a ``TypeError`` naming ``from_model``."""
+        refuse_model(f, type(self).__name__)
+        self.f, self.h = f, h
+        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
+        self.R = _MatrixSource(R, None, None, "R", cov=True)
+
+    def _sized_for(self, model: StateSpaceModel) -> Self:
+        """This filter with ``model``'s state and output sizes, so that ``filter`` checks
+        shapes before any model code runs (the end of each ``from_model``)."""
+        self.n_x, self.n_y = model.n_x, model.n_y
+        return self
 
     def predict(
         self, x: FloatArray, P: FloatArray, k: int, u: Any = None

@@ -12,7 +12,6 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.estimation.base import refuse_model
 from rulkit.estimation.kalman import (
     _T,
     FloatArray,
@@ -23,7 +22,6 @@ from rulkit.estimation.kalman import (
     _check_finite,
     _chol_S,
     _finish_innovation,
-    _MatrixSource,
     _sym,
 )
 from rulkit.model import (
@@ -67,10 +65,7 @@ class UnscentedKalmanFilter(NonlinearKalmanFilter):
             raise ValueError(f"alpha: expected a positive finite value, got {plain(alpha)}")
         if not np.isfinite(beta) or not np.isfinite(kappa):
             raise ValueError("beta, kappa: expected finite values")
-        refuse_model(f, "UnscentedKalmanFilter")
-        self.f, self.h = f, h
-        self.Q = _MatrixSource(Q, None, None, "Q", cov=True)
-        self.R = _MatrixSource(R, None, None, "R", cov=True)
+        self._set_functions(f, h, Q, R)
         self.alpha, self.beta, self.kappa = float(alpha), float(beta), float(kappa)
 
     @classmethod
@@ -92,9 +87,7 @@ class UnscentedKalmanFilter(NonlinearKalmanFilter):
         defaulting to ``model.dt``) and ``model.output``; ``Q``, ``R`` default to
         ``model.noise``. Shapes as for :meth:`ExtendedKalmanFilter.from_model`."""
         fn = kalman_functions_from_model(model, dt, t0, u, Q, R, "numerical")
-        ukf = cls(fn.f, fn.h, fn.Q, fn.R, alpha=alpha, beta=beta, kappa=kappa)
-        ukf.n_x, ukf.n_y = model.n_x, model.n_y
-        return ukf
+        return cls(fn.f, fn.h, fn.Q, fn.R, alpha=alpha, beta=beta, kappa=kappa)._sized_for(model)
 
     def _weights(self, n: int) -> tuple[float, float, float, float]:
         lam = self.alpha**2 * (n + self.kappa) - n

@@ -191,6 +191,27 @@ def test_rules_change_replays_like_a_fresh_database(tmp_path):
         pd.testing.assert_frame_equal(a[cols], b[cols], check_exact=False, rtol=1e-12)
 
 
+def test_batches_continue_the_stored_rules_and_trend_like_one_batch(tmp_path):
+    """A later batch starts from the stored rule and trend columns (read with the tracker
+    state in one query): the fleet in three batches, some components absent from some, ends
+    with the same components and history as in one batch."""
+    df = fleet_frame(n=5, k=30, seed=3)
+    rules = MonitoringRules(alarm_hi=0.3, alarm_hits=2, alarm_window=3, lead_time=25.0)
+    ingest_into(tmp_path / "one.db", df, rules=rules)
+    # the first batch ends with the fleet's first crossing: its alarm needs that stored hit
+    cut = df.loc[df["hi"] >= 0.3, "time"].min() + 0.5
+    later = df["time"] > cut
+    parts = [df[~later], df[later & (df["component"] != "c1")],
+             df[later & (df["component"] == "c1")]]
+    for part in parts:
+        ingest_into(tmp_path / "three.db", part, rules=rules)
+    for name in ("components", "history"):
+        a, b = table(tmp_path / "one.db", name), table(tmp_path / "three.db", name)
+        cols = [c for c in a.columns if c not in ("seen", "due", "ingest")]  # the clock
+        pd.testing.assert_frame_equal(a[cols], b[cols], check_exact=False, rtol=1e-12)
+    assert (table(tmp_path / "one.db", "components")["level"] > 0).any()  # rules at work
+
+
 def test_an_older_database_is_upgraded_in_place(tmp_path):
     """A database written before the one-RUL columns (rebuilt here by dropping them) gains
     them on its first writable opening, its RULs and levels replayed from the acquisitions;

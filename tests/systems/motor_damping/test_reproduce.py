@@ -140,6 +140,17 @@ def test_macro_slope_recovery_and_coverage() -> None:
     assert np.sqrt(tr.scatter_var[-1].mean()) == pytest.approx(2e-6, rel=0.05)
 
 
+def _assert_predictions_are_the_kalman_filter(x: np.ndarray, P: np.ndarray, F: np.ndarray,
+                                              Q: np.ndarray, q: float, cycles: int) -> None:
+    """predicted_damping m cycles ahead equals m Kalman predictions with (F, Q), m = 1..cycles."""
+    xm, Pm = x, P
+    for m in range(1, cycles + 1):
+        xm, Pm = kf_predict(xm, Pm, F, Q)
+        mu, v = predicted_damping(x, P, np.array([float(m)]), q)
+        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
+        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+
+
 def test_predicted_variance_matches_iterated_kalman_prediction() -> None:
     x = np.array([[5e-5, 2e-6], [6e-5, 1e-6]])
     P = np.array([[[4e-12, -1e-13], [-1e-13, 1e-14]], [[1e-12, 0.0], [0.0, 4e-14]]])
@@ -147,12 +158,7 @@ def test_predicted_variance_matches_iterated_kalman_prediction() -> None:
     A = np.array([[0.0, 1.0], [0.0, 0.0]])
     F, Q = discretise(A, np.diag([0.0, q_a]), 1.0)  # Van Loan oracle for the model's Q
     np.testing.assert_allclose(Q, q_a * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]), rtol=1e-12)
-    xm, Pm = x, P
-    for m in range(1, 11):
-        xm, Pm = kf_predict(xm, Pm, F, Q)
-        mu, v = predicted_damping(x, P, np.array([float(m)]), q_a)
-        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
-        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+    _assert_predictions_are_the_kalman_filter(x, P, F, Q, q_a, cycles=10)
 
 
 def test_rul_quantiles_covariance_vs_exact_crossing_and_monte_carlo() -> None:
@@ -298,29 +304,20 @@ def test_micro_ekf_refuses_input_that_would_poison_the_state(life) -> None:
     t = np.tile(life.time, (2, 1))
     cur, sp, acc = life.current[:2].copy(), life.speed[:2].copy(), life.acceleration[:2].copy()
 
-    def run(t_=t, cur_=cur, sp_=sp, acc_=acc):
-        return micro_ekf(t_, cur_, sp_, acc_, consts)
+    clean = {"t": t, "current": cur, "speed": sp, "acceleration": acc}
 
-    bad_t = t.copy()
-    bad_t[1, 50] = bad_t[1, 49]
-    with pytest.raises(ValueError, match=r"unit 1 does not increase at sample 50"):
-        run(t_=bad_t)
-    gap = t.copy()
-    gap[0, 10] = np.nan
-    with pytest.raises(ValueError, match=r"unit 0 is valid again at sample 11"):
-        run(t_=gap)
-    bad_i = cur.copy()
-    bad_i[1, 7] = np.nan
-    with pytest.raises(ValueError, match=r"current of unit 1 is nan at sample 7"):
-        run(cur_=bad_i)
-    inf_a = acc.copy()
-    inf_a[0, 3] = np.inf
-    with pytest.raises(ValueError, match=r"acceleration of unit 0 is infinite at sample 3"):
-        run(acc_=inf_a)
-    nan0 = sp.copy()
-    nan0[1, 0] = np.nan
-    with pytest.raises(ValueError, match=r"speed of unit 1 is nan at sample 0"):
-        run(sp_=nan0)
+    def refused(name: str, unit: int, k: int, value: float, message: str) -> None:
+        """micro_ekf with one cell of input ``name`` set to ``value`` raises ``message``."""
+        args = {key: a.copy() for key, a in clean.items()}
+        args[name][unit, k] = value
+        with pytest.raises(ValueError, match=message):
+            micro_ekf(args["t"], args["current"], args["speed"], args["acceleration"], consts)
+
+    refused("t", 1, 50, t[1, 49], r"unit 1 does not increase at sample 50")
+    refused("t", 0, 10, np.nan, r"unit 0 is valid again at sample 11")
+    refused("current", 1, 7, np.nan, r"current of unit 1 is nan at sample 7")
+    refused("acceleration", 0, 3, np.inf, r"acceleration of unit 0 is infinite at sample 3")
+    refused("speed", 1, 0, np.nan, r"speed of unit 1 is nan at sample 0")
 
 
 def test_macro_refuses_unsorted_or_repeated_cycles_and_bad_estimates() -> None:
@@ -420,12 +417,7 @@ def test_quadratic_predicted_variance_matches_iterated_kalman_prediction() -> No
     F_m, Q_m = _transition(1.0, q, 3)
     np.testing.assert_allclose(F_m, F, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(Q_m, Q, rtol=1e-10)
-    xm, Pm = x, P
-    for m in range(1, 13):
-        xm, Pm = kf_predict(xm, Pm, F, Q)
-        mu, v = predicted_damping(x, P, np.array([float(m)]), q)
-        np.testing.assert_allclose(mu[:, 0], xm[:, 0], rtol=1e-12)
-        np.testing.assert_allclose(v[:, 0], Pm[:, 0, 0], rtol=1e-10)
+    _assert_predictions_are_the_kalman_filter(x, P, F, Q, q, cycles=12)
 
 
 def test_quadratic_crossing_against_hand_computed_roots() -> None:

@@ -24,7 +24,8 @@ from rulkit.fleet.service.metrics import Metrics
 log = logging.getLogger("rulkit.service")
 
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
-       "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+       "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'; "
+       "require-trusted-types-for 'script'; trusted-types 'none'")
 """The Content-Security-Policy of every response outside ``/api/`` (the dashboard)."""
 
 

@@ -16,6 +16,7 @@ import asyncio
 import json
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from fastapi import HTTPException, Request
 
@@ -101,30 +102,33 @@ def _json_frame(body: bytes | bytearray) -> pd.DataFrame:
 
 def _rows_frame(rows: list[Any]) -> pd.DataFrame:
     """Columns from JSON rows (objects of component and numbers; a missing key is NaN, named by
-    the store's validation)."""
+    the store's validation): one list per key, type-checked as a set of types, then one
+    array per column (no pandas Series per column)."""
     keys: dict[str, None] = {}
     for i, r in enumerate(rows):
         if not isinstance(r, dict):
             raise http_error(422, f"row {i + 1}: expected an object with component, time, hi")
         keys.update(dict.fromkeys(r))
-    cols: dict[str, list[Any]] = {}
+    cols: dict[str, Any] = {}
     for k in keys:
         vals = [r.get(k) for r in rows]
+        types = set(map(type, vals))
         if k == "component":
-            bad = next((i for i, v in enumerate(vals) if not isinstance(v, str)), None)
-            if bad is not None:
+            if types != {str}:
+                bad = next(i for i, v in enumerate(vals) if not isinstance(v, str))
                 raise http_error(422, f"row {bad + 1}: 'component' must be a string, got "
                                       f"{type(vals[bad]).__name__}")
-        else:
-            bad = next((i for i, v in enumerate(vals) if not (
-                v is None or (type(v) in (int, float)))), None)
-            if bad is not None:
-                raise http_error(
-                    422, f"row {bad + 1}: {k!r} must be a number, got "
-                         f"{type(vals[bad]).__name__}")
-        cols[k] = vals
-    try:
-        return pd.DataFrame({k: pd.Series(v, dtype=object if k == "component" else "float64")
-                             for k, v in cols.items()})
-    except OverflowError:
-        raise http_error(422, "a number is too large for float64") from None
+            cols[k] = pd.Series(vals, dtype=object)  # not inferred as (UTF-8) strings
+            continue
+        if not types <= _NUMBER_TYPES:
+            bad = next(i for i, v in enumerate(vals) if type(v) not in _NUMBER_TYPES)
+            raise http_error(422, f"row {bad + 1}: {k!r} must be a number, got "
+                                  f"{type(vals[bad]).__name__}")
+        try:
+            cols[k] = np.array(vals, dtype=np.float64)  # None -> NaN
+        except OverflowError:
+            raise http_error(422, "a number is too large for float64") from None
+    return pd.DataFrame(cols, copy=False)
+
+
+_NUMBER_TYPES = frozenset((int, float, type(None)))

@@ -166,6 +166,20 @@ def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
         row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
 
 
+def _previous_per_component(codes: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Per row, ``t`` of the same component's previous row in batch order (NaN for its
+    first): one stable sort by component, no per-component work."""
+    order = np.argsort(codes, kind="stable")
+    c_sorted = codes[order]
+    prev_sorted = np.empty_like(t)
+    prev_sorted[0] = np.nan
+    prev_sorted[1:] = t[order[:-1]]
+    prev_sorted[1:][c_sorted[1:] != c_sorted[:-1]] = np.nan
+    prev = np.empty_like(t)
+    prev[order] = prev_sorted
+    return prev
+
+
 def validate_acquisitions(
     df: pd.DataFrame, config: TrackerConfig, hi_model: HealthIndexModel | None,
     time_axis: TimeAxis | None = None,
@@ -273,8 +287,7 @@ def validate_acquisitions(
     if inst is not None:
         out["installed"] = inst
     # time strictly increasing per component, in file order
-    codes = np.asarray(comp.cat.codes)
-    prev_t = pd.Series(t).groupby(codes, sort=False).shift(1).to_numpy()
+    prev_t = _previous_per_component(np.asarray(comp.cat.codes), t)
     back = np.isfinite(prev_t) & ~(t > prev_t)
     if back.any():
         i = int(np.flatnonzero(back)[0])

@@ -64,6 +64,9 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 META_KEY = "monitoring"
+PROGNOSIS_COLUMNS = ("hits", "failed_at", "max_level", "seen", *TREND_COLUMNS)
+"""The columns of ``components`` a batch's prognosis starts from (the store reads them with
+the tracker state, in one query: :class:`BatchPrognosis` ``stored``)."""
 REPLAY_ROWS = 200_000
 """History rows replayed at once (bounds the memory of :func:`replay`)."""
 
@@ -143,13 +146,15 @@ class BlockRows:
 
 class BatchPrognosis:
     """The estimators and rules of one ingestion (inside its transaction): load the stored
-    state of the batch's components ``names``, run :meth:`block` over each block of
-    components, :meth:`finish` gives the final columns and stores the model states."""
+    state of the batch's components ``names`` (or take it as ``stored``: the indices into
+    ``names`` of the stored ones and their :data:`PROGNOSIS_COLUMNS`), run :meth:`block` over
+    each block of components, :meth:`finish` gives the final columns and stores the model
+    states."""
 
     def __init__(self, store: Any, names: list[str], t_last: FloatArray, hi_last: FloatArray,
                  n_last: NDArray[np.int64], calendar: bool, now: float | None = None,
-                 seconds_per_unit: float = 1.0, installed: dict[str, float] | None = None
-                 ) -> None:
+                 seconds_per_unit: float = 1.0, installed: dict[str, float] | None = None,
+                 stored: tuple[list[int], list[tuple]] | None = None) -> None:
         self.store, self.names = store, names
         self.est = current_estimator(store)
         self.calendar = calendar
@@ -162,7 +167,9 @@ class BatchPrognosis:
                                 s=np.zeros((b, len(SUM_NAMES))))
         self.rule_state = RuleState.empty(b)
         self.seen = np.full(b, np.nan)
-        self._load(names)
+        if stored is None:
+            stored = self._read(names)
+        self._set_stored(*stored)
         self.learned = None
         if getattr(store, "degradation", None) is not None:
             from rulkit.fleet.store.learned_state import LearnedPass
@@ -172,14 +179,25 @@ class BatchPrognosis:
         self.level = np.zeros(b, dtype=np.int8)
         self.strategy: str | None = None  # trend_run's way (None: the cheapest per block)
 
-    def _load(self, names: list[str]) -> None:
-        cols = ("hits", "failed_at", "max_level", "seen", *TREND_COLUMNS)
-        for i, row in rows_of_components(self.store._conn, "components", cols, names):
-            self.rule_state.hits[i] = row[0] or 0
-            self.rule_state.failed_at[i] = np.nan if row[1] is None else row[1]
-            self.rule_state.max_level[i] = row[2]
-            self.seen[i] = np.nan if row[3] is None else row[3]
-            self.trend.s[i] = [np.nan if v is None else v for v in row[4:]]
+    def _read(self, names: list[str]) -> tuple[list[int], list[tuple]]:
+        """The stored :data:`PROGNOSIS_COLUMNS` of those of ``names`` in ``components``:
+        (indices into ``names``, rows)."""
+        got = list(rows_of_components(self.store._conn, "components", PROGNOSIS_COLUMNS,
+                                      names))
+        return [i for i, _ in got], [row for _, row in got]
+
+    def _set_stored(self, idx: list[int], rows: list[tuple]) -> None:
+        """Start components ``idx`` from their stored :data:`PROGNOSIS_COLUMNS` ``rows``
+        (one array per column, NULL as NaN: no Python loop per component)."""
+        if not idx:
+            return
+        pos = np.asarray(idx, dtype=np.intp)
+        self.rule_state.hits[pos] = [r[0] or 0 for r in rows]
+        vals = np.array([r[1:] for r in rows], dtype=np.float64)
+        self.rule_state.failed_at[pos] = vals[:, 0]
+        self.rule_state.max_level[pos] = vals[:, 1]
+        self.seen[pos] = vals[:, 2]
+        self.trend.s[pos] = vals[:, 3:]
 
     def block(self, comps: np.ndarray, seg: np.ndarray, t: FloatArray, hi: FloatArray,
               tracker_rows: dict[str, np.ndarray]) -> BlockRows:
@@ -346,6 +364,7 @@ def _replay_chunk(store: Any, names: list[str]) -> None:
 
 __all__ = [
     "META_KEY",
+    "PROGNOSIS_COLUMNS",
     "BatchPrognosis",
     "BlockRows",
     "block_alerts",

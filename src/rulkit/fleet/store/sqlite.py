@@ -93,6 +93,7 @@ from rulkit.fleet.store.database_file import (
     time_axis_from_meta,
 )
 from rulkit.fleet.store.prognosis import (
+    PROGNOSIS_COLUMNS,
     BatchPrognosis,
     block_alerts,
     monitoring_meta,
@@ -118,6 +119,46 @@ STATE_FIELDS = ("t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul")
 OUTPUT_FIELDS = ("valid", "level", "rul_low", "rul_high")
 ROW_FIELDS = (*STATE_FIELDS, *OUTPUT_FIELDS)
 HISTORY_FIELDS = tuple(f for f in ROW_FIELDS if f != "n")
+
+
+_TRACKER_OUT = tuple(f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level"))
+"""The tracker's outputs per acquisition that the history stores as they are."""
+
+
+def _stored_state(names: list[str], stored: dict[str, tuple]
+                  ) -> tuple[TrackerState, list[int]]:
+    """The trackers' state of ``names`` (empty for a new one) from their ``stored`` rows
+    (:data:`ROW_FIELDS` first), and the indices of the stored ones."""
+    state = TrackerState.empty(len(names))
+    known = [i for i, name in enumerate(names) if name in stored]
+    if known:  # one array of the stored rows' ROW_FIELDS
+        vals = np.array([stored[names[i]][:len(ROW_FIELDS)] for i in known], dtype=np.float64)
+        col = {f: vals[:, j] for j, f in enumerate(ROW_FIELDS)}
+        state.t[known], state.n[known] = col["t"], col["n"]
+        state.hi[known], state.rul[known] = col["hi"], col["rul"]
+        state.ab[known] = np.column_stack([col["fhi"], col["dhi"]])
+        state.abg[known] = np.column_stack([col["frul"], col["drul"], col["d2rul"]])
+    return state, known
+
+
+def _refuse_non_finite(out: dict[str, np.ndarray], rank: np.ndarray, row: np.ndarray,
+                       comp: np.ndarray, t: np.ndarray) -> None:
+    """:class:`IngestError` for the first row of a block (by acquisition rank, then key
+    order) whose tracker output is not finite, named by its batch ``row``, ``comp`` and
+    ``t``."""
+    finite = np.ones(rank.size, dtype=bool)
+    for f in _TRACKER_OUT:
+        finite &= np.isfinite(out[f])
+    if finite.all():
+        return
+    bad = np.flatnonzero(~finite)
+    q = int(bad[np.argsort(rank[bad], kind="stable")[0]])
+    f = next(f for f in _TRACKER_OUT if not np.isfinite(out[f][q]))
+    raise IngestError(
+        f"row {row[q]} (component {comp[q]!r}), column 'time' = {_fmt(t[q])}: the tracker's "
+        f"{f} is not finite (the interval since the previous "
+        "acquisition or the time itself is too large for float64 arithmetic); use a smaller "
+        "time unit or offset")
 
 
 def _finite(v: float) -> float | None:
@@ -356,7 +397,7 @@ class ComponentStore:
     # -- reading
     def _load_states(self, names: list[str]) -> dict[str, tuple]:
         out: dict[str, tuple] = {}
-        cols = ", ".join(("component", *ROW_FIELDS, "max_level"))
+        cols = ", ".join(("component", *ROW_FIELDS, *PROGNOSIS_COLUMNS))
         for i in range(0, len(names), 500):
             chunk = names[i : i + 500]
             q = f"SELECT {cols} FROM components WHERE component IN ({','.join('?' * len(chunk))})"
@@ -533,7 +574,8 @@ class ComponentStore:
     def _apply(self, acq: pd.DataFrame, source: str,
                stored: dict[str, tuple] | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
-        caller's transaction).
+        caller's transaction). ``stored``: the batch's stored component rows
+        (:meth:`_load_states`), read here when not given.
 
         Components are processed in blocks of consecutive names in SQLite's key order (BINARY
         collation: UTF-8 byte order = code point order = Python's str order) of at most
@@ -551,20 +593,11 @@ class ComponentStore:
         names = [str(u) for u in uniq]
         if stored is None:
             stored = self._load_states(names)
-        b = len(names)
-        state = TrackerState.empty(b)
-        known = [i for i, name in enumerate(names) if name in stored]
-        if known:  # one array of the stored rows, columns ROW_FIELDS + max_level
-            vals = np.array([stored[names[i]] for i in known], dtype=np.float64)
-            col = {f: vals[:, j] for j, f in enumerate(ROW_FIELDS)}
-            state.t[known], state.n[known] = col["t"], col["n"]
-            state.hi[known], state.rul[known] = col["hi"], col["rul"]
-            state.ab[known] = np.column_stack([col["fhi"], col["dhi"]])
-            state.abg[known] = np.column_stack([col["frul"], col["drul"], col["d2rul"]])
+        state, known = _stored_state(names, stored)
         t = acq["t"].to_numpy(dtype=np.float64)
         hi = acq["hi"].to_numpy(dtype=np.float64)
         rows_all = acq["row"].to_numpy()
-        n = len(acq)
+        n, b = len(acq), len(names)
         # rows grouped by component in key order, batch order (= time order) inside; the
         # spacing check sees every interval, in batch order
         order = order_by_component(codes, names)
@@ -580,12 +613,13 @@ class ComponentStore:
             first_rows = acq.drop_duplicates("component")
             inst = dict(zip(first_rows["component"].astype(str),
                             first_rows["installed"].astype(float), strict=True))
+        k_row = len(ROW_FIELDS)
         prog = BatchPrognosis(self, names, state.t, state.hi, state.n,
                               calendar=bool(acq.attrs.get("calendar", False)), now=self.now,
                               seconds_per_unit=float(acq.attrs.get("seconds_per_unit", 1.0)),
-                              installed=inst)
+                              installed=inst,
+                              stored=(known, [stored[names[i]][k_row:] for i in known]))
         del codes
-        out_fields = [f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level")]
         names_arr = np.array(names, dtype=object)
         alerts: list[tuple[int, int, Alert]] = []
         blocks = component_blocks(order, self.BLOCK_ROWS)
@@ -602,42 +636,19 @@ class ComponentStore:
             t_b, hi_b = t[rows_b], hi[rows_b]
             sub, out = tracker_run(state.take(comps), seg, t_b, hi_b, self.config, self.gains,
                                    strategy=strategy)
-            finite = np.ones(rows_b.size, dtype=bool)
-            for f in out_fields:
-                finite &= np.isfinite(out[f])
             rank_b = np.arange(rows_b.size) - seg[cidx]
-            if not finite.all():  # the first by acquisition rank, then key order
-                bad = np.flatnonzero(~finite)
-                q = int(bad[np.argsort(rank_b[bad], kind="stable")[0]])
-                f = next(f for f in out_fields if not np.isfinite(out[f][q]))
-                raise IngestError(
-                    f"row {rows_all[rows_b[q]]} (component {names[comps[cidx[q]]]!r}), column "
-                    f"'time' = {_fmt(t_b[q])}: the tracker's {f} is not finite (the "
-                    "interval since the previous acquisition or the time itself is too "
-                    "large for float64 arithmetic); use a smaller time unit or offset")
-            del finite
+            comp_b = names_arr[comps][cidx]
+            _refuse_non_finite(out, rank_b, rows_all[rows_b], comp_b, t_b)
             # the RUL and the rules' level per row; alerts where the level passes the highest
             # the component reached before (latched)
             got = prog.block(comps, seg, t_b, hi_b, out)
             alerts += block_alerts(got, self.rules, prog.est.time_unit, [names[c] for c in comps],
                                    seg, rank_b, rows_b, t_b, hi_b)
-            med_b, low_b, high_b = stored_interval(got.rules.median, got.rules.low,
-                                                   got.rules.high)
             del rank_b
             for f in ("t", "n", "hi", "ab", "rul", "abg"):
                 getattr(state, f)[comps] = getattr(sub, f)
-            comp_b = names_arr[comps][cidx]
-            del cidx
-            m = rows_b.size
-            for c0 in range(0, m, self.HISTORY_CHUNK):
-                sl = slice(c0, c0 + self.HISTORY_CHUNK)
-                cols_out = [comp_b[sl], t_b[sl], hi_b[sl]]
-                cols_out += [out[f][sl] for f in out_fields[:6]]  # fhi .. d2rul
-                cols_out += [out["valid"][sl], got.rules.level[sl]]
-                cols_out += [low_b[sl], high_b[sl], med_b[sl]]  # the extra column rul_median
-                self._write_history(HistoryChunk(cols_out, ingest_id, ("rul_median",)))
-                del cols_out
-            del out, comp_b, t_b, hi_b, got, med_b, low_b, high_b
+            self._write_block_history(comp_b, t_b, hi_b, out, got, ingest_id)
+            del cidx, comp_b, out, t_b, hi_b, got
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
         fin = tracker_outputs(state, self.config)
         extra = prog.finish()
@@ -651,6 +662,19 @@ class ComponentStore:
         add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
+
+    def _write_block_history(self, comp: np.ndarray, t: np.ndarray, hi: np.ndarray,
+                             out: dict[str, np.ndarray], got: Any, ingest_id: int) -> None:
+        """The history rows of one block (key order), in chunks of :attr:`HISTORY_CHUNK`:
+        the tracker's ``out``, the rules' level and the stored RUL interval of ``got``."""
+        med, low, high = stored_interval(got.rules.median, got.rules.low, got.rules.high)
+        for c0 in range(0, comp.size, self.HISTORY_CHUNK):
+            sl = slice(c0, c0 + self.HISTORY_CHUNK)
+            cols_out = [comp[sl], t[sl], hi[sl]]
+            cols_out += [out[f][sl] for f in _TRACKER_OUT[:6]]  # fhi .. d2rul
+            cols_out += [out["valid"][sl], got.rules.level[sl]]
+            cols_out += [low[sl], high[sl], med[sl]]  # the extra column rul_median
+            self._write_history(HistoryChunk(cols_out, ingest_id, ("rul_median",)))
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         """Record one ingestion (audit row) and return its id (backend hook)."""

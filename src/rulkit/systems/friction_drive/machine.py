@@ -20,14 +20,13 @@ Example::
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
 
-from rulkit.machine_file import Field, apply_overrides, machine_values, read_machine_file
+from rulkit.machine_file import Field, Machine, Schema
 from rulkit.model import FloatArray
 from rulkit.systems.friction_drive.drive import (
     DEFAULT_PARAMS,
@@ -126,12 +125,11 @@ DRIVE_SCHEMA: dict[str, tuple[Field, ...]] = {
 
 
 @dataclass(frozen=True)
-class DriveMachine:
-    """A drive machine file, read and checked: ``values`` holds every section's values (the
-    defaults filled in), ``source`` the file (or ``"defaults"``)."""
+class DriveMachine(Machine):
+    """A drive machine file, read and checked against :data:`DRIVE_SCHEMA` (``values`` and
+    ``source`` as in :class:`rulkit.machine_file.Machine`)."""
 
-    values: dict[str, dict[str, Any]]
-    source: str = "defaults"
+    schema: ClassVar[Schema] = DRIVE_SCHEMA
 
     @property
     def params(self) -> FrictionDriveParams:
@@ -159,16 +157,9 @@ class DriveMachine:
         P0 = np.diag([*np.diag(self.R), f["alpha_sd"] ** 2, f["m_sd"] ** 2])
         return x0, P0
 
-    def with_overrides(self, overrides: Mapping[str, tuple[str, str, Any]]) -> DriveMachine:
-        """This machine with single values replaced (:func:`rulkit.machine_file.apply_overrides`:
-        ``{label: (section, key, value)}``, ``None`` values skipped, errors naming the label)."""
-        return DriveMachine(apply_overrides(self.values, DRIVE_SCHEMA, overrides), self.source)
-
 
 def read_drive_machine(path: str | Path | None = None) -> DriveMachine:
     """The drive machine file at ``path`` checked against :data:`DRIVE_SCHEMA`, the defaults
     filled in (``None``: the defaults alone). Raises
     :class:`rulkit.machine_file.MachineFileError` naming the file, section and key."""
-    if path is None:
-        return DriveMachine(machine_values({}, DRIVE_SCHEMA, "defaults"))
-    return DriveMachine(read_machine_file(path, DRIVE_SCHEMA), str(path))
+    return DriveMachine.read(path)

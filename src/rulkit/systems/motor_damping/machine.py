@@ -15,12 +15,11 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from rulkit.machine_file import Field, apply_overrides, machine_values, read_machine_file
+from rulkit.machine_file import Field, Machine, Schema
 from rulkit.systems.motor_damping.macro import MACRO_MODELS
 from rulkit.systems.motor_damping.micro import MicroEKFSettings
 from rulkit.systems.motor_damping.motor import MotorConstants
@@ -94,12 +93,11 @@ MOTOR_SCHEMA: dict[str, tuple[Field, ...]] = {
 
 
 @dataclass(frozen=True)
-class MotorMachine:
-    """A motor machine file, read and checked: ``values`` holds every section's values (the
-    defaults filled in), ``source`` the file (or ``"defaults"``)."""
+class MotorMachine(Machine):
+    """A motor machine file, read and checked against :data:`MOTOR_SCHEMA` (``values`` and
+    ``source`` as in :class:`rulkit.machine_file.Machine`)."""
 
-    values: dict[str, dict[str, Any]]
-    source: str = "defaults"
+    schema: ClassVar[Schema] = MOTOR_SCHEMA
 
     @property
     def constants(self) -> MotorConstants:
@@ -116,11 +114,6 @@ class MotorMachine:
     def micro(self) -> MicroEKFSettings:
         """The micro EKF settings (noise sds are set per record by the analysis)."""
         return MicroEKFSettings(**self.values["micro"])
-
-    def with_overrides(self, overrides: Mapping[str, tuple[str, str, Any]]) -> MotorMachine:
-        """This machine with single values replaced (:func:`rulkit.machine_file.apply_overrides`:
-        ``{label: (section, key, value)}``, ``None`` values skipped, errors naming the label)."""
-        return MotorMachine(apply_overrides(self.values, MOTOR_SCHEMA, overrides), self.source)
 
     def analysis_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :func:`rulkit.systems.motor_damping.analysis.analyse_pullup`
@@ -141,6 +134,4 @@ def read_motor_machine(path: str | Path | None = None) -> MotorMachine:
     """The motor machine file at ``path`` checked against :data:`MOTOR_SCHEMA`, the defaults
     filled in (``None``: the defaults alone). Raises
     :class:`rulkit.machine_file.MachineFileError` naming the file, section and key."""
-    if path is None:
-        return MotorMachine(machine_values({}, MOTOR_SCHEMA, "defaults"))
-    return MotorMachine(read_machine_file(path, MOTOR_SCHEMA), str(path))
+    return MotorMachine.read(path)

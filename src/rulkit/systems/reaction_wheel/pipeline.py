@@ -349,7 +349,6 @@ def run_pipeline(record: WheelRecord, out: Path, options: PipelineOptions | None
     """Steps 1-3 over ``record`` into ``out`` (module docstring); returns the result after
     writing the report (:func:`rulkit.systems.reaction_wheel.record_report.write_record_report`).
     """
-    from rulkit.systems.reaction_wheel.record_report import write_record_report
     from rulkit.systems.reaction_wheel.wheel_file import read_wheel_file
 
     opts = options or PipelineOptions()
@@ -378,6 +377,13 @@ def run_pipeline(record: WheelRecord, out: Path, options: PipelineOptions | None
                             (float(stream.record_start or 0.0), float(stream.check.last_t)),
                             _notes(stream), stream.hourly.frame(), resumed_after=done)
     result.timings["step 1 (this run)"] = time.perf_counter() - t0
+    return _after_step_1(stream, result, out)
+
+
+def _after_step_1(stream: Any, result: PipelineResult, out: Path) -> PipelineResult:
+    """Steps 2 and 3 when the record has losses, then the report into ``out``; ``result``."""
+    from rulkit.systems.reaction_wheel.record_report import write_record_report
+
     if stream.acc is not None:
         _steps_2_and_3(stream, result)
     write_record_report(result, out)
@@ -473,18 +479,13 @@ class _EstimateFileStream:
 def _from_estimate_file(record: WheelRecord, wheel: Any, opts: PipelineOptions,
                         out: Path) -> PipelineResult:
     """Steps 2-3 on a step-1 estimate file (``record.temperature``)."""
-    from rulkit.systems.reaction_wheel.record_report import write_record_report
-
     t0 = time.perf_counter()
     s = _EstimateFileStream(record, wheel, opts)
     s.run()
     result = PipelineResult(record, wheel, opts, s.rows, (s.first, s.last),
                             [f"step 1 read from {record.temperature}"], s.hourly.frame())
     result.timings["reading the step-1 estimate"] = time.perf_counter() - t0
-    if s.acc is not None:
-        _steps_2_and_3(s, result)
-    write_record_report(result, out)
-    return result
+    return _after_step_1(s, result, out)
 
 
 def _write_samples(df: Any, dest: Path) -> None:

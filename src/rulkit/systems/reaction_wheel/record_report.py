@@ -119,14 +119,25 @@ def _step3_lines(res: Any) -> list[str]:
     return [*L, ""]
 
 
+def _figure(size: tuple[float, float], rows: int = 1, sharex: bool = False) -> tuple[Any, Any]:
+    """A new pyplot-free figure of ``size`` inches with ``rows`` axes stacked (one Axes when
+    ``rows`` is 1, else an array of them)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size)
+    return fig, fig.subplots(rows, 1, sharex=sharex)
+
+
+def _save(fig: Any, path: Path) -> Path:
+    """Lay out ``fig`` and write it to ``path`` (PNG, 110 dpi)."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
+
+
 def _plot_temperature(res: Any, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     h = res.hourly
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    fig, ax = _figure((9, 3.5))
     days = (h["time_s"] - res.span_s[0]) / DAY_S
     ax.fill_between(days, h["T_lo"], h["T_hi"], alpha=0.3, lw=0, label="95 % interval (range)")
     ax.plot(days, h["T_mean"], lw=0.8, label="hourly mean")
@@ -134,21 +145,13 @@ def _plot_temperature(res: Any, path: Path) -> Path:
     ax.set_ylabel("lubricant temperature (C)")
     ax.set_title(f"{res.record.name}: step-1 estimate")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _plot_tracks(res: Any, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tab = res.tracks.table
     days = (tab["end_s"] - res.span_s[0]) / DAY_S
-    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    fig, axes = _figure((9, 6), rows=2, sharex=True)
     for i, name in enumerate(res.tracks.posteriors):
         for ax, v in zip(axes, ("b", "beta0"), strict=True):
             ax.fill_between(days, tab[f"{v}_lo_{name}"], tab[f"{v}_hi_{name}"], alpha=0.15,
@@ -159,19 +162,11 @@ def _plot_tracks(res: Any, path: Path) -> Path:
     axes[1].set_xlabel("days since the record's start")
     axes[0].legend(fontsize=8)
     axes[0].set_title(f"{res.record.name}: step-2 tracks ({res.tracks.level:.0%} intervals)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _plot_rul(res: Any, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    fig, ax = _figure((7, 3.5))
     for i, (name, d) in enumerate(res.ruls.items()):
         s = d.samples[~d.censored] if d.censored is not None else d.samples
         if s.size > 1 and np.ptp(s) > 0:
@@ -182,10 +177,7 @@ def _plot_rul(res: Any, path: Path) -> Path:
     ax.set_ylabel("density")
     ax.set_title(f"{res.record.name}: RUL to {res.options.threshold_mL:.4g} mL")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def summary_row(res: Any) -> dict[str, Any]:

@@ -10,7 +10,6 @@ import pytest
 
 from rulkit.systems.reaction_wheel.degradation.shortcut import (
     EstimateErrorProcess,
-    synthetic_estimate_quadrature,
 )
 from rulkit.systems.reaction_wheel.degradation.study import (
     CaseTask,
@@ -23,33 +22,8 @@ from rulkit.systems.reaction_wheel.degradation.trackers import (
     rbpf,
     unit_rng,
 )
-from rulkit.systems.reaction_wheel.lubrication import (
-    PATHS,
-    SCENARIOS,
-    LubricationSetup,
-    simulate_measurements,
-    true_window_increments,
-)
 
-BETA_REF = SCENARIOS[1].beta0_healthy
-
-
-def _problem(U: int, days: float, err_std: float = 0.0, seed: int = 0, sid: int = 1,
-             noise_rel: float = 0.01):
-    st = DegradationConfig(horizon_days=days, n_particles=60, noise_rel=noise_rel)
-    setup = LubricationSetup(sid, days, noise_rel, PATHS[sid])
-    W = st.n_windows
-    y_true = true_window_increments(PATHS[sid], SCENARIOS[sid], W)
-    y = simulate_measurements(y_true, setup.sigma_y,
-                              [np.random.default_rng([seed, r]) for r in range(U)])
-    q = synthetic_estimate_quadrature(PATHS[sid], EstimateErrorProcess(std_c=err_std, tau_s=30.0),
-                                      W, [np.random.default_rng([seed, 50 + r]) for r in range(U)],
-                                      n_nodes=4)
-    return st, setup, y, q
-
-
-def _rngs(tag: int, U: int) -> list[np.random.Generator]:
-    return [np.random.default_rng([tag, r]) for r in range(U)]
+from .conftest import BETA_REF, tracking_problem, unit_rngs
 
 
 def test_run_case_independent_of_grouping_and_table6() -> None:
@@ -88,15 +62,15 @@ def test_truth_per_window_and_bad_inputs() -> None:
     b, beta0 = truth_parameters(1, 45)
     assert b[38] == 37.0 and b[39] == 25.0  # window 39 ends at 160 min > 159 min
     assert beta0[39] == 8.054e-6  # window 39 ends at 160 min > 159 min
-    st, setup, y, q = _problem(2, 0.1)
+    st, setup, y, q = tracking_problem(2, 0.1)
     with pytest.raises(ValueError, match="generators"):
-        rbpf(y, q, setup.sigma_y, st, _rngs(0, 1), beta_ref=BETA_REF)
+        rbpf(y, q, setup.sigma_y, st, unit_rngs(0, 1), beta_ref=BETA_REF)
     y2 = y.copy()
     y2[1, 3] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
-        rbpf(y2, q, setup.sigma_y, st, _rngs(0, 2), beta_ref=BETA_REF)
+        rbpf(y2, q, setup.sigma_y, st, unit_rngs(0, 2), beta_ref=BETA_REF)
     with pytest.raises(ValueError, match="backend"):
-        rbpf(y, q, setup.sigma_y, st, _rngs(0, 2), beta_ref=BETA_REF, backend="cuda")
+        rbpf(y, q, setup.sigma_y, st, unit_rngs(0, 2), beta_ref=BETA_REF, backend="cuda")
     with pytest.raises(ValueError, match="method"):
         run_case(CaseTask(1, "APF", (0,), 0, replace(st, horizon_days=0.05),
                           EstimateErrorProcess(), methods=("kalman",)))

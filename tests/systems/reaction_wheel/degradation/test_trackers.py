@@ -8,60 +8,30 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rulkit.systems.reaction_wheel.degradation.shortcut import (
-    EstimateErrorProcess,
-    synthetic_estimate_quadrature,
-)
 from rulkit.systems.reaction_wheel.degradation.trackers import (
-    DegradationConfig,
     one_step_pf,
     rbpf,
     rbpf_engine,
     two_step_pf,
 )
-from rulkit.systems.reaction_wheel.lubrication import (
-    PATHS,
-    SAMPLE_DT,
-    SCENARIOS,
-    LubricationSetup,
-    simulate_measurements,
-    true_window_increments,
-)
+from rulkit.systems.reaction_wheel.lubrication import SAMPLE_DT
 
-BETA_REF = SCENARIOS[1].beta0_healthy
-
-
-def _problem(U: int, days: float, err_std: float = 0.0, seed: int = 0, sid: int = 1,
-             noise_rel: float = 0.01):
-    st = DegradationConfig(horizon_days=days, n_particles=60, noise_rel=noise_rel)
-    setup = LubricationSetup(sid, days, noise_rel, PATHS[sid])
-    W = st.n_windows
-    y_true = true_window_increments(PATHS[sid], SCENARIOS[sid], W)
-    y = simulate_measurements(y_true, setup.sigma_y,
-                              [np.random.default_rng([seed, r]) for r in range(U)])
-    q = synthetic_estimate_quadrature(PATHS[sid], EstimateErrorProcess(std_c=err_std, tau_s=30.0),
-                                      W, [np.random.default_rng([seed, 50 + r]) for r in range(U)],
-                                      n_nodes=4)
-    return st, setup, y, q
-
-
-def _rngs(tag: int, U: int) -> list[np.random.Generator]:
-    return [np.random.default_rng([tag, r]) for r in range(U)]
+from .conftest import BETA_REF, tracking_problem, unit_rngs
 
 
 @pytest.mark.parametrize("tracker", ["one_step", "two_step", "rbpf"])
 def test_numba_kernels_equal_numpy_path(tracker: str) -> None:
     # 300 windows cross a noise-block boundary (256); a snapshot splits a segment
-    st, setup, y, q = _problem(3, 300 * 240 / 86400, err_std=0.5)
+    st, setup, y, q = tracking_problem(3, 300 * 240 / 86400, err_std=0.5)
     out = {}
     for be in ("numba", "numpy"):
         kw = dict(beta_ref=BETA_REF, snapshot_windows=(100,), backend=be)
         if tracker == "one_step":
-            out[be] = one_step_pf(y, q, setup.sigma_y, st, _rngs(1, 3), **kw)
+            out[be] = one_step_pf(y, q, setup.sigma_y, st, unit_rngs(1, 3), **kw)
         elif tracker == "two_step":
-            out[be] = two_step_pf(y, q, setup.sigma_y, st, _rngs(1, 3), _rngs(2, 3), **kw)
+            out[be] = two_step_pf(y, q, setup.sigma_y, st, unit_rngs(1, 3), unit_rngs(2, 3), **kw)
         else:
-            out[be] = rbpf(y, q, setup.sigma_y, st, _rngs(1, 3), **kw)
+            out[be] = rbpf(y, q, setup.sigma_y, st, unit_rngs(1, 3), **kw)
     a, b = out["numba"], out["numpy"]
     for name in ("b_mean", "b_std", "beta0_mean", "beta0_std"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-20)
@@ -72,12 +42,12 @@ def test_numba_kernels_equal_numpy_path(tracker: str) -> None:
 def test_rbpf_with_known_b_is_the_exact_kalman_filter() -> None:
     from rulkit.estimation.kalman import kf_predict, kf_update
 
-    st, setup, y, q = _problem(1, 1.0)
+    st, setup, y, q = tracking_problem(1, 1.0)
     W = st.n_windows
     b_true = 37.0
     st = replace(st, q_b=0.0, b_prior=(b_true, b_true), n_particles=8)
     # scenario 1 changes beta0 at window 39: the random walk has to absorb it
-    out = rbpf(y, q, setup.sigma_y, st, _rngs(3, 1), beta_ref=BETA_REF)
+    out = rbpf(y, q, setup.sigma_y, st, unit_rngs(3, 1), beta_ref=BETA_REF)
     plo, phi = st.beta0_prior_rel
     x = np.array([[0.5 * (plo + phi) * BETA_REF]])
     P = np.array([[[((phi - plo) * BETA_REF) ** 2 / 12.0]]])
@@ -96,10 +66,10 @@ def test_rbpf_with_known_b_is_the_exact_kalman_filter() -> None:
 def test_pf2_with_known_b_approaches_the_kalman_posterior() -> None:
     # two-step PF2 alone (PF1's b forced to the truth by a degenerate prior) vs the exact KF,
     # before the fault (38 windows, constant parameters)
-    st, setup, y, q = _problem(1, 38 * 240 / 86400)
+    st, setup, y, q = tracking_problem(1, 38 * 240 / 86400)
     st = replace(st, q_b=0.0, b_prior=(37.0, 37.0), n_particles=4000, q_beta0_rel=0.01)
-    two = two_step_pf(y, q, setup.sigma_y, st, _rngs(4, 1), _rngs(5, 1), beta_ref=BETA_REF)
-    rb = rbpf(y, q, setup.sigma_y, replace(st, n_particles=4), _rngs(6, 1), beta_ref=BETA_REF)
+    two = two_step_pf(y, q, setup.sigma_y, st, unit_rngs(4, 1), unit_rngs(5, 1), beta_ref=BETA_REF)
+    rb = rbpf(y, q, setup.sigma_y, replace(st, n_particles=4), unit_rngs(6, 1), beta_ref=BETA_REF)
     # after the uniform prior is forgotten (10 windows) the PF mean is within ~MC error of KF
     err = np.abs(two.beta0_mean[0, 10:] - rb.beta0_mean[0, 10:]) / rb.beta0_std[0, 10:]
     assert np.median(err) < 0.15 and err.max() < 0.5
@@ -108,9 +78,9 @@ def test_pf2_with_known_b_approaches_the_kalman_posterior() -> None:
 
 
 def test_rbpf_engine_path_agrees_with_batched_rbpf() -> None:
-    st, setup, y, q = _problem(1, 1.0)
+    st, setup, y, q = tracking_problem(1, 1.0)
     st = replace(st, n_particles=400)
-    bat = rbpf(y, q, setup.sigma_y, st, _rngs(7, 1), beta_ref=BETA_REF)
+    bat = rbpf(y, q, setup.sigma_y, st, unit_rngs(7, 1), beta_ref=BETA_REF)
     from rulkit.systems.reaction_wheel.degradation.quadrature import WindowQuadrature
 
     q1 = WindowQuadrature(q.center[0], q.scale[0], q.nodes[0], q.weights[0], q.count)
@@ -126,10 +96,11 @@ def test_rbpf_engine_path_agrees_with_batched_rbpf() -> None:
 def test_trackers_recover_b_with_exact_temperature() -> None:
     # exact T^: b (25 after the fault) is identifiable from the orbital cycle. The two-step
     # PF re-converges within hours; the RB-PF, whose beta0 random walk is small, within days.
-    st, setup, y, q = _problem(2, 5.0, err_std=0.0, noise_rel=0.01)
+    st, setup, y, q = tracking_problem(2, 5.0, err_std=0.0, noise_rel=0.01)
     st = replace(st, n_particles=200)
-    two = two_step_pf(y, q, setup.sigma_y, st, _rngs(10, 2), _rngs(11, 2), beta_ref=BETA_REF)
-    rb = rbpf(y, q, setup.sigma_y, st, _rngs(9, 2), beta_ref=BETA_REF)
+    two = two_step_pf(y, q, setup.sigma_y, st, unit_rngs(10, 2), unit_rngs(11, 2),
+                      beta_ref=BETA_REF)
+    rb = rbpf(y, q, setup.sigma_y, st, unit_rngs(9, 2), beta_ref=BETA_REF)
     assert np.abs(two.b_mean[:, 300:400].mean(axis=1) / 25.0 - 1).max() < 0.05
     for out in (rb, two):
         assert np.abs(out.b_mean[:, -100:].mean(axis=1) / 25.0 - 1).max() < 0.1
@@ -138,10 +109,10 @@ def test_trackers_recover_b_with_exact_temperature() -> None:
 
 def test_biased_temperature_biases_b() -> None:
     # errors-in-variables: a T^ biased 3 C low biases b low (what drives our Table 6)
-    st, setup, y, q0 = _problem(1, 2.0, noise_rel=0.003)
-    _, _, _, qb = _problem(1, 2.0, noise_rel=0.003)
+    st, setup, y, q0 = tracking_problem(1, 2.0, noise_rel=0.003)
+    _, _, _, qb = tracking_problem(1, 2.0, noise_rel=0.003)
     qb = replace(qb, center=1.0 / (1.0 / q0.center - 3.0))
     st = replace(st, n_particles=200)
-    ok = rbpf(y, q0, setup.sigma_y, st, _rngs(12, 1), beta_ref=BETA_REF)
-    bad = rbpf(y, qb, setup.sigma_y, st, _rngs(12, 1), beta_ref=BETA_REF)
+    ok = rbpf(y, q0, setup.sigma_y, st, unit_rngs(12, 1), beta_ref=BETA_REF)
+    bad = rbpf(y, qb, setup.sigma_y, st, unit_rngs(12, 1), beta_ref=BETA_REF)
     assert bad.b_mean[0, -100:].mean() < 0.9 * ok.b_mean[0, -100:].mean()

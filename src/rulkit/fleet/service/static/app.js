@@ -1,14 +1,12 @@
-// rulkit fleet dashboard: plain DOM + SVG drawn here, no external assets (the charts are SVG
-// elements with classes, so a test can check that each one is drawn). Every string from the
-// API is inserted with textContent (never innerHTML), and control characters (terminal escape
-// sequences, newlines) are shown as visible \xNN escapes. The RUL shown everywhere (fleet
-// table, alerts, charts) is the one the API returns: the median of the estimator in force
-// and its interval, in the data's time unit.
+// rulkit fleet dashboard: plain DOM, and charts drawn with the vendored uPlot (no external
+// assets). Every string from the API is inserted with textContent (never innerHTML), and
+// control characters (terminal escape sequences, newlines) are shown as visible \xNN escapes.
+// The RUL shown everywhere (fleet table, alerts, charts) is the one the API returns: the
+// median of the estimator in force and its interval, in the data's time unit.
 "use strict";
 
 const state = { token: sessionStorage.getItem("rulkit-token") || "", offset: 0, limit: 50,
   total: 0, selected: null, summary: null };
-const NS = "http://www.w3.org/2000/svg";
 
 function $(id) { return document.getElementById(id); }
 
@@ -184,12 +182,14 @@ async function ack(id) {
 }
 
 // ------------------------------------------------------------------------------- charts
-function svgEl(name, attrs, parent) {
-  const el = document.createElementNS(NS, name);
-  for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, String(v));
-  if (parent) parent.appendChild(el);
-  return el;
-}
+// Drawn with uPlot (static/vendor/uplot-*/, MIT licence): canvas, so after each draw the
+// chart's container carries data-chart, a JSON record of what was drawn (points per series,
+// the threshold, axis titles, the tick labels as drawn, alert marks, the RUL text) for tests
+// and assistive tools.
+const COLOR = { measured: "#444", filtered: "#2a7", forecast: "#0645ad",
+  band: "rgba(6, 69, 173, 0.22)", threshold: "#c00", warning: "#e80", rul: "#153",
+  rulBand: "rgba(34, 170, 119, 0.28)" };
+const charts = {};
 
 function niceTicks(lo, hi, n) {
   const span = hi - lo;
@@ -204,137 +204,212 @@ function niceTicks(lo, hi, n) {
   return out;
 }
 
-// axes with ticks and titles; cfg: {x0, x1, y0, y1, xLabel, yLabel, origin, unitSeconds}
-function frame(svg, cfg) {
-  svg.replaceChildren();
-  const W = Number(svg.getAttribute("width")), H = Number(svg.getAttribute("height"));
-  const dated = cfg.origin !== null && cfg.origin !== undefined && cfg.unitSeconds;
-  const m = { l: 62, r: 16, t: 12, b: dated ? 58 : 42 };
-  const sx = (x) => m.l + (x - cfg.x0) / (cfg.x1 - cfg.x0) * (W - m.l - m.r);
-  const sy = (y) => H - m.b - (y - cfg.y0) / (cfg.y1 - cfg.y0) * (H - m.t - m.b);
-  const g = svgEl("g", {}, svg);
-  for (const v of niceTicks(cfg.y0, cfg.y1, 5)) {
-    svgEl("line", { x1: m.l, x2: W - m.r, y1: sy(v), y2: sy(v), class: "grid" }, g);
-    svgEl("text", { x: m.l - 6, y: sy(v) + 4, "text-anchor": "end", class: "tick y-tick" }, g)
-      .textContent = fmt(v, 4);
+// The x axis of a component's charts: calendar seconds shown as UTC dates (and the data's
+// time on a top axis) when the time unit is a duration with an origin, else the data's time.
+function timeAxis(h) {
+  const u = h.time_unit, title = "time" + (u ? " (" + u + ")" : "");
+  if (h.time_origin === null || h.unit_seconds === null) {
+    return { x: (t) => t, time: false, title };
   }
-  for (const v of niceTicks(cfg.x0, cfg.x1, 7)) {
-    svgEl("line", { x1: sx(v), x2: sx(v), y1: H - m.b, y2: H - m.b + 4, class: "axis" }, g);
-    svgEl("text", { x: sx(v), y: H - m.b + 16, "text-anchor": "middle", class: "tick x-tick" },
-      g).textContent = fmt(v, 6);
-    if (dated) {
-      const d = new Date((cfg.origin + v * cfg.unitSeconds) * 1000).toISOString();
-      svgEl("text", { x: sx(v), y: H - m.b + 30, "text-anchor": "middle",
-        class: "tick date-tick" }, g).textContent = d.slice(5, 10) + " " + d.slice(11, 16);
-    }
+  return { x: (t) => h.time_origin + t * h.unit_seconds, time: true, title: "date (UTC)",
+    ageTitle: title, age: (s) => (s - h.time_origin) / h.unit_seconds };
+}
+
+// the x scale: the data's span and 3 % more on the right (a mark at the end stays visible)
+function xScale(ta) {
+  return { time: ta.time, range: (u, lo, hi) => (hi > lo ? [lo, hi + 0.03 * (hi - lo)]
+    : [lo - 1, hi + 1]) };
+}
+
+function dateLabel(seconds, span) {
+  const d = new Date(seconds * 1000).toISOString();
+  return span > 5 * 86400 ? d.slice(0, 10) : d.slice(5, 10) + " " + d.slice(11, 16);
+}
+
+// uPlot's aligned columns: the sorted union of the series' x, each series null off its points
+function align(columns) {
+  const xs = Array.from(new Set(columns.flatMap(([x]) => x))).sort((a, b) => a - b);
+  const at = new Map(xs.map((x, i) => [x, i]));
+  const out = [xs];
+  for (const [x, y] of columns) {
+    const col = new Array(xs.length).fill(null);
+    x.forEach((v, i) => { if (y[i] !== null && y[i] !== undefined) col[at.get(v)] = y[i]; });
+    out.push(col);
   }
-  svgEl("line", { x1: m.l, y1: H - m.b, x2: W - m.r, y2: H - m.b, class: "axis" }, g);
-  svgEl("line", { x1: m.l, y1: m.t, x2: m.l, y2: H - m.b, class: "axis" }, g);
-  svgEl("text", { x: (m.l + W - m.r) / 2, y: H - 6, "text-anchor": "middle",
-    class: "axis-title x-title" }, g).textContent = cfg.xLabel +
-    (dated ? " / date (UTC, MM-DD hh:mm)" : "");
-  svgEl("text", { x: 14, y: (m.t + H - m.b) / 2, "text-anchor": "middle", class:
-    "axis-title y-title", transform: "rotate(-90 14 " + (m.t + H - m.b) / 2 + ")" }, g)
-    .textContent = cfg.yLabel;
-  const clampY = (v) => sy(Math.min(Math.max(v, cfg.y0), cfg.y1));
-  return { g, sx, sy, clampY, m, W, H };
+  return out;
 }
 
-function polyline(f, xs, ys, cls) {
-  const pts = [];
-  xs.forEach((x, i) => { if (ys[i] !== null) pts.push(f.sx(x) + "," + f.clampY(ys[i])); });
-  if (pts.length) svgEl("polyline", { points: pts.join(" "), class: cls }, f.g);
+function line(label, stroke, more = {}) {
+  return Object.assign({ label, stroke, width: 1.5, spanGaps: true, points: { show: false } },
+    more);
 }
 
-function band(f, xs, lo, hi, cls) {
-  const up = [], down = [];
-  xs.forEach((x, i) => {
-    if (lo[i] !== null && hi[i] !== null) {
-      up.push(f.sx(x) + "," + f.clampY(hi[i]));
-      down.unshift(f.sx(x) + "," + f.clampY(lo[i]));
-    }
-  });
-  if (up.length) svgEl("polygon", { points: up.concat(down).join(" "), class: cls }, f.g);
+// the axes (bottom: dates or time, top: time when dated, left: yTitle), recording the tick
+// labels each one draws into drawn[key]
+function axes(ta, yTitle, drawn) {
+  const rec = (key, f) => (u, splits) => (drawn[key] = splits.map((s) => f(s, u)));
+  const out = [{ scale: "x", label: ta.title, labelSize: 18, size: 36, space: 90,
+    values: rec("x", (s, u) => (ta.time ? dateLabel(s, u.scales.x.max - u.scales.x.min)
+      : fmt(s, 6))) }];
+  if (ta.time) {
+    out.push({ scale: "x", side: 0, label: ta.ageTitle, labelSize: 18, size: 30, space: 60,
+      grid: { show: false },
+      splits: (u, i, lo, hi) => niceTicks(ta.age(lo), ta.age(hi), 7).map(
+        (a) => lo + (a - ta.age(lo)) * (hi - lo) / (ta.age(hi) - ta.age(lo))),
+      values: rec("top", (s) => fmt(ta.age(s), 6)) });
+  }
+  out.push({ scale: "y", label: yTitle, labelSize: 18, size: 56,
+    values: rec("y", (s) => fmt(s, 4)) });
+  return out;
 }
 
-function alertMarks(f, alerts) {
+function alertMarks(u, alerts, x) {
+  const ctx = u.ctx, dpr = window.devicePixelRatio || 1;
+  ctx.save();
+  ctx.lineWidth = 2 * dpr;
+  ctx.setLineDash([4 * dpr, 3 * dpr]);
   for (const a of alerts) {
-    const line = svgEl("line", { x1: f.sx(a.time), x2: f.sx(a.time), y1: f.m.t,
-      y2: f.H - f.m.b, class: "alert-mark alert-" + a.level }, f.g);
-    svgEl("title", {}, line).textContent = a.level + " at t = " + fmt(a.time, 6) +
-      (a.acknowledged ? " (acknowledged)" : "");
+    const px = u.valToPos(x(a.time), "x", true);
+    ctx.strokeStyle = a.level === "alarm" ? COLOR.threshold : COLOR.warning;
+    ctx.beginPath();
+    ctx.moveTo(px, u.bbox.top);
+    ctx.lineTo(px, u.bbox.top + u.bbox.height);
+    ctx.stroke();
+  }
+  ctx.restore();
+}
+
+// text on the canvas, right-aligned at x but never left of minX; returns its right end
+function canvasText(u, text, x, minX, y, color) {
+  const ctx = u.ctx, dpr = window.devicePixelRatio || 1;
+  ctx.save();
+  ctx.font = 12 * dpr + "px system-ui, sans-serif";
+  ctx.fillStyle = color;
+  const right = Math.max(x, minX + ctx.measureText(text).width);
+  ctx.textAlign = "right";
+  ctx.fillText(text, right, y);
+  ctx.restore();
+  return right;
+}
+
+// draw (or redraw) a uPlot chart into the element id; record() gives the data-chart extras
+function plot(id, opts, data, record) {
+  const el = $(id);
+  if (charts[id]) charts[id].destroy();
+  el.replaceChildren();
+  delete el.dataset.chart;
+  if (!data) { el.textContent = opts; charts[id] = null; return; }
+  const drawn = {};
+  opts.axes = opts.axes(drawn);
+  const draw = opts.hooks.draw;
+  opts.hooks.draw = [(u) => {
+    draw.forEach((f) => f(u));
+    const series = {};
+    u.series.slice(1).forEach((s, i) => {
+      series[s.label] = data[i + 1].filter((v) => v !== null).length;
+    });
+    el.dataset.chart = JSON.stringify(Object.assign({ series, ticks: drawn,
+      titles: u.axes.map((a) => a.label) }, record()));
+  }];
+  Object.assign(opts, { width: 900, legend: { live: false },
+    tzDate: (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC") });
+  const u = charts[id] = new uPlot(opts, data, el);
+  // a band's upper edge is drawn as the band, named once in the legend (its lower edge)
+  const hide = new Set(opts.series.filter((s) => s.inLegend === false).map((s) => s.label));
+  for (const row of u.root.querySelectorAll(".u-legend .u-series")) {
+    if (hide.has(row.querySelector(".u-label").textContent)) row.classList.add("unlisted");
   }
 }
 
-function finite(values) { return values.filter((v) => v !== null && Number.isFinite(v)); }
+// where the RUL interval meets the threshold: [low, median, high] end times (null if none)
+function rulOnThreshold(h, xEnd) {
+  const now = h.now;
+  if (now.rul_state !== "estimated") return null;
+  const t0 = now.last_time;
+  return [t0 + now.rul_low, now.rul === null ? null : t0 + now.rul,
+    now.rul_high === null ? xEnd : Math.min(t0 + now.rul_high, Math.max(xEnd, t0 + now.rul))];
+}
+
+// the HI chart's columns: measured, filtered, forecast median, low, high, the threshold,
+// the RUL interval and median on it, and the alarm rule's HI when it is not the threshold
+function hiColumns(h, fc, on, x) {
+  const H = h.history, thr = h.threshold, X = (ts) => ts.map(x);
+  const ends = on ? [on[0], on[2]] : [];
+  const median = on && on[1] !== null ? [on[1]] : [];
+  const allT = H.t.concat(fc.t, ends, median);
+  const cols = [[X(H.t), H.hi], [X(H.t), H.fhi], [X(fc.t), fc.hi], [X(fc.t), fc.hi_low],
+    [X(fc.t), fc.hi_high], [X(allT), allT.map(() => thr)], [X(ends), ends.map(() => thr)],
+    [X(median), median.map(() => thr)]];
+  if (h.alarm_hi !== thr) cols.push([X(allT), allT.map(() => h.alarm_hi)]);
+  return align(cols);
+}
 
 function hiChart(h) {
-  const svg = $("hi-chart");
-  const H = h.history, fc = h.forecast, u = h.time_unit;
-  const xs = H.t.concat(fc ? fc.t : []);
-  const ys = finite(H.hi).concat(fc ? finite(fc.hi_high) : []).concat([h.threshold]);
-  if (H.t.length === 0) { svg.replaceChildren(); return; }
-  let x0 = Math.min(...xs), x1 = Math.max(...xs);
-  if (x1 === x0) { x0 -= 1; x1 += 1; }
-  const f = frame(svg, { x0, x1, y0: 0, y1: Math.min(Math.max(...ys) * 1.05, 2 * h.threshold),
-    xLabel: "time" + (u ? " (" + u + ")" : ""), yLabel: "health index",
-    origin: h.time_origin, unitSeconds: h.unit_seconds });
-  if (fc) {
-    band(f, fc.t, fc.hi_low, fc.hi_high, "forecast-band");
-    polyline(f, fc.t, fc.hi, "forecast");
-  }
-  const ty = f.sy(h.threshold);
-  svgEl("line", { x1: f.m.l, x2: f.W - f.m.r, y1: ty, y2: ty, class: "threshold" }, f.g);
-  svgEl("text", { x: f.m.l + 4, y: ty - 4, class: "threshold-label" }, f.g).textContent =
-    "failure threshold HI = " + fmt(h.threshold);
-  if (h.alarm_hi !== h.threshold) {
-    const ay = f.sy(h.alarm_hi);
-    svgEl("line", { x1: f.m.l, x2: f.W - f.m.r, y1: ay, y2: ay, class: "alarm-line" }, f.g);
-  }
-  const now = h.now;
-  if (now.rul_state === "estimated") {  // the RUL interval where the band meets the threshold
-    const t0 = now.last_time;
-    const hiEnd = now.rul_high === null ? x1 : Math.min(t0 + now.rul_high, x1);
-    svgEl("line", { x1: f.sx(t0 + now.rul_low), x2: f.sx(hiEnd), y1: ty, y2: ty,
-      class: "rul-interval" }, f.g);
-    if (now.rul !== null) {
-      const x = f.sx(t0 + now.rul);
-      svgEl("circle", { cx: x, cy: ty, r: 4, class: "rul-median" }, f.g);
-      svgEl("text", { x: Math.min(x, f.W - f.m.r - 4), y: ty - 8, "text-anchor": "end",
-        class: "rul-label" }, f.g).textContent = "RUL " + rulText(now) +
-        (now.due === null ? "" : ", due " + dateText(now.due));
-    }
-  }
-  H.t.forEach((x, i) => {
-    if (H.hi[i] !== null) svgEl("circle", { cx: f.sx(x), cy: f.clampY(H.hi[i]), r: 2,
-      class: "dot" }, f.g);
-  });
-  alertMarks(f, h.alerts);
+  const H = h.history, fc = h.forecast || { t: [], hi: [], hi_low: [], hi_high: [] };
+  if (H.t.length === 0) { plot("hi-chart", "no acquisition yet", null); return; }
+  const ta = timeAxis(h), thr = h.threshold;
+  const on = rulOnThreshold(h, Math.max(...H.t, ...fc.t));
+  const data = hiColumns(h, fc, on, ta.x);
+  const alarmLine = h.alarm_hi === thr ? [] : [line("alarm rule HI = " + fmt(h.alarm_hi),
+    COLOR.warning, { dash: [2, 3] })];
+  const top = Math.max(...H.hi.filter((v) => v !== null), ...fc.hi_high.filter(
+    (v) => v !== null), thr);
+  const label = on ? "RUL " + rulText(h.now) + (h.now.due === null ? ""
+    : ", due " + dateText(h.now.due)) : "";
+  const thrLabel = "failure threshold HI = " + fmt(thr);
+  plot("hi-chart", {
+    height: 320, axes: (drawn) => axes(ta, "health index", drawn),
+    scales: { x: xScale(ta), y: { range: [0, Math.max(Math.min(top * 1.05, 2 * thr),
+      1.15 * thr)] } },
+    series: [{ label: ta.title },
+      { label: "measured HI", stroke: COLOR.measured, paths: () => null,
+        points: { show: true, size: 4, fill: COLOR.measured } },
+      line("filtered HI", COLOR.filtered),
+      line("HI forecast (median)", COLOR.forecast, { width: 2, dash: [6, 4] }),
+      line("forecast band", COLOR.band, { width: 0 }),
+      line("forecast band (upper)", COLOR.band, { width: 0, inLegend: false }),
+      line(thrLabel, COLOR.threshold, { dash: [8, 4] }),
+      line("RUL interval on the threshold", COLOR.warning, { width: 6 }),
+      { label: "RUL median", stroke: COLOR.threshold, paths: () => null,
+        points: { show: true, size: 9, fill: COLOR.threshold } }, ...alarmLine],
+    bands: [{ series: [5, 4], fill: COLOR.band }],
+    hooks: { draw: [(u) => {
+      alertMarks(u, h.alerts, ta.x);
+      const dpr = window.devicePixelRatio || 1, y = u.valToPos(thr, "y", true) - 6 * dpr;
+      const end = canvasText(u, thrLabel, 0, u.bbox.left + 6 * dpr, y, COLOR.threshold);
+      // left of the interval, where the band is still under the threshold
+      if (label) canvasText(u, label, u.valToPos(ta.x(on[0]), "x", true) - 10 * dpr,
+        end + 16 * dpr, y, "#222");
+    }] },
+  }, data, () => ({ threshold: thr, threshold_label: thrLabel, rul_label: label,
+    alerts: h.alerts.length }));
 }
 
 function rulChart(h) {
-  const svg = $("rul-chart");
   const H = h.history, u = h.time_unit;
   const known = H.rul.map((v) => v !== null);
-  const ys = finite(H.rul).concat(finite(H.rul_low)).concat(
-    finite(H.rul_high.filter((v, i) => known[i])));
-  if (H.t.length === 0 || ys.length === 0) {
-    svg.replaceChildren();
-    svgEl("text", { x: 410, y: 120, "text-anchor": "middle" }, svg).textContent =
-      "no RUL estimated yet";
+  if (H.t.length === 0 || !known.some(Boolean)) {
+    plot("rul-chart", "no RUL estimated yet", null);
     return;
   }
-  let x0 = Math.min(...H.t), x1 = Math.max(...H.t);
-  if (x1 === x0) { x0 -= 1; x1 += 1; }
-  const top = Math.max(...finite(H.rul)) * 2 || 1;  // an unbounded interval: cut at 2x
-  const y1 = Math.min(Math.max(...ys), top) || 1;
-  const f = frame(svg, { x0, x1, y0: 0, y1,
-    xLabel: "time" + (u ? " (" + u + ")" : ""), yLabel: "RUL" + (u ? " (" + u + ")" : ""),
-    origin: h.time_origin, unitSeconds: h.unit_seconds });
-  const hiBand = H.rul_high.map((v, i) => (known[i] ? (v === null ? y1 : v) : null));
-  band(f, H.t, H.rul_low.map((v, i) => (known[i] ? v : null)), hiBand, "band");
-  polyline(f, H.t, H.rul, "rul-line");
-  alertMarks(f, h.alerts);
+  const ta = timeAxis(h), X = (ts) => ts.map(ta.x);
+  const medians = H.rul.filter((v) => v !== null);
+  const cut = 2 * Math.max(...medians) || 1;  // an unbounded interval: cut at 2x
+  const high = H.rul_high.map((v, i) => (known[i] ? Math.min(v === null ? cut : v, cut)
+    : null));
+  const low = H.rul_low.map((v, i) => (known[i] ? v : null));
+  const data = align([[X(H.t), H.rul], [X(H.t), low], [X(H.t), high]]);
+  const yTitle = "RUL" + (u ? " (" + u + ")" : "");
+  plot("rul-chart", {
+    height: 260, axes: (drawn) => axes(ta, yTitle, drawn),
+    scales: { x: xScale(ta), y: { range: [0, Math.max(...high.filter(
+      (v) => v !== null), ...medians) * 1.05 || 1] } },
+    series: [{ label: ta.title }, line("RUL median", COLOR.rul, { width: 2 }),
+      line("RUL interval", COLOR.rulBand, { width: 0 }),
+      line("RUL interval (upper)", COLOR.rulBand, { width: 0, inLegend: false })],
+    bands: [{ series: [3, 2], fill: COLOR.rulBand }],
+    hooks: { draw: [(p) => alertMarks(p, h.alerts, ta.x)] },
+  }, data, () => ({ alerts: h.alerts.length, rul_now: rulText(h.now) }));
 }
 
 async function loadDetail(name) {

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,6 +87,12 @@ class DegradationConfig:
     def n_windows(self) -> int:
         """Number of 2-hour windows in ``horizon_days``."""
         return round(self.horizon_days * DAY_S / WINDOW_S)
+
+    def beta0_gaussian_prior(self, beta_ref: float) -> tuple[float, float]:
+        """Mean and variance of the uniform beta0 prior (``beta0_prior_rel`` x ``beta_ref``): the
+        Gaussian prior of the RBPF's Kalman filters."""
+        plo, phi = self.beta0_prior_rel
+        return 0.5 * (plo + phi) * beta_ref, ((phi - plo) * beta_ref) ** 2 / 12.0
 
 
 _STREAMS = {"measurement": 0, "estimate": 1, "one_step": 2, "pf1": 3, "pf2": 4, "rbpf": 5,
@@ -200,18 +206,32 @@ def _k_logsum(bb, c, s, nodes, weights, lcount):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _k_normalise(r, logw, w):  # pragma: no cover - compiled
-    """Normalise row r of logw in place, weights into ``w``; returns the ESS, or -1 when the
-    row is degenerate (all -inf or NaN: the caller raises, naming the unit)."""
+def _k_scratch(N):  # pragma: no cover - compiled
+    """One unit's work arrays: weights ``w``, cumulative weights ``c``, a copy buffer ``tmp``
+    and the resampled indices ``idx``, each (N,)."""
+    return np.empty(N), np.empty(N), np.empty(N), np.empty(N, np.int64)
+
+
+@numba.njit(cache=True)
+def _k_normalise(r, logw, w, nres):  # pragma: no cover - compiled
+    """Normalise row r of logw in place, weights into ``w``; returns the ESS, or -1 (and
+    ``nres[r] = -1``) when the row is degenerate (all -inf or NaN: the caller stops the unit and
+    :func:`_check_degenerate` raises, naming it)."""
     if not normalise_row(logw[r], w, True) > -np.inf:
+        nres[r] = -1
         return -1.0
     return ess_row(w)
 
 
 @numba.njit(cache=True)
-def _k_resample(r, logw, w, u, s0, s1, s2, nstate, c, idx, tmp):  # pragma: no cover
-    """Systematic resampling of row r (as ``resampling.systematic`` with uniform ``u``)."""
+def _k_resample(ess, thr, r, logw, w, u, s0, s1, s2, nstate, c, idx, tmp, nres
+                ):  # pragma: no cover - compiled
+    """When ``ess < thr N``: systematic resampling of row r (as ``resampling.systematic`` with
+    uniform ``u``) of the first ``nstate`` of the states ``s0, s1, s2``, counted in ``nres[r]``."""
     N = logw.shape[1]
+    if not ess < thr * N:
+        return
+    nres[r] += 1
     systematic_row(w, u, idx, c)
     for q in range(nstate):
         st = s0 if q == 0 else (s1 if q == 1 else s2)
@@ -242,8 +262,7 @@ def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_bet
                 b, beta, logw, eps, unif, bm, bsd, em, esd, nres):  # pragma: no cover
     U, N = b.shape
     for r in range(U):
-        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-        idx = np.empty(N, np.int64)
+        w, c, tmp, idx = _k_scratch(N)
         for k in range(k0, k1):
             i = k - koff
             for p in range(N):
@@ -255,15 +274,12 @@ def _k_one_step(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, sigma_y, q_b, q_bet
                                             lcount[r, k])) * dt
                 z = (y[r, k] - mu) / sigma_y
                 logw[r, p] -= 0.5 * z * z
-            ess = _k_normalise(r, logw, w)
+            ess = _k_normalise(r, logw, w, nres)
             if ess < 0:
-                nres[r] = -1
                 break
             bm[r, k], bsd[r, k] = _k_est(b, r, w)
             em[r, k], esd[r, k] = _k_est(beta, r, w)
-            if ess < thr * N:
-                _k_resample(r, logw, w, unif[r, i], b, beta, beta, 2, c, idx, tmp)
-                nres[r] += 1
+            _k_resample(ess, thr, r, logw, w, unif[r, i], b, beta, beta, 2, c, idx, tmp, nres)
 
 
 @numba.njit(cache=True)
@@ -271,8 +287,7 @@ def _k_pf1(k0, k1, koff, dlny, sd, ok, qc, qs, qn, qw, lcount, q_b, thr, b, logw
            bm, bsd, nres):  # pragma: no cover
     U, N = b.shape
     for r in range(U):
-        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-        idx = np.empty(N, np.int64)
+        w, c, tmp, idx = _k_scratch(N)
         for k in range(k0, k1):
             i = k - koff
             for p in range(N):
@@ -284,14 +299,11 @@ def _k_pf1(k0, k1, koff, dlny, sd, ok, qc, qs, qn, qw, lcount, q_b, thr, b, logw
                                         qw[r, k - 1], lcount[r, k - 1]))
                     z = (dlny[r, k] - pred) / sd[r, k]
                     logw[r, p] -= 0.5 * z * z
-            ess = _k_normalise(r, logw, w)
+            ess = _k_normalise(r, logw, w, nres)
             if ess < 0:
-                nres[r] = -1
                 break
             bm[r, k], bsd[r, k] = _k_est(b, r, w)
-            if ess < thr * N:
-                _k_resample(r, logw, w, unif[r, i], b, b, b, 1, c, idx, tmp)
-                nres[r] += 1
+            _k_resample(ess, thr, r, logw, w, unif[r, i], b, b, b, 1, c, idx, tmp, nres)
 
 
 @numba.njit(cache=True)
@@ -299,8 +311,7 @@ def _k_pf2(k0, k1, koff, y, H, sigma_y, q_beta, thr, beta, logw, eps, unif, em, 
            ):  # pragma: no cover
     U, N = beta.shape
     for r in range(U):
-        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-        idx = np.empty(N, np.int64)
+        w, c, tmp, idx = _k_scratch(N)
         for k in range(k0, k1):
             i = k - koff
             for p in range(N):
@@ -308,14 +319,11 @@ def _k_pf2(k0, k1, koff, y, H, sigma_y, q_beta, thr, beta, logw, eps, unif, em, 
                 beta[r, p] = be
                 z = (y[r, k] - be * H[r, k]) / sigma_y
                 logw[r, p] -= 0.5 * z * z
-            ess = _k_normalise(r, logw, w)
+            ess = _k_normalise(r, logw, w, nres)
             if ess < 0:
-                nres[r] = -1
                 break
             em[r, k], esd[r, k] = _k_est(beta, r, w)
-            if ess < thr * N:
-                _k_resample(r, logw, w, unif[r, i], beta, beta, beta, 1, c, idx, tmp)
-                nres[r] += 1
+            _k_resample(ess, thr, r, logw, w, unif[r, i], beta, beta, beta, 1, c, idx, tmp, nres)
 
 
 @numba.njit(cache=True)
@@ -323,8 +331,7 @@ def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, 
             unif, bm, bsd, em, esd, nres):  # pragma: no cover
     U, N = b.shape
     for r in range(U):
-        w, c, tmp = np.empty(N), np.empty(N), np.empty(N)
-        idx = np.empty(N, np.int64)
+        w, c, tmp, idx = _k_scratch(N)
         for k in range(k0, k1):
             i = k - koff
             for p in range(N):
@@ -339,9 +346,8 @@ def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, 
                 K = Pp * H / s
                 m[r, p] += K * nu
                 P[r, p] = (1.0 - K * H) * Pp
-            ess = _k_normalise(r, logw, w)
+            ess = _k_normalise(r, logw, w, nres)
             if ess < 0:
-                nres[r] = -1
                 break
             bm[r, k], bsd[r, k] = _k_est(b, r, w)
             mm = 0.0
@@ -352,9 +358,7 @@ def _k_rbpf(k0, k1, koff, y, qc, qs, qn, qw, lcount, dt, R, q_b, q2, thr, b, m, 
                 d = m[r, p] - mm
                 v += w[p] * (P[r, p] + d * d)
             em[r, k], esd[r, k] = mm, np.sqrt(max(v, 0.0))
-            if ess < thr * N:
-                _k_resample(r, logw, w, unif[r, i], b, m, P, 3, c, idx, tmp)
-                nres[r] += 1
+            _k_resample(ess, thr, r, logw, w, unif[r, i], b, m, P, 3, c, idx, tmp, nres)
 
 
 def _check_degenerate(nres: NDArray[np.int64], label: str) -> None:
@@ -395,6 +399,52 @@ def _check_inputs(y: FloatArray, quad: WindowQuadrature, n_rngs: int) -> tuple[i
     return U, W
 
 
+@dataclass
+class _Pass:
+    """What a tracker's run over U units and W windows works with: the quadrature arrays
+    ``qa``, the log sample counts ``lcount`` (U, W), the output, the resampling counts ``nres``
+    (U,) and the start time of the run."""
+
+    U: int
+    W: int
+    qa: tuple[FloatArray, ...]
+    lcount: FloatArray
+    out: TrackOutput
+    nres: NDArray[np.int64]
+    t0: float
+
+    @classmethod
+    def start(cls, y: FloatArray, quad: WindowQuadrature, n_rngs: int, backend: str) -> _Pass:
+        """Check the inputs and allocate the outputs (no random draws)."""
+        _check_backend(backend)
+        t0 = time.perf_counter()
+        U, W = _check_inputs(y, quad, n_rngs)
+        lcount = np.ascontiguousarray(np.broadcast_to(quad.log_counts(), (U, W)))
+        return cls(U, W, _quad_arrays(quad), lcount, _alloc(U, W), np.zeros(U, np.int64), t0)
+
+    def finish(self) -> TrackOutput:
+        """The output with the resampling count and the run's wall time."""
+        self.out.n_resampled = int(self.nres.sum())
+        self.out.seconds = time.perf_counter() - self.t0
+        return self.out
+
+
+def _blocks(noise: _Noise, W: int, snapshots: Sequence[int]
+            ) -> Iterator[tuple[int, int, int, FloatArray, FloatArray]]:
+    """The segments ``[a, e)`` of the run with the window offset ``koff`` of their noise block
+    and that block's ``eps``, ``unif`` (drawn when the segment is reached)."""
+    for a, e in _segments(W, snapshots):
+        eps, unif = noise.block(a // CHUNK)
+        yield a, e, (a // CHUNK) * CHUNK, eps, unif
+
+
+def _uniform_rows(rngs: list[np.random.Generator], bounds: tuple[float, float], n: int
+                  ) -> FloatArray:
+    """(U, n) uniforms on ``bounds``, row r from ``rngs[r]``."""
+    lo, hi = bounds
+    return np.stack([g.uniform(lo, hi, n) for g in rngs])
+
+
 def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
                 rngs: list[np.random.Generator], *, beta_ref: float,
                 snapshot_windows: Sequence[int] = (), progress: Progress | None = None,
@@ -403,24 +453,14 @@ def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
 
     ``y_k ~ N(beta0 S_k(b) dt, sigma_y^2)``; random walks on b and beta0 (beta0 reflected at 0).
     """
-    _check_backend(backend)
-    t0 = time.perf_counter()
-    U, W = _check_inputs(y, quad, len(rngs))
+    run = _Pass.start(y, quad, len(rngs), backend)
+    U, W, qa, lcount, out, nres = run.U, run.W, run.qa, run.lcount, run.out, run.nres
     N = settings.n_particles
-    lo, hi = settings.b_prior
-    plo, phi = settings.beta0_prior_rel
-    b = np.stack([g.uniform(lo, hi, N) for g in rngs])
-    beta = np.stack([g.uniform(plo, phi, N) for g in rngs]) * beta_ref
+    b = _uniform_rows(rngs, settings.b_prior, N)
+    beta = _uniform_rows(rngs, settings.beta0_prior_rel, N) * beta_ref
     logw = np.full((U, N), -np.log(N))
-    out = _alloc(U, W)
-    nres = np.zeros(U, np.int64)
     qb, qbeta, thr = settings.q_b, settings.q_beta0_rel * beta_ref, settings.ess_threshold
-    noise = _Noise(rngs, N, 2)
-    qa = _quad_arrays(quad)
-    lcount = np.ascontiguousarray(np.broadcast_to(quad.log_counts(), (U, W)))
-    for a, e in _segments(W, snapshot_windows):
-        koff = (a // CHUNK) * CHUNK
-        eps, unif = noise.block(a // CHUNK)
+    for a, e, koff, eps, unif in _blocks(_Noise(rngs, N, 2), W, snapshot_windows):
         if backend == "numba":
             _k_one_step(a, e, koff, y, *qa, lcount, SAMPLE_DT, sigma_y, qb, qbeta, thr, b, beta,
                         logw, eps, unif, out.b_mean, out.b_std, out.beta0_mean, out.beta0_std,
@@ -441,8 +481,7 @@ def one_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
         if e - 1 in snapshot_windows:
             out.snapshots[e - 1] = (np.stack([b, beta], axis=-1), np.exp(logw))
         _progress(progress, "one-step PF", e, W)
-    out.n_resampled, out.seconds = int(nres.sum()), time.perf_counter() - t0
-    return out
+    return run.finish()
 
 
 def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
@@ -458,18 +497,12 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     PF1's posterior mean. Snapshots pair PF1's b with PF2's beta0 particles, both resampled to
     equal weights and shuffled (the product of the two marginal posteriors).
     """
-    _check_backend(backend)
-    t0 = time.perf_counter()
-    U, W = _check_inputs(y, quad, len(rngs_b))
+    run = _Pass.start(y, quad, len(rngs_b), backend)
+    U, W, qa, lcount, out, nres = run.U, run.W, run.qa, run.lcount, run.out, run.nres
     N = settings.n_particles
     thr = settings.ess_threshold
-    qa = _quad_arrays(quad)
-    lcount = np.ascontiguousarray(np.broadcast_to(quad.log_counts(), (U, W)))
-    out = _alloc(U, W)
-    nres = np.zeros(U, np.int64)
     # PF1 on b from ratios of consecutive window losses
-    lo, hi = settings.b_prior
-    b = np.stack([g.uniform(lo, hi, N) for g in rngs_b])
+    b = _uniform_rows(rngs_b, settings.b_prior, N)
     logw = np.full((U, N), -np.log(N))
     ok = np.zeros((U, W), dtype=np.bool_)
     ok[:, 1:] = (y[:, 1:] > 0) & (y[:, :-1] > 0)
@@ -479,11 +512,8 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     sd = np.ones((U, W))
     sd[:, 1:] = np.where(ok[:, 1:], np.sqrt((sigma_y / ysafe[:, 1:]) ** 2
                                             + (sigma_y / ysafe[:, :-1]) ** 2), 1.0)
-    noise = _Noise(rngs_b, N, 1)
     snaps_b: dict[int, tuple[FloatArray, FloatArray]] = {}
-    for a, e in _segments(W, snapshot_windows):
-        koff = (a // CHUNK) * CHUNK
-        eps, unif = noise.block(a // CHUNK)
+    for a, e, koff, eps, unif in _blocks(_Noise(rngs_b, N, 1), W, snapshot_windows):
         if backend == "numba":
             _k_pf1(a, e, koff, dlny, sd, ok, *qa, lcount, settings.q_b, thr, b, logw, eps, unif,
                    out.b_mean, out.b_std, nres)
@@ -506,14 +536,10 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     bh = out.b_mean
     inner = (wq * np.exp(-(bh * s_)[..., None] * x)).sum(axis=-1)
     H = np.exp(lcount - bh * c + np.log(inner)) * SAMPLE_DT
-    plo, phi = settings.beta0_prior_rel
-    beta = np.stack([g.uniform(plo, phi, N) for g in rngs_beta]) * beta_ref
+    beta = _uniform_rows(rngs_beta, settings.beta0_prior_rel, N) * beta_ref
     logw = np.full((U, N), -np.log(N))
     qbeta = settings.q_beta0_rel * beta_ref
-    noise = _Noise(rngs_beta, N, 1)
-    for a, e in _segments(W, snapshot_windows):
-        koff = (a // CHUNK) * CHUNK
-        eps, unif = noise.block(a // CHUNK)
+    for a, e, koff, eps, unif in _blocks(_Noise(rngs_beta, N, 1), W, snapshot_windows):
         if backend == "numba":
             _k_pf2(a, e, koff, y, H, sigma_y, qbeta, thr, beta, logw, eps, unif,
                    out.beta0_mean, out.beta0_std, nres)
@@ -536,8 +562,7 @@ def two_step_pf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
                 np.stack([bs, np.take_along_axis(beta, ie, axis=1)], axis=-1),
                 np.full((U, N), 1.0 / N))
         _progress(progress, "two-step PF2 (beta0)", e, W)
-    out.n_resampled, out.seconds = int(nres.sum()), time.perf_counter() - t0
-    return out
+    return run.finish()
 
 
 def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
@@ -553,27 +578,17 @@ def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Degrad
     posterior is the mixture ``sum_i w_i N(m_i, P_i)``; its prior a Gaussian with the mean and
     std of the uniform prior of the other trackers.
     """
-    _check_backend(backend)
-    t0 = time.perf_counter()
-    U, W = _check_inputs(y, quad, len(rngs))
+    run = _Pass.start(y, quad, len(rngs), backend)
+    U, W, qa, lcount, out, nres = run.U, run.W, run.qa, run.lcount, run.out, run.nres
     N = settings.n_particles
-    lo, hi = settings.b_prior
-    b = np.stack([g.uniform(lo, hi, N) for g in rngs])
-    plo, phi = settings.beta0_prior_rel
-    m = np.full((U, N), 0.5 * (plo + phi) * beta_ref)
-    P = np.full((U, N), ((phi - plo) * beta_ref) ** 2 / 12.0)
+    b = _uniform_rows(rngs, settings.b_prior, N)
+    m0, P0 = settings.beta0_gaussian_prior(beta_ref)
+    m, P = np.full((U, N), m0), np.full((U, N), P0)
     logw = np.full((U, N), -np.log(N))
     q2 = (settings.q_beta0_rel * beta_ref) ** 2
     R = sigma_y**2
     thr = settings.ess_threshold
-    out = _alloc(U, W)
-    nres = np.zeros(U, np.int64)
-    qa = _quad_arrays(quad)
-    lcount = np.ascontiguousarray(np.broadcast_to(quad.log_counts(), (U, W)))
-    noise = _Noise(rngs, N, 1)
-    for a, e in _segments(W, snapshot_windows):
-        koff = (a // CHUNK) * CHUNK
-        eps, unif = noise.block(a // CHUNK)
+    for a, e, koff, eps, unif in _blocks(_Noise(rngs, N, 1), W, snapshot_windows):
         if backend == "numba":
             _k_rbpf(a, e, koff, y, *qa, lcount, SAMPLE_DT, R, settings.q_b, q2, thr, b, m, P,
                     logw, eps, unif, out.b_mean, out.b_std, out.beta0_mean, out.beta0_std, nres)
@@ -600,8 +615,7 @@ def rbpf(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: Degrad
             draw = m + np.sqrt(P) * np.stack([g.standard_normal(N) for g in rngs])
             out.snapshots[e - 1] = (np.stack([b, np.abs(draw)], axis=-1), np.exp(logw))
         _progress(progress, "Rao-Blackwellised PF", e, W)
-    out.n_resampled, out.seconds = int(nres.sum()), time.perf_counter() - t0
-    return out
+    return run.finish()
 
 
 def rbpf_engine(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings: DegradationConfig,
@@ -634,9 +648,8 @@ def rbpf_engine(y: FloatArray, quad: WindowQuadrature, sigma_y: float, settings:
     pf = ParticleFilter(transition, loglik, resampler="systematic",
                         ess_threshold=settings.ess_threshold)
     lo, hi = settings.b_prior
-    plo, phi = settings.beta0_prior_rel
-    x0 = np.column_stack([rng.uniform(lo, hi, N), np.full(N, 0.5 * (plo + phi) * beta_ref),
-                          np.full(N, ((phi - plo) * beta_ref) ** 2 / 12.0)])
+    m0, P0 = settings.beta0_gaussian_prior(beta_ref)
+    x0 = np.column_stack([rng.uniform(lo, hi, N), np.full(N, m0), np.full(N, P0)])
     state = pf.initialise(x0, rng)
     W = y.shape[0]
     b_mean, beta_mean = np.empty(W), np.empty(W)

@@ -196,6 +196,26 @@ def likelihood_covariance(
     return R + Phi @ R @ Phi.T
 
 
+def temperature_outputs(K: int) -> dict[str, FloatArray]:
+    """The per-sample summaries a numpy reference path fills, NaN until written: ``"mean"``,
+    ``"std"``, ``"lo"``, ``"hi"`` (see :func:`summarise_temperature`) and ``"ess"``, each (K,)."""
+    return {c: np.full(K, np.nan) for c in ("mean", "std", "lo", "hi", "ess")}
+
+
+def summarise_temperature(out: dict[str, FloatArray], k: int, T: FloatArray, w: FloatArray,
+                          levels: tuple[float, float] | None) -> float:
+    """Write sample ``k``'s summary of the particles' temperatures ``T`` (N,) with normalised
+    weights ``w`` into ``out`` (from :func:`temperature_outputs`): the weighted mean and std
+    and, when ``levels`` is given, the weighted quantiles at those levels as ``"lo"``, ``"hi"``.
+    Returns the mean. The numpy reference paths' twin of the kernels' per-sample outputs."""
+    m = float(np.sum(w * T))
+    out["mean"][k] = m
+    out["std"][k] = math.sqrt(max(float(np.sum(w * (T - m) ** 2)), 0.0))
+    if levels is not None:
+        out["lo"][k], out["hi"][k] = weighted_quantile_rows(T, w, np.array(levels))
+    return m
+
+
 def _prepare(
     y: FloatArray, V: FloatArray, cfg: TemperatureConfig, sigma: tuple[float, float],
     params: IthacoParams, dt: float,
@@ -350,21 +370,16 @@ def filter_temperature_numpy(
     else:
         x0 = T0[:, None]
     state = pf.initialise(x0, rng)
-    out = {k: np.full(K, np.nan) for k in ("mean", "std", "qlo", "qhi", "ess")}
+    out = temperature_outputs(K)
+    levels = cfg.quantiles if quantiles else None
     act = np.zeros(K, dtype=np.int8)
     clip = np.zeros(K, dtype=np.int64)
     gam = np.ones(K)
     lls = np.zeros(K)
 
     def record(k: int) -> float:
-        T, w = state.particles[:, 0], state.weights
-        m = float(np.sum(w * T))
-        out["mean"][k] = m
-        out["std"][k] = math.sqrt(float(np.sum(w * (T - m) ** 2)))
-        if quantiles:
-            out["qlo"][k], out["qhi"][k] = weighted_quantile_rows(T, w, np.array(cfg.quantiles))
         out["ess"][k] = state.ess
-        return m
+        return summarise_temperature(out, k, state.particles[:, 0], state.weights, levels)
 
     record(0)
     win_sum, win_cnt = 0.0, 0
@@ -395,7 +410,7 @@ def filter_temperature_numpy(
             a = 1
         act[k] = a
     tt = t0 + dt * np.arange(K)
-    return TemperatureResult(tt, out["mean"], out["std"], out["qlo"], out["qhi"], out["ess"], act,
+    return TemperatureResult(tt, out["mean"], out["std"], out["lo"], out["hi"], out["ess"], act,
                        clip, gam, lls, np.zeros(K, dtype=np.int8), config=cfg)
 
 
@@ -427,15 +442,12 @@ def apf_numpy(
                      + S_inv[1, 1] * e1 * e1) - log_norm
         return np.where(np.isnan(ll), -np.inf, ll)
 
-    out = {c: np.full(K, np.nan) for c in ("mean", "std", "qlo", "qhi", "ess")}
+    out = temperature_outputs(K)
     lls = np.zeros(K)
 
     def record(k: int) -> None:
         _, w, _ = normalise_rows(lw)
-        out["mean"][k] = m = float(np.sum(w * T))
-        out["std"][k] = math.sqrt(float(np.sum(w * (T - m) ** 2)))
-        if quantiles:
-            out["qlo"][k], out["qhi"][k] = weighted_quantile_rows(T, w, np.array(cfg.quantiles))
+        summarise_temperature(out, k, T, w, cfg.quantiles if quantiles else None)
         out["ess"][k] = float(ess_rows(w))
 
     record(0)
@@ -455,8 +467,8 @@ def apf_numpy(
         record(k)
     act = np.full(K, 6, dtype=np.int8)
     act[0] = 0
-    return TemperatureResult(t0 + dt * np.arange(K), out["mean"], out["std"], out["qlo"],
-                             out["qhi"], out["ess"], act, np.zeros(K, dtype=np.int64), np.ones(K),
+    return TemperatureResult(t0 + dt * np.arange(K), out["mean"], out["std"], out["lo"],
+                             out["hi"], out["ess"], act, np.zeros(K, dtype=np.int64), np.ones(K),
                              lls, np.zeros(K, dtype=np.int8), config=cfg)
 
 

@@ -47,7 +47,10 @@ from rulkit.estimation.batched import (
     systematic_row,
     systematic_rows,
     weighted_quantile_pair_row,
-    weighted_quantile_rows,
+)
+from rulkit.systems.reaction_wheel.temperature.particle import (
+    summarise_temperature,
+    temperature_outputs,
 )
 from rulkit.systems.reaction_wheel.wheel import (
     NOISE_LEVELS,
@@ -274,16 +277,13 @@ def _run_numpy(
     R = np.diag([sI**2, sw**2])  # in state order [I, w]: H = swap, so H P H^T + R_out = P + R
     logw = np.full(N, -math.log(N))
     w = np.full(N, 1.0 / N)
-    out = {k: np.full(K, np.nan) for k in ("mean", "std", "lo", "hi", "ess", "ll")}
+    out = temperature_outputs(K)
+    out["ll"] = np.full(K, np.nan)
     act = np.zeros(K)
     Iw = np.empty((K, 2))
 
     def record(k: int) -> None:
-        mu = float(w @ T)
-        out["mean"][k] = mu
-        out["std"][k] = math.sqrt(max(float(w @ (T - mu) ** 2), 0.0))
-        if quantiles:
-            out["lo"][k], out["hi"][k] = weighted_quantile_rows(T, w, np.array(cfg.quantiles))
+        summarise_temperature(out, k, T, w, cfg.quantiles if quantiles else None)
         out["ess"][k] = ess_rows(w)
         Iw[k] = w @ m
 
