@@ -137,3 +137,97 @@ def test_level_counts_follow_every_write(sdb):
         s.set_rules(MonitoringRules(time_unit="h", alarm_hi=0.5))
     kept3, real3 = counts()
     assert kept3 == real3 and real3 != real2
+
+
+def test_the_stale_total_equals_a_count_whatever_the_clock_and_the_writes(sdb, tmp_path):
+    """The stale total reuses its last count while the data is unchanged: against a count of
+    the table at every step, with the clock moving forth and back, writes through the
+    service's own connections and through another process's connection."""
+    from rulkit.fleet.store.postgres import open_store
+
+    fleet(sdb, 60)
+
+    def brute(now):
+        with sdb.store() as s, s.snapshot() as conn:
+            return conn.execute("SELECT COUNT(*) FROM components WHERE seen < ?",
+                                (now - 3600.0,)).fetchone()[0]
+
+    def check(now):
+        total = sdb.components(limit=1, level="stale", now=now)[0]
+        assert total == sdb.summary(now=now)["counts"]["stale"] == brute(now), now
+
+    steps = [NOW, NOW + 10.0, NOW + 7200.0, NOW - 3600.0, NOW + 3600.0 - 1.0, NOW + 3600.0]
+    for now in steps:
+        check(now)
+    assert brute(NOW + 3600.0 + 1.0) == 60 > brute(NOW) > 0  # the range moved the total
+    late = pd.DataFrame({"component": ["c001", "c002", "new"], "time": 30.0, "hi": 0.3})
+    sdb.ingest(late, "late", now=NOW + 5000.0)  # through the service: seen moves
+    for now in steps:
+        check(now)
+    with open_store(sdb.db) as other:  # another connection, as another process has
+        other.now = NOW + 9000.0
+        other.ingest(pd.DataFrame({"component": ["c003", "c004"], "time": 40.0, "hi": 0.3}),
+                     "elsewhere")
+    for now in steps:
+        check(now)
+
+
+def test_postgresql_reads_are_index_ranges_by_the_planners_own_choice(pg_server, monkeypatch):
+    """After ANALYZE of a filled database, with no planner setting forced: every query the
+    pages, the summary and a history read send reads ``components`` and ``history`` through
+    their indexes (never a sequential scan), and a single-range page or the history needs no
+    sort (the index gives the order). Plans, not timings."""
+    from rulkit.fleet.service.db import ServiceDB
+    from rulkit.fleet.store.postgres import PgConnection
+
+    sdb = ServiceDB(pg_server.create_schema())
+    try:
+        n = 3000
+        with sdb.store() as s:
+            s.set_rules(MonitoringRules(time_unit="h", lead_time=30.0, alarm_hi=0.9,
+                                        stale_after=3600.0))
+        rng = np.random.default_rng(9)
+        names = [f"c{i:05d}" for i in range(n)]
+        hi = rng.uniform(0.1, 1.0, n)
+        df = pd.DataFrame({"component": np.repeat(names, 2), "time": np.tile([0.0, 1.0], n),
+                           "hi": np.repeat(hi, 2) + np.tile([0.0, 0.02], n)})
+        sdb.ingest(df[df["component"] < "c00150"], "old", now=NOW - 7200.0)  # 5 % stale
+        sdb.ingest(df[df["component"] >= "c00150"], "new", now=NOW)
+        t = np.arange(2.0, 1500.0)
+        sdb.ingest(pd.DataFrame({"component": "c00200", "time": t, "hi": 0.2 + t * 1e-4}),
+                   "long", now=NOW)
+        with sdb.store() as s:
+            s._conn.execute("ANALYZE")
+        sent: list[tuple[str, tuple]] = []
+        execute = PgConnection.execute
+
+        def recording(self, sql, params=()):
+            if sql.lstrip().upper().startswith("SELECT"):
+                sent.append((sql, tuple(params)))
+            return execute(self, sql, params)
+
+        monkeypatch.setattr(PgConnection, "execute", recording)
+        for sort in SORTS:
+            for level in (None, "ok", "alarm", "stale"):
+                _, _, nxt = sdb.components(limit=50, sort=sort, level=level, now=NOW)
+                if nxt is not None:
+                    sdb.components(limit=50, sort=sort, level=level, after=nxt, now=NOW)
+        sdb.summary(now=NOW)
+        sdb.summary(now=NOW + 60.0)  # the stale total moved by a range
+        sdb.history("c00200", limit=100, now=NOW)  # 100 of its 1500 rows
+        monkeypatch.setattr(PgConnection, "execute", execute)
+        with sdb.store() as s, s.snapshot() as conn:
+            for sql, params in sent:
+                if " components" not in sql and " history" not in sql:
+                    continue
+                plan = "\n".join(r[0] for r in conn.execute("EXPLAIN " + sql, params))
+                assert "Seq Scan on components" not in plan, (sql, plan)
+                assert "Seq Scan on history" not in plan, (sql, plan)
+                # a page of one range, or the history's last rows (a component's few
+                # alerts may be sorted)
+                single = "UNION ALL" not in sql and "seen <" not in sql and "alerts" not in sql
+                if single and "LIMIT" in sql:
+                    assert "Sort" not in plan, (sql, plan)
+        assert any("FROM history" in q and "ORDER BY t DESC" in q for q, _ in sent)
+    finally:
+        sdb.close()

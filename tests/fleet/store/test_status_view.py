@@ -2,9 +2,10 @@
 prints the same bytes as the pandas path kept for a table rulkit cannot have written
 (rulkit.fleet.store.cli._status_from_frame, through ComponentStore.status()), for every
 format, with hostile ids, extreme floats, missing values and an empty database; its JSON
-floats and strings are pandas' own."""
+parses back to the values stored."""
 
 import csv
+import datetime
 import io
 import json
 import math
@@ -111,7 +112,7 @@ def test_csv_and_json_hold_the_same_records(tmp_path):
             v = float(r[c]) if r[c] else None
             assert (j[c] is None) == (v is None or not math.isfinite(v)), (c, r[c], j[c])
             if j[c] is not None:
-                assert j[c] == pytest.approx(v, rel=1e-14)
+                assert j[c] == v  # both shortest round-trip texts of the same float64
         assert r["failed"] == str(j["failed"]).lower() and r["stale"] == str(j["stale"]).lower()
         assert (r["due"] or None) == j["due"] and (r["last_seen"] or None) == j["last_seen"]
         assert j["time_unit"] == "h" and "log-linear trend" in j["estimator"]
@@ -152,23 +153,50 @@ def test_row_rulkit_cannot_have_written_takes_the_pandas_path(tmp_path, monkeypa
         assert new.exit_code == 1 and "table components" in new.output
 
 
-def test_json_floats_equal_pandas_to_json():
-    rng = np.random.default_rng(5)
-    vals = np.array(EDGE + [math.nan] + rng.normal(0, 10.0 ** rng.integers(-22, 24, 20000))
-                    .tolist() + [k * 0.5e-15 for k in range(-40, 40)]
-                    + (rng.integers(-10**6, 10**6, 5000) / 10.0 ** rng.integers(0, 17, 5000))
-                    .tolist())
-    ours = sv._ujson_floats(vals).to_pylist()
-    text = pd.DataFrame({"x": vals}).to_json(orient="records", double_precision=15)
-    theirs = [r.split(":", 1)[1] for r in text[2:-2].split("},{")]
-    assert ours == theirs
+def _iso(seconds):
+    """The oracle of a date-time: the standard library's, to the second, UTC."""
+    if seconds is None or not math.isfinite(seconds):
+        return None
+    stamp = datetime.datetime.fromtimestamp(round(seconds), tz=datetime.UTC)
+    return stamp.strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def test_json_strings_equal_pandas_to_json():
-    ids = HOSTILE_IDS + ["".join(map(chr, range(c, c + 200))) for c in range(0, 0x3000, 200)]
-    text = pd.DataFrame({"s": ids}).to_json(orient="records")
-    theirs = text[len('[{"s":'):-len("}]")].split('},{"s":')
-    assert [sv._json_str(s) for s in ids] == theirs
+def _finite(v):
+    return v if v is not None and math.isfinite(v) else None
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_json_parses_back_to_the_stored_values(tmp_path, seed):
+    """json.loads of the output against the database read with sqlite3: every float equal
+    to the stored one (shortest round-trip text), null where it is missing or not finite,
+    every hostile id intact, the text ASCII."""
+    db = tmp_path / "s.db"
+    _random_db(db, np.random.default_rng(seed))
+    out = runner.invoke(app, ["status", "--db", str(db), "--format", "json", "--now", NOW])
+    assert out.exit_code == 0, out.output
+    assert out.stdout_bytes.isascii() and out.stdout_bytes.endswith(b"]\n")
+    recs = {r["component"]: r for r in json.loads(out.stdout_bytes)}
+    con = sqlite3.connect(db)
+    stored = con.execute("SELECT component, level, hi, n, t, rul_median, rul_low, rul_high, "
+                         "failed_at, seen FROM components").fetchall()
+    con.close()
+    assert set(recs) == {r[0] for r in stored} and len(recs) == len(stored)
+    assert set(HOSTILE_IDS) <= set(recs)
+    levels = {0: "ok", 1: "warning", 2: "alarm"}
+    now = datetime.datetime.fromisoformat(NOW).timestamp()
+    for comp, level, hi, n, t, med, low, high, failed_at, seen in stored:
+        r = recs[comp]
+        failed = failed_at is not None and math.isfinite(failed_at)
+        due = None if failed or med is None or seen is None else _finite(seen + med * 3600.0)
+        want = {"level": levels[level], "failed": failed,
+                "stale": seen is not None and now - seen > 3600.0, "rul": _finite(med),
+                "rul_low": _finite(low), "rul_high": _finite(high), "hi": _finite(hi),
+                "n": n, "t": _finite(t), "last_seen": _iso(seen), "due": _iso(due),
+                "time_unit": "h"}
+        assert {k: r[k] for k in want} == want, comp
+        for k in ("rul", "rul_low", "rul_high", "hi", "t"):  # bit for bit, the sign of 0 too
+            if r[k] is not None:
+                assert math.copysign(1.0, r[k]) == math.copysign(1.0, want[k]), (comp, k)
 
 
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])

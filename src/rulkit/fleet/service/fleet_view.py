@@ -40,6 +40,8 @@ one index of :data:`rulkit.fleet.store.schema.COMPONENTS`."""
 
 def num(v: Any) -> Any:
     """JSON-safe number: NaN, infinities and None become None."""
+    if type(v) is float:  # the common case first: a column value of SQLite or psycopg
+        return v if math.isfinite(v) else None
     if v is None:
         return None
     if isinstance(v, (bool, np.bool_)):
@@ -54,20 +56,42 @@ def _float(v: Any) -> float:
     return math.nan if v is None else float(v)
 
 
+_SEEN, _MEDIAN, _FAILED = FIELDS.index("seen"), FIELDS.index("rul_median"), \
+    FIELDS.index("failed_at")
+
+
+def component_items(rows: list[tuple], est: Estimator, now: float) -> list[dict[str, Any]]:
+    """The components as the API returns them (rows of :data:`FIELDS`): the due dates and
+    stale flags of the whole page in one array operation each (docs/systems/embedded-rul.md
+    §7), the rest copied per row."""
+    if not rows:
+        return []
+    seen = np.array([r[_SEEN] for r in rows], dtype=np.float64)  # None -> NaN
+    med = np.array([r[_MEDIAN] for r in rows], dtype=np.float64)
+    failed = np.array([r[_FAILED] is not None for r in rows])
+    due = np.where(failed, np.nan, due_time(seen, med, est.time_unit)).tolist()
+    stale_flags = stale(seen, now, est.rules).tolist()
+    out = []
+    for r, d, st in zip(rows, due, stale_flags, strict=True):
+        (component, t, n, hi, fhi, _frul, _valid, level, rul_median, rul_low, rul_high,
+         failed_at, last_seen) = r
+        is_failed = failed_at is not None
+        rul = num(rul_median)
+        out.append({
+            "component": component, "level": LEVEL_NAMES[int(level)], "failed": is_failed,
+            "failed_at": num(failed_at), "stale": st,
+            "rul_state": "failed" if is_failed else ("pending" if rul_median is None
+                                                     or rul_median != rul_median
+                                                     else "estimated"),
+            "rul": rul, "rul_low": num(rul_low), "rul_high": num(rul_high), "due": num(d),
+            "hi": num(hi), "fhi": num(fhi), "last_time": num(t), "last_seen": num(last_seen),
+            "n": int(n)})
+    return out
+
+
 def component_item(row: tuple, est: Estimator, now: float) -> dict[str, Any]:
     """One component as the API returns it (a row of :data:`FIELDS`)."""
-    d = dict(zip(FIELDS, row, strict=True))
-    med, seen = _float(d["rul_median"]), _float(d["seen"])
-    failed = d["failed_at"] is not None
-    state = "failed" if failed else ("pending" if math.isnan(med) else "estimated")
-    due = math.nan if failed else due_time(np.array([seen]), np.array([med]), est.time_unit)[0]
-    return {"component": d["component"], "level": LEVEL_NAMES[int(d["level"])],
-            "failed": failed, "failed_at": num(d["failed_at"]),
-            "stale": bool(stale(np.array([seen]), now, est.rules)[0]),
-            "rul_state": state, "rul": num(med), "rul_low": num(d["rul_low"]),
-            "rul_high": num(d["rul_high"]), "due": num(due), "hi": num(d["hi"]),
-            "fhi": num(d["fhi"]), "last_time": num(d["t"]), "last_seen": num(d["seen"]),
-            "n": int(d["n"])}
+    return component_items([row], est, now)[0]
 
 
 def _filter(level: str | None, est: Estimator, now: float) -> tuple[str, list[Any]]:
@@ -152,15 +176,52 @@ def decode_cursor(cursor: str, sort: str) -> list[Any]:
 
 def level_total(conn: Any, level: str | None, est: Estimator, now: float) -> int:
     """Components under the ``level`` filter: from table ``level_counts`` (kept by every
-    write), stale ones by a range of the ``seen`` index."""
+    write), stale ones by :func:`stale_total`."""
     if level == "stale":
-        cond, params = _filter(level, est, now)
-        return int(conn.execute(f"SELECT COUNT(*) FROM components WHERE {cond}",
-                                params).fetchone()[0])
+        after = est.rules.stale_after
+        return 0 if after is None else stale_total(conn, now - after)
     counts = dict(conn.execute("SELECT level, n FROM level_counts").fetchall())
     if level is None:
         return int(sum(counts.values()))
     return int(counts.get(LEVEL_CODES[level], 0))
+
+
+_STALE_COUNTS: dict[Any, tuple[Any, float, int]] = {}
+"""Per open connection: (the version of the data its snapshot sees, a cutoff, the number of
+components seen before that cutoff)."""
+
+
+def data_version(conn: Any) -> Any:
+    """A value that is equal for two snapshots only if they see the same data: on SQLite the
+    connection's ``PRAGMA data_version`` (moved by other connections' commits; read inside a
+    read transaction, it is that snapshot's) with its own ``total_changes``; on PostgreSQL
+    the transaction's snapshot (``pg_current_snapshot()``: the transactions it sees)."""
+    if getattr(conn, "dialect", "sqlite") == "postgresql":
+        return conn.execute("SELECT pg_current_snapshot()::text").fetchone()[0]
+    return (conn.execute("PRAGMA data_version").fetchone()[0], conn.total_changes)
+
+
+def stale_total(conn: Any, cutoff: float) -> int:
+    """Components whose last acquisition is before ``cutoff`` (``seen < cutoff``), inside the
+    caller's snapshot. Staleness moves with the clock, so it has no stored count; the count
+    of the last call on this connection is reused while the data is unchanged
+    (:func:`data_version`), moved by the components seen between the two cutoffs (a short
+    range of the ``seen`` index) instead of counted again over the whole range."""
+    version = data_version(conn)
+    cached = _STALE_COUNTS.get(conn)
+    if cached is not None and cached[0] == version:
+        _, c0, n0 = cached
+        lo, hi = min(c0, cutoff), max(c0, cutoff)
+        moved = int(conn.execute("SELECT COUNT(*) FROM components WHERE seen >= ? AND "
+                                 "seen < ?", (lo, hi)).fetchone()[0])
+        n = n0 + moved if cutoff >= c0 else n0 - moved
+    else:
+        n = int(conn.execute("SELECT COUNT(*) FROM components WHERE seen < ?",
+                             (cutoff,)).fetchone()[0])
+    if len(_STALE_COUNTS) >= 64:  # connections closed and replaced: forget them all
+        _STALE_COUNTS.clear()
+    _STALE_COUNTS[conn] = (version, cutoff, n)
+    return n
 
 
 def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
@@ -174,7 +235,7 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     sql, params = page_query(sort, level, est, now, key, offset + limit)
     rows = conn.execute(sql, params).fetchall()[offset:]
     nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
-    items = [component_item(r[:len(FIELDS)], est, now) for r in rows]
+    items = component_items([r[:len(FIELDS)] for r in rows], est, now)
     return level_total(conn, level, est, now), items, nxt
 
 
@@ -245,6 +306,6 @@ def time_origin(item: dict[str, Any], est: Estimator) -> float | None:
     return float(item["last_seen"] - item["last_time"] * scale)
 
 
-__all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "cursor_of", "decode_cursor",
-           "forecast", "level_total", "list_components", "num", "page_query", "summary",
-           "time_origin"]
+__all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "component_items", "cursor_of",
+           "data_version", "decode_cursor", "forecast", "level_total", "list_components", "num",
+           "page_query", "stale_total", "summary", "time_origin"]

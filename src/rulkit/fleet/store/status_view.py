@@ -15,10 +15,9 @@ same bytes (tested, tests/fleet/store/test_status_view.py):
   or due date (``sort``); the API's orders.
 * **Text.** Floats in CSV as Arrow writes them (shortest round-trip digits, positional for
   decimal exponents -6 to 9, ``1e+10``/``1e-7`` otherwise, no ``.0``, ``inf``; a missing
-  value empty), in JSON as pandas' ujson writes them with ``double_precision=15`` (15
-  decimals by its own rounding, trailing zeros cut, ``%.15g`` beyond 1e16 and below 1e-15,
-  non-finite and missing as ``null``; :func:`_ujson_floats`), strings quoted as Arrow and
-  ujson quote them. Date-times as ISO 8601 UTC (``2024-05-01T12:00:00Z``).
+  value empty); in JSON as orjson writes them (the shortest text that reads back as the same
+  float64, ``1.0``, ``1e-7``, ``1e16``; non-finite and missing as ``null``), the text ASCII
+  (:func:`format_json`). Date-times as ISO 8601 UTC (``2024-05-01T12:00:00Z``).
 * **Read-only.** The database is opened as :class:`~rulkit.fleet.store.sqlite.ComponentStore`
   opens it with ``readonly=True``
   (:func:`~rulkit.fleet.store.database_file.read_verified`: through SQLite, ``query_only``)
@@ -27,7 +26,6 @@ same bytes (tested, tests/fleet/store/test_status_view.py):
 
 from __future__ import annotations
 
-import json
 import sqlite3
 from dataclasses import dataclass, field
 from operator import itemgetter
@@ -332,102 +330,45 @@ def format_csv(cols: dict[str, Any]) -> bytes:
     return buf.getvalue()
 
 
-# --------------------------------------------------------------------------- JSON (ujson's text)
-def _json_str(s: str) -> str:
-    """``s`` as pandas' JSON writer quotes it: ASCII only, ``/`` as ``\\/``, DEL raw."""
-    if "\x7f" in s:
-        return ('"' + "\x7f".join(json.dumps(p)[1:-1] for p in s.split("\x7f"))
-                .replace("/", "\\/") + '"')
-    return json.dumps(s).replace("/", "\\/")
+# --------------------------------------------------------------------------- JSON
+def _ascii_json(text: bytes) -> bytes:
+    """UTF-8 JSON with every non-ASCII character as a ``\\uXXXX`` escape (a surrogate pair
+    beyond U+FFFF), so no byte of an id reaches a terminal raw; outside strings JSON text is
+    ASCII, so escaping every such character keeps the text's meaning."""
+    if text.isascii():
+        return text
 
+    def esc(ch: str) -> str:
+        c = ord(ch)
+        if c < 0x10000:
+            return f"\\u{c:04x}"
+        c -= 0x10000
+        return f"\\u{0xD800 + (c >> 10):04x}\\u{0xDC00 + (c & 0x3FF):04x}"
 
-def _ujson_floats(a: np.ndarray) -> Any:
-    """Each value as pandas' ``to_json(double_precision=15)`` writes it (its vendored
-    ultrajson), as a ``large_string`` array: |x| in [1e-15, 1e16 - 1] as the integer part,
-    ``.`` and 15 decimals rounded its way (``(x - whole) * 1e15``, a tie rounded up when the
-    truncated decimals are odd or zero) with trailing zeros cut (``.0`` kept); otherwise
-    ``%.15g``; NaN and infinities ``null``; -0.0 as ``0.0``."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
-    a = np.asarray(a, dtype=np.float64)
-    n = len(a)
-    v = np.abs(a)
-    finite = np.isfinite(v)
-    plain = finite & (v <= 1e16 - 1) & ~((v != 0.0) & (v < 1e-15))
-    v = np.where(plain, v, 0.0)
-    whole = v.astype(np.uint64)
-    tmp = (v - whole.astype(np.float64)) * 1e15
-    frac = tmp.astype(np.uint64)
-    diff = tmp - frac.astype(np.float64)
-    frac += ((diff > 0.5) | ((diff == 0.5) & ((frac == 0) | (frac & 1 == 1)))).astype(np.uint64)
-    roll = frac >= 10**15
-    frac[roll] = 0
-    whole[roll] += 1
-    s = pa.large_string()
-    digits = pc.utf8_rtrim(pc.utf8_lpad(pc.cast(_num(frac, pa.uint64()), s), 15, "0"), "0")
-    neg = (a < 0) & plain
-    sign_off = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(neg, out=sign_off[1:])
-    sign = pa.Array.from_buffers(s, n, [None, pa.py_buffer(sign_off),
-                                        pa.py_buffer(b"-" * int(sign_off[-1]))])
-    out = pc.binary_join_element_wise(
-        sign, pc.cast(_num(whole, pa.uint64()), s), _const(".", n),
-        pc.utf8_rpad(digits, 1, "0"), _const("", n))  # no decimals: ".0"
-    if not plain.all():
-        idx = np.flatnonzero(~plain).tolist()
-        out = pc.replace_with_mask(out, _bools(~plain), _strs(
-            [format(a[i], ".15g") if finite[i] else "null" for i in idx]))
-    return out
-
-
-def _json_texts(values: list[str | None]) -> Any:
-    """JSON strings (or ``null``) of a text column: one literal when every value is the
-    same, else a ``large_string`` array."""
-    distinct = set(values)
-    if len(distinct) == 1:
-        (v,) = distinct
-        return "null" if v is None else _json_str(v)
-    return _strs(["null" if v is None else _json_str(v) for v in values])
+    return "".join(esc(ch) if ord(ch) > 0x7F else ch for ch in text.decode()).encode()
 
 
 def format_json(cols: dict[str, Any]) -> list[bytes]:
-    """The JSON text of ``rulkit status --format json`` (records, as pandas'
-    ``to_json(orient="records", double_precision=15)`` writes them), without the final
-    newline, as byte chunks to write one after the other (no copy of the whole text to join
-    them)."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
+    """The JSON text of ``rulkit status --format json``: an array of records of
+    :data:`STATUS_COLUMNS` written by orjson, without the final newline, as byte chunks.
 
-    comps = cols["component"]
-    n = len(comps)
+    Floats are the shortest text that reads back as the same float64 (``json.loads`` gives
+    the stored value bit for bit); NaN and infinities ``null``; date-times ISO 8601 UTC
+    strings (``2024-05-01T12:00:00Z``) or ``null``; booleans ``true``/``false``; ASCII only
+    (:func:`_ascii_json`)."""
+    import orjson
+
+    n = len(cols["component"])
     if n == 0:
         return [b"[]"]
-    text = "".join(comps)
-    if text.isascii() and text.isprintable() and not any(c in text for c in '"\\/'):
-        parts: list[Any] = ['{"component":"', _strs(comps), '","level":"']
-    else:
-        parts = ['{"component":', _strs([_json_str(c) for c in comps]), ',"level":"']
-    parts += [_levels(cols["level"]), '"']
-    for c in STATUS_COLUMNS[2:]:
-        parts.append(f',"{c}":')
-        if c in BOOL_COLUMNS:
-            parts.append(pc.if_else(_bools(cols[c]), _const("true", n), _const("false", n)))
-        elif c == "n":
-            parts.append(pc.cast(_num(cols[c].astype(np.int64), pa.int64()), pa.large_string()))
-        elif c in TEXT_COLUMNS:
-            parts.append(_json_texts(cols[c]))
-        else:
-            parts.append(_ujson_floats(cols[c]))
-    parts.append("},")
-    merged: list[Any] = []
-    for p in parts:  # adjacent literals as one constant column
-        if isinstance(p, str) and merged and isinstance(merged[-1], str):
-            merged[-1] += p
-        else:
-            merged.append(p)
-    rows = pc.binary_join_element_wise(
-        *[_const(p, n) if isinstance(p, str) else p for p in merged], _const("", n))
-    off = np.frombuffer(rows.buffers()[1], dtype=np.int64)[rows.offset:rows.offset + n + 1]
-    body = memoryview(rows.buffers()[2])[int(off[0]):int(off[-1]) - 1]  # without the last ","
-    return [b"[", bytes(body), b"]"]
+    values: dict[str, list[Any]] = {}
+    for c in STATUS_COLUMNS:
+        v = cols[c]
+        if c == "level":
+            v = [LEVEL_NAMES[k] for k in np.asarray(v, dtype=np.int64).tolist()]
+        elif isinstance(v, np.ndarray):
+            v = v.tolist()  # NaN and inf stay floats: orjson writes them as null
+        values[c] = list(v)
+    records = [dict(zip(STATUS_COLUMNS, row, strict=True))
+               for row in zip(*values.values(), strict=True)]
+    return [_ascii_json(orjson.dumps(records))]
