@@ -133,6 +133,24 @@ def test_twelve_onsets_are_too_coarse_and_halving_converges_to_the_quadrature():
     assert abs(_log_lik(hist, tau, theta, 0.0, grid) - ref) < 2 * ONSET_GRID_TOL
 
 
+def test_a_grid_stopped_at_its_cap_before_converging_is_a_stored_warning(monkeypatch):
+    """With the refinement capped at the starting 12 values (a fleet whose onsets the largest
+    grid cannot resolve), fit_onset reports the quadrature error it stopped at, and check_fit
+    turns it into a warning that says what to do."""
+    import rulkit.fleet.learned.onset as onset
+    from rulkit.fleet.learned.checks import check_fit
+
+    hist, _, _ = _onset_fleet(6)
+    monkeypatch.setattr(onset, "ONSET_GRID_MAX", 12)
+    model = onset.fit_onset(hist)
+    assert len(model.grid) == 12
+    assert model.diagnostics.grid_error > onset.ONSET_GRID_TOL
+    assert model.diagnostics.grid_error == pytest.approx(onset.grid_error(
+        model.params().theta(), hist, hist.t / model.time_scale, model.shape, model.grid))
+    warnings = [w for w in check_fit(model) if "onset grid" in w]
+    assert len(warnings) == 1 and "12 values" in warnings[0]
+
+
 @pytest.mark.slow
 def test_the_fitted_grid_resolves_the_true_onset_distribution():
     """The grid fit_onset keeps is a converged quadrature of eq. (9): at the generator's own
@@ -143,6 +161,7 @@ def test_the_fitted_grid_resolves_the_true_onset_distribution():
     hist, tau, truth = _onset_fleet(8)
     model = fit_onset(hist)
     assert model.time_scale == tau and len(model.grid) > 12
+    assert model.diagnostics.grid_error == 0.0  # converged: no warning
     brute = np.linspace(0.0, model.grid[-1], 12 * 32 + 1)
     for theta, lam in ((truth.theta(), 0.0), (model.params().theta(), model.shape)):
         err = _log_lik(hist, tau, theta, lam, model.grid) - _log_lik(hist, tau, theta, lam, brute)

@@ -171,6 +171,13 @@ def check_fit(model: Any, coverage: float = math.nan) -> list[str]:
             out.append(f"{name}: the Paris exponent m = {model.paris_exponent:g} is at an end "
                        "of the range searched (0 to 8): the growth is slower or faster than "
                        "any Paris law there; consider the onset or similarity candidates")
+        if diag.grid_error > 0:
+            out.append(f"{name}: the onset grid stopped at its largest size "
+                       f"({len(model.grid)} values) with the likelihood still moving by "
+                       f"{diag.grid_error:.3g} nats when its step is halved: the onsets are "
+                       "more tightly grouped than the grid resolves, and the growth law may be "
+                       "biased. Check the histories' time axis (one unit far from the others "
+                       "stretches the grid) or prefer another candidate")
     out += _rate_warnings(name, model)
     if math.isfinite(coverage) and not COVERAGE_BAND[0] <= coverage <= COVERAGE_BAND[1]:
         side = "narrow" if coverage < COVERAGE_BAND[0] else "wide"

@@ -76,10 +76,13 @@ def minimize_bounded(fun_grad: Callable[[FloatArray], tuple[float, FloatArray]],
 @dataclass(frozen=True)
 class FitDiagnostics:
     """What a fit's optimiser reported (read by :mod:`rulkit.fleet.learned.checks`): its
-    :class:`OptimResult` and whether the shape sits at an end of its range."""
+    :class:`OptimResult`, whether the shape sits at an end of its range, and, for the onset
+    model, the onset grid's quadrature error (nats) when its refinement stopped at the largest
+    grid before converging (0: converged)."""
 
     optim: OptimResult
     shape_at_edge: bool = False
+    grid_error: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -345,19 +345,23 @@ def fit_onset(hist: Histories, noise: str = "additive", *, start: OnsetModel | N
         best, edge = at(start.shape), False
     else:
         best, edge = profile_shape(at, m0)
-    while start is None and 2 * len(grid) - 1 <= ONSET_GRID_MAX \
-            and grid_error(best.theta, hist, x, best.lam, grid) > ONSET_GRID_TOL:
+    error = 0.0
+    while start is None:
+        error = grid_error(best.theta, hist, x, best.lam, grid)
+        if error <= ONSET_GRID_TOL or 2 * len(grid) - 1 > ONSET_GRID_MAX:
+            break
         # at() reads setup and theta0: the halved grid, warm-started from the coarser fit
         grid, theta0 = halved(grid), best.theta
         setup = GrowthSpec(noise=noise, walk=True, onset_grid=grid)
         best, edge = profile_shape(at, 2.0 * (1.0 - best.lam))
+    unconverged = error if error > ONSET_GRID_TOL else 0.0
     p = GrowthParams.from_theta(best.theta)
     return OnsetModel(
         noise=noise, shape=best.lam, mean=p.mean, cov=p.cov, hi_noise_sd=math.sqrt(p.r_hi),
         log_noise_sd=math.sqrt(p.r_log), walk_sd=math.sqrt(p.q), time_scale=tau, grid=grid,
         onset_mean=p.onset_mean, onset_sd=p.onset_sd, n_units=hist.n_units,
         n_failed=int(hist.failed.sum()), log_likelihood=best.log_likelihood,
-        diagnostics=FitDiagnostics(best.optim, edge))
+        diagnostics=FitDiagnostics(best.optim, edge, unconverged))
 
 
 __all__ = ["ONSET_GRID_MAX", "ONSET_GRID_SIZE", "ONSET_GRID_TOL", "MixtureState", "OnsetModel",
