@@ -208,7 +208,7 @@ def clone_component(sdb, source, new_ids):
     """Copy a stored component's row under other ids, bypassing the ingest validation: the
     API and the page must cope with whatever a database holds (older versions, other
     writers), whatever id alphabet ingestion accepts today."""
-    from rulkit.fleet.store.sqlite import ROW_FIELDS
+    from rulkit.fleet.store.tracker_rows import ROW_FIELDS
 
     cols = ", ".join((*ROW_FIELDS, "max_level"))
     with sdb.store() as s, s._transaction("IMMEDIATE") as conn:

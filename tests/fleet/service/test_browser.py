@@ -108,7 +108,8 @@ def test_dashboard_in_headless_chromium(tmp_path, live_server, need):
     from rulkit.fleet.monitoring.rules import MonitoringRules
     from rulkit.fleet.service.app import create_app
     from rulkit.fleet.service.db import ServiceDB
-    from rulkit.fleet.store.sqlite import ROW_FIELDS, ComponentStore
+    from rulkit.fleet.store.sqlite import ComponentStore
+    from rulkit.fleet.store.tracker_rows import ROW_FIELDS
 
     now = time.time()
     rules = MonitoringRules(time_unit="h", lead_time=150.0, stale_after=36 * 3600.0)

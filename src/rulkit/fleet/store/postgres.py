@@ -44,7 +44,8 @@ from rulkit.fleet.store.database_file import (
 )
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
 from rulkit.fleet.store.schema import create_schema, needs_migration
-from rulkit.fleet.store.sqlite import HISTORY_FIELDS, ComponentStore, HistoryChunk
+from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.store.tracker_rows import HISTORY_FIELDS, HistoryChunk
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 

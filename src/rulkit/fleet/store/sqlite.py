@@ -104,61 +104,23 @@ from rulkit.fleet.store.prognosis import (
     write_monitoring,
 )
 from rulkit.fleet.store.schema import add_level_counts, create_schema, needs_migration
+from rulkit.fleet.store.tracker_rows import (
+    HISTORY_FIELDS,
+    ROW_FIELDS,
+    TRACKER_OUT,
+    HistoryChunk,
+    refuse_non_finite,
+    stored_state,
+)
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
     TrackerConfig,
-    TrackerState,
     tracker_outputs,
 )
 from rulkit.fleet.tracking.tracker_run import tracker_run, tracker_strategy
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
-
-STATE_FIELDS = ("t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul")
-OUTPUT_FIELDS = ("valid", "level", "rul_low", "rul_high")
-ROW_FIELDS = (*STATE_FIELDS, *OUTPUT_FIELDS)
-HISTORY_FIELDS = tuple(f for f in ROW_FIELDS if f != "n")
-
-
-_TRACKER_OUT = tuple(f for f in HISTORY_FIELDS if f not in ("t", "hi", "valid", "level"))
-"""The tracker's outputs per acquisition that the history stores as they are."""
-
-
-def _stored_state(names: list[str], stored: dict[str, tuple]
-                  ) -> tuple[TrackerState, list[int]]:
-    """The trackers' state of ``names`` (empty for a new one) from their ``stored`` rows
-    (:data:`ROW_FIELDS` first), and the indices of the stored ones."""
-    state = TrackerState.empty(len(names))
-    known = [i for i, name in enumerate(names) if name in stored]
-    if known:  # one array of the stored rows' ROW_FIELDS
-        vals = np.array([stored[names[i]][:len(ROW_FIELDS)] for i in known], dtype=np.float64)
-        col = {f: vals[:, j] for j, f in enumerate(ROW_FIELDS)}
-        state.t[known], state.n[known] = col["t"], col["n"]
-        state.hi[known], state.rul[known] = col["hi"], col["rul"]
-        state.ab[known] = np.column_stack([col["fhi"], col["dhi"]])
-        state.abg[known] = np.column_stack([col["frul"], col["drul"], col["d2rul"]])
-    return state, known
-
-
-def _refuse_non_finite(out: dict[str, np.ndarray], rank: np.ndarray, row: np.ndarray,
-                       comp: np.ndarray, t: np.ndarray) -> None:
-    """:class:`IngestError` for the first row of a block (by acquisition rank, then key
-    order) whose tracker output is not finite, named by its batch ``row``, ``comp`` and
-    ``t``."""
-    finite = np.ones(rank.size, dtype=bool)
-    for f in _TRACKER_OUT:
-        finite &= np.isfinite(out[f])
-    if finite.all():
-        return
-    bad = np.flatnonzero(~finite)
-    q = int(bad[np.argsort(rank[bad], kind="stable")[0]])
-    f = next(f for f in _TRACKER_OUT if not np.isfinite(out[f][q]))
-    raise IngestError(
-        f"row {row[q]} (component {comp[q]!r}), column 'time' = {_fmt(t[q])}: the tracker's "
-        f"{f} is not finite (the interval since the previous "
-        "acquisition or the time itself is too large for float64 arithmetic); use a smaller "
-        "time unit or offset")
 
 
 def _finite(v: float) -> float | None:
@@ -231,19 +193,6 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     finally:
         for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm"), Path(f"{tmp}-journal")):
             p.unlink(missing_ok=True)
-
-
-class HistoryChunk:
-    """History rows of one ingestion as columns: ``columns`` are the arrays (or sequences) of
-    ``component``, the :data:`HISTORY_FIELDS` and ``extra_cols``, in that order, all of one
-    length; ``ingest`` the id of the ingestion (:meth:`ComponentStore._write_history`)."""
-
-    __slots__ = ("columns", "extra_cols", "ingest")
-
-    def __init__(self, columns: list[Any], ingest: int, extra_cols: tuple[str, ...] = ()):
-        self.columns = columns
-        self.ingest = ingest
-        self.extra_cols = extra_cols
 
 
 # --------------------------------------------------------------------------- the store
@@ -593,7 +542,7 @@ class ComponentStore:
         names = [str(u) for u in uniq]
         if stored is None:
             stored = self._load_states(names)
-        state, known = _stored_state(names, stored)
+        state, known = stored_state(names, stored)
         t = acq["t"].to_numpy(dtype=np.float64)
         hi = acq["hi"].to_numpy(dtype=np.float64)
         rows_all = acq["row"].to_numpy()
@@ -638,7 +587,7 @@ class ComponentStore:
                                    strategy=strategy)
             rank_b = np.arange(rows_b.size) - seg[cidx]
             comp_b = names_arr[comps][cidx]
-            _refuse_non_finite(out, rank_b, rows_all[rows_b], comp_b, t_b)
+            refuse_non_finite(out, rank_b, rows_all[rows_b], comp_b, t_b)
             # the RUL and the rules' level per row; alerts where the level passes the highest
             # the component reached before (latched)
             got = prog.block(comps, seg, t_b, hi_b, out)
@@ -671,7 +620,7 @@ class ComponentStore:
         for c0 in range(0, comp.size, self.HISTORY_CHUNK):
             sl = slice(c0, c0 + self.HISTORY_CHUNK)
             cols_out = [comp[sl], t[sl], hi[sl]]
-            cols_out += [out[f][sl] for f in _TRACKER_OUT[:6]]  # fhi .. d2rul
+            cols_out += [out[f][sl] for f in TRACKER_OUT[:6]]  # fhi .. d2rul
             cols_out += [out["valid"][sl], got.rules.level[sl]]
             cols_out += [low[sl], high[sl], med[sl]]  # the extra column rul_median
             self._write_history(HistoryChunk(cols_out, ingest_id, ("rul_median",)))
