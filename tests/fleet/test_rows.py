@@ -9,7 +9,12 @@ from typer.testing import CliRunner
 
 from rulkit.cli import app
 from rulkit.fleet.learned.histories import HistoryError, histories_from_frame, read_histories
-from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
+from rulkit.fleet.rows import (
+    check_component_ids,
+    numeric_values,
+    previous_per_component,
+    read_csv_rows,
+)
 from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
 from rulkit.fleet.store.ingest import ingest_into
 
@@ -129,3 +134,14 @@ def test_a_typo_in_a_later_block_is_named_by_row(tmp_path, monkeypatch):
     lines[300] = "c0,1,0.3"
     f.write_text("\n".join(lines) + "\n")
     assert len(read_csv_rows(f)) == 400
+
+
+def test_previous_per_component_is_pandas_groupby_shift():
+    """Against pandas' groupby(...).shift(1) on random interleaved components, and the empty
+    and one-row cases."""
+    rng = np.random.default_rng(5)
+    for n in (0, 1, 2, 50, 1000):
+        codes = rng.integers(0, 7, n)
+        t = rng.normal(size=n)
+        want = pd.Series(t).groupby(codes).shift(1).to_numpy(dtype=np.float64)
+        np.testing.assert_array_equal(previous_per_component(codes, t), want)

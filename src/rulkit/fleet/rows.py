@@ -312,3 +312,21 @@ def _raise_bad_row(source: str | Path | bytes | memoryview, error: ErrorType, wh
                 f"{row.actual_columns} fields, the header {row.expected_columns}: "
                 f"{safe_text(row.text, 120)!r} ({n_bad} such row(s); nothing is read from a "
                 "file whose rows do not match its header)")
+
+
+def previous_per_component(codes: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Per row, ``t`` of the same component's previous row in file order (NaN for its first);
+    ``codes`` the rows' component codes. One stable sort by component, no per-component
+    work."""
+    t = np.asarray(t, dtype=np.float64)
+    prev = np.full_like(t, np.nan)
+    if t.size < 2:
+        return prev
+    order = np.argsort(codes, kind="stable")
+    c_sorted = np.asarray(codes)[order]
+    prev_sorted = np.empty_like(t)
+    prev_sorted[0] = np.nan
+    prev_sorted[1:] = t[order[:-1]]
+    prev_sorted[1:][c_sorted[1:] != c_sorted[:-1]] = np.nan
+    prev[order] = prev_sorted
+    return prev

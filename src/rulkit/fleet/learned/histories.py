@@ -22,7 +22,12 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
+from rulkit.fleet.rows import (
+    check_component_ids,
+    numeric_values,
+    previous_per_component,
+    read_csv_rows,
+)
 from rulkit.fleet.time_axis import (
     INSTALLED_COLUMN,
     TimeAxis,
@@ -197,7 +202,7 @@ def histories_from_frame(
         raise HistoryError(f"{where}: row {i + 1} (component {names_col[i]!r}): hi = {hi[i]:g} "
                            "< 0 (the health index is >= 0, failure at 1)")
     # time strictly increasing per unit, in file order
-    prev = pd.Series(t).groupby(codes).shift(1).to_numpy()
+    prev = previous_per_component(codes, t)
     back = np.isfinite(prev) & ~(t > prev)
     if back.any():
         i = int(np.flatnonzero(back)[0])

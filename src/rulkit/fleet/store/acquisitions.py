@@ -17,7 +17,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rulkit.fleet.rows import check_component_ids, numeric_values, read_csv_rows
+from rulkit.fleet.rows import (
+    check_component_ids,
+    numeric_values,
+    previous_per_component,
+    read_csv_rows,
+)
 from rulkit.fleet.time_axis import INSTALLED_COLUMN, TimeAxis, TimeAxisError
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
@@ -166,20 +171,6 @@ def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
         row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
 
 
-def _previous_per_component(codes: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Per row, ``t`` of the same component's previous row in batch order (NaN for its
-    first): one stable sort by component, no per-component work."""
-    order = np.argsort(codes, kind="stable")
-    c_sorted = codes[order]
-    prev_sorted = np.empty_like(t)
-    prev_sorted[0] = np.nan
-    prev_sorted[1:] = t[order[:-1]]
-    prev_sorted[1:][c_sorted[1:] != c_sorted[:-1]] = np.nan
-    prev = np.empty_like(t)
-    prev[order] = prev_sorted
-    return prev
-
-
 def validate_acquisitions(
     df: pd.DataFrame, config: TrackerConfig, hi_model: HealthIndexModel | None,
     time_axis: TimeAxis | None = None,
@@ -287,7 +278,7 @@ def validate_acquisitions(
     if inst is not None:
         out["installed"] = inst
     # time strictly increasing per component, in file order
-    prev_t = _previous_per_component(np.asarray(comp.cat.codes), t)
+    prev_t = previous_per_component(np.asarray(comp.cat.codes), t)
     back = np.isfinite(prev_t) & ~(t > prev_t)
     if back.any():
         i = int(np.flatnonzero(back)[0])
