@@ -149,7 +149,7 @@ def main() -> None:
         print(f"import rulkit.cli, rulkit.fleet.store.sqlite (start-up floor, pandas included): "
               f"wall {floor[0]:.2f} s, CPU {floor[1]:.2f} s, peak {floor[2]:.0f} MB")
         status_imports = ("import rulkit.cli, typer._adapters, rulkit.fleet.store.status_view, "
-                          "pyarrow.compute, pyarrow.csv")
+                          "pyarrow.csv, orjson")
         sfloor = median3([measure([sys.executable, "-c", _PEAK + status_imports])
                           for _ in range(args.repeats)])
         print(f"import rulkit.cli, rulkit.fleet.store.status_view, pyarrow (start-up floor of "
