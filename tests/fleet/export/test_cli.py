@@ -94,11 +94,10 @@ def test_export_of_a_paris_mixed_fit_runs_as_its_database(cc, tmp_path):
     from rulkit.fleet.export.device_spec import spec_from_database
     from rulkit.fleet.export.generator import generate_c
     from rulkit.fleet.export.verify import build, relative_error, segments
-    from rulkit.fleet.learned.datasets import GOAL_FLEETS, synthetic_growth_fleet
+    from rulkit.fleet.learned.datasets import goal_fleet
     from rulkit.fleet.store.sqlite import ComponentStore
 
-    kw = {k: v for k, v in GOAL_FLEETS["mixed"].items() if k != "noise"}
-    frame, _ = synthetic_growth_fleet(np.random.default_rng(11), 6, noise="mixed", **kw)
+    frame, _ = goal_fleet("mixed", np.random.default_rng(11), 6)
     csv, db, out = tmp_path / "mixed.csv", tmp_path / "fleet.db", tmp_path / "c"
     frame.to_csv(csv, index=False)
     fit = _run("fit", csv, "--db", db, "--model", "paris-mixed", "--time-unit", "h")

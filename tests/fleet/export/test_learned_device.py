@@ -19,7 +19,7 @@ from rulkit.fleet.export.verify import (
     scaled_error,
     segments,
 )
-from rulkit.fleet.learned.datasets import GOAL_FLEETS, synthetic_growth_fleet
+from rulkit.fleet.learned.datasets import GOAL_FLEETS, goal_fleet
 from rulkit.fleet.learned.degradation import KINDS, DegradationModel
 from rulkit.fleet.learned.hi_noise import NOISES, HiNoiseModel, fit_hi_noise
 from rulkit.fleet.learned.histories import histories_from_frame
@@ -80,10 +80,9 @@ def noise_fits():
     export does not care how the model was fitted). m = 2 gives the log form."""
     out = {}
     for noise in NOISES:
-        kw = {k: v for k, v in GOAL_FLEETS[noise].items() if k != "noise"}
-        frame, _ = synthetic_growth_fleet(np.random.default_rng(11), 8, noise=noise, **kw)
+        frame, _ = goal_fleet(noise, np.random.default_rng(11), 8)
         hist = histories_from_frame(frame, "test")
-        model = fit_hi_noise(hist, noise, shape=1.0 - float(kw["m"]) / 2.0)
+        model = fit_hi_noise(hist, noise, shape=1.0 - float(GOAL_FLEETS[noise]["m"]) / 2.0)
         out[noise] = (DeviceSpec("g", "test", fit_tracker_config(hist), None, model), frame)
     return out
 
