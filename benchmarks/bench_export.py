@@ -35,12 +35,14 @@ from rulkit.fleet.export.generator import template_context, template_environment
 from rulkit.fleet.export.op_count import steady_state_operations
 from rulkit.fleet.export.verify import (
     ERROR_BOUNDS,
+    LEARNED_COLUMNS,
     STRICT_FLAGS,
     DeviceLibrary,
     build,
     long_record_case,
     long_records,
     python_reference,
+    relative_error,
     scaled_error,
     segments,
 )
@@ -228,6 +230,14 @@ def hi_noise(work: Path, repeats: int) -> None:
               f"Kalman paris model (eq. (2)) of the same shape on the same rows: learned part "
               f"{1e9 * (c_kalman - c_chain):.0f} ns, ratio={c_learned / (c_kalman - c_chain):.2f}"
               f" (medians of {repeats}, {t.size} updates)")
+        ref = python_reference(spec, start1, df["time"].to_numpy(), df["hi"].to_numpy())
+        got = lib.run(start1, df["time"], df["hi"])
+        flt = build(spec, work / f"float_{name}", "float").run(start1, df["time"], df["hi"])
+        print(f"{'':21s} against the Python model on the fleet's {len(df)} acquisitions: "
+              "double, largest relative error " + ", ".join(
+                  f"{c} {relative_error(got[c], ref[c]).max():.2g}" for c in LEARNED_COLUMNS)
+              + "; float, max |C - Python| / max |Python| " + ", ".join(
+                  f"{c} {scaled_error(flt[c], ref[c]):.2g}" for c in LEARNED_COLUMNS))
         one = model.update(model.empty_state(1), df["time"].to_numpy()[:1],
                            df["hi"].to_numpy()[:1])
         tt, hh = df["time"].to_numpy()[1:2], df["hi"].to_numpy()[1:2]
