@@ -87,21 +87,26 @@ def noise_fits():
     return out
 
 
+def _saved_posterior(lib, spec, t, hi):
+    """(m_z, m_b, p_zz, p_zb, p_bb) of one component's saved state after ``t``, ``hi``."""
+    ctx = template_context(spec, "double", "rk")
+    layout = {f["name"]: f["offset"] for f in ctx["fields"]}
+    status, saved = lib.state_bytes(t, hi, int(ctx["state_bytes"]))
+    assert status == 0
+    return [struct.unpack_from("<d", saved, layout[f])[0] for f in STATE_NAMES]
+
+
 def _posterior_errors(lib, spec, frame, n_units=2):
     """scaled_error of each posterior field of the C (read from its saved state after every
     acquisition of the first ``n_units`` units) against the model's replay."""
     start, df = segments(frame)
     ref = spec.learned.replay(histories_from_frame(df, "test"))
-    layout = {f["name"]: f["offset"] for f in template_context(spec, "double", "rk")["fields"]}
-    size = int(template_context(spec, "double", "rk")["state_bytes"])
     rows = np.arange(start[n_units])
     got = np.empty((rows.size, 5))
     for k in rows:
         u = np.searchsorted(start, k, side="right") - 1
-        status, saved = lib.state_bytes(df["time"].to_numpy()[start[u]:k + 1],
-                                        df["hi"].to_numpy()[start[u]:k + 1], size)
-        assert status == 0
-        got[k] = [struct.unpack_from("<d", saved, layout[f])[0] for f in STATE_NAMES]
+        got[k] = _saved_posterior(lib, spec, df["time"].to_numpy()[start[u]:k + 1],
+                                  df["hi"].to_numpy()[start[u]:k + 1])
     want = np.column_stack([ref.m[rows], ref.p[rows]])
     return {f: scaled_error(got[:, j], want[:, j]) for j, f in enumerate(STATE_NAMES)}
 
@@ -183,10 +188,8 @@ def test_hi_noise_quantiles_against_root_finding_and_monte_carlo(cc, tmp_path, n
     k = start[0] + (start[1] - start[0]) // 2  # mid-life of the first unit
     out = lib.run(np.array([0, k + 1 - start[0]]), df["time"][start[0]:k + 1],
                   df["hi"][start[0]:k + 1])
-    layout = {f["name"]: f["offset"] for f in template_context(spec, "double", "rk")["fields"]}
-    size = int(template_context(spec, "double", "rk")["state_bytes"])
-    _, saved = lib.state_bytes(df["time"].to_numpy()[:k + 1], df["hi"].to_numpy()[:k + 1], size)
-    mz, mb, pzz, pzb, pbb = (struct.unpack_from("<d", saved, layout[f])[0] for f in STATE_NAMES)
+    mz, mb, pzz, pzb, pbb = _saved_posterior(lib, spec, df["time"].to_numpy()[:k + 1],
+                                             df["hi"].to_numpy()[:k + 1])
     q, r, tau = model.walk_sd**2, model.measured_var, model.time_scale
 
     def log_surv(w):
