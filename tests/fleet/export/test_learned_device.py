@@ -239,3 +239,16 @@ def test_hi_noise_variants_in_float_within_the_float_bounds(cc, tmp_path, noise_
         ref = python_reference(spec, start, df["time"].to_numpy(), df["hi"].to_numpy())
         for col in LEARNED_COLUMNS:
             assert scaled_error(got[col], ref[col]) <= ERROR_BOUNDS["float"][col], (noise, col)
+
+
+def test_hi_noise_variant_under_the_sanitizers(cc, tmp_path, noise_fits):
+    """paris-mixed (pow form) compiled with -fsanitize=undefined,address, equal to the normal
+    build on every output."""
+    from rulkit.fleet.export.verify import run_sanitized
+
+    spec, frame = noise_fits["mixed"]
+    start, df = segments(frame)
+    ref = build(spec, tmp_path / "lib").run(start, df["time"], df["hi"])
+    got = run_sanitized(spec, tmp_path / "san", start, df["time"], df["hi"])
+    for col in ref:
+        np.testing.assert_array_equal(got[col], ref[col])
