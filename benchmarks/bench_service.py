@@ -289,6 +289,11 @@ def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, f
           f"{cores} cores: {cores * 1e6 / ours:.0f} acquisitions/s "
           f"(bare: {cores * 1e6 / floor:.0f}/s); load average "
           f"{os.getloadavg()[0]:.1f}")
+    ms, bare_ms = ours * size / 1e3, floor * size / 1e3
+    print(f"  per batch of {size}: service {ms:.2f} ms of CPU, bare writes {bare_ms:.2f} ms, "
+          f"the batch's cost above its writes {ms - bare_ms:.2f} ms "
+          f"({(ms - bare_ms) / ms:.0%} of the service's CPU; it includes the readers' "
+          f"{w['gets'] / (n / size):.1f} GETs per batch, {int(w['gets'])} in all)")
 
 
 def main() -> None:
