@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 BODY_TYPES = {"json": "application/json", "csv": "text/csv",
               "parquet": "application/vnd.apache.parquet"}
 STAGES = (
-    ("body", "rulkit.fleet.service.app", "batch_frame"),
+    ("body", "rulkit.fleet.service.routes_acquisitions", "batch_frame"),
     ("validation", "rulkit.fleet.service.db", "validate_acquisitions"),
     ("write transaction", "rulkit.fleet.service.db.ServiceDB", "_commit"),
     ("  stored rows read", "rulkit.fleet.store.sqlite.ComponentStore", "_load_states"),
@@ -211,7 +211,7 @@ def main() -> None:
 
     # one thread: the profiler's timers and the trace callback see the whole request
     fastapi.routing.run_in_threadpool = inline  # type: ignore[assignment]
-    import rulkit.fleet.service.app as app_module
+    import rulkit.fleet.service.routes_acquisitions as app_module
 
     app_module.run_in_threadpool = inline  # type: ignore[assignment]
     print(f"# profile_ingest: {args.writers} writers x {args.batches} batches of "

@@ -98,6 +98,10 @@ class IngestResult:
     """Rows already stored (same component, time and HI), skipped."""
 
 
+Columns = Mapping[str, Any]
+"""A batch as columns: name -> array (what the service's JSON body decodes to)."""
+
+
 @dataclass(frozen=True)
 class Batch:
     """A validated batch (:func:`validate_acquisitions`) as arrays: per row, ``codes`` the index
@@ -202,10 +206,6 @@ def _read_parquet(source: str | Path | bytes | memoryview, where: str, max_rows:
         raise IngestError(f"{where}: column {names[int(np.flatnonzero(dup)[0])]!r} appears "
                           "twice; rename or drop one")
     return table.to_pandas()
-
-
-Columns = Mapping[str, Any]
-"""A batch as columns: name -> array (what the service's JSON body decodes to)."""
 
 
 def validate_acquisitions(
