@@ -6,17 +6,14 @@ fleet (``rulkit.fleet.learned.datasets.GOAL_FLEETS``, 40 units). This script sco
 growth law and onset (``growth_fleet_laws``), computed by brute-force Monte Carlo from the
 generator itself (future acquisitions at the generator's cadence, its HI noise, the event that
 ends a history and defines the truth: the first measured HI >= 1, the time interpolated from the
-acquisition before it). It is calibrated by construction: over many fleets its coverage is
-90 %. On one fleet its predictions share each unit's one future, so its coverage varies from
-fleet to fleet; the script prints it for the fleet of the goals (seed 0, as ``rulkit fleet-data``
-writes it) and for ``--fleets`` other seeds, with the same columns as the goals table:
+acquisition before it, however late it comes). It is calibrated by construction: over many
+fleets its coverage is 90 %. On one fleet its predictions share each unit's one future, so its
+coverage varies from fleet to fleet; the script prints it for the fleet of the goals (seed 0,
+as ``rulkit fleet-data`` writes it) and for ``--fleets`` other seeds, with the same columns as
+the goals table:
 
     .venv/bin/python benchmarks/fleet_oracle.py                       # 20 fleets of each kind
     .venv/bin/python benchmarks/fleet_oracle.py --datasets multiplicative --fleets 50
-
-The script also counts the failed units whose history ends at the acquisition the generator
-appends at 1.1 x life when none of the unit's acquisitions up to 1.05 x life measured hi >= 1:
-their truth is that appended time, whatever the noise.
 
 A model scores its intervals against the same truths with less knowledge (wider intervals), so
 a goal fleet on which even the oracle falls outside [0.85, 0.95] says more about the fleet than
@@ -61,19 +58,11 @@ def measured_crossing(t0: np.ndarray, hi0: np.ndarray, times: np.ndarray, his: n
     return np.where(above.any(axis=1), crossing - t0, np.inf)
 
 
-def generator_future(times: np.ndarray, his: np.ndarray, life: float, end_hi: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """The acquisitions a run-to-failure unit of ``synthetic_growth_fleet`` gets: none after
-    1.05 ``life``; if none of them measured hi >= 1, one more at 1.1 ``life`` with hi
-    ``end_hi`` (>= 1). The columns past 1.05 ``life`` become that last acquisition."""
-    late = times > 1.05 * life
-    return (np.where(late, 1.1 * life, times), np.where(late, end_hi[:, None], his))
-
-
 def oracle_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float, onset: float,
                      life: float, rng: np.random.Generator, draws: int) -> np.ndarray:
     """RUL quantiles (``LEVELS``) after each acquisition ``(t, hi)`` of one unit whose true law
-    is (``c``, ``onset``) and true life ``life``: ``draws`` futures from the generator."""
+    is (``c``, ``onset``) and whose law reaches hi = 1 at ``life`` (its cadence is ``life /
+    N_ACQ``): ``draws`` futures from the generator."""
     kw = GOAL_FLEETS[name]
     m, h0 = float(kw["m"]), float(kw["h0"])
     add = float(kw.get("hi_noise_sd", 0.02)) if kw["noise"] != "multiplicative" else 0.0
@@ -85,8 +74,7 @@ def oracle_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float, onset: 
         h = np.minimum(paris_curve(h0, c, m, np.maximum(times - onset, 0.0)), 10.0)
         e1 = mult * rng.standard_normal(h.shape)
         e2 = add * rng.standard_normal(h.shape)
-        end_hi = 1.0 + np.abs((add if add > 0 else mult) * rng.standard_normal(draws))
-        times, his = generator_future(times, np.maximum(h * np.exp(e1) + e2, 0.0), life, end_hi)
+        his = np.maximum(h * np.exp(e1) + e2, 0.0)
         r = measured_crossing(np.full(draws, t[i]), np.full(draws, hi[i]), times, his)
         out[i] = np.quantile(r, LEVELS)
     return out
@@ -98,28 +86,28 @@ def oracle_scores(name: str, seed: int, units: int, draws: int) -> dict[str, flo
     ``benchmarks/fleet_goals.py`` and ``rulkit fleet-data`` draw it)."""
     ss = np.random.SeedSequence(seed).spawn(2 + len(GOAL_FLEETS))
     k = list(GOAL_FLEETS).index(name)
-    df, t_fail = goal_fleet(name, np.random.default_rng(ss[2 + k]), units)
+    df, _ = goal_fleet(name, np.random.default_rng(ss[2 + k]), units)
     kw = GOAL_FLEETS[name]
     grow, onset = growth_fleet_laws(np.random.default_rng(ss[2 + k]), units,
                                     onset_frac=float(kw.get("onset_frac", 0.0)))
     c = paris_life(float(kw["h0"]), np.ones(1), float(kw["m"]))[0] / grow
+    life = onset + grow
     hist = histories_from_frame(df, name)
     truth = truth_rul(hist)
     rng = np.random.default_rng([seed, k])
-    err, cover, late, appended = [], [], [], 0
+    err, cover, late = [], [], []
     for u in np.flatnonzero(hist.failed):
         s = hist.rows(int(u))
         g = int(hist.names[u][1:])  # synthetic_growth_fleet names unit g as f"g{g:04d}"
-        appended += bool(hist.t[s][-1] == 1.1 * t_fail[g])
         ok = np.isfinite(truth[s])
         t, hi, y = hist.t[s][ok], hist.hi[s][ok], truth[s][ok]
-        q = oracle_quantiles(name, t, hi, float(c[g]), float(onset[g]), float(t_fail[g]),
+        q = oracle_quantiles(name, t, hi, float(c[g]), float(onset[g]), float(life[g]),
                              rng, draws)
         err.append(np.abs(q[:, 0] - y) / y)
         cover.append((q[:, 1] <= y) & (y <= q[:, 2]))
         late.append(t >= t[0] + 0.5 * (hist.failure_time()[u] - t[0]))
     e, cv, lt = (np.concatenate(a) for a in (err, cover, late))
-    return {"dataset": name, "seed": seed, "failed": len(err), "appended": appended,
+    return {"dataset": name, "seed": seed, "failed": len(err),
             "median_rel_err_last_half": float(np.median(e[lt])),
             "coverage_90": float(cv.mean()), "coverage_90_last_half": float(cv[lt].mean())}
 
@@ -143,8 +131,7 @@ def main() -> None:
         inside = ((late >= 0.85) & (late <= 0.95)).mean()
         print(f"\n== {name}: oracle on the goal fleet (seed 0, {int(first['failed'])} failed): "
               f"error {first['median_rel_err_last_half']:.3f}, coverage "
-              f"{first['coverage_90']:.3f} / {first['coverage_90_last_half']:.3f}; "
-              f"{int(first['appended'])} failed units end at the appended acquisition")
+              f"{first['coverage_90']:.3f} / {first['coverage_90_last_half']:.3f}")
         print(f"over {a.fleets} fleets: coverage (last half) mean {late.mean():.3f}, sd "
               f"{late.std():.3f}, 5-95 % {late.quantile(0.05):.3f} - {late.quantile(0.95):.3f};"
               f" inside [0.85, 0.95] in {inside:.0%}; coverage (all) mean "
