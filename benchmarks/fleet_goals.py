@@ -27,6 +27,10 @@ then their means over the seeds with standard errors, the model's paired differe
 oracle, and each reading of the coverage goal (all predictions; the last half of life):
 
     .venv/bin/python benchmarks/fleet_goals.py --datasets additive mixed --seeds 0 1 2 3 4
+    .venv/bin/python benchmarks/fleet_goals.py --summarise out/a/goals_seeds.csv out/b/...
+
+(``--out`` writes the rows to ``goals_seeds.csv``; ``--summarise`` prints the same summaries
+from such files, e.g. from seeds run in separate processes.)
 """
 
 from __future__ import annotations
@@ -252,8 +256,15 @@ def main() -> None:
                          "the oracle per seed, their means and standard errors")
     ap.add_argument("--draws", type=int, default=400,
                     help="the oracle's Monte Carlo futures per prediction (with --seeds)")
+    ap.add_argument("--summarise", type=Path, nargs="+", default=None,
+                    help="goals_seeds.csv files of --seeds runs: print their summaries")
     a = ap.parse_args()
     t0 = time.perf_counter()
+    if a.summarise is not None:
+        rows = pd.concat([pd.read_csv(f) for f in a.summarise], ignore_index=True)
+        for _, r in rows.sort_values(["dataset", "seed"]).groupby("dataset", sort=False):
+            print_seeds(r.reset_index(drop=True))
+        return
     if a.seeds is not None:
         print(f"load average {os.getloadavg()[0]:.1f} at the start; seeds {a.seeds}, "
               f"{a.units} units, leave-one-unit-out of the selected model")
