@@ -240,164 +240,192 @@ def status(
     _print_status(db, got[0], got[1], limit, fmt)
 
 
+def track(
+    acquisitions: Annotated[Path, typer.Argument(
+        help="CSV or Parquet file (or a directory of Parquet partitions) with columns "
+             "component, time and hi (or the CI columns of the database's HI model); "
+             "see docs/file-formats.md.")],
+    db: Annotated[str, typer.Option(
+        "--db", help="Component database: a SQLite file or a postgresql:// URL (created "
+                     "with the first accepted batch).")],
+    baseline: Annotated[Path | None, typer.Option(
+        "--baseline", help="CSV of healthy CIs (one column per CI) to fit and store "
+                           "the CI -> HI model (new database or one without a model).")
+    ] = None,
+    pfa: float = typer.Option(1e-6, "--pfa", min=0.0, max=1.0,
+                              help="False-alarm probability of HI = 0.5."),
+    offset: str = typer.Option("cdf05", "--offset", help="CI offset: cdf05 or none."),
+    dt: float | None = typer.Option(None, "--dt", help="Nominal acquisition interval."),
+    lambda_hi: float | None = typer.Option(None, "--lambda-hi", help="Tracking index, HI."),
+    lambda_rul: float | None = typer.Option(None, "--lambda-rul",
+                                            help="Tracking index, RUL."),
+    design_life: float | None = typer.Option(None, "--design-life",
+                                             help="dHI floor = 1/design life."),
+    warn_rul: float | None = typer.Option(
+        None, "--warn-rul", help="The seed chain's own warning RUL (its reproduction; the "
+                                 "store warns on --lead-time)."),
+    hi_sigma: float | None = typer.Option(None, "--hi-sigma",
+                                          help="HI std for the confidence limits."),
+    valid_d2rul: float | None = typer.Option(None, "--valid-d2rul",
+                                             help="Validity limit of |d2RUL/dt2|."),
+    paris_exponent: float | None = typer.Option(None, "--paris-exponent",
+                                                help="Paris exponent m of the RUL."),
+    initiation: str | None = typer.Option(None, "--initiation",
+                                          help="Track start: floor or two-point."),
+    estimator: str | None = typer.Option(
+        None, "--estimator", help="RUL estimator: auto (a fitted model, else the per-unit "
+                                  "trend; default), trend, or tracker (the seed-004 chain)."),
+    time_unit: str | None = typer.Option(
+        None, "--time-unit", help="Unit of the time column (h, d, s, kcycles...), printed "
+                                  "with every RUL; a duration gives due dates."),
+    lead_time: float | None = typer.Option(
+        None, "--lead-time", help="Warning when the RUL's low quantile is below this "
+                                  "(time unit of the data; default 100)."),
+    alarm_hi: float | None = typer.Option(
+        None, "--alarm-hi", help="Alarm level of the measured HI (default 1)."),
+    alarm_persistence: str | None = typer.Option(
+        None, "--alarm-persistence", help="Alarm when the measured HI reached --alarm-hi "
+                                          "in K of the last N acquisitions: K/N "
+                                          "(default 1/1)."),
+    stale_after: str | None = typer.Option(
+        None, "--stale-after", help="Stale after this long without an acquisition: 36h, "
+                                    "2d, 90min or seconds (default: not judged)."),
+    interval: float | None = typer.Option(
+        None, "--interval", help="Probability of the RUL interval (default 0.9)."),
+    wait: float = typer.Option(60.0, "--wait", min=0.0,
+                               help="Seconds to wait for another writer before giving up "
+                                    "(exit code 75, retry)."),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="Dask scheduler address (tcp://host:port): track a "
+                                  "directory of Parquet partitions on its workers."),
+    buckets: int = typer.Option(0, "--buckets", min=0,
+                                help="Tasks to split the components into with "
+                                     "--scheduler (0: 4 per worker)."),
+) -> None:
+    """Ingest acquisitions (one transaction) and print new warnings and alarms.
+
+    The estimator and alert options are stored with the database; given for an existing
+    one they replace the stored ones (every component's RUL and level recomputed).
+    Exit codes: 0 done; 1 the file or database was refused (nothing written); 2 a bad
+    option; 65 the database is damaged; 74 disk full or I/O error; 75 the database stayed
+    busy (retry); 77 the database or its directory cannot be written.
+    """
+    from rulkit.cli.errors import bad_option
+
+    given = {k: v for k, v in {
+        "dt": dt, "lambda_hi": lambda_hi, "lambda_rul": lambda_rul,
+        "design_life": design_life, "warn_rul": warn_rul, "hi_sigma": hi_sigma,
+        "valid_d2rul": valid_d2rul, "paris_exponent": paris_exponent,
+        "initiation": initiation}.items()
+        if v is not None}
+    if offset not in ("cdf05", "none"):
+        bad_option("--offset", f"expected cdf05 or none, got {offset!r}")
+    rule_opts = {k: v for k, v in {
+        "estimator": estimator, "time_unit": time_unit, "lead_time": lead_time,
+        "alarm_hi": alarm_hi, "alarm_persistence": alarm_persistence,
+        "stale_after": stale_after, "interval": interval}.items() if v is not None}
+    _rules_options(None, rule_opts)  # refuse bad values before reading anything
+    hi_model = _fit_baseline(baseline, pfa, offset) if baseline is not None else None
+    if scheduler is not None and not acquisitions.is_dir():
+        bad_option("--scheduler", "needs a directory of Parquet partitions")
+    df, cfg, rules, new = _track_inputs(acquisitions, db, given, rule_opts, scheduler)
+    res, created = _track_run(acquisitions, db, df, cfg, hi_model, rules, new, wait, scheduler,
+                              buckets)
+    _echo_track(res, created, db, rules)
+
+
+def _track_inputs(acquisitions: Path, db: str, given: dict[str, float | str],
+                  rule_opts: dict[str, Any], scheduler: str | None) -> tuple[Any, Any, Any, bool]:
+    """``track``'s file (None for a directory of partitions), tracker settings and rules, and
+    whether the database is new; a bad file or settings that differ from the stored ones
+    end the command."""
+    from rulkit.cli.errors import bad_option, fail
+    from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
+    from rulkit.fleet.store.database_file import StoreError, is_postgres_url
+    from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+
+    new_cfg = _tracker_options(given)
+    if scheduler is not None and is_postgres_url(db):
+        bad_option("--scheduler", "tracks into a SQLite database (give a file as --db)")
+    try:
+        df = None if acquisitions.is_dir() else read_acquisitions(acquisitions)
+        settings, stored_rules = _stored_settings(db)
+        rules = _rules_options(stored_rules, rule_opts)
+    except IngestError as err:
+        fail(f"{err} (nothing was written to {db})")
+    except StoreError as err:
+        fail(str(err), code=err.exit_code)
+    except ConnectionError as err:
+        fail(str(err))
+    if settings is None:
+        return df, new_cfg, rules, True
+    stored = settings[0].to_dict()
+    cfg = TrackerConfig.from_dict({**stored, **given})
+    if cfg != settings[0]:
+        diff = {k: (stored[k], v) for k, v in given.items() if stored[k] != v}
+        fail(f"{db} was created with other tracker settings (stored, given): {diff}; "
+             "the state is only meaningful with its own settings")
+    return df, cfg, rules, False
+
+
+def _track_run(acquisitions: Path, db: str, df: Any, cfg: Any, hi_model: Any, rules: Any,
+               new: bool, wait: float, scheduler: str | None, buckets: int) -> tuple[Any, bool]:
+    """``track``'s ingestion into ``db`` (PostgreSQL, a directory of partitions, or one
+    file): the result and whether the database was created; a refusal ends the command."""
+    from rulkit.cli.errors import fail
+    from rulkit.fleet.store.acquisitions import IngestError
+    from rulkit.fleet.store.database_file import StoreBusyError, StoreError, is_postgres_url
+    from rulkit.fleet.store.ingest import ingest_into
+
+    nothing = f"nothing was written to {db}"
+    try:
+        if is_postgres_url(db):
+            return _track_postgres(db, acquisitions, df, cfg, hi_model, rules, wait,
+                                   new=new), new
+        if df is None:  # a directory of partitions, serially or on Dask workers
+            from rulkit.fleet.store.partitions import track_directory
+
+            return track_directory(db, acquisitions, config=cfg, hi_model=hi_model,
+                                   scheduler=scheduler, buckets=buckets, timeout=wait,
+                                   rules=rules)
+        return ingest_into(db, df, config=cfg, hi_model=hi_model, source=str(acquisitions),
+                           timeout=wait, rules=rules)
+    except IngestError as err:
+        msg = str(err)  # file-level errors already start with the path
+        where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "
+        fail(f"{where}{msg} ({nothing})")
+    except StoreBusyError as err:
+        fail(f"{err}; retry the same command", code=err.exit_code)
+    except StoreError as err:
+        fail(f"{err} ({nothing})", code=err.exit_code)
+    except ConnectionError as err:
+        fail(f"{err} ({nothing})")
+
+
+def _echo_track(res: Any, created: bool, db: str, rules: Any) -> None:
+    """``track``'s summary line and its new warnings and alarms."""
+    from rulkit.tables import safe_text
+
+    typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
+               f"({res.n_new_components} new) into {safe_text(db)}"
+               + (" (new database)" if created else "")
+               + (f"; {res.n_duplicates} already stored, skipped" if res.n_duplicates
+                  else ""))
+    if not res.alerts:
+        typer.echo("no new warnings or alarms")
+    for a in res.alerts:
+        word = typer.style(f"{a.name.upper():7s}", fg="red" if a.name == "alarm"
+                           else "yellow", bold=a.name == "alarm")
+        rul = "failed" if a.name == "alarm" else (
+            f"RUL={rul_texts([a.rul], [a.rul_low], [a.rul_high], [False])[0]}"
+            + (f" {safe_text(rules.time_unit)}" if rules.time_unit else ""))
+        typer.echo(f"{word} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  {rul}: "
+                   f"{safe_text(a.reason)}")
+
+
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     """Add ``track`` and ``status``."""
-    @app.command("track")
-    def track(
-        acquisitions: Annotated[Path, typer.Argument(
-            help="CSV or Parquet file (or a directory of Parquet partitions) with columns "
-                 "component, time and hi (or the CI columns of the database's HI model); "
-                 "see docs/file-formats.md.")],
-        db: Annotated[str, typer.Option(
-            "--db", help="Component database: a SQLite file or a postgresql:// URL (created "
-                         "with the first accepted batch).")],
-        baseline: Annotated[Path | None, typer.Option(
-            "--baseline", help="CSV of healthy CIs (one column per CI) to fit and store "
-                               "the CI -> HI model (new database or one without a model).")
-        ] = None,
-        pfa: float = typer.Option(1e-6, "--pfa", min=0.0, max=1.0,
-                                  help="False-alarm probability of HI = 0.5."),
-        offset: str = typer.Option("cdf05", "--offset", help="CI offset: cdf05 or none."),
-        dt: float | None = typer.Option(None, "--dt", help="Nominal acquisition interval."),
-        lambda_hi: float | None = typer.Option(None, "--lambda-hi", help="Tracking index, HI."),
-        lambda_rul: float | None = typer.Option(None, "--lambda-rul",
-                                                help="Tracking index, RUL."),
-        design_life: float | None = typer.Option(None, "--design-life",
-                                                 help="dHI floor = 1/design life."),
-        warn_rul: float | None = typer.Option(
-            None, "--warn-rul", help="The seed chain's own warning RUL (its reproduction; the "
-                                     "store warns on --lead-time)."),
-        hi_sigma: float | None = typer.Option(None, "--hi-sigma",
-                                              help="HI std for the confidence limits."),
-        valid_d2rul: float | None = typer.Option(None, "--valid-d2rul",
-                                                 help="Validity limit of |d2RUL/dt2|."),
-        paris_exponent: float | None = typer.Option(None, "--paris-exponent",
-                                                    help="Paris exponent m of the RUL."),
-        initiation: str | None = typer.Option(None, "--initiation",
-                                              help="Track start: floor or two-point."),
-        estimator: str | None = typer.Option(
-            None, "--estimator", help="RUL estimator: auto (a fitted model, else the per-unit "
-                                      "trend; default), trend, or tracker (the seed-004 chain)."),
-        time_unit: str | None = typer.Option(
-            None, "--time-unit", help="Unit of the time column (h, d, s, kcycles...), printed "
-                                      "with every RUL; a duration gives due dates."),
-        lead_time: float | None = typer.Option(
-            None, "--lead-time", help="Warning when the RUL's low quantile is below this "
-                                      "(time unit of the data; default 100)."),
-        alarm_hi: float | None = typer.Option(
-            None, "--alarm-hi", help="Alarm level of the measured HI (default 1)."),
-        alarm_persistence: str | None = typer.Option(
-            None, "--alarm-persistence", help="Alarm when the measured HI reached --alarm-hi "
-                                              "in K of the last N acquisitions: K/N "
-                                              "(default 1/1)."),
-        stale_after: str | None = typer.Option(
-            None, "--stale-after", help="Stale after this long without an acquisition: 36h, "
-                                        "2d, 90min or seconds (default: not judged)."),
-        interval: float | None = typer.Option(
-            None, "--interval", help="Probability of the RUL interval (default 0.9)."),
-        wait: float = typer.Option(60.0, "--wait", min=0.0,
-                                   help="Seconds to wait for another writer before giving up "
-                                        "(exit code 75, retry)."),
-        scheduler: str | None = typer.Option(
-            None, "--scheduler", help="Dask scheduler address (tcp://host:port): track a "
-                                      "directory of Parquet partitions on its workers."),
-        buckets: int = typer.Option(0, "--buckets", min=0,
-                                    help="Tasks to split the components into with "
-                                         "--scheduler (0: 4 per worker)."),
-    ) -> None:
-        """Ingest acquisitions (one transaction) and print new warnings and alarms.
-
-        The estimator and alert options are stored with the database; given for an existing
-        one they replace the stored ones (every component's RUL and level recomputed).
-        Exit codes: 0 done; 1 the file or database was refused (nothing written); 2 a bad
-        option; 65 the database is damaged; 74 disk full or I/O error; 75 the database stayed
-        busy (retry); 77 the database or its directory cannot be written.
-        """
-        from rulkit.cli.errors import bad_option, fail
-        from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
-        from rulkit.fleet.store.database_file import StoreBusyError, StoreError, is_postgres_url
-        from rulkit.fleet.store.ingest import ingest_into
-        from rulkit.fleet.tracking.tracker_chain import TrackerConfig
-        from rulkit.tables import safe_text
-
-        given = {k: v for k, v in {
-            "dt": dt, "lambda_hi": lambda_hi, "lambda_rul": lambda_rul,
-            "design_life": design_life, "warn_rul": warn_rul, "hi_sigma": hi_sigma,
-            "valid_d2rul": valid_d2rul, "paris_exponent": paris_exponent,
-            "initiation": initiation}.items()
-            if v is not None}
-        if offset not in ("cdf05", "none"):
-            bad_option("--offset", f"expected cdf05 or none, got {offset!r}")
-        new_cfg = _tracker_options(given)
-        rule_opts = {k: v for k, v in {
-            "estimator": estimator, "time_unit": time_unit, "lead_time": lead_time,
-            "alarm_hi": alarm_hi, "alarm_persistence": alarm_persistence,
-            "stale_after": stale_after, "interval": interval}.items() if v is not None}
-        _rules_options(None, rule_opts)  # refuse bad values before reading anything
-        hi_model = _fit_baseline(baseline, pfa, offset) if baseline is not None else None
-        nothing = f"nothing was written to {db}"
-        pg = is_postgres_url(db)
-        if scheduler is not None and not acquisitions.is_dir():
-            bad_option("--scheduler", "needs a directory of Parquet partitions")
-        if scheduler is not None and pg:
-            bad_option("--scheduler", "tracks into a SQLite database (give a file as --db)")
-        try:
-            df = None if acquisitions.is_dir() else read_acquisitions(acquisitions)
-            settings, stored_rules = _stored_settings(db)
-            rules = _rules_options(stored_rules, rule_opts)
-        except IngestError as err:
-            fail(f"{err} ({nothing})")
-        except StoreError as err:
-            fail(str(err), code=err.exit_code)
-        except ConnectionError as err:
-            fail(str(err))
-        if settings is None:
-            cfg = new_cfg
-        else:
-            stored = settings[0].to_dict()
-            cfg = TrackerConfig.from_dict({**stored, **given})
-            if cfg != settings[0]:
-                diff = {k: (stored[k], v) for k, v in given.items() if stored[k] != v}
-                fail(f"{db} was created with other tracker settings (stored, given): {diff}; "
-                     "the state is only meaningful with its own settings")
-        try:
-            if pg:
-                res, created = _track_postgres(db, acquisitions, df, cfg, hi_model, rules,
-                                               wait, new=settings is None), settings is None
-            elif df is None:  # a directory of partitions, serially or on Dask workers
-                from rulkit.fleet.store.partitions import track_directory
-
-                res, created = track_directory(db, acquisitions, config=cfg, hi_model=hi_model,
-                                               scheduler=scheduler, buckets=buckets,
-                                               timeout=wait, rules=rules)
-            else:
-                res, created = ingest_into(db, df, config=cfg, hi_model=hi_model,
-                                           source=str(acquisitions), timeout=wait, rules=rules)
-        except IngestError as err:
-            msg = str(err)  # file-level errors already start with the path
-            where = "" if msg.startswith(str(acquisitions)) else f"{acquisitions}: "
-            fail(f"{where}{msg} ({nothing})")
-        except StoreBusyError as err:
-            fail(f"{err}; retry the same command", code=err.exit_code)
-        except StoreError as err:
-            fail(f"{err} ({nothing})", code=err.exit_code)
-        except ConnectionError as err:
-            fail(f"{err} ({nothing})")
-        typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
-                   f"({res.n_new_components} new) into {safe_text(db)}"
-                   + (" (new database)" if created else "")
-                   + (f"; {res.n_duplicates} already stored, skipped" if res.n_duplicates
-                      else ""))
-        if not res.alerts:
-            typer.echo("no new warnings or alarms")
-        for a in res.alerts:
-            word = typer.style(f"{a.name.upper():7s}", fg="red" if a.name == "alarm"
-                               else "yellow", bold=a.name == "alarm")
-            rul = "failed" if a.name == "alarm" else (
-                f"RUL={rul_texts([a.rul], [a.rul_low], [a.rul_high], [False])[0]}"
-                + (f" {safe_text(rules.time_unit)}" if rules.time_unit else ""))
-            typer.echo(f"{word} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  {rul}: "
-                       f"{safe_text(a.reason)}")
+    app.command("track")(track)
     app.command("status")(status)
 
 
