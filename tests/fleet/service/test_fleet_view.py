@@ -228,6 +228,6 @@ def test_postgresql_reads_are_index_ranges_by_the_planners_own_choice(pg_server,
                 single = "UNION ALL" not in sql and "seen <" not in sql and "alerts" not in sql
                 if single and "LIMIT" in sql:
                     assert "Sort" not in plan, (sql, plan)
-        assert any("FROM history" in q and "ORDER BY t DESC" in q for q, _ in sent)
+        assert any("FROM history" in q and "ORDER BY t_first DESC" in q for q, _ in sent)
     finally:
         sdb.close()

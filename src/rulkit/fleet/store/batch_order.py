@@ -16,6 +16,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from rulkit.fleet.store.acquisitions import ConflictError, IngestError
+from rulkit.fleet.store.history_chunks import field, read_range
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 from rulkit.fleet.tracking.tracker_settings import check_time_unit
 from rulkit.tables import cell_repr as _fmt
@@ -132,9 +133,8 @@ def split_duplicates(conn: Any, acq: pd.DataFrame, last: dict[str, float]
         return acq, 0
     sub = acq.iloc[old]
     for name, grp in sub.groupby("component", sort=False, observed=True):
-        stored = dict(conn.execute(
-            "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
-            (str(name), float(grp["t"].min()), float(grp["t"].max()))).fetchall())
+        rec = read_range(conn, str(name), float(grp["t"].min()), float(grp["t"].max()))
+        stored = dict(zip(field(rec, "t").tolist(), field(rec, "hi").tolist(), strict=True))
         for row, t, hi in zip(grp["row"], grp["t"], grp["hi"], strict=True):
             if float(t) not in stored:
                 raise ConflictError(
