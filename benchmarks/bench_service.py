@@ -80,18 +80,16 @@ def bare_floor(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, 
     """The hardware estimate under the ingest phase: the same acquisitions' rows written bare
     into a new database of the same schema, one transaction per batch as the service commits
     them (the store's own connection: WAL and synchronous=FULL on SQLite, the write lock on
-    PostgreSQL): the history rows (15 columns) by ``executemany`` of 50-row INSERTs
-    (SQLite) or COPY (PostgreSQL), then one upsert per component of its row in
-    ``components`` (tracker state and RUL columns, the five secondary indexes). No HTTP, no
+    PostgreSQL): the packed history rows (one per component of the batch,
+    :mod:`rulkit.fleet.store.history_chunks`) by the store's own history write
+    (``executemany`` on SQLite, COPY on PostgreSQL), then one upsert per component of its row
+    in ``components`` (tracker state and RUL columns, the five secondary indexes). No HTTP, no
     validation, no tracker, no rules. CPU of this process (PostgreSQL's own not counted)."""
-    from rulkit.fleet.store.schema import COMPONENTS, HISTORY
+    from rulkit.fleet.store import history_chunks as hc
+    from rulkit.fleet.store.schema import COMPONENTS
 
-    hcols, ccols = HISTORY.names, COMPONENTS.names
+    ccols = COMPONENTS.names
     with open_store(db) as store:
-        pg = getattr(store, "dialect", "sqlite") == "postgresql"
-        one = "(" + ", ".join("?" * len(hcols)) + ")"
-        k = 50
-        many = f"INSERT INTO history ({', '.join(hcols)}) VALUES " + ", ".join([one] * k)
         upsert = (f"INSERT INTO components ({', '.join(ccols)}) VALUES "
                   f"({', '.join('?' * len(ccols))}) ON CONFLICT(component) DO UPDATE SET "
                   + ", ".join(f"{c} = excluded.{c}" for c in ccols[1:]))
@@ -99,22 +97,14 @@ def bare_floor(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, 
         for kb in range(args.batches):
             for w in range(args.writers):
                 rows = writer_batch(w, kb, batch_size)
-                hist = [tuple(_bare_value(c, r) for c in hcols) for r in rows]
+                rec = np.empty((len(rows), hc.WIDTH))
+                rec[:] = np.array([r["hi"] for r in rows])[:, None]
+                rec[:, 0] = [r["time"] for r in rows]
+                hist = hc.chunk_rows([r["component"] for r in rows],
+                                     np.arange(len(rows) + 1), rec, 1)
                 comps = [tuple(_bare_value(c, r) for c in ccols) for r in rows]
                 with store._transaction("IMMEDIATE") as conn:
-                    if pg:
-                        with store._conn.raw.cursor() as cur, cur.copy(  # type: ignore[attr-defined]
-                                f"COPY history ({', '.join(hcols)}) FROM STDIN") as copy:
-                            for row in hist:
-                                copy.write_row(row)
-                    else:
-                        full = len(hist) - len(hist) % k
-                        flat = [v for row in hist[:full] for v in row]
-                        step = k * len(hcols)
-                        conn.executemany(many, [flat[i:i + step]
-                                                for i in range(0, len(flat), step)])
-                        conn.executemany(f"INSERT INTO history ({', '.join(hcols)}) VALUES "
-                                         f"{one}", hist[full:])
+                    store._write_history(hist)
                     conn.executemany(upsert, comps)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - t0
     return {"cpu_s": cpu, "wall_s": wall,
