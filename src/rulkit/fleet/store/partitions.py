@@ -95,7 +95,7 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
     from distributed import Client
 
     path = Path(db)
-    if rules is not None and path.exists():  # the rules in force before the buckets read them
+    if path.exists():  # the schema (an older history converted) and the rules in force
         ComponentStore(path, config=config, timeout=timeout, rules=rules).close()
     client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
     try:
