@@ -1,7 +1,7 @@
 """Pages of the component list by keyset cursor, on both backends: walking the cursors visits
 every component once, in the order a Python sort of the whole table gives, for every sort and
-level filter the API offers; each part of a page's query is an index range; the totals kept
-in ``level_counts`` equal a count of the table."""
+level filter the API offers; each part of a page's query is an index range of one level; the
+totals kept in ``level_counts`` and ``seen_counts`` equal a count of the table."""
 
 import numpy as np
 import pandas as pd
@@ -140,9 +140,9 @@ def test_level_counts_follow_every_write(sdb):
 
 
 def test_the_stale_total_equals_a_count_whatever_the_clock_and_the_writes(sdb, tmp_path):
-    """The stale total reuses its last count while the data is unchanged: against a count of
-    the table at every step, with the clock moving forth and back, writes through the
-    service's own connections and through another process's connection."""
+    """The stale total (windows of ``seen_counts`` and the edge of the cutoff's window)
+    against a count of the table at every step, with the clock moving forth and back, writes
+    through the service's own connections and through another process's connection."""
     from rulkit.fleet.store.postgres import open_store
 
     fleet(sdb, 60)
@@ -231,3 +231,111 @@ def test_postgresql_reads_are_index_ranges_by_the_planners_own_choice(pg_server,
         assert any("FROM history" in q and "ORDER BY t DESC" in q for q, _ in sent)
     finally:
         sdb.close()
+
+
+def _correlated_fleet(conn, n):
+    """``n`` components straight into ``components`` (PostgreSQL): the first 6 % alarms with
+    the shortest RULs and due dates, the rest ok, every column a constant otherwise."""
+    from rulkit.fleet.store.schema import COMPONENTS
+
+    consts = {"real": "0.0", "int": "1", "small": "0", "bool": "true"}
+    exprs = {"component": "'c' || lpad(i::text, 7, '0')",
+             "level": f"CASE WHEN i < {n * 6 // 100} THEN 2 ELSE 0 END",
+             "rul_median": "i::float8", "seen": str(NOW), "due": f"{NOW} + i * 3600.0"}
+    cols = [c for c in COMPONENTS.columns if not c.null or c.name in exprs]
+    sel = ", ".join(exprs.get(c.name, consts.get(c.kind, "NULL")) for c in cols)
+    conn.execute(f"INSERT INTO components ({', '.join(c.name for c in cols)}) "
+                 f"SELECT {sel} FROM generate_series(0, {n - 1}) AS i")
+    conn.execute("ANALYZE components")
+
+
+def test_a_level_filtered_page_seeks_its_level_on_postgresql(pg_server):
+    """The levels follow the RUL (alarms hold the shortest), which the planner's estimates
+    take as independent: each range of a page under a level filter must seek the level in
+    its index (an index condition), never read the key's order and filter the level row by
+    row (past every alarm, for an ``ok`` page). After ANALYZE, no planner setting forced."""
+    from rulkit.fleet.service.db import ServiceDB
+
+    sdb = ServiceDB(pg_server.create_schema())
+    try:
+        with sdb.store() as s:
+            s.set_rules(MonitoringRules(time_unit="h", lead_time=30.0, alarm_hi=0.9,
+                                        stale_after=3600.0))
+            _correlated_fleet(s._conn, 50_000)
+        with sdb.store() as s, s.snapshot() as conn:
+            est = current_estimator(s)
+            for sort in SORTS:
+                for level in ("ok", "alarm", "stale", None):
+                    sql, params = page_query(sort, level, est, NOW + 7200.0, None, 50)
+                    plan = "\n".join(r[0] for r in conn.execute("EXPLAIN " + sql, params))
+                    scans = plan.count("Index Scan")
+                    assert scans and plan.count("Index Cond: (level = ") == scans, plan
+                    assert "Filter: (level" not in plan and "AND (level" not in plan, plan
+    finally:
+        sdb.close()
+
+
+def test_seen_counts_follow_every_write(sdb):
+    """Table ``seen_counts`` equals a count of ``components`` per window of ``seen``
+    (floor(seen / SEEN_BUCKET)) after ingestion, a replay (a rules change) and the creation
+    of the table in an older database; only windows holding components are kept."""
+    from rulkit.fleet.store.schema import SEEN_BUCKET
+
+    fleet(sdb, 40)
+
+    def counts():
+        with sdb.store() as s, s.snapshot() as conn:
+            kept = dict(conn.execute("SELECT bucket, n FROM seen_counts").fetchall())
+            seen = [r[0] for r in conn.execute("SELECT seen FROM components").fetchall()]
+        real: dict[int, int] = {}
+        for v in seen:
+            b = int(np.floor(v / SEEN_BUCKET))
+            real[b] = real.get(b, 0) + 1
+        return kept, real
+
+    kept, real = counts()
+    assert kept == real and len(real) == 2
+    # the old batch's components seen again, some of them in another window
+    again = pd.DataFrame({"component": [f"c{i:03d}" for i in range(0, 20, 2)], "time": 20.0,
+                         "hi": 0.3})
+    sdb.ingest(again, "again", now=NOW + 3 * SEEN_BUCKET)
+    kept2, real2 = counts()
+    assert kept2 == real2 and real2 != real and len(real2) == 3
+    sdb.ingest(pd.DataFrame({"component": [f"c{i:03d}" for i in range(0, 40, 2)],
+                             "time": 30.0, "hi": 0.3}), "all old", now=NOW + 9 * SEEN_BUCKET)
+    kept3, real3 = counts()
+    assert kept3 == real3 and 0 not in kept3.values()  # an emptied window is removed
+    with sdb.store() as s:
+        s.set_rules(MonitoringRules(time_unit="h", alarm_hi=0.5, stale_after=3600.0))
+    assert counts()[0] == real3
+    with sdb.store() as s:
+        with s._transaction("IMMEDIATE") as conn:
+            conn.execute("DROP TABLE seen_counts")
+    from rulkit.fleet.service.db import ServiceDB
+
+    ServiceDB(sdb.db).close()  # opening the database migrates it
+    assert counts()[0] == real3
+
+
+@pytest.mark.parametrize("frac", [0.0, 0.1, 0.5, 0.9, 0.999])
+def test_the_stale_total_equals_a_count_at_any_cutoff_within_a_window(sdb, frac):
+    """Against a count of the table: cutoffs at each fraction of the windows of ``seen``
+    (either edge of the cutoff's window is counted from), components seen in many windows."""
+    from rulkit.fleet.service.fleet_view import stale_total
+    from rulkit.fleet.store.schema import SEEN_BUCKET
+
+    names = [f"c{i:03d}" for i in range(30)]
+    with sdb.store() as s:
+        s.set_rules(MonitoringRules(time_unit="h", stale_after=3600.0))
+    for k in range(6):  # 5 components per window, spread within it
+        part = names[5 * k:5 * k + 5]
+        for j, c in enumerate(part):
+            sdb.ingest(pd.DataFrame({"component": [c], "time": [0.0], "hi": [0.2]}), "w",
+                       now=(4e5 + 2 * k) * SEEN_BUCKET + j * SEEN_BUCKET / 5)
+    with sdb.store() as s, s.snapshot() as conn:
+        seen = np.array([r[0] for r in conn.execute("SELECT seen FROM components")])
+        for b in range(int(4e5) - 1, int(4e5) + 13):
+            cutoff = (b + frac) * SEEN_BUCKET
+            assert stale_total(conn, cutoff) == int((seen < cutoff).sum()), cutoff
+        for cutoff in seen:  # a cutoff on a component's own time does not count it
+            assert stale_total(conn, float(cutoff)) == int((seen < cutoff).sum())
