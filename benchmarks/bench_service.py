@@ -142,7 +142,7 @@ def fill(db: str, n: int, steps: int = 1, chunk: int = 200_000,
     ``rules``: those rules first, and the first half of the components acquired two days
     ago (stale under ``rules.stale_after`` of a day), the rest now."""
     rng = np.random.default_rng(0)
-    t0 = time.perf_counter()
+    t0, now = time.perf_counter(), time.time()  # the calendar time the service judges by
     with open_store(db) as store:
         if rules is not None:
             store.set_rules(rules)
@@ -153,7 +153,7 @@ def fill(db: str, n: int, steps: int = 1, chunk: int = 200_000,
             t = np.tile(np.arange(steps, dtype=float), len(comp))
             rate = np.repeat(rng.uniform(0.0, 0.15 / steps, len(comp)), steps)  # HI < 1.1
             hi = np.repeat(rng.uniform(0.1, 0.95, len(comp)), steps) + rate * t
-            store.now = None if rules is None else t0 - (2 * 86400.0 if i0 < n // 2 else 0.0)
+            store.now = None if rules is None else now - (2 * 86400.0 if i0 < n // 2 else 0.0)
             store.ingest(pd.DataFrame({"component": np.repeat(comp, steps), "time": t,
                                        "hi": hi}), "bench-fill")
         if getattr(store, "dialect", "sqlite") == "postgresql":

@@ -8,7 +8,8 @@ import pandas as pd
 import pytest
 
 from rulkit.fleet.monitoring.rules import MonitoringRules, due_time
-from rulkit.fleet.service.fleet_view import SORTS, CursorError, page_query
+from rulkit.fleet.service import fleet_view
+from rulkit.fleet.service.fleet_view import SORTS, CursorError, page_query, stale_page_query
 from rulkit.fleet.store.prognosis import current_estimator
 
 NOW = 1.8e9  # calendar time of the second batch (seconds since 1970)
@@ -58,8 +59,13 @@ def expected(df, sort, level):
     return [r[3] for r in rows]
 
 
-@pytest.mark.parametrize("level", [None, "ok", "alarm", "stale"])
-def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level):
+@pytest.mark.parametrize("level", [None, "ok", "alarm", "stale", "stale by level"])
+def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level, monkeypatch):
+    """(``stale by level``: the stale filter as many stale components are read, each level's
+    order filtered by ``seen``, instead of a sort of the few.)"""
+    if level == "stale by level":
+        monkeypatch.setattr(fleet_view, "STALE_BY_SEEN", 0)
+        level = "stale"
     fleet(sdb)
     df, _ = table(sdb)
     assert set(df["level"]) == {0, 1, 2} and df["rul_median"].isna().any()
@@ -113,6 +119,24 @@ def test_a_keyset_page_seeks_an_index(sdb, sort, level):
             conn.execute("SET LOCAL enable_seqscan = off")
             plan = " ".join(r[0] for r in conn.execute("EXPLAIN " + sql, params).fetchall())
             assert "Index" in plan and "Seq Scan" not in plan, plan
+
+
+@pytest.mark.parametrize("sort", list(SORTS))
+def test_a_page_of_few_stale_components_reads_the_seen_index(sdb, sort):
+    """With few stale components, their page is one range of the ``seen`` index (a cursor's
+    key a filter, the order a sort of the few), never a walk of an order's index that reads
+    every fresh component of a level (SQLite has no statistics to see that)."""
+    fleet(sdb, 30)
+    sql, params = stale_page_query(sort, NOW - 3600.0, [1, 5.0, "c010"], 50)
+    with sdb.store() as s, s.snapshot() as conn:
+        if sdb.dialect == "sqlite":
+            plan = [r[3] for r in conn.execute("EXPLAIN QUERY PLAN " + sql, params)]
+            reads = [p for p in plan if "components" in p]
+            assert len(reads) == 1 and "INDEX components_seen (seen<?)" in reads[0], plan
+        else:
+            conn.execute("SET LOCAL enable_seqscan = off")
+            plan = " ".join(r[0] for r in conn.execute("EXPLAIN " + sql, params).fetchall())
+            assert "components_seen" in plan and plan.count("Index") == 2, plan
 
 
 def test_level_counts_follow_every_write(sdb):

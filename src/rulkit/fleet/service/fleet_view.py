@@ -139,6 +139,34 @@ def page_query(sort: str, level: str | None, est: Estimator, now: float,
     return f"SELECT * FROM ({union}) AS page ORDER BY {lead}{order} LIMIT {int(n)}", args
 
 
+STALE_BY_SEEN = 2000
+"""Up to this many stale components, a page of the stale filter reads them all in the
+``seen`` index and sorts them (:func:`stale_page_query`: a cost of the stale ones, the usual
+few); beyond, :func:`page_query` reads each level's order and skips the fresh ones (pages of
+50 come soon when many are stale; with few, that would read whole levels)."""
+
+
+def stale_page_query(sort: str, cutoff: float, key: list[Any] | None, n: int
+                     ) -> tuple[str, list[Any]]:
+    """SQL and parameters of the first ``n`` components seen before ``cutoff`` in ``sort``
+    order after the row whose key is ``key`` (as :func:`page_query`): one range of the
+    ``seen`` index, the cursor's key a filter and the order a sort of that range. The level is
+    written ``+level`` (the same value) so that SQLite, which has no statistics, can neither
+    seek nor walk the level's index instead."""
+    cols = ", ".join((*FIELDS, "due"))
+    k, order = SORTS[sort][0], ", ".join(SORTS[sort])
+    where, params = "seen < ?", [cutoff]
+    if key is not None:
+        after = f"({k} > ? OR ({k} = ? AND component > ?))"
+        args = [key[1], key[1], key[2]]
+        if sort == "worst":
+            after, args = f"(+level < ? OR (+level = ? AND {after}))", [key[0], key[0], *args]
+        where, params = f"{where} AND {after}", [*params, *args]
+    lead = "+level DESC, " if sort == "worst" else ""
+    return (f"SELECT {cols} FROM components WHERE {where} ORDER BY {lead}{order} "
+            f"LIMIT {int(n)}", params)
+
+
 def cursor_of(row: tuple, sort: str) -> str:
     """The cursor of the page after ``row`` (a row of :func:`page_query`)."""
     import base64
@@ -214,11 +242,16 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     (``None``: all). ``after``: a cursor this function returned (keyset: any page costs what
     the first does); ``offset`` then skips rows (its cost grows with it)."""
     key = None if after is None else decode_cursor(after, sort)
-    sql, params = page_query(sort, level, est, now, key, offset + limit)
+    total = level_total(conn, level, est, now)
+    stale_after = est.rules.stale_after
+    if level == "stale" and stale_after is not None and total <= STALE_BY_SEEN:
+        sql, params = stale_page_query(sort, now - stale_after, key, offset + limit)
+    else:
+        sql, params = page_query(sort, level, est, now, key, offset + limit)
     rows = conn.execute(sql, params).fetchall()[offset:]
     nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
     items = component_items([r[:len(FIELDS)] for r in rows], est, now)
-    return level_total(conn, level, est, now), items, nxt
+    return total, items, nxt
 
 
 def summary(conn: Any, est: Estimator, now: float) -> dict[str, Any]:
@@ -288,6 +321,7 @@ def time_origin(item: dict[str, Any], est: Estimator) -> float | None:
     return float(item["last_seen"] - item["last_time"] * scale)
 
 
-__all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "component_items", "cursor_of",
-           "decode_cursor", "forecast", "level_total", "list_components", "num",
-           "page_query", "stale_total", "summary", "time_origin"]
+__all__ = ["FIELDS", "SORTS", "STALE_BY_SEEN", "CursorError", "component_item",
+           "component_items", "cursor_of", "decode_cursor", "forecast", "level_total",
+           "list_components", "num", "page_query", "stale_page_query", "stale_total",
+           "summary", "time_origin"]
