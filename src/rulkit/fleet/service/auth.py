@@ -1,0 +1,55 @@
+"""The dependencies of the service's routes (docs/service.md): the app's database and
+metrics, and the bearer token (any valid token for reads, a write token for writes)."""
+
+from typing import Annotated
+
+from fastapi import Depends, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from rulkit.fleet.service.bodies import http_error
+from rulkit.fleet.service.db import ServiceDB, Token
+from rulkit.fleet.service.metrics import Metrics
+
+BEARER = HTTPBearer(auto_error=False, description="A token from `rulkit token create`.")
+"""The OpenAPI security scheme of ``/api/v1``."""
+
+
+def service_db(request: Request) -> ServiceDB:
+    """The database the app serves (``app.state.db``, set by ``create_app``)."""
+    sdb: ServiceDB = request.app.state.db
+    return sdb
+
+
+def service_metrics(request: Request) -> Metrics:
+    """The app's counters and histograms (``app.state.metrics``)."""
+    metrics: Metrics = request.app.state.metrics
+    return metrics
+
+
+def authenticated(
+    creds: Annotated[HTTPAuthorizationCredentials | None, Depends(BEARER)],
+    sdb: Annotated[ServiceDB, Depends(service_db)],
+) -> Token:
+    """The request's valid token (401 when it has none, or one unknown or revoked)."""
+    if creds is None or creds.scheme.lower() != "bearer":
+        raise http_error(401, "missing bearer token", {"WWW-Authenticate": "Bearer"})
+    tok = sdb.check_token(creds.credentials)
+    if tok is None:
+        raise http_error(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
+    return tok
+
+
+def writer(tok: Annotated[Token, Depends(authenticated)]) -> Token:
+    """The request's write token (403 for a read-only token)."""
+    if not tok.can_write:
+        raise http_error(403, "this token is read-only; writes and acknowledgements need "
+                              "a write token")
+    return tok
+
+
+ReadToken = Annotated[Token, Depends(authenticated)]
+"""A route parameter: any valid token."""
+WriteToken = Annotated[Token, Depends(writer)]
+"""A route parameter: a write token."""
+DB = Annotated[ServiceDB, Depends(service_db)]
+"""A route parameter: the app's database."""

@@ -1,0 +1,101 @@
+"""The ingest route ``POST /api/v1/acquisitions`` (docs/service.md): a batch as JSON, CSV or
+Parquet, whose documented rows require ``hi`` or exactly the CI columns of the database's HI
+model."""
+
+import time
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.concurrency import run_in_threadpool
+
+from rulkit.fleet.service.auth import DB, WriteToken, service_metrics
+from rulkit.fleet.service.bodies import batch_frame, http_error, read_body
+from rulkit.fleet.service.metrics import Metrics
+from rulkit.fleet.service.responses import error_responses
+from rulkit.fleet.store.acquisitions import ConflictError, IngestError
+from rulkit.fleet.store.database_file import StoreError
+from rulkit.fleet.tracking.health_index import HealthIndexModel
+
+
+def row_schema(hi_model: HealthIndexModel | None) -> dict[str, Any]:
+    """The JSON schema of one batch row for this database: ``hi``, or exactly the CI
+    columns of its HI model."""
+    num = {"type": "number"}
+    base = {"component": {"type": "string", "minLength": 1, "maxLength": 128},
+            "time": {"type": "number", "description": "Acquisition time."}}
+    with_hi = {"type": "object", "required": ["component", "time", "hi"],
+               "properties": {**base, "hi": {**num, "minimum": 0,
+                                             "description": "Health index."}},
+               "additionalProperties": False}
+    if hi_model is None:
+        return with_hi
+    names = list(hi_model.names)
+    with_ci = {"type": "object", "required": ["component", "time", *names],
+               "properties": {**base, **dict.fromkeys(names, num)},
+               "additionalProperties": False}
+    return {"oneOf": [with_hi, with_ci]}
+
+
+def acquisitions_body(hi_model: HealthIndexModel | None) -> dict[str, Any]:
+    """The OpenAPI request body of a batch for this database."""
+    row = row_schema(hi_model)
+    return {
+        "required": True,
+        "description": (
+            "A batch: JSON {\"rows\": [{component, time, hi or the CI columns}, ...]}, or a "
+            "CSV (text/csv) or Parquet (application/vnd.apache.parquet) file with those "
+            "columns."),
+        "content": {
+            "application/json": {"schema": {
+                "type": "object", "required": ["rows"], "additionalProperties": False,
+                "properties": {"rows": {"type": "array", "items": row, "minItems": 1}}}},
+            "text/csv": {"schema": {"type": "string"}},
+            "application/vnd.apache.parquet": {"schema": {"type": "string",
+                                                          "format": "binary"}},
+        },
+    }
+
+
+async def post_acquisitions(
+    request: Request, tok: WriteToken, sdb: DB,
+    metrics: Annotated[Metrics, Depends(service_metrics)],
+) -> dict[str, Any]:
+    """Ingest a batch: validated completely, applied in one transaction.
+
+    Rows already stored (same component, time and HI) are skipped and counted in
+    ``duplicates``; the response lists the new alerts."""
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    t0 = time.perf_counter()
+    try:
+        body = await read_body(request)
+        df = await run_in_threadpool(batch_frame, body, ctype)
+        del body
+        out = await run_in_threadpool(sdb.ingest, df, f"api:{tok.name}")
+    except ConflictError as err:
+        metrics.inc("rulkit_ingest_batches_total", "conflict")
+        raise http_error(409, str(err)) from None
+    except IngestError as err:
+        metrics.inc("rulkit_ingest_batches_total", "invalid")
+        raise http_error(422, str(err)) from None
+    except HTTPException as err:
+        metrics.inc("rulkit_ingest_batches_total",
+                    "too_large" if err.status_code == 413 else "invalid")
+        raise
+    except StoreError:
+        metrics.inc("rulkit_ingest_batches_total", "busy")
+        raise
+    metrics.inc("rulkit_ingest_batches_total", "applied")
+    metrics.inc("rulkit_ingested_acquisitions_total", by=out["ingested"])
+    metrics.inc("rulkit_duplicate_acquisitions_total", by=out["duplicates"])
+    metrics.observe("rulkit_ingest_seconds", time.perf_counter() - t0)
+    return out
+
+
+def acquisitions_router(hi_model: HealthIndexModel | None) -> APIRouter:
+    """The ingest route, its request body documented for a database of ``hi_model``."""
+    router = APIRouter()
+    router.add_api_route(
+        "/api/v1/acquisitions", post_acquisitions, methods=["POST"], tags=["acquisitions"],
+        openapi_extra={"requestBody": acquisitions_body(hi_model)},
+        responses=error_responses(401, 403, 408, 409, 413, 415, 422, 503))
+    return router
