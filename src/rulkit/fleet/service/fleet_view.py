@@ -103,19 +103,23 @@ def _stale_filter(level: str | None, est: Estimator, now: float) -> tuple[str, l
 
 
 def page_query(sort: str, level: str | None, est: Estimator, now: float,
-               key: list[Any] | None, n: int) -> tuple[str, list[Any]]:
+               key: list[Any] | None, n: int, dialect: str = "sqlite"
+               ) -> tuple[str, list[Any]]:
     """SQL and parameters of the first ``n`` components in ``sort`` order (:data:`SORTS`)
     after the row whose key is ``key`` (keyset: ``[level, sort key, id]``; ``None`` from the
     start), under the ``level`` filter. The page is the union of index ranges that each stop
     after ``n`` rows, so a deep page costs what the first does. Every range is of one level
     (an equality on the level heads each order's index): ``worst`` is level descending, then
-    the key; ``rul`` and ``due`` merge the levels' ranges. A range under the cursor's key
-    is two: the rest of the key's tie (later ids) and the keys after it.
+    the key; ``rul`` and ``due`` merge the levels' ranges. A range after the cursor's key is
+    one row comparison ``(key, id) > (?, ?)`` on PostgreSQL (an index condition there); on
+    SQLite, which seeks only the level with it, two: the rest of the key's tie (later ids)
+    and the keys after it.
 
-    One level per range is what keeps the plan right on PostgreSQL: the levels follow the
-    RUL (the alarms hold the shortest), which the planner's estimates take as independent,
-    so with an index of the key alone it reads the ``ok`` rows of a key order past every
-    alarm, filtering them one by one."""
+    One level per range, and the row comparison, keep the plan right on PostgreSQL: the
+    levels follow the RUL (the alarms hold the shortest; the pending RULs are rarely
+    alarms), which the planner's estimates take as independent, so with an index of the key
+    alone it reads the ``ok`` rows of a key order past every alarm, and for a tie of an
+    unknown RUL it walks the primary key past every later id, filtering them one by one."""
     cols = ", ".join((*FIELDS, "due"))
     cond, params = _stale_filter(level, est, now)
     k, order = SORTS[sort][0], ", ".join(SORTS[sort])
@@ -125,6 +129,9 @@ def page_query(sort: str, level: str | None, est: Estimator, now: float,
         where, p = f"{cond} AND level = ?", [*params, lv]
         if key is None or (sort == "worst" and lv < key[0]):
             ranges.append((where, p, order))
+        elif dialect == "postgresql" and (sort != "worst" or lv == key[0]):
+            ranges.append((f"{where} AND ({k}, component) > (?, ?)", [*p, key[1], key[2]],
+                           order))
         elif sort != "worst" or lv == key[0]:  # ordered by id alone: the key is fixed
             ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]],
                         "component"),
@@ -247,7 +254,8 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     if level == "stale" and stale_after is not None and total <= STALE_BY_SEEN:
         sql, params = stale_page_query(sort, now - stale_after, key, offset + limit)
     else:
-        sql, params = page_query(sort, level, est, now, key, offset + limit)
+        sql, params = page_query(sort, level, est, now, key, offset + limit,
+                                 getattr(conn, "dialect", "sqlite"))
     rows = conn.execute(sql, params).fetchall()[offset:]
     nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
     items = component_items([r[:len(FIELDS)] for r in rows], est, now)
