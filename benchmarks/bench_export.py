@@ -2,6 +2,7 @@
 
     python benchmarks/bench_export.py            # everything; installs gcc-arm-none-eabi as root
     python benchmarks/bench_export.py --no-arm   # without the Cortex-M4 cross-compilation
+    python benchmarks/bench_export.py --only-hi-noise   # the learned HI-noise models alone
 
 For the Lu & Meeker crack data (the tracker settings fitted by `fit_tracker_config`, the learned
 Paris model fitted by `fit_model`), in each number format: operations per update counted in the
@@ -11,6 +12,9 @@ vs the Python reference, medians of repeats in one run, ratio=), the error of fl
 point against Python over long records (with the bound the tests enforce), and the same
 sources cross-compiled for a Cortex-M4 (arm-none-eabi-gcc -mcpu=cortex-m4 -mthumb
 -mfloat-abi=hard -mfpu=fpv4-sp-d16 -Os): text/data/bss of the object and of a linked program.
+Then the learned HI-noise models (paris-additive, -multiplicative, -mixed) fitted on synthetic
+fleets of their noise kinds: the iterated update's operations and its cost per acquisition in C
+against the Python model (``--only-hi-noise`` runs this part alone).
 """
 
 from __future__ import annotations
@@ -24,21 +28,29 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from rulkit.fleet.export.device_spec import DeviceSpec
 from rulkit.fleet.export.generator import template_context, template_environment
 from rulkit.fleet.export.op_count import steady_state_operations
 from rulkit.fleet.export.verify import (
     ERROR_BOUNDS,
+    LEARNED_COLUMNS,
     STRICT_FLAGS,
+    DeviceLibrary,
     build,
     long_record_case,
     long_records,
     python_reference,
+    relative_error,
     scaled_error,
+    segments,
 )
-from rulkit.fleet.learned.datasets import fatigue_histories
-from rulkit.fleet.learned.degradation import fit_model
+from rulkit.fleet.learned.datasets import GOAL_FLEETS, fatigue_histories, goal_fleet
+from rulkit.fleet.learned.degradation import UnitState, fit_model
+from rulkit.fleet.learned.hi_noise import NOISES, HiNoiseModel, fit_hi_noise
+from rulkit.fleet.learned.histories import histories_from_frame
+from rulkit.fleet.store.learned_state import LEVELS
 from rulkit.fleet.tracking.tracker_chain import TrackerState, tracker_update
 from rulkit.fleet.tracking.tracker_run import tracker_run
 from rulkit.fleet.tracking.tracker_settings import fit_tracker_config
@@ -47,6 +59,8 @@ from timing import median_time
 ARM_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",
              "-ffunction-sections", "-fdata-sections")
 SEED_CHAIN = ("track_hi", "paris_rul", "track_rul")
+QUANTILE_FUNCTIONS = ("learned_quantiles", "quantile_root", "rk_normal_quantile",
+                      "rk_log_normal_cdf")
 
 
 def specs() -> dict[str, DeviceSpec]:
@@ -156,6 +170,96 @@ def errors(work: Path) -> None:
         print(f"{number:6s} {text}; {flags} of {t.size} rows")
 
 
+def hi_noise_specs() -> dict[str, tuple[DeviceSpec, pd.DataFrame]]:
+    """paris-additive / -multiplicative / -mixed, each fitted on a 10-unit fleet of its own
+    noise kind (datasets.GOAL_FLEETS, the shape at the generator's m), with the tracker
+    settings fitted on the same fleet."""
+    out = {}
+    for noise in NOISES:
+        frame, _ = goal_fleet(noise, np.random.default_rng(11), 10)
+        hist = histories_from_frame(frame, "bench")
+        model = fit_hi_noise(hist, noise, shape=1.0 - float(GOAL_FLEETS[noise]["m"]) / 2.0)
+        out[model.name] = (DeviceSpec("g", noise, fit_tracker_config(hist), None, model), frame)
+    return out
+
+
+def _c_seconds(lib: DeviceLibrary, start: np.ndarray, t: np.ndarray, hi: np.ndarray,
+               repeats: int) -> float:
+    """Median seconds per update of the C through the harness."""
+    return median_time(lambda: lib.run(start, t, hi), repeats) / t.size
+
+
+def hi_noise(work: Path, repeats: int) -> None:
+    """The HI-noise variants: operations of the iterated update, state and code, and ns per
+    update of the C (chain + learned, and the learned part as the difference with the chain
+    alone on the same rows) against the Python model's update + RUL quantiles, one
+    acquisition of one unit per call and vectorised over 100,000 units."""
+    print("\n# learned HI-noise models (eq. (8), iterated extended Kalman update), double; "
+          "each fleet's rows run 50 times as 50 components")
+    for name, (spec, frame) in hi_noise_specs().items():
+        model = spec.learned
+        assert isinstance(model, HiNoiseModel)
+        ops = steady_state_operations(spec, work / f"ops_{name}", "double")
+        upd = {k: sum(ops.get(f, {}).get(k, 0.0) for f in ("learned_update", "growth_inverse",
+                                                          "clip_z")) for k in ops["total"]}
+        iters = ops["growth_inverse"]["other_math"] - 1.0
+        print(f"{name:21s} whole update: {fmt_ops(ops['total'])}")
+        rul = {k: sum(ops.get(f, {}).get(k, 0.0) for f in QUANTILE_FUNCTIONS)
+               for k in ops["total"]}
+        print(f"{'':21s} of which eq. (8) ({iters:g} Gauss-Newton iterations per update): "
+              f"{fmt_ops(upd)}")
+        print(f"{'':21s} of which the RUL quantiles (eq. (6), three normal quantiles): "
+              f"{fmt_ops(rul)}")
+        start1, df = segments(frame)
+        reps = 50
+        lens = np.tile(np.diff(start1), reps)
+        start = np.concatenate([[0], np.cumsum(lens)])
+        t, hi = np.tile(df["time"].to_numpy(), reps), np.tile(df["hi"].to_numpy(), reps)
+        lib = build(spec, work / f"lib_{name}", "double")
+        chain = build(DeviceSpec("g", "chain", spec.config), work / f"chain_{name}", "double")
+        kalman = build(DeviceSpec("g", "kalman", spec.config, None, fit_model(
+            histories_from_frame(frame, "bench"), "paris", shape=model.shape)),
+            work / f"kalman_{name}", "double")
+        c_all, c_chain, c_kalman = (_c_seconds(x, start, t, hi, repeats)
+                                    for x in (lib, chain, kalman))
+        c_learned = c_all - c_chain
+        n_saved = int(template_context(spec, "double", "rk")["state_bytes"])
+        print(f"{'':21s} state {lib.state_struct_bytes} B in RAM, {n_saved} B saved; C "
+              f"{1e9 * c_all:.0f} ns per update with the chain, learned part "
+              f"{1e9 * c_learned:.0f} ns (minus the chain alone, {1e9 * c_chain:.0f} ns); the "
+              f"Kalman paris model (eq. (2)) of the same shape on the same rows: learned part "
+              f"{1e9 * (c_kalman - c_chain):.0f} ns, ratio={c_learned / (c_kalman - c_chain):.2f}"
+              f" (medians of {repeats}, {t.size} updates)")
+        ref = python_reference(spec, start1, df["time"].to_numpy(), df["hi"].to_numpy())
+        got = lib.run(start1, df["time"], df["hi"])
+        flt = build(spec, work / f"float_{name}", "float").run(start1, df["time"], df["hi"])
+        print(f"{'':21s} against the Python model on the fleet's {len(df)} acquisitions: "
+              "double, largest relative error " + ", ".join(
+                  f"{c} {relative_error(got[c], ref[c]).max():.2g}" for c in LEARNED_COLUMNS)
+              + "; float, max |C - Python| / max |Python| " + ", ".join(
+                  f"{c} {scaled_error(flt[c], ref[c]):.2g}" for c in LEARNED_COLUMNS))
+        one = model.update(model.empty_state(1), df["time"].to_numpy()[:1],
+                           df["hi"].to_numpy()[:1])
+        tt, hh = df["time"].to_numpy()[1:2], df["hi"].to_numpy()[1:2]
+
+        def py_one(one=one, tt=tt, hh=hh, model=model):
+            model.rul_quantiles(model.update(one, tt, hh), LEVELS)
+
+        b = 100_000
+        many = UnitState(m=np.repeat(one.m, b, 0), p=np.repeat(one.p, b, 0),
+                         t=np.repeat(one.t, b), hi=np.repeat(one.hi, b), n=np.repeat(one.n, b))
+        tb, hb = np.full(b, tt[0]), np.full(b, hh[0])
+
+        def py_many(many=many, tb=tb, hb=hb, model=model):
+            model.rul_quantiles(model.update(many, tb, hb), LEVELS)
+
+        py1 = median_time(py_one, repeats)
+        pyb = median_time(py_many, max(1, repeats // 2)) / b
+        print(f"{'':21s} Python update + quantiles, one unit per call {1e9 * py1:.0f} ns: "
+              f"ratio={py1 / c_learned:.0f} (vs the C's learned part); vectorised over "
+              f"{b} units {1e9 * pyb:.0f} ns per unit: ratio={pyb / c_learned:.2f}")
+
+
 def ensure_arm() -> str | None:
     gcc = shutil.which("arm-none-eabi-gcc")
     if gcc:
@@ -209,16 +313,22 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-arm", action="store_true", help="skip the Cortex-M4 sizes")
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--only-hi-noise", action="store_true",
+                    help="only the learned HI-noise models' section")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
           f"{os.getloadavg()[2]:.2f} on {os.cpu_count()} cores; python {sys.version.split()[0]}")
-    sp = specs()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
+        if args.only_hi_noise:
+            hi_noise(work, args.repeats)
+            return
+        sp = specs()
         build_cache["lib"] = build(sp["chain"], work / "speed", "double")
         operations(work, sp)
         sizes_and_speed(work, sp, args.repeats)
         errors(work)
+        hi_noise(work, args.repeats)
         if not args.no_arm:
             arm(work, sp)
 

@@ -18,6 +18,8 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
 
     .venv/bin/python benchmarks/bench_scale.py              # the defaults above (~2 min)
     .venv/bin/python benchmarks/bench_scale.py --components 200 --repeats 1   # quick look
+    git archive main src | tar -x -C /tmp/main     # status against main's code, in turns:
+    .venv/bin/python benchmarks/bench_scale.py --status-only --against /tmp/main/src --repeats 5
 """
 
 from __future__ import annotations
@@ -93,15 +95,16 @@ fd = os.open(db, os.O_RDWR); os.fsync(fd); os.close(fd)
 """
 
 
-def measure(cmd: list[str]) -> tuple[float, float, float]:
-    """(wall s, CPU s, peak RSS MB) of one process running ``cmd`` (stdout discarded)."""
+def measure(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak RSS MB) of one process running ``cmd`` (stdout discarded), with
+    ``env`` added to the environment."""
     fd, peak_file = tempfile.mkstemp(prefix="rulkit-bench-peak-")
     os.close(fd)
     t0 = time.perf_counter()
     try:
         with open(os.devnull, "wb") as null:
             proc = subprocess.Popen(cmd, stdout=null, stderr=subprocess.PIPE,
-                                    env={**os.environ, "BENCH_PEAK": peak_file})
+                                    env={**os.environ, **(env or {}), "BENCH_PEAK": peak_file})
             _, status, ru = os.wait4(proc.pid, 0)
             wall = time.perf_counter() - t0
             err = proc.stderr.read().decode() if proc.stderr else ""
@@ -130,6 +133,72 @@ def fleet_csv(path: Path, n_comp: int, n_acq: int, rng: np.random.Generator) -> 
     pd.DataFrame({"component": comp, "time": tt, "hi": hi}).to_csv(path, index=False)
 
 
+def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) -> None:
+    """``track`` of the CSV into a new database, beside the bare writes of the same rows."""
+    n_rows = args.components * args.acquisitions
+    src = tmp / "acquisitions.csv"
+    fleet_csv(src, args.components, args.acquisitions, rng)
+    size_mb = src.stat().st_size / 2**20
+    runs = []
+    for k in range(args.repeats):
+        db = tmp / f"track{k}.db"
+        runs.append(measure([*RULKIT, "track", "--db", str(db), str(src)]))
+        db.unlink()
+    w, c, m = median3(runs)
+    print(f"track {n_rows:,} rows ({args.components} components x {args.acquisitions}, "
+          f"CSV {size_mb:.0f} MB) into a new database: wall {w:.2f} s, CPU {c:.2f} s, "
+          f"peak {m:.0f} MB ({m / size_mb:.1f}x the file); goal <= 2 s, <= 250 MB")
+    bare = []
+    for k in range(args.repeats):
+        db = tmp / f"bare{k}.db"
+        bare.append(measure([sys.executable, "-c", _BARE, str(src), str(db)]))
+        db.unlink()
+    bw, bc, bm = median3(bare)
+    print(f"  the same rows read and written bare (pyarrow, sort, executemany of 50-row "
+          f"INSERTs into the history table, no validation, no tracker): wall {bw:.2f} s, "
+          f"CPU {bc:.2f} s, peak {bm:.0f} MB; track / bare CPU = {c / bc:.2f}; the bare "
+          f"writes alone are {bc / 2.0:.1f}x the 2 s goal (one SQL row per acquisition); "
+          f"load average {os.getloadavg()[0]:.1f}")
+    src.unlink()
+
+
+def status_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator,
+                sfloor_cpu: float) -> None:
+    """``status`` in each format on a database of ``--status-components`` components; with
+    ``--against SRC``, the same commands with ``PYTHONPATH=SRC`` (another checkout's code)
+    measured in turns with ours, and the ratio of the CPU medians."""
+    n = args.status_components
+    sdb = tmp / "status.db"
+    frame = pd.DataFrame({
+        "component": np.repeat([f"c{i:07d}" for i in range(n)], 3),
+        "time": np.tile([0.0, 1.0, 2.0], n),
+        "hi": np.repeat(rng.uniform(0.05, 1.2, n), 3)})
+    from rulkit.fleet.store.ingest import ingest_into
+
+    ingest_into(sdb, frame)
+    sides = {"": None} if args.against is None else {
+        "this code": None, f"{args.against}": {"PYTHONPATH": str(args.against)}}
+    for fmt in ("table", "csv", "json"):
+        cmd = [*RULKIT, "status", "--db", str(sdb), "--format", fmt]
+        runs: dict[str, list[tuple[float, float, float]]] = {k: [] for k in sides}
+        for env in sides.values():  # untimed: bytecode written, pages cached
+            measure(cmd, env)
+        for _ in range(args.repeats):  # in turns
+            for side, env in sides.items():
+                runs[side].append(measure(cmd, env))
+        cpu = {}
+        for side in sides:
+            w, c, m = median3(runs[side])
+            cpu[side] = c
+            print(f"status --format {fmt:5s} {n:,} components{f' ({side})' if side else ''}: "
+                  f"wall {w:.2f} s, CPU {c:.2f} s (minus its start-up "
+                  f"{max(c - sfloor_cpu, 0):.2f} s), peak {m:.0f} MB; goal < 1 s")
+        if args.against is not None:
+            mine, theirs = cpu.values()
+            print(f"  CPU ratio this code / {args.against}: {mine / theirs:.2f}; load average "
+                  f"{os.getloadavg()[0]:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--components", type=int, default=2000)
@@ -137,6 +206,9 @@ def main() -> None:
     ap.add_argument("--status-components", type=int, default=100_000)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--status-only", action="store_true", help="skip track and its floor")
+    ap.add_argument("--against", type=Path, default=None,
+                    help="the src/ of another checkout: status with its code, in turns")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-scale-"))
@@ -149,53 +221,15 @@ def main() -> None:
         print(f"import rulkit.cli, rulkit.fleet.store.sqlite (start-up floor, pandas included): "
               f"wall {floor[0]:.2f} s, CPU {floor[1]:.2f} s, peak {floor[2]:.0f} MB")
         status_imports = ("import rulkit.cli, typer._adapters, rulkit.fleet.store.status_view, "
-                          "pyarrow.compute, pyarrow.csv")
+                          "pyarrow.csv, orjson")
         sfloor = median3([measure([sys.executable, "-c", _PEAK + status_imports])
                           for _ in range(args.repeats)])
         print(f"import rulkit.cli, rulkit.fleet.store.status_view, pyarrow (start-up floor of "
               f"status, no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
 
-        n_rows = args.components * args.acquisitions
-        src = tmp / "acquisitions.csv"
-        fleet_csv(src, args.components, args.acquisitions, rng)
-        size_mb = src.stat().st_size / 2**20
-        runs = []
-        for k in range(args.repeats):
-            db = tmp / f"track{k}.db"
-            runs.append(measure([*RULKIT, "track", "--db", str(db), str(src)]))
-            db.unlink()
-        w, c, m = median3(runs)
-        print(f"track {n_rows:,} rows ({args.components} components x {args.acquisitions}, "
-              f"CSV {size_mb:.0f} MB) into a new database: wall {w:.2f} s, CPU {c:.2f} s, "
-              f"peak {m:.0f} MB ({m / size_mb:.1f}x the file); goal <= 2 s, <= 250 MB")
-        bare = []
-        for k in range(args.repeats):
-            db = tmp / f"bare{k}.db"
-            bare.append(measure([sys.executable, "-c", _BARE, str(src), str(db)]))
-            db.unlink()
-        bw, bc, bm = median3(bare)
-        print(f"  the same rows read and written bare (pyarrow, sort, executemany of 50-row "
-              f"INSERTs into the history table, no validation, no tracker): wall {bw:.2f} s, "
-              f"CPU {bc:.2f} s, peak {bm:.0f} MB; track / bare CPU = {c / bc:.2f}; the bare "
-              f"writes alone are {bc / 2.0:.1f}x the 2 s goal (one SQL row per acquisition); "
-              f"load average {os.getloadavg()[0]:.1f}")
-        src.unlink()
-
-        n = args.status_components
-        sdb = tmp / "status.db"
-        frame = pd.DataFrame({
-            "component": np.repeat([f"c{i:07d}" for i in range(n)], 3),
-            "time": np.tile([0.0, 1.0, 2.0], n),
-            "hi": np.repeat(rng.uniform(0.05, 1.2, n), 3)})
-        from rulkit.fleet.store.ingest import ingest_into
-
-        ingest_into(sdb, frame)
-        for fmt in ("table", "csv", "json"):
-            w, c, m = median3([measure([*RULKIT, "status", "--db", str(sdb), "--format", fmt])
-                               for _ in range(args.repeats)])
-            print(f"status --format {fmt:5s} {n:,} components: wall {w:.2f} s, CPU {c:.2f} s "
-                  f"(minus its start-up {max(c - sfloor[1], 0):.2f} s), peak {m:.0f} MB; "
-                  "goal < 1 s")
+        if not args.status_only:
+            track_part(args, tmp, rng)
+        status_part(args, tmp, rng, sfloor[1])
         print(f"load average at end {os.getloadavg()[0]:.1f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

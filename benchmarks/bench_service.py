@@ -59,6 +59,9 @@ from rulkit.fleet.service.loadgen import (
 from rulkit.fleet.service.pgtemp import TempPostgres, unavailable_reason
 from rulkit.fleet.store.postgres import open_store
 
+GET_SAMPLE = 50
+"""GETs of the pollers' page timed alone after the ingest phase (their CPU each)."""
+
 
 def write_phase(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
     sdb = ServiceDB(db)
@@ -71,12 +74,16 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int) -> dict[str,
                        batches=args.batches, batch_size=batch_size,
                        max_reads=args.batches * 4)
         cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
+        cpu1 = srv.cpu_seconds()  # the pollers' GET alone, to part it from the batches' CPU
+        _reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
+        get_cpu = (srv.cpu_seconds() - cpu1) / GET_SAMPLE
     finally:
         srv.stop()
     if res.errors:
         raise SystemExit(f"errors during the load: {res.errors[:5]}")
     verify_exactly_once(db, args.writers, args.batches, batch_size)
-    return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client}
+    return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client,
+            "get_cpu_s": get_cpu}
 
 
 def bare_floor(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
@@ -299,6 +306,13 @@ def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, f
           f"{cores} cores: {cores * 1e6 / ours:.0f} acquisitions/s "
           f"(bare: {cores * 1e6 / floor:.0f}/s); load average "
           f"{os.getloadavg()[0]:.1f}")
+    batches = n / size
+    ms, bare_ms = ours * size / 1e3, floor * size / 1e3
+    gets_ms = w["gets"] * w["get_cpu_s"] * 1e3 / batches
+    print(f"  per batch of {size}: service {ms:.2f} ms of CPU, of which the readers' "
+          f"{w['gets'] / batches:.1f} GETs {gets_ms:.2f} ms ({w['get_cpu_s'] * 1e3:.2f} ms "
+          f"each, timed alone after the load) and the POST {ms - gets_ms:.2f} ms; bare writes "
+          f"{bare_ms:.2f} ms; the POST's cost above its writes {ms - gets_ms - bare_ms:.2f} ms")
 
 
 def main() -> None:

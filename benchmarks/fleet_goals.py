@@ -18,6 +18,19 @@ mixed HI noise, an onset; ``rulkit.fleet.learned.datasets.GOAL_FLEETS``, 40 unit
 
 Writes ``goals.csv`` (one row per data set and method) into ``--out`` when given. Takes tens of
 minutes on two shared cores (the onset candidate's leave-one-out fits dominate).
+
+With ``--seeds``, the synthetic data sets are drawn once per seed (seed 0 is the goal fleet)
+and, on each fleet, the selection and the leave-one-unit-out of the selected model only run;
+the script prints, per seed, the selected model's error and coverage beside the oracle's on the
+same fleet (``fleet_oracle.py``: the generator's own predictive, calibrated by construction),
+then their means over the seeds with standard errors, the model's paired difference from the
+oracle, and each reading of the coverage goal (all predictions; the last half of life):
+
+    .venv/bin/python benchmarks/fleet_goals.py --datasets additive mixed --seeds 0 1 2 3 4
+    .venv/bin/python benchmarks/fleet_goals.py --summarise out/a/goals_seeds.csv out/b/...
+
+(``--out`` writes the rows to ``goals_seeds.csv``; ``--summarise`` prints the same summaries
+from such files, e.g. from seeds run in separate processes.)
 """
 
 from __future__ import annotations
@@ -34,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from fleet_oracle import oracle_scores
 from rulkit.fleet.learned.candidates import AUTO_CANDIDATES
 from rulkit.fleet.learned.datasets import GOAL_FLEETS, fatigue_histories, goal_fleet
 from rulkit.fleet.learned.evaluate import predictions, summarise
@@ -149,6 +163,87 @@ def run(name: str, seed: int, units: int, folds: int) -> pd.DataFrame:
     return summary
 
 
+SEED_COLUMNS = ("median_rel_err_last_half", "coverage_90", "coverage_90_last_half")
+
+
+def seed_row(name: str, seed: int, units: int, draws: int) -> dict[str, object]:
+    """One fleet of ``name`` drawn from ``seed``: the selection, the leave-one-unit-out of the
+    selected model (from the selection's fit on all units), the oracle on the same fleet."""
+    hist = load(name, seed, units)
+    t0 = time.perf_counter()
+    sel = select_model(hist, AUTO_CANDIDATES, folds=5)
+    pred = predictions(hist, (sel.chosen,), fitted={sel.chosen: sel.model})
+    summary = summarise(pred, (sel.chosen,)).set_index("method")
+    seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    oracle = oracle_scores(name, seed, units, draws)
+    row: dict[str, object] = {"dataset": name, "seed": seed, "failed": int(hist.failed.sum()),
+                              "selected": sel.chosen, "seconds": round(seconds),
+                              "oracle_seconds": round(time.perf_counter() - t0)}
+    for col in SEED_COLUMNS:
+        row[col] = float(summary.loc[sel.chosen, col])
+        row[f"oracle_{col}"] = oracle[col]
+    row["naive_best"] = float(summary.loc[["origin", "last2"], SEED_COLUMNS[0]].min())
+    return row
+
+
+def mean_se(x: pd.Series) -> tuple[float, float]:
+    """Mean over seeds and its standard error (sample sd / sqrt(n); NaN for one seed)."""
+    return float(x.mean()), float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else np.nan
+
+
+def print_seeds(rows: pd.DataFrame) -> None:
+    """Per seed, then over the seeds: the selected model's figures beside the oracle's, the
+    paired difference, and each reading of the coverage goal."""
+    lo, hi = GOAL_COVERAGE
+    name = str(rows["dataset"].iloc[0])
+    print(f"\n== {name}: {len(rows)} fleets (seeds {', '.join(map(str, rows['seed']))})")
+    cols = ["seed", "failed", "selected", *SEED_COLUMNS,
+            *(f"oracle_{c}" for c in SEED_COLUMNS), "naive_best", "seconds"]
+    with pd.option_context("display.width", 200, "display.float_format", "{:.3f}".format):
+        print(rows[cols].to_string(index=False))
+    for col, what in zip(SEED_COLUMNS, ("error (last half)", "coverage (all)",
+                                        "coverage (last half)"), strict=True):
+        m, se = mean_se(rows[col])
+        om, ose = mean_se(rows[f"oracle_{col}"])
+        dm, dse = mean_se(rows[col] - rows[f"oracle_{col}"])
+        line = (f"  {what}: model {m:.3f} +- {se:.3f}, oracle {om:.3f} +- {ose:.3f}, "
+                f"model - oracle {dm:+.3f} +- {dse:.3f} (mean +- standard error)")
+        if col == SEED_COLUMNS[0]:
+            ok = (rows[col] <= GOAL_ERROR) & (rows[col] < rows["naive_best"])
+            line += (f"; goal <= {GOAL_ERROR} and below both naive baselines on "
+                     f"{int(ok.sum())} of {len(rows)} fleets")
+        else:
+            inside = ((rows[col] >= lo) & (rows[col] <= hi)).sum()
+            o_inside = ((rows[f"oracle_{col}"] >= lo) & (rows[f"oracle_{col}"] <= hi)).sum()
+            line += (f"; in [{lo}, {hi}] on {int(inside)} of {len(rows)} fleets (oracle "
+                     f"{int(o_inside)}); mean {'in' if lo <= m <= hi else 'OUTSIDE'} the "
+                     f"band, mean +- 2 se [{m - 2 * se:.3f}, {m + 2 * se:.3f}] "
+                     f"{'overlaps' if m - 2 * se <= hi and m + 2 * se >= lo else 'EXCLUDES'}"
+                     f" it (oracle [{om - 2 * ose:.3f}, {om + 2 * ose:.3f}])")
+        print(line, flush=True)
+
+
+def run_seeds(names: list[str], seeds: list[int], units: int, draws: int,
+              out: Path | None) -> None:
+    """:func:`seed_row` for every synthetic data set and seed, printed by :func:`print_seeds`."""
+    tables = []
+    for name in names:
+        rows = []
+        for seed in seeds:
+            rows.append(seed_row(name, seed, units, draws))
+            r = rows[-1]
+            print(f"{name} seed {seed}: {r['selected']}, coverage {r['coverage_90']:.3f} / "
+                  f"{r['coverage_90_last_half']:.3f} (oracle {r['oracle_coverage_90']:.3f} / "
+                  f"{r['oracle_coverage_90_last_half']:.3f}), {r['seconds']} s", flush=True)
+        tables.append(pd.DataFrame(rows))
+        print_seeds(tables[-1])
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        pd.concat(tables).to_csv(out / "goals_seeds.csv", index=False)
+        print(f"wrote {out / 'goals_seeds.csv'}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
@@ -156,9 +251,28 @@ def main() -> None:
     ap.add_argument("--units", type=int, default=40, help="units per synthetic fleet")
     ap.add_argument("--folds", type=int, default=0, help="0: leave one unit out")
     ap.add_argument("--out", type=Path, default=None, help="directory for goals.csv")
+    ap.add_argument("--seeds", type=int, nargs="+", default=None,
+                    help="several fleets of each synthetic data set: the selected model and "
+                         "the oracle per seed, their means and standard errors")
+    ap.add_argument("--draws", type=int, default=400,
+                    help="the oracle's Monte Carlo futures per prediction (with --seeds)")
+    ap.add_argument("--summarise", type=Path, nargs="+", default=None,
+                    help="goals_seeds.csv files of --seeds runs: print their summaries")
     a = ap.parse_args()
-    print(f"load average {os.getloadavg()[0]:.1f} at the start; seed {a.seed}, {a.units} units")
     t0 = time.perf_counter()
+    if a.summarise is not None:
+        rows = pd.concat([pd.read_csv(f) for f in a.summarise], ignore_index=True)
+        for _, r in rows.sort_values(["dataset", "seed"]).groupby("dataset", sort=False):
+            print_seeds(r.reset_index(drop=True))
+        return
+    if a.seeds is not None:
+        print(f"load average {os.getloadavg()[0]:.1f} at the start; seeds {a.seeds}, "
+              f"{a.units} units, leave-one-unit-out of the selected model")
+        run_seeds([n for n in a.datasets if n in GOAL_FLEETS], a.seeds, a.units, a.draws, a.out)
+        print(f"\ntotal {time.perf_counter() - t0:.0f} s; load average "
+              f"{os.getloadavg()[0]:.1f} at the end")
+        return
+    print(f"load average {os.getloadavg()[0]:.1f} at the start; seed {a.seed}, {a.units} units")
     tables = [run(name, a.seed, a.units, a.folds) for name in a.datasets]
     print(f"\ntotal {time.perf_counter() - t0:.0f} s; load average "
           f"{os.getloadavg()[0]:.1f} at the end")

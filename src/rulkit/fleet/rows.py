@@ -43,33 +43,52 @@ def _row_1_based(i: int) -> str:
 
 
 def check_component_ids(comp: pd.Series, error: ErrorType = ValueError) -> pd.Series:
-    """Component ids as a categorical of stripped ``str``, or ``error`` at the first bad row.
+    """Component ids as a categorical of stripped ``str``, or ``error`` at the first bad row
+    (:func:`component_codes`: the rules and the refusals)."""
+    codes, names = component_codes(comp, error)
+    return pd.Series(pd.Categorical.from_codes(codes, categories=pd.Index(names, dtype=object)),
+                     index=comp.index)
+
+
+def component_codes(comp: Any, error: ErrorType = ValueError
+                    ) -> tuple[NDArray[np.intp], list[str]]:
+    """Component ids as (per row, the index of its id in ``names``; ``names``: the distinct
+    stripped ``str`` ids in order of first appearance), or ``error`` at the first bad row.
 
     Accepted: 1 to :data:`COMPONENT_ID_MAX_LEN` characters after stripping surrounding blanks,
     every one printable (:meth:`str.isprintable`). Refused, naming the 1-based row: a missing
     or empty id, a non-text id (a number in a Parquet column is taken as its text, but bytes
     are refused), text that is not valid Unicode (a lone surrogate), a control or format
     character (ESC, newline, tab, bidi override), and an id longer than the limit. The check
-    runs once per distinct id.
+    runs once per distinct id. ``comp``: a pandas Series or a numpy object array (a batch's
+    JSON column: one dict lookup per row instead of pandas' factorize).
     """
-    missing = comp.isna().to_numpy()
-    if missing.any():
-        i = int(np.flatnonzero(missing)[0])
-        raise error(f"row {i + 1}: empty component name")
-    codes, uniques = pd.factorize(comp, sort=False)
+    values = comp if isinstance(comp, np.ndarray) and comp.dtype == object else None
+    if values is not None and set(map(type, values.tolist())) == {str}:
+        first: dict[str, int] = {}
+        codes = np.fromiter((first.setdefault(v, len(first)) for v in values.tolist()),
+                            dtype=np.intp, count=values.size)
+        uniques: Any = list(first)
+    else:
+        series = comp if isinstance(comp, pd.Series) else pd.Series(comp, dtype=object)
+        missing = series.isna().to_numpy()
+        if missing.any():
+            i = int(np.flatnonzero(missing)[0])
+            raise error(f"row {i + 1}: empty component name")
+        codes, uniques = pd.factorize(series, sort=False)
     clean = _plain_ids(uniques)
-    if clean is None:
-        clean = []
-        for k, v in enumerate(uniques):
-            text, reason = _clean_id(v)
-            if reason:
-                i = int(np.flatnonzero(codes == k)[0])
-                raise error(f"row {i + 1}: {reason}")
-            clean.append(text)
-    # ids equal after stripping share one category; the frame keeps int codes, not 2M strings
+    if clean is not None:
+        return np.asarray(codes, dtype=np.intp), clean
+    clean = []
+    for k, v in enumerate(uniques):
+        text, reason = _clean_id(v)
+        if reason:
+            i = int(np.flatnonzero(codes == k)[0])
+            raise error(f"row {i + 1}: {reason}")
+        clean.append(text)
+    # ids equal after stripping share one name
     ucodes, ucats = pd.factorize(pd.Index(clean, dtype=object))
-    return pd.Series(pd.Categorical.from_codes(np.asarray(ucodes)[codes], categories=ucats),
-                     index=comp.index)
+    return np.asarray(ucodes, dtype=np.intp)[codes], [str(c) for c in ucats]
 
 
 def _plain_ids(uniques: Any) -> list[str] | None:
@@ -115,7 +134,7 @@ def _clean_id(v: object) -> tuple[str, str]:
 
 
 def numeric_values(
-    col: pd.Series,
+    col: pd.Series | NDArray[Any],
     name: str,
     *,
     error: ErrorType = ValueError,
@@ -124,11 +143,16 @@ def numeric_values(
     """``col`` as finite float64, or ``error`` naming the column, the row and the value.
 
     Accepted: integer and floating columns (numpy or pandas' nullable ones), and object
-    columns whose every cell is an int or float. Refused: booleans, text (also numbers
-    written as text), dates, and NaN / infinities (module docstring). A float64 column that is
-    all finite is returned without a copy (read-only use)."""
-    dtype = col.dtype
+    columns whose every cell is an int or float, or a numpy array of integers or floats.
+    Refused: booleans, text (also numbers written as text), dates, and NaN / infinities
+    (module docstring). A float64 column that is all finite is returned without a copy
+    (read-only use)."""
     label = f"column {name!r}, "
+    if isinstance(col, np.ndarray) and col.dtype.kind in "iuf":  # a batch's JSON numbers
+        return _finite(col.astype(np.float64, copy=False), label, error, row_label)
+    if not isinstance(col, pd.Series):
+        col = pd.Series(col)
+    dtype = col.dtype
     if pd.api.types.is_bool_dtype(dtype):
         raise error(f"{label}{row_label(0)}: {cell_repr(col.iloc[0])} is a boolean, not a "
                     "number (a numeric column holds numbers only)")
@@ -147,6 +171,12 @@ def numeric_values(
     else:
         raise error(f"{label}{row_label(0)}: {cell_repr(col.iloc[0])} is of type {dtype}, not "
                     "a number (a numeric column holds numbers only)")
+    return _finite(a, label, error, row_label)
+
+
+def _finite(a: NDArray[np.float64], label: str, error: ErrorType,
+            row_label: Callable[[int], str]) -> NDArray[np.float64]:
+    """``a``, or ``error`` at its first NaN or infinity."""
     nonfinite = ~np.isfinite(a)
     if nonfinite.any():
         i = int(np.flatnonzero(nonfinite)[0])

@@ -3,6 +3,7 @@ file, and its refusals."""
 
 import subprocess
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -59,18 +60,14 @@ def test_refusals_write_nothing(tmp_path, fleet_db):
 
 def test_a_learned_type_without_c_export_is_refused_by_name(tmp_path):
     from rulkit.fleet.export.learned_device import EXPORTERS
-    from rulkit.fleet.learned.degradation import KINDS
-    from rulkit.fleet.learned.hi_noise import HiNoiseModel
     from rulkit.fleet.learned.onset import OnsetModel
     from rulkit.fleet.store.sqlite import ComponentStore
 
-    assert sorted(EXPORTERS) == sorted(KINDS)  # the refusal names what is exported
     csv = tmp_path / "fatigue.csv"
     fatigue_histories().to_frame().to_csv(csv, index=False)
     growth = {"shape": 0.0, "mean": (-2.3, 1.5), "cov": (0.01, 0.0, 0.2), "hi_noise_sd": 0.02,
               "log_noise_sd": 0.0, "walk_sd": 0.05, "time_scale": 300.0}
-    stored = {"paris-additive": HiNoiseModel(noise="additive", **growth),
-              "onset": OnsetModel(noise="additive", grid=(0.0, 0.5), onset_mean=0.4,
+    stored = {"onset": OnsetModel(noise="additive", grid=(0.0, 0.5), onset_mean=0.4,
                                   onset_sd=0.3, **growth)}
     for name in ("regression", *stored):
         db, out = tmp_path / f"{name}.db", tmp_path / f"c-{name}"
@@ -83,8 +80,42 @@ def test_a_learned_type_without_c_export_is_refused_by_name(tmp_path):
         res = _run("export", "c", "--db", db, "--out", out)
         assert res.exit_code == 1, res.output
         assert f"learned model type {name!r}" in res.output
-        assert "runs the learned types linear, exponential, paris" in res.output
+        # the refusal names every exported type (the -iid variant is paris-additive's entry)
+        listed = res.output.split("runs the learned types ")[1].split(" (rulkit fit")[0]
+        assert set(listed.replace("\n", " ").split(", ")) == set(EXPORTERS) - {
+            "paris-additive-iid"}
         assert "--no-learned" in res.output and not out.exists()
+
+
+def test_export_of_a_paris_mixed_fit_runs_as_its_database(cc, tmp_path):
+    """rulkit fit --model paris-mixed, rulkit track, rulkit export c: the C compiled from the
+    export's files (as written) over the tracked acquisitions gives the learned RUL median and
+    interval the database holds (tolerance: tests/fleet/export/test_learned_device.py)."""
+    from rulkit.fleet.export.device_spec import spec_from_database
+    from rulkit.fleet.export.generator import generate_c
+    from rulkit.fleet.export.verify import build, relative_error, segments
+    from rulkit.fleet.learned.datasets import goal_fleet
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    frame, _ = goal_fleet("mixed", np.random.default_rng(11), 6)
+    csv, db, out = tmp_path / "mixed.csv", tmp_path / "fleet.db", tmp_path / "c"
+    frame.to_csv(csv, index=False)
+    fit = _run("fit", csv, "--db", db, "--model", "paris-mixed", "--time-unit", "h")
+    assert fit.exit_code == 0, fit.output
+    assert _run("track", "--db", db, csv).exit_code == 0
+    res = _run("export", "c", "--db", db, "--out", out, "--prefix", "rk")
+    assert res.exit_code == 0, res.output
+    assert "learned paris-mixed model (double)" in res.output
+    spec = spec_from_database(db)
+    assert generate_c(spec)["rk.c"] == (out / "rk.c").read_text()
+    with ComponentStore(db, readonly=True) as store:
+        hist = store.history()
+    start, df = segments(hist.rename(columns={"t": "time"}))
+    got = build(spec, tmp_path / "lib").run(start, df["time"], df["hi"], through_bytes=True)
+    for col, ref in (("rul_median", "rul_median"), ("rul_p05", "rul_low"),
+                     ("rul_p95", "rul_high")):
+        assert relative_error(got[col], df[ref]).max() <= 1e-7, col
+    assert np.isfinite(df["rul_median"]).mean() > 0.8
 
 
 def test_export_from_a_configuration_file(tmp_path):

@@ -1,10 +1,29 @@
-"""Which learned models the device runs, and the refusal of the others by name."""
+"""Which learned models the device runs, the refusal of the others by name, and the HI-noise
+variants compiled and run beside their Python models."""
 
+import re
+import struct
+
+import numpy as np
 import pytest
 
-from rulkit.fleet.export.device_spec import ExportError
+from rulkit.fleet.export.device_spec import DeviceSpec, ExportError
+from rulkit.fleet.export.generator import generate_c, template_context
 from rulkit.fleet.export.learned_device import EXPORTERS, learned_device
+from rulkit.fleet.export.verify import (
+    ERROR_BOUNDS,
+    LEARNED_COLUMNS,
+    build,
+    python_reference,
+    relative_error,
+    scaled_error,
+    segments,
+)
+from rulkit.fleet.learned.datasets import GOAL_FLEETS, goal_fleet
 from rulkit.fleet.learned.degradation import KINDS, DegradationModel
+from rulkit.fleet.learned.hi_noise import NOISES, HiNoiseModel, fit_hi_noise
+from rulkit.fleet.learned.histories import histories_from_frame
+from rulkit.fleet.tracking.tracker_settings import fit_tracker_config
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -40,3 +59,196 @@ def test_a_model_setting_the_template_does_not_implement_is_refused():
     assert learned_device(Extended(**base)).kind == "linear"  # default: the known model
     with pytest.raises(ExportError, match="noise_scale = 'hi' has no C export"):
         learned_device(Extended(**base, noise_scale="hi"))
+
+
+# ---------------------------------------------------------------- the HI-noise variants in C
+# Tolerances of the double build against Python. The posterior: 1e-12 of each field's range
+# (the C runs the IEKF of filter_kernels.assimilate operation by operation; the same glibc
+# pow/exp, so only the compiler's and numba's choices of instructions could differ). The RUL
+# quantiles: 1e-7 relative. Eq. (6) is a quadratic whose discriminant cancels to ~eps of its
+# terms where the level's normal quantile c is near 0 (the median of a unit far from failure):
+# its roots carry ~sqrt(eps) = 1.5e-8 relative rounding, which the C's normal quantile (Halley
+# steps on erfc) and scipy's ndtri start from different last bits of c.
+POSTERIOR_TOL = 1e-12
+QUANTILE_RTOL = 1e-7
+
+
+@pytest.fixture(scope="module")
+def noise_fits():
+    """Each variant fitted on a small fleet of its own noise kind (datasets.GOAL_FLEETS'
+    settings; the shape fixed at the generator's m skips the profile-likelihood grid: the
+    export does not care how the model was fitted). m = 2 gives the log form."""
+    out = {}
+    for noise in NOISES:
+        frame, _ = goal_fleet(noise, np.random.default_rng(11), 8)
+        hist = histories_from_frame(frame, "test")
+        model = fit_hi_noise(hist, noise, shape=1.0 - float(GOAL_FLEETS[noise]["m"]) / 2.0)
+        out[noise] = (DeviceSpec("g", "test", fit_tracker_config(hist), None, model), frame)
+    return out
+
+
+def _saved_posterior(lib, spec, t, hi):
+    """(m_z, m_b, p_zz, p_zb, p_bb) of one component's saved state after ``t``, ``hi``."""
+    ctx = template_context(spec, "double", "rk")
+    layout = {f["name"]: f["offset"] for f in ctx["fields"]}
+    status, saved = lib.state_bytes(t, hi, int(ctx["state_bytes"]))
+    assert status == 0
+    return [struct.unpack_from("<d", saved, layout[f])[0] for f in STATE_NAMES]
+
+
+def _posterior_errors(lib, spec, frame, n_units=2):
+    """scaled_error of each posterior field of the C (read from its saved state after every
+    acquisition of the first ``n_units`` units) against the model's replay."""
+    start, df = segments(frame)
+    ref = spec.learned.replay(histories_from_frame(df, "test"))
+    rows = np.arange(start[n_units])
+    got = np.empty((rows.size, 5))
+    for k in rows:
+        u = np.searchsorted(start, k, side="right") - 1
+        got[k] = _saved_posterior(lib, spec, df["time"].to_numpy()[start[u]:k + 1],
+                                  df["hi"].to_numpy()[start[u]:k + 1])
+    want = np.column_stack([ref.m[rows], ref.p[rows]])
+    return {f: scaled_error(got[:, j], want[:, j]) for j, f in enumerate(STATE_NAMES)}
+
+
+def _quantile_errors(lib, spec, frame):
+    start, df = segments(frame)
+    got = lib.run(start, df["time"], df["hi"], through_bytes=True)
+    assert (got["status"] == 0).all()
+    ref = python_reference(spec, start, df["time"].to_numpy(), df["hi"].to_numpy())
+    return {c: float(relative_error(got[c], ref[c]).max()) for c in LEARNED_COLUMNS}, ref
+
+
+STATE_NAMES = ("m_z", "m_b", "p_zz", "p_zb", "p_bb")
+
+
+@pytest.mark.parametrize("noise", NOISES)
+def test_hi_noise_variant_in_c_equals_its_python_model(cc, tmp_path, noise_fits, noise):
+    spec, frame = noise_fits[noise]
+    assert learned_device(spec.learned).kind == f"paris-{noise}"
+    lib = build(spec, tmp_path / noise)
+    for field, err in _posterior_errors(lib, spec, frame).items():
+        assert err <= POSTERIOR_TOL, field
+    errors, ref = _quantile_errors(lib, spec, frame)
+    assert max(errors.values()) <= QUANTILE_RTOL, errors
+    finite = np.isfinite(ref["rul_median"]) & (ref["rul_median"] > 0)
+    assert finite.mean() > 0.8  # the comparison covers real quantiles, not 0 / inf only
+
+
+MUTATIONS = {
+    # one Gauss-Newton step instead of the iterations: the plain EKF
+    "EKF instead of IEKF": (r"k < 8;", "k < 1;"),
+    # the additive noise variance 1e-6 relative off: the posterior moves
+    "L_R_HI": (r"L_R_HI = ([^;]+);", 1e-6),
+    # the measurement variance at hi = 1, 1e-4 relative off: only the quantiles move
+    "L_MEASURED_VAR": (r"L_MEASURED_VAR = ([^;]+);", 1e-4),
+}
+
+
+@pytest.mark.parametrize("mutation", sorted(MUTATIONS))
+def test_the_comparison_fails_when_the_c_is_wrong(cc, tmp_path, noise_fits, monkeypatch,
+                                                  mutation):
+    import rulkit.fleet.export.verify as verify
+
+    pattern, change = MUTATIONS[mutation]
+    spec, frame = noise_fits["mixed"]
+
+    def mutated(*args, **kwargs):
+        files = generate_c(*args, **kwargs)
+        text = files["rk.c"]
+        if isinstance(change, str):
+            new = re.sub(pattern, change, text)
+        else:
+            new = re.sub(pattern, lambda m: m.group(0).replace(
+                m.group(1), repr(float(m.group(1)) * (1.0 + change))), text)
+        assert new != text
+        return {**files, "rk.c": new}
+
+    monkeypatch.setattr(verify, "generate_c", mutated)
+    lib = build(spec, tmp_path / "mutant")
+    posterior = max(_posterior_errors(lib, spec, frame).values())
+    quantiles = max(_quantile_errors(lib, spec, frame)[0].values())
+    if mutation == "L_MEASURED_VAR":
+        assert posterior <= POSTERIOR_TOL and quantiles > 10 * QUANTILE_RTOL
+    else:
+        assert posterior > 10 * POSTERIOR_TOL
+
+
+def test_hi_noise_quantiles_against_root_finding_and_monte_carlo(cc, tmp_path, noise_fits):
+    """One state's RUL quantiles from the C against eq. (5) solved by scipy's brentq on the
+    survival ratio, and against a Monte Carlo of the model's predictive law: (z, b) from the
+    posterior, the walk and the measurement noise at the threshold drawn, the event z + e >= 0."""
+    from scipy.optimize import brentq
+    from scipy.stats import norm
+
+    spec, frame = noise_fits["mixed"]
+    model = spec.learned
+    lib = build(spec, tmp_path / "c")
+    start, df = segments(frame)
+    k = start[0] + (start[1] - start[0]) // 2  # mid-life of the first unit
+    out = lib.run(np.array([0, k + 1 - start[0]]), df["time"][start[0]:k + 1],
+                  df["hi"][start[0]:k + 1])
+    mz, mb, pzz, pzb, pbb = _saved_posterior(lib, spec, df["time"].to_numpy()[:k + 1],
+                                             df["hi"].to_numpy()[:k + 1])
+    q, r, tau = model.walk_sd**2, model.measured_var, model.time_scale
+
+    def log_surv(w):
+        var = pzz + r + 2 * w * pzb + w * w * pbb + q * w
+        return norm.logcdf(-(mz + mb * w) / np.sqrt(var))
+
+    c_quantiles = [out[c][-1] for c in LEARNED_COLUMNS]
+    for level, got in zip((0.5, 0.05, 0.95), c_quantiles, strict=True):
+        w = brentq(lambda w, lv=level: log_surv(w) - log_surv(0.0) - np.log1p(-lv), 0.0, 50.0,
+                   xtol=1e-14, rtol=1e-14)
+        assert got == pytest.approx(w * tau, rel=QUANTILE_RTOL)
+    rng = np.random.default_rng(2)
+    n = 100_000
+    ab = rng.multivariate_normal([mz, mb], [[pzz, pzb], [pzb, pbb]], size=n)
+    surv0 = np.mean(ab[:, 0] + np.sqrt(r) * rng.standard_normal(n) < 0)
+    for level, got in zip((0.5, 0.05, 0.95), c_quantiles, strict=True):
+        w = got / tau
+        level_w = ab[:, 0] + ab[:, 1] * w + np.sqrt(q * w + r) * rng.standard_normal(n)
+        cdf = 1.0 - np.mean(level_w < 0) / surv0
+        assert abs(cdf - level) < 4.0 * np.sqrt(level * (1 - level) / n) + 1e-3
+
+
+def test_hi_noise_settings_without_c_are_refused():
+    import dataclasses
+
+    @dataclasses.dataclass(frozen=True)
+    class Extended(HiNoiseModel):
+        onset_grid: tuple[float, ...] = ()
+
+    base = dict(noise="additive", shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2),
+                hi_noise_sd=0.02, log_noise_sd=0.0, walk_sd=0.05, time_scale=300.0)
+    assert learned_device(Extended(**base)).kind == "paris-additive"
+    assert learned_device(HiNoiseModel(**{**base, "walk_sd": 0.0})).kind == "paris-additive-iid"
+    with pytest.raises(ExportError, match=r"onset_grid = \(0.0, 0.5\) has no C export"):
+        learned_device(Extended(**base, onset_grid=(0.0, 0.5)))
+    with pytest.raises(ExportError, match="expected a HiNoiseModel"):
+        EXPORTERS["paris-mixed"](DegradationModel("paris", 0.0, (-1.0, 0.5), (0.1, 0.0, 0.1),
+                                                  0.02, 0.01, 10.0))
+
+
+def test_hi_noise_variants_in_float_within_the_float_bounds(cc, tmp_path, noise_fits):
+    """The float build (time stamps double, the IEKF in float: its iterations stop at the
+    count, float rarely meets the 1e-9 step) within verify.ERROR_BOUNDS['float']."""
+    for noise, (spec, frame) in noise_fits.items():
+        start, df = segments(frame)
+        got = build(spec, tmp_path / noise, "float").run(start, df["time"], df["hi"])
+        ref = python_reference(spec, start, df["time"].to_numpy(), df["hi"].to_numpy())
+        for col in LEARNED_COLUMNS:
+            assert scaled_error(got[col], ref[col]) <= ERROR_BOUNDS["float"][col], (noise, col)
+
+
+def test_hi_noise_variant_under_the_sanitizers(cc, tmp_path, noise_fits):
+    """paris-mixed (pow form) compiled with -fsanitize=undefined,address, equal to the normal
+    build on every output."""
+    from rulkit.fleet.export.verify import run_sanitized
+
+    spec, frame = noise_fits["mixed"]
+    start, df = segments(frame)
+    ref = build(spec, tmp_path / "lib").run(start, df["time"], df["hi"])
+    got = run_sanitized(spec, tmp_path / "san", start, df["time"], df["hi"])
+    for col in ref:
+        np.testing.assert_array_equal(got[col], ref[col])

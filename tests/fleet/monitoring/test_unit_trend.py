@@ -17,6 +17,7 @@ from rulkit.fleet.monitoring.unit_trend import (
     rul_quantiles,
     t_cdf,
     t_quantile,
+    t_quantiles,
     trend_posterior,
     trend_run,
     trend_update,
@@ -146,6 +147,24 @@ def test_quantiles_against_a_brute_force_search():
         np.testing.assert_allclose(got[~inf], ref[~inf], rtol=1e-8, atol=1e-9, err_msg=str(p))
     med, low, high = rul_quantiles(post, (0.5, 0.05, 0.95))
     assert np.all(low >= 0) and np.all(low <= med) and np.all(med <= high)
+
+
+def test_levels_at_once_equal_one_level_at_a_time():
+    """The batch's quantiles of every level in one broadcast pass have the bits of one
+    t-quantile lookup and one crossing per level (NaN degrees of freedom included)."""
+    rng = np.random.default_rng(5)
+    post = random_posteriors(rng, 80)
+    nu = post.nu.copy()
+    nu[::7] = np.nan
+    post = TrendPosterior(post.a, post.b, post.vaa, post.vab, post.vbb, nu)
+    levels = (0.5, 0.05, 0.95, 0.2)
+    table = t_quantiles(nu, levels)
+    got = rul_quantiles(post, levels)
+    for j, p in enumerate(levels):
+        c = t_quantile(nu, p)
+        assert table[j].tobytes() == c.tobytes(), p
+        one = first_crossing(post.a, post.b, post.vaa, 2.0 * post.vab, post.vbb, c)
+        assert got[j].tobytes() == one.tobytes(), p
 
 
 def test_first_crossing_cases():

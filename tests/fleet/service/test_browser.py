@@ -180,6 +180,7 @@ def test_dashboard_in_headless_chromium(tmp_path, live_server, need):
             hist = sdb.history(warned, limit=500)
             check_hi_chart(driver, By, hi, hist, cells[warned])
             check_rul_chart(rul, hist)
+            check_alert_tooltip(driver, By, wait, hi, hist)
             assert "RUL " + cells[warned] in driver.find_element(By.ID, "detail-summary").text
             driver.find_element(By.ID, "detail").screenshot(str(shots[1]))
             # open alerts show the table's RUL for their component
@@ -267,6 +268,40 @@ def check_hi_chart(driver, by, rec, hist, rul_text):
     assert len(ages) >= 3 and h["t"][0] <= min(ages) <= max(ages) <= fc["t"][-1] + 0.05 * span
     assert len(rec["ticks"]["y"]) >= 3
     assert rec["alerts"] == len(hist["alerts"]) >= 1
+
+
+def js_fmt6(v):
+    """The page's fmt(v, 6) for a time in [1e-3, 1e5) (6 significant digits), written again."""
+    assert 1e-3 <= abs(v) < 1e5, v
+    x = float(f"{v:.6g}")
+    return str(int(x)) if x == int(x) else repr(x)
+
+
+def check_alert_tooltip(driver, by, wait, rec, hist):
+    """Hovering an alert's mark on the HI chart shows what the API says the alert was: its
+    level, its time (in hours and as a date) and its reason; away from every mark, nothing."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    over = driver.find_element(by.CSS_SELECTOR, "#hi-chart .u-over")
+    tip = driver.find_element(by.CSS_SELECTOR, "#hi-chart .alert-tip")
+    width = over.size["width"]
+    lefts = {m["id"]: m["left"] for m in rec["marks"]}
+    assert sorted(lefts) == sorted(a["id"] for a in hist["alerts"])
+    alert = hist["alerts"][-1]
+    assert alert["reason"], alert
+    left = lefts[alert["id"]]
+    ActionChains(driver).move_to_element_with_offset(over, round(left - width / 2), 0).perform()
+    wait.until(lambda d: tip.is_displayed())
+    assert str(alert["id"]) in tip.get_attribute("data-alert-ids").split()
+    date = time.strftime("%Y-%m-%d %H:%M UTC",
+                         time.gmtime(hist["time_origin"] + alert["time"] * hist["unit_seconds"]))
+    want = f"{alert['level']} at t = {js_fmt6(alert['time'])} ({date}): {alert['reason']}"
+    assert want in tip.text.split("\n"), (tip.text, want)
+    # 20 px from every mark: no tooltip
+    free = next(x for x in range(5, int(width) - 5, 5)
+                if all(abs(x - m) > 20 for m in lefts.values()))
+    ActionChains(driver).move_to_element_with_offset(over, round(free - width / 2), 0).perform()
+    wait.until(lambda d: not tip.is_displayed())
 
 
 def check_rul_chart(rec, hist):

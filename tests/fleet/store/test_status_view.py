@@ -122,6 +122,94 @@ def test_csv_and_json_hold_the_same_records(tmp_path):
     assert ("2024-05-01T12:00:00Z", False) in by_seen
 
 
+def _records(db):
+    """The printed columns row by row (order, due dates and staleness as read_status derives
+    them: the pandas path checks those), each value a plain Python value."""
+    _, cols = sv.read_status(db, now=sv_now())
+    plain = {c: v.tolist() if isinstance(v, np.ndarray) else list(v) for c, v in cols.items()}
+    return [dict(zip(sv.STATUS_COLUMNS, row, strict=True))
+            for row in zip(*(plain[c] for c in sv.STATUS_COLUMNS), strict=True)]
+
+
+def sv_now():
+    return datetime.datetime.fromisoformat(NOW.replace("Z", "+00:00")).timestamp()
+
+
+def _ascii(text):
+    """Every non-ASCII character as JSON's \\uXXXX escape (the json module's, independently)."""
+    return "".join(ch if ord(ch) < 128 else json.dumps(ch)[1:-1] for ch in text)
+
+
+def _expected_table(db, recs):
+    """The table rendered cell by cell with format() and rulkit.tables.text_table."""
+    from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
+    from rulkit.tables import safe_text, text_table
+
+    def g3(v):
+        return "-" if v is None or math.isnan(v) else format(v + 0.0, ".3g")
+
+    def rul(r):
+        if r["failed"]:
+            return "failed"
+        if r["rul"] is None or math.isnan(r["rul"]):
+            return "-"
+        return f"{g3(r['rul'])} [{g3(r['rul_low'])}, {g3(r['rul_high'])}]"
+
+    cells = {"component": [safe_text(r["component"], 40) for r in recs],
+             "level": [LEVEL_NAMES[r["level"]] for r in recs],
+             "RUL (h)": [rul(r) for r in recs],
+             "due": [r["due"][:16] + "Z" if r["due"] else "-" for r in recs],
+             "HI": [format(r["hi"], ".3f") for r in recs],
+             "n": [str(r["n"]) for r in recs],
+             "last t": [format(r["t"], "g") for r in recs],
+             "last seen": [r["last_seen"][:16] + "Z" if r["last_seen"] else "-" for r in recs],
+             "": ["stale" if r["stale"] else "" for r in recs]}
+    return text_table(cells, left=("component", "level", ""))
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_formats_against_an_independent_rendering(tmp_path, seed):
+    """Each format's bytes equal the same rows rendered the plain way: JSON as orjson writes
+    a list of dicts (non-ASCII escaped by the json module), CSV as pyarrow writes a table
+    built by pa.array from Python lists, the table's rows by format() and text_table."""
+    import orjson
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
+    from rulkit.tables import safe_text
+
+    db = tmp_path / "s.db"
+    _random_db(db, np.random.default_rng(seed))
+    recs = _records(db)
+    out = {fmt: runner.invoke(app, ["status", "--db", str(db), "--now", NOW, "--format", fmt])
+           for fmt in ("table", "csv", "json")}
+    assert all(r.exit_code == 0 for r in out.values()), {k: r.output for k, r in out.items()}
+
+    named = [{**r, "level": LEVEL_NAMES[r["level"]]} for r in recs]
+    want_json = _ascii(orjson.dumps(named).decode()).encode() + b"\n"
+    assert out["json"].stdout_bytes == want_json
+
+    def col(c, typ):
+        vals = [r[c] for r in named]
+        if typ == pa.float64():
+            vals = [None if v is None or math.isnan(v) else v for v in vals]
+        return pa.array(vals, type=typ)
+
+    types = {**dict.fromkeys(sv.FLOAT_COLUMNS, pa.float64()),
+             **dict.fromkeys(sv.BOOL_COLUMNS, pa.bool_()), "n": pa.int64()}
+    arrays = [pa.array([c if c.isprintable() else safe_text(c) for c in
+                        (r["component"] for r in recs)], type=pa.string())]
+    arrays += [col(c, types.get(c, pa.string())) for c in sv.STATUS_COLUMNS[1:]]
+    buf = io.BytesIO()
+    pacsv.write_csv(pa.Table.from_arrays(arrays, names=list(sv.STATUS_COLUMNS)), buf,
+                    pacsv.WriteOptions(quoting_style="needed"))
+    assert out["csv"].stdout_bytes == buf.getvalue()
+
+    table = out["table"].output.split("\n", 1)[1]  # after the counts line
+    assert table.startswith(_expected_table(db, recs))
+
+
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
 def test_empty_database_same_output(tmp_path, monkeypatch, fmt):
     db = tmp_path / "e.db"
@@ -201,11 +289,13 @@ def test_json_parses_back_to_the_stored_values(tmp_path, seed):
 
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
 def test_status_imports_no_pandas(tmp_path, fmt):
+    """Nor any other module the command does not use (each costs start-up time)."""
     db = tmp_path / "p.db"
     _random_db(db, np.random.default_rng(4), n=5)
     code = ("import atexit, sys\n"
             "atexit.register(lambda: sys.stderr.write(' '.join(m for m in ('pandas', 'scipy', "
-            "'rich', 'numba') if m in sys.modules)))\n"
+            "'rich', 'numba', 'matplotlib', 'fastapi', 'pyarrow.compute', 'threadpoolctl', "
+            "'rulkit.systems.reaction_wheel.pipeline') if m in sys.modules)))\n"
             "from rulkit.cli import main\n"
             f"sys.argv = ['rulkit', 'status', '--db', {str(db)!r}, '--format', {fmt!r}]\n"
             "main()\n")

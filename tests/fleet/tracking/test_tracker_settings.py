@@ -76,8 +76,9 @@ def test_fitted_settings_from_histories():
     cfg = fit_tracker_config(h)
     assert cfg.initiation == "measured" and cfg.rul_clip
     # the generator's HI noise is 0.01; the quadratic fits' misfit of the Paris curvature
-    # near failure can only add to the residuals (measured: 0.016 on this fleet)
-    assert 0.009 <= cfg.hi_sigma <= 0.02
+    # near failure can only add to the residuals (measured: 0.014 to 0.025 on seeds 0-11 of
+    # this fleet, 0.020 on this one)
+    assert 0.009 <= cfg.hi_sigma <= 0.03
     life = h.t[h.start[1:] - 1].max()
     assert cfg.design_life == pytest.approx(100 * life)
     assert 1e-4 <= cfg.lambda_hi <= 1e3 and 1e-4 <= cfg.lambda_rul <= 1e3

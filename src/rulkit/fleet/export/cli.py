@@ -76,6 +76,6 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if device.hi_model is not None:
             parts.insert(0, f"HI from {device.hi_model.n} CIs")
         if device.learned is not None:
-            parts.append(f"learned {device.learned.kind} model")
+            parts.append(f"learned {device.learned.name} model")
         typer.echo(f"wrote {', '.join(str(p) for p in paths)}: {', '.join(parts)} "
                    f"({number}) of {device.name!r} from {device.source}")

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rulkit.fleet.learned.degradation import KINDS, DegradationModel
+from rulkit.fleet.learned.hi_noise import NOISES, HiNoiseModel
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 from rulkit.machine_file import Field, MachineFileError, read_machine_file
@@ -22,6 +23,11 @@ from rulkit.machine_file import Field, MachineFileError, read_machine_file
 
 class ExportError(ValueError):
     """The input cannot be exported to C; the message says which part and why."""
+
+
+LearnedModel = DegradationModel | HiNoiseModel
+"""The learned model types a device can run: a Gaussian posterior of (level, rate) with the RUL
+law of docs/fleet-models.md eqs. (5)-(6) (rulkit.fleet.export.learned_device)."""
 
 
 @dataclass(frozen=True)
@@ -37,7 +43,7 @@ class DeviceSpec:
     source: str
     config: TrackerConfig
     hi_model: HealthIndexModel | None = None
-    learned: DegradationModel | None = None
+    learned: LearnedModel | None = None
 
 
 def spec_from_database(path: str | Path, name: str | None = None) -> DeviceSpec:
@@ -53,10 +59,11 @@ def spec_from_database(path: str | Path, name: str | None = None) -> DeviceSpec:
         raise ExportError(f"{p}: no such database") from err
     except StoreError as err:
         raise ExportError(str(err)) from err
-    if learned is not None and not isinstance(learned, DegradationModel):
+    if learned is not None and not isinstance(learned, DegradationModel | HiNoiseModel):
+        kinds = (*KINDS, *(f"paris-{n}" for n in NOISES))
         raise ExportError(
             f"{p}: the learned model type {learned.name!r} ({type(learned).__name__}) has no C "
-            f"export; the device runs the learned types {', '.join(KINDS)} (rulkit fit "
+            f"export; the device runs the learned types {', '.join(kinds)} (rulkit fit "
             "--model NAME); refit with one of them, or export the tracker chain alone with "
             "--no-learned")
     return DeviceSpec(name=name or p.stem, source=str(p), config=config, hi_model=hi_model,
@@ -144,4 +151,5 @@ def spec_from_file(path: str | Path) -> DeviceSpec:
                       learned=learned)
 
 
-__all__ = ["CONFIG_SCHEMA", "DeviceSpec", "ExportError", "spec_from_database", "spec_from_file"]
+__all__ = ["CONFIG_SCHEMA", "DeviceSpec", "ExportError", "LearnedModel", "spec_from_database",
+           "spec_from_file"]

@@ -72,7 +72,7 @@ def fixed_context(device: DeviceSpec) -> dict[str, Any]:
     if device.learned is not None:
         raise ExportError(
             f"fixed point covers the tracker chain only; this export holds the learned "
-            f"{device.learned.kind} model (erfc and the normal quantile need floating point): "
+            f"{device.learned.name} model (erfc and the normal quantile need floating point): "
             "use --number float, or --no-learned")
     if device.hi_model is not None:
         raise ExportError("fixed point takes the HI as input; this export holds a CI -> HI "

@@ -141,7 +141,7 @@ def template_context(device: DeviceSpec, number: str, prefix: str) -> dict[str, 
     learned_fields: list[str] = []
     if device.learned is not None:
         dev = learned_device(device.learned)
-        consts = {k: (v if isinstance(v, bool) else
+        consts = {k: (v if isinstance(v, (bool, int, str)) else
                       [lit(x) for x in v] if isinstance(v, list) else lit(v))
                   for k, v in dev.constants.items()}
         learned = {**consts, "kind": dev.kind, "template": dev.template,

@@ -5,9 +5,9 @@
 directory and compiles them into a shared library with the strict flags of
 :data:`STRICT_FLAGS`; :class:`DeviceLibrary` drives it through ``ctypes`` over many components'
 acquisitions in one call; :func:`python_reference` computes the same outputs with
-:func:`~rulkit.fleet.tracking.tracker_run.tracker_run` and the learned model of
-:mod:`rulkit.fleet.learned.degradation`; :func:`relative_error` and :func:`scaled_error`
-measure how far apart they are.
+:func:`~rulkit.fleet.tracking.tracker_run.tracker_run` and the learned model's own replay and
+RUL quantiles (:mod:`rulkit.fleet.learned.degradation`, :mod:`rulkit.fleet.learned.hi_noise`);
+:func:`relative_error` and :func:`scaled_error` measure how far apart they are.
 """
 
 from __future__ import annotations
@@ -256,7 +256,6 @@ def python_reference(device: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: n
     out["level"] = rows["level"].astype(np.float64)
     out["new_alert"] = _new_alerts(start, rows["level"])
     if device.learned is not None:
-        from rulkit.fleet.learned.degradation import filtered_states
         from rulkit.fleet.store.learned_state import LEVELS
 
         unit = np.repeat(np.arange(b), np.diff(start))
@@ -264,7 +263,7 @@ def python_reference(device: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: n
                          hi=np.asarray(hi, dtype=np.float64),
                          names=np.arange(b).astype(object), start=start.astype(np.int64),
                          failed=np.zeros(b, dtype=bool), source="reference")
-        q = device.learned.rul_quantiles(filtered_states(device.learned, hist), LEVELS)
+        q = device.learned.rul_quantiles(device.learned.replay(hist), LEVELS)
         out.update(dict(zip(LEARNED_COLUMNS, q, strict=True)))
     return out
 

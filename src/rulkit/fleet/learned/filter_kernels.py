@@ -21,7 +21,13 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from rulkit.fleet.learned.growth_filter import HI_HI, HI_LO, IEKF_ITERATIONS, GrowthParams
+from rulkit.fleet.learned.growth_filter import (
+    HI_HI,
+    HI_LO,
+    IEKF_ITERATIONS,
+    IEKF_TOL,
+    GrowthParams,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -139,7 +145,7 @@ def assimilate(st, dx, y, lam, rz, rhi, q):  # pragma: no cover - compiled
         s = hh * hh * pzz + h * h * rz + rhi
         nu = y - h - hh * (mz - zi)
         zn = min(max(mz + pzz * hh * nu / s, zlo), zhi)
-        done = abs(zn - zi) <= 1e-9 * (1.0 + abs(zi))
+        done = abs(zn - zi) <= IEKF_TOL * (1.0 + abs(zi))
         zi = zn
         if done:
             break

@@ -46,6 +46,9 @@ onset)."""
 HI_LO, HI_HI = 1e-6, 1e3
 """The HI range the inverse transform is evaluated in (z is clipped to g of this range)."""
 IEKF_ITERATIONS = 8
+IEKF_TOL = 1e-9
+"""The iterations of eq. (8) stop after IEKF_ITERATIONS steps, or when a step moves z by at most
+IEKF_TOL (1 + |z|)."""
 
 
 def boxcox(hi: FloatArray, lam: float) -> FloatArray:
@@ -122,5 +125,5 @@ def onset_prior(grid: FloatArray, mean: float, sd: float) -> FloatArray:
     return lp - (lp.max() + math.log(np.exp(lp - lp.max()).sum()))
 
 
-__all__ = ["HI_HI", "HI_LO", "IEKF_ITERATIONS", "THETA", "GrowthParams", "boxcox",
+__all__ = ["HI_HI", "HI_LO", "IEKF_ITERATIONS", "IEKF_TOL", "THETA", "GrowthParams", "boxcox",
            "boxcox_inverse", "growth_hi_quantiles", "onset_prior"]

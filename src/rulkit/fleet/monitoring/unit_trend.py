@@ -346,20 +346,27 @@ def _normal_cdf(x: FloatArray) -> FloatArray:
 
 
 def t_quantile(nu: FloatArray, p: float) -> FloatArray:
-    """Student-t quantile t_nu^-1(p) for integer ``nu`` >= 1 (computed once per degree of
-    freedom and level; the normal quantile above :data:`NU_TABLE`); NaN where ``nu`` is
-    NaN."""
+    """Student-t quantile t_nu^-1(p) for integer ``nu`` >= 1 (:func:`t_quantiles` of one
+    level)."""
+    return t_quantiles(nu, (p,))[0]
+
+
+def t_quantiles(nu: FloatArray, levels: tuple[float, ...]) -> FloatArray:
+    """Student-t quantiles t_nu^-1(p), one row per level ``p`` (shape (levels, nu's size)),
+    for integer ``nu`` >= 1: each computed once per degree of freedom and level, then looked
+    up; the normal quantile above :data:`NU_TABLE`; NaN where ``nu`` is NaN."""
     nu = np.asarray(nu, dtype=np.float64)
     key = np.where(np.isfinite(nu), np.clip(nu, 1, NU_TABLE + 1), 0).astype(np.int64)
-    need = [int(k) for k in np.unique(key) if k > 0 and (int(k), p) not in _T_QUANTILES]
-    if need:
-        arr = np.array(need, dtype=np.float64)
-        for k, v in zip(need, _t_quantiles(arr, p).tolist(), strict=True):
-            _T_QUANTILES[(k, p)] = v
-    table = np.full(NU_TABLE + 2, np.nan)
-    for k in np.unique(key[key > 0]).tolist():
-        table[k] = _T_QUANTILES[(int(k), p)]
-    return table[key]
+    present = [int(k) for k in np.unique(key).tolist() if k > 0]
+    table = np.full((len(levels), NU_TABLE + 2), np.nan)
+    for j, p in enumerate(levels):
+        need = [k for k in present if (k, p) not in _T_QUANTILES]
+        if need:
+            arr = np.array(need, dtype=np.float64)
+            for k, v in zip(need, _t_quantiles(arr, p).tolist(), strict=True):
+                _T_QUANTILES[(k, p)] = v
+        table[j, present] = [_T_QUANTILES[(k, p)] for k in present]
+    return table[:, key]
 
 
 def first_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
@@ -404,13 +411,12 @@ def rul_quantiles(post: TrendPosterior, levels: tuple[float, ...] = (0.5, 0.05, 
                   ) -> tuple[FloatArray, ...]:
     """RUL quantiles (the data's time unit) per unit (EI-18, EI-19): >= 0, ordered with the
     level, +inf inside the never-failing mass, NaN where there is no estimate."""
-    out = []
     for p in levels:
         if not 0.0 < p < 1.0:
             raise ValueError(f"levels: expected probabilities in (0, 1), got {p!r}")
-        c = t_quantile(post.nu, p)
-        out.append(first_crossing(post.a, post.b, post.vaa, 2.0 * post.vab, post.vbb, c))
-    return tuple(out)
+    # every level in one pass: the posterior's (n,) arrays broadcast against (levels, n)
+    c = t_quantiles(post.nu, tuple(levels))
+    return tuple(first_crossing(post.a, post.b, post.vaa, 2.0 * post.vab, post.vbb, c))
 
 
 def hi_quantiles(post: TrendPosterior, horizons: np.ndarray,
@@ -438,6 +444,7 @@ __all__ = [
     "rul_quantiles",
     "t_cdf",
     "t_quantile",
+    "t_quantiles",
     "trend_posterior",
     "trend_run",
     "trend_strategy",

@@ -2,7 +2,7 @@
 
 * :func:`read_body` streams a body and stops at :data:`MAX_BODY` bytes (413) without holding
   more, and gives up on a client that sends nothing for :data:`BODY_TIMEOUT` seconds (408).
-* :func:`batch_frame` turns a body into the acquisition frame of the store's one ingestion path:
+* :func:`batch_frame` turns a body into the acquisition columns of the store's one ingestion path:
   CSV and Parquet through :func:`rulkit.fleet.store.acquisitions.read_acquisitions` (the reader
   of ``rulkit track``: field counts per row, Parquet row counts from the metadata before
   decoding), JSON here: rows are counted before they are decoded (:data:`MAX_ROWS`), nesting
@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 from fastapi import HTTPException, Request
 
-from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
+from rulkit.fleet.store.acquisitions import Columns, IngestError, read_acquisitions
 
 MAX_BODY = 64 * 1024 * 1024
 """Bytes of one upload."""
@@ -62,9 +62,10 @@ async def read_body(request: Request, max_bytes: int = MAX_BODY,
     return buf
 
 
-def batch_frame(body: bytes | bytearray, ctype: str) -> pd.DataFrame:
-    """The batch in ``body`` (content type ``ctype``) as a frame of columns component, time and
-    hi (or the CI columns); 413 / 415 / 422 for what cannot be taken (module docstring)."""
+def batch_frame(body: bytes | bytearray, ctype: str) -> pd.DataFrame | Columns:
+    """The batch in ``body`` (content type ``ctype``) as columns component, time and hi (or
+    the CI columns): a frame for CSV and Parquet, arrays for JSON; 413 / 415 / 422 for what
+    cannot be taken (module docstring)."""
     try:
         if ctype in CSV_TYPES:
             return read_acquisitions(memoryview(body), "csv", max_rows=MAX_ROWS,
@@ -80,7 +81,7 @@ def batch_frame(body: bytes | bytearray, ctype: str) -> pd.DataFrame:
                           "text/csv or application/vnd.apache.parquet")
 
 
-def _json_frame(body: bytes | bytearray) -> pd.DataFrame:
+def _json_frame(body: bytes | bytearray) -> Columns:
     if body.count(b"{") > MAX_ROWS + 1:  # rows counted before they are decoded
         raise http_error(413, f"body: more than {MAX_ROWS} rows per batch")
     try:
@@ -96,14 +97,14 @@ def _json_frame(body: bytes | bytearray) -> pd.DataFrame:
     if len(rows) > MAX_ROWS:
         raise http_error(413, f"body: {len(rows)} rows, at most {MAX_ROWS} per batch")
     if not rows:
-        return pd.DataFrame()
-    return _rows_frame(rows)
+        return {}
+    return _rows_columns(rows)
 
 
-def _rows_frame(rows: list[Any]) -> pd.DataFrame:
+def _rows_columns(rows: list[Any]) -> Columns:
     """Columns from JSON rows (objects of component and numbers; a missing key is NaN, named by
     the store's validation): one list per key, type-checked as a set of types, then one
-    array per column (no pandas Series per column)."""
+    array per column (no pandas Series or frame: the store's validation takes arrays)."""
     keys: dict[str, None] = {}
     for i, r in enumerate(rows):
         if not isinstance(r, dict):
@@ -118,7 +119,9 @@ def _rows_frame(rows: list[Any]) -> pd.DataFrame:
                 bad = next(i for i, v in enumerate(vals) if not isinstance(v, str))
                 raise http_error(422, f"row {bad + 1}: 'component' must be a string, got "
                                       f"{type(vals[bad]).__name__}")
-            cols[k] = pd.Series(vals, dtype=object)  # not inferred as (UTF-8) strings
+            comp = np.empty(len(vals), dtype=object)  # not inferred as (UTF-8) strings
+            comp[:] = vals
+            cols[k] = comp
             continue
         if not types <= _NUMBER_TYPES:
             bad = next(i for i, v in enumerate(vals) if type(v) not in _NUMBER_TYPES)
@@ -128,7 +131,7 @@ def _rows_frame(rows: list[Any]) -> pd.DataFrame:
             cols[k] = np.array(vals, dtype=np.float64)  # None -> NaN
         except OverflowError:
             raise http_error(422, "a number is too large for float64") from None
-    return pd.DataFrame(cols, copy=False)
+    return cols
 
 
 _NUMBER_TYPES = frozenset((int, float, type(None)))

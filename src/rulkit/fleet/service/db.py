@@ -44,6 +44,8 @@ from rulkit.fleet.service import fleet_view
 from rulkit.fleet.service.fleet_view import num as _num
 from rulkit.fleet.store.acquisitions import (
     Alert,
+    Batch,
+    Columns,
     ConflictError,
     IngestResult,
     validate_acquisitions,
@@ -210,7 +212,7 @@ class ServiceDB:
         return Token(int(row[0]), str(row[1]), str(row[2])) if row else None
 
     # ------------------------------------------------------------------ ingestion
-    def ingest(self, df: pd.DataFrame, source: str, *, now: float | None = None
+    def ingest(self, df: pd.DataFrame | Columns, source: str, *, now: float | None = None
                ) -> dict[str, Any]:
         """Validate and apply one batch through the store's one ingestion path
         (:meth:`~rulkit.fleet.store.sqlite.ComponentStore.ingest_many`: duplicates skipped,
@@ -370,7 +372,7 @@ class _Pending:
 
     __slots__ = ("acq", "done", "now", "outcome", "source")
 
-    def __init__(self, acq: pd.DataFrame, source: str, now: float | None) -> None:
+    def __init__(self, acq: Batch, source: str, now: float | None) -> None:
         self.acq, self.source, self.now = acq, source, now
         self.done = False
         self.outcome: IngestResult | BaseException | None = None

@@ -3,7 +3,7 @@
 An acquisition file has one row per (component, time) with the health index ``hi`` or the
 condition-indicator columns of the database's HI model (docs/file-formats.md). Everything here
 runs before the database is touched: :func:`validate_acquisitions` names the file, column and
-row of the first problem, and :func:`rulkit.fleet.rows.check_component_ids` enforces the id
+row of the first problem, and :func:`rulkit.fleet.rows.component_codes` enforces the id
 alphabet (1 to :data:`rulkit.fleet.rows.COMPONENT_ID_MAX_LEN` printable characters), so a
 crafted id can neither forge terminal output nor bloat the database.
 :mod:`rulkit.fleet.store.sqlite` applies a validated batch.
@@ -11,14 +11,17 @@ crafted id can neither forge terminal output nor bloat the database.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from rulkit.fleet.rows import (
-    check_component_ids,
+    component_codes,
     numeric_values,
     previous_per_component,
     read_csv_rows,
@@ -48,7 +51,7 @@ class ConflictError(IngestError):
 
 class ComponentIdError(IngestError):
     """A component id outside the accepted alphabet or length
-    (:func:`rulkit.fleet.rows.check_component_ids`)."""
+    (:func:`rulkit.fleet.rows.component_codes`)."""
 
 
 @dataclass(frozen=True)
@@ -93,6 +96,48 @@ class IngestResult:
     alerts: list[Alert] = field(default_factory=list)
     n_duplicates: int = 0
     """Rows already stored (same component, time and HI), skipped."""
+
+
+Columns = Mapping[str, Any]
+"""A batch as columns: name -> array (what the service's JSON body decodes to)."""
+
+
+@dataclass(frozen=True)
+class Batch:
+    """A validated batch (:func:`validate_acquisitions`) as arrays: per row, ``codes`` the index
+    of its component in ``names`` (the distinct ids in order of first appearance), ``t``, ``hi``
+    and ``row`` (the 1-based data row, for messages), ``installed`` when the time axis counts
+    ages from it; ``calendar``: the time column held date-times (then ``t`` is the time since
+    1970 in units of ``seconds_per_unit`` seconds)."""
+
+    codes: NDArray[np.intp]
+    names: list[str]
+    t: NDArray[np.float64]
+    hi: NDArray[np.float64]
+    row: NDArray[np.integer]
+    installed: NDArray[np.float64] | None = None
+    calendar: bool = False
+    seconds_per_unit: float = 1.0
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    def take(self, keep: NDArray[np.bool_]) -> Batch:
+        """The rows where ``keep``, their components renumbered in order of first
+        appearance."""
+        codes = self.codes[keep]
+        uniq, first, inverse = np.unique(codes, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # uniq by first appearance
+        rank = np.empty(order.size, dtype=np.intp)
+        rank[order] = np.arange(order.size)
+        return replace(
+            self, codes=rank[inverse.reshape(-1)], names=[self.names[k] for k in uniq[order]],
+            t=self.t[keep], hi=self.hi[keep], row=self.row[keep],
+            installed=None if self.installed is None else self.installed[keep])
+
+    def first_rows(self) -> NDArray[np.intp]:
+        """Each component's first row (indexed like ``names``)."""
+        return np.unique(self.codes, return_index=True)[1]
 
 
 # --------------------------------------------------------------------------- validation
@@ -163,46 +208,70 @@ def _read_parquet(source: str | Path | bytes | memoryview, where: str, max_rows:
     return table.to_pandas()
 
 
-def _numeric_column(df: pd.DataFrame, col: str) -> np.ndarray:
-    """``df[col]`` as finite float64 (:func:`rulkit.fleet.rows.numeric_values`: numbers of a
-    numeric type only); the error names row (1-based), component and column."""
-    return numeric_values(
-        df[col], col, error=IngestError,
-        row_label=lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})")
-
-
 def validate_acquisitions(
-    df: pd.DataFrame, config: TrackerConfig, hi_model: HealthIndexModel | None,
+    df: pd.DataFrame | Columns, config: TrackerConfig, hi_model: HealthIndexModel | None,
     time_axis: TimeAxis | None = None,
-) -> pd.DataFrame:
-    """Check a batch and return it as columns ``component`` (str), ``t``, ``hi``, ``row``
-    (and ``installed`` when the time axis counts ages from it).
+) -> Batch:
+    """Check a batch and return it as a :class:`Batch` of arrays.
 
-    ``row`` is the 1-based data row (header excluded) used in error messages; the frame's
-    ``attrs["calendar"]`` says whether the time column held date-times (then ``t`` is the
-    time since 1970 in units of ``attrs["seconds_per_unit"]`` seconds). Expected columns:
-    ``component``, ``time`` and either ``hi`` or exactly the CI columns of the stored
-    HI model. Rejected with :class:`IngestError`: an empty batch, missing / unknown / ambiguous
+    ``df``: a frame, or :data:`Columns` (arrays of one length). Expected columns:
+    ``component``, ``time`` and either ``hi`` or exactly the CI columns of the stored HI
+    model. Rejected with :class:`IngestError`: an empty batch, missing / unknown / ambiguous
     columns, an empty component name, non-numeric / NaN / infinite values, HI outside
     [0, hi_max], and time not strictly increasing for a component (unsorted or duplicated).
     ``time_axis`` (stored by ``rulkit fit``): the time column is read on it
     (:meth:`~rulkit.fleet.time_axis.TimeAxis.values`: date-times converted into its unit, and
     refused where numbers were fitted, or the reverse); without one, date-times are seconds
-    since 1970 and numbers are taken as they are.
+    since 1970 and numbers are taken as they are. Every check is an array operation over the
+    batch's columns (docs/service.md, "Load figures").
     """
-    if len(df) == 0:
+    cols = _batch_columns(df)
+    installed = time_axis is not None and time_axis.origin == "installed"
+    mode = _value_mode(list(cols), hi_model, installed)
+    codes, names = component_codes(cols["component"], error=ComponentIdError)
+
+    def label(i: int) -> str:
+        return f"row {i + 1} (component {names[codes[i]]!r})"
+
+    t, inst, calendar = _times(cols, time_axis, installed, label)
+    hi = _health_index(cols, mode, hi_model, config, label)
+    _check_time_order(codes, t, label)
+    n = t.size
+    return Batch(codes=codes, names=names, t=t, hi=hi,
+                 row=np.arange(1, n + 1, dtype=np.int32 if n < 2**31 - 1 else np.int64),
+                 installed=inst, calendar=bool(calendar),
+                 seconds_per_unit=time_axis.seconds_per_unit if time_axis else 1.0)
+
+
+def _batch_columns(df: pd.DataFrame | Columns) -> dict[str, Any]:
+    """The batch's columns by name (text), refused when empty, when a name appears twice or
+    when the columns differ in length."""
+    if isinstance(df, pd.DataFrame):
+        n = len(df)
+    else:
+        lengths = {len(v) for v in df.values()}
+        if len(lengths) > 1:
+            raise IngestError(f"columns of different lengths {sorted(lengths)}")
+        n = lengths.pop() if lengths else 0
+    if n == 0:
         raise IngestError("the batch holds no acquisitions (0 rows)")
-    cols = [str(c) for c in df.columns]
-    dup = pd.Index(cols).duplicated()
-    if dup.any():
-        raise IngestError(f"column {safe_text(cols[int(np.flatnonzero(dup)[0])])!r} appears "
-                          "twice; rename or drop one")
-    df = df.set_axis(cols, axis=1)  # a new frame; the caller's keeps its columns
+    names = [str(c) for c in (df.columns if isinstance(df, pd.DataFrame) else df)]
+    seen: set[str] = set()
+    for c in names:
+        if c in seen:
+            raise IngestError(f"column {safe_text(c)!r} appears twice; rename or drop one")
+        seen.add(c)
+    cols = ({c: df.iloc[:, j] for j, c in enumerate(names)} if isinstance(df, pd.DataFrame)
+            else dict(zip(names, df.values(), strict=True)))
     missing = [c for c in ("component", "time") if c not in cols]
     if missing:
-        raise IngestError(f"missing required column(s) {missing}; got {cols}")
+        raise IngestError(f"missing required column(s) {missing}; got {names}")
+    return cols
+
+
+def _value_mode(cols: list[str], hi_model: HealthIndexModel | None, installed: bool) -> str:
+    """``"hi"`` or ``"ci"``: what the batch's value columns give, or :class:`IngestError`."""
     ci_names = list(hi_model.names) if hi_model is not None else []
-    installed = time_axis is not None and time_axis.origin == "installed"
     if installed and INSTALLED_COLUMN not in cols:
         raise IngestError(f"missing column {INSTALLED_COLUMN!r}: the database's model counts "
                           "each component's age from its install time")
@@ -217,86 +286,98 @@ def validate_acquisitions(
                 else f"unknown column(s) {extra}; expected component, time and hi"
                 + (f" or the CI columns {ci_names}" if ci_names else "")
             )
-        mode = "hi"
-    elif value_cols:
-        if hi_model is None:
-            raise IngestError(
-                f"unknown column(s) {value_cols}: the database has no HI model, so the batch "
-                "must give 'hi' (or store an HI model fitted on healthy CIs first)"
-            )
-        unknown = [c for c in value_cols if c not in ci_names]
-        if unknown:
-            raise IngestError(
-                f"unknown column(s) {unknown}; expected component, time and hi or the CI "
-                f"columns {ci_names}"
-            )
-        absent = [c for c in ci_names if c not in value_cols]
-        if absent:
-            raise IngestError(f"missing CI column(s) {absent} of the HI model {ci_names}")
-        mode = "ci"
-    else:
+        return "hi"
+    if not value_cols:
         raise IngestError("no value column: expected 'hi'" + (
             f" or the CI columns {ci_names}" if ci_names else ""))
+    if hi_model is None:
+        raise IngestError(
+            f"unknown column(s) {value_cols}: the database has no HI model, so the batch "
+            "must give 'hi' (or store an HI model fitted on healthy CIs first)"
+        )
+    unknown = [c for c in value_cols if c not in ci_names]
+    if unknown:
+        raise IngestError(
+            f"unknown column(s) {unknown}; expected component, time and hi or the CI "
+            f"columns {ci_names}"
+        )
+    absent = [c for c in ci_names if c not in value_cols]
+    if absent:
+        raise IngestError(f"missing CI column(s) {absent} of the HI model {ci_names}")
+    return "ci"
 
-    df["component"] = check_component_ids(df["component"], error=ComponentIdError)
-    label = lambda i: f"row {i + 1} (component {df['component'].iloc[i]!r})"  # noqa: E731
+
+def _is_numbers(col: Any) -> bool:
+    """Whether a column is of an integer or floating type (so it holds no date-times)."""
+    kind = getattr(col.dtype, "kind", "")
+    return kind in "iuf" and not pd.api.types.is_bool_dtype(col.dtype)
+
+
+def _times(cols: dict[str, Any], time_axis: TimeAxis | None, installed: bool,
+           label: Callable[[int], str]) -> tuple[np.ndarray, np.ndarray | None, bool]:
+    """The time column as float64 (and the install times), and whether it held date-times.
+    A column of numbers is read as numbers directly (it cannot hold date-times)."""
+    col = cols["time"]
+    if _is_numbers(col) and not installed and not (time_axis and time_axis.timestamps):
+        return _numbers(col, "time", label), None, False
     inst = None
     t: np.ndarray | None
     if time_axis is not None:
         try:
-            t = time_axis.values(df["time"], "time", "batch", row_label=label)
+            t = time_axis.values(col, "time", "batch", row_label=label)
             if installed:
-                inst = time_axis.values(df[INSTALLED_COLUMN], INSTALLED_COLUMN, "batch",
+                inst = time_axis.values(cols[INSTALLED_COLUMN], INSTALLED_COLUMN, "batch",
                                         row_label=label)
         except TimeAxisError as err:
             raise IngestError(str(err).removeprefix("batch: ")) from err
     else:
-        t = time_seconds(df["time"], "time", error=IngestError, row_label=label)
+        t = time_seconds(col, "time", error=IngestError, row_label=label)
     calendar = time_axis.timestamps if time_axis is not None else t is not None
     if t is None:
-        t = _numeric_column(df, "time")
+        t = _numbers(col, "time", label)
+    return t, inst, calendar
+
+
+def _numbers(col: Any, name: str, label: Callable[[int], str]) -> np.ndarray:
+    """A column as finite float64 (:func:`rulkit.fleet.rows.numeric_values`: numbers of a
+    numeric type only); the error names row (1-based), component and column."""
+    return numeric_values(col, name, error=IngestError, row_label=label)
+
+
+def _health_index(cols: dict[str, Any], mode: str, hi_model: HealthIndexModel | None,
+                  config: TrackerConfig, label: Callable[[int], str]) -> np.ndarray:
+    """The batch's HI (given, or computed from the CIs), refused outside [0, hi_max]."""
     if mode == "hi":
-        hi = _numeric_column(df, "hi")
+        hi = _numbers(cols["hi"], "hi", label)
         source = "hi"
     else:
         assert hi_model is not None
-        ci = np.column_stack([_numeric_column(df, c) for c in ci_names])
+        ci = np.column_stack([_numbers(cols[c], c, label) for c in hi_model.names])
         hi = hi_model.health_index(ci)
         source = "HI computed from the CIs"
     out_of_range = (hi < 0) | (hi > config.hi_max)
     if out_of_range.any():
         i = int(np.flatnonzero(out_of_range)[0])
-        raise IngestError(
-            f"row {i + 1} (component {df['component'].iloc[i]!r}): {source} = {_fmt(hi[i])} is "
-            f"outside [0, {config.hi_max}]"
-        )
-    comp = df["component"]
-    out = pd.DataFrame({"component": comp.array, "t": t, "hi": hi,
-                        "row": np.arange(1, len(df) + 1,
-                                         dtype=np.int32 if len(df) < 2**31 - 1 else np.int64)},
-                       copy=False)  # no 2M-row copies
-    if inst is not None:
-        out["installed"] = inst
-    # time strictly increasing per component, in file order
-    prev_t = previous_per_component(np.asarray(comp.cat.codes), t)
+        raise IngestError(f"{label(i)}: {source} = {_fmt(hi[i])} is outside "
+                          f"[0, {config.hi_max}]")
+    return hi
+
+
+def _check_time_order(codes: np.ndarray, t: np.ndarray, label: Callable[[int], str]) -> None:
+    """Time strictly increasing per component in file order, and every interval finite."""
+    prev_t = previous_per_component(codes, t)
     back = np.isfinite(prev_t) & ~(t > prev_t)
     if back.any():
         i = int(np.flatnonzero(back)[0])
         what = "repeats" if t[i] == prev_t[i] else "goes backwards from"
         raise IngestError(
-            f"row {i + 1} (component {out['component'].iloc[i]!r}): time {_fmt(t[i])} {what} the "
-            f"previous acquisition of that component at {_fmt(prev_t[i])} (times must be strictly "
-            "increasing per component)"
-        )
+            f"{label(i)}: time {_fmt(t[i])} {what} the previous acquisition of that component "
+            f"at {_fmt(prev_t[i])} (times must be strictly increasing per component)")
     with np.errstate(over="ignore", invalid="ignore"):
         gap = t - prev_t
     huge = np.isfinite(prev_t) & ~np.isfinite(gap)
     if huge.any():
         i = int(np.flatnonzero(huge)[0])
         raise IngestError(
-            f"row {i + 1} (component {out['component'].iloc[i]!r}), column 'time': the "
-            f"interval from {_fmt(prev_t[i])} to {_fmt(t[i])} overflows float64; use a "
-            "smaller time unit or offset")
-    out.attrs["calendar"] = calendar  # date-times: t is a calendar time (units since 1970)
-    out.attrs["seconds_per_unit"] = time_axis.seconds_per_unit if time_axis else 1.0
-    return out
+            f"{label(i)}, column 'time': the interval from {_fmt(prev_t[i])} to {_fmt(t[i])} "
+            "overflows float64; use a smaller time unit or offset")

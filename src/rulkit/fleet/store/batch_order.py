@@ -12,10 +12,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
-from rulkit.fleet.store.acquisitions import ConflictError, IngestError
+from rulkit.fleet.store.acquisitions import Batch, ConflictError, IngestError
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 from rulkit.fleet.tracking.tracker_settings import check_time_unit
 from rulkit.tables import cell_repr as _fmt
@@ -112,43 +111,47 @@ def component_blocks(order: ComponentOrder, block_rows: int) -> list[tuple[int, 
     return blocks
 
 
-def split_duplicates(conn: Any, acq: pd.DataFrame, last: dict[str, float]
-                     ) -> tuple[pd.DataFrame, int]:
+def split_duplicates(conn: Any, acq: Batch, last: dict[str, float]) -> tuple[Batch, int]:
     """Split off rows at or before a component's stored last time (inside the write
     transaction on ``conn``, a DB-API connection): rows stored with the same HI (to
     :data:`SAME_HI_RTOL`) are duplicates, skipped and counted; anything else raises
     :class:`ConflictError` naming the row (acquisitions are appended in time order).
     ``last``: the stored last time of each stored component of the batch."""
-    comp = acq["component"]
-    names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
-                              else pd.unique(comp))]
     if not last:
         return acq, 0
-    codes = (comp.cat.codes.to_numpy() if hasattr(comp, "cat")
-             else pd.factorize(comp)[0])
-    last_t = np.array([last.get(c, np.nan) for c in names])[codes]  # NaN: new
-    old = np.flatnonzero(acq["t"].to_numpy() <= last_t)
+    last_t = np.array([last.get(c, np.nan) for c in acq.names])[acq.codes]  # NaN: new
+    old = np.flatnonzero(acq.t <= last_t)
     if old.size == 0:
         return acq, 0
-    sub = acq.iloc[old]
-    for name, grp in sub.groupby("component", sort=False, observed=True):
-        stored = dict(conn.execute(
-            "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
-            (str(name), float(grp["t"].min()), float(grp["t"].max()))).fetchall())
-        for row, t, hi in zip(grp["row"], grp["t"], grp["hi"], strict=True):
-            if float(t) not in stored:
-                raise ConflictError(
-                    f"row {row} (component {str(name)!r}): time {_fmt(t)} is before the "
-                    f"component's last stored acquisition at {_fmt(last[str(name)])} and "
-                    "is not stored (acquisitions are appended in time order)")
-            h = float(stored[float(t)])
-            if abs(h - hi) > SAME_HI_RTOL * max(1.0, abs(h), abs(hi)):
-                raise ConflictError(
-                    f"row {row} (component {str(name)!r}): time {_fmt(t)} is already "
-                    f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
+    old_codes = acq.codes[old]
+    _, first = np.unique(old_codes, return_index=True)
+    for code in old_codes[np.sort(first)].tolist():  # by first appearance in the batch
+        idx = old[old_codes == code]
+        _check_stored(conn, acq.names[code], acq.row[idx].tolist(), acq.t[idx].tolist(),
+                      acq.hi[idx].tolist(), last[acq.names[code]])
     keep = np.ones(len(acq), dtype=bool)
     keep[old] = False
-    return acq[keep], int(old.size)
+    return acq.take(keep), int(old.size)
+
+
+def _check_stored(conn: Any, name: str, rows: list[int], ts: list[float], his: list[float],
+                  last: float) -> None:
+    """One component's rows at or before its stored ``last`` time: each stored with the same
+    HI, or :class:`ConflictError`."""
+    stored = dict(conn.execute(
+        "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
+        (name, min(ts), max(ts))).fetchall())
+    for row, t, hi in zip(rows, ts, his, strict=True):
+        if float(t) not in stored:
+            raise ConflictError(
+                f"row {row} (component {name!r}): time {_fmt(t)} is before the "
+                f"component's last stored acquisition at {_fmt(last)} and "
+                "is not stored (acquisitions are appended in time order)")
+        h = float(stored[float(t)])
+        if abs(h - hi) > SAME_HI_RTOL * max(1.0, abs(h), abs(hi)):
+            raise ConflictError(
+                f"row {row} (component {name!r}): time {_fmt(t)} is already "
+                f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
 
 
 __all__ = ["SAME_HI_RTOL", "ComponentOrder", "check_spacing", "component_blocks",

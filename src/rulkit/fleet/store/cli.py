@@ -197,6 +197,49 @@ def _fit_baseline(baseline: Path, pfa: float, offset: str):
         fail(str(err) if str(err).startswith("baseline") else f"baseline {baseline}: {err}")
 
 
+def status(
+    db: Annotated[str, typer.Option(
+        "--db", help="Component database: a SQLite file or a postgresql:// URL.")],
+    limit: int = typer.Option(0, "--limit", min=0, help="Show the first N (0 = all)."),
+    fmt: str = typer.Option("table", "--format",
+                            help="table (for people), csv or json (for scripts)."),
+    sort: str = typer.Option("worst", "--sort",
+                             help="worst (level, then RUL), rul or due (date)."),
+    now: str | None = typer.Option(
+        None, "--now", help="Judge staleness at this ISO 8601 date-time (default: now)."),
+) -> None:
+    """Components with their alert level, RUL (median [interval] and due date), last HI
+    and acquisition, worst first (read-only).
+
+    Exit codes: 0 done; 1 the database was refused; 2 a bad option; 65 the database is
+    damaged; 74 I/O error; 75 busy (retry); 77 it cannot be read by this user.
+    """
+    import time
+
+    from rulkit.cli.errors import bad_option, fail
+    from rulkit.fleet.store.database_file import StoreError, is_postgres_url
+    from rulkit.fleet.store.status_view import SORTS, read_status
+
+    if fmt not in ("table", "csv", "json"):
+        bad_option("--format", f"expected table, csv or json, got {fmt!r}")
+    if sort not in SORTS:
+        bad_option("--sort", f"expected one of {', '.join(SORTS)}, got {sort!r}")
+    at = time.time() if now is None else _iso_seconds(now)
+    if is_postgres_url(db):  # through the store (the fast path reads SQLite files)
+        _status_from_frame(db, limit, fmt, at, sort)
+        return
+    try:  # sqlite3 only; None: a row rulkit cannot have written
+        got = read_status(db, now=at, sort=sort)
+    except FileNotFoundError as err:
+        fail(str(err))
+    except StoreError as err:
+        fail(str(err), code=err.exit_code)
+    if got is None:
+        _status_from_frame(db, limit, fmt, at, sort)
+        return
+    _print_status(db, got[0], got[1], limit, fmt)
+
+
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:
     """Add ``track`` and ``status``."""
     @app.command("track")
@@ -355,49 +398,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 + (f" {safe_text(rules.time_unit)}" if rules.time_unit else ""))
             typer.echo(f"{word} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  {rul}: "
                        f"{safe_text(a.reason)}")
-
-    @app.command("status")
-    def status(
-        db: Annotated[str, typer.Option(
-            "--db", help="Component database: a SQLite file or a postgresql:// URL.")],
-        limit: int = typer.Option(0, "--limit", min=0, help="Show the first N (0 = all)."),
-        fmt: str = typer.Option("table", "--format",
-                                help="table (for people), csv or json (for scripts)."),
-        sort: str = typer.Option("worst", "--sort",
-                                 help="worst (level, then RUL), rul or due (date)."),
-        now: str | None = typer.Option(
-            None, "--now", help="Judge staleness at this ISO 8601 date-time (default: now)."),
-    ) -> None:
-        """Components with their alert level, RUL (median [interval] and due date), last HI
-        and acquisition, worst first (read-only).
-
-        Exit codes: 0 done; 1 the database was refused; 2 a bad option; 65 the database is
-        damaged; 74 I/O error; 75 busy (retry); 77 it cannot be read by this user.
-        """
-        import time
-
-        from rulkit.cli.errors import bad_option, fail
-        from rulkit.fleet.store.database_file import StoreError, is_postgres_url
-        from rulkit.fleet.store.status_view import SORTS, read_status
-
-        if fmt not in ("table", "csv", "json"):
-            bad_option("--format", f"expected table, csv or json, got {fmt!r}")
-        if sort not in SORTS:
-            bad_option("--sort", f"expected one of {', '.join(SORTS)}, got {sort!r}")
-        at = time.time() if now is None else _iso_seconds(now)
-        if is_postgres_url(db):  # through the store (the fast path reads SQLite files)
-            _status_from_frame(db, limit, fmt, at, sort)
-            return
-        try:  # sqlite3 only; None: a row rulkit cannot have written
-            got = read_status(db, now=at, sort=sort)
-        except FileNotFoundError as err:
-            fail(str(err))
-        except StoreError as err:
-            fail(str(err), code=err.exit_code)
-        if got is None:
-            _status_from_frame(db, limit, fmt, at, sort)
-            return
-        _print_status(db, got[0], got[1], limit, fmt)
+    app.command("status")(status)
 
 
 def _stored_settings(db: str) -> tuple[Any, Any]:

@@ -69,6 +69,7 @@ from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
 from rulkit.fleet.store.acquisitions import (
     Alert,
+    Batch,
     IngestError,
     IngestResult,
     read_acquisitions,
@@ -135,7 +136,7 @@ def _finite(v: float) -> float | None:
 
 
 def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexModel | None,
-                       acq: pd.DataFrame | None, source: str,
+                       acq: Batch | None, source: str,
                        rules: MonitoringRules | None = None) -> IngestResult | None:
     """Create the database in a temporary file beside ``path`` (schema, settings and, when
     given, the validated batch ``acq``), then hard-link it to ``path``, which fails if
@@ -454,7 +455,7 @@ class ComponentStore:
         acq = validate_acquisitions(df, self.config, self.hi_model, self.time_axis)
         return self._ingest_validated(acq, source)
 
-    def _ingest_validated(self, acq: pd.DataFrame, source: str,
+    def _ingest_validated(self, acq: Batch, source: str,
                           new_model: HealthIndexModel | None = None) -> IngestResult:
         """The one ingestion path (``rulkit track`` and the service): one validated batch in
         one write transaction (:meth:`_ingest_in_transaction`)."""
@@ -467,9 +468,9 @@ class ComponentStore:
             self.hi_model = new_model
         return res
 
-    def ingest_many(self, batches: list[tuple[pd.DataFrame, str, float | None]]
+    def ingest_many(self, batches: list[tuple[Batch, str, float | None]]
                     ) -> list[IngestResult | IngestError]:
-        """Validated batches (:func:`validate_acquisitions` frames, their sources and the
+        """Validated batches (:func:`validate_acquisitions`' :class:`Batch`, their sources and the
         calendar times ``now`` they were received at, ``None``: the clock) in one write
         transaction, each under its own savepoint: a batch that fails (conflict, a
         non-finite tracker output) is rolled back alone and gets its error, the others are
@@ -490,19 +491,16 @@ class ComponentStore:
                 self._conn.execute("RELEASE SAVEPOINT batch")
         return out
 
-    def _ingest_in_transaction(self, acq: pd.DataFrame, source: str) -> IngestResult:
+    def _ingest_in_transaction(self, acq: Batch, source: str) -> IngestResult:
         """Inside the caller's write transaction: skip the rows already stored
         (:func:`~rulkit.fleet.store.batch_order.split_duplicates`; a contradiction raises
         :class:`ConflictError`), run and store the trackers (:meth:`_apply`) and record the new
         alerts in table ``alerts`` with their ids."""
-        comp = acq["component"]
-        names = [str(c) for c in (comp.cat.categories if hasattr(comp, "cat")
-                                  else pd.unique(comp))]
-        stored = self._load_states(names)
+        stored = self._load_states(acq.names)
         acq, n_dup = split_duplicates(self._conn, acq,
                                       {k: float(v[0]) for k, v in stored.items()})
         if len(acq):
-            res = self._apply(acq.reset_index(drop=True), source, stored)
+            res = self._apply(acq, source, stored)
         else:
             res = IngestResult(n_rows=0, n_components=0, n_new_components=0)
         alerts = self._record_alerts(res.alerts)
@@ -525,7 +523,7 @@ class ComponentStore:
             out.append(replace(a, id=int(aid), raised=now))
         return out
 
-    def _apply(self, acq: pd.DataFrame, source: str,
+    def _apply(self, acq: Batch, source: str,
                stored: dict[str, tuple] | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction). ``stored``: the batch's stored component rows
@@ -541,16 +539,12 @@ class ComponentStore:
         200k rows) and only one block's outputs are held. Memory and time are linear in the
         batch.
         """
-        codes_raw, uniq = pd.factorize(acq["component"], sort=False)
-        codes = codes_raw.astype(np.int32)  # 8 bytes less per acquisition
-        del codes_raw
-        names = [str(u) for u in uniq]
+        codes = acq.codes.astype(np.int32)  # 4 bytes less per acquisition
+        names = acq.names
         if stored is None:
             stored = self._load_states(names)
         state, known = stored_state(names, stored)
-        t = acq["t"].to_numpy(dtype=np.float64)
-        hi = acq["hi"].to_numpy(dtype=np.float64)
-        rows_all = acq["row"].to_numpy()
+        t, hi, rows_all = acq.t, acq.hi, acq.row
         n, b = len(acq), len(names)
         # rows grouped by component in key order, batch order (= time order) inside; the
         # spacing check sees every interval, in batch order
@@ -563,15 +557,12 @@ class ComponentStore:
         # the RUL of the estimator in force and the alert rules (rulkit.fleet.monitoring), per
         # block below; the history holds them in rul_median / rul_low / rul_high and level
         inst = None
-        if "installed" in acq:  # each component's install time (its first row's)
-            first_rows = acq.drop_duplicates("component")
-            inst = dict(zip(first_rows["component"].astype(str),
-                            first_rows["installed"].astype(float), strict=True))
+        if acq.installed is not None:  # each component's install time (its first row's)
+            inst = dict(zip(names, acq.installed[acq.first_rows()].tolist(), strict=True))
         k_row = len(ROW_FIELDS)
         prog = BatchPrognosis(self, names, state.t, state.hi, state.n,
-                              calendar=bool(acq.attrs.get("calendar", False)), now=self.now,
-                              seconds_per_unit=float(acq.attrs.get("seconds_per_unit", 1.0)),
-                              installed=inst,
+                              calendar=acq.calendar, now=self.now,
+                              seconds_per_unit=acq.seconds_per_unit, installed=inst,
                               stored=(known, [stored[names[i]][k_row:] for i in known]))
         del codes
         names_arr = np.array(names, dtype=object)

@@ -128,7 +128,22 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
     lists = dict(zip(STORED_COLUMNS, (c.tolist() for c in by_col), strict=True))
     if not _canonical(lists):
         return None
-    return status_columns(lists, est, now, sort)
+    return status_columns(_typed(lists, by_col), est, now, sort)
+
+
+def _typed(lists: dict[str, list], by_col: np.ndarray) -> dict[str, Any]:
+    """The canonical stored columns with their numbers as arrays: a column without NULL cast
+    from its object row in one C loop, a nullable one through :func:`numpy.array` (None as
+    NaN), instead of :func:`_floats`' elementwise comparison with None."""
+    typed: dict[str, Any] = dict(lists)
+    for k, c in enumerate(STORED_COLUMNS):
+        if c in NULLABLE:
+            typed[c] = np.array(lists[c], dtype=np.float64)
+        elif c in ("hi", "t", "rul_low", "rul_high"):
+            typed[c] = by_col[k].astype(np.float64)
+        elif c in ("level", "n"):
+            typed[c] = by_col[k].astype(np.int64)
+    return typed
 
 
 def _canonical(cols: dict[str, list]) -> bool:
@@ -159,9 +174,14 @@ def iso_times(seconds: np.ndarray) -> list[str | None]:
     """Seconds since 1970 as ISO 8601 UTC date-times to the second (None where NaN)."""
     s = np.asarray(seconds, dtype=np.float64)
     ok = np.isfinite(s) & (np.abs(s) < 1e13)
-    stamps = np.datetime_as_string(np.where(ok, np.round(s), 0).astype("datetime64[s]"),
-                                   unit="s")
-    return [f"{v}Z" if k else None for v, k in zip(stamps.tolist(), ok.tolist(), strict=True)]
+    # each distinct second written once (the components of one batch share their last-seen
+    # time), then taken for every row
+    distinct, where = np.unique(np.where(ok, np.round(s), 0), return_inverse=True)
+    texts = np.datetime_as_string(distinct.astype("datetime64[s]"), unit="s", timezone="UTC")
+    out: list[str | None] = texts.astype(object)[where.reshape(-1)].tolist()
+    for i in np.flatnonzero(~ok).tolist():
+        out[i] = None
+    return out
 
 
 def status_columns(stored: dict[str, Any], est: Estimator, now: float, sort: str = "worst"
@@ -264,16 +284,9 @@ def _const(s: str, n: int) -> Any:
 
 
 def _levels(level: np.ndarray) -> Any:
-    import pyarrow.compute as pc
-
-    names = _strs([LEVEL_NAMES[k] for k in range(len(LEVEL_NAMES))])
-    return pc.take(names, _num(level.astype(np.int64), _pa_type("int64")))
-
-
-def _pa_type(name: str) -> Any:
-    import pyarrow as pa
-
-    return getattr(pa, name)()
+    """The level names of ``level`` (a ``large_string`` array; no pyarrow.compute, whose
+    import alone costs a tenth of a second)."""
+    return _strs([LEVEL_NAMES[k] for k in np.asarray(level, dtype=np.int64).tolist()])
 
 
 # --------------------------------------------------------------------------- CSV
@@ -348,27 +361,63 @@ def _ascii_json(text: bytes) -> bytes:
     return "".join(esc(ch) if ord(ch) > 0x7F else ch for ch in text.decode()).encode()
 
 
+def _json_texts(values: Any) -> np.ndarray:
+    """Each value of a column as orjson writes it inside a record, as a NUL-padded ``bytes``
+    array: a column's list through one :func:`orjson.dumps` split at its commas when that
+    gives one text per value (numbers, booleans, null and strings without commas), else one
+    :func:`orjson.dumps` per value."""
+    import orjson
+
+    if isinstance(values, np.ndarray):  # NaN and inf stay floats: orjson writes them as null
+        values = values.tolist()
+    texts = orjson.dumps(values)[1:-1].split(b",")
+    if len(texts) != len(values):
+        texts = list(map(orjson.dumps, values))
+    return np.array(texts, dtype=np.bytes_)
+
+
 def format_json(cols: dict[str, Any]) -> list[bytes]:
     """The JSON text of ``rulkit status --format json``: an array of records of
-    :data:`STATUS_COLUMNS` written by orjson, without the final newline, as byte chunks.
+    :data:`STATUS_COLUMNS`, the bytes :func:`orjson.dumps` writes for a list of dicts,
+    without the final newline, as byte chunks.
 
     Floats are the shortest text that reads back as the same float64 (``json.loads`` gives
     the stored value bit for bit); NaN and infinities ``null``; date-times ISO 8601 UTC
     strings (``2024-05-01T12:00:00Z``) or ``null``; booleans ``true``/``false``; ASCII only
-    (:func:`_ascii_json`)."""
+    (:func:`_ascii_json`).
+
+    Written by columns, no dict per row: each column's texts (:func:`_json_texts`) are a
+    block of NUL-padded bytes, the blocks and the keys between them are laid side by side in
+    one array of rows, and the padding is dropped in one pass (JSON text holds no NUL byte:
+    orjson escapes it)."""
     import orjson
 
     n = len(cols["component"])
     if n == 0:
         return [b"[]"]
-    values: dict[str, list[Any]] = {}
-    for c in STATUS_COLUMNS:
+    blocks: list[np.ndarray] = []
+    between = b"{"  # the literal text before the next block
+    for k, c in enumerate(STATUS_COLUMNS):
         v = cols[c]
+        between += (b"," if k else b"") + orjson.dumps(c) + b":"
         if c == "level":
-            v = [LEVEL_NAMES[k] for k in np.asarray(v, dtype=np.int64).tolist()]
-        elif isinstance(v, np.ndarray):
-            v = v.tolist()  # NaN and inf stay floats: orjson writes them as null
-        values[c] = list(v)
-    records = [dict(zip(STATUS_COLUMNS, row, strict=True))
-               for row in zip(*values.values(), strict=True)]
-    return [_ascii_json(orjson.dumps(records))]
+            names = {i: orjson.dumps(name) for i, name in LEVEL_NAMES.items()}
+            texts = np.array([names[i] for i in np.asarray(v, dtype=np.int64).tolist()],
+                             dtype=np.bytes_)
+        elif c in BOOL_COLUMNS:
+            texts = np.where(np.asarray(v, dtype=bool), b"true", b"false")
+        elif not isinstance(v, np.ndarray) and v.count(v[0]) == n:  # one value in every row
+            between += orjson.dumps(v[0])
+            continue
+        else:
+            texts = _json_texts(v)
+        blocks += [_repeated(between, n), texts.view(np.uint8).reshape(n, texts.itemsize)]
+        between = b""
+    blocks.append(_repeated(between + b"},", n))
+    body = np.concatenate(blocks, axis=1).tobytes().replace(b"\x00", b"")
+    return [_ascii_json(b"[" + body[:-1] + b"]")]
+
+
+def _repeated(text: bytes, n: int) -> np.ndarray:
+    """``n`` rows of the bytes of ``text`` (an ``(n, len(text))`` uint8 array)."""
+    return np.broadcast_to(np.frombuffer(text, dtype=np.uint8), (n, len(text)))

@@ -392,20 +392,8 @@ def _fmt_table(df: pd.DataFrame) -> str:
     return markdown_table(df, ".3g")
 
 
-def write_report(res: EmbeddedRULResult, out: Path, *, figures: bool = True,
-                 command: str = "rulkit reproduce embedded-rul") -> Path:
-    """Write report.md, units.csv, sensitivity.csv and one figure per unit into ``out``;
-    return the path of report.md."""
-    false_alarms, far_seed = res.false_alarms, res.far_seed
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    res.units.to_csv(out / "units.csv", index=False)
-    if res.sensitivity is not None:
-        res.sensitivity.to_csv(out / "sensitivity.csv", index=False)
-    figs = []
-    if figures:
-        for u in range(res.data.units.size):
-            figs.append(plot_unit(res, u, out / f"unit_{int(res.data.units[u]):02d}.png"))
+def _report_tables(res: EmbeddedRULResult, command: str) -> str:
+    """The report's data, tracker configuration, Paris exponent and per-unit tables."""
     cfg = res.config
     g = cfg.gains()
     n_failed, n_cens = int(res.data.failed.sum()), int((~res.data.failed).sum())
@@ -415,7 +403,7 @@ def write_report(res: EmbeddedRULResult, out: Path, *, figures: bool = True,
     failed = res.units[res.units["failed"]][cols]
     cens = res.units[~res.units["failed"]][
         ["unit", "last_t", "final_hi", "t_first_valid", "n_valid", "t_first_warning"]]
-    text = f"""# Embedded RUL trackers on the Lu & Meeker fatigue crack-growth data
+    return f"""# Embedded RUL trackers on the Lu & Meeker fatigue crack-growth data
 
 Produced by `{command}` (deterministic: no random draws). Seed 004 (Bechhoefer &
 Schlanbusch), docs/systems/embedded-rul.md §5.
@@ -471,6 +459,11 @@ minus first warning; alarm_delay = first alarm minus crossing (the filtered HI l
 ## Censored units (no crossing by 120 kcycles; Paris m = 2)
 {_fmt_table(cens)}
 """
+
+
+def _report_studies(res: EmbeddedRULResult) -> str:
+    """The report's sensitivity and false-alarm sections (when they were run)."""
+    text = ""
     if res.sensitivity is not None:
         text += f"""
 ## Sensitivity to the tracking indices and the d2RUL validity limit
@@ -480,11 +473,12 @@ units that got a warning).
 
 {_fmt_table(res.sensitivity)}
 """
+    false_alarms = res.false_alarms
     if false_alarms is not None:
         text += f"""
 ## False-alarm rate of the CI -> HI map (section 1)
 3 Rayleigh-like CIs with equicorrelation rho, HI model fitted on 2e5 healthy rows, HI > 0.5
-counted on 2e6 fresh healthy rows (seed {far_seed}); design PFA 1e-3. Whitening keeps the
+counted on 2e6 fresh healthy rows (seed {res.far_seed}); design PFA 1e-3. Whitening keeps the
 rate at the design up to sampling error: the counts have a binomial sd of 2.2 %, and the
 covariance fitted on 2e5 rows has a scale error of ~0.3 %, which the steep tail turns into
 ~5 % on the rate (d ln PFA / d ln T ~ 18 here). Without whitening, correlated CIs raise the
@@ -492,9 +486,14 @@ rate (the seed's Gaussian-sum example with rho = 1 gives ~390x at PFA 1e-6).
 
 {_fmt_table(false_alarms)}
 """
+    return text
+
+
+def _report_reading(res: EmbeddedRULResult) -> str:
+    """The report's reading of the results."""
     mid = (res.data.t >= 40) & (res.data.t <= 90)
     d2_med = float(np.nanmedian(res.history["d2rul"][mid][:, res.data.failed]))
-    text += f"""
+    return f"""
 ## Reading the results
 - The seed's chain was designed for thousands of acquisitions per fault (every 10 minutes
   over weeks); these units have 10-13 acquisitions each, so the alpha-beta-gamma tracker's
@@ -514,6 +513,22 @@ rate (the seed's Gaussian-sum example with rho = 1 gives ~390x at PFA 1e-6).
 - The validity rule is necessary but not sufficient here: a valid RUL is not necessarily an
   accurate one (see "valid steps inside 20 %").
 """
+
+
+def write_report(res: EmbeddedRULResult, out: Path, *, figures: bool = True,
+                 command: str = "rulkit reproduce embedded-rul") -> Path:
+    """Write report.md, units.csv, sensitivity.csv and one figure per unit into ``out``;
+    return the path of report.md."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    res.units.to_csv(out / "units.csv", index=False)
+    if res.sensitivity is not None:
+        res.sensitivity.to_csv(out / "sensitivity.csv", index=False)
+    figs = []
+    if figures:
+        for u in range(res.data.units.size):
+            figs.append(plot_unit(res, u, out / f"unit_{int(res.data.units[u]):02d}.png"))
+    text = _report_tables(res, command) + _report_studies(res) + _report_reading(res)
     if figures:
         text += "\n## Figures\n" + "\n".join(f"- `{p.name}`" for p in figs) + "\n"
     rep = out / "report.md"

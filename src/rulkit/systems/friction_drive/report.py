@@ -10,7 +10,7 @@ with the seed's values beside ours.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats
@@ -172,8 +172,15 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    # Fig. 3: input, alpha error and m_hat with +-3 sigma bounds (jump scenario).
+    paths = [_fig3(res, out, plt), _fig5(res, out, plt)]
+    for name, r in res.rul.items():  # Figs. 7 and 8 per RUL configuration
+        paths += _fig7_fig8(res, name, r, out, plt)
+    paths.append(_nis_figure(res, out, plt))
+    return paths
+
+
+def _fig3(res: FrictionDriveResult, out: Path, plt: Any) -> Path:
+    """Fig. 3: input, alpha error and m_hat with +-3 sigma bounds (jump scenario)."""
     cfgs = [c for c in ("tuned", "seed-f44", "seed") if (c, "jump") in res.runs]
     fig, ax = plt.subplots(4, 1, figsize=(8, 10), sharex=True)
     tr = res.truths["jump"]
@@ -207,8 +214,11 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     p = out / "fig3_estimates.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    paths.append(p)
-    # Fig. 5: D_hat over time (drift and jump scenarios, tuned filter).
+    return p
+
+
+def _fig5(res: FrictionDriveResult, out: Path, plt: Any) -> Path:
+    """Fig. 5: D_hat over time (drift and jump scenarios, tuned filter)."""
     fig, ax = plt.subplots(figsize=(8, 4))
     for s in ("drift", "jump", "constant"):
         if ("tuned", s) not in res.runs:
@@ -227,58 +237,64 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     p = out / "fig5_deterioration.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    paths.append(p)
-    # Fig. 7 and 8: bundle of D trajectories and RUL histogram, per RUL config.
-    for name, r in res.rul.items():
-        finite = r.rul.samples[~np.asarray(r.rul.censored, dtype=bool)]
-        t_end = 1.3 * (np.quantile(finite, 0.99) if finite.size else r.nominal_h)
-        if not np.isfinite(t_end):
-            t_end = 300.0
-        grid = np.linspace(0.0, t_end, 400)
-        n_show = min(100, r.samples.shape[0])
-        Db = deterioration_bundle(r.samples[:n_show], grid, params=res.params)
-        ext = np.repeat(r.x_hat[None, :], 3, axis=0)
-        sa, sm = np.sqrt(r.P[2, 2]), np.sqrt(r.P[3, 3])
-        ext[1, 2] += 3 * sa
-        ext[1, 3] -= 3 * sm
-        ext[2, 2] -= 3 * sa
-        ext[2, 3] += 3 * sm
-        never = ext[1, 3] <= 0
-        ext[:, 3] = np.maximum(ext[:, 3], 0.0)
-        De = deterioration_bundle(ext, grid, params=res.params)
-        fig, ax = plt.subplots(figsize=(8, 4))
-        ax.plot(grid, Db.T, color="0.7", lw=0.5)
-        ax.plot(grid, De[0], "k-", lw=2, label="nominal (x_hat)")
-        ax.plot(grid, De[1], "g--", label="optimistic (alpha+3s, m-3s)"
-                + (": m <= 0, never fails" if never else ""))
-        ax.plot(grid, De[2], "r--", label="pessimistic (alpha-3s, m+3s)")
-        d_f = res.params.failure_level  # the level predict_rul and the bundle use
-        ax.axhline(d_f, color="b", lw=0.8, label=f"D_f = {d_f:g}")
-        ax.set_xlabel(f"hours after t = {r.t_pred:g} s")
-        ax.set_ylabel("D")
-        ax.legend(fontsize=8)
-        ax.set_title(f"Fig. 7 analogue ({name}): {n_show} trajectories from N(x_hat, P)")
-        p = out / f"fig7_bundle_{name}.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        paths.append(p)
-        fig, ax = plt.subplots(figsize=(6, 4))
-        if finite.size:
-            ax.hist(finite, bins=30, density=True, alpha=0.6, label="MC RUL (uncensored)")
-            mu_fit, sd_fit = r.normal_fit
-            if np.isfinite(sd_fit) and sd_fit > 0:
-                g = np.linspace(finite.min(), finite.max(), 200)
-                ax.plot(g, np.exp(-0.5 * ((g - mu_fit) / sd_fit) ** 2)
-                        / (sd_fit * np.sqrt(2 * np.pi)),
-                        "r", label=f"normal fit {mu_fit:.2f} h, sd {sd_fit:.2f} h")
-        ax.set_xlabel("RUL [h]")
-        ax.set_title(f"Fig. 8 analogue ({name}); censored {r.rul.fraction_censored:.0%}")
-        ax.legend(fontsize=8)
-        p = out / f"fig8_rul_{name}.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        paths.append(p)
-    # Running NIS.
+    return p
+
+
+def _fig7_fig8(res: FrictionDriveResult, name: str, r: Any, out: Path, plt: Any
+               ) -> list[Path]:
+    """Figs. 7 and 8 of one RUL configuration: the bundle of D trajectories and the RUL
+    histogram."""
+    finite = r.rul.samples[~np.asarray(r.rul.censored, dtype=bool)]
+    t_end = 1.3 * (np.quantile(finite, 0.99) if finite.size else r.nominal_h)
+    if not np.isfinite(t_end):
+        t_end = 300.0
+    grid = np.linspace(0.0, t_end, 400)
+    n_show = min(100, r.samples.shape[0])
+    Db = deterioration_bundle(r.samples[:n_show], grid, params=res.params)
+    ext = np.repeat(r.x_hat[None, :], 3, axis=0)
+    sa, sm = np.sqrt(r.P[2, 2]), np.sqrt(r.P[3, 3])
+    ext[1, 2] += 3 * sa
+    ext[1, 3] -= 3 * sm
+    ext[2, 2] -= 3 * sa
+    ext[2, 3] += 3 * sm
+    never = ext[1, 3] <= 0
+    ext[:, 3] = np.maximum(ext[:, 3], 0.0)
+    De = deterioration_bundle(ext, grid, params=res.params)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(grid, Db.T, color="0.7", lw=0.5)
+    ax.plot(grid, De[0], "k-", lw=2, label="nominal (x_hat)")
+    ax.plot(grid, De[1], "g--", label="optimistic (alpha+3s, m-3s)"
+            + (": m <= 0, never fails" if never else ""))
+    ax.plot(grid, De[2], "r--", label="pessimistic (alpha-3s, m+3s)")
+    d_f = res.params.failure_level  # the level predict_rul and the bundle use
+    ax.axhline(d_f, color="b", lw=0.8, label=f"D_f = {d_f:g}")
+    ax.set_xlabel(f"hours after t = {r.t_pred:g} s")
+    ax.set_ylabel("D")
+    ax.legend(fontsize=8)
+    ax.set_title(f"Fig. 7 analogue ({name}): {n_show} trajectories from N(x_hat, P)")
+    p7 = out / f"fig7_bundle_{name}.png"
+    fig.savefig(p7, dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    if finite.size:
+        ax.hist(finite, bins=30, density=True, alpha=0.6, label="MC RUL (uncensored)")
+        mu_fit, sd_fit = r.normal_fit
+        if np.isfinite(sd_fit) and sd_fit > 0:
+            g = np.linspace(finite.min(), finite.max(), 200)
+            ax.plot(g, np.exp(-0.5 * ((g - mu_fit) / sd_fit) ** 2)
+                    / (sd_fit * np.sqrt(2 * np.pi)),
+                    "r", label=f"normal fit {mu_fit:.2f} h, sd {sd_fit:.2f} h")
+    ax.set_xlabel("RUL [h]")
+    ax.set_title(f"Fig. 8 analogue ({name}); censored {r.rul.fraction_censored:.0%}")
+    ax.legend(fontsize=8)
+    p8 = out / f"fig8_rul_{name}.png"
+    fig.savefig(p8, dpi=110)
+    plt.close(fig)
+    return [p7, p8]
+
+
+def _nis_figure(res: FrictionDriveResult, out: Path, plt: Any) -> Path:
+    """The running mean NIS of every run."""
     fig, ax = plt.subplots(figsize=(8, 4))
     for (c, s), run in res.runs.items():
         nis = np.einsum("ti,ti->t", run.nu[:, 0],
@@ -292,8 +308,7 @@ def figures(res: FrictionDriveResult, out: Path) -> list[Path]:
     p = out / "nis_running_mean.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    paths.append(p)
-    return paths
+    return p
 
 
 def _frac(df: pd.DataFrame, config: str, scenario: str, col: str) -> str:
@@ -506,16 +521,9 @@ def _md(df: pd.DataFrame) -> str:
     return markdown_table(df, ".5g")
 
 
-def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path:
-    """Write tables (CSV), figures (PNG) and ``report.md`` into ``out``; returns report path."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    tabs = tables(res)
-    for name, df in tabs.items():
-        df.to_csv(out / f"{name}.csv", index=False)
-    figs = figures(res, out)
-    cons = tabs["consistency"]
-    rul = tabs["rul"]
+def _rul_section(res: FrictionDriveResult, rul: pd.DataFrame) -> list[str]:
+    """The report's RUL section: the table beside the seed's, its scores against the true
+    RUL, and the differences explained."""
     jump = res.truths["jump"]
     spread = "; ".join(
         f"{r['config']}: sigma_m/m = {r['sigma_m'] / abs(r['m_hat']):.1%}, "
@@ -537,20 +545,7 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         f"{int(rul['lsoda_check_n'].sum())} samples"
         if val.size else "no LSODA check in this run"
     )
-    short = cons[["config", "scenario", "run", "mean_NIS", "NIS_lo", "NIS_hi", "LjungBox_p_w1",
-                  "LjungBox_p_w2", "ACF_out_w1", "ACF_out_w2", "NIS_ok", "white", "consistent",
-                  "mean_NEES", "median_NEES", "max_NEES", "max_NEES_switch", "max_NEES_other",
-                  "NEES_ok", "mean_NEES_excl_jump", "max_NEES_excl_jump", "NEES_ok_excl_jump",
-                  "m_hat", "m_true", "sigma_m",
-                  "jump_tracking_s"]]
-    lines = [
-        "# Friction drive (seed 003): deterioration estimation and RUL",
-        "",
-        f"Command: `{command}`" if command else "",
-        f"Runs per (filter, scenario): {res.n_runs}; seed {res.seed}; filter step {res.dt} s; "
-        f"settings {res.settings}. Filter wall time {res.filter_seconds:.1f} s.",
-        "",
-        *_machine_lines(res),
+    return [
         "## RUL at t = {:g} s (seed section 6, Figs. 7-8)".format(
             next(iter(res.rul.values())).t_pred if res.rul else float("nan")),
         "",
@@ -588,6 +583,21 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         "lsoda_check_max_abs_h; the closed form ignores the lag of the mechanical state behind "
         f"the falling alpha, so it is early by tens of seconds: {val_text}).",
         "",
+    ]
+
+
+def _consistency_section(res: FrictionDriveResult, tabs: dict[str, pd.DataFrame]
+                         ) -> list[str]:
+    """The report's consistency section: the verdicts over runs, per run, and the seed's
+    ellipsoid statements beside the correct ones."""
+    cons = tabs["consistency"]
+    short = cons[["config", "scenario", "run", "mean_NIS", "NIS_lo", "NIS_hi", "LjungBox_p_w1",
+                  "LjungBox_p_w2", "ACF_out_w1", "ACF_out_w2", "NIS_ok", "white", "consistent",
+                  "mean_NEES", "median_NEES", "max_NEES", "max_NEES_switch", "max_NEES_other",
+                  "NEES_ok", "mean_NEES_excl_jump", "max_NEES_excl_jump", "NEES_ok_excl_jump",
+                  "m_hat", "m_true", "sigma_m",
+                  "jump_tracking_s"]]
+    return [
         "## Consistency (seed 4.3-4.4)",
         "",
         "Verdict per run: `NIS_ok` (time-averaged NIS inside its 95 % chi-square interval, "
@@ -616,6 +626,27 @@ def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path
         "interval; the 4-D ellipsoid holds P(chi2_4 <= 9) = 93.9 %. Chebyshev's 1 - n/c^2 = "
         "55.6 % (printed as 55.5 %) is a distribution-free lower bound.",
         "",
+    ]
+
+
+def write_report(res: FrictionDriveResult, out: Path, command: str = "") -> Path:
+    """Write tables (CSV), figures (PNG) and ``report.md`` into ``out``; returns report path."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tabs = tables(res)
+    for name, df in tabs.items():
+        df.to_csv(out / f"{name}.csv", index=False)
+    figs = figures(res, out)
+    lines = [
+        "# Friction drive (seed 003): deterioration estimation and RUL",
+        "",
+        f"Command: `{command}`" if command else "",
+        f"Runs per (filter, scenario): {res.n_runs}; seed {res.seed}; filter step {res.dt} s; "
+        f"settings {res.settings}. Filter wall time {res.filter_seconds:.1f} s.",
+        "",
+        *_machine_lines(res),
+        *_rul_section(res, tabs["rul"]),
+        *_consistency_section(res, tabs),
         *_tuning_section(tabs),
         "## Observability (windowed Cramer-Rao bound, 2 s of measurements, seed R)",
         "",

@@ -103,14 +103,14 @@ def _motor_lines(cfg: Any) -> list[str]:
             "seed's motor.", ""]
 
 
-def _report(res: MotorDampingResult, command: str) -> str:
+def _seed_rows(res: MotorDampingResult) -> list[tuple[str, str, str]]:
+    """The seed's reported values beside ours: (quantity, seed 002, ours)."""
     cfg = res.config
-    t = res.tables
     lin = res.scenarios["linear"]
     n_ref = min(SEED_VALUES["n_cycles"], cfg.life.n_cycles)
     k58 = int(np.flatnonzero(lin.cycles == n_ref)[0])
     a58 = lin.track.x[k58, :, 1]
-    seed_rows = [
+    return [
         (f"degradation slope a per cycle (macro EKF after cycle {n_ref})", "2.67e-6",
          f"{a58.mean():.4g} +- {a58.std(ddof=1) if a58.size > 1 else float('nan'):.2g} "
          f"(mean +- sd over {cfg.runs} runs; true {cfg.life.slope:.3g})"),
@@ -125,6 +125,44 @@ def _report(res: MotorDampingResult, command: str) -> str:
          f"{cfg.life.n_cycles} synthetic cycles per run (trend crosses c_fail at "
          f"{lin.eol[0]:.1f})"),
     ]
+
+
+def _macro_models_section(res: MotorDampingResult) -> list[str]:
+    """The report's comparison of the linear and quadratic macro laws (an extension)."""
+    cfg = res.config
+    t = res.tables
+    return [
+        "## Macro model: linear vs quadratic law, on linear and accelerating truth",
+        "",
+        "Not in the seed (an extension): the seed's linear law (state [c, a]) against a "
+        "quadratic, constant-acceleration law (state [c, a, j]; curvature prior sd "
+        f"{cfg.macro.j_prior_sd:g} per cycle^2, q = 0; scatter from quadratic-fit residuals), "
+        f"both on the same {cfg.runs} runs of each truth (linear: c = 1e-5 + 2e-6 n; "
+        f"accelerating: + {cfg.accel_curvature:g} n^2, i.e. j = "
+        f"{2 * cfg.accel_curvature:g}). Truth = trend crossing. Coverage: fraction of "
+        "prediction cycles whose 90 % interval holds the true RUL (first/second half: "
+        "prediction cycle below/above EOL/2, pooled over runs); alpha-lambda pass fraction "
+        "over runs (alpha = 0.2); RA at lambda = 0.5 (median over runs); median absolute "
+        "error of the median RUL; median interval width in cycles (inf: the 95 % bound lies "
+        f"beyond the {cfg.horizon:g}-cycle horizon; unbounded_fraction: share of such "
+        "intervals).",
+        "",
+        markdown_table(t["macro_models"]),
+        "",
+        _model_summary(t["macro_models"]),
+        "",
+        "Sensitivity of the quadratic law to its curvature prior sd (covariance method, same "
+        f"runs; the accelerating truth's curvature is j = {2 * cfg.accel_curvature:g}; a small "
+        "prior shrinks the law towards the linear one):",
+        "",
+        markdown_table(t["macro_j_prior_sweep"].drop(columns=["macro_model", "method"])),
+        "",
+    ]
+
+
+def _report(res: MotorDampingResult, command: str) -> str:
+    cfg = res.config
+    t = res.tables
     lines = [
         "# Seed 002 reproduction: multi-scale EKF life prediction of a reaction-wheel motor",
         "",
@@ -148,7 +186,7 @@ def _report(res: MotorDampingResult, command: str) -> str:
         "",
         "| quantity | seed 002 | ours |",
         "|---|---|---|",
-        *[f"| {a} | {b} | {c} |" for a, b, c in seed_rows],
+        *[f"| {a} | {b} | {c} |" for a, b, c in _seed_rows(res)],
         "",
         "## Micro EKF: per-cycle damping error (Fig. 8, 9)",
         "",
@@ -180,31 +218,7 @@ def _report(res: MotorDampingResult, command: str) -> str:
         "",
         markdown_table(t["qa_sweep"]),
         "",
-        "## Macro model: linear vs quadratic law, on linear and accelerating truth",
-        "",
-        "Not in the seed (an extension): the seed's linear law (state [c, a]) against a "
-        "quadratic, constant-acceleration law (state [c, a, j]; curvature prior sd "
-        f"{cfg.macro.j_prior_sd:g} per cycle^2, q = 0; scatter from quadratic-fit residuals), "
-        f"both on the same {cfg.runs} runs of each truth (linear: c = 1e-5 + 2e-6 n; "
-        f"accelerating: + {cfg.accel_curvature:g} n^2, i.e. j = "
-        f"{2 * cfg.accel_curvature:g}). Truth = trend crossing. Coverage: fraction of "
-        "prediction cycles whose 90 % interval holds the true RUL (first/second half: "
-        "prediction cycle below/above EOL/2, pooled over runs); alpha-lambda pass fraction "
-        "over runs (alpha = 0.2); RA at lambda = 0.5 (median over runs); median absolute "
-        "error of the median RUL; median interval width in cycles (inf: the 95 % bound lies "
-        f"beyond the {cfg.horizon:g}-cycle horizon; unbounded_fraction: share of such "
-        "intervals).",
-        "",
-        markdown_table(t["macro_models"]),
-        "",
-        _model_summary(t["macro_models"]),
-        "",
-        "Sensitivity of the quadratic law to its curvature prior sd (covariance method, same "
-        f"runs; the accelerating truth's curvature is j = {2 * cfg.accel_curvature:g}; a small "
-        "prior shrinks the law towards the linear one):",
-        "",
-        markdown_table(t["macro_j_prior_sweep"].drop(columns=["macro_model", "method"])),
-        "",
+        *_macro_models_section(res),
         "## Threshold (seed section 4.2)",
         "",
         markdown_table(t["threshold"]),

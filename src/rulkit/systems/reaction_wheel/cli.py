@@ -17,8 +17,6 @@ from typing import Annotated, Any
 
 import typer
 
-from rulkit.systems.reaction_wheel.pipeline import stream_temperature
-
 #: The step-1 estimators (the default first); the same as
 #: ``rulkit.systems.reaction_wheel.temperature.estimator.METHODS`` (kept here so that
 #: ``rulkit --help`` does not import numba).
@@ -226,6 +224,7 @@ def _register_step1(rw: typer.Typer) -> None:
     ) -> None:
         """Estimate the lubricant temperature (with an interval per sample) from telemetry."""
         from rulkit.cli.errors import EXIT_USAGE, fail
+        from rulkit.systems.reaction_wheel.pipeline import stream_temperature
 
         if method is not None and method not in METHODS:
             fail(f"--method: expected one of {', '.join(METHODS)}, got {method!r}",

@@ -279,6 +279,44 @@ function alertMarks(u, alerts, x) {
   ctx.restore();
 }
 
+// what an alert was: its level, when (the data's time, and the date when dated), why
+function alertText(a, ta) {
+  return a.level + " at t = " + fmt(a.time, 6) + (ta.time ? " (" + dateText(ta.x(a.time)) + ")"
+    : "") + (a.reason === null ? "" : ": " + visible(a.reason))
+    + (a.acknowledged ? " (acknowledged by " + visible(a.acknowledged.by) + ")" : "");
+}
+
+// a uPlot plugin: while the pointer is within 4 px of an alert's mark, a tooltip over the
+// plot says what the alert was (text only, no markup)
+function alertTips(alerts, ta) {
+  let tip = null;
+  const show = (u) => {
+    const left = u.cursor.left;
+    const near = left === null || left < 0 ? [] : alerts.filter(
+      (a) => Math.abs(u.valToPos(ta.x(a.time), "x") - left) <= 4);
+    tip.hidden = near.length === 0;
+    if (tip.hidden) return;
+    tip.textContent = near.map((a) => alertText(a, ta)).join("\n");
+    tip.dataset.alertIds = near.map((a) => a.id).join(" ");
+    tip.style.left = Math.min(left + 8, u.over.clientWidth * 0.6) + "px";
+    tip.style.top = Math.max(u.cursor.top || 0, 0) + "px";
+  };
+  return { hooks: {
+    init: [(u) => {
+      tip = document.createElement("div");
+      tip.className = "alert-tip";
+      tip.hidden = true;
+      u.over.appendChild(tip);
+    }],
+    setCursor: [show],
+  } };
+}
+
+// where each alert's mark is drawn: CSS pixels from the plot's left edge (u.over)
+function markPositions(u, alerts, ta) {
+  return alerts.map((a) => ({ id: a.id, left: u.valToPos(ta.x(a.time), "x") }));
+}
+
 // text on the canvas, right-aligned at x but never left of minX; returns its right end
 function canvasText(u, text, x, minX, y, color) {
   const ctx = u.ctx, dpr = window.devicePixelRatio || 1;
@@ -309,7 +347,7 @@ function plot(id, opts, data, record) {
       series[s.label] = data[i + 1].filter((v) => v !== null).length;
     });
     el.dataset.chart = JSON.stringify(Object.assign({ series, ticks: drawn,
-      titles: u.axes.map((a) => a.label) }, record()));
+      titles: u.axes.map((a) => a.label) }, record(u)));
   }];
   Object.assign(opts, { width: 900, legend: { live: false },
     tzDate: (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC") });
@@ -381,8 +419,9 @@ function hiChart(h) {
       if (label) canvasText(u, label, u.valToPos(ta.x(on[0]), "x", true) - 10 * dpr,
         end + 16 * dpr, y, "#222");
     }] },
-  }, data, () => ({ threshold: thr, threshold_label: thrLabel, rul_label: label,
-    alerts: h.alerts.length }));
+    plugins: [alertTips(h.alerts, ta)],
+  }, data, (u) => ({ threshold: thr, threshold_label: thrLabel, rul_label: label,
+    alerts: h.alerts.length, marks: markPositions(u, h.alerts, ta) }));
 }
 
 function rulChart(h) {
@@ -409,7 +448,9 @@ function rulChart(h) {
       line("RUL interval (upper)", COLOR.rulBand, { width: 0, inLegend: false })],
     bands: [{ series: [3, 2], fill: COLOR.rulBand }],
     hooks: { draw: [(p) => alertMarks(p, h.alerts, ta.x)] },
-  }, data, () => ({ alerts: h.alerts.length, rul_now: rulText(h.now) }));
+    plugins: [alertTips(h.alerts, ta)],
+  }, data, (p) => ({ alerts: h.alerts.length, rul_now: rulText(h.now),
+    marks: markPositions(p, h.alerts, ta) }));
 }
 
 async function loadDetail(name) {

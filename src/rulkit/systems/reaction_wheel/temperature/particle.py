@@ -294,26 +294,17 @@ def kernel_settings(cfg: TemperatureConfig, d: dict[str, Any], t0: float, dt: fl
     )
 
 
-def filter_temperature_numpy(
-    d: dict[str, Any], cfg: TemperatureConfig, rng: np.random.Generator, p: IthacoParams, dt: float,
-    t0: float, quantiles: bool,
-) -> TemperatureResult:
-    """Vectorised numpy reference of
-    :func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_kernel`.
-
-    Built on :class:`rulkit.estimation.particle.ParticleFilter`: ``transition`` (T random walk,
-    F2 RK4 via :func:`rulkit.integrate.rk4_step`), ``log_likelihood``, ``weight_update`` for
-    the APF variants, ``resample`` (engine systematic) for the ESS rule; the adaptive spread is
-    applied between steps. Particles are [T] (F1) or [T, I, w] (F2).
-    """
+def _numpy_particle_filter(d: dict[str, Any], cfg: TemperatureConfig, p: IthacoParams,
+                           dt: float, t0: float, pred: dict[str, FloatArray]) -> Any:
+    """The engine's :class:`~rulkit.estimation.particle.ParticleFilter` of
+    :func:`filter_temperature_numpy`: its transition, likelihood (which leaves the last
+    log-likelihoods and their maximum in ``pred``) and the APF variants' weight update."""
     from rulkit.estimation.particle import ParticleFilter
 
     y, V = d["y"], d["V"]
     S_inv, log_norm = d["S_inv"], d["log_norm"]
-    K, N = y.shape[0], int(cfg.n_particles)
-    lo, hi = cfg.T_prior
+    N = int(cfg.n_particles)
     f2 = cfg.design == "F2"
-    pred: dict[str, FloatArray] = {}
 
     # The engine counts assimilated measurements from 0; ours are y[1:], so engine step j is
     # our sample k = j + 1 (y[0] only initialises).
@@ -360,16 +351,43 @@ def filter_temperature_numpy(
         return logw + g * ll
 
     wu = {"apf_eq28": apf_eq28, "apf_tempered": tempered}.get(cfg.variant)
-    pf = ParticleFilter(transition, log_likelihood, resampler="systematic",
+    return ParticleFilter(transition, log_likelihood, resampler="systematic",
                         ess_threshold=cfg.ess_threshold, weight_update=wu, recovery="reset")
+
+
+def _initial_particles(d: dict[str, Any], cfg: TemperatureConfig, rng: np.random.Generator
+                       ) -> FloatArray:
+    """The particles before the first sample: T uniform over the prior, and for F2 the
+    current and speed around the first measurement."""
+    y, N = d["y"], int(cfg.n_particles)
+    lo, hi = cfg.T_prior
     T0 = lo + (hi - lo) * rng.random(N)
-    if f2:
+    if cfg.design == "F2":
         Z = rng.standard_normal((N, 2))
         x0 = np.stack([T0, y[0, 1] + d["init_sd"][0] * Z[:, 0],
                        y[0, 0] + d["init_sd"][1] * Z[:, 1]], axis=1)
     else:
         x0 = T0[:, None]
-    state = pf.initialise(x0, rng)
+    return x0
+
+
+def filter_temperature_numpy(
+    d: dict[str, Any], cfg: TemperatureConfig, rng: np.random.Generator, p: IthacoParams, dt: float,
+    t0: float, quantiles: bool,
+) -> TemperatureResult:
+    """Vectorised numpy reference of
+    :func:`rulkit.systems.reaction_wheel.temperature.kernels.pf_kernel`.
+
+    Built on :class:`rulkit.estimation.particle.ParticleFilter`: ``transition`` (T random walk,
+    F2 RK4 via :func:`rulkit.integrate.rk4_step`), ``log_likelihood``, ``weight_update`` for
+    the APF variants, ``resample`` (engine systematic) for the ESS rule; the adaptive spread is
+    applied between steps. Particles are [T] (F1) or [T, I, w] (F2).
+    """
+    y = d["y"]
+    K, N = y.shape[0], int(cfg.n_particles)
+    pred: dict[str, FloatArray] = {}
+    pf = _numpy_particle_filter(d, cfg, p, dt, t0, pred)
+    state = pf.initialise(_initial_particles(d, cfg, rng), rng)
     out = temperature_outputs(K)
     levels = cfg.quantiles if quantiles else None
     act = np.zeros(K, dtype=np.int8)

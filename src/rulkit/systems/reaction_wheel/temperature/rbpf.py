@@ -379,6 +379,84 @@ def _rbpf_kernel(  # type: ignore[no-untyped-def]
 
 
 @nb.njit(cache=True)
+def _rbpf_temperature_steps(s, lw, rng, rho, p_jump, jump_sd, q_T, reweight):  # type: ignore[no-untyped-def]
+    """The particles' temperature steps into ``s`` (a jump of sd ``jump_sd`` with probability
+    ``rho``, else sd ``q_T``), reweighted in ``lw`` to the jump probability ``p_jump`` when
+    ``reweight``."""
+    N = s.shape[0]
+    for i in range(N):
+        s[i] = rng.standard_normal()
+    if rho > 0.0:
+        for i in range(N):
+            s[i] *= jump_sd if rng.random() < rho else q_T
+    else:
+        for i in range(N):
+            s[i] *= q_T
+    if reweight:
+        for i in range(N):
+            lw[i] += _log_mix1(s[i], p_jump, jump_sd, q_T) - _log_mix1(
+                s[i], rho, jump_sd, q_T)
+
+
+@nb.njit(cache=True)
+def _rbpf_kalman_update(  # type: ignore[no-untyped-def]
+    T, mI, mw, P11, P12, P22, ll, s, Vk, tn0, tn1, tn2, dt, C, b0, b1, QI, Qw, RI, Rw, yI, yw,
+    log2pi,
+):
+    """Each particle's temperature moved by ``s``, then its Kalman filter of (I, w) through
+    one RK4 step and the measurement (``yI``, ``yw``), in place; ``ll`` its log-likelihood."""
+    N = T.shape[0]
+    for i in range(N):
+        T[i] += s[i]
+        b = b0 + b1 * T[i]
+        I1, w1, F = rk4_tangent_linear(mI[i], mw[i], Vk, b, tn0, tn1, tn2, dt, C)
+        # P^- = F P F^T + Q
+        a11 = F[0] * P11[i] + F[1] * P12[i]
+        a12 = F[0] * P12[i] + F[1] * P22[i]
+        a21 = F[2] * P11[i] + F[3] * P12[i]
+        a22 = F[2] * P12[i] + F[3] * P22[i]
+        p11 = a11 * F[0] + a12 * F[1] + QI
+        p12 = a11 * F[2] + a12 * F[3]
+        p22 = a21 * F[2] + a22 * F[3] + Qw
+        s11, s12, s22 = p11 + RI, p12, p22 + Rw
+        det = s11 * s22 - s12 * s12
+        i11, i12, i22 = s22 / det, -s12 / det, s11 / det
+        eI, ew = yI - I1, yw - w1
+        quad = i11 * eI * eI + 2.0 * i12 * eI * ew + i22 * ew * ew
+        ll[i] = -0.5 * quad - 0.5 * math.log(det) - log2pi
+        # K = P^- S^-1; m += K e; P = P^- - K S K^T = P^- - P^- S^-1 P^-
+        k11 = p11 * i11 + p12 * i12
+        k12 = p11 * i12 + p12 * i22
+        k21 = p12 * i11 + p22 * i12
+        k22 = p12 * i12 + p22 * i22
+        mI[i] = I1 + k11 * eI + k12 * ew
+        mw[i] = w1 + k21 * eI + k22 * ew
+        n11 = p11 - (k11 * p11 + k12 * p12)
+        n12 = p12 - (k11 * p12 + k12 * p22)
+        n21 = p12 - (k21 * p11 + k22 * p12)
+        n22 = p22 - (k21 * p12 + k22 * p22)
+        P11[i], P12[i], P22[i] = n11, 0.5 * (n12 + n21), n22
+
+
+@nb.njit(cache=True)
+def _rbpf_resample(wn, lw, rng, idx, cw, bufs, T, mI, mw, P11, P12, P22):  # type: ignore[no-untyped-def]
+    """Systematic resampling of the particles and their Kalman states, in place (weights
+    equal afterwards)."""
+    N = T.shape[0]
+    systematic_row(wn, rng.random(), idx, cw)
+    b_T, b_I, b_w, b_11, b_12, b_22 = bufs
+    for i in range(N):
+        j = idx[i]
+        b_T[i], b_I[i], b_w[i] = T[j], mI[j], mw[j]
+        b_11[i], b_12[i], b_22[i] = P11[j], P12[j], P22[j]
+    for i in range(N):
+        T[i], mI[i], mw[i] = b_T[i], b_I[i], b_w[i]
+        P11[i], P12[i], P22[i] = b_11[i], b_12[i], b_22[i]
+        lw[i] = -math.log(N)
+        wn[i] = 1.0 / N
+
+
+@nb.njit(cache=True)
 def _rbpf_steps(  # type: ignore[no-untyped-def]
     y, V, k0, first, st, t0, dt, N, q_T, p_jump, jump_sd, rho, reweight, q_I, q_w, sw, sI,
     ess_thr, want_q, q0, q1, Pp, rng,
@@ -416,49 +494,10 @@ def _rbpf_steps(  # type: ignore[no-untyped-def]
             tn0 = J * th_a * w_a * w_a * math.sin(w_a * tk)
             tn1 = J * th_a * w_a * w_a * math.sin(w_a * (tk + 0.5 * dt))
             tn2 = J * th_a * w_a * w_a * math.sin(w_a * (tk + dt))
-            for i in range(N):
-                s[i] = rng.standard_normal()
-            if rho > 0.0:
-                for i in range(N):
-                    s[i] *= jump_sd if rng.random() < rho else q_T
-            else:
-                for i in range(N):
-                    s[i] *= q_T
-            if reweight:
-                for i in range(N):
-                    lw[i] += _log_mix1(s[i], p_jump, jump_sd, q_T) - _log_mix1(
-                        s[i], rho, jump_sd, q_T)
+            _rbpf_temperature_steps(s, lw, rng, rho, p_jump, jump_sd, q_T, reweight)
             yI, yw = y[kk, 1], y[kk, 0]
-            for i in range(N):
-                T[i] += s[i]
-                b = b0 + b1 * T[i]
-                I1, w1, F = rk4_tangent_linear(mI[i], mw[i], Vk, b, tn0, tn1, tn2, dt, C)
-                # P^- = F P F^T + Q
-                a11 = F[0] * P11[i] + F[1] * P12[i]
-                a12 = F[0] * P12[i] + F[1] * P22[i]
-                a21 = F[2] * P11[i] + F[3] * P12[i]
-                a22 = F[2] * P12[i] + F[3] * P22[i]
-                p11 = a11 * F[0] + a12 * F[1] + QI
-                p12 = a11 * F[2] + a12 * F[3]
-                p22 = a21 * F[2] + a22 * F[3] + Qw
-                s11, s12, s22 = p11 + RI, p12, p22 + Rw
-                det = s11 * s22 - s12 * s12
-                i11, i12, i22 = s22 / det, -s12 / det, s11 / det
-                eI, ew = yI - I1, yw - w1
-                quad = i11 * eI * eI + 2.0 * i12 * eI * ew + i22 * ew * ew
-                ll[i] = -0.5 * quad - 0.5 * math.log(det) - log2pi
-                # K = P^- S^-1; m += K e; P = P^- - K S K^T = P^- - P^- S^-1 P^-
-                k11 = p11 * i11 + p12 * i12
-                k12 = p11 * i12 + p12 * i22
-                k21 = p12 * i11 + p22 * i12
-                k22 = p12 * i12 + p22 * i22
-                mI[i] = I1 + k11 * eI + k12 * ew
-                mw[i] = w1 + k21 * eI + k22 * ew
-                n11 = p11 - (k11 * p11 + k12 * p12)
-                n12 = p12 - (k11 * p12 + k12 * p22)
-                n21 = p12 - (k21 * p11 + k22 * p12)
-                n22 = p22 - (k21 * p12 + k22 * p22)
-                P11[i], P12[i], P22[i] = n11, 0.5 * (n12 + n21), n22
+            _rbpf_kalman_update(T, mI, mw, P11, P12, P22, ll, s, Vk, tn0, tn1, tn2, dt, C, b0,
+                                b1, QI, Qw, RI, Rw, yI, yw, log2pi)
             for i in range(N):
                 lw[i] += ll[i]
             o_ll[kk] = normalise_row(lw, wn)
@@ -480,17 +519,7 @@ def _rbpf_steps(  # type: ignore[no-untyped-def]
         if want_q:
             o_lo[kk], o_hi[kk] = weighted_quantile_pair_row(T, wn, q0, q1, order, qbuf)
         if k > 0 and o_ess[kk] < ess_thr * N:
-            systematic_row(wn, rng.random(), idx, cw)
-            b_T, b_I, b_w, b_11, b_12, b_22 = bufs
-            for i in range(N):
-                j = idx[i]
-                b_T[i], b_I[i], b_w[i] = T[j], mI[j], mw[j]
-                b_11[i], b_12[i], b_22[i] = P11[j], P12[j], P22[j]
-            for i in range(N):
-                T[i], mI[i], mw[i] = b_T[i], b_I[i], b_w[i]
-                P11[i], P12[i], P22[i] = b_11[i], b_12[i], b_22[i]
-                lw[i] = -math.log(N)
-                wn[i] = 1.0 / N
+            _rbpf_resample(wn, lw, rng, idx, cw, bufs, T, mI, mw, P11, P12, P22)
             o_act[kk] = 1.0
     return o_mean, o_std, o_lo, o_hi, o_ess, o_act, o_ll, o_Iw
 

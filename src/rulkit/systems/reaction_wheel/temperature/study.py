@@ -189,8 +189,6 @@ def run_table5(
     rmspe_sd / rmspe_min / rmspe_max over runs, rmspe_late_mean (t >= t_burn), mean counts of
     adaptive spreads and resamplings, APF clipped fraction, paper (Table 5 value or NaN).
     """
-    import pandas as pd
-
     from rulkit.runner import run_independent
 
     if quick:
@@ -198,6 +196,25 @@ def run_table5(
         n_list = tuple(n_particles) if n_particles else (50, 200, 350)
     else:
         n_list = tuple(n_particles) if n_particles else TABLE5_N
+    methods = _table5_methods(methods, designs, extra)
+    ov = tuple(sorted((overrides or {}).items()))
+    # largest N first so the slowest tasks start early on the workers
+    tasks: list[tuple[Any, ...]] = [
+        (v, d, noise, n, r, seed, t_burn, ov, initial, coverage)
+        for n in sorted(n_list, reverse=True) for (v, d) in methods for noise in _NOISES
+        for r in range(runs)
+    ]
+    ekf_tasks = [("ekf", runs, seed, t_burn, initial, coverage)] if ekf else []
+    all_tasks = ekf_tasks + tasks
+    outs = run_independent(_table5_dispatch, all_tasks, seed=seed, workers=workers,
+                           scheduler=scheduler, progress=progress, description="Table 5 runs")
+    return _table5_summary(all_tasks, outs, runs, seed, coverage, bool(tasks))
+
+
+def _table5_methods(methods: Sequence[tuple[str, str]] | None, designs: Sequence[str],
+                    extra: bool) -> list[tuple[str, str]]:
+    """The (variant, design) pairs of :func:`run_table5` (its default from ``designs`` and
+    ``extra``), each checked to be a known pair."""
     from rulkit.systems.reaction_wheel.temperature.rbpf import RBPF_DESIGNS
 
     if methods is None:
@@ -210,17 +227,15 @@ def run_table5(
             raise ValueError(f"methods: ({v!r}, {d!r}) is not a known (variant, design) pair; "
                              f"designs {sorted(kern.DESIGNS)} take {sorted(kern.VARIANTS)}, "
                              f"{sorted(RBPF_DESIGNS)} take 'rbpf'")
-    ov = tuple(sorted((overrides or {}).items()))
-    # largest N first so the slowest tasks start early on the workers
-    tasks: list[tuple[Any, ...]] = [
-        (v, d, noise, n, r, seed, t_burn, ov, initial, coverage)
-        for n in sorted(n_list, reverse=True) for (v, d) in methods for noise in _NOISES
-        for r in range(runs)
-    ]
-    ekf_tasks = [("ekf", runs, seed, t_burn, initial, coverage)] if ekf else []
-    all_tasks = ekf_tasks + tasks
-    outs = run_independent(_table5_dispatch, all_tasks, seed=seed, workers=workers,
-                           scheduler=scheduler, progress=progress, description="Table 5 runs")
+    return list(methods)
+
+
+def _table5_summary(all_tasks: list[tuple[Any, ...]], outs: Sequence[Any], runs: int,
+                    seed: int, coverage: bool, has_tasks: bool) -> Any:
+    """:func:`run_table5`'s table: the runs' scores aggregated per (method, design, noise,
+    N) beside the paper's values, in the paper's order."""
+    import pandas as pd
+
     rows: list[dict[str, Any]] = []
     for task, out in zip(all_tasks, outs, strict=True):
         if task[0] == "ekf":
@@ -238,7 +253,7 @@ def run_table5(
         **({"cover_mean": ("cover", "mean"), "cover_late_mean": ("cover_late", "mean")}
            if coverage else {}),
         **({"spreads_mean": ("n_spread", "mean"), "resamplings_mean": ("n_resampled", "mean"),
-            "clipped_frac_mean": ("clipped_frac", "mean")} if tasks else {}),
+            "clipped_frac_mean": ("clipped_frac", "mean")} if has_tasks else {}),
     ).reset_index()
     agg["seed"] = seed
 
