@@ -55,7 +55,7 @@ from rulkit.fleet.store.schema import (
     RUL_COLUMNS,
     TREND_COLUMNS,
     migrate,
-    recount_levels,
+    recount_totals,
     table_columns,
 )
 from rulkit.fleet.tracking.tracker_chain import LEVEL_ALARM, tracker_rul_interval
@@ -324,7 +324,7 @@ def replay(store: Any) -> int:
         ensure_model_state(conn, store.degradation)
     for chunk in _chunks(names):
         _replay_chunk(store, chunk)
-    recount_levels(conn)
+    recount_totals(conn)
     return len(names)
 
 

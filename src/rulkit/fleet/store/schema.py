@@ -19,7 +19,9 @@ Tables:
 * ``api_tokens``: the service's tokens (SHA-256 only);
 * ``model_state``: the learned model's per-component state (``rulkit fit``; its columns are
   the stored model's, :func:`model_state_table`);
-* ``level_counts``: components per alert level (the totals of the fleet view's pages).
+* ``level_counts``: components per alert level (the totals of the fleet view's pages);
+* ``seen_counts``: components per window of :data:`SEEN_BUCKET` seconds of their last
+  acquisition (the stale filter's total).
 
 The columns of one RUL per component and of the alert rules (:data:`RUL_COLUMNS`:
 ``rul_median``, ``hits``, ``failed_at``, ``seen``, the trend sums; the alerts' ``rul`` and
@@ -127,11 +129,9 @@ COMPONENTS = Table(
     (Column("component", "key"), Column("t", "real"), Column("n", "int"), *_STATE, *_OUTPUTS,
      Column("max_level", "small"), *RUL_COLUMNS),
     ("component",),
-    # the orders and filters of the fleet view's pages, each an index range
-    # (rulkit.fleet.service.fleet_view); the level filter of the RUL order uses the first
+    # the orders of the fleet view's pages, one range per level (rulkit.fleet.service.
+    # fleet_view: an order by the key alone merges the levels' ranges), and the stale filter
     indexes=(("components_worst", f"level DESC, {RUL_KEY}, component"),
-             ("components_rul", f"{RUL_KEY}, component"),
-             ("components_due", f"{DUE_KEY}, component"),
              ("components_level_due", f"level, {DUE_KEY}, component"),
              ("components_seen", "seen, component")),
 )
@@ -139,6 +139,15 @@ LEVEL_COUNTS = Table("level_counts", (Column("level", "small"), Column("n", "int
                      ("level",))
 """Components per alert level, kept by every write of ``components`` (a page's total without
 counting the table)."""
+SEEN_BUCKET = 4096.0
+"""The width in seconds of a window of ``seen_counts`` (a power of two: ``seen / SEEN_BUCKET``
+is exact, so a component is in a window below ``b`` exactly when ``seen < b *
+SEEN_BUCKET``)."""
+SEEN_COUNTS = Table("seen_counts", (Column("bucket", "int"), Column("n", "int")), ("bucket",))
+"""Components per window ``floor(seen / SEEN_BUCKET)`` of the calendar time of their last
+acquisition (rows with ``n > 0`` only), kept by every write of ``components``: the stale total
+sums the windows before the cutoff's and counts the rest of its window in the ``seen``
+index."""
 HISTORY = Table(
     "history",
     (Column("component", "key"), Column("t_first", "real"), Column("t_last", "real"),
@@ -178,8 +187,9 @@ def model_state_table(columns: tuple[str, ...]) -> Table:
         Column(c, "int" if c == "n" else "real") for c in columns)), ("component",))
 
 
-TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE, LEVEL_COUNTS)
-DROPPED_INDEXES = ("components_rank",)
+TABLES = (META, COMPONENTS, HISTORY, INGESTS, ALERTS, API_TOKENS, MODEL_STATE, LEVEL_COUNTS,
+          SEEN_COUNTS)
+DROPPED_INDEXES = ("components_rank", "components_rul", "components_due")
 """Indexes of older versions that no read uses any more (dropped by :func:`migrate`)."""
 
 
@@ -189,7 +199,7 @@ def create_schema(conn: Any, dialect: str) -> None:
     for table in TABLES:
         for stmt in table.create(dialect):
             conn.execute(stmt)
-    recount_levels(conn)
+    recount_totals(conn)
 
 
 def table_columns(conn: Any, table: str) -> list[str]:
@@ -210,6 +220,7 @@ def migrate(conn: Any, dialect: str) -> None:
     have = table_columns(conn, HISTORY.name)
     if is_row_history(have):
         convert_row_history(conn, have, replace(HISTORY, name="history_packed").create(dialect))
+    had_seen_counts = bool(table_columns(conn, SEEN_COUNTS.name))
     for table in TABLES:
         have = table_columns(conn, table.name)
         if have:
@@ -223,8 +234,8 @@ def migrate(conn: Any, dialect: str) -> None:
             conn.execute(stmt)
     for name in DROPPED_INDEXES:
         conn.execute(f"DROP INDEX IF EXISTS {name}")
-    if not level_counts_valid(conn):
-        recount_levels(conn)
+    if not had_seen_counts or not level_counts_valid(conn):
+        recount_totals(conn)
 
 
 def level_counts_valid(conn: Any) -> bool:
@@ -233,14 +244,22 @@ def level_counts_valid(conn: Any) -> bool:
     return int(conn.execute("SELECT COUNT(*) FROM level_counts").fetchone()[0]) == 3
 
 
-def recount_levels(conn: Any) -> None:
-    """Inside the caller's write transaction: table ``level_counts`` counted from
-    ``components`` (after a replay or a merge rewrote many levels)."""
+def recount_totals(conn: Any) -> None:
+    """Inside the caller's write transaction: tables ``level_counts`` and ``seen_counts``
+    counted from ``components`` (after a replay or a merge rewrote many rows)."""
     counts = dict.fromkeys(range(3), 0)
     for level, n in conn.execute("SELECT level, COUNT(*) FROM components GROUP BY level"):
         counts[int(level)] = int(n)
     conn.execute("DELETE FROM level_counts")
     conn.executemany("INSERT INTO level_counts (level, n) VALUES (?, ?)", list(counts.items()))
+    if getattr(conn, "dialect", "sqlite") == "postgresql":
+        bucket = f"CAST(floor(seen / {SEEN_BUCKET}) AS BIGINT)"
+    else:  # SQLite's CAST truncates toward zero: one less below zero between multiples
+        trunc = f"CAST(seen / {SEEN_BUCKET} AS INTEGER)"
+        bucket = f"{trunc} - (seen < {trunc} * {SEEN_BUCKET})"
+    conn.execute("DELETE FROM seen_counts")
+    conn.execute(f"INSERT INTO seen_counts (bucket, n) SELECT {bucket}, COUNT(*) FROM "
+                 f"components WHERE seen IS NOT NULL GROUP BY {bucket}")
 
 
 def add_level_counts(conn: Any, old: Any, new: Any) -> None:
@@ -250,6 +269,29 @@ def add_level_counts(conn: Any, old: Any, new: Any) -> None:
              - np.bincount(np.asarray(old, dtype=np.int64), minlength=3))
     conn.executemany("UPDATE level_counts SET n = n + ? WHERE level = ?",
                      [(int(d), lv) for lv, d in enumerate(delta.tolist()) if d])
+
+
+def seen_buckets(seen: Any) -> np.ndarray:
+    """The ``seen_counts`` windows of calendar times ``seen`` (None and NaN: none)."""
+    s = np.asarray(seen, dtype=np.float64)
+    return np.floor(s[np.isfinite(s)] / SEEN_BUCKET).astype(np.int64)
+
+
+def add_seen_counts(conn: Any, old: Any, new: Any) -> None:
+    """Inside the caller's write transaction: ``seen_counts`` moved by components whose last
+    acquisition moves from ``old`` (their stored ``seen``; new components have none) to
+    ``new`` (calendar times; None or NaN where unknown). Windows left empty are removed."""
+    old_b, new_b = seen_buckets(old), seen_buckets(new)
+    allb = np.concatenate([old_b, new_b])
+    sign = np.concatenate([-np.ones(old_b.size, np.int64), np.ones(new_b.size, np.int64)])
+    buckets, inv = np.unique(allb, return_inverse=True)
+    delta = np.bincount(inv, weights=sign, minlength=buckets.size).astype(np.int64)
+    moved = [(int(b), int(d)) for b, d in zip(buckets.tolist(), delta.tolist(), strict=True)
+             if d]
+    conn.executemany("INSERT INTO seen_counts (bucket, n) VALUES (?, ?) ON CONFLICT (bucket) "
+                     "DO UPDATE SET n = seen_counts.n + excluded.n", moved)
+    conn.executemany("DELETE FROM seen_counts WHERE bucket = ? AND n = 0",
+                     [(b,) for b, d in moved if d < 0])
 
 
 def needs_migration(conn: Any, dialect: str) -> bool:

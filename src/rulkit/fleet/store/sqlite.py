@@ -108,6 +108,7 @@ from rulkit.fleet.store.prognosis import (
 )
 from rulkit.fleet.store.schema import (
     add_level_counts,
+    add_seen_counts,
     create_schema,
     needs_migration,
     table_columns,
@@ -606,8 +607,9 @@ class ComponentStore:
         rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
         rows += list(extra.values())
         self._write_states(list(zip(*rows, strict=True)), tuple(extra))
-        lv = ROW_FIELDS.index("level")
+        lv, sn = ROW_FIELDS.index("level"), k_row + PROGNOSIS_COLUMNS.index("seen")
         add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
+        add_seen_counts(self._conn, [stored[names[i]][sn] for i in known], extra["seen"])
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
 
