@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import sqlite3
 import statistics
 import tempfile
 import time
@@ -29,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.store.partitions import track_directory
+from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
 CFG = TrackerConfig(dt=1.0, design_life=1e5)
@@ -66,16 +66,10 @@ def run(d: Path, db: Path, client: object | None) -> tuple[float, float, float, 
 
 
 def same_history(a: Path, b: Path) -> bool:
-    q = "SELECT component, t, fhi, frul, rul_low, level FROM history ORDER BY component, t"
-    ca, cb = sqlite3.connect(a), sqlite3.connect(b)
-    try:
-        for ra, rb in zip(ca.execute(q), cb.execute(q), strict=True):
-            if ra != rb:
-                return False
-        return True
-    finally:
-        ca.close()
-        cb.close()
+    """Whether the two databases hold the same acquisitions' values (the packed history,
+    decoded; which ingestion wrote them aside)."""
+    with ComponentStore(a, readonly=True) as sa, ComponentStore(b, readonly=True) as sb:
+        return sa.history().drop(columns="ingest").equals(sb.history().drop(columns="ingest"))
 
 
 def main() -> None:

@@ -8,7 +8,8 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
 * ``track``: a new database from one CSV of ``--components`` x ``--acquisitions`` rows
   (default 2000 x 1000 = 2M rows; HI growing exponentially with noise, rows in time order as
   a feed delivers them). Goal: <= 2 s and <= 250 MB. Beside it, in the same run, the floor of
-  its writes: the same rows read by pyarrow and written bare into the same history table.
+  its writes: the same rows read by pyarrow and written bare as the same packed history rows;
+  with ``--against SRC``, another checkout's ``track`` (e.g. main's ``src/``) in turns.
 * ``status --format table|csv|json`` on a database of ``--status-components`` components
   (default 10^5, 3 acquisitions each), output to /dev/null. Goal: < 1 s for 10^5 (was 8.6 s
   for 10^4 with the rich table).
@@ -18,8 +19,8 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
 
     .venv/bin/python benchmarks/bench_scale.py              # the defaults above (~2 min)
     .venv/bin/python benchmarks/bench_scale.py --components 200 --repeats 1   # quick look
-    git archive main src | tar -x -C /tmp/main     # status against main's code, in turns:
-    .venv/bin/python benchmarks/bench_scale.py --status-only --against /tmp/main/src --repeats 5
+    git archive main src | tar -x -C /tmp/main     # track and status against main's code, in turns:
+    .venv/bin/python benchmarks/bench_scale.py --against /tmp/main/src --repeats 5
 """
 
 from __future__ import annotations
@@ -51,13 +52,15 @@ RULKIT = [sys.executable, "-c", _PEAK + "import sys; sys.argv[0] = 'rulkit'\n"
 
 
 # The floor under track's writes: the same CSV read the same way (pyarrow), its rows sorted by
-# (component, time) and written as history rows of the same table and width, 50 rows per
-# INSERT as the store writes them, one transaction, the new database's pragmas, one fsync; no
-# validation and no tracker. What a bare executemany of the same rows costs on this machine.
+# (component, time) and written as the packed history rows the store writes (one per
+# component, rulkit.fleet.store.history_chunks: records of the same width, t and HI in every
+# field), one transaction, the new database's pragmas, one fsync; no validation and no
+# tracker. What the bare writes of the same rows cost on this machine.
 _BARE = _PEAK + """
 import os, sqlite3, sys
 import numpy as np, pandas as pd, pyarrow.csv as pc
-from rulkit.fleet.store.schema import HISTORY, create_schema
+from rulkit.fleet.store import history_chunks as hc
+from rulkit.fleet.store.schema import create_schema
 src, db = sys.argv[1], sys.argv[2]
 tab = pc.read_csv(src)
 comp = tab.column("component").to_numpy(zero_copy_only=False)
@@ -65,30 +68,21 @@ codes, names = pd.factorize(comp, sort=True)
 order = np.argsort(codes, kind="stable")
 t = tab.column("time").to_numpy()[order]
 hi = tab.column("hi").to_numpy()[order]
-comp = np.asarray(names, dtype=object)[codes[order]]
-del tab, codes
+seg = np.concatenate([[0], np.cumsum(np.bincount(codes, minlength=len(names)))])
+del tab, codes, comp
 conn = sqlite3.connect(db, isolation_level=None)
 conn.execute("PRAGMA journal_mode=MEMORY")
 conn.execute("PRAGMA synchronous=OFF")
 conn.execute("BEGIN")
 create_schema(conn, "sqlite")
-cols = HISTORY.names
-k = 50
-one = "(" + ", ".join("?" * len(cols)) + ")"
-sql = f"INSERT INTO history ({', '.join(cols)}) VALUES " + ", ".join([one] * k)
-for i0 in range(0, len(t), 10_000):
-    sl = slice(i0, i0 + 10_000)
-    m = len(t[sl])
-    obj = np.empty((m, len(cols)), dtype=object)
-    obj[:, 0] = comp[sl]
-    for j, col in enumerate(HISTORY.columns[1:], 1):
-        real = col.kind == "real"
-        obj[:, j] = (t[sl] if col.name == "t" else hi[sl]).tolist() if real else 1
-    full = m - m % k
-    conn.executemany(sql, obj[:full].reshape(-1, k * len(cols)).tolist())
-    if full < m:
-        rest = obj[full:].tolist()
-        conn.executemany(f"INSERT INTO history ({', '.join(cols)}) VALUES {one}", rest)
+names = np.asarray(names, dtype=object)
+step = 100  # components per write, about 100k acquisitions each here
+for k0 in range(0, len(names), step):
+    a, b = seg[k0], seg[min(k0 + step, len(names))]
+    rec = np.empty((b - a, hc.WIDTH))
+    rec[:] = hi[a:b, None]
+    rec[:, 0] = t[a:b]
+    hc.write_chunks(conn, hc.chunk_rows(names[k0:k0 + step], seg[k0:k0 + step + 1] - a, rec, 1))
 conn.execute("COMMIT")
 conn.close()
 fd = os.open(db, os.O_RDWR); os.fsync(fd); os.close(fd)
@@ -134,16 +128,24 @@ def fleet_csv(path: Path, n_comp: int, n_acq: int, rng: np.random.Generator) -> 
 
 
 def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) -> None:
-    """``track`` of the CSV into a new database, beside the bare writes of the same rows."""
+    """``track`` of the CSV into a new database, beside the bare writes of the same rows; with
+    ``--against SRC``, the same command with another checkout's code, in turns."""
     n_rows = args.components * args.acquisitions
     src = tmp / "acquisitions.csv"
     fleet_csv(src, args.components, args.acquisitions, rng)
     size_mb = src.stat().st_size / 2**20
-    runs = []
+    runs, other = [], []
     for k in range(args.repeats):
         db = tmp / f"track{k}.db"
         runs.append(measure([*RULKIT, "track", "--db", str(db), str(src)]))
         db.unlink()
+        if args.against is not None:  # in turns: the same load for both
+            other.append(measure([*RULKIT, "track", "--db", str(db), str(src)],
+                                 {"PYTHONPATH": str(args.against.resolve())}))
+            db.unlink()
+    if other:
+        ow, oc, om = median3(other)
+        print(f"track with {args.against}: wall {ow:.2f} s, CPU {oc:.2f} s, peak {om:.0f} MB")
     w, c, m = median3(runs)
     print(f"track {n_rows:,} rows ({args.components} components x {args.acquisitions}, "
           f"CSV {size_mb:.0f} MB) into a new database: wall {w:.2f} s, CPU {c:.2f} s, "
@@ -154,11 +156,11 @@ def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) ->
         bare.append(measure([sys.executable, "-c", _BARE, str(src), str(db)]))
         db.unlink()
     bw, bc, bm = median3(bare)
-    print(f"  the same rows read and written bare (pyarrow, sort, executemany of 50-row "
-          f"INSERTs into the history table, no validation, no tracker): wall {bw:.2f} s, "
-          f"CPU {bc:.2f} s, peak {bm:.0f} MB; track / bare CPU = {c / bc:.2f}; the bare "
-          f"writes alone are {bc / 2.0:.1f}x the 2 s goal (one SQL row per acquisition); "
-          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"  the same rows read and written bare (pyarrow, sort, packed history rows, "
+          f"no validation, no tracker): wall {bw:.2f} s, CPU {bc:.2f} s, peak {bm:.0f} MB; "
+          f"track / bare CPU = {c / bc:.2f}"
+          + (f"; track CPU ours / {args.against} = {c / oc:.2f}" if other else "")
+          + f"; load average {os.getloadavg()[0]:.1f}")
     src.unlink()
 
 
@@ -208,7 +210,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--status-only", action="store_true", help="skip track and its floor")
     ap.add_argument("--against", type=Path, default=None,
-                    help="the src/ of another checkout: status with its code, in turns")
+                    help="the src/ of another checkout: track and status with its code, in turns")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-scale-"))

@@ -53,10 +53,10 @@ def _cli(*args):
 
 
 def _count_elsewhere(db):
-    """History rows as another process sees them."""
+    """History acquisitions (packed: a row's n) as another process sees them."""
     r = subprocess.run([sys.executable, "-c", "import sqlite3, sys; c = sqlite3.connect("
-                        "sys.argv[1]); print(c.execute('SELECT COUNT(*) FROM history WHERE "
-                        "component LIKE \"s%\"').fetchone()[0])", str(db)],
+                        "sys.argv[1]); print(c.execute('SELECT COALESCE(SUM(n), 0) FROM "
+                        "history WHERE component LIKE \"s%\"').fetchone()[0])", str(db)],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     return int(r.stdout)

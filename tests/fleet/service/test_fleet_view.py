@@ -1,14 +1,18 @@
 """Pages of the component list by keyset cursor, on both backends: walking the cursors visits
 every component once, in the order a Python sort of the whole table gives, for every sort and
-level filter the API offers; each part of a page's query is an index range; the totals kept
-in ``level_counts`` equal a count of the table."""
+level filter the API offers; each part of a page's query is an index range of one level; the
+totals kept in ``level_counts`` and ``seen_counts`` equal a count of the table."""
+
+import itertools
+import re
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from rulkit.fleet.monitoring.rules import MonitoringRules, due_time
-from rulkit.fleet.service.fleet_view import SORTS, CursorError, page_query
+from rulkit.fleet.service import fleet_view
+from rulkit.fleet.service.fleet_view import SORTS, CursorError, page_query, stale_page_query
 from rulkit.fleet.store.prognosis import current_estimator
 
 NOW = 1.8e9  # calendar time of the second batch (seconds since 1970)
@@ -58,8 +62,13 @@ def expected(df, sort, level):
     return [r[3] for r in rows]
 
 
-@pytest.mark.parametrize("level", [None, "ok", "alarm", "stale"])
-def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level):
+@pytest.mark.parametrize("level", [None, "ok", "alarm", "stale", "stale by level"])
+def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level, monkeypatch):
+    """(``stale by level``: the stale filter as many stale components are read, each level's
+    order filtered by ``seen``, instead of a sort of the few.)"""
+    if level == "stale by level":
+        monkeypatch.setattr(fleet_view, "STALE_BY_SEEN", 0)
+        level = "stale"
     fleet(sdb)
     df, _ = table(sdb)
     assert set(df["level"]) == {0, 1, 2} and df["rul_median"].isna().any()
@@ -99,7 +108,7 @@ def test_a_keyset_page_seeks_an_index(sdb, sort, level):
     sort of the table nor of a tie of the sort key (the cursor's key with later ids)."""
     fleet(sdb, 30)
     _, est = table(sdb)
-    sql, params = page_query(sort, level, est, NOW, [1, 5.0, "c010"], 50)
+    sql, params = page_query(sort, level, est, NOW, [1, 5.0, "c010"], 50, sdb.dialect)
     with sdb.store() as s, s.snapshot() as conn:
         if sdb.dialect == "sqlite":
             plan = [r[3] for r in conn.execute("EXPLAIN QUERY PLAN " + sql, params)]
@@ -113,6 +122,25 @@ def test_a_keyset_page_seeks_an_index(sdb, sort, level):
             conn.execute("SET LOCAL enable_seqscan = off")
             plan = " ".join(r[0] for r in conn.execute("EXPLAIN " + sql, params).fetchall())
             assert "Index" in plan and "Seq Scan" not in plan, plan
+
+
+def test_a_page_of_few_stale_components_reads_the_seen_index(sdb):
+    """With few stale components, their page is one range of the ``seen`` index (a cursor's
+    key a filter, the order a sort of the few), never a walk of an order's index that reads
+    every fresh component of a level (SQLite has no statistics to see that)."""
+    fleet(sdb, 30)
+    with sdb.store() as s, s.snapshot() as conn:
+        if sdb.dialect == "postgresql":
+            conn.execute("SET LOCAL enable_seqscan = off")
+        for sort in SORTS:
+            sql, params = stale_page_query(sort, NOW - 3600.0, [1, 5.0, "c010"], 50)
+            if sdb.dialect == "sqlite":
+                plan = [r[3] for r in conn.execute("EXPLAIN QUERY PLAN " + sql, params)]
+                reads = [p for p in plan if "components" in p]
+                assert len(reads) == 1 and "INDEX components_seen (seen<?)" in reads[0], plan
+            else:
+                plan = " ".join(r[0] for r in conn.execute("EXPLAIN " + sql, params))
+                assert "components_seen" in plan and plan.count("Index") == 2, plan
 
 
 def test_level_counts_follow_every_write(sdb):
@@ -140,9 +168,9 @@ def test_level_counts_follow_every_write(sdb):
 
 
 def test_the_stale_total_equals_a_count_whatever_the_clock_and_the_writes(sdb, tmp_path):
-    """The stale total reuses its last count while the data is unchanged: against a count of
-    the table at every step, with the clock moving forth and back, writes through the
-    service's own connections and through another process's connection."""
+    """The stale total (windows of ``seen_counts`` and the edge of the cutoff's window)
+    against a count of the table at every step, with the clock moving forth and back, writes
+    through the service's own connections and through another process's connection."""
     from rulkit.fleet.store.postgres import open_store
 
     fleet(sdb, 60)
@@ -228,6 +256,118 @@ def test_postgresql_reads_are_index_ranges_by_the_planners_own_choice(pg_server,
                 single = "UNION ALL" not in sql and "seen <" not in sql and "alerts" not in sql
                 if single and "LIMIT" in sql:
                     assert "Sort" not in plan, (sql, plan)
-        assert any("FROM history" in q and "ORDER BY t DESC" in q for q, _ in sent)
+        assert any("FROM history" in q and "ORDER BY t_first DESC" in q for q, _ in sent)
     finally:
         sdb.close()
+
+
+def _correlated_fleet(conn, n):
+    """``n`` components straight into ``components`` (PostgreSQL), in the order of their
+    ids: the first 6 % alarms with the shortest RULs and due dates, the rest ok, every other
+    one of the second half pending (RUL unknown), every column a constant otherwise."""
+    from rulkit.fleet.store.schema import COMPONENTS
+
+    consts = {"real": "0.0", "int": "1", "small": "0", "bool": "true"}
+    exprs = {"component": "'c' || lpad(i::text, 7, '0')",
+             "level": f"CASE WHEN i < {n * 6 // 100} THEN 2 ELSE 0 END",
+             "rul_median": f"CASE WHEN i >= {n // 2} AND mod(i, 2) = 0 THEN NULL ELSE i END",
+             "seen": str(NOW), "due": f"{NOW} + i * 3600.0"}
+    cols = [c for c in COMPONENTS.columns if not c.null or c.name in exprs]
+    sel = ", ".join(exprs.get(c.name, consts.get(c.kind, "NULL")) for c in cols)
+    conn.execute(f"INSERT INTO components ({', '.join(c.name for c in cols)}) "
+                 f"SELECT {sel} FROM generate_series(0, {n - 1}) AS i")
+    conn.execute("ANALYZE components")
+
+
+def test_a_level_filtered_page_seeks_its_level_on_postgresql(pg_server):
+    """The levels follow the RUL (alarms hold the shortest), which the planner's estimates
+    take as independent: each range of a page under a level filter must seek the level in
+    its index (an index condition), never read the key's order and filter the level row by
+    row (past every alarm, for an ``ok`` page), nor, after a cursor in a tie of unknown
+    RULs, walk the ids (no alarm is pending). After ANALYZE, no planner setting forced."""
+    from rulkit.fleet.service.db import ServiceDB
+
+    sdb = ServiceDB(pg_server.create_schema())
+    try:
+        with sdb.store() as s:
+            s.set_rules(MonitoringRules(time_unit="h", lead_time=30.0, alarm_hi=0.9,
+                                        stale_after=3600.0))
+            _correlated_fleet(s._conn, 50_000)
+        with sdb.store() as s, s.snapshot() as conn:
+            est = current_estimator(s)
+            keys = (None, [0, 1e308, "c0030000"], [2, 5.0, "c0000005"])  # a tie of pending
+            for sort, level, key in itertools.product(SORTS, ("ok", "alarm", "stale", None),
+                                                      keys):
+                if key is not None and {"ok": 0, "alarm": 2}.get(level, key[0]) != key[0]:
+                    continue  # not a cursor of this filter
+                sql, params = page_query(sort, level, est, NOW + 7200.0, key, 50,
+                                         "postgresql")
+                plan = "\n".join(r[0] for r in conn.execute("EXPLAIN " + sql, params))
+                scans = plan.count("Index Scan")
+                assert scans and len(re.findall(r"Index Cond: \(+level = ", plan)) == scans, plan
+                assert "Filter: (level" not in plan and "AND (level" not in plan, plan
+    finally:
+        sdb.close()
+
+
+def test_seen_counts_follow_every_write(sdb):
+    """Table ``seen_counts`` equals a count of ``components`` per window of ``seen``
+    (floor(seen / SEEN_BUCKET)) after ingestion, a replay (a rules change) and the creation
+    of the table in an older database; only windows holding components are kept."""
+    from rulkit.fleet.store.schema import SEEN_BUCKET
+
+    fleet(sdb, 40)
+
+    def counts():
+        with sdb.store() as s, s.snapshot() as conn:
+            kept = dict(conn.execute("SELECT bucket, n FROM seen_counts").fetchall())
+            seen = [r[0] for r in conn.execute("SELECT seen FROM components").fetchall()]
+        real: dict[int, int] = {}
+        for v in seen:
+            b = int(np.floor(v / SEEN_BUCKET))
+            real[b] = real.get(b, 0) + 1
+        return kept, real
+
+    kept, real = counts()
+    assert kept == real and len(real) == 2
+    # the old batch's components seen again, some of them in another window
+    again = pd.DataFrame({"component": [f"c{i:03d}" for i in range(0, 20, 2)], "time": 20.0,
+                         "hi": 0.3})
+    sdb.ingest(again, "again", now=NOW + 3 * SEEN_BUCKET)
+    kept2, real2 = counts()
+    assert kept2 == real2 and real2 != real and len(real2) == 3
+    sdb.ingest(pd.DataFrame({"component": [f"c{i:03d}" for i in range(0, 40, 2)],
+                             "time": 30.0, "hi": 0.3}), "all old", now=NOW + 9 * SEEN_BUCKET)
+    kept3, real3 = counts()
+    assert kept3 == real3 and 0 not in kept3.values()  # an emptied window is removed
+    with sdb.store() as s:
+        s.set_rules(MonitoringRules(time_unit="h", alarm_hi=0.5, stale_after=3600.0))
+    assert counts()[0] == real3
+    with sdb.store() as s:
+        with s._transaction("IMMEDIATE") as conn:
+            conn.execute("DROP TABLE seen_counts")
+    from rulkit.fleet.service.db import ServiceDB
+
+    ServiceDB(sdb.db).close()  # opening the database migrates it
+    assert counts()[0] == real3
+
+
+def test_the_stale_total_equals_a_count_at_any_cutoff_within_a_window(sdb):
+    """Against a count of the table: cutoffs at fractions of the windows of ``seen`` (either
+    edge of the cutoff's window is counted from) and at the components' own times, with
+    components seen in many windows, some on a window's edge."""
+    from rulkit.fleet.service.fleet_view import stale_total
+    from rulkit.fleet.store.schema import SEEN_BUCKET, recount_totals
+
+    fleet(sdb, 30)
+    w0 = 4e5 * SEEN_BUCKET
+    seen = w0 + SEEN_BUCKET * np.array([2 * (i // 5) + (i % 5) / 5 for i in range(30)])
+    with sdb.store() as s, s._transaction("IMMEDIATE") as conn:  # 5 per window, 6 windows
+        conn.executemany("UPDATE components SET seen = ? WHERE component = ?",
+                         [(float(v), f"c{i:03d}") for i, v in enumerate(seen)])
+        recount_totals(conn)
+    cutoffs = [w0 + (b + f) * SEEN_BUCKET for b in range(-1, 14)
+               for f in (0.0, 0.1, 0.5, 0.9, 0.999)]
+    with sdb.store() as s, s.snapshot() as conn:
+        for cutoff in [*cutoffs, *seen.tolist()]:
+            assert stale_total(conn, cutoff) == int((seen < cutoff).sum()), cutoff

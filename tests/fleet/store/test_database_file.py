@@ -103,7 +103,7 @@ def test_database_killed_during_its_final_checkpoint_is_read_through_the_log(tmp
     assert r.exit_code == 0, r.output
     con = sqlite3.connect(db)
     assert con.execute("PRAGMA integrity_check").fetchone() == ("ok",)
-    assert con.execute("SELECT COUNT(*) FROM history").fetchone() == (12006,)
+    assert con.execute("SELECT SUM(n) FROM history").fetchone() == (12006,)
     con.close()
 
 

@@ -39,10 +39,11 @@ def partitions(df, d, k=3):
 
 
 def tables(db):
+    with ComponentStore(db, readonly=True) as store:  # every acquisition, decoded
+        history = store.history().drop(columns="ingest")
     con = sqlite3.connect(db)
     out = {
-        "history": pd.read_sql("SELECT * FROM history ORDER BY component, t", con)
-        .drop(columns="ingest"),
+        "history": history,
         # seen: the calendar time of the ingestion (each run has its own)
         "components": pd.read_sql("SELECT * FROM components ORDER BY component", con)
         .drop(columns="seen"),

@@ -146,10 +146,12 @@ def fleet_frame(n=4, k=40, seed=0):
 
 
 def table(path, name):
+    if name == "history":  # packed: every acquisition's values, decoded
+        with ComponentStore(path, readonly=True) as store:
+            return store.history()
     con = sqlite3.connect(path)
     try:
-        return pd.read_sql_query(f"SELECT * FROM {name} ORDER BY component"
-                                 + (", t" if name == "history" else ""), con)
+        return pd.read_sql_query(f"SELECT * FROM {name} ORDER BY component", con)
     finally:
         con.close()
 
@@ -212,21 +214,23 @@ def test_batches_continue_the_stored_rules_and_trend_like_one_batch(tmp_path):
     assert (table(tmp_path / "one.db", "components")["level"] > 0).any()  # rules at work
 
 
-def test_an_older_database_is_upgraded_in_place(tmp_path):
-    """A database written before the one-RUL columns (rebuilt here by dropping them) gains
-    them on its first writable opening, its RULs and levels replayed from the acquisitions;
-    `rulkit status` on it before then says what to do."""
+def test_an_older_database_is_upgraded_in_place(tmp_path, row_history):
+    """A database written before the one-RUL columns and the packed history (rebuilt here by
+    dropping them, the history in its old DDL of one row per acquisition) gains them on its
+    first writable opening, its RULs and levels replayed from the acquisitions; `rulkit
+    status` on it before then says what to do."""
     df = fleet_frame()
     ingest_into(tmp_path / "new.db", df)
     ingest_into(tmp_path / "old.db", df)
+    frame = table(tmp_path / "old.db", "history")
     con = sqlite3.connect(tmp_path / "old.db")
     with con:
+        row_history(con, frame, median=False)
         for name, _ in COMPONENTS.indexes:  # the pages' indexes and counts came later
             con.execute(f"DROP INDEX {name}")
         con.execute("DROP TABLE level_counts")
         for col in RUL_COLUMNS:
             con.execute(f"ALTER TABLE components DROP COLUMN {col.name}")
-        con.execute("ALTER TABLE history DROP COLUMN rul_median")
         con.execute("DELETE FROM meta WHERE key = 'monitoring'")
         con.execute("UPDATE history SET rul_low = 1.0, rul_high = 2.0, level = 0")
     con.close()

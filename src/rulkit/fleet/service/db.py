@@ -42,6 +42,7 @@ import pandas as pd
 from rulkit.fleet.monitoring.rules import unit_seconds
 from rulkit.fleet.service import fleet_view
 from rulkit.fleet.service.fleet_view import num as _num
+from rulkit.fleet.store import history_chunks
 from rulkit.fleet.store.acquisitions import (
     Alert,
     Batch,
@@ -299,19 +300,17 @@ class ServiceDB:
             if row is None:
                 raise NotFound(f"no component {component!r}")
             item = fleet_view.component_item(row, est, now)
-            rows = conn.execute(
-                f"SELECT {', '.join(fields)} FROM history WHERE component = ? "
-                "ORDER BY t DESC LIMIT ?", (component, limit)).fetchall()
-            rows.reverse()
+            rec = history_chunks.read_last(conn, component, limit)
+            t = history_chunks.field(rec, "t")
             fc = fleet_view.forecast(conn, est, component, item,
-                                     float(rows[0][0]) if rows else math.nan)
+                                     float(t[0]) if t.size else math.nan)
             alerts = self._alert_rows(conn, " WHERE a.component = ?", [component],
                                       "a.t, a.id")
-        cols = {f: [_num(r[i]) for r in rows] for i, f in enumerate(fields)}
+        cols = {f: [_num(v) for v in history_chunks.field(rec, f).tolist()] for f in fields}
         cols["valid"] = [bool(v) for v in cols["valid"]]
         cols["level"] = [LEVEL_NAMES[int(v)] for v in cols["level"]]
         cols["rul"] = cols.pop("rul_median")  # the RUL median, as in the components list
-        return {"component": component, "n": item["n"], "returned": len(rows),
+        return {"component": component, "n": item["n"], "returned": len(t),
                 "now": item, "history": cols, "forecast": fc, "threshold": 1.0,
                 "alarm_hi": est.rules.alarm_hi, "time_unit": est.time_unit,
                 "unit_seconds": unit_seconds(est.time_unit),

@@ -24,7 +24,7 @@ from rulkit.fleet.monitoring.estimators import (
 )
 from rulkit.fleet.monitoring.rules import due_time, stale, unit_seconds
 from rulkit.fleet.monitoring.unit_trend import TrendState
-from rulkit.fleet.store.schema import DUE_KEY, RUL_KEY, TREND_COLUMNS
+from rulkit.fleet.store.schema import DUE_KEY, RUL_KEY, SEEN_BUCKET, TREND_COLUMNS
 from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
 
 FIELDS = ("component", "t", "n", "hi", "fhi", "frul", "valid", "level", "rul_median",
@@ -34,8 +34,8 @@ LEVEL_CODES = {name: code for code, name in LEVEL_NAMES.items()}
 SORTS = {"worst": (RUL_KEY, "component"), "rul": (RUL_KEY, "component"),
          "due": (DUE_KEY, "component")}
 """The list's orders: the key after the level (``worst``: level first, descending; unknown
-RULs and due dates last, as 1e308). Each order, alone or under a level filter, is a range of
-one index of :data:`rulkit.fleet.store.schema.COMPONENTS`."""
+RULs and due dates last, as 1e308). Within one level each order is a range of one index of
+:data:`rulkit.fleet.store.schema.COMPONENTS`."""
 
 
 def num(v: Any) -> Any:
@@ -94,38 +94,45 @@ def component_item(row: tuple, est: Estimator, now: float) -> dict[str, Any]:
     return component_items([row], est, now)[0]
 
 
-def _filter(level: str | None, est: Estimator, now: float) -> tuple[str, list[Any]]:
-    """The condition of a level filter (``stale``: no acquisition for ``stale_after``)."""
-    if level is None:
+def _stale_filter(level: str | None, est: Estimator, now: float) -> tuple[str, list[Any]]:
+    """The condition of the ``stale`` filter (no acquisition for ``stale_after``), or none."""
+    if level != "stale":
         return "1 = 1", []
-    if level == "stale":
-        after = est.rules.stale_after
-        return ("1 = 0", []) if after is None else ("seen < ?", [now - after])
-    return "level = ?", [LEVEL_CODES[level]]
+    after = est.rules.stale_after
+    return ("1 = 0", []) if after is None else ("seen < ?", [now - after])
 
 
 def page_query(sort: str, level: str | None, est: Estimator, now: float,
-               key: list[Any] | None, n: int) -> tuple[str, list[Any]]:
+               key: list[Any] | None, n: int, dialect: str = "sqlite"
+               ) -> tuple[str, list[Any]]:
     """SQL and parameters of the first ``n`` components in ``sort`` order (:data:`SORTS`)
     after the row whose key is ``key`` (keyset: ``[level, sort key, id]``; ``None`` from the
     start), under the ``level`` filter. The page is the union of index ranges that each stop
-    after ``n`` rows, so a deep page costs what the first does: per level (``worst`` is level
-    descending, then the key ascending: one level at a time), the rest of the cursor's key
-    (same key, later id) and the keys after it."""
+    after ``n`` rows, so a deep page costs what the first does. Every range is of one level
+    (an equality on the level heads each order's index): ``worst`` is level descending, then
+    the key; ``rul`` and ``due`` merge the levels' ranges. A range after the cursor's key is
+    one row comparison ``(key, id) > (?, ?)`` on PostgreSQL (an index condition there); on
+    SQLite, which seeks only the level with it, two: the rest of the key's tie (later ids)
+    and the keys after it.
+
+    One level per range, and the row comparison, keep the plan right on PostgreSQL: the
+    levels follow the RUL (the alarms hold the shortest; the pending RULs are rarely
+    alarms), which the planner's estimates take as independent, so with an index of the key
+    alone it reads the ``ok`` rows of a key order past every alarm, and for a tie of an
+    unknown RUL it walks the primary key past every later id, filtering them one by one."""
     cols = ", ".join((*FIELDS, "due"))
-    cond, params = _filter(level, est, now)
+    cond, params = _stale_filter(level, est, now)
     k, order = SORTS[sort][0], ", ".join(SORTS[sort])
-    levels = [None] if sort != "worst" or level in LEVEL_CODES else [2, 1, 0]
+    levels = [LEVEL_CODES[level]] if level in LEVEL_CODES else [2, 1, 0]
     ranges: list[tuple[str, list[Any], str]] = []  # (condition, parameters, order)
     for lv in levels:
-        if key is not None and lv is not None and lv > key[0]:
-            continue
-        where, p = cond, list(params)
-        if lv is not None:
-            where, p = f"{where} AND level = ?", [*p, lv]
-        if key is None or (lv is not None and lv < key[0]):
+        where, p = f"{cond} AND level = ?", [*params, lv]
+        if key is None or (sort == "worst" and lv < key[0]):
             ranges.append((where, p, order))
-        else:  # the key fixed: ordered by id alone (else SQLite sorts the whole tie)
+        elif dialect == "postgresql" and (sort != "worst" or lv == key[0]):
+            ranges.append((f"{where} AND ({k}, component) > (?, ?)", [*p, key[1], key[2]],
+                           order))
+        elif sort != "worst" or lv == key[0]:  # ordered by id alone: the key is fixed
             ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]],
                         "component"),
                        (f"{where} AND {k} > ?", [*p, key[1]], order)]
@@ -137,6 +144,34 @@ def page_query(sort: str, level: str | None, est: Estimator, now: float,
     union = " UNION ALL ".join(f"SELECT * FROM ({q}) AS p{i}" for i, q in enumerate(parts))
     lead = "level DESC, " if sort == "worst" else ""
     return f"SELECT * FROM ({union}) AS page ORDER BY {lead}{order} LIMIT {int(n)}", args
+
+
+STALE_BY_SEEN = 2000
+"""Up to this many stale components, a page of the stale filter reads them all in the
+``seen`` index and sorts them (:func:`stale_page_query`: a cost of the stale ones, the usual
+few); beyond, :func:`page_query` reads each level's order and skips the fresh ones (pages of
+50 come soon when many are stale; with few, that would read whole levels)."""
+
+
+def stale_page_query(sort: str, cutoff: float, key: list[Any] | None, n: int
+                     ) -> tuple[str, list[Any]]:
+    """SQL and parameters of the first ``n`` components seen before ``cutoff`` in ``sort``
+    order after the row whose key is ``key`` (as :func:`page_query`): one range of the
+    ``seen`` index, the cursor's key a filter and the order a sort of that range. The level is
+    written ``+level`` (the same value) so that SQLite, which has no statistics, can neither
+    seek nor walk the level's index instead."""
+    cols = ", ".join((*FIELDS, "due"))
+    k, order = SORTS[sort][0], ", ".join(SORTS[sort])
+    where, params = "seen < ?", [cutoff]
+    if key is not None:
+        after = f"({k} > ? OR ({k} = ? AND component > ?))"
+        args = [key[1], key[1], key[2]]
+        if sort == "worst":
+            after, args = f"(+level < ? OR (+level = ? AND {after}))", [key[0], key[0], *args]
+        where, params = f"{where} AND {after}", [*params, *args]
+    lead = "+level DESC, " if sort == "worst" else ""
+    return (f"SELECT {cols} FROM components WHERE {where} ORDER BY {lead}{order} "
+            f"LIMIT {int(n)}", params)
 
 
 def cursor_of(row: tuple, sort: str) -> str:
@@ -186,42 +221,24 @@ def level_total(conn: Any, level: str | None, est: Estimator, now: float) -> int
     return int(counts.get(LEVEL_CODES[level], 0))
 
 
-_STALE_COUNTS: dict[Any, tuple[Any, float, int]] = {}
-"""Per open connection: (the version of the data its snapshot sees, a cutoff, the number of
-components seen before that cutoff)."""
-
-
-def data_version(conn: Any) -> Any:
-    """A value that is equal for two snapshots only if they see the same data: on SQLite the
-    connection's ``PRAGMA data_version`` (moved by other connections' commits; read inside a
-    read transaction, it is that snapshot's) with its own ``total_changes``; on PostgreSQL
-    the transaction's snapshot (``pg_current_snapshot()``: the transactions it sees)."""
-    if getattr(conn, "dialect", "sqlite") == "postgresql":
-        return conn.execute("SELECT pg_current_snapshot()::text").fetchone()[0]
-    return (conn.execute("PRAGMA data_version").fetchone()[0], conn.total_changes)
-
-
 def stale_total(conn: Any, cutoff: float) -> int:
     """Components whose last acquisition is before ``cutoff`` (``seen < cutoff``), inside the
-    caller's snapshot. Staleness moves with the clock, so it has no stored count; the count
-    of the last call on this connection is reused while the data is unchanged
-    (:func:`data_version`), moved by the components seen between the two cutoffs (a short
-    range of the ``seen`` index) instead of counted again over the whole range."""
-    version = data_version(conn)
-    cached = _STALE_COUNTS.get(conn)
-    if cached is not None and cached[0] == version:
-        _, c0, n0 = cached
-        lo, hi = min(c0, cutoff), max(c0, cutoff)
-        moved = int(conn.execute("SELECT COUNT(*) FROM components WHERE seen >= ? AND "
-                                 "seen < ?", (lo, hi)).fetchone()[0])
-        n = n0 + moved if cutoff >= c0 else n0 - moved
-    else:
-        n = int(conn.execute("SELECT COUNT(*) FROM components WHERE seen < ?",
-                             (cutoff,)).fetchone()[0])
-    if len(_STALE_COUNTS) >= 64:  # connections closed and replaced: forget them all
-        _STALE_COUNTS.clear()
-    _STALE_COUNTS[conn] = (version, cutoff, n)
-    return n
+    caller's snapshot: the windows of ``seen_counts`` wholly on one side of the cutoff
+    (:data:`rulkit.fleet.store.schema.SEEN_COUNTS`, kept by every write) and, counted in the
+    ``seen`` index, the components of the cutoff's own window between the cutoff and that
+    window's nearer edge. The cost is of the windows, not of the components before the
+    cutoff."""
+    b = math.floor(cutoff / SEEN_BUCKET)
+    lo, hi = b * SEEN_BUCKET, (b + 1) * SEEN_BUCKET
+    if cutoff - lo <= hi - cutoff:  # the windows before b, plus [lo, cutoff)
+        whole, edge, sign = "bucket < ?", (lo, cutoff), 1
+    else:  # the windows up to b, less [cutoff, hi)
+        whole, edge, sign = "bucket <= ?", (cutoff, hi), -1
+    n = conn.execute(f"SELECT COALESCE(SUM(n), 0) FROM seen_counts WHERE {whole}",
+                     (b,)).fetchone()[0]
+    m = conn.execute("SELECT COUNT(*) FROM components WHERE seen >= ? AND seen < ?",
+                     edge).fetchone()[0]
+    return int(n) + sign * int(m)
 
 
 def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
@@ -232,11 +249,17 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     (``None``: all). ``after``: a cursor this function returned (keyset: any page costs what
     the first does); ``offset`` then skips rows (its cost grows with it)."""
     key = None if after is None else decode_cursor(after, sort)
-    sql, params = page_query(sort, level, est, now, key, offset + limit)
+    total = level_total(conn, level, est, now)
+    stale_after = est.rules.stale_after
+    if level == "stale" and stale_after is not None and total <= STALE_BY_SEEN:
+        sql, params = stale_page_query(sort, now - stale_after, key, offset + limit)
+    else:
+        sql, params = page_query(sort, level, est, now, key, offset + limit,
+                                 getattr(conn, "dialect", "sqlite"))
     rows = conn.execute(sql, params).fetchall()[offset:]
     nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
     items = component_items([r[:len(FIELDS)] for r in rows], est, now)
-    return level_total(conn, level, est, now), items, nxt
+    return total, items, nxt
 
 
 def summary(conn: Any, est: Estimator, now: float) -> dict[str, Any]:
@@ -306,6 +329,7 @@ def time_origin(item: dict[str, Any], est: Estimator) -> float | None:
     return float(item["last_seen"] - item["last_time"] * scale)
 
 
-__all__ = ["FIELDS", "SORTS", "CursorError", "component_item", "component_items", "cursor_of",
-           "data_version", "decode_cursor", "forecast", "level_total", "list_components", "num",
-           "page_query", "stale_total", "summary", "time_origin"]
+__all__ = ["FIELDS", "SORTS", "STALE_BY_SEEN", "CursorError", "component_item",
+           "component_items", "cursor_of", "decode_cursor", "forecast", "level_total",
+           "list_components", "num", "page_query", "stale_page_query", "stale_total",
+           "summary", "time_origin"]

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rulkit.fleet.store.acquisitions import Batch, ConflictError, IngestError
+from rulkit.fleet.store.history_chunks import field, read_range
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 from rulkit.fleet.tracking.tracker_settings import check_time_unit
 from rulkit.tables import cell_repr as _fmt
@@ -138,9 +139,8 @@ def _check_stored(conn: Any, name: str, rows: list[int], ts: list[float], his: l
                   last: float) -> None:
     """One component's rows at or before its stored ``last`` time: each stored with the same
     HI, or :class:`ConflictError`."""
-    stored = dict(conn.execute(
-        "SELECT t, hi FROM history WHERE component = ? AND t >= ? AND t <= ?",
-        (name, min(ts), max(ts))).fetchall())
+    rec = read_range(conn, name, min(ts), max(ts))
+    stored = dict(zip(field(rec, "t").tolist(), field(rec, "hi").tolist(), strict=True))
     for row, t, hi in zip(rows, ts, his, strict=True):
         if float(t) not in stored:
             raise ConflictError(

@@ -35,7 +35,7 @@ from rulkit.fleet.store.schema import (
     MODEL_STATE,
     create_schema,
     model_state_table,
-    recount_levels,
+    recount_totals,
 )
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -95,7 +95,7 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
     from distributed import Client
 
     path = Path(db)
-    if rules is not None and path.exists():  # the rules in force before the buckets read them
+    if path.exists():  # the schema (an older history converted) and the rules in force
         ComponentStore(path, config=config, timeout=timeout, rules=rules).close()
     client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
     try:
@@ -144,7 +144,7 @@ def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, s
             alerts = [_alert(r) for r in conn.execute(
                 "SELECT id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
                 "reason, raised FROM alerts ORDER BY id").fetchall()]
-            recount_levels(conn)
+            recount_totals(conn)
             conn.execute("COMMIT")
             conn.execute("PRAGMA journal_mode=WAL")
         finally:
@@ -241,7 +241,7 @@ def _write_seed(path: Path, seed: dict[str, Any]) -> None:
             if rows:
                 conn.executemany(f"INSERT INTO {table.name} ({', '.join(cols)}) VALUES "
                                  f"({', '.join('?' * len(cols))})", rows)
-        recount_levels(conn)
+        recount_totals(conn)
         conn.execute("COMMIT")
     finally:
         conn.close()
@@ -346,7 +346,7 @@ def _copy_part(conn: sqlite3.Connection, ingest_id: int) -> list[Alert]:
     _copy(conn, "history", "", (ingest_id,), skip=("ingest",), set_ingest=True)
     _copy(conn, "components", replace=True)
     _copy(conn, "model_state", replace=True)
-    recount_levels(conn)
+    recount_totals(conn)
     return [_alert(r) for r in _copy(
         conn, "alerts", "ORDER BY id", skip=("id",),
         returning="id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "

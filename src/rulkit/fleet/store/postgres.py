@@ -24,17 +24,17 @@ Guarantees, as for SQLite (tested against both in tests/fleet/store/test_postgre
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig
+from rulkit.fleet.store import history_chunks
 from rulkit.fleet.store.database_file import (
     SCHEMA_VERSION,
     StoreError,
@@ -45,7 +45,6 @@ from rulkit.fleet.store.database_file import (
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
 from rulkit.fleet.store.schema import create_schema, needs_migration
 from rulkit.fleet.store.sqlite import ComponentStore
-from rulkit.fleet.store.tracker_rows import HISTORY_FIELDS, HistoryChunk
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
@@ -202,19 +201,12 @@ class PgComponentStore(ComponentStore):
         return pd.DataFrame(rows, columns=cols) if rows else pd.DataFrame(
             {c: pd.Series(dtype=object if c == "component" else float) for c in cols})
 
-    def _write_history(self, rows: HistoryChunk | Iterable[tuple],
-                       extra_cols: tuple[str, ...] = ()) -> None:
-        """History rows of an ingestion by ``COPY ... FROM STDIN`` (the server parses no
-        statement per row); row tuples as the base class writes them."""
-        if not isinstance(rows, HistoryChunk):
-            super()._write_history(rows, extra_cols)
-            return
-        cols = ("component", *HISTORY_FIELDS, *rows.extra_cols, "ingest")
-        values = [np.asarray(c).tolist() for c in rows.columns]
-        values.append([rows.ingest] * len(values[0]))
+    def _write_history(self, rows: list[tuple]) -> None:
+        """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by ``COPY ... FROM
+        STDIN`` (the server parses no statement per row)."""
         with self._conn.raw.cursor() as cur, cur.copy(
-                f"COPY history ({', '.join(cols)}) FROM STDIN") as copy:
-            for row in zip(*values, strict=True):
+                f"COPY history ({', '.join(history_chunks.COLUMNS)}) FROM STDIN") as copy:
+            for row in rows:
                 copy.write_row(row)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:

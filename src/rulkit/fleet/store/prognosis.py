@@ -49,12 +49,13 @@ from rulkit.fleet.monitoring.unit_trend import (
     trend_posterior,
     trend_run,
 )
+from rulkit.fleet.store import history_chunks
 from rulkit.fleet.store.database_file import rows_of_components
 from rulkit.fleet.store.schema import (
     RUL_COLUMNS,
     TREND_COLUMNS,
     migrate,
-    recount_levels,
+    recount_totals,
     table_columns,
 )
 from rulkit.fleet.tracking.tracker_chain import LEVEL_ALARM, tracker_rul_interval
@@ -323,19 +324,18 @@ def replay(store: Any) -> int:
         ensure_model_state(conn, store.degradation)
     for chunk in _chunks(names):
         _replay_chunk(store, chunk)
-    recount_levels(conn)
+    recount_totals(conn)
     return len(names)
 
 
 def _replay_chunk(store: Any, names: list[str]) -> None:
     conn = store._conn
-    ph = ",".join("?" * len(names))
-    rows = conn.execute(f"SELECT component, t, hi, fhi, frul FROM history WHERE component IN "
-                        f"({ph}) ORDER BY component, t", names).fetchall()
-    comp = [str(r[0]) for r in rows]
-    t, hi, fhi, frul = (np.array([r[k] for r in rows], dtype=np.float64) for k in range(1, 5))
+    chunks, rec = history_chunks.read_components(conn, names)
+    t, hi, fhi, frul = (np.ascontiguousarray(history_chunks.field(rec, f))
+                        for f in ("t", "hi", "fhi", "frul"))
     pos = {n: i for i, n in enumerate(names)}
-    counts = np.bincount([pos[c] for c in comp], minlength=len(names)) if rows else \
+    counts = np.bincount([pos[c] for c, _, _ in chunks], weights=[k for _, _, k in chunks],
+                         minlength=len(names)).astype(np.int64) if chunks else \
         np.zeros(len(names), dtype=np.int64)
     seg = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     b = len(names)
@@ -350,12 +350,12 @@ def _replay_chunk(store: Any, names: list[str]) -> None:
     seen = prog.seen.copy()
     out = prog.block(np.arange(b), seg, t, hi, {"fhi": fhi, "frul": frul}).rules
     final = prog.finish(seen)
-    med, low, high = stored_interval(out.median, out.low, out.high)
-    conn.executemany(
-        "UPDATE history SET rul_median = ?, rul_low = ?, rul_high = ?, level = ? "
-        "WHERE component = ? AND t = ?",
-        zip(_sql_list(med), _sql_list(low), _sql_list(high), out.level.tolist(), comp,
-            t.tolist(), strict=True))
+    # the history's chunks rewritten with the new RUL columns and levels
+    for f, v in zip(("rul_median", "rul_low", "rul_high"),
+                    stored_interval(out.median, out.low, out.high), strict=True):
+        history_chunks.field(rec, f)[:] = v
+    history_chunks.field(rec, "level")[:] = out.level
+    history_chunks.rewrite(conn, chunks, rec)
     cols = list(final)
     conn.executemany(
         f"UPDATE components SET {', '.join(f'{c} = ?' for c in cols)} WHERE component = ?",

@@ -11,7 +11,8 @@ file holds
   dHI, RUL, fRUL, dRUL, d2RUL, plus the time of the last acquisition, the number of
   acquisitions and validity), and the one RUL of the estimator in force with the alert
   rules' level (:mod:`rulkit.fleet.store.prognosis`, docs/systems/embedded-rul.md §6-7);
-* ``history``: one row per acquisition (same fields), primary key (component, t);
+* ``history``: the acquisitions (same fields), one row per component and write chunk, packed
+  (:mod:`rulkit.fleet.store.history_chunks`), primary key (component, t_first);
 * ``ingests``: one row per committed ingestion (audit).
 
 Guarantees (tested in tests/fleet/store/test_sqlite.py):
@@ -56,7 +57,7 @@ import os
 import sqlite3
 import time
 import uuid
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -67,6 +68,7 @@ import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
+from rulkit.fleet.store import history_chunks
 from rulkit.fleet.store.acquisitions import (
     Alert,
     Batch,
@@ -104,12 +106,17 @@ from rulkit.fleet.store.prognosis import (
     upgrade,
     write_monitoring,
 )
-from rulkit.fleet.store.schema import add_level_counts, create_schema, needs_migration
+from rulkit.fleet.store.schema import (
+    add_level_counts,
+    add_seen_counts,
+    create_schema,
+    needs_migration,
+    table_columns,
+)
 from rulkit.fleet.store.tracker_rows import (
     HISTORY_FIELDS,
     ROW_FIELDS,
     TRACKER_OUT,
-    HistoryChunk,
     refuse_non_finite,
     stored_state,
 )
@@ -210,11 +217,8 @@ class ComponentStore:
     :class:`StoreError` and is not modified. Use as a context manager or call :meth:`close`.
     """
 
-    HISTORY_CHUNK = 10_000
-    """History rows per ``executemany`` call (bounds the Python tuples alive at once)."""
-    ROWS_PER_INSERT = 50
-    """History rows per INSERT statement (multi-row VALUES; 50 x 15 parameters, well under
-    SQLite's and PostgreSQL's limits)."""
+    HISTORY_CHUNK = history_chunks.MAX_CHUNK
+    """Acquisitions per history row at most (:mod:`rulkit.fleet.store.history_chunks`)."""
     BLOCK_ROWS = 100_000
     """Acquisitions per block of components run together (bounds the per-acquisition outputs
     held at once, ~150 bytes each)."""
@@ -413,16 +417,21 @@ class ComponentStore:
         chain's columns, and the RUL of the estimator in force, ``rul_median`` (NaN: not
         estimated yet) in ``rul_low``/``rul_high``, with the rules' ``level``
         (docs/systems/embedded-rul.md §6-7)."""
-        cols = "component, " + ", ".join(HISTORY_FIELDS) + ", ingest, rul_median"
-        if component is None:
-            df = self._query(f"SELECT {cols} FROM history ORDER BY component, t")
-        else:
-            df = self._query(f"SELECT {cols} FROM history WHERE component = ? ORDER BY t",
-                             (component,))
-        median = df.pop("rul_median") if "rul_median" in df else None  # NULL before a model
+        with self.snapshot() as conn:
+            if history_chunks.is_row_history(table_columns(conn, "history")):
+                raise StoreError(f"{self.path}: its history has one row per acquisition, the "
+                                 "layout of an older rulkit; open it for writing once (e.g. "
+                                 "'rulkit track' or 'rulkit serve') to convert it")
+            try:
+                comp, ingest, rec = history_chunks.read_all(conn, component)
+            except history_chunks.LayoutError as err:
+                raise StoreError(f"{self.path}: table history: {err}") from err
+            except sqlite3.Error as err:
+                raise self._error(err) from err
+        df = pd.DataFrame({"component": comp, **{
+            f: history_chunks.field(rec, f) for f in HISTORY_FIELDS}, "ingest": ingest})
         df = self._checked(df, "history")
-        if median is not None:
-            df["rul_median"] = pd.to_numeric(median, errors="coerce")
+        df["rul_median"] = history_chunks.field(rec, "rul_median")
         return df
 
     def counts(self) -> tuple[int, int, int]:
@@ -430,8 +439,8 @@ class ComponentStore:
         with self.snapshot() as conn:
             n_comp, n_sum = conn.execute(
                 "SELECT COUNT(*), COALESCE(SUM(n), 0) FROM components").fetchone()
-            n_hist = conn.execute("SELECT COUNT(*) FROM history").fetchone()[0]
-        return int(n_comp), int(n_sum), int(n_hist)
+            n_hist = history_chunks.count(conn)
+        return int(n_comp), int(n_sum), n_hist
 
     # -- writing
     def ingest_file(self, path: str | Path) -> IngestResult:
@@ -587,7 +596,7 @@ class ComponentStore:
             del rank_b
             for f in ("t", "n", "hi", "ab", "rul", "abg"):
                 getattr(state, f)[comps] = getattr(sub, f)
-            self._write_block_history(comp_b, t_b, hi_b, out, got, ingest_id)
+            self._write_block_history(names_arr[comps], seg, t_b, hi_b, out, got, ingest_id)
             del cidx, comp_b, out, t_b, hi_b, got
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
         fin = tracker_outputs(state, self.config)
@@ -598,23 +607,25 @@ class ComponentStore:
         rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
         rows += list(extra.values())
         self._write_states(list(zip(*rows, strict=True)), tuple(extra))
-        lv = ROW_FIELDS.index("level")
+        lv, sn = ROW_FIELDS.index("level"), k_row + PROGNOSIS_COLUMNS.index("seen")
         add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
+        add_seen_counts(self._conn, [stored[names[i]][sn] for i in known], extra["seen"])
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
 
-    def _write_block_history(self, comp: np.ndarray, t: np.ndarray, hi: np.ndarray,
-                             out: dict[str, np.ndarray], got: Any, ingest_id: int) -> None:
-        """The history rows of one block (key order), in chunks of :attr:`HISTORY_CHUNK`:
-        the tracker's ``out``, the rules' level and the stored RUL interval of ``got``."""
+    def _write_block_history(self, names: np.ndarray, seg: np.ndarray, t: np.ndarray,
+                             hi: np.ndarray, out: dict[str, np.ndarray], got: Any,
+                             ingest_id: int) -> None:
+        """The history of one block (component ``names[i]`` owns rows ``seg[i]:seg[i + 1]``,
+        key order), packed in rows of at most :attr:`HISTORY_CHUNK` acquisitions: the
+        tracker's ``out``, the rules' level and the stored RUL interval of ``got``."""
         med, low, high = stored_interval(got.rules.median, got.rules.low, got.rules.high)
-        for c0 in range(0, comp.size, self.HISTORY_CHUNK):
-            sl = slice(c0, c0 + self.HISTORY_CHUNK)
-            cols_out = [comp[sl], t[sl], hi[sl]]
-            cols_out += [out[f][sl] for f in TRACKER_OUT[:6]]  # fhi .. d2rul
-            cols_out += [out["valid"][sl], got.rules.level[sl]]
-            cols_out += [low[sl], high[sl], med[sl]]  # the extra column rul_median
-            self._write_history(HistoryChunk(cols_out, ingest_id, ("rul_median",)))
+        rec = history_chunks.records({
+            "t": t, "hi": hi, **{f: out[f] for f in TRACKER_OUT[:6]}, "valid": out["valid"],
+            "level": got.rules.level, "rul_low": low, "rul_high": high, "rul_median": med},
+            t.size)
+        self._write_history(history_chunks.chunk_rows(names, seg, rec, ingest_id,
+                                                      self.HISTORY_CHUNK))
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         """Record one ingestion (audit row) and return its id (backend hook)."""
@@ -625,33 +636,10 @@ class ComponentStore:
         assert cur.lastrowid is not None
         return int(cur.lastrowid)
 
-    def _write_history(self, rows: HistoryChunk | Iterable[tuple],
-                       extra_cols: tuple[str, ...] = ()) -> None:
-        """Insert history rows: a :class:`HistoryChunk` (what ingestion writes) or row tuples
-        ``(component, *HISTORY_FIELDS, *extra_cols, ingest)``."""
-        if isinstance(rows, HistoryChunk):
-            extra_cols = rows.extra_cols
-        cols = ("component", *HISTORY_FIELDS, *extra_cols, "ingest")
-        one = f"({', '.join('?' * len(cols))})"
-        head = f"INSERT INTO history ({', '.join(cols)}) VALUES "
-        if not isinstance(rows, HistoryChunk):
-            self._conn.executemany(head + one, rows)
-            return
-        # one object array of the chunk's cells (Python float / int / bool / str, as
-        # tolist() gives them), then INSERTs of ROWS_PER_INSERT rows each: a multi-row VALUES
-        # saves SQLite's and the driver's per-statement work (1.6x faster than one row each)
-        m = len(rows.columns[0])
-        obj = np.empty((m, len(cols)), dtype=object)
-        for j, col in enumerate(rows.columns):
-            obj[:, j] = col
-        obj[:, -1] = rows.ingest
-        k = self.ROWS_PER_INSERT
-        full = m - m % k
-        if full:
-            self._conn.executemany(head + ", ".join([one] * k),
-                                   obj[:full].reshape(-1, k * len(cols)).tolist())
-        if full < m:
-            self._conn.executemany(head + one, obj[full:].tolist())
+    def _write_history(self, rows: list[tuple]) -> None:
+        """Insert packed history rows ``(component, t_first, t_last, n, ingest, data)``
+        (backend hook)."""
+        history_chunks.write_chunks(self._conn, rows)
 
     def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``."""

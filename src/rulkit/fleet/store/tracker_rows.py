@@ -1,11 +1,8 @@
 """One acquisition's stored row: the field names of a component's tracker state and outputs in
-``components`` and ``history``, the trackers' state from those rows, the refusal of a block
-whose tracker outputs are not finite, and one ingestion's history rows as columns
-(docs/systems/embedded-rul.md §4)."""
+``components`` and ``history``, the trackers' state from those rows and the refusal of a block
+whose tracker outputs are not finite (docs/systems/embedded-rul.md §4)."""
 
 from __future__ import annotations
-
-from typing import Any
 
 import numpy as np
 
@@ -59,17 +56,5 @@ def refuse_non_finite(out: dict[str, np.ndarray], rank: np.ndarray, row: np.ndar
         "time unit or offset")
 
 
-class HistoryChunk:
-    """History rows of one ingestion as columns: ``columns`` are the arrays (or sequences) of
-    ``component``, the :data:`HISTORY_FIELDS` and ``extra_cols``, in that order, all of one
-    length; ``ingest`` the id of the ingestion (:meth:`ComponentStore._write_history`)."""
-
-    __slots__ = ("columns", "extra_cols", "ingest")
-
-    def __init__(self, columns: list[Any], ingest: int, extra_cols: tuple[str, ...] = ()):
-        self.columns = columns
-        self.ingest = ingest
-        self.extra_cols = extra_cols
-
 __all__ = ["HISTORY_FIELDS", "OUTPUT_FIELDS", "ROW_FIELDS", "STATE_FIELDS", "TRACKER_OUT",
-           "HistoryChunk", "refuse_non_finite", "stored_state"]
+           "refuse_non_finite", "stored_state"]
