@@ -72,12 +72,21 @@ def synthetic_paris_fleet(
         h = np.power(np.maximum(base, 1e-12), 1.0 / (1.0 - p))
         return np.maximum(h + noise_sd * rng.standard_normal(t.shape), 0.0)
 
+    return _law_fleet(rng, "p", t_fail, censored, n_acq, measure)
+
+
+def _law_fleet(rng: np.random.Generator, prefix: str, t_fail: np.ndarray,
+               censored: np.ndarray, n_acq: float, measure: Measure) -> tuple[pd.DataFrame,
+                                                                             np.ndarray]:
+    """A fleet whose units are acquired about ``n_acq`` times over their law's life: a
+    censored unit up to 0.4 to 0.9 of it, a run-to-failure one to 1.05 of it and on until its
+    first measured hi >= 1 (:func:`_run_to_failure`)."""
     ts, his = [], []
-    for u in range(n_units):
+    for u in range(len(t_fail)):
         t_end = t_fail[u] * (rng.uniform(0.4, 0.9) if censored[u] else 1.05)
         ts.append(_sample_times(rng, t_end, n_acq))
         his.append(measure(np.array([u]), ts[-1][None, :])[0])
-    return _run_to_failure(rng, "p", ts, his, censored, 1.05 * t_fail / n_acq, measure)
+    return _run_to_failure(rng, prefix, ts, his, censored, 1.05 * t_fail / n_acq, measure)
 
 
 def _run_to_failure(rng: np.random.Generator, prefix: str, ts: list[np.ndarray],
@@ -154,12 +163,7 @@ def synthetic_linear_fleet(
         h = a[units, None] + b[units, None] * t
         return np.maximum(h + noise_sd * rng.standard_normal(t.shape), 0.0)
 
-    ts, his = [], []
-    for u in range(n_units):
-        t_end = t_fail[u] * (rng.uniform(0.4, 0.9) if censored[u] else 1.05)
-        ts.append(_sample_times(rng, t_end, n_acq))
-        his.append(measure(np.array([u]), ts[-1][None, :])[0])
-    return _run_to_failure(rng, "l", ts, his, censored, 1.05 * t_fail / n_acq, measure)
+    return _law_fleet(rng, "l", t_fail, censored, n_acq, measure)
 
 
 def paris_life(h0: float, c: np.ndarray, m: float) -> np.ndarray:
