@@ -51,6 +51,8 @@ def test_a_blob_of_another_layout_is_refused():
         hc.decode([row[5][:-8]], [4])
     with pytest.raises(hc.LayoutError, match="bytes, not the"):
         hc.decode([row[5]], [3])
+    with pytest.raises(hc.LayoutError, match="bytes, not the"):  # cut inside a float64
+        hc.decode([row[5][:-3]], [4])
     with pytest.raises(hc.LayoutError, match="header"):
         hc.decode([b"RKH\x02" + row[5][4:]], [4])
 

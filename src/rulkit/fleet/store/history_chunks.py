@@ -72,16 +72,22 @@ def chunk_rows(names: Any, seg: np.ndarray, rec: np.ndarray, ingest: Any,
     within = np.arange(owner.size) - np.repeat(np.cumsum(pieces) - pieces, pieces)
     p0 = seg[owner] + within * max_chunk
     p1 = np.minimum(p0 + max_chunk, seg[owner + 1])
-    buf = np.ascontiguousarray(rec, dtype="<f8").tobytes()
-    size = 8 * WIDTH
-    blobs = [HEADER + buf[a * size:b * size] for a, b in zip(p0.tolist(), p1.tolist(),
-                                                             strict=True)]
+    blobs = _blobs(rec, p0, p1)
     comp = np.asarray(names, dtype=object)[owner].tolist()
     ing = (np.asarray(ingest)[owner].tolist() if np.ndim(ingest)
            else [int(ingest)] * owner.size)
     t = rec[:, _F["t"]]
     return list(zip(comp, t[p0].tolist(), t[p1 - 1].tolist(), (p1 - p0).tolist(), ing, blobs,
                     strict=True))
+
+
+def _blobs(rec: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> list[bytes]:
+    """The blob of each chunk ``rec[p0[i]:p1[i]]``: the header, then its records."""
+    buf = np.ascontiguousarray(rec, dtype="<f8").tobytes()
+    size = 8 * WIDTH
+    return [HEADER + buf[a * size:b * size] for a, b in zip(np.asarray(p0).tolist(),
+                                                            np.asarray(p1).tolist(),
+                                                            strict=True)]
 
 
 def decode(blobs: list[Any], n: Any) -> np.ndarray:
@@ -91,13 +97,13 @@ def decode(blobs: list[Any], n: Any) -> np.ndarray:
     n = np.asarray(n, dtype=np.int64)
     if not blobs:
         return np.empty((0, WIDTH))
-    words = np.frombuffer(b"".join(blobs), dtype="<f8") if len(blobs) > 1 else \
-        np.frombuffer(blobs[0], dtype="<f8")
+    joined = b"".join(blobs) if len(blobs) > 1 else bytes(blobs[0])
     per = 1 + WIDTH * n
-    if words.size != int(per.sum()) or words.size * 8 != sum(len(b) for b in blobs):
-        raise LayoutError(f"history chunks hold {words.size * 8} bytes, not the "
+    if len(joined) != 8 * int(per.sum()):
+        raise LayoutError(f"history chunks hold {len(joined)} bytes, not the "
                           f"{int(per.sum()) * 8} of {int(n.sum())} acquisitions "
                           f"x {WIDTH} float64 and a header each")
+    words = np.frombuffer(joined, dtype="<f8")
     heads = np.cumsum(per) - per
     if (words.view("<u8")[heads] != _HEADER_WORD).any():
         raise LayoutError("a history chunk's header is not rulkit's packed layout 1 "
@@ -112,10 +118,10 @@ def field(rec: np.ndarray, name: str) -> np.ndarray:
     return rec[:, _F[name]]
 
 
-def write_chunks(conn: Any, rows: list[tuple]) -> None:
-    """INSERT history rows ``(component, t_first, t_last, n, ingest, data)`` (a DB-API
-    connection in qmark style)."""
-    conn.executemany(f"INSERT INTO history ({', '.join(COLUMNS)}) VALUES "
+def write_chunks(conn: Any, rows: list[tuple], table: str = "history") -> None:
+    """INSERT history rows ``(component, t_first, t_last, n, ingest, data)`` into ``table``
+    (a DB-API connection in qmark style)."""
+    conn.executemany(f"INSERT INTO {table} ({', '.join(COLUMNS)}) VALUES "
                      f"({', '.join('?' * len(COLUMNS))})", rows)
 
 
@@ -183,11 +189,9 @@ def rewrite(conn: Any, chunks: list[tuple[str, float, int]], rec: np.ndarray) ->
     :func:`read_components` gives them) by ``rec``, their records end to end."""
     n = np.array([c[2] for c in chunks], dtype=np.int64)
     seg = np.concatenate([[0], np.cumsum(n)])
-    size = 8 * WIDTH
-    buf = np.ascontiguousarray(rec, dtype="<f8").tobytes()
     conn.executemany("UPDATE history SET data = ? WHERE component = ? AND t_first = ?",
-                     [(HEADER + buf[int(a) * size:int(b) * size], c[0], c[1])
-                      for c, a, b in zip(chunks, seg[:-1], seg[1:], strict=True)])
+                     [(blob, c[0], c[1]) for c, blob in
+                      zip(chunks, _blobs(rec, seg[:-1], seg[1:]), strict=True)])
 
 
 def count(conn: Any) -> int:
@@ -227,10 +231,8 @@ def convert_row_history(conn: Any, columns: list[str], create: list[str]) -> int
         rec = np.array([r[2:] for r in rows], dtype=np.float64)  # None -> NaN
         new = np.flatnonzero((comp[1:] != comp[:-1]) | (ingest[1:] != ingest[:-1])) + 1
         seg = np.concatenate([[0], new, [len(rows)]])
-        conn.executemany(
-            f"INSERT INTO history_packed ({', '.join(COLUMNS)}) VALUES "
-            f"({', '.join('?' * len(COLUMNS))})",
-            chunk_rows(comp[seg[:-1]], seg, rec, ingest[seg[:-1]]))
+        write_chunks(conn, chunk_rows(comp[seg[:-1]], seg, rec, ingest[seg[:-1]]),
+                     "history_packed")
         total += len(rows)
         after = (rows[-1][0], rows[-1][2])
     conn.execute("DROP TABLE history")
