@@ -26,6 +26,8 @@ every loop is bounded by its request count.
     .venv/bin/python benchmarks/bench_service.py                  # both backends, minutes
     .venv/bin/python benchmarks/bench_service.py --quick          # a smoke run
     .venv/bin/python benchmarks/bench_service.py --backend sqlite --batch-sizes 1000
+    git archive main src | tar -x -C /tmp/main     # the ingest against main's code, in turns:
+    .venv/bin/python benchmarks/bench_service.py --skip pages history --against /tmp/main/src
 """
 
 from __future__ import annotations
@@ -63,11 +65,14 @@ GET_SAMPLE = 50
 """GETs of the pollers' page timed alone after the ingest phase (their CPU each)."""
 
 
-def write_phase(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
+def write_phase(db: str, args: argparse.Namespace, batch_size: int,
+                src: Path | None = None) -> dict[str, float]:
+    """The ingest load on a new database ``db``, served by this code or, with ``src``, by
+    that checkout's ``src`` directory (``PYTHONPATH``)."""
     sdb = ServiceDB(db)
     _, token = sdb.create_token("write", "bench")
     sdb.close()
-    srv = start_server(db)
+    srv = start_server(db, env=None if src is None else {"PYTHONPATH": str(src.resolve())})
     try:
         cpu0, client0 = srv.cpu_seconds(), time.process_time()
         res = run_load(srv.port, token, writers=args.writers, readers=args.readers,
@@ -305,6 +310,32 @@ def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, f
           f"{bare_ms:.2f} ms; the POST's cost above its writes {ms - gets_ms - bare_ms:.2f} ms")
 
 
+def ingest_phase(backend: str, new_db: Any, args: argparse.Namespace, size: int) -> None:
+    """The ingest load with batches of ``size`` and its bare floor; with ``--against SRC``,
+    ``--repeats`` turns of this code then SRC's on new databases, and the ratios of their
+    medians."""
+    if args.against is None:
+        w = write_phase(new_db(f"w{size}"), args, size)
+        _print_write(backend, size, w, bare_floor(new_db(f"bare{size}"), args, size))
+        return
+    runs: dict[str, list[dict[str, float]]] = {"ours": [], "theirs": []}
+    for k in range(args.repeats):
+        runs["ours"].append(write_phase(new_db(f"w{size}_{k}"), args, size))
+        runs["theirs"].append(write_phase(new_db(f"a{size}_{k}"), args, size, args.against))
+    med = {side: {key: float(np.median([r[key] for r in rs])) for key in
+                  ("acq_per_s", "server_cpu_s", "acquisitions", "get_cpu_s")}
+           for side, rs in runs.items()}
+    _print_write(backend, size, {**runs["ours"][-1], **med["ours"]},
+                 bare_floor(new_db(f"bare{size}"), args, size))
+    cpu = {side: m["server_cpu_s"] / m["acquisitions"] * 1e6 for side, m in med.items()}
+    print(f"  in turns with {args.against} ({args.repeats} each, medians): "
+          f"{med['ours']['acq_per_s']:.0f} against {med['theirs']['acq_per_s']:.0f} "
+          f"acquisitions/s; service CPU {cpu['ours']:.1f} against {cpu['theirs']:.1f} us per "
+          f"acquisition (ratio {cpu['ours'] / cpu['theirs']:.2f}); the pollers' GET "
+          f"{med['ours']['get_cpu_s'] * 1e3:.2f} against {med['theirs']['get_cpu_s'] * 1e3:.2f}"
+          f" ms; load average {os.getloadavg()[0]:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--backend", choices=["sqlite", "postgresql", "both"], default="both")
@@ -320,6 +351,10 @@ def main() -> None:
                     "latency is printed apart).")
     ap.add_argument("--skip", nargs="*", default=[], choices=["ingest", "pages", "history"])
     ap.add_argument("--quick", action="store_true", help="Small counts (smoke run).")
+    ap.add_argument("--against", type=Path, default=None,
+                    help="Another checkout's src/ directory: its ingest in turns with ours.")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="Turns of each side with --against.")
     args = ap.parse_args()
     if args.quick:
         args.batches, args.components, args.reads = 5, 10_000, 10
@@ -345,9 +380,7 @@ def main() -> None:
             print(f"\n## {backend}")
             if "ingest" not in args.skip:
                 for size in args.batch_sizes:
-                    w = write_phase(new_db(f"w{size}"), args, size)
-                    _print_write(backend, size, w, bare_floor(new_db(f"bare{size}"), args,
-                                                              size))
+                    ingest_phase(backend, new_db, args, size)
             if "pages" not in args.skip:
                 r = pages_phase(new_db("pages"), args)
                 print(f"pages at {int(r['components'])} components (filled in "

@@ -53,3 +53,27 @@ def _catch(sdb, df):
     except ValueError as err:
         return str(err)
     return "accepted"
+
+
+def test_a_failed_group_stores_nothing_and_the_next_group_commits(sdb, monkeypatch):
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    df = pd.DataFrame({"component": ["f0", "f1"], "time": 1.0, "hi": 0.3})
+    sdb.ingest(df, "first")  # the group commits' own connection is open
+    writer = sdb._writer
+
+    def broken(self, *a, **k):
+        raise OSError("disk gone")  # neither a refusal nor a conflict: the group fails
+
+    with monkeypatch.context() as m:
+        m.setattr(ComponentStore, "_insert_ingest", broken)
+        m.setattr(type(writer), "_insert_ingest", broken)
+        try:
+            sdb.ingest(df.assign(time=2.0), "lost")
+        except OSError as err:
+            assert "disk gone" in str(err)
+        else:
+            raise AssertionError("the failed group was acknowledged")
+    assert sdb.component("f0")["n"] == 1  # nothing of the failed group
+    assert sdb.ingest(df.assign(time=2.0), "again")["ingested"] == 2
+    assert sdb.component("f0")["n"] == 2

@@ -1,9 +1,17 @@
 """The dependencies of the service's routes (docs/service.md): the app's database and
-metrics, and the bearer token (any valid token for reads, a write token for writes)."""
+metrics, and the bearer token (any valid token for reads, a write token for writes).
+
+Each is a coroutine: FastAPI runs a plain function dependency in its thread pool, a hand-off
+to a worker thread and back per dependency and request, which cost more CPU than the rest of
+the framework's share of a request. Only the token's database lookup
+(:meth:`~rulkit.fleet.service.db.ServiceDB.check_token`, which may wait for a pooled
+connection) goes to a worker thread, once per request.
+"""
 
 from typing import Annotated
 
 from fastapi import Depends, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from rulkit.fleet.service.bodies import http_error
@@ -14,32 +22,32 @@ BEARER = HTTPBearer(auto_error=False, description="A token from `rulkit token cr
 """The OpenAPI security scheme of ``/api/v1``."""
 
 
-def service_db(request: Request) -> ServiceDB:
+async def service_db(request: Request) -> ServiceDB:
     """The database the app serves (``app.state.db``, set by ``create_app``)."""
     sdb: ServiceDB = request.app.state.db
     return sdb
 
 
-def service_metrics(request: Request) -> Metrics:
+async def service_metrics(request: Request) -> Metrics:
     """The app's counters and histograms (``app.state.metrics``)."""
     metrics: Metrics = request.app.state.metrics
     return metrics
 
 
-def authenticated(
+async def authenticated(
     creds: Annotated[HTTPAuthorizationCredentials | None, Depends(BEARER)],
     sdb: Annotated[ServiceDB, Depends(service_db)],
 ) -> Token:
     """The request's valid token (401 when it has none, or one unknown or revoked)."""
     if creds is None or creds.scheme.lower() != "bearer":
         raise http_error(401, "missing bearer token", {"WWW-Authenticate": "Bearer"})
-    tok = sdb.check_token(creds.credentials)
+    tok = await run_in_threadpool(sdb.check_token, creds.credentials)
     if tok is None:
         raise http_error(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
     return tok
 
 
-def writer(tok: Annotated[Token, Depends(authenticated)]) -> Token:
+async def writer(tok: Annotated[Token, Depends(authenticated)]) -> Token:
     """The request's write token (403 for a read-only token)."""
     if not tok.can_write:
         raise http_error(403, "this token is read-only; writes and acknowledgements need "

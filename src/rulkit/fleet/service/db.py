@@ -100,6 +100,12 @@ class ServiceDB:
     ``rulkit track --db`` to choose other settings). Each request checks a connection out of
     the pool (:meth:`store`). On SQLite, writers additionally queue on an in-process lock
     rather than polling SQLite's busy handler.
+
+    The ingestion's group commits go through one connection of their own, opened with the
+    first of them: SQLite drops a connection's page cache whenever another connection has
+    written since its last transaction, so with the groups spread over the pool every
+    commit read the tables' and indexes' pages afresh from the file (PostgreSQL's server
+    keeps the statements that connection prepared).
     """
 
     def __init__(self, db: str | Path, *, pool_size: int = 8, create: bool = True) -> None:
@@ -120,6 +126,7 @@ class ServiceDB:
         self._queue_lock = threading.Lock()
         self._queue: list[_Pending] = []
         self._writes = 0  # committed groups (tests count them)
+        self._writer: ComponentStore | None = None  # the group commits' own connection
 
     @contextmanager
     def store(self) -> Iterator[ComponentStore]:
@@ -164,6 +171,11 @@ class ServiceDB:
                 yield s
 
     def close(self) -> None:
+        """Close every connection (the pool's and the group commits')."""
+        with self._write_lock:
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
         while True:
             try:
                 self._pool.get_nowait().close()
@@ -244,12 +256,16 @@ class ServiceDB:
     def _commit(self, group: list[_Pending]) -> None:
         """Write ``group`` in one transaction; every request gets its result or error."""
         try:
-            with self.store() as s:
-                outcomes: list[Any] = list(s.ingest_many(
-                    [(r.acq, r.source, r.now) for r in group]))
+            if self._writer is None:
+                self._writer = open_store(self.db, create=False)
+            outcomes: list[Any] = list(self._writer.ingest_many(
+                [(r.acq, r.source, r.now) for r in group]))
             self._writes += 1
         except BaseException as err:  # the commit failed: nothing of the group is stored
             outcomes = [err] * len(group)
+            if self._writer is not None and _in_transaction(self._writer):
+                self._writer.close()  # a connection in an unknown state is not reused
+                self._writer = None
         for r, o in zip(group, outcomes, strict=True):
             r.outcome, r.done = o, True
 

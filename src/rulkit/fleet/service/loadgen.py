@@ -66,13 +66,15 @@ class Server:
 
 
 def start_server(db: str, *, pool: int = 8, timeout: float = 60.0,
-                 options: tuple[str, ...] = ()) -> Server:
+                 options: tuple[str, ...] = (), env: dict[str, str] | None = None) -> Server:
     """``rulkit serve --db DB [options]`` on 127.0.0.1 and a free port; waits for
-    /readyz."""
+    /readyz. ``env``: variables added to this process's environment for the server (e.g.
+    ``PYTHONPATH`` of another checkout's ``src``, whose code then serves)."""
     port = free_port()
     cmd = [sys.executable, "-c", "from rulkit.cli import main; main()", "serve", "--db", str(db),
            "--port", str(port), "--pool", str(pool), *options]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            env=None if env is None else {**os.environ, **env})
     srv = Server(proc, port)
     deadline = time.monotonic() + timeout
     while True:

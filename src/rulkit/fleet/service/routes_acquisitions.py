@@ -7,11 +7,13 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import Response
 
 from rulkit.fleet.service.auth import DB, WriteToken, service_metrics
 from rulkit.fleet.service.bodies import batch_frame, http_error, read_body
+from rulkit.fleet.service.db import ServiceDB
 from rulkit.fleet.service.metrics import Metrics
-from rulkit.fleet.service.responses import error_responses
+from rulkit.fleet.service.responses import OrjsonResponse, error_responses
 from rulkit.fleet.store.acquisitions import ConflictError, IngestError
 from rulkit.fleet.store.database_file import StoreError
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -59,7 +61,7 @@ def acquisitions_body(hi_model: HealthIndexModel | None) -> dict[str, Any]:
 async def post_acquisitions(
     request: Request, tok: WriteToken, sdb: DB,
     metrics: Annotated[Metrics, Depends(service_metrics)],
-) -> dict[str, Any]:
+) -> Response:
     """Ingest a batch: validated completely, applied in one transaction.
 
     Rows already stored (same component, time and HI) are skipped and counted in
@@ -67,10 +69,8 @@ async def post_acquisitions(
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     t0 = time.perf_counter()
     try:
-        body = await read_body(request)
-        df = await run_in_threadpool(batch_frame, body, ctype)
-        del body
-        out = await run_in_threadpool(sdb.ingest, df, f"api:{tok.name}")
+        body = [await read_body(request)]  # taken out by _ingest_body: freed once decoded
+        out = await run_in_threadpool(_ingest_body, sdb, body, ctype, f"api:{tok.name}")
     except ConflictError as err:
         metrics.inc("rulkit_ingest_batches_total", "conflict")
         raise http_error(409, str(err)) from None
@@ -88,7 +88,16 @@ async def post_acquisitions(
     metrics.inc("rulkit_ingested_acquisitions_total", by=out["ingested"])
     metrics.inc("rulkit_duplicate_acquisitions_total", by=out["duplicates"])
     metrics.observe("rulkit_ingest_seconds", time.perf_counter() - t0)
-    return out
+    return OrjsonResponse(out)
+
+
+def _ingest_body(sdb: ServiceDB, body: list[bytearray], ctype: str, source: str
+                 ) -> dict[str, Any]:
+    """The batch of the body in ``body`` (:func:`batch_frame`) ingested
+    (:meth:`ServiceDB.ingest`): one hand-off to a worker thread for both. The body is taken
+    out of the list, so only its columns are held while the batch waits for its commit."""
+    df = batch_frame(body.pop(), ctype)
+    return sdb.ingest(df, source)
 
 
 def acquisitions_router(hi_model: HealthIndexModel | None) -> APIRouter:
@@ -97,5 +106,6 @@ def acquisitions_router(hi_model: HealthIndexModel | None) -> APIRouter:
     router.add_api_route(
         "/api/v1/acquisitions", post_acquisitions, methods=["POST"], tags=["acquisitions"],
         openapi_extra={"requestBody": acquisitions_body(hi_model)},
+        response_model=dict[str, Any], response_class=OrjsonResponse,
         responses=error_responses(401, 403, 408, 409, 413, 415, 422, 503))
     return router
