@@ -74,11 +74,12 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int,
     sdb.close()
     srv = start_server(db, env=None if src is None else {"PYTHONPATH": str(src.resolve())})
     try:
-        cpu0, client0 = srv.cpu_seconds(), time.process_time()
+        cpu0, client0, loop0 = srv.cpu_seconds(), time.process_time(), srv.loop_cpu_seconds()
         res = run_load(srv.port, token, writers=args.writers, readers=args.readers,
                        batches=args.batches, batch_size=batch_size,
                        max_reads=args.batches * 4)
         cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
+        loop = srv.loop_cpu_seconds() - loop0
         cpu1 = srv.cpu_seconds()  # the pollers' GET alone, to part it from the batches' CPU
         _reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
         get_cpu = (srv.cpu_seconds() - cpu1) / GET_SAMPLE
@@ -88,7 +89,7 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int,
         raise SystemExit(f"errors during the load: {res.errors[:5]}")
     verify_exactly_once(db, args.writers, args.batches, batch_size)
     return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client,
-            "get_cpu_s": get_cpu}
+            "get_cpu_s": get_cpu, "loop_cpu_s": loop}
 
 
 def bare_floor(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
@@ -308,6 +309,10 @@ def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, f
           f"{w['gets'] / batches:.1f} GETs {gets_ms:.2f} ms ({w['get_cpu_s'] * 1e3:.2f} ms "
           f"each, timed alone after the load) and the POST {ms - gets_ms:.2f} ms; bare writes "
           f"{bare_ms:.2f} ms; the POST's cost above its writes {ms - gets_ms - bare_ms:.2f} ms")
+    loop_ms = w["loop_cpu_s"] / batches * 1e3
+    print(f"  by thread: the event loop (HTTP, routing, the routes' coroutines) {loop_ms:.2f} ms"
+          f" per batch, the worker threads (bodies, validation, the writes, the GETs' "
+          f"queries) {ms - loop_ms:.2f} ms")
 
 
 def ingest_phase(backend: str, new_db: Any, args: argparse.Namespace, size: int) -> None:
@@ -323,7 +328,7 @@ def ingest_phase(backend: str, new_db: Any, args: argparse.Namespace, size: int)
         runs["ours"].append(write_phase(new_db(f"w{size}_{k}"), args, size))
         runs["theirs"].append(write_phase(new_db(f"a{size}_{k}"), args, size, args.against))
     med = {side: {key: float(np.median([r[key] for r in rs])) for key in
-                  ("acq_per_s", "server_cpu_s", "acquisitions", "get_cpu_s")}
+                  ("acq_per_s", "server_cpu_s", "acquisitions", "get_cpu_s", "loop_cpu_s")}
            for side, rs in runs.items()}
     _print_write(backend, size, {**runs["ours"][-1], **med["ours"]},
                  bare_floor(new_db(f"bare{size}"), args, size))

@@ -132,12 +132,15 @@ def profile(kind: str, args: argparse.Namespace, tmp: str, totals: Counter[str])
     _, token = sdb.create_token("write", "profile")
     app = create_app(sdb)
     statements: list[str] = []  # classified after the run: the callback stays cheap
-    with sdb.store() as s:  # one thread: the pool hands out this connection every time
-        s._conn.set_trace_callback(statements.append)
     bodies = [body_bytes(writer_batch(w, k, args.batch_size), kind)
               for k in range(args.batches) for w in range(args.writers)]
     for b in bodies[:args.writers]:  # the first batch creates the components: not timed
         _post(app, token, b, BODY_TYPES[kind])
+    with sdb.store() as s:  # one thread: the pool hands out this connection every time
+        s._conn.set_trace_callback(statements.append)
+    writer = getattr(sdb, "_writer", None)  # the group commits' own connection, if any
+    if writer is not None:
+        writer._conn.set_trace_callback(statements.append)
     totals.clear()
     statements.clear()
     t0 = time.process_time()

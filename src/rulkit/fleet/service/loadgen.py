@@ -41,6 +41,14 @@ class Server:
             fields = f.read().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
+    def loop_cpu_seconds(self) -> float:
+        """The CPU time of the server's main thread so far: uvicorn's event loop (HTTP
+        parsing, routing, the coroutines of the routes and their dependencies); the rest of
+        :meth:`cpu_seconds` is the worker threads' (the routes' plain functions)."""
+        with open(f"/proc/{self.proc.pid}/task/{self.proc.pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
     def memory_mb(self) -> tuple[float, float]:
         """(resident, peak resident) memory of the server process, MB (Linux /proc)."""
         vals = {}
