@@ -219,9 +219,10 @@ class ComponentStore:
 
     HISTORY_CHUNK = history_chunks.MAX_CHUNK
     """Acquisitions per history row at most (:mod:`rulkit.fleet.store.history_chunks`)."""
-    BLOCK_ROWS = 100_000
-    """Acquisitions per block of components run together (bounds the per-acquisition outputs
-    held at once, ~150 bytes each)."""
+    BLOCK_ROWS = 25_000
+    """Acquisitions per block of components run together: bounds the per-acquisition outputs
+    and the RUL quantiles' temporaries held at once (about 500 bytes an acquisition at the peak of
+    a block: the RUL quantiles of three levels hold some 15 arrays of every row)."""
     hi_model: HealthIndexModel | None
 
     def __init__(
