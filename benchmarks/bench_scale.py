@@ -102,6 +102,21 @@ fd = os.open(db, os.O_RDWR); os.fsync(fd); os.close(fd)
 """.replace("BLOCK", "25_000")
 
 
+# The floor of track's libraries, before any row: rulkit's CLI and store (numpy, pandas,
+# pyarrow) and the two compiled passes a long series takes (the trackers' and the trend's,
+# numba loading them from its on-disk cache; numba imports scipy.linalg for its BLAS check).
+_LIBS = _PEAK + """
+import numpy as np
+import rulkit.cli, rulkit.fleet.store.ingest, pyarrow.csv
+from rulkit.fleet.monitoring.unit_trend import TrendConfig, TrendState, trend_run
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig, TrackerState
+from rulkit.fleet.tracking.tracker_run import tracker_run
+seg, t, hi = np.array([0, 3]), np.arange(3.0), np.array([0.1, 0.2, 0.3])
+tracker_run(TrackerState.empty(1), seg, t, hi, TrackerConfig(), strategy="jit")
+trend_run(TrendState.empty(1), seg, t, hi, TrendConfig(), strategy="jit")
+"""
+
+
 def measure(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float, float]:
     """(wall s, CPU s, peak RSS MB) of one process running ``cmd`` (stdout discarded), with
     ``env`` added to the environment."""
@@ -170,7 +185,8 @@ def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) ->
         db.unlink()
     bw, bc, bm = median3(bare)
     print(f"  the same rows read and written bare (pyarrow, sort, packed history rows, "
-          f"no validation, no tracker, no pandas, no numba): wall {bw:.2f} s, CPU {bc:.2f} s, peak {bm:.0f} MB; "
+          f"no validation, no tracker, no pandas, no numba): wall {bw:.2f} s, CPU {bc:.2f} s, "
+          f"peak {bm:.0f} MB; "
           f"track / bare CPU = {c / bc:.2f}"
           + (f"; track CPU ours / {args.against} = {c / oc:.2f}" if other else "")
           + f"; load average {os.getloadavg()[0]:.1f}")
@@ -243,6 +259,11 @@ def main() -> None:
               f"status, no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
 
         if not args.status_only:
+            libs = median3([measure([sys.executable, "-c", _LIBS])
+                            for _ in range(args.repeats)])
+            print(f"track's libraries and numba's compiled passes loaded, no data (the floor "
+                  f"of its start-up): wall {libs[0]:.2f} s, CPU {libs[1]:.2f} s, peak "
+                  f"{libs[2]:.0f} MB")
             track_part(args, tmp, rng)
         status_part(args, tmp, rng, sfloor[1])
         print(f"load average at end {os.getloadavg()[0]:.1f}")
