@@ -14,6 +14,7 @@ and pyarrow together). At the end, the share of the peak that is shared librarie
 
     .venv/bin/python benchmarks/profile_track.py                      # 2000 x 1000 rows
     .venv/bin/python benchmarks/profile_track.py --components 200     # a quick look
+    .venv/bin/python benchmarks/profile_track.py --against /tmp/main/src  # main's code
 """
 
 from __future__ import annotations
@@ -87,6 +88,7 @@ for label, where, name in STAGES:
             rss[_label], hwm[_label] = m["VmRSS"], m["VmHWM"]
     setattr(o, name, timed)
 instrumented = time.process_time()
+imported = mem()
 sys.argv = ["rulkit", *sys.argv[1:]]
 try:
     rulkit.cli.main()
@@ -97,7 +99,8 @@ finally:
     end = time.process_time()
     m = mem()
     print("start", start, rulkit_cli - start, instrumented - rulkit_cli, end - instrumented,
-          m["VmHWM"], m["RssFile"], m["RssAnon"], file=sys.stderr)
+          m["VmHWM"], m["RssFile"], m["RssAnon"], imported["VmRSS"], imported["VmHWM"],
+          file=sys.stderr)
     for label, _, _ in STAGES:
         print("stage", label, cpu[label], calls[label], first.get(label, 0.0),
               rss.get(label, 0), hwm.get(label, 0), sep="\t", file=sys.stderr)
@@ -118,15 +121,15 @@ def report(err: str) -> None:
         elif line.startswith("stage\t"):
             label, c, n, f, r, h = line.split("\t")[1:]
             stages[label] = (float(c), int(n), float(f), int(r), int(h))
-    py, imp, store, run, peak, file_mb, anon_mb = (float(x) for x in head)
+    py, imp, store, run, peak, file_mb, anon_mb, rss0, hwm0 = (float(x) for x in head)
     total = py + imp + store + run
     print(f"CPU {total:.2f} s in all, peak resident memory {peak:.0f} MB "
           f"(at exit: {file_mb:.0f} MB of it shared libraries' code, {anon_mb:.0f} MB data)")
     print(f"  {'stage':30s} {'CPU s':>7s} {'share':>6s} {'RSS MB':>7s} {'peak MB':>8s}")
     print(f"  {'interpreter start':30s} {py:7.2f} {py / total:6.1%}")
     print(f"  {'import rulkit.cli':30s} {imp:7.2f} {imp / total:6.1%}")
-    print(f"  {'import the store':30s} {store:7.2f} {store / total:6.1%}"
-          "  (numpy, pandas, pyarrow; the command imports them when it runs)")
+    print(f"  {'import the store':30s} {store:7.2f} {store / total:6.1%} {rss0:7.0f} "
+          f"{hwm0:8.0f}  (numpy, pandas, pyarrow; the command imports them when it runs)")
     labels = [label for label, _, _ in STAGES]
     for j, label in enumerate(labels):
         c, n, f, r, h = stages[label]
@@ -154,7 +157,12 @@ def main() -> None:
     ap.add_argument("--components", type=int, default=2000)
     ap.add_argument("--acquisitions", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--against", type=Path, default=None,
+                    help="the src/ of another checkout: profile its track instead")
     args = ap.parse_args()
+    env = {**os.environ}
+    if args.against is not None:
+        env["PYTHONPATH"] = str(args.against.resolve())
     from bench_scale import fleet_csv
 
     with tempfile.TemporaryDirectory(prefix="rulkit-profile-track-") as tmp:
@@ -165,10 +173,12 @@ def main() -> None:
             db.unlink(missing_ok=True)
             proc = subprocess.run(
                 [sys.executable, "-c", _CHILD.format(stages=STAGES), "track", "--db", str(db),
-                 str(src)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                 str(src)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                env=env)
             if proc.returncode != 0:
                 raise SystemExit(proc.stderr[-2000:])
-        print(f"rulkit track of {args.components * args.acquisitions:,} rows "
+        print(f"rulkit track{f' with {args.against}' if args.against else ''} of "
+              f"{args.components * args.acquisitions:,} rows "
               f"({args.components} components x {args.acquisitions}, CSV "
               f"{src.stat().st_size / 2**20:.0f} MB) into a new database; load average "
               f"{os.getloadavg()[0]:.1f}")
