@@ -92,7 +92,7 @@ def _blobs(rec: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> list[memoryview]:
     words = np.empty(int(per.sum()), dtype="<f8")
     words.view("<u8")[start] = _HEADER_WORD
     flat = np.ascontiguousarray(rec, dtype="<f8").reshape(-1)
-    raw = memoryview(words).cast("B")
+    raw = words.data.cast("B")
     out = []
     for a, b, s, m in zip(p0.tolist(), p1.tolist(), start.tolist(), per.tolist(), strict=True):
         words[s + 1:s + m] = flat[a * WIDTH:b * WIDTH]
