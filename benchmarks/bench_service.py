@@ -75,7 +75,7 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int) -> dict[str,
                        max_reads=args.batches * 4)
         cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
         cpu1 = srv.cpu_seconds()  # the pollers' GET alone, to part it from the batches' CPU
-        _reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
+        timed_reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
         get_cpu = (srv.cpu_seconds() - cpu1) / GET_SAMPLE
     finally:
         srv.stop()
@@ -231,12 +231,12 @@ def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
                                   f"/api/v1/components?limit=50&{query}{after}"))
         kinds.append(("worst/all/middle_offset", f"/api/v1/components?limit=50&offset={n // 2}"))
         for label, path in kinds:
-            warm = _reads(srv.port, token, path, args.readers, args.warmup) \
+            warm = timed_reads(srv.port, token, path, args.readers, args.warmup) \
                 if args.warmup else [math.nan]
             out[f"{label}_warmup_ms"] = max(warm) * 1e3
             over0 = served_over(srv.port, "/api/v1/components")
             cpu0, wall0 = srv.cpu_seconds(), time.perf_counter()
-            lat = _reads(srv.port, token, path, args.readers, args.reads)
+            lat = timed_reads(srv.port, token, path, args.readers, args.reads)
             cpu = srv.cpu_seconds() - cpu0
             out[f"{label}_served_over"] = served_over(srv.port, "/api/v1/components") - over0
             out[f"{label}_cpu_ms"] = cpu / len(lat) * 1e3
@@ -260,14 +260,14 @@ def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
         srv = start_server(db)
         try:
             path = "/api/v1/components/unit-0000000/history?limit=1000"
-            lat = _reads(srv.port, token, path, 1, args.reads)
+            lat = timed_reads(srv.port, token, path, 1, args.reads)
         finally:
             srv.stop()
         out[f"history_{rows}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
     return out
 
 
-def _reads(port: int, token: str, path: str, threads: int, per_thread: int) -> list[float]:
+def timed_reads(port: int, token: str, path: str, threads: int, per_thread: int) -> list[float]:
     lat: list[float] = []
     lock = threading.Lock()
     errors: list[str] = []
