@@ -250,7 +250,8 @@ def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
 
 
 def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
-    """History reads at ``--history-rows`` and at 1 % of them (1000 rows per component)."""
+    """History reads at ``--history-rows`` and at 1 % of them (1000 rows per component): p50
+    latency and the service's CPU per read, after one warm-up read."""
     out: dict[str, float] = {}
     for db, rows in zip(dbs, (args.history_rows // 100, args.history_rows), strict=True):
         out[f"fill_{rows}_s"] = fill(db, rows // 1000, steps=1000)
@@ -260,7 +261,10 @@ def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
         srv = start_server(db)
         try:
             path = "/api/v1/components/unit-0000000/history?limit=1000"
+            timed_reads(srv.port, token, path, 1, 1)  # warm-up: the first read of the file
+            cpu0 = srv.cpu_seconds()
             lat = timed_reads(srv.port, token, path, 1, args.reads)
+            out[f"history_{rows}_cpu_ms"] = (srv.cpu_seconds() - cpu0) / len(lat) * 1e3
         finally:
             srv.stop()
         out[f"history_{rows}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
@@ -407,7 +411,11 @@ def main() -> None:
                 print(f"history limit=1000: p50 {h[f'history_{small}_p50_ms']:.1f} ms at "
                       f"{small} rows, {h[f'history_{large}_p50_ms']:.1f} ms at {large} rows "
                       f"(filled in {h[f'fill_{large}_s']:.0f} s): ratio="
-                      f"{h[f'history_{large}_p50_ms'] / h[f'history_{small}_p50_ms']:.2f}")
+                      f"{h[f'history_{large}_p50_ms'] / h[f'history_{small}_p50_ms']:.2f}; "
+                      f"service CPU per read {h[f'history_{small}_cpu_ms']:.1f} and "
+                      f"{h[f'history_{large}_cpu_ms']:.1f} ms: ratio "
+                      f"{h[f'history_{large}_cpu_ms'] / h[f'history_{small}_cpu_ms']:.2f} "
+                      f"(after one warm-up read each); load average {os.getloadavg()[0]:.1f}")
     print(f"\nload average at end {os.getloadavg()[0]:.1f}")
 
 
