@@ -126,7 +126,8 @@ def main() -> None:
         _, token = sdb.create_token("read", "profile")
         many = _caller(create_app(sdb), token)
         n = args.repeats
-        print(f"# profile_page: {args.components} components (filled in {fill_s:.0f} s), "
+        size = sdb.summary()["total"]
+        print(f"# profile_page: {size} components (filled in {fill_s:.0f} s), "
               f"{n} requests each, load average {os.getloadavg()[0]:.1f}")
         for path in PATHS:
             many(path, 5)
