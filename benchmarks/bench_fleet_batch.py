@@ -96,6 +96,7 @@ def main() -> None:
                           dashboard_address=None) as lc, Client(lc) as client:
             dask = [run(d, tmp / "dask.db", client) for _ in range(args.repeats)]
         same = same_history(tmp / "serial.db", tmp / "dask.db")
+        size = sum(f.stat().st_size for f in tmp.glob("serial.db*"))
         sw, sc = statistics.median(r[0] for r in serial), statistics.median(r[1] for r in serial)
         dw = statistics.median(r[0] for r in dask)
         dc, dwk = statistics.median(r[1] for r in dask), statistics.median(r[2] for r in dask)
@@ -106,7 +107,8 @@ def main() -> None:
               f"{n / dw / (args.workers + 1):,.0f} per core ({args.workers} workers + merge)")
         print(f"ratio dask/serial wall = {dw / sw:.2f}; CPU per acquisition: serial "
               f"{sc / n * 1e6:.1f} us, dask {(dc + dwk) / n * 1e6:.1f} us; same history: "
-              f"{'yes' if same else 'NO'}; load average at end {os.getloadavg()[0]:.1f}")
+              f"{'yes' if same else 'NO'}; the serial database {size / n:.0f} bytes per "
+              f"acquisition; load average at end {os.getloadavg()[0]:.1f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

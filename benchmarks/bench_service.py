@@ -81,7 +81,7 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int,
         cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
         loop = srv.loop_cpu_seconds() - loop0
         cpu1 = srv.cpu_seconds()  # the pollers' GET alone, to part it from the batches' CPU
-        _reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
+        timed_reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
         get_cpu = (srv.cpu_seconds() - cpu1) / GET_SAMPLE
     finally:
         srv.stop()
@@ -185,6 +185,28 @@ def _cursor(port: int, token: str, query: str, depth: float) -> str | None:
     return body["next"]
 
 
+def served_over(port: int, route: str, bound: str = "0.05") -> int:
+    """Requests of ``route`` the service itself took longer than ``bound`` seconds to answer
+    so far (its ``/metrics`` histogram: from the app's first byte in to its last byte out,
+    so without the client's time, the connection and uvicorn's HTTP parsing)."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    try:
+        conn.request("GET", "/metrics")
+        text = conn.getresponse().read().decode()
+    finally:
+        conn.close()
+    head = f'rulkit_http_request_seconds_bucket{{method="GET",route="{route}",le='
+    total = under = 0
+    for line in text.splitlines():
+        if line.startswith(head):
+            le, n = line[len(head):].split("} ")
+            if le == f'"{bound}"':
+                under = int(n)
+            elif le == '"+Inf"':
+                total = int(n)
+    return total - under
+
+
 def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
     """p50/p99 and service CPU of a page of 50 for every sort x level filter x depth (by
     cursor), then of the middle page of the default order by offset (last: its seconds of
@@ -215,12 +237,14 @@ def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
                                   f"/api/v1/components?limit=50&{query}{after}"))
         kinds.append(("worst/all/middle_offset", f"/api/v1/components?limit=50&offset={n // 2}"))
         for label, path in kinds:
-            warm = _reads(srv.port, token, path, args.readers, args.warmup) \
+            warm = timed_reads(srv.port, token, path, args.readers, args.warmup) \
                 if args.warmup else [math.nan]
             out[f"{label}_warmup_ms"] = max(warm) * 1e3
+            over0 = served_over(srv.port, "/api/v1/components")
             cpu0, wall0 = srv.cpu_seconds(), time.perf_counter()
-            lat = _reads(srv.port, token, path, args.readers, args.reads)
+            lat = timed_reads(srv.port, token, path, args.readers, args.reads)
             cpu = srv.cpu_seconds() - cpu0
+            out[f"{label}_served_over"] = served_over(srv.port, "/api/v1/components") - over0
             out[f"{label}_cpu_ms"] = cpu / len(lat) * 1e3
             out[f"{label}_busy"] = cpu / (time.perf_counter() - wall0)
             out[f"{label}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
@@ -232,7 +256,8 @@ def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
 
 
 def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
-    """History reads at ``--history-rows`` and at 1 % of them (1000 rows per component)."""
+    """History reads at ``--history-rows`` and at 1 % of them (1000 rows per component): p50
+    latency and the service's CPU per read, after one warm-up read."""
     out: dict[str, float] = {}
     for db, rows in zip(dbs, (args.history_rows // 100, args.history_rows), strict=True):
         out[f"fill_{rows}_s"] = fill(db, rows // 1000, steps=1000)
@@ -242,14 +267,17 @@ def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
         srv = start_server(db)
         try:
             path = "/api/v1/components/unit-0000000/history?limit=1000"
-            lat = _reads(srv.port, token, path, 1, args.reads)
+            timed_reads(srv.port, token, path, 1, 1)  # warm-up: the first read of the file
+            cpu0 = srv.cpu_seconds()
+            lat = timed_reads(srv.port, token, path, 1, args.reads)
+            out[f"history_{rows}_cpu_ms"] = (srv.cpu_seconds() - cpu0) / len(lat) * 1e3
         finally:
             srv.stop()
         out[f"history_{rows}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
     return out
 
 
-def _reads(port: int, token: str, path: str, threads: int, per_thread: int) -> list[float]:
+def timed_reads(port: int, token: str, path: str, threads: int, per_thread: int) -> list[float]:
     lat: list[float] = []
     lock = threading.Lock()
     errors: list[str] = []
@@ -396,14 +424,17 @@ def main() -> None:
                       f"{os.getloadavg()[0]:.1f}:")
                 print(f"  (queue: {args.readers} readers x service CPU per page / "
                       f"{os.cpu_count()} cores, the latency if the pages only waited for CPU; "
-                      "busy: service CPU / wall time, 1.0 = one core)")
+                      "busy: service CPU / wall time, 1.0 = one core; served > 50 ms: of the "
+                      f"{args.readers * args.reads} timed requests, those the service's app "
+                      "itself took over 50 ms to answer, by its /metrics histogram)")
                 for kind in r["kinds"]:  # type: ignore[attr-defined]
                     cpu = r[f"{kind}_cpu_ms"]
                     print(f"  {kind:24s} p50 {r[f'{kind}_p50_ms']:7.1f} ms  p99 "
                           f"{r[f'{kind}_p99_ms']:7.1f} ms  service CPU {cpu:.1f} ms per "
                           f"request  queue {args.readers * cpu / (os.cpu_count() or 1):.0f} ms"
                           f"  busy {r[f'{kind}_busy']:.2f}  warm-up "
-                          f"{r[f'{kind}_warmup_ms']:.0f} ms")
+                          f"{r[f'{kind}_warmup_ms']:.0f} ms  served > 50 ms "
+                          f"{int(r[f'{kind}_served_over'])}")
                 by_cursor = [k for k in r["kinds"] if "offset" not in k]  # type: ignore[attr-defined]
                 worst = max(by_cursor, key=lambda k: r[f"{k}_p99_ms"])
                 cpu = np.median([r[f"{k}_cpu_ms"] for k in by_cursor])
@@ -418,7 +449,11 @@ def main() -> None:
                 print(f"history limit=1000: p50 {h[f'history_{small}_p50_ms']:.1f} ms at "
                       f"{small} rows, {h[f'history_{large}_p50_ms']:.1f} ms at {large} rows "
                       f"(filled in {h[f'fill_{large}_s']:.0f} s): ratio="
-                      f"{h[f'history_{large}_p50_ms'] / h[f'history_{small}_p50_ms']:.2f}")
+                      f"{h[f'history_{large}_p50_ms'] / h[f'history_{small}_p50_ms']:.2f}; "
+                      f"service CPU per read {h[f'history_{small}_cpu_ms']:.1f} and "
+                      f"{h[f'history_{large}_cpu_ms']:.1f} ms: ratio "
+                      f"{h[f'history_{large}_cpu_ms'] / h[f'history_{small}_cpu_ms']:.2f} "
+                      f"(after one warm-up read each); load average {os.getloadavg()[0]:.1f}")
     print(f"\nload average at end {os.getloadavg()[0]:.1f}")
 
 

@@ -6,8 +6,12 @@ Prints the CPU time per request of the whole app for a few pages, and for the de
 parts, each measured alone over the same repeats: the SQL of the page and its total, the items
 built from the rows, the JSON text, the token check (a query), and the rest (routing,
 parameters, the access log, a connection from the pool). ``--cprofile`` adds the functions
-with the most CPU time of their own. FastAPI runs a synchronous endpoint in a worker thread;
-here it runs in the event loop's thread, so one profiler sees the whole request.
+with the most CPU time of their own. ``--all-pages`` adds, for every page bench_service.py
+measures (sort x level filter x depth by cursor), the CPU of its SQL, total and items in
+process (best of 3), to tell a page slow in its query from one slow over HTTP; ``--db`` reads
+an existing database filled as bench_service.py fills it instead of filling one. FastAPI
+runs a synchronous endpoint in a worker thread; here it runs in the event loop's thread, so
+one profiler sees the whole request.
 
     .venv/bin/python benchmarks/profile_page.py --components 100000
 """
@@ -22,6 +26,7 @@ import pstats
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +34,7 @@ import orjson
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from bench_service import PAGE_RULES, fill
+from bench_service import DEPTHS, PAGE_RULES, fill
 
 PATHS = ("/api/v1/components?limit=50", "/api/v1/components?limit=50&sort=rul&level=ok",
          "/api/v1/components?limit=50&level=stale", "/api/v1/summary", "/healthz")
@@ -75,11 +80,33 @@ def cpu_ms(fn: Any, n: int) -> float:
     return (time.process_time() - t0) / n * 1e3
 
 
+def every_page(sdb: Any) -> None:
+    """The CPU of each page's SQL, total and items (:meth:`ServiceDB.components`), best of
+    3, for every sort x level filter x depth by cursor of bench_service.py's pages."""
+    now = time.time()
+    for sort in ("worst", "rul", "due"):
+        for level in (None, "alarm", "ok", "stale"):
+            total = sdb.components(limit=1, level=level, sort=sort, now=now)[0]
+            for depth, frac in DEPTHS.items():
+                after = None
+                if frac is not None:
+                    k = min(int(total * frac), max(total - 2, 0))
+                    after = sdb.components(limit=1, offset=k, level=level, sort=sort,
+                                           now=now)[2]
+                page = partial(sdb.components, limit=50, level=level, sort=sort, now=now,
+                               after=after)
+                ms = min(cpu_ms(page, 1) for _ in range(3))
+                label = f"{sort}/{level or 'all'}/{depth}"
+                print(f"  {label:24s} {ms:.2f} ms of CPU in process")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--components", type=int, default=100_000)
     ap.add_argument("--repeats", type=int, default=300)
     ap.add_argument("--cprofile", action="store_true")
+    ap.add_argument("--all-pages", action="store_true")
+    ap.add_argument("--db", help="An existing database filled as bench_service.py fills it.")
     args = ap.parse_args()
     import fastapi.routing
 
@@ -93,13 +120,14 @@ def main() -> None:
     from rulkit.fleet.store.prognosis import current_estimator
 
     with tempfile.TemporaryDirectory(prefix="rulkit-profile-") as tmp:
-        db = str(Path(tmp) / "pages.db")
-        fill_s = fill(db, args.components, steps=3, rules=PAGE_RULES)
+        db = args.db or str(Path(tmp) / "pages.db")
+        fill_s = 0.0 if args.db else fill(db, args.components, steps=3, rules=PAGE_RULES)
         sdb = ServiceDB(db)
         _, token = sdb.create_token("read", "profile")
         many = _caller(create_app(sdb), token)
         n = args.repeats
-        print(f"# profile_page: {args.components} components (filled in {fill_s:.0f} s), "
+        size = sdb.summary()["total"]
+        print(f"# profile_page: {size} components (filled in {fill_s:.0f} s), "
               f"{n} requests each, load average {os.getloadavg()[0]:.1f}")
         for path in PATHS:
             many(path, 5)
@@ -126,6 +154,8 @@ def main() -> None:
             many(PATHS[0], n)
             prof.disable()
             pstats.Stats(prof).sort_stats("tottime").print_stats(15)
+        if args.all_pages:
+            every_page(sdb)
         sdb.close()
 
 

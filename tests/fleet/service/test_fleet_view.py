@@ -90,6 +90,13 @@ def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level, mo
             _, skipped, _ = sdb.components(limit=2, offset=2, level=level, sort=sort,
                                            after=cur, now=NOW)
             assert [i["component"] for i in skipped] == want[5:7]
+        # offset from the start: across the levels' ranges, in ties, at and past the end
+        for off in sorted({1, 7, len(want) // 3, len(want) // 2, len(want) - 1, len(want),
+                           len(want) + 5}):
+            _, items, nxt = sdb.components(limit=4, offset=off, level=level, sort=sort,
+                                           now=NOW)
+            assert [i["component"] for i in items] == want[off:off + 4], (sort, level, off)
+            assert (nxt is None) == (len(want[off:off + 4]) < 4)
 
 
 def test_a_cursor_of_another_sort_or_forged_is_refused(sdb):
@@ -98,6 +105,19 @@ def test_a_cursor_of_another_sort_or_forged_is_refused(sdb):
     for bad in (cur, "bm90IGEgY3Vyc29y", "!!", ""):
         with pytest.raises(CursorError, match="cursor"):
             sdb.components(limit=5, sort="due", after=bad, now=NOW)
+
+
+def test_a_cursor_past_the_filters_levels_gives_an_empty_page(sdb):
+    """In ``worst`` order every alarm precedes every ok component: after an ok one's cursor
+    no alarm is left, by cursor or by offset."""
+    fleet(sdb, 30)
+    _, _, cur = sdb.components(limit=2, level="ok", sort="worst", now=NOW)
+    alarms, _, _ = sdb.components(limit=1, level="alarm", now=NOW)
+    assert alarms > 0 and cur is not None
+    for offset in (0, 1):
+        total, items, nxt = sdb.components(limit=5, offset=offset, level="alarm",
+                                           sort="worst", after=cur, now=NOW)
+        assert (total, items, nxt) == (alarms, [], None)
 
 
 @pytest.mark.parametrize("level", [None, "ok", "stale"])

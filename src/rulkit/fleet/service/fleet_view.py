@@ -102,6 +102,44 @@ def _stale_filter(level: str | None, est: Estimator, now: float) -> tuple[str, l
     return ("1 = 0", []) if after is None else ("seen < ?", [now - after])
 
 
+def _ranges(sort: str, level: str | None, est: Estimator, now: float,
+            key: list[Any] | None, dialect: str) -> list[tuple[str, list[Any], str]]:
+    """The ranges of a page in ``sort`` order after ``key`` (:func:`page_query`): (condition,
+    parameters, order) of each, every one of one level; for ``worst`` in the page's order."""
+    cond, params = _stale_filter(level, est, now)
+    k, order = SORTS[sort][0], ", ".join(SORTS[sort])
+    levels = [LEVEL_CODES[level]] if level in LEVEL_CODES else [2, 1, 0]
+    ranges: list[tuple[str, list[Any], str]] = []
+    for lv in levels:
+        where, p = f"{cond} AND level = ?", [*params, lv]
+        if key is None or (sort == "worst" and lv < key[0]):
+            ranges.append((where, p, order))
+        elif dialect == "postgresql" and (sort != "worst" or lv == key[0]):
+            ranges.append((f"{where} AND ({k}, component) > (?, ?)", [*p, key[1], key[2]],
+                           order))
+        elif sort != "worst" or lv == key[0]:  # ordered by id alone: the key is fixed
+            ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]],
+                        "component"),
+                       (f"{where} AND {k} > ?", [*p, key[1]], order)]
+    return ranges
+
+
+def _ranges_query(cols: str, outer_order: str, ranges: list[tuple[str, list[Any], str]],
+                  sort: str, n: int, skip: int = 0) -> tuple[str, list[Any]]:
+    """SQL and parameters of rows ``skip`` to ``skip + n`` of the union of ``ranges`` (each
+    stops after ``skip + n`` rows), selecting ``cols``, merged by ``outer_order``."""
+    tail = f"LIMIT {int(n)}" + (f" OFFSET {int(skip)}" if skip else "")
+    args = [v for _, p, _ in ranges for v in p]
+    if len(ranges) <= 1:  # none: a cursor of a level before the filter's, in worst order
+        w, _, o = ranges[0] if ranges else ("1 = 0", [], "component")
+        return f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} {tail}", args
+    parts = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} LIMIT {int(n + skip)}"
+             for w, _, o in ranges]
+    union = " UNION ALL ".join(f"SELECT * FROM ({q}) AS p{i}" for i, q in enumerate(parts))
+    lead = "level DESC, " if sort == "worst" else ""
+    return f"SELECT * FROM ({union}) AS page ORDER BY {lead}{outer_order} {tail}", args
+
+
 def page_query(sort: str, level: str | None, est: Estimator, now: float,
                key: list[Any] | None, n: int, dialect: str = "sqlite"
                ) -> tuple[str, list[Any]]:
@@ -120,30 +158,22 @@ def page_query(sort: str, level: str | None, est: Estimator, now: float,
     alarms), which the planner's estimates take as independent, so with an index of the key
     alone it reads the ``ok`` rows of a key order past every alarm, and for a tie of an
     unknown RUL it walks the primary key past every later id, filtering them one by one."""
-    cols = ", ".join((*FIELDS, "due"))
-    cond, params = _stale_filter(level, est, now)
-    k, order = SORTS[sort][0], ", ".join(SORTS[sort])
-    levels = [LEVEL_CODES[level]] if level in LEVEL_CODES else [2, 1, 0]
-    ranges: list[tuple[str, list[Any], str]] = []  # (condition, parameters, order)
-    for lv in levels:
-        where, p = f"{cond} AND level = ?", [*params, lv]
-        if key is None or (sort == "worst" and lv < key[0]):
-            ranges.append((where, p, order))
-        elif dialect == "postgresql" and (sort != "worst" or lv == key[0]):
-            ranges.append((f"{where} AND ({k}, component) > (?, ?)", [*p, key[1], key[2]],
-                           order))
-        elif sort != "worst" or lv == key[0]:  # ordered by id alone: the key is fixed
-            ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]],
-                        "component"),
-                       (f"{where} AND {k} > ?", [*p, key[1]], order)]
-    parts = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} LIMIT {int(n)}"
-             for w, _, o in ranges]
-    args = [v for _, p, _ in ranges for v in p]
-    if len(parts) == 1:
-        return parts[0], args
-    union = " UNION ALL ".join(f"SELECT * FROM ({q}) AS p{i}" for i, q in enumerate(parts))
-    lead = "level DESC, " if sort == "worst" else ""
-    return f"SELECT * FROM ({union}) AS page ORDER BY {lead}{order} LIMIT {int(n)}", args
+    ranges = _ranges(sort, level, est, now, key, dialect)
+    return _ranges_query(", ".join((*FIELDS, "due")), ", ".join(SORTS[sort]), ranges, sort, n)
+
+
+def skip_query(sort: str, level: str | None, est: Estimator, now: float,
+               key: list[Any] | None, offset: int, dialect: str = "sqlite"
+               ) -> tuple[str, list[Any]]:
+    """SQL and parameters of the key ``[level, sort key, id]`` of the ``offset``-th
+    component (from 1) in ``sort`` order after ``key``, as :func:`page_query` orders them:
+    the same ranges, each reading only the columns of its order's index (on SQLite a walk of
+    that index alone, without the table's rows), so that a page by ``offset`` is the page
+    after that key."""
+    k = SORTS[sort][0]
+    ranges = _ranges(sort, level, est, now, key, dialect)
+    return _ranges_query(f"level, {k} AS k, component", "k, component", ranges, sort, 1,
+                         offset - 1)
 
 
 STALE_BY_SEEN = 2000
@@ -247,16 +277,23 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     """(total matching, one page in the order ``sort`` of :data:`SORTS`, the cursor of the
     next page or ``None`` after the last); ``level`` one of ok, warning, alarm or stale
     (``None``: all). ``after``: a cursor this function returned (keyset: any page costs what
-    the first does); ``offset`` then skips rows (its cost grows with it)."""
+    the first does); ``offset`` then skips rows: read in their order's index alone
+    (:func:`skip_query`), then the page after the last one skipped, so its cost grows with
+    the offset but no skipped row is fetched into Python."""
     key = None if after is None else decode_cursor(after, sort)
     total = level_total(conn, level, est, now)
     stale_after = est.rules.stale_after
+    dialect = getattr(conn, "dialect", "sqlite")
     if level == "stale" and stale_after is not None and total <= STALE_BY_SEEN:
         sql, params = stale_page_query(sort, now - stale_after, key, offset + limit)
+        rows = conn.execute(sql, params).fetchall()[offset:]
     else:
-        sql, params = page_query(sort, level, est, now, key, offset + limit,
-                                 getattr(conn, "dialect", "sqlite"))
-    rows = conn.execute(sql, params).fetchall()[offset:]
+        if offset:  # the rows skipped read in their order's index alone, then a page after
+            row = conn.execute(*skip_query(sort, level, est, now, key, offset, dialect)
+                               ).fetchone()
+            key = None if row is None else [int(row[0]), float(row[1]), row[2]]
+        sql, params = page_query(sort, level, est, now, key, limit, dialect)
+        rows = [] if offset and key is None else conn.execute(sql, params).fetchall()
     nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
     items = component_items([r[:len(FIELDS)] for r in rows], est, now)
     return total, items, nxt
@@ -331,5 +368,5 @@ def time_origin(item: dict[str, Any], est: Estimator) -> float | None:
 
 __all__ = ["FIELDS", "SORTS", "STALE_BY_SEEN", "CursorError", "component_item",
            "component_items", "cursor_of", "decode_cursor", "forecast", "level_total",
-           "list_components", "num", "page_query", "stale_page_query", "stale_total",
+           "list_components", "num", "page_query", "skip_query", "stale_page_query", "stale_total",
            "summary", "time_origin"]
