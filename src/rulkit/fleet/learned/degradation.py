@@ -210,6 +210,12 @@ class DegradationModel:
         return float(transform(self.kind, self.shape, np.array([1.0]))[0])
 
     @property
+    def measured_var(self) -> float:
+        """sigma_e^2: the variance of a measurement on the transformed scale, where a reading
+        is >= 1 exactly when it is >= g(1) (the RUL's first measured crossing, eq. (5b))."""
+        return self.noise_sd**2
+
+    @property
     def paris_exponent(self) -> float:
         """m = 2 (1 - lam) for the paris model (NaN otherwise)."""
         return 2.0 * (1.0 - self.shape) if self.kind == "paris" else math.nan
@@ -389,41 +395,54 @@ def _filter_kernel(*args: Any) -> None:
 
 
 # ------------------------------------------------------------------------------ RUL
-def _log_surv(m: FloatArray, p: FloatArray, w: FloatArray, q: float, zs: float) -> FloatArray:
-    """log S(w): log P(z(x0 + w) < g(1)) under the state (eq. (5))."""
+def _event(model: Any, state: UnitState) -> tuple[float, FloatArray]:
+    """The measurement sd at the threshold (``model.measured_var``; 0 for a model without
+    one: eq. (5) of the latent level) and each unit's cadence in scaled time, derived from its
+    state: its mean interval since age 0, t / n (inf before two acquisitions or at age <= 0:
+    one reading)."""
+    s = math.sqrt(float(getattr(model, "measured_var", 0.0)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = state.t / np.maximum(state.n, 1) / model.time_scale
+    return s, np.where((state.n >= 2) & (d > 0), d, np.inf)
+
+
+def _log_surv(model: Any, state: UnitState, w: FloatArray, s: float,
+              delta: FloatArray) -> FloatArray:
+    """log S(w): log P(no reading >= 1 up to the scaled horizon w) (eq. (5b))."""
     from scipy.special import log_ndtr
 
-    num = m[:, 0] + m[:, 1] * w - zs
-    var = p[:, 0] + 2.0 * w * p[:, 1] + w * w * p[:, 2] + q * w
-    return log_ndtr(-num / np.sqrt(np.maximum(var, 1e-300)))
+    from rulkit.fleet.learned.first_passage import level_terms
+
+    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w)
+    return log_ndtr(-num / sd)
 
 
-def _measured(model: Any, state: UnitState) -> UnitState:
-    """The state with the measurement noise at the threshold added to the level's variance
-    (``model.measured_var``, 0 for the transformed models): the RUL is then that of the
-    first measurement >= 1 (eq. (5) on the measured HI), the event that ends a run-to-failure
-    history."""
-    r = float(getattr(model, "measured_var", 0.0))
-    if r == 0.0:
-        return state
-    p = state.p.copy()
-    p[:, 0] += r
-    return UnitState(m=state.m, p=p, t=state.t, hi=state.hi, n=state.n)
+def _reference(model: Any, state: UnitState, s: float, delta: FloatArray) -> FloatArray:
+    """log of the survival the RUL's is relative to: 0 for the first measured crossing over a
+    known cadence (the posterior already holds the last reading < 1; eq. (5b)); log S(0) for
+    the latent level (s = 0) or one reading (no cadence), eq. (5)'s S(r) / S(0)."""
+    ls0 = _log_surv(model, state, np.zeros(len(state)), s, delta)
+    return np.where((s > 0) & np.isfinite(delta), 0.0, ls0)
 
 
 def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
-    """P(RUL <= r) (eq. (5)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1."""
-    from scipy.special import log_ndtr
-
-    q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
-    state = _measured(model, state)
-    w = np.asarray(r, dtype=np.float64) / tau
-    ls0 = log_ndtr(-(state.m[:, 0] - zs) / np.sqrt(state.p[:, 0]))
-    out = np.empty_like(w)
-    with np.errstate(invalid="ignore"):  # NaN horizons (units without acquisitions) stay NaN
+    """P(RUL <= r) (eq. (5b)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1. Within
+    one cadence step d of the last acquisition, where the truth interpolates the crossing
+    between the last reading and the first, the CDF is that of one measurement (eq. (5),
+    S(r)/S(0)) scaled to reach the first reading's probability at d."""
+    w = np.asarray(r, dtype=np.float64) / model.time_scale
+    s, delta = _event(model, state)
+    ref = _reference(model, state, s, delta)
+    one = np.full(len(state), np.inf)
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN horizons stay NaN
+        first = 1.0 - np.exp(np.minimum(_log_surv(model, state, delta, s, delta) - ref, 0.0))
+        ls1 = _log_surv(model, state, np.zeros(len(state)), s, one)
+        g_first = -np.expm1(np.minimum(_log_surv(model, state, delta, s, one) - ls1, 0.0))
+        out = np.empty_like(w)
         for k in range(w.shape[1]):
-            out[:, k] = 1.0 - np.exp(np.minimum(
-                _log_surv(state.m, state.p, w[:, k], q, zs) - ls0, 0.0))
+            f = 1.0 - np.exp(np.minimum(_log_surv(model, state, w[:, k], s, delta) - ref, 0.0))
+            g = -np.expm1(np.minimum(_log_surv(model, state, w[:, k], s, one) - ls1, 0.0))
+            out[:, k] = np.where(w[:, k] < delta, first * g / g_first, f)
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
@@ -431,44 +450,89 @@ def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
 def rul_quantiles(model: GrowthLaw, state: UnitState,
                   levels: tuple[float, ...] = (0.5, 0.05, 0.95), *,
                   method: str = "closed-form", iterations: int = 48) -> tuple[FloatArray, ...]:
-    """Quantiles of eq. (5); see :meth:`DegradationModel.rul_quantiles`.
+    """Quantiles of eq. (5b); see :meth:`DegradationModel.rul_quantiles`.
 
-    A level p is reached where log S(w) = log S(0) + log(1 - p) = L, i.e. where
+    A level p beyond the first reading's probability is reached where
+    log S(w) = log S_ref + log(1 - p) = L (:func:`_reference`), i.e. where
     h(w) = (A + B w) / sqrt(P_zz + 2 w P_zb + w^2 P_bb + sigma_w^2 w) equals
-    c = -Phi^-1(exp(L)) (A = m_z - g(1), B = m_b). Squaring gives a quadratic in w (eq. (6)):
+    c = -Phi^-1(exp(L)) (A = m_z - g(1) - s mu*, B = m_b, P_zz raised by s^2 sigma*^2, eq. (5b)).
+    Squaring gives a quadratic in w (eq. (6)):
 
         (B^2 - c^2 P_bb) w^2 + (2 A B - c^2 (2 P_zb + sigma_w^2)) w + A^2 - c^2 P_zz = 0,
 
     whose smallest root w >= 0 with sign(A + B w) = sign(c) is the quantile
-    (``method="closed-form"``, the default). ``method="bisect"``: bisection on u in (0, 1),
-    w = W u / (1 - u), W = max(x0, 1), ``iterations`` halvings (the reference of the tests).
-    A level beyond the failing mass 1 - S(inf)/S(0), S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf.
+    (``method="closed-form"``, the default), with (mu*, sigma*) re-read at the root
+    :data:`~rulkit.fleet.learned.first_passage.FIXED_POINT` times. ``method="bisect"``:
+    bisection on u in (0, 1), w = W u / (1 - u), W = max(x0, 1), ``iterations`` halvings of
+    eq. (5b) itself (the reference of the tests). A level below the first reading's
+    probability is on the CDF's linear part (:func:`rul_cdf`); one beyond the failing mass
+    1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf.
     """
     from scipy.special import log_ndtr, ndtri
 
     if method not in ("closed-form", "bisect"):
         raise ValueError(f"method: expected 'closed-form' or 'bisect', got {method!r}")
-    q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
-    state = _measured(model, state)
+    tau = model.time_scale
+    s, delta = _event(model, state)
     m, p = state.m, state.p
     failed = state.hi >= 1.0
     missing = state.n == 0
     out = []
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        ls0 = log_ndtr(-(m[:, 0] - zs) / np.sqrt(p[:, 0]))
+        ref = _reference(model, state, s, delta)
+        first = -np.expm1(np.minimum(_log_surv(model, state, delta, s, delta) - ref, 0.0))
+        first = np.where(np.isfinite(delta), first, 0.0)
         ls_inf = log_ndtr(-m[:, 1] / np.sqrt(p[:, 2]))
         x0 = np.where(state.n > 0, state.t, 0.0) / tau
         for lev in levels:
-            target = ls0 + math.log1p(-lev)
+            target = ref + math.log1p(-lev)
             never = target <= ls_inf
             if method == "bisect":
-                w = _bisect(m, p, q, zs, target, np.maximum(np.abs(x0), 1.0), iterations)
+                w = _bisect(lambda w: _log_surv(model, state, w, s, delta), target,
+                            np.maximum(np.abs(x0), 1.0), iterations)
             else:
-                w = _quadratic_root(m, p, q, zs, target, ndtri)
+                w = _fixed_point(model, state, s, delta, target, ndtri)
+            w = np.where(lev <= first, _within_first(model, state, s, lev / first, ndtri),
+                         w)
             r = np.where(never, np.inf, np.maximum(w, 0.0) * tau)
             r = np.where(failed, 0.0, r)
             out.append(np.where(missing, np.nan, r))
     return monotone_in_level(levels, out)
+
+
+def _within_first(model: GrowthLaw, state: UnitState, s: float, frac: FloatArray,
+                  ndtri: Any) -> FloatArray:
+    """The quantile on the first cadence step (:func:`rul_cdf`): one measurement's eq. (5)
+    at the level ``frac`` of its own probability by the first reading."""
+    one = np.full(len(state), np.inf)
+    d = _event(model, state)[1]
+    ls1 = _log_surv(model, state, np.zeros(len(state)), s, one)
+    g_first = -np.expm1(np.minimum(_log_surv(model, state, d, s, one) - ls1, 0.0))
+    target = ls1 + np.log1p(-np.clip(frac * g_first, 0.0, 1.0))
+    return np.minimum(_fixed_point(model, state, s, one, target, ndtri), d)
+
+
+def _fixed_point(model: GrowthLaw, state: UnitState, s: float, delta: FloatArray,
+                 target: FloatArray, ndtri: Any) -> FloatArray:
+    """Eq. (6)'s root with (mu*, sigma*) of eq. (5b) re-read at it (one pass when s = 0)."""
+    from rulkit.fleet.learned.first_passage import FIXED_POINT, rise, ystar_moments
+
+    q, zs = model.walk_sd**2, model.threshold
+    m, p = state.m, state.p
+    mu, sig = np.zeros(len(state)), np.ones(len(state))
+    w = np.zeros(len(state))
+    for _ in range(FIXED_POINT if s > 0 else 1):
+        pe = p.copy()
+        pe[:, 0] = p[:, 0] + s * s * sig * sig
+        w = _quadratic_root(m, pe, q, zs + s * mu, target, ndtri)
+        if s == 0.0:
+            break
+        wf = np.where(np.isfinite(w), w, 0.0)
+        a = m[:, 0] - zs + m[:, 1] * wf
+        v = np.maximum(p[:, 0] + 2.0 * wf * p[:, 1] + wf * wf * p[:, 2] + q * wf, 1e-300)
+        rate = m[:, 1] - (p[:, 1] + wf * p[:, 2]) * a / v
+        mu, sig = ystar_moments(rise(rate, delta, s), np.maximum(wf / delta, 1.0))
+    return w
 
 
 def monotone_in_level(levels: tuple[float, ...], quantiles: list[FloatArray]
@@ -486,20 +550,20 @@ def monotone_in_level(levels: tuple[float, ...], quantiles: list[FloatArray]
     return tuple(out)
 
 
-def _bisect(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
-            w_scale: FloatArray, iterations: int) -> FloatArray:
-    lo = np.zeros(m.shape[0])
-    hi = np.ones(m.shape[0])
+def _bisect(log_surv: Any, target: FloatArray, w_scale: FloatArray,
+            iterations: int) -> FloatArray:
+    lo = np.zeros(target.shape[0])
+    hi = np.ones(target.shape[0])
     for _ in range(iterations):
         u = 0.5 * (lo + hi)
-        above = _log_surv(m, p, w_scale * u / (1.0 - u), q, zs) > target
+        above = log_surv(w_scale * u / (1.0 - u)) > target
         lo = np.where(above, u, lo)
         hi = np.where(above, hi, u)
     u = 0.5 * (lo + hi)
     return w_scale * u / (1.0 - u)
 
 
-def _quadratic_root(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
+def _quadratic_root(m: FloatArray, p: FloatArray, q: float, zs: Any, target: FloatArray,
                     ndtri: Any) -> FloatArray:
     """The smallest admissible root of eq. (6) (see :func:`rul_quantiles`); 0 if the level is
     already reached at w = 0, +inf if no root (the caller masks the never-failing levels)."""
