@@ -75,7 +75,7 @@ def _log_survival(c: float, j: FloatArray, cont: FloatArray, fine: FloatArray
     beyond by the integral ``cont`` (cumulative, on the grid ``fine`` of c k)."""
     from scipy.special import log_ndtr
 
-    n = min(_EXACT, int(math.ceil(j.max())))
+    n = min(_EXACT, math.ceil(j.max()))
     terms = np.cumsum(log_ndtr(c * np.arange(n)[:, None] - _Y[None, :]), axis=0)
     lo = np.clip(np.floor(j).astype(np.int64), 1, n)
     hi = np.clip(lo + 1, 1, n)
@@ -158,4 +158,5 @@ def level_terms(m: FloatArray, p: FloatArray, q: float, zs: float, s: float,
     return a - s * mu, np.sqrt(np.maximum(v + s * s * sig * sig, 1e-300))
 
 
-__all__ = ["C_MAX", "C_MIN", "FIXED_POINT", "J_MAX", "U_MAX", "level_terms", "rise", "ystar_moments", "ystar_table"]
+__all__ = ["C_MAX", "C_MIN", "FIXED_POINT", "J_MAX", "U_MAX", "level_terms", "rise",
+           "ystar_moments", "ystar_table"]
