@@ -221,7 +221,7 @@ class DegradationModel:
         return 2.0 * (1.0 - self.shape) if self.kind == "paris" else math.nan
 
     def rul_quantiles(self, state: UnitState, levels: tuple[float, ...] = (0.5, 0.05, 0.95),
-                      *, method: str = "closed-form") -> tuple[FloatArray, ...]:
+                      *, method: str = "compiled") -> tuple[FloatArray, ...]:
         """RUL quantiles (file time unit) per unit at its last acquisition, eq. (5).
 
         >= 0 always; +inf where the level lies in the never-failing (censored) mass; 0 once the
@@ -442,97 +442,74 @@ def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
         for k in range(w.shape[1]):
             f = 1.0 - np.exp(np.minimum(_log_surv(model, state, w[:, k], s, delta) - ref, 0.0))
             g = -np.expm1(np.minimum(_log_surv(model, state, w[:, k], s, one) - ls1, 0.0))
-            out[:, k] = np.where(w[:, k] < delta, first * g / g_first, f)
+            # the shape of one measurement's CDF on the step (linear where it stays 0)
+            shape = np.where(g_first > 0, g / np.where(g_first > 0, g_first, 1.0),
+                             w[:, k] / delta)
+            out[:, k] = np.where((w[:, k] < delta) & np.isfinite(delta), first * shape, f)
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
 
 def rul_quantiles(model: GrowthLaw, state: UnitState,
                   levels: tuple[float, ...] = (0.5, 0.05, 0.95), *,
-                  method: str = "closed-form", iterations: int = 48) -> tuple[FloatArray, ...]:
+                  method: str = "compiled", iterations: int = 200) -> tuple[FloatArray, ...]:
     """Quantiles of eq. (5b); see :meth:`DegradationModel.rul_quantiles`.
 
-    A level p beyond the first reading's probability is reached where
-    log S(w) = log S_ref + log(1 - p) = L (:func:`_reference`), i.e. where
-    h(w) = (A + B w) / sqrt(P_zz + 2 w P_zb + w^2 P_bb + sigma_w^2 w) equals
-    c = -Phi^-1(exp(L)) (A = m_z - g(1) - s mu*, B = m_b, P_zz raised by s^2 sigma*^2, eq. (5b)).
-    Squaring gives a quadratic in w (eq. (6)):
-
-        (B^2 - c^2 P_bb) w^2 + (2 A B - c^2 (2 P_zb + sigma_w^2)) w + A^2 - c^2 P_zz = 0,
-
-    whose smallest root w >= 0 with sign(A + B w) = sign(c) is the quantile
-    (``method="closed-form"``, the default), with (mu*, sigma*) re-read at the root
-    :data:`~rulkit.fleet.learned.first_passage.FIXED_POINT` times. ``method="bisect"``:
-    bisection on u in (0, 1), w = W u / (1 - u), W = max(x0, 1), ``iterations`` halvings of
-    eq. (5b) itself (the reference of the tests). A level below the first reading's
-    probability is on the CDF's linear part (:func:`rul_cdf`); one beyond the failing mass
+    A level p beyond the first reading's probability F(d) is reached where
+    log S(w) = log S_ref + log(1 - p) (:func:`_reference`), searched from the first reading
+    on; a level p <= F(d) where one measurement's CDF (eq. (5)) reaches p / F(d) of its value
+    at d (:func:`rul_cdf`). ``method="compiled"`` (the default): bisection per unit on
+    u in (0, 1), w = w_0 + W u / (1 - u), W = max(w_0, 1), ``iterations`` halvings
+    (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
+    ``method="bisect"``: the same search vectorised over units in numpy, from the CDF of
+    :func:`rul_cdf` (the reference of the tests). A level beyond the failing mass
     1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf.
     """
-    from scipy.special import log_ndtr, ndtri
-
-    if method not in ("closed-form", "bisect"):
-        raise ValueError(f"method: expected 'closed-form' or 'bisect', got {method!r}")
+    if method not in ("compiled", "bisect"):
+        raise ValueError(f"method: expected 'compiled' or 'bisect', got {method!r}")
     tau = model.time_scale
     s, delta = _event(model, state)
-    m, p = state.m, state.p
-    failed = state.hi >= 1.0
-    missing = state.n == 0
+    if method == "bisect":
+        w = _bisect_levels(model, state, levels, iterations)
+    else:
+        from rulkit.fleet.learned.filter_kernels import first_passage_quantiles
+        from rulkit.fleet.learned.first_passage import kernel_table
+
+        w = np.empty((len(levels), len(state)))
+        first_passage_quantiles(np.ascontiguousarray(state.m), np.ascontiguousarray(state.p),
+                                delta, model.walk_sd**2, model.threshold, s,
+                                np.asarray(levels, dtype=np.float64), *kernel_table(),
+                                iterations, w)
     out = []
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        ref = _reference(model, state, s, delta)
-        first = -np.expm1(np.minimum(_log_surv(model, state, delta, s, delta) - ref, 0.0))
-        first = np.where(np.isfinite(delta), first, 0.0)
-        ls_inf = log_ndtr(-m[:, 1] / np.sqrt(p[:, 2]))
-        x0 = np.where(state.n > 0, state.t, 0.0) / tau
-        for lev in levels:
-            target = ref + math.log1p(-lev)
-            never = target <= ls_inf
-            if method == "bisect":
-                w = _bisect(lambda w: _log_surv(model, state, w, s, delta), target,
-                            np.maximum(np.abs(x0), 1.0), iterations)
-            else:
-                w = _fixed_point(model, state, s, delta, target, ndtri)
-            w = np.where(lev <= first, _within_first(model, state, s, lev / first, ndtri),
-                         w)
-            r = np.where(never, np.inf, np.maximum(w, 0.0) * tau)
-            r = np.where(failed, 0.0, r)
-            out.append(np.where(missing, np.nan, r))
+    for k in range(len(levels)):
+        r = np.where(state.hi >= 1.0, 0.0, np.maximum(w[k], 0.0) * tau)
+        out.append(np.where(state.n == 0, np.nan, r))
     return monotone_in_level(levels, out)
 
 
-def _within_first(model: GrowthLaw, state: UnitState, s: float, frac: FloatArray,
-                  ndtri: Any) -> FloatArray:
-    """The quantile on the first cadence step (:func:`rul_cdf`): one measurement's eq. (5)
-    at the level ``frac`` of its own probability by the first reading."""
-    one = np.full(len(state), np.inf)
-    d = _event(model, state)[1]
-    ls1 = _log_surv(model, state, np.zeros(len(state)), s, one)
-    g_first = -np.expm1(np.minimum(_log_surv(model, state, d, s, one) - ls1, 0.0))
-    target = ls1 + np.log1p(-np.clip(frac * g_first, 0.0, 1.0))
-    return np.minimum(_fixed_point(model, state, s, one, target, ndtri), d)
+def _bisect_levels(model: GrowthLaw, state: UnitState, levels: tuple[float, ...],
+                   iterations: int) -> FloatArray:
+    """Each level's horizon (scaled) by bisection of :func:`rul_cdf` over all units at once;
+    +inf beyond the failing mass."""
+    from scipy.special import log_ndtr
 
-
-def _fixed_point(model: GrowthLaw, state: UnitState, s: float, delta: FloatArray,
-                 target: FloatArray, ndtri: Any) -> FloatArray:
-    """Eq. (6)'s root with (mu*, sigma*) of eq. (5b) re-read at it (one pass when s = 0)."""
-    from rulkit.fleet.learned.first_passage import FIXED_POINT, rise, ystar_moments
-
-    q, zs = model.walk_sd**2, model.threshold
-    m, p = state.m, state.p
-    mu, sig = np.zeros(len(state)), np.ones(len(state))
-    w = np.zeros(len(state))
-    for _ in range(FIXED_POINT if s > 0 else 1):
-        pe = p.copy()
-        pe[:, 0] = p[:, 0] + s * s * sig * sig
-        w = _quadratic_root(m, pe, q, zs + s * mu, target, ndtri)
-        if s == 0.0:
-            break
-        wf = np.where(np.isfinite(w), w, 0.0)
-        a = m[:, 0] - zs + m[:, 1] * wf
-        v = np.maximum(p[:, 0] + 2.0 * wf * p[:, 1] + wf * wf * p[:, 2] + q * wf, 1e-300)
-        rate = m[:, 1] - (p[:, 1] + wf * p[:, 2]) * a / v
-        mu, sig = ystar_moments(rise(rate, delta, s), np.maximum(wf / delta, 1.0))
-    return w
+    tau = model.time_scale
+    x0 = np.where(state.n > 0, state.t, 0.0) / tau
+    scale = np.maximum(np.abs(x0), 1.0)
+    s, delta = _event(model, state)
+    ls_inf = log_ndtr(-state.m[:, 1] / np.sqrt(state.p[:, 2]))
+    ref = _reference(model, state, s, delta)
+    out = np.empty((len(levels), len(state)))
+    for k, lev in enumerate(levels):
+        lo, hi = np.zeros(len(state)), np.ones(len(state))
+        for _ in range(iterations):
+            u = 0.5 * (lo + hi)
+            below = rul_cdf(model, state, (scale * u / (1.0 - u) * tau)[:, None])[:, 0] < lev
+            lo, hi = np.where(below, u, lo), np.where(below, hi, u)
+        u = 0.5 * (lo + hi)
+        never = ref + math.log1p(-lev) <= ls_inf
+        out[k] = np.where(never, np.inf, scale * u / (1.0 - u))
+    return out
 
 
 def monotone_in_level(levels: tuple[float, ...], quantiles: list[FloatArray]
@@ -548,46 +525,6 @@ def monotone_in_level(levels: tuple[float, ...], quantiles: list[FloatArray]
     out = np.empty_like(q)
     out[order] = q
     return tuple(out)
-
-
-def _bisect(log_surv: Any, target: FloatArray, w_scale: FloatArray,
-            iterations: int) -> FloatArray:
-    lo = np.zeros(target.shape[0])
-    hi = np.ones(target.shape[0])
-    for _ in range(iterations):
-        u = 0.5 * (lo + hi)
-        above = log_surv(w_scale * u / (1.0 - u)) > target
-        lo = np.where(above, u, lo)
-        hi = np.where(above, hi, u)
-    u = 0.5 * (lo + hi)
-    return w_scale * u / (1.0 - u)
-
-
-def _quadratic_root(m: FloatArray, p: FloatArray, q: float, zs: Any, target: FloatArray,
-                    ndtri: Any) -> FloatArray:
-    """The smallest admissible root of eq. (6) (see :func:`rul_quantiles`); 0 if the level is
-    already reached at w = 0, +inf if no root (the caller masks the never-failing levels)."""
-    # c = -Phi^-1(S): precise near S = 1 through 1 - S = -expm1(log S)
-    c = np.where(target > -0.6931471805599453, ndtri(-np.expm1(target)), -ndtri(np.exp(target)))
-    a_, b_ = m[:, 0] - zs, m[:, 1]
-    c2 = c * c
-    a2 = b_ * b_ - c2 * p[:, 2]
-    a1 = 2.0 * a_ * b_ - c2 * (2.0 * p[:, 1] + q)
-    a0 = a_ * a_ - c2 * p[:, 0]
-    disc = np.maximum(a1 * a1 - 4.0 * a2 * a0, 0.0)
-    sq = np.sqrt(disc)
-    # numerically stable pair of roots
-    qq = -0.5 * (a1 + np.copysign(sq, a1))
-    r1 = qq / a2
-    r2 = a0 / qq
-    lin = np.abs(a2) <= 1e-14 * (np.abs(a1) + np.abs(a0) + 1e-300)
-    r_lin = -a0 / a1
-    cands = np.stack([np.where(lin, r_lin, r1), np.where(lin, np.inf, r2)])
-    ok = (cands >= 0) & np.isfinite(cands)
-    num = a_ + b_ * cands  # the crossing's sign must be that of c (squaring lost it)
-    ok &= (np.sign(num) == np.sign(c)) | (np.abs(num) <= 1e-7 * (np.abs(a_) + np.abs(b_ * cands)))
-    w = np.where(ok, cands, np.inf).min(axis=0)
-    return np.where(target >= 0.0, 0.0, w)
 
 
 def crps(model: Any, state: Any, y: FloatArray, cap: float,

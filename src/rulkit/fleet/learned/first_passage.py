@@ -64,7 +64,7 @@ def _moments(log_g: FloatArray) -> tuple[FloatArray, FloatArray]:
     y = np.concatenate([[_Y[0] - 0.5 * (_Y[1] - _Y[0])], 0.5 * (_Y[1:] + _Y[:-1]),
                         [_Y[-1] + 0.5 * (_Y[1] - _Y[0])]])
     mean = mass @ y
-    var = mass @ (y * y) - mean * mean
+    var = mass @ (y * y) - mean * mean - (_Y[1] - _Y[0]) ** 2 / 12.0  # Sheppard's correction
     return mean, np.sqrt(np.maximum(var, 1e-12))
 
 
@@ -109,6 +109,7 @@ def ystar_table() -> tuple[FloatArray, FloatArray]:
     for i, c in enumerate(np.exp(_LOG_C)):
         j = np.minimum(np.exp(_LOG_J), U_MAX / c + 1.0)
         mu[i], sd[i] = _moments(_log_survival(float(c), j, cont, fine))
+    mu[:, 0], sd[:, 0] = 0.0, 1.0  # one reading: N(0, 1) exactly
     return mu, sd
 
 
@@ -130,6 +131,14 @@ def ystar_moments(c: FloatArray, j: FloatArray) -> tuple[FloatArray, FloatArray]
                 + a * ((1 - b) * t[i0 + 1, j0] + b * t[i0 + 1, j0 + 1]))
 
     return bilinear(mu_t), bilinear(sd_t)
+
+
+def kernel_table() -> tuple[FloatArray, FloatArray, float, float, float]:
+    """The table as the compiled kernels read it: (mu*, sigma*, log c of the first row, the
+    step of log c, the step of log J)."""
+    mu, sd = ystar_table()
+    return (mu, sd, float(_LOG_C[0]), float(_LOG_C[1] - _LOG_C[0]),
+            float(_LOG_J[1] - _LOG_J[0]))
 
 
 def rise(rate: FloatArray, delta: FloatArray, s: float) -> FloatArray:
@@ -158,5 +167,5 @@ def level_terms(m: FloatArray, p: FloatArray, q: float, zs: float, s: float,
     return a - s * mu, np.sqrt(np.maximum(v + s * s * sig * sig, 1e-300))
 
 
-__all__ = ["C_MAX", "C_MIN", "FIXED_POINT", "J_MAX", "U_MAX", "level_terms", "rise",
+__all__ = ["C_MAX", "C_MIN", "FIXED_POINT", "J_MAX", "U_MAX", "kernel_table", "level_terms", "rise",
            "ystar_moments", "ystar_table"]
