@@ -221,13 +221,15 @@ class DegradationModel:
         return 2.0 * (1.0 - self.shape) if self.kind == "paris" else math.nan
 
     def rul_quantiles(self, state: UnitState, levels: tuple[float, ...] = (0.5, 0.05, 0.95),
-                      *, method: str = "compiled") -> tuple[FloatArray, ...]:
-        """RUL quantiles (file time unit) per unit at its last acquisition, eq. (5).
+                      *, method: str = "compiled", one_reading: bool = False
+                      ) -> tuple[FloatArray, ...]:
+        """RUL quantiles (file time unit) per unit at its last acquisition, eq. (5b) (with
+        ``one_reading`` eq. (5) of one measurement).
 
         >= 0 always; +inf where the level lies in the never-failing (censored) mass; 0 once the
         last measured hi >= 1; NaN for units without an acquisition.
         """
-        return rul_quantiles(self, state, levels, method=method)
+        return rul_quantiles(self, state, levels, method=method, one_reading=one_reading)
 
     def rul_cdf(self, state: UnitState, r: FloatArray) -> FloatArray:
         """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5))."""
@@ -395,15 +397,16 @@ def _filter_kernel(*args: Any) -> None:
 
 
 # ------------------------------------------------------------------------------ RUL
-def _event(model: Any, state: UnitState) -> tuple[float, FloatArray]:
+def _event(model: Any, state: UnitState, one_reading: bool = False
+           ) -> tuple[float, FloatArray]:
     """The measurement sd at the threshold (``model.measured_var``; 0 for a model without
     one: eq. (5) of the latent level) and each unit's cadence in scaled time, derived from its
-    state: its mean interval since age 0, t / n (inf before two acquisitions or at age <= 0:
-    one reading)."""
+    state: its mean interval since age 0, t / n (inf before two acquisitions, at age <= 0 or
+    with ``one_reading``: eq. (5) of one measurement)."""
     s = math.sqrt(float(getattr(model, "measured_var", 0.0)))
     with np.errstate(invalid="ignore", divide="ignore"):
         d = state.t / np.maximum(state.n, 1) / model.time_scale
-    return s, np.where((state.n >= 2) & (d > 0), d, np.inf)
+    return s, np.where((state.n >= 2) & (d > 0) & (not one_reading), d, np.inf)
 
 
 def _log_surv(model: Any, state: UnitState, w: FloatArray, s: float,
@@ -452,7 +455,8 @@ def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
 
 def rul_quantiles(model: GrowthLaw, state: UnitState,
                   levels: tuple[float, ...] = (0.5, 0.05, 0.95), *,
-                  method: str = "compiled", iterations: int = 200) -> tuple[FloatArray, ...]:
+                  method: str = "compiled", iterations: int = 200,
+                  one_reading: bool = False) -> tuple[FloatArray, ...]:
     """Quantiles of eq. (5b); see :meth:`DegradationModel.rul_quantiles`.
 
     A level p beyond the first reading's probability F(d) is reached where
@@ -463,12 +467,13 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
     (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
     ``method="bisect"``: the same search vectorised over units in numpy, from the CDF of
     :func:`rul_cdf` (the reference of the tests). A level beyond the failing mass
-    1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf.
+    1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf. ``one_reading``: eq. (5) of
+    one measurement instead (the exported C's event, docs/rul-on-the-device.md).
     """
     if method not in ("compiled", "bisect"):
         raise ValueError(f"method: expected 'compiled' or 'bisect', got {method!r}")
     tau = model.time_scale
-    s, delta = _event(model, state)
+    s, delta = _event(model, state, one_reading)
     if method == "bisect":
         w = _bisect_levels(model, state, levels, iterations)
     else:
