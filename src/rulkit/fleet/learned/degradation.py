@@ -437,7 +437,7 @@ def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
     s, delta = _event(model, state)
     ref = _reference(model, state, s, delta)
     one = np.full(len(state), np.inf)
-    with np.errstate(invalid="ignore", divide="ignore"):  # NaN horizons stay NaN
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN horizons stay
         first = 1.0 - np.exp(np.minimum(_log_surv(model, state, delta, s, delta) - ref, 0.0))
         ls1 = _log_surv(model, state, np.zeros(len(state)), s, one)
         g_first = -np.expm1(np.minimum(_log_surv(model, state, delta, s, one) - ls1, 0.0))
