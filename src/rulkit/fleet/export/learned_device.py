@@ -18,7 +18,8 @@ measurement; they differ in the transform g only. The server's RUL is the first 
 crossing over the unit's cadence (eq. (5b)); the C computes eq. (5) of one measurement, so
 ``rulkit export c`` refuses a learned model unless ``--rul-one-measurement`` accepts that event
 (docs/rul-on-the-device.md). The models measuring the HI itself (paris-additive,
-paris-multiplicative, paris-mixed, :mod:`rulkit.fleet.learned.hi_noise`) keep that posterior and its RUL law (their
+paris-multiplicative, paris-mixed, :mod:`rulkit.fleet.learned.hi_noise`) keep that posterior
+and its RUL law (their
 own template shares the prior and the quantiles) and update it by the iterated extended
 Kalman step of eq. (8). Any other model type (onset, similarity, regression) is refused by
 :func:`learned_device` with its name.
