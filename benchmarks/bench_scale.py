@@ -51,41 +51,69 @@ RULKIT = [sys.executable, "-c", _PEAK + "import sys; sys.argv[0] = 'rulkit'\n"
           "from rulkit.cli import main; main()"]
 
 
-# The floor under track's writes: the same CSV read the same way (pyarrow), its rows sorted by
-# (component, time) and written as the packed history rows the store writes (one per
-# component, rulkit.fleet.store.history_chunks: records of the same width, t and HI in every
-# field), one transaction, the new database's pragmas, one fsync; no validation and no
-# tracker. What the bare writes of the same rows cost on this machine.
+# The floor under track's writes: the same CSV read the same way (pyarrow in blocks of 4 MB,
+# the component ids dictionary-encoded, Arrow's unused memory released), its rows sorted by
+# (component, time) with one argsort of the codes and written as the packed history rows the
+# store writes (one per component, rulkit.fleet.store.history_chunks: records of the same
+# width, t and HI in every field) in blocks of the store's size, one transaction, the new
+# database's pragmas, one fsync; no validation, no tracker, no pandas, no numba. What the bare
+# writes of the same rows cost on this machine.
 _BARE = _PEAK + """
 import os, sqlite3, sys
-import numpy as np, pandas as pd, pyarrow.csv as pc
+import numpy as np, pyarrow as pa, pyarrow.csv as pc
 from rulkit.fleet.store import history_chunks as hc
 from rulkit.fleet.store.schema import create_schema
 src, db = sys.argv[1], sys.argv[2]
-tab = pc.read_csv(src)
-comp = tab.column("component").to_numpy(zero_copy_only=False)
-codes, names = pd.factorize(comp, sort=True)
+text = pa.dictionary(pa.int32(), pa.string())
+reader = pc.open_csv(src, convert_options=pc.ConvertOptions(column_types={"component": text}),
+                     read_options=pc.ReadOptions(block_size=1 << 22))  # as rulkit.fleet.rows
+tab = pa.Table.from_batches(list(reader), schema=reader.schema).unify_dictionaries()
+comp = tab.column("component").chunks  # one dictionary for all chunks
+names = np.asarray(comp[0].dictionary.to_pylist(), dtype=object)
+key = np.argsort(names, kind="stable")  # the names in SQLite's key order
+rank = np.empty(key.size, dtype=np.int32)
+rank[key] = np.arange(key.size, dtype=np.int32)
+codes = rank[np.concatenate([c.indices.to_numpy() for c in comp])]
+names = names[key]
 order = np.argsort(codes, kind="stable")
 t = tab.column("time").to_numpy()[order]
 hi = tab.column("hi").to_numpy()[order]
 seg = np.concatenate([[0], np.cumsum(np.bincount(codes, minlength=len(names)))])
-del tab, codes, comp
+del tab, comp, codes, order
+pa.default_memory_pool().release_unused()
 conn = sqlite3.connect(db, isolation_level=None)
 conn.execute("PRAGMA journal_mode=MEMORY")
 conn.execute("PRAGMA synchronous=OFF")
+conn.execute("PRAGMA cache_size=-8192")
 conn.execute("BEGIN")
 create_schema(conn, "sqlite")
-names = np.asarray(names, dtype=object)
-step = 100  # components per write, about 100k acquisitions each here
-for k0 in range(0, len(names), step):
-    a, b = seg[k0], seg[min(k0 + step, len(names))]
+k0 = 0
+while k0 < len(names):  # blocks of whole components, at most the store's block of rows
+    k1 = max(k0 + 1, int(np.searchsorted(seg, seg[k0] + BLOCK, side="right")) - 1)
+    a, b = seg[k0], seg[k1]
     rec = np.empty((b - a, hc.WIDTH))
     rec[:] = hi[a:b, None]
     rec[:, 0] = t[a:b]
-    hc.write_chunks(conn, hc.chunk_rows(names[k0:k0 + step], seg[k0:k0 + step + 1] - a, rec, 1))
+    hc.write_chunks(conn, hc.chunk_rows(names[k0:k1], seg[k0:k1 + 1] - a, rec, 1))
+    k0 = k1
 conn.execute("COMMIT")
 conn.close()
 fd = os.open(db, os.O_RDWR); os.fsync(fd); os.close(fd)
+""".replace("BLOCK", "25_000")
+
+
+# The floor of track's libraries, before any row: rulkit's CLI and store (numpy, pandas,
+# pyarrow) and the two compiled passes a long series takes (the trackers' and the trend's,
+# numba loading them from its on-disk cache; numba imports scipy.linalg for its BLAS check).
+_LIBS = _PEAK + """
+import numpy as np
+import rulkit.cli, rulkit.fleet.store.ingest, pyarrow.csv
+from rulkit.fleet.monitoring.unit_trend import TrendConfig, TrendState, trend_run
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig, TrackerState
+from rulkit.fleet.tracking.tracker_run import tracker_run
+seg, t, hi = np.array([0, 3]), np.arange(3.0), np.array([0.1, 0.2, 0.3])
+tracker_run(TrackerState.empty(1), seg, t, hi, TrackerConfig(), strategy="jit")
+trend_run(TrendState.empty(1), seg, t, hi, TrendConfig(), strategy="jit")
 """
 
 
@@ -157,7 +185,8 @@ def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) ->
         db.unlink()
     bw, bc, bm = median3(bare)
     print(f"  the same rows read and written bare (pyarrow, sort, packed history rows, "
-          f"no validation, no tracker): wall {bw:.2f} s, CPU {bc:.2f} s, peak {bm:.0f} MB; "
+          f"no validation, no tracker, no pandas, no numba): wall {bw:.2f} s, CPU {bc:.2f} s, "
+          f"peak {bm:.0f} MB; "
           f"track / bare CPU = {c / bc:.2f}"
           + (f"; track CPU ours / {args.against} = {c / oc:.2f}" if other else "")
           + f"; load average {os.getloadavg()[0]:.1f}")
@@ -230,6 +259,11 @@ def main() -> None:
               f"status, no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
 
         if not args.status_only:
+            libs = median3([measure([sys.executable, "-c", _LIBS])
+                            for _ in range(args.repeats)])
+            print(f"track's libraries and numba's compiled passes loaded, no data (the floor "
+                  f"of its start-up): wall {libs[0]:.2f} s, CPU {libs[1]:.2f} s, peak "
+                  f"{libs[2]:.0f} MB")
             track_part(args, tmp, rng)
         status_part(args, tmp, rng, sfloor[1])
         print(f"load average at end {os.getloadavg()[0]:.1f}")

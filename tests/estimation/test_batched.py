@@ -4,6 +4,9 @@ oracles (scipy's logsumexp, a per-row searchsorted systematic resampler, numpy's
 
 from __future__ import annotations
 
+import contextlib
+import io
+import json
 import os
 import subprocess
 import sys
@@ -136,50 +139,103 @@ def test_weighted_quantile_equals_numpy_inverted_cdf(seed: int) -> None:
 
 _CACHE_SCRIPT = textwrap.dedent("""
     import hashlib
+    import json
+    import sys
     import numpy as np
     from rulkit.estimation import batched
     from rulkit.systems.reaction_wheel.degradation import quadrature
+    from rulkit.systems.reaction_wheel.temperature import kernels
     from rulkit.systems.reaction_wheel.temperature.particle import (
         TemperatureConfig,
         filter_temperature,
     )
     from rulkit.systems.reaction_wheel.wheel import simulate_table3
-    h = hashlib.sha256()
-    for speed in ("low", "high"):
-        d = simulate_table3(np.random.default_rng(0), speed, t_end=5.0)
-        for design in ("F1", "F2"):
-            for variant in ("pf", "adaptive", "apf_eq28", "apf_tempered"):
-                cfg = TemperatureConfig(design=design, variant=variant, n_particles=20)
-                r = filter_temperature(d.y, d.V, np.random.default_rng(1), cfg,
-                                       sigma=(d.sigma_w, d.sigma_I))
-                h.update(np.ascontiguousarray(r.T_mean).tobytes())
-    lw = np.random.default_rng(2).normal(size=(3, 9))
-    h.update(batched.normalise_rows_numba(lw)[2].tobytes())
-    u = np.random.default_rng(3).normal(20.0, 3.0, size=(50, 200))
-    for a in quadrature._stieltjes_kernel(u, 12):
-        h.update(np.ascontiguousarray(a).tobytes())
-    print(h.hexdigest())
+
+    def pf():
+        h = hashlib.sha256()
+        for speed in ("low", "high"):
+            d = simulate_table3(np.random.default_rng(0), speed, t_end=5.0)
+            for design in ("F1", "F2"):
+                for variant in ("pf", "adaptive", "apf_eq28", "apf_tempered"):
+                    cfg = TemperatureConfig(design=design, variant=variant, n_particles=20)
+                    r = filter_temperature(d.y, d.V, np.random.default_rng(1), cfg,
+                                           sigma=(d.sigma_w, d.sigma_I))
+                    h.update(np.ascontiguousarray(r.T_mean).tobytes())
+        return h, kernels.pf_kernel, batched.normalise_row
+
+    def rows():
+        h = hashlib.sha256()
+        lw = np.random.default_rng(2).normal(size=(3, 9))
+        h.update(batched.normalise_rows_numba(lw)[2].tobytes())
+        return h, batched.normalise_rows_numba, batched.normalise_rows_numba
+
+    def stieltjes():
+        h = hashlib.sha256()
+        u = np.random.default_rng(3).normal(20.0, 3.0, size=(50, 200))
+        for a in quadrature._stieltjes_kernel(u, 12):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h, quadrature._stieltjes_kernel, quadrature._stieltjes_kernel
+
+    out = {}
+    for part in PARTS:
+        h, kernel, callee = globals()[part]()
+        st = kernel.stats
+        out[part] = {"sha": h.hexdigest(), "hits": sum(st.cache_hits.values()),
+                     "misses": sum(st.cache_misses.values()),
+                     "dirs": [st.cache_path, callee.stats.cache_path]}
+    print(json.dumps(out))
 """)
+_PARTS = ("pf", "rows", "stieltjes")
+
+
+def _kernel_outputs(parts: tuple[str, ...], env: dict[str, str] | None = None
+                    ) -> dict[str, dict]:
+    """Per part of _CACHE_SCRIPT: the sha256 of its outputs, its kernel's numba cache hits and
+    misses (a compile), the cache directories of the kernel and of a batched function it calls;
+    in this process (``env`` None) or in a fresh one."""
+    code = f"PARTS = {parts!r}\n" + _CACHE_SCRIPT
+    if env is None:
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            exec(compile(code, "_CACHE_SCRIPT", "exec"), {"__name__": "_cache_script"})
+        return json.loads(buf.getvalue())
+    run = subprocess.run([sys.executable, "-c", code], env=env, check=True,
+                         capture_output=True, text=True, timeout=600)
+    return json.loads(run.stdout)
 
 
 def test_numba_kernels_compiled_or_cached_give_the_same_bits(tmp_path: Path) -> None:
-    """Two fresh processes on an empty numba cache: the first compiles the step-1 kernel (every
-    design and variant), batched's row functions and the lubrication windows' Stieltjes kernel
-    (fastmath), the second loads them from the cache.
-    Same seed, same machine, same bits: the outputs are identical (fastmath reassociation broke
-    this: the in-process and the cached machine code rounded differently). The cache holds
-    index files for batched's row functions and for the kernel that calls them."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    outs = [subprocess.run([sys.executable, "-c", _CACHE_SCRIPT], env=env, check=True,
-                           capture_output=True, text=True, timeout=600).stdout
-            for _ in range(2)]
-    assert outs[0] == outs[1] and outs[0].strip()
-    idx = [p.name for p in (tmp_path / "cache").rglob("*.nbi")]
+    """A compiled and a cached run of the step-1 kernel (every design and variant), batched's row
+    functions and the lubrication windows' Stieltjes kernel (fastmath) give the same bits.
+    Same seed, same machine, same bits (fastmath reassociation broke this: the in-process and
+    the cached machine code rounded differently). The cache holds index files for batched's
+    row functions and for the kernel that calls them.
+
+    A kernel this process compiled (an empty numba cache, as in CI) is compared with a fresh
+    process loading it from the same cache: the step-1 kernel's long compile is shared with
+    the other tests. A kernel this process loaded from a cache is compiled in a fresh process
+    on an empty cache and loaded by a second one."""
+    here = _kernel_outputs(_PARTS)
+    compiled = tuple(p for p in _PARTS if here[p]["misses"] and not here[p]["hits"])
+    pairs = []
+    if compiled:
+        pairs.append((here, _kernel_outputs(compiled, dict(os.environ)), compiled))
+    if rest := tuple(p for p in _PARTS if p not in compiled):
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+        pairs.append((_kernel_outputs(rest, env), _kernel_outputs(rest, env), rest))
+    dirs = []
+    for first, second, parts in pairs:
+        for p in parts:
+            assert first[p]["misses"] > 0 and first[p]["hits"] == 0, (p, "no compile")
+            assert second[p]["hits"] > 0 and second[p]["misses"] == 0, (p, "not loaded")
+            assert first[p]["sha"] == second[p]["sha"], p
+            dirs += [Path(d) for d in first[p]["dirs"]]
+    idx = [f.name for d in set(dirs) for f in d.glob("*.nbi")]
     for fn in ("batched.normalise_row", "batched.ess_row", "batched.systematic_row",
                "batched.weighted_quantile_select_row", "batched.normalise_rows_numba",
                "kernels.pf_kernel"):
         assert any(n.startswith(fn + "-") for n in idx), (fn, idx)
-    data = [p for p in (tmp_path / "cache").rglob("*.nbc") if "pf_kernel" in p.name]
+    data = [f for d in set(dirs) for f in d.glob("*.nbc") if "pf_kernel" in f.name]
     assert data, "no compiled pf_kernel in the cache"
 
 

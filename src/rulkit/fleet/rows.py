@@ -289,7 +289,20 @@ def read_csv_rows(
         raise error(f"{where}: {table.num_rows} rows, at most {max_rows} per batch")
     if table.num_rows == 0:
         raise error(f"{where}: no data rows (header only)")
-    return table.to_pandas()
+    return arrow_frame(table)
+
+
+def arrow_frame(table: Any) -> pd.DataFrame:
+    """A pyarrow table as a frame, the table consumed: each column converted on its own and
+    its Arrow buffers freed as it goes (``self_destruct``), float columns kept without a copy
+    (``split_blocks``), and what Arrow's memory pool holds unused afterwards (the CSV reader's
+    parse buffers) returned to the system."""
+    import pyarrow as pa
+
+    frame = table.to_pandas(self_destruct=True, split_blocks=True)
+    del table
+    pa.default_memory_pool().release_unused()
+    return frame
 
 
 def _csv_input(source: str | Path | bytes | memoryview) -> Any:

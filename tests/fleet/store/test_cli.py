@@ -222,3 +222,47 @@ def test_fit_track_and_status_take_a_postgresql_url(tmp_path, pg_server):
         clock = ("last_seen", "due")  # the calendar time of each ingestion
         outs[name] = [{k: v for k, v in row.items() if k not in clock} for row in rows]
     assert outs["pg"] == outs["sqlite"]
+
+
+def test_track_in_tiny_blocks_writes_the_bits_of_one_block(tmp_path, monkeypatch):
+    """The file path processes components in blocks of at most BLOCK_ROWS acquisitions (the
+    memory of one block, not of the file): blocks of 3 rows write the same database, bit for
+    bit, and print the same alerts as one block holding the whole file."""
+    import rulkit.fleet.store.sqlite as store_module
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    blocks = []
+    split = store_module.component_blocks
+    monkeypatch.setattr(store_module, "component_blocks",
+                        lambda order, n: blocks.append(split(order, n)) or blocks[-1])
+    rng = np.random.default_rng(11)
+    rows = [(f"u{i:02d}", float(s), min(0.05 * np.exp((0.02 + 0.004 * i) * s)
+                                        + rng.normal(0, 0.01), 1.2))
+            for i in range(8) for s in range(int(rng.integers(1, 60)))]
+    df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sort_values("time", kind="stable")
+    df["hi"] = df["hi"].abs()
+    src = tmp_path / "a.csv"
+    df.to_csv(src, index=False)
+
+    def track(block, name):
+        monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", block)
+        db = tmp_path / name
+        r = runner.invoke(app, ["track", "--db", str(db), str(src), "--lead-time", "40",
+                                "--stale-after", "1d"])
+        assert r.exit_code == 0, r.output
+        con = sqlite3.connect(db)
+        cols = [c for (c,) in con.execute("SELECT name FROM pragma_table_info('components')")
+                if c not in ("seen", "due")]  # the clock at the ingestion
+        dump = (con.execute(f"SELECT {', '.join(cols)} FROM components ORDER BY 1").fetchall(),
+                con.execute("SELECT * FROM history ORDER BY 1, 2").fetchall(),
+                con.execute("SELECT component, t, level, previous, hi, fhi, rul, valid, "
+                            "rul_low, rul_high, reason FROM alerts ORDER BY id").fetchall())
+        con.close()
+        return r.output.replace(str(db), "DB"), dump
+
+    one_out, one = track(10**9, "one.db")
+    tiny_out, tiny = track(3, "tiny.db")
+    assert len(blocks[0]) == 1 and len(blocks[1]) >= 6  # one block; one per component
+    assert one[1] and one[2]  # history written, alerts raised
+    assert tiny_out == one_out
+    assert tiny == one  # every value of every row (floats compared exactly, NaN stored NULL)

@@ -21,6 +21,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from rulkit.fleet.rows import (
+    arrow_frame,
     component_codes,
     numeric_values,
     previous_per_component,
@@ -205,7 +206,7 @@ def _read_parquet(source: str | Path | bytes | memoryview, where: str, max_rows:
     if dup.any():
         raise IngestError(f"{where}: column {names[int(np.flatnonzero(dup)[0])]!r} appears "
                           "twice; rename or drop one")
-    return table.to_pandas()
+    return arrow_frame(table)
 
 
 def validate_acquisitions(

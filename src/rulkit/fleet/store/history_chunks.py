@@ -81,13 +81,23 @@ def chunk_rows(names: Any, seg: np.ndarray, rec: np.ndarray, ingest: Any,
                     strict=True))
 
 
-def _blobs(rec: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> list[bytes]:
-    """The blob of each chunk ``rec[p0[i]:p1[i]]``: the header, then its records."""
-    buf = np.ascontiguousarray(rec, dtype="<f8").tobytes()
-    size = 8 * WIDTH
-    return [HEADER + buf[a * size:b * size] for a, b in zip(np.asarray(p0).tolist(),
-                                                            np.asarray(p1).tolist(),
-                                                            strict=True)]
+def _blobs(rec: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> list[memoryview]:
+    """The blob of each chunk ``rec[p0[i]:p1[i]]`` (the header, then its records), as views
+    of one buffer: the records are copied once, into place beside their headers (no bytes
+    object per chunk; SQLite and psycopg bind a memoryview as a blob)."""
+    p0 = np.asarray(p0, dtype=np.int64)
+    p1 = np.asarray(p1, dtype=np.int64)
+    per = 1 + WIDTH * (p1 - p0)
+    start = np.cumsum(per) - per  # each chunk's first word
+    words = np.empty(int(per.sum()), dtype="<f8")
+    words.view("<u8")[start] = _HEADER_WORD
+    flat = np.ascontiguousarray(rec, dtype="<f8").reshape(-1)
+    raw = words.data.cast("B")
+    out = []
+    for a, b, s, m in zip(p0.tolist(), p1.tolist(), start.tolist(), per.tolist(), strict=True):
+        words[s + 1:s + m] = flat[a * WIDTH:b * WIDTH]
+        out.append(raw[8 * s:8 * (s + m)])
+    return out
 
 
 def decode(blobs: list[Any], n: Any) -> np.ndarray:

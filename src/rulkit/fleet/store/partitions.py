@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
+from rulkit.fleet.rows import arrow_frame
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
 from rulkit.fleet.store.ingest import ingest_into
 from rulkit.fleet.store.schema import (
@@ -68,7 +69,7 @@ def read_directory(directory: str | Path, components: list[str] | None = None
     except Exception as err:  # pyarrow raises many kinds on bad partitions
         raise IngestError(f"{directory}: cannot be read as Parquet partitions "
                           f"({type(err).__name__}: {str(err).strip()[:200]})") from None
-    return table.to_pandas()
+    return arrow_frame(table)
 
 
 def _bucket_of(names: np.ndarray, buckets: int) -> np.ndarray:

@@ -161,6 +161,9 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             # WAL wrote every page twice (log, then checkpoint): 1.1 s of 2M rows.
             conn.execute("PRAGMA journal_mode=MEMORY")
             conn.execute("PRAGMA synchronous=OFF")
+            # a page cache of 8 MB, not SQLite's 2 MB: a block's history (BLOCK_ROWS records
+            # in overflow pages) is spilled to the file once, not in many small spills
+            conn.execute("PRAGMA cache_size=-8192")
             conn.execute("BEGIN IMMEDIATE")
             create_schema(conn, "sqlite")
             conn.executemany("INSERT INTO meta VALUES (?, ?)", _meta_rows(config, hi_model))
@@ -219,9 +222,10 @@ class ComponentStore:
 
     HISTORY_CHUNK = history_chunks.MAX_CHUNK
     """Acquisitions per history row at most (:mod:`rulkit.fleet.store.history_chunks`)."""
-    BLOCK_ROWS = 100_000
-    """Acquisitions per block of components run together (bounds the per-acquisition outputs
-    held at once, ~150 bytes each)."""
+    BLOCK_ROWS = 25_000
+    """Acquisitions per block of components run together: bounds the per-acquisition outputs
+    and the RUL quantiles' temporaries held at once (about 500 bytes an acquisition at the peak of
+    a block: the RUL quantiles of three levels hold some 15 arrays of every row)."""
     hi_model: HealthIndexModel | None
 
     def __init__(

@@ -1,0 +1,189 @@
+"""Where ``rulkit track`` of one file into a new database spends its CPU and its memory
+(docs/service.md, "Where the goals stand"): one ``rulkit track`` process, as bench_scale.py
+runs it, with each stage's function wrapped to add up its CPU time and to read the
+process's resident memory (``/proc/self/status``) as the stage ends.
+
+Prints, per stage, the CPU time, the resident memory at its end (``VmRSS``) and the highest
+resident memory of the process so far (``VmHWM``, Linux's high-water mark) at its end: the
+stage where the high-water mark rises is where the peak is made. Nested stages are indented
+under the stage that calls them. The first call of the trackers and of the trend pass is
+printed apart: it loads numba and its cached machine code (about as much memory as pandas
+and pyarrow together). At the end, the share of the peak that is shared libraries' code
+(``RssFile``: numpy, pandas, pyarrow, numba's LLVM), against the process's own data
+(``RssAnon``).
+
+    .venv/bin/python benchmarks/profile_track.py                      # 2000 x 1000 rows
+    .venv/bin/python benchmarks/profile_track.py --components 200     # a quick look
+    .venv/bin/python benchmarks/profile_track.py --against /tmp/main/src  # main's code
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+STAGES = (
+    ("inputs (settings, the file)", "rulkit.fleet.store.cli", "_track_inputs"),
+    ("  read the file", "rulkit.fleet.store.acquisitions", "read_acquisitions"),
+    ("validation", "rulkit.fleet.store.ingest", "validate_acquisitions"),
+    ("new database", "rulkit.fleet.store.ingest", "_build_and_publish"),
+    ("  apply", "rulkit.fleet.store.sqlite.ComponentStore", "_apply"),
+    ("    order by component", "rulkit.fleet.store.sqlite", "order_by_component"),
+    ("    spacing check", "rulkit.fleet.store.sqlite", "check_spacing"),
+    ("    trackers", "rulkit.fleet.store.sqlite", "tracker_run"),
+    ("    estimator and rules", "rulkit.fleet.store.prognosis.BatchPrognosis", "block"),
+    ("      trend pass", "rulkit.fleet.store.prognosis", "trend_run"),
+    ("      RUL quantiles", "rulkit.fleet.store.prognosis", "rul_quantiles"),
+    ("      alert rules", "rulkit.fleet.store.prognosis", "apply_rules"),
+    ("    alerts", "rulkit.fleet.store.sqlite", "block_alerts"),
+    ("    history rows", "rulkit.fleet.store.sqlite.ComponentStore", "_write_block_history"),
+    ("      SQLite inserts", "rulkit.fleet.store.sqlite.ComponentStore", "_write_history"),
+    ("    final columns", "rulkit.fleet.store.prognosis.BatchPrognosis", "finish"),
+    ("    components upsert", "rulkit.fleet.store.sqlite.ComponentStore", "_write_states"),
+    ("printout", "rulkit.fleet.store.cli", "_echo_track"),
+)
+"""(label, where the name is looked up, name): the stages measured."""
+
+# The child: the stages wrapped, then rulkit's console entry point on the given arguments.
+_CHILD = """
+import importlib, sys, time
+from collections import defaultdict
+STAGES = {stages!r}
+def mem():
+    with open("/proc/self/status") as f:
+        d = {{l.split(":")[0]: int(l.split()[1]) // 1024 for l in f if l.startswith("Vm")
+             or l.startswith("Rss")}}
+    return d
+cpu, calls, first, rss, hwm = defaultdict(float), defaultdict(int), {{}}, {{}}, {{}}
+def owner(path):
+    mod, _, attr = path.rpartition(".")
+    try:
+        return importlib.import_module(path)
+    except ModuleNotFoundError:
+        return getattr(importlib.import_module(mod), attr)
+start = time.process_time()
+import rulkit.cli
+rulkit_cli = time.process_time()
+for label, where, name in STAGES:
+    o = owner(where)
+    fn = getattr(o, name)
+    def timed(*a, _fn=fn, _label=label, **k):
+        t0 = time.process_time()
+        try:
+            return _fn(*a, **k)
+        finally:
+            dt = time.process_time() - t0
+            cpu[_label] += dt
+            calls[_label] += 1
+            first.setdefault(_label, dt)
+            m = mem()
+            rss[_label], hwm[_label] = m["VmRSS"], m["VmHWM"]
+    setattr(o, name, timed)
+instrumented = time.process_time()
+imported = mem()
+sys.argv = ["rulkit", *sys.argv[1:]]
+try:
+    rulkit.cli.main()
+except SystemExit as e:
+    if e.code:
+        raise
+finally:
+    end = time.process_time()
+    m = mem()
+    print("start", start, rulkit_cli - start, instrumented - rulkit_cli, end - instrumented,
+          m["VmHWM"], m["RssFile"], m["RssAnon"], imported["VmRSS"], imported["VmHWM"],
+          file=sys.stderr)
+    for label, _, _ in STAGES:
+        print("stage", label, cpu[label], calls[label], first.get(label, 0.0),
+              rss.get(label, 0), hwm.get(label, 0), sep="\t", file=sys.stderr)
+"""
+
+
+def _depth(label: str) -> int:
+    return (len(label) - len(label.lstrip())) // 2
+
+
+def report(err: str) -> None:
+    """Print the child's figures (its stderr's last lines)."""
+    stages: dict[str, tuple[float, int, float, int, int]] = {}
+    head: list[str] = []
+    for line in err.splitlines():
+        if line.startswith("start "):
+            head = line.split()[1:]
+        elif line.startswith("stage\t"):
+            label, c, n, f, r, h = line.split("\t")[1:]
+            stages[label] = (float(c), int(n), float(f), int(r), int(h))
+    py, imp, store, run, peak, file_mb, anon_mb, rss0, hwm0 = (float(x) for x in head)
+    total = py + imp + store + run
+    print(f"CPU {total:.2f} s in all, peak resident memory {peak:.0f} MB "
+          f"(at exit: {file_mb:.0f} MB of it shared libraries' code, {anon_mb:.0f} MB data)")
+    print(f"  {'stage':30s} {'CPU s':>7s} {'share':>6s} {'RSS MB':>7s} {'peak MB':>8s}")
+    print(f"  {'interpreter start':30s} {py:7.2f} {py / total:6.1%}")
+    print(f"  {'import rulkit.cli':30s} {imp:7.2f} {imp / total:6.1%}")
+    print(f"  {'import the store':30s} {store:7.2f} {store / total:6.1%} {rss0:7.0f} "
+          f"{hwm0:8.0f}  (numpy, pandas, pyarrow; the command imports them when it runs)")
+    labels = [label for label, _, _ in STAGES]
+    for j, label in enumerate(labels):
+        c, n, f, r, h = stages[label]
+        note = f"  ({n} calls; the first {f:.2f} s: numba loaded)" if (
+            label.strip() in ("trackers", "trend pass") and n > 1 and f > 0.05) else (
+            f"  ({n} calls)" if n > 1 else "")
+        print(f"  {label:30s} {c:7.2f} {c / total:6.1%} {r:7d} {h:8d}{note}")
+        kids = []
+        for other in labels[j + 1:]:
+            if _depth(other) <= _depth(label):
+                break
+            if _depth(other) == _depth(label) + 1:
+                kids.append(other)
+        if kids:
+            rest = c - sum(stages[k][0] for k in kids)
+            print(f"  {'  ' * (_depth(label) + 1) + 'the rest':30s} {rest:7.2f} "
+                  f"{rest / total:6.1%}")
+    outer = sum(stages[k][0] for k in labels if _depth(k) == 0)
+    print(f"  {'the command otherwise':30s} {run - outer:7.2f} {(run - outer) / total:6.1%}"
+          "  (typer, options, imports inside the command)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--components", type=int, default=2000)
+    ap.add_argument("--acquisitions", type=int, default=1000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--against", type=Path, default=None,
+                    help="the src/ of another checkout: profile its track instead")
+    args = ap.parse_args()
+    env = {**os.environ}
+    if args.against is not None:
+        env["PYTHONPATH"] = str(args.against.resolve())
+    from bench_scale import fleet_csv
+
+    with tempfile.TemporaryDirectory(prefix="rulkit-profile-track-") as tmp:
+        src = Path(tmp) / "acquisitions.csv"
+        fleet_csv(src, args.components, args.acquisitions, np.random.default_rng(args.seed))
+        for _ in range(2):  # the first run writes bytecode and numba's cache: not reported
+            db = Path(tmp) / "track.db"
+            db.unlink(missing_ok=True)
+            proc = subprocess.run(
+                [sys.executable, "-c", _CHILD.format(stages=STAGES), "track", "--db", str(db),
+                 str(src)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                env=env)
+            if proc.returncode != 0:
+                raise SystemExit(proc.stderr[-2000:])
+        print(f"rulkit track{f' with {args.against}' if args.against else ''} of "
+              f"{args.components * args.acquisitions:,} rows "
+              f"({args.components} components x {args.acquisitions}, CSV "
+              f"{src.stat().st_size / 2**20:.0f} MB) into a new database; load average "
+              f"{os.getloadavg()[0]:.1f}")
+        report(proc.stderr)
+
+
+if __name__ == "__main__":
+    main()
