@@ -441,8 +441,8 @@ def _fp_root(st, q, s, delta, target, w_lo, w_hi, mu_t, sd_t, lc0, dlc, dlj,
     """The horizon in [w_lo, w_hi] (w_hi inf: w = w_lo + W u / (1 - u), W = max(w_lo, 1))
     where log S of eq. (5b) falls to ``target``: regula falsi (Illinois) on u in [0, 1],
     bracketing, with a halving every third step unless the bracket halved since the last
-    (so never slower than bisection's third), until u moves by less than 1e-12 u (or the
-    bracket is 1e-15 wide), at most ``iterations`` steps.
+    (so never slower than bisection's third), until two successive trials 1e-12 u apart
+    straddle the root (or the bracket is 1e-15 wide), at most ``iterations`` steps.
     ``st`` (m_z - g(1), m_b, P_zz, P_zb, P_bb)."""
     scale = max(w_lo, 1.0)
     bounded = w_hi < np.inf
@@ -457,7 +457,7 @@ def _fp_root(st, q, s, delta, target, w_lo, w_hi, mu_t, sd_t, lc0, dlc, dlj,
     if f_hi >= 0.0:
         return w_hi
     side = 0
-    u, u_prev = 0.5, 2.0
+    u, u_prev, f_prev = 0.5, 2.0, 0.0
     width = 1.0
     for it in range(iterations):
         u = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
@@ -470,9 +470,10 @@ def _fp_root(st, q, s, delta, target, w_lo, w_hi, mu_t, sd_t, lc0, dlc, dlj,
         w = w_lo + (w_hi - w_lo) * u if bounded else w_lo + scale * u / (1.0 - u)
         f = _fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, delta, w, mu_t, sd_t, lc0,
                          dlc, dlj) - target
-        if f == 0.0 or hi - lo <= 1e-15 or abs(u - u_prev) <= 1e-12 * u:
-            break
-        u_prev = u
+        if f == 0.0 or hi - lo <= 1e-15 or (
+                f * f_prev < 0.0 and abs(u - u_prev) <= 1e-12 * u):
+            break  # the root lies between the last two trials, 1e-12 u apart
+        u_prev, f_prev = u, f
         if f > 0.0:
             lo, f_lo = u, f
             if side == 1:
