@@ -65,12 +65,13 @@ def test_a_model_setting_the_template_does_not_implement_is_refused():
 # Tolerances of the double build against Python. The posterior: 1e-12 of each field's range
 # (the C runs the IEKF of filter_kernels.assimilate operation by operation; the same glibc
 # pow/exp, so only the compiler's and numba's choices of instructions could differ). The RUL
-# quantiles: 1e-7 relative. Eq. (6) is a quadratic whose discriminant cancels to ~eps of its
-# terms where the level's normal quantile c is near 0 (the median of a unit far from failure):
-# its roots carry ~sqrt(eps) = 1.5e-8 relative rounding, which the C's normal quantile (Halley
-# steps on erfc) and scipy's ndtri start from different last bits of c.
+# quantiles: 1e-6 relative. The C solves eq. (6), a quadratic whose discriminant cancels to
+# ~eps of its terms where the level's normal quantile c is near 0 (the median of a unit far
+# from failure): its roots carry ~sqrt(eps) = 1.5e-8 relative rounding times the spread of
+# the terms, up to 3.8e-7 on these fleets; Python searches eq. (5) for its root (to 1e-12 of
+# the horizon), so the C's rounding is no longer shared by the reference.
 POSTERIOR_TOL = 1e-12
-QUANTILE_RTOL = 1e-7
+QUANTILE_RTOL = 1e-6
 
 
 @pytest.fixture(scope="module")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -115,8 +116,11 @@ def test_update_refuses_time_going_back():
 
 
 def test_rul_cdf_matches_monte_carlo_of_the_model():
-    """eq. (5): S(r)/S(0) against draws of (level, rate) and the random walk."""
-    m = _model(walk=0.3)
+    """eq. (5) of the latent level (a law without measurement noise): S(r)/S(0) against
+    draws of (level, rate) and the random walk."""
+    noisy = _model(walk=0.3)
+    m = SimpleNamespace(walk_sd=noisy.walk_sd, threshold=noisy.threshold,
+                        time_scale=noisy.time_scale)
     st = UnitState(m=np.array([[0.6, 0.9]]), p=np.array([[0.002, 0.0005, 0.01]]),
                    t=np.array([5.0]), hi=np.array([0.6]), n=np.array([3]))
     rng = np.random.default_rng(3)

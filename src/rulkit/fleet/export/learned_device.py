@@ -13,9 +13,13 @@ interval from that posterior). A model type becomes exportable by one entry in
 
 The three models of :mod:`rulkit.fleet.learned.degradation` (linear, exponential, paris) share
 one template: a Gaussian random-effects model of a transformed HI, updated by an exact Kalman
-step (docs/fleet-models.md eq. (2)) with closed-form quantiles (eqs. (5), (6)); they differ in
-the transform g only. The models measuring the HI itself (paris-additive, paris-multiplicative,
-paris-mixed, :mod:`rulkit.fleet.learned.hi_noise`) keep that posterior and its RUL law (their
+step (docs/fleet-models.md eq. (2)) with closed-form quantiles (eqs. (5), (6)) of one
+measurement; they differ in the transform g only. The server's RUL is the first measured
+crossing over the unit's cadence (eq. (5b)); the C computes eq. (5) of one measurement, so
+``rulkit export c`` refuses a learned model unless ``--rul-one-measurement`` accepts that event
+(docs/rul-on-the-device.md). The models measuring the HI itself (paris-additive,
+paris-multiplicative, paris-mixed, :mod:`rulkit.fleet.learned.hi_noise`) keep that posterior
+and its RUL law (their
 own template shares the prior and the quantiles) and update it by the iterated extended
 Kalman step of eq. (8). Any other model type (onset, similarity, regression) is refused by
 :func:`learned_device` with its name.
@@ -113,6 +117,7 @@ def _random_effects(model: DegradationModel) -> LearnedDevice:
             "log_form": model.kind == "paris" and abs(model.shape) < 1e-12,
             "hi_min": HI_MIN,
             "r": float(model.noise_sd) ** 2,
+            "measured_var": float(model.measured_var),
         },
     )
 

@@ -210,18 +210,26 @@ class DegradationModel:
         return float(transform(self.kind, self.shape, np.array([1.0]))[0])
 
     @property
+    def measured_var(self) -> float:
+        """sigma_e^2: the variance of a measurement on the transformed scale, where a reading
+        is >= 1 exactly when it is >= g(1) (the RUL's first measured crossing, eq. (5b))."""
+        return self.noise_sd**2
+
+    @property
     def paris_exponent(self) -> float:
         """m = 2 (1 - lam) for the paris model (NaN otherwise)."""
         return 2.0 * (1.0 - self.shape) if self.kind == "paris" else math.nan
 
     def rul_quantiles(self, state: UnitState, levels: tuple[float, ...] = (0.5, 0.05, 0.95),
-                      *, method: str = "closed-form") -> tuple[FloatArray, ...]:
-        """RUL quantiles (file time unit) per unit at its last acquisition, eq. (5).
+                      *, method: str = "compiled", one_reading: bool = False
+                      ) -> tuple[FloatArray, ...]:
+        """RUL quantiles (file time unit) per unit at its last acquisition, eq. (5b) (with
+        ``one_reading`` eq. (5) of one measurement).
 
         >= 0 always; +inf where the level lies in the never-failing (censored) mass; 0 once the
         last measured hi >= 1; NaN for units without an acquisition.
         """
-        return rul_quantiles(self, state, levels, method=method)
+        return rul_quantiles(self, state, levels, method=method, one_reading=one_reading)
 
     def rul_cdf(self, state: UnitState, r: FloatArray) -> FloatArray:
         """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5))."""
@@ -389,86 +397,124 @@ def _filter_kernel(*args: Any) -> None:
 
 
 # ------------------------------------------------------------------------------ RUL
-def _log_surv(m: FloatArray, p: FloatArray, w: FloatArray, q: float, zs: float) -> FloatArray:
-    """log S(w): log P(z(x0 + w) < g(1)) under the state (eq. (5))."""
+def _event(model: Any, state: UnitState, one_reading: bool = False
+           ) -> tuple[float, FloatArray]:
+    """The measurement sd at the threshold (``model.measured_var``; 0 for a model without
+    one: eq. (5) of the latent level) and each unit's cadence in scaled time, derived from its
+    state: its mean interval since age 0, t / n (inf before two acquisitions, at age <= 0 or
+    with ``one_reading``: eq. (5) of one measurement)."""
+    s = math.sqrt(float(getattr(model, "measured_var", 0.0)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = state.t / np.maximum(state.n, 1) / model.time_scale
+    return s, np.where((state.n >= 2) & (d > 0) & (not one_reading), d, np.inf)
+
+
+def _log_surv(model: Any, state: UnitState, w: FloatArray, s: float,
+              delta: FloatArray) -> FloatArray:
+    """log S(w): log P(no reading >= 1 up to the scaled horizon w) (eq. (5b))."""
     from scipy.special import log_ndtr
 
-    num = m[:, 0] + m[:, 1] * w - zs
-    var = p[:, 0] + 2.0 * w * p[:, 1] + w * w * p[:, 2] + q * w
-    return log_ndtr(-num / np.sqrt(np.maximum(var, 1e-300)))
+    from rulkit.fleet.learned.first_passage import level_terms
+
+    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w)
+    return log_ndtr(-num / sd)
 
 
-def _measured(model: Any, state: UnitState) -> UnitState:
-    """The state with the measurement noise at the threshold added to the level's variance
-    (``model.measured_var``, 0 for the transformed models): the RUL is then that of the
-    first measurement >= 1 (eq. (5) on the measured HI), the event that ends a run-to-failure
-    history."""
-    r = float(getattr(model, "measured_var", 0.0))
-    if r == 0.0:
-        return state
-    p = state.p.copy()
-    p[:, 0] += r
-    return UnitState(m=state.m, p=p, t=state.t, hi=state.hi, n=state.n)
+def _reference(model: Any, state: UnitState, s: float, delta: FloatArray) -> FloatArray:
+    """log of the survival the RUL's is relative to: 0 for the first measured crossing over a
+    known cadence (the posterior already holds the last reading < 1; eq. (5b)); log S(0) for
+    the latent level (s = 0) or one reading (no cadence), eq. (5)'s S(r) / S(0)."""
+    ls0 = _log_surv(model, state, np.zeros(len(state)), s, delta)
+    return np.where((s > 0) & np.isfinite(delta), 0.0, ls0)
 
 
 def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
-    """P(RUL <= r) (eq. (5)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1."""
-    from scipy.special import log_ndtr
-
-    q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
-    state = _measured(model, state)
-    w = np.asarray(r, dtype=np.float64) / tau
-    ls0 = log_ndtr(-(state.m[:, 0] - zs) / np.sqrt(state.p[:, 0]))
-    out = np.empty_like(w)
-    with np.errstate(invalid="ignore"):  # NaN horizons (units without acquisitions) stay NaN
+    """P(RUL <= r) (eq. (5b)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1. Within
+    one cadence step d of the last acquisition, where the truth interpolates the crossing
+    between the last reading and the first, the CDF is that of one measurement (eq. (5),
+    S(r)/S(0)) scaled to reach the first reading's probability at d."""
+    w = np.asarray(r, dtype=np.float64) / model.time_scale
+    s, delta = _event(model, state)
+    ref = _reference(model, state, s, delta)
+    one = np.full(len(state), np.inf)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN horizons stay
+        first = 1.0 - np.exp(np.minimum(_log_surv(model, state, delta, s, delta) - ref, 0.0))
+        ls1 = _log_surv(model, state, np.zeros(len(state)), s, one)
+        g_first = -np.expm1(np.minimum(_log_surv(model, state, delta, s, one) - ls1, 0.0))
+        out = np.empty_like(w)
         for k in range(w.shape[1]):
-            out[:, k] = 1.0 - np.exp(np.minimum(
-                _log_surv(state.m, state.p, w[:, k], q, zs) - ls0, 0.0))
+            f = 1.0 - np.exp(np.minimum(_log_surv(model, state, w[:, k], s, delta) - ref, 0.0))
+            g = -np.expm1(np.minimum(_log_surv(model, state, w[:, k], s, one) - ls1, 0.0))
+            # the shape of one measurement's CDF on the step (linear where it stays 0)
+            shape = np.where(g_first > 0, g / np.where(g_first > 0, g_first, 1.0),
+                             w[:, k] / delta)
+            out[:, k] = np.where((w[:, k] < delta) & np.isfinite(delta), first * shape, f)
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
 
 def rul_quantiles(model: GrowthLaw, state: UnitState,
                   levels: tuple[float, ...] = (0.5, 0.05, 0.95), *,
-                  method: str = "closed-form", iterations: int = 48) -> tuple[FloatArray, ...]:
-    """Quantiles of eq. (5); see :meth:`DegradationModel.rul_quantiles`.
+                  method: str = "compiled", iterations: int = 200,
+                  one_reading: bool = False) -> tuple[FloatArray, ...]:
+    """Quantiles of eq. (5b); see :meth:`DegradationModel.rul_quantiles`.
 
-    A level p is reached where log S(w) = log S(0) + log(1 - p) = L, i.e. where
-    h(w) = (A + B w) / sqrt(P_zz + 2 w P_zb + w^2 P_bb + sigma_w^2 w) equals
-    c = -Phi^-1(exp(L)) (A = m_z - g(1), B = m_b). Squaring gives a quadratic in w (eq. (6)):
-
-        (B^2 - c^2 P_bb) w^2 + (2 A B - c^2 (2 P_zb + sigma_w^2)) w + A^2 - c^2 P_zz = 0,
-
-    whose smallest root w >= 0 with sign(A + B w) = sign(c) is the quantile
-    (``method="closed-form"``, the default). ``method="bisect"``: bisection on u in (0, 1),
-    w = W u / (1 - u), W = max(x0, 1), ``iterations`` halvings (the reference of the tests).
-    A level beyond the failing mass 1 - S(inf)/S(0), S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf.
+    A level p beyond the first reading's probability F(d) is reached where
+    log S(w) = log S_ref + log(1 - p) (:func:`_reference`), searched from the first reading
+    on; a level p <= F(d) where one measurement's CDF (eq. (5)) reaches p / F(d) of its value
+    at d (:func:`rul_cdf`). ``method="compiled"`` (the default): bisection per unit on
+    u in (0, 1), w = w_0 + W u / (1 - u), W = max(w_0, 1), ``iterations`` halvings
+    (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
+    ``method="bisect"``: the same search vectorised over units in numpy, from the CDF of
+    :func:`rul_cdf` (the reference of the tests). A level beyond the failing mass
+    1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf. ``one_reading``: eq. (5) of
+    one measurement instead (the exported C's event, docs/rul-on-the-device.md).
     """
-    from scipy.special import log_ndtr, ndtri
+    if method not in ("compiled", "bisect"):
+        raise ValueError(f"method: expected 'compiled' or 'bisect', got {method!r}")
+    tau = model.time_scale
+    s, delta = _event(model, state, one_reading)
+    if method == "bisect":
+        w = _bisect_levels(model, state, levels, iterations)
+    else:
+        from rulkit.fleet.learned.filter_kernels import first_passage_quantiles
+        from rulkit.fleet.learned.first_passage import kernel_table
 
-    if method not in ("closed-form", "bisect"):
-        raise ValueError(f"method: expected 'closed-form' or 'bisect', got {method!r}")
-    q, zs, tau = model.walk_sd**2, model.threshold, model.time_scale
-    state = _measured(model, state)
-    m, p = state.m, state.p
-    failed = state.hi >= 1.0
-    missing = state.n == 0
+        w = np.empty((len(levels), len(state)))
+        first_passage_quantiles(np.ascontiguousarray(state.m), np.ascontiguousarray(state.p),
+                                delta, model.walk_sd**2, model.threshold, s,
+                                np.asarray(levels, dtype=np.float64), *kernel_table(),
+                                iterations, w)
     out = []
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        ls0 = log_ndtr(-(m[:, 0] - zs) / np.sqrt(p[:, 0]))
-        ls_inf = log_ndtr(-m[:, 1] / np.sqrt(p[:, 2]))
-        x0 = np.where(state.n > 0, state.t, 0.0) / tau
-        for lev in levels:
-            target = ls0 + math.log1p(-lev)
-            never = target <= ls_inf
-            if method == "bisect":
-                w = _bisect(m, p, q, zs, target, np.maximum(np.abs(x0), 1.0), iterations)
-            else:
-                w = _quadratic_root(m, p, q, zs, target, ndtri)
-            r = np.where(never, np.inf, np.maximum(w, 0.0) * tau)
-            r = np.where(failed, 0.0, r)
-            out.append(np.where(missing, np.nan, r))
+    for k in range(len(levels)):
+        r = np.where(state.hi >= 1.0, 0.0, np.maximum(w[k], 0.0) * tau)
+        out.append(np.where(state.n == 0, np.nan, r))
     return monotone_in_level(levels, out)
+
+
+def _bisect_levels(model: GrowthLaw, state: UnitState, levels: tuple[float, ...],
+                   iterations: int) -> FloatArray:
+    """Each level's horizon (scaled) by bisection of :func:`rul_cdf` over all units at once;
+    +inf beyond the failing mass."""
+    from scipy.special import log_ndtr
+
+    tau = model.time_scale
+    x0 = np.where(state.n > 0, state.t, 0.0) / tau
+    scale = np.maximum(np.abs(x0), 1.0)
+    s, delta = _event(model, state)
+    ls_inf = log_ndtr(-state.m[:, 1] / np.sqrt(state.p[:, 2]))
+    ref = _reference(model, state, s, delta)
+    out = np.empty((len(levels), len(state)))
+    for k, lev in enumerate(levels):
+        lo, hi = np.zeros(len(state)), np.ones(len(state))
+        for _ in range(iterations):
+            u = 0.5 * (lo + hi)
+            below = rul_cdf(model, state, (scale * u / (1.0 - u) * tau)[:, None])[:, 0] < lev
+            lo, hi = np.where(below, u, lo), np.where(below, hi, u)
+        u = 0.5 * (lo + hi)
+        never = ref + math.log1p(-lev) <= ls_inf
+        out[k] = np.where(never, np.inf, scale * u / (1.0 - u))
+    return out
 
 
 def monotone_in_level(levels: tuple[float, ...], quantiles: list[FloatArray]
@@ -484,46 +530,6 @@ def monotone_in_level(levels: tuple[float, ...], quantiles: list[FloatArray]
     out = np.empty_like(q)
     out[order] = q
     return tuple(out)
-
-
-def _bisect(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
-            w_scale: FloatArray, iterations: int) -> FloatArray:
-    lo = np.zeros(m.shape[0])
-    hi = np.ones(m.shape[0])
-    for _ in range(iterations):
-        u = 0.5 * (lo + hi)
-        above = _log_surv(m, p, w_scale * u / (1.0 - u), q, zs) > target
-        lo = np.where(above, u, lo)
-        hi = np.where(above, hi, u)
-    u = 0.5 * (lo + hi)
-    return w_scale * u / (1.0 - u)
-
-
-def _quadratic_root(m: FloatArray, p: FloatArray, q: float, zs: float, target: FloatArray,
-                    ndtri: Any) -> FloatArray:
-    """The smallest admissible root of eq. (6) (see :func:`rul_quantiles`); 0 if the level is
-    already reached at w = 0, +inf if no root (the caller masks the never-failing levels)."""
-    # c = -Phi^-1(S): precise near S = 1 through 1 - S = -expm1(log S)
-    c = np.where(target > -0.6931471805599453, ndtri(-np.expm1(target)), -ndtri(np.exp(target)))
-    a_, b_ = m[:, 0] - zs, m[:, 1]
-    c2 = c * c
-    a2 = b_ * b_ - c2 * p[:, 2]
-    a1 = 2.0 * a_ * b_ - c2 * (2.0 * p[:, 1] + q)
-    a0 = a_ * a_ - c2 * p[:, 0]
-    disc = np.maximum(a1 * a1 - 4.0 * a2 * a0, 0.0)
-    sq = np.sqrt(disc)
-    # numerically stable pair of roots
-    qq = -0.5 * (a1 + np.copysign(sq, a1))
-    r1 = qq / a2
-    r2 = a0 / qq
-    lin = np.abs(a2) <= 1e-14 * (np.abs(a1) + np.abs(a0) + 1e-300)
-    r_lin = -a0 / a1
-    cands = np.stack([np.where(lin, r_lin, r1), np.where(lin, np.inf, r2)])
-    ok = (cands >= 0) & np.isfinite(cands)
-    num = a_ + b_ * cands  # the crossing's sign must be that of c (squaring lost it)
-    ok &= (np.sign(num) == np.sign(c)) | (np.abs(num) <= 1e-7 * (np.abs(a_) + np.abs(b_ * cands)))
-    w = np.where(ok, cands, np.inf).min(axis=0)
-    return np.where(target >= 0.0, 0.0, w)
 
 
 def crps(model: Any, state: Any, y: FloatArray, cap: float,

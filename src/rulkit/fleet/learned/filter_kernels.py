@@ -396,3 +396,135 @@ def lognormal_mixture_quantiles(w, lr, bw, levels, iterations, out):  # pragma: 
                     hi = mid
             out[i, b] = math.exp(0.5 * (lo + hi))
     return 0
+
+
+# ------------------------------------------------------------------- first measured crossing
+@numba.njit(cache=True)
+def _ystar(c, j, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover - compiled
+    """(mu*, sigma*) of eq. (5a) from the tables ``mu_t``, ``sd_t`` over log c (first row
+    ``lc0``, step ``dlc``) and log J (step ``dlj``), bilinear as
+    :func:`rulkit.fleet.learned.first_passage.ystar_moments`."""
+    nc, nj = mu_t.shape
+    lc = (math.log(c) - lc0) / dlc if c > 0.0 else 0.0
+    lc = min(max(lc, 0.0), nc - 1.0)
+    lj = min(math.log(max(j, 1.0)) / dlj, nj - 1.0)
+    i0 = min(int(lc), nc - 2)
+    j0 = min(int(lj), nj - 2)
+    a, b = lc - i0, lj - j0
+    w00, w01, w10, w11 = (1 - a) * (1 - b), (1 - a) * b, a * (1 - b), a * b
+    mu = (w00 * mu_t[i0, j0] + w01 * mu_t[i0, j0 + 1] + w10 * mu_t[i0 + 1, j0]
+          + w11 * mu_t[i0 + 1, j0 + 1])
+    sd = (w00 * sd_t[i0, j0] + w01 * sd_t[i0, j0 + 1] + w10 * sd_t[i0 + 1, j0]
+          + w11 * sd_t[i0 + 1, j0 + 1])
+    return mu, sd
+
+
+@numba.njit(cache=True)
+def _fp_log_surv(mz, mb, pzz, pzb, pbb, q, s, delta, w, mu_t, sd_t, lc0, dlc,
+                 dlj):  # pragma: no cover - compiled
+    """log S(w) of eq. (5b) for one unit, level ``mz`` relative to g(1) (``delta`` inf: one
+    reading; ``s`` 0: the latent level)."""
+    a = mz + mb * w
+    v = max(pzz + 2.0 * w * pzb + w * w * pbb + q * w, 1e-300)
+    if s == 0.0:
+        return log_ndtr(-a / math.sqrt(v))
+    mu, sd = 0.0, 1.0
+    if delta < np.inf:
+        rate = max(mb - (pzb + w * pbb) * a / v, 0.0)
+        mu, sd = _ystar(rate * delta / s, max(w / delta, 1.0), mu_t, sd_t, lc0, dlc, dlj)
+    return log_ndtr(-(a - s * mu) / math.sqrt(v + s * s * sd * sd))
+
+
+@numba.njit(cache=True)
+def _fp_root(st, q, s, delta, target, w_lo, w_hi, mu_t, sd_t, lc0, dlc, dlj,
+             iterations):  # pragma: no cover - compiled
+    """The horizon in [w_lo, w_hi] (w_hi inf: w = w_lo + W u / (1 - u), W = max(w_lo, 1))
+    where log S of eq. (5b) falls to ``target``: regula falsi (Illinois) on u in [0, 1],
+    bracketing, with a halving every third step unless the bracket halved since the last
+    (so never slower than bisection's third), until two successive trials 1e-12 u apart
+    straddle the root (or the bracket is 1e-15 wide), at most ``iterations`` steps.
+    ``st`` (m_z - g(1), m_b, P_zz, P_zb, P_bb)."""
+    scale = max(w_lo, 1.0)
+    bounded = w_hi < np.inf
+    lo, hi = 0.0, 1.0
+    f_lo = _fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, delta, w_lo, mu_t, sd_t,
+                        lc0, dlc, dlj) - target
+    f_hi = (_fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, delta, w_hi, mu_t, sd_t,
+                         lc0, dlc, dlj) if bounded else log_ndtr(-st[1] / math.sqrt(st[4]))
+            ) - target
+    if f_lo <= 0.0:
+        return w_lo
+    if f_hi >= 0.0:
+        return w_hi
+    side = 0
+    u, u_prev, f_prev = 0.5, 2.0, 0.0
+    width = 1.0
+    for it in range(iterations):
+        u = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        if it % 3 == 2:  # a halving every third step: bisection's bound on a steep f
+            if hi - lo > 0.5 * width:
+                u = 0.5 * (lo + hi)
+            width = hi - lo
+        if not (lo < u < hi):
+            u = 0.5 * (lo + hi)
+        w = w_lo + (w_hi - w_lo) * u if bounded else w_lo + scale * u / (1.0 - u)
+        f = _fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, delta, w, mu_t, sd_t, lc0,
+                         dlc, dlj) - target
+        if f == 0.0 or hi - lo <= 1e-15 or (
+                f * f_prev < 0.0 and abs(u - u_prev) <= 1e-12 * u):
+            break  # the root lies between the last two trials, 1e-12 u apart
+        u_prev, f_prev = u, f
+        if f > 0.0:
+            lo, f_lo = u, f
+            if side == 1:
+                f_hi *= 0.5
+            side = 1
+        else:
+            hi, f_hi = u, f
+            if side == -1:
+                f_lo *= 0.5
+            side = -1
+    return w_lo + (w_hi - w_lo) * u if bounded else w_lo + scale * u / (1.0 - u)
+
+
+@numba.njit(cache=True)
+def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc, dlj,
+                            iterations, out):  # pragma: no cover - compiled
+    """Quantiles of eq. (5b) per unit into ``out (L, B)``, in scaled age (see
+    :func:`rulkit.fleet.learned.degradation.rul_quantiles`): +inf beyond the failing mass;
+    on the first cadence step, one measurement's eq. (5) scaled to the first reading's
+    probability."""
+    inf = np.inf
+    st = np.empty(5)
+    for b in range(m.shape[0]):
+        d = delta[b]
+        st[0], st[1], st[2], st[3], st[4] = m[b, 0] - zs, m[b, 1], p[b, 0], p[b, 1], p[b, 2]
+        fp = s > 0.0 and d < inf
+        ls0 = _fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, inf, 0.0, mu_t, sd_t,
+                           lc0, dlc, dlj)
+        ref = 0.0 if fp else ls0
+        ls_inf = log_ndtr(-st[1] / math.sqrt(st[4]))
+        first, g_first = 0.0, 1.0
+        if fp:
+            first = -math.expm1(min(_fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, d,
+                                                 d, mu_t, sd_t, lc0, dlc, dlj), 0.0))
+            g_first = -math.expm1(min(_fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s,
+                                                   inf, d, mu_t, sd_t, lc0, dlc, dlj) - ls0,
+                                      0.0))
+        for i in range(levels.shape[0]):
+            lev = levels[i]
+            target = ref + math.log1p(-lev)
+            if target <= ls_inf:
+                out[i, b] = inf
+            elif target >= 0.0:
+                out[i, b] = 0.0
+            elif fp and lev <= first and g_first <= 0.0:
+                out[i, b] = d * lev / first
+            elif fp and lev <= first:
+                t1 = ls0 + math.log1p(-min(lev / first * g_first, 1.0))
+                out[i, b] = _fp_root(st, q, s, inf, t1, 0.0, d, mu_t, sd_t, lc0, dlc, dlj,
+                                     iterations)
+            else:
+                out[i, b] = _fp_root(st, q, s, d, target, d if fp else 0.0, inf, mu_t, sd_t,
+                                     lc0, dlc, dlj, iterations)
+    return 0

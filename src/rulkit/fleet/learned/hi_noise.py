@@ -166,10 +166,11 @@ class HiNoiseModel:
                          n=counts.astype(np.int64))
 
     # -- RUL (eq. (5)-(6))
-    def rul_quantiles(self, state: UnitState, levels: tuple[float, ...] = (0.5, 0.05, 0.95)
-                      ) -> tuple[np.ndarray, ...]:
-        """RUL quantiles per unit (>= 0; inf in the never-failing mass; 0 once hi >= 1)."""
-        return rul_quantiles(self, state, levels)
+    def rul_quantiles(self, state: UnitState, levels: tuple[float, ...] = (0.5, 0.05, 0.95),
+                      *, one_reading: bool = False) -> tuple[np.ndarray, ...]:
+        """RUL quantiles per unit (>= 0; inf in the never-failing mass; 0 once hi >= 1), eq.
+        (5b) (with ``one_reading`` eq. (5) of one measurement, the exported C's event)."""
+        return rul_quantiles(self, state, levels, one_reading=one_reading)
 
     def hi_quantiles(self, state: UnitState, horizons: np.ndarray,
                      levels: tuple[float, ...]) -> tuple[np.ndarray, ...]:
