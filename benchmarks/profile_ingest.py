@@ -35,6 +35,7 @@ from typing import Any
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).parent))
+from timing import stage_depth, stage_owner
 
 BODY_TYPES = {"json": "application/json", "csv": "text/csv",
               "parquet": "application/vnd.apache.parquet"}
@@ -60,20 +61,10 @@ STAGES = (
 the write transaction."""
 
 
-def _owner(path: str) -> Any:
-    import importlib
-
-    mod, _, attr = path.rpartition(".")
-    try:
-        return importlib.import_module(path)
-    except ModuleNotFoundError:
-        return getattr(importlib.import_module(mod), attr)
-
-
 def instrument(totals: Counter[str]) -> None:
     """Wrap every stage's function so its CPU time adds to ``totals[label]``."""
     for label, where, name in STAGES:
-        owner = _owner(where)
+        owner = stage_owner(where)
         fn = getattr(owner, name)
 
         def timed(*a: Any, _fn: Callable[..., Any] = fn, _label: str = label,
@@ -167,10 +158,6 @@ def _kind(sql: str) -> str:
     return head
 
 
-def _depth(label: str) -> int:
-    return (len(label) - len(label.lstrip())) // 2
-
-
 def _print(kind: str, n: int, size: int, ms: dict[str, float],
            statements: Counter[str]) -> None:
     whole = ms["whole request"]
@@ -180,18 +167,18 @@ def _print(kind: str, n: int, size: int, ms: dict[str, float],
     for j, label in enumerate(labels):
         v = ms.get(label, 0.0)
         print(f"  {label:26s} {v:6.2f} ms  {v / whole:5.1%}")
-        d = _depth(label)
+        d = stage_depth(label)
         kids = []  # its direct children follow it, one level deeper
         for other in labels[j + 1:]:
-            if _depth(other) <= d:
+            if stage_depth(other) <= d:
                 break
-            if _depth(other) == d + 1:
+            if stage_depth(other) == d + 1:
                 kids.append(other)
         if kids:
             rest = v - sum(ms.get(k, 0.0) for k in kids)
             print(f"  {'  ' * (d + 1) + 'the rest':26s} {rest:6.2f} ms  {rest / whole:5.1%}"
                   + ("  (BEGIN, savepoint, COMMIT and its sync)" if d == 0 else ""))
-    outer = sum(ms.get(label, 0.0) for label in labels if _depth(label) == 0)
+    outer = sum(ms.get(label, 0.0) for label in labels if stage_depth(label) == 0)
     print(f"  {'framework and token':26s} {whole - outer:6.2f} ms  "
           f"{(whole - outer) / whole:5.1%}  (routing, the token check, the response)")
     per = {k: v / n for k, v in statements.items()}

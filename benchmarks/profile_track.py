@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
+from timing import stage_depth
 
 STAGES = (
     ("inputs (settings, the file)", "rulkit.fleet.store.cli", "_track_inputs"),
@@ -54,7 +55,7 @@ STAGES = (
 
 # The child: the stages wrapped, then rulkit's console entry point on the given arguments.
 _CHILD = """
-import importlib, sys, time
+import sys, time
 from collections import defaultdict
 STAGES = {stages!r}
 def mem():
@@ -63,12 +64,8 @@ def mem():
              or l.startswith("Rss")}}
     return d
 cpu, calls, first, rss, hwm = defaultdict(float), defaultdict(int), {{}}, {{}}, {{}}
-def owner(path):
-    mod, _, attr = path.rpartition(".")
-    try:
-        return importlib.import_module(path)
-    except ModuleNotFoundError:
-        return getattr(importlib.import_module(mod), attr)
+sys.path.insert(0, {here!r})
+from timing import stage_owner as owner
 start = time.process_time()
 import rulkit.cli
 rulkit_cli = time.process_time()
@@ -107,10 +104,6 @@ finally:
 """
 
 
-def _depth(label: str) -> int:
-    return (len(label) - len(label.lstrip())) // 2
-
-
 def report(err: str) -> None:
     """Print the child's figures (its stderr's last lines)."""
     stages: dict[str, tuple[float, int, float, int, int]] = {}
@@ -139,15 +132,15 @@ def report(err: str) -> None:
         print(f"  {label:30s} {c:7.2f} {c / total:6.1%} {r:7d} {h:8d}{note}")
         kids = []
         for other in labels[j + 1:]:
-            if _depth(other) <= _depth(label):
+            if stage_depth(other) <= stage_depth(label):
                 break
-            if _depth(other) == _depth(label) + 1:
+            if stage_depth(other) == stage_depth(label) + 1:
                 kids.append(other)
         if kids:
             rest = c - sum(stages[k][0] for k in kids)
-            print(f"  {'  ' * (_depth(label) + 1) + 'the rest':30s} {rest:7.2f} "
+            print(f"  {'  ' * (stage_depth(label) + 1) + 'the rest':30s} {rest:7.2f} "
                   f"{rest / total:6.1%}")
-    outer = sum(stages[k][0] for k in labels if _depth(k) == 0)
+    outer = sum(stages[k][0] for k in labels if stage_depth(k) == 0)
     print(f"  {'the command otherwise':30s} {run - outer:7.2f} {(run - outer) / total:6.1%}"
           "  (typer, options, imports inside the command)")
 
@@ -171,8 +164,9 @@ def main() -> None:
         for _ in range(2):  # the first run writes bytecode and numba's cache: not reported
             db = Path(tmp) / "track.db"
             db.unlink(missing_ok=True)
+            child = _CHILD.format(stages=STAGES, here=str(Path(__file__).parent))
             proc = subprocess.run(
-                [sys.executable, "-c", _CHILD.format(stages=STAGES), "track", "--db", str(db),
+                [sys.executable, "-c", child, "track", "--db", str(db),
                  str(src)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                 env=env)
             if proc.returncode != 0:
