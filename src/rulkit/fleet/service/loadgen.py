@@ -37,17 +37,13 @@ class Server:
 
     def cpu_seconds(self) -> float:
         """User + system CPU time the server process has used so far (Linux /proc)."""
-        with open(f"/proc/{self.proc.pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return _stat_cpu(f"/proc/{self.proc.pid}/stat")
 
     def loop_cpu_seconds(self) -> float:
         """The CPU time of the server's main thread so far: uvicorn's event loop (HTTP
         parsing, routing, the coroutines of the routes and their dependencies); the rest of
         :meth:`cpu_seconds` is the worker threads' (the routes' plain functions)."""
-        with open(f"/proc/{self.proc.pid}/task/{self.proc.pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return _stat_cpu(f"/proc/{self.proc.pid}/task/{self.proc.pid}/stat")
 
     def memory_mb(self) -> tuple[float, float]:
         """(resident, peak resident) memory of the server process, MB (Linux /proc)."""
@@ -71,6 +67,13 @@ class Server:
                 self.proc.wait(20)
             except subprocess.TimeoutExpired:
                 self.kill()
+
+
+def _stat_cpu(path: str) -> float:
+    """User + system CPU seconds of a Linux ``/proc/.../stat`` file (a process or a thread)."""
+    with open(path) as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def start_server(db: str, *, pool: int = 8, timeout: float = 60.0,
