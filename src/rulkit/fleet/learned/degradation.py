@@ -232,7 +232,7 @@ class DegradationModel:
         return rul_quantiles(self, state, levels, method=method, one_reading=one_reading)
 
     def rul_cdf(self, state: UnitState, r: FloatArray) -> FloatArray:
-        """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5))."""
+        """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5b))."""
         return rul_cdf(self, state, r)
 
     def empty_state(self, size: int) -> UnitState:

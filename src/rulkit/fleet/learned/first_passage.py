@@ -22,11 +22,12 @@ b* = E[b | z_J = g(1)]. Then
 V(w) eq. (5)'s variance: eq. (5) with the threshold lowered by s mu* (<= 0, the earlier of
 several noisy readings) and the variance raised by s^2 sigma*^2. With s = 0 it is eq. (5) of
 the latent level (a monotone path's first crossing is its marginal one); with readings far
-apart (c large) it is eq. (5) of one measurement (mu* = 0, sigma* = 1). Quantiles solve eq. (6)
-with (mu*, sigma*) held, then re-read them at the root (a fixed point, :data:`FIXED_POINT`
-passes). The approximations (a straight path between readings; the walk's variance at the
-horizon only; Y* Gaussian; c at b*; the cadence d regular) are measured against a brute-force
-Monte Carlo of the event in tests/fleet/learned/test_first_passage.py.
+apart (c large) it is eq. (5) of one measurement (mu* = 0, sigma* = 1). Quantiles are found by
+a bracketing search of (5b) per unit in one compiled pass
+(:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`). The approximations (a
+straight path between readings; the walk's variance at the horizon only; Y* Gaussian; c at b*;
+the cadence d regular) are measured against a brute-force Monte Carlo of the event in
+tests/fleet/learned/test_first_passage.py.
 """
 
 from __future__ import annotations
@@ -46,8 +47,6 @@ U_MAX = 10.0
 """Readings more than U_MAX noise sds below the latest cannot be the first >= 1 (Phi(-10))."""
 J_MAX = U_MAX / C_MIN + 1.0
 """Readings the table counts at most (more add nothing, by :data:`U_MAX`)."""
-FIXED_POINT = 6
-"""Passes of the quantiles' fixed point (the tests bound the change of a fifth pass)."""
 _LOG_C = np.linspace(math.log(C_MIN), math.log(C_MAX), 48)
 _LOG_J = np.linspace(0.0, math.log(J_MAX), 60)
 _Y = np.linspace(-12.0, 7.0, 381)
@@ -167,5 +166,5 @@ def level_terms(m: FloatArray, p: FloatArray, q: float, zs: float, s: float,
     return a - s * mu, np.sqrt(np.maximum(v + s * s * sig * sig, 1e-300))
 
 
-__all__ = ["C_MAX", "C_MIN", "FIXED_POINT", "J_MAX", "U_MAX", "kernel_table", "level_terms", "rise",
+__all__ = ["C_MAX", "C_MIN", "J_MAX", "U_MAX", "kernel_table", "level_terms", "rise",
            "ystar_moments", "ystar_table"]

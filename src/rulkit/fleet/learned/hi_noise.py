@@ -179,7 +179,7 @@ class HiNoiseModel:
                                    self.shape, horizons, levels)
 
     def rul_cdf(self, state: UnitState, r: np.ndarray) -> np.ndarray:
-        """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5))."""
+        """P(RUL <= r), ``r (B, K)`` in the file's time unit (eq. (5b))."""
         return rul_cdf(self, state, r)
 
     # -- storage and text
