@@ -61,10 +61,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
@@ -129,6 +128,9 @@ from rulkit.fleet.tracking.tracker_chain import (
 from rulkit.fleet.tracking.tracker_run import tracker_run, tracker_strategy
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
+
+if TYPE_CHECKING:  # pandas is imported by the reads that return frames, not by track
+    import pandas as pd
 
 
 def _finite(v: float) -> float | None:
@@ -364,6 +366,8 @@ class ComponentStore:
         return out
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
+        import pandas as pd
+
         with self.snapshot() as conn:
             try:
                 return pd.read_sql_query(sql, conn, params=params)
@@ -378,6 +382,8 @@ class ComponentStore:
     def _checked(self, df: pd.DataFrame, table: str) -> pd.DataFrame:
         """Refuse rows rulkit cannot have written (text in a number column, an unknown alert
         level), naming the table, component and column, instead of failing later."""
+        import pandas as pd
+
         for col in df.columns:
             if col == "component":
                 continue
@@ -407,6 +413,8 @@ class ComponentStore:
         estimated yet as 1e308, then id): the tracker chain's columns and the RUL and rules' columns
         ``rul_median``, ``failed_at``, ``seen`` (NaN where NULL; docs/systems/embedded-rul.md
         §6-7)."""
+        import pandas as pd
+
         nullable = ("rul_median", "failed_at", "seen")
         df = self._query("SELECT component, " + ", ".join((*ROW_FIELDS, *nullable))
                          + " FROM components")
@@ -421,6 +429,8 @@ class ComponentStore:
         chain's columns, and the RUL of the estimator in force, ``rul_median`` (NaN: not
         estimated yet) in ``rul_low``/``rul_high``, with the rules' ``level``
         (docs/systems/embedded-rul.md §6-7)."""
+        import pandas as pd
+
         with self.snapshot() as conn:
             if history_chunks.is_row_history(table_columns(conn, "history")):
                 raise StoreError(f"{self.path}: its history has one row per acquisition, the "
