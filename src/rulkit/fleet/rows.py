@@ -69,7 +69,7 @@ def check_component_ids(comp: pd.Series, error: ErrorType = ValueError) -> pd.Se
 
 
 def component_codes(comp: Any, error: ErrorType = ValueError
-                    ) -> tuple[NDArray[np.intp], list[str]]:
+                    ) -> tuple[NDArray[np.integer], list[str]]:
     """Component ids as (per row, the index of its id in ``names``; ``names``: the distinct
     stripped ``str`` ids in order of first appearance), or ``error`` at the first bad row.
 
@@ -102,7 +102,8 @@ def component_codes(comp: Any, error: ErrorType = ValueError
         codes, uniques = pd.factorize(series, sort=False)
     clean = _plain_ids(uniques)
     if clean is not None:
-        return np.asarray(codes, dtype=np.intp), clean
+        return (codes if isinstance(comp, CodedText)  # its int32 codes, not a copy
+                else np.asarray(codes, dtype=np.intp)), clean
     clean = []
     for k, v in enumerate(uniques):
         text, reason = _clean_id(v)
@@ -117,7 +118,8 @@ def component_codes(comp: Any, error: ErrorType = ValueError
     return ucodes[codes], list(merged)
 
 
-def _appearance_codes(comp: CodedText, error: ErrorType) -> tuple[NDArray[np.intp], list[Any]]:
+def _appearance_codes(comp: CodedText, error: ErrorType
+                      ) -> tuple[NDArray[np.integer], list[Any]]:
     """``comp``'s codes renumbered in order of first appearance, with its texts in that order
     (what pandas' factorize gives), or ``error`` at the first empty cell. A CSV reader's
     dictionary is built in order of appearance: then the codes are kept as they are (checked
@@ -128,7 +130,7 @@ def _appearance_codes(comp: CodedText, error: ErrorType) -> tuple[NDArray[np.int
     top = np.maximum.accumulate(codes)
     if codes.size == 0 or (codes[0] == 0 and not (np.diff(top) > 1).any()
                            and int(top[-1]) + 1 == len(comp.values)):
-        return codes.astype(np.intp), list(comp.values)
+        return codes, list(comp.values)
     used, first, inverse = np.unique(codes, return_index=True, return_inverse=True)
     order = np.argsort(first, kind="stable")
     rank = np.empty(order.size, dtype=np.intp)

@@ -114,7 +114,7 @@ class Batch:
     ages from it; ``calendar``: the time column held date-times (then ``t`` is the time since
     1970 in units of ``seconds_per_unit`` seconds)."""
 
-    codes: NDArray[np.intp]
+    codes: NDArray[np.integer]
     names: list[str]
     t: NDArray[np.float64]
     hi: NDArray[np.float64]

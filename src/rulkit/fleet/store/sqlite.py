@@ -133,6 +133,19 @@ if TYPE_CHECKING:  # pandas is imported by the reads that return frames, not by 
     import pandas as pd
 
 
+def _return_freed_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc's ``malloc_trim``; nothing
+    elsewhere). A batch's checks free arrays of 8 bytes per row that glibc keeps in its heap
+    once its mmap threshold has grown; without this they stay resident through the blocks
+    (about 30 MB at 2M rows: docs/service.md, "Where track's 2M rows go")."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).malloc_trim(0)  # the process's own symbols
+    except (OSError, AttributeError, TypeError):  # not glibc
+        pass
+
+
 def _finite(v: float) -> float | None:
     """``v``, or ``None`` (SQL NULL) when it is NaN or infinite."""
     return v if math.isfinite(v) else None
@@ -557,7 +570,7 @@ class ComponentStore:
         200k rows) and only one block's outputs are held. Memory and time are linear in the
         batch.
         """
-        codes = acq.codes.astype(np.int32)  # 4 bytes less per acquisition
+        codes = acq.codes.astype(np.int32, copy=False)  # 4 bytes less per acquisition
         names = acq.names
         if stored is None:
             stored = self._load_states(names)
@@ -589,6 +602,8 @@ class ComponentStore:
         # one way to run the trackers for the whole batch (tracker_run's cost model, with the
         # rank loops of all blocks against loading the compiled passes once)
         n_ranks = sum(int(counts[k0:k1].max()) for k0, k1 in blocks)
+        if n > self.BLOCK_ROWS:
+            _return_freed_memory()  # the checks' arrays, before the blocks
         strategy = tracker_strategy(n_ranks, n)
         prog.strategy = trend_strategy(n_ranks, n)  # the same choice for the trend's pass
         for k0, k1 in blocks:
