@@ -385,14 +385,16 @@ def read_csv_table(
 def arrow_columns(table: Any) -> dict[str, Any] | None:
     """A pyarrow table as numpy columns (copies: the table can be freed) when every column is
     of an integer or floating type (as arrays of that type, NaN for an empty cell of a
-    floating column) or dictionary-encoded text (:class:`CodedText`); ``None`` when a column
+    floating column) or text dictionary-encoded with int32 codes (:class:`CodedText`, as
+    :func:`read_csv_table` reads ``text_columns``); ``None`` when a column
     is of another type or an integer or text column has empty cells."""
     import pyarrow.types as pt
 
     for col in table.columns:
         typ = col.type
         if not (pt.is_floating(typ) or (col.null_count == 0 and (pt.is_integer(typ) or (
-                pt.is_dictionary(typ) and pt.is_string(typ.value_type))))):
+                pt.is_dictionary(typ) and pt.is_string(typ.value_type)
+                and pt.is_int32(typ.index_type))))):
             return None
     table = table.unify_dictionaries()
     out: dict[str, Any] = {}
@@ -413,8 +415,10 @@ def _joined(chunks: list[Any], dtype: np.dtype) -> NDArray[Any]:
     out = np.empty(sum(len(c) for c in chunks), dtype=dtype)
     i = 0
     for c in chunks:
-        validity, data = c.buffers()[:2]
         n = len(c)
+        if n == 0:  # an empty chunk may have no data buffer
+            continue
+        validity, data = c.buffers()[:2]
         out[i:i + n] = np.frombuffer(data, dtype=dtype, count=n, offset=c.offset * dtype.itemsize)
         if c.null_count:
             bits = np.unpackbits(np.frombuffer(validity, dtype=np.uint8), bitorder="little")
