@@ -4,15 +4,16 @@ docs/systems/embedded-rul.md §4; cost model in docs/service.md ("Fleet batch on
 component's trackers run in time order, but components are independent: the work splits by
 component. :func:`track_directory` without a scheduler reads the whole directory (every
 ``*.parquet`` / ``*.pq`` file under it, in name order) as one batch and ingests it like a file.
-With a scheduler, the sorted component ids are cut into ``buckets`` of consecutive ids; each
-Dask task reads the rows of its bucket from every partition (a pyarrow range filter, so no task
-holds the whole fleet), runs the store's one ingestion path on a private SQLite database seeded
-with those components' stored state (tracker state, learned-model state, the stored history
-they overlap, the settings), and returns that database's bytes. The client copies each
-bucket's new history rows, states and alerts into one database as the buckets finish, in the
-order of their ids (so that each bucket's rows append after the previous one's in the tables'
-key order), then into the store in one transaction. Every bucket ran exactly the code of the
-serial run on exactly its rows, so the stored numbers are the same (tested).
+With a scheduler, the component ids (read as the ingestion reads them) are sorted and cut
+into ``buckets`` of consecutive ids; a Dask task per partition reads it once and splits its
+rows by bucket, and a task per bucket takes its piece of every partition (so no task holds the
+whole fleet), runs the store's one ingestion path on a private SQLite database seeded with
+those components' stored state (tracker state, learned-model state, the stored history they
+overlap, the settings), and returns that database's bytes. The client copies each bucket's new
+history rows, states and alerts into one database as the buckets finish, in the order of their
+ids (each bucket's rows then append after the previous one's in the tables' key order), then
+into the store in one transaction. Every bucket ran exactly the code of the serial run on
+exactly its rows, so the stored numbers are the same (tested).
 """
 
 from __future__ import annotations
@@ -86,11 +87,13 @@ def bucket_ranges(names: list[str], buckets: int) -> list[list[int]]:
             if part.size]
 
 
-def _bucket_filters(files: list[str], buckets: int) -> tuple[list[list[str]], list[Any]]:
+def _bucket_filters(files: list[str], buckets: int
+                    ) -> tuple[list[list[str]], list[Any], Any]:
     """The components of each bucket (:func:`bucket_ranges` of the ids as the ingestion
-    reads them: stripped, numbers as text) and, per bucket, the values of the partitions'
-    ``component`` column that are its ids (a pyarrow value set of the column's own type).
-    A refused id raises what the serial run raises, naming its row."""
+    reads them: stripped, numbers as text), per bucket the values of the partitions'
+    ``component`` column that are its ids (a pyarrow value set of the column's own type),
+    and the partitions' common schema. A refused id raises what the serial run raises,
+    naming its row."""
     import pyarrow as pa
     import pyarrow.compute as pc
     import pyarrow.dataset as ds
@@ -99,7 +102,8 @@ def _bucket_filters(files: list[str], buckets: int) -> tuple[list[list[str]], li
     from rulkit.fleet.store.acquisitions import ComponentIdError
 
     try:
-        col = ds.dataset(files, format="parquet").to_table(columns=["component"]).column(0)
+        dataset = ds.dataset(files, format="parquet")
+        col = dataset.to_table(columns=["component"]).column(0)
         values = pc.unique(col)
     except Exception as err:  # pyarrow raises many kinds on bad partitions
         raise IngestError(f"{files[0]}...: cannot be read as Parquet partitions "
@@ -119,7 +123,41 @@ def _bucket_filters(files: list[str], buckets: int) -> tuple[list[list[str]], li
         bucket_of[idx] = b
     of_value = bucket_of[codes]
     sets = [values.filter(pa.array(of_value == b)) for b in range(len(groups))]
-    return [[names[i] for i in idx] for idx in groups], sets
+    return [[names[i] for i in idx] for idx in groups], sets, dataset.schema
+
+
+def _submit(client: Any, files: list[str], schema: Any, value_sets: list[Any],
+            seeds: list[dict[str, Any]], now: float) -> list[Any]:
+    """The tasks of one run, a future per bucket: each partition read once and split by
+    bucket (:func:`_split_file`), then each bucket's pieces ingested (:func:`_run_bucket`)."""
+    import operator
+
+    import pyarrow as pa
+
+    values = pa.concat_arrays(value_sets)
+    ends = np.cumsum([len(v) for v in value_sets])
+    splits = [client.submit(_split_file, f, schema, values, ends, pure=False) for f in files]
+    pieces = [[client.submit(operator.getitem, sp, b, pure=False) for sp in splits]
+              for b in range(len(value_sets))]
+    return [client.submit(_run_bucket, pieces[b], seeds[b], now, pure=False)
+            for b in range(len(value_sets))]
+
+
+def _split_file(file: str, schema: Any, values: Any, ends: np.ndarray) -> list[Any]:
+    """On a worker: the rows of one partition (read with the partitions' common ``schema``)
+    per bucket, each in the file's row order; bucket ``b``'s ids are ``values[ends[b - 1] :
+    ends[b]]``."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+
+    table = ds.dataset(file, format="parquet", schema=schema).to_table()
+    where = pc.index_in(table.column("component"), value_set=values).to_numpy(
+        zero_copy_only=False)
+    bucket = np.searchsorted(ends, where, side="right")  # every row's id is in values
+    order = np.argsort(bucket, kind="stable")
+    table = table.take(order)
+    cuts = np.searchsorted(bucket[order], np.arange(len(ends) + 1))
+    return [table.slice(cuts[b], cuts[b + 1] - cuts[b]) for b in range(len(ends))]
 
 
 def track_directory(db: str | Path, directory: str | Path, *, config: TrackerConfig,
@@ -146,11 +184,10 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
     try:
         files = [str(f) for f in partition_files(directory)]
         n_buckets = buckets or 4 * max(1, len(client.scheduler_info()["workers"]))
-        groups, value_sets = _bucket_filters(files, n_buckets)
+        groups, value_sets, schema = _bucket_filters(files, n_buckets)
         seeds = _seeds(path, groups, config, hi_model, timeout, rules)
         now = time.time()  # one calendar time of ingestion for every bucket
-        futures = client.map(_run_bucket, [files] * len(groups), value_sets, seeds,
-                             [now] * len(groups), pure=False)
+        futures = _submit(client, files, schema, value_sets, seeds, now)
         with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
             new = not path.exists()
             combined = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
@@ -273,15 +310,13 @@ def _rows(conn: Any, table: str, names: list[str]) -> tuple[list[str], list[tupl
     return cols, out
 
 
-def _run_bucket(files: list[str], values: Any, seed: dict[str, Any], now: float
-                ) -> tuple[bytes, int]:
-    """On a worker: the rows whose ``component`` is one of ``values`` (a pyarrow array)
-    through the one ingestion path, on a private database seeded with ``seed``; the
-    database's bytes and the number of rows already stored."""
-    import pyarrow.dataset as ds
+def _run_bucket(pieces: list[Any], seed: dict[str, Any], now: float) -> tuple[bytes, int]:
+    """On a worker: a bucket's rows (its piece of each partition, :func:`_split_file`, in
+    partition order) through the one ingestion path, on a private database seeded with
+    ``seed``; the database's bytes and the number of rows already stored."""
+    import pyarrow as pa
 
-    df = ds.dataset(files, format="parquet").to_table(
-        filter=ds.field("component").isin(values)).to_pandas()
+    df = pa.concat_tables(pieces).to_pandas()
     with tempfile.TemporaryDirectory(prefix="rulkit-bucket-") as tmp:
         path = Path(tmp) / "bucket.db"
         _write_seed(path, seed)
