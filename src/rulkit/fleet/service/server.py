@@ -12,9 +12,10 @@ answered) for up to ``grace`` seconds before it exits.
 
 Before it serves, :func:`serve` collects the start-up's garbage and freezes what is left
 (:func:`gc.freeze`): the ~10^5 objects of the libraries and the app are then never scanned
-again, so a full collection looks at what the requests made since, instead of stopping every
-thread for tens of milliseconds over the whole heap (docs/service.md, "Where the pages'
-outliers came from"). The app's metrics time each collection (``rulkit_gc_seconds``).
+again, so a full collection, when one comes, looks at what the requests made since instead
+of stopping every thread over the whole heap (``benchmarks/profile_page.py`` times both;
+docs/service.md, "Pages at 10^6 components"). The app's metrics time each collection
+(``rulkit_gc_seconds``).
 """
 
 from __future__ import annotations
