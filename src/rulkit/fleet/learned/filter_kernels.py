@@ -403,8 +403,8 @@ def lognormal_mixture_quantiles(w, lr, bw, levels, iterations, out):  # pragma: 
 def _ystar(c, j, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover - compiled
     """(mu*, sigma*) of eq. (5a) from the tables ``mu_t``, ``sd_t`` over log c (first row
     ``lc0``, step ``dlc``) and log J (step ``dlj``), bilinear as
-    :func:`rulkit.fleet.learned.first_passage.ystar_moments`, and their slopes in log c and
-    log J (0 where c or J is clamped to the table's edge)."""
+    :func:`rulkit.fleet.learned.first_passage.ystar_moments`, and their slopes per step of
+    log c and of log J (0 where c or J is clamped to the table's edge)."""
     nc, nj = mu_t.shape
     lc = (math.log(c) - lc0) / dlc if c > 0.0 else 0.0
     on_c = 0.0 < lc < nc - 1.0
@@ -419,7 +419,7 @@ def _ystar(c, j, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover - compiled
     s00, s01, s10, s11 = sd_t[i0, j0], sd_t[i0, j0 + 1], sd_t[i0 + 1, j0], sd_t[i0 + 1, j0 + 1]
     mu = w00 * m00 + w01 * m01 + w10 * m10 + w11 * m11
     sd = w00 * s00 + w01 * s01 + w10 * s10 + w11 * s11
-    gc, gj = (1.0 / dlc if on_c else 0.0), (1.0 / dlj if on_j else 0.0)
+    gc, gj = (1.0 if on_c else 0.0), (1.0 if on_j else 0.0)  # per table step
     mu_c = gc * ((1 - b) * (m10 - m00) + b * (m11 - m01))
     sd_c = gc * ((1 - b) * (s10 - s00) + b * (s11 - s01))
     mu_j = gj * ((1 - a) * (m01 - m00) + a * (m11 - m10))
@@ -442,14 +442,15 @@ def _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cove
         return a, d, mb, dv / (2.0 * d)
     mu, sd, dmu, dsd = 0.0, 1.0, 0.0, 0.0
     if delta < np.inf:
-        rate = mb - g * a / v
-        drate = -(pbb * a + g * mb) / v + g * a * dv / (v * v)
+        iv = 1.0 / v
+        rate = mb - g * a * iv
+        drate = (g * a * dv * iv - pbb * a - g * mb) * iv
         if rate <= 0.0:
             rate, drate = 0.0, 0.0
         mu, sd, mu_c, sd_c, mu_j, sd_j = _ystar(rate * delta / s, max(w / delta, 1.0), mu_t,
                                                 sd_t, lc0, dlc, dlj)
-        dlog_c = drate / rate if rate > 0.0 else 0.0
-        dlog_j = 1.0 / w if w > delta else 0.0
+        dlog_c = drate / (rate * dlc) if rate > 0.0 else 0.0  # in table steps per unit w
+        dlog_j = 1.0 / (w * dlj) if w > delta else 0.0
         dmu = mu_c * dlog_c + mu_j * dlog_j
         dsd = sd_c * dlog_c + sd_j * dlog_j
     d = math.sqrt(v + s * s * sd * sd)
