@@ -529,16 +529,17 @@ def _quadratic_root(st, q, s2, mu_s, k, w_lo):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _fp_root(st, q, s, delta, k, w_lo, w_hi, mu_s, s2, mu_t, sd_t, lc0, dlc, dlj,
+def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_s, s2, mu_t, sd_t, lc0, dlc, dlj,
              iterations):  # pragma: no cover - compiled
     """The horizon in (w_lo, w_hi) (w_hi may be inf) where S of eq. (5b) falls to Phi(-k),
     known to lie there: G(w) = N(w) - k D(w) = 0 (G < 0 before the root), by Newton's steps
     from eq. (6)'s root with the threshold lowered by ``mu_s`` (s mu*) and the variance raised
     by ``s2`` (s^2 sigma*^2), safeguarded by the bracket (a step leaving it is a halving, or a
     doubling while the bracket is open), until a step is below 1e-13 w, at most
-    ``iterations`` steps. Returns the root and (s mu*, s^2 sigma*^2) at the last step (the
-    next level's start)."""
+    ``iterations`` steps; as soon as the root is known to lie below ``floor``, that bound.
+    Returns the root and (s mu*, s^2 sigma*^2) at the last step (the next level's start)."""
     lo, hi = w_lo, w_hi
+    n, d = 0.0, 1.0
     w = _quadratic_root(st, q, s2, mu_s, k, w_lo)
     if not (lo < w < hi):
         w = 0.5 * (lo + hi) if hi < np.inf else w_lo + max(w_lo, 1.0)
@@ -549,6 +550,8 @@ def _fp_root(st, q, s, delta, k, w_lo, w_hi, mu_s, s2, mu_t, sd_t, lc0, dlc, dlj
             lo = w
         elif g > 0.0:
             hi = w
+            if hi <= floor:
+                break
         w_new = w - g / (dn - k * dd) if g != 0.0 else w
         if lo <= w_new <= hi and abs(w_new - w) <= 1e-13 * w_new:
             w = w_new
@@ -572,7 +575,7 @@ def _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0, dlc, dlj,
     if g_first <= 0.0:
         return d * lev / first
     k = _margin_quantile(ls0 + math.log1p(-min(lev / first * g_first, 1.0)))
-    return _fp_root(st, q, s, np.inf, k, 0.0, d, 0.0, s * s, mu_t, sd_t, lc0, dlc, dlj,
+    return _fp_root(st, q, s, np.inf, k, 0.0, d, 0.0, 0.0, s * s, mu_t, sd_t, lc0, dlc, dlj,
                     iterations)[0]
 
 
@@ -582,8 +585,9 @@ def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
     """Quantiles of eq. (5b) per unit into ``out (L, B)``, in scaled age (see
     :func:`rulkit.fleet.learned.degradation.rul_quantiles`): +inf beyond the failing mass;
     on the first cadence step, one measurement's eq. (5) scaled to the first reading's
-    probability (:func:`_first_step_root`). Each level's root starts from eq. (6) at the
-    moments of the unit's previous level's root (one reading's for the first)."""
+    probability (:func:`_first_step_root`), where the search of (5b) from 0 finds its root
+    below the first reading d and 1 - S(d) >= the level. Each level's root starts from eq. (6)
+    at the moments of the unit's previous level's root (one reading's for the first)."""
     inf = np.inf
     k_fp = np.empty(levels.shape[0])  # the first passage's k per level (its reference is 0)
     for i in range(levels.shape[0]):
@@ -595,27 +599,26 @@ def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
         fp = s > 0.0 and d < inf
         ref = 0.0 if fp else _fp_log_surv(st, q, s, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj)
         ls_inf = log_ndtr(-st[1] / math.sqrt(st[4]))
-        n_d, d_d = 0.0, 1.0
-        if fp:  # (5b) at the first reading: below it, the first step's CDF
-            n_d, d_d, _, _ = _fp_terms(st, q, s, d, d, mu_t, sd_t, lc0, dlc, dlj)
         mu_s, s2 = 0.0, s * s
         for i in range(levels.shape[0]):
             lev = levels[i]
             target = ref + math.log1p(-lev)
             if target <= ls_inf:
                 out[i, b] = inf
-            elif target >= 0.0 or lev <= 0.0:
+                continue
+            if target >= 0.0 or lev <= 0.0:
                 out[i, b] = 0.0
-            elif fp and n_d - k_fp[i] * d_d >= 0.0:  # S(d) <= 1 - lev: on the first step?
-                first = -math.expm1(log_ndtr(-n_d / d_d))
+                continue
+            k = k_fp[i] if fp else _margin_quantile(target)
+            w, mu_s2, s22 = _fp_root(st, q, s, d, k, 0.0, inf, d if fp else 0.0, mu_s, s2,
+                                     mu_t, sd_t, lc0, dlc, dlj, iterations)
+            if fp and w <= d:  # before the first reading: on the first step?
+                first = -math.expm1(_fp_log_surv(st, q, s, d, d, mu_t, sd_t, lc0, dlc, dlj))
                 if lev <= first:
-                    out[i, b] = _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0, dlc,
-                                                 dlj, iterations)
-                else:  # rounding at the step's end: the root is at d
-                    out[i, b] = _fp_root(st, q, s, d, k_fp[i], d, inf, mu_s, s2, mu_t, sd_t,
-                                         lc0, dlc, dlj, iterations)[0]
-            else:
-                k = k_fp[i] if fp else _margin_quantile(target)
-                out[i, b], mu_s, s2 = _fp_root(st, q, s, d, k, d if fp else 0.0, inf, mu_s,
-                                               s2, mu_t, sd_t, lc0, dlc, dlj, iterations)
+                    out[i, b] = _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0,
+                                                 dlc, dlj, iterations)
+                    continue
+                w, mu_s2, s22 = _fp_root(st, q, s, d, k, d, inf, 0.0, mu_s, s2, mu_t, sd_t,
+                                         lc0, dlc, dlj, iterations)
+            out[i, b], mu_s, s2 = w, mu_s2, s22
     return 0
