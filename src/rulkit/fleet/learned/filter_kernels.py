@@ -10,7 +10,9 @@ recompiled every time). Imported lazily by :mod:`rulkit.fleet.learned.degradatio
   likelihood with its central-difference gradient over the 7 parameters in one call;
 * ``growth_*``: the iterated extended Kalman filter of eq. (8) measuring the HI itself
   (additive noise, multiplicative noise on the log scale, or both, eq. (7)), over an onset grid
-  (eq. (9)).
+  (eq. (9));
+* ``first_passage_quantiles``: the RUL quantiles of the first measured crossing (eq. (5b)),
+  Newton's steps per unit from eq. (6)'s closed-form root.
 """
 
 from __future__ import annotations
@@ -535,27 +537,36 @@ def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_s, s2, mu_t, sd_t, lc0, d
     known to lie there: G(w) = N(w) - k D(w) = 0 (G < 0 before the root), by Newton's steps
     from eq. (6)'s root with the threshold lowered by ``mu_s`` (s mu*) and the variance raised
     by ``s2`` (s^2 sigma*^2), safeguarded by the bracket (a step leaving it is a halving, or a
-    doubling while the bracket is open), until a step is below 1e-13 w, at most
-    ``iterations`` steps; as soon as the root is known to lie below ``floor``, that bound.
+    doubling while the bracket is open), until a step is below 1e-13 w or, below 1e-6 w, the
+    error left after it, |G''| h^2 / (2 |G'|) with G'' from the last two slopes, is below
+    1e-14 w (an edge of the table's bilinear cells inside the step adds the slope's jump
+    there times the step: tested against bisection to 1e-9), at most ``iterations`` steps;
+    as soon as the root is known to lie below ``floor``, that bound.
     Returns the root and (s mu*, s^2 sigma*^2) at the last step (the next level's start)."""
     lo, hi = w_lo, w_hi
     n, d = 0.0, 1.0
     w = _quadratic_root(st, q, s2, mu_s, k, w_lo)
     if not (lo < w < hi):
         w = 0.5 * (lo + hi) if hi < np.inf else w_lo + max(w_lo, 1.0)
+    w_prev, dg_prev = np.nan, np.nan
     for _ in range(iterations):
         n, d, dn, dd = _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj)
-        g = n - k * d
+        g, dg = n - k * d, dn - k * dd
         if g < 0.0:
             lo = w
         elif g > 0.0:
             hi = w
             if hi <= floor:
                 break
-        w_new = w - g / (dn - k * dd) if g != 0.0 else w
-        if lo <= w_new <= hi and abs(w_new - w) <= 1e-13 * w_new:
+        w_new = w - g / dg if g != 0.0 else w
+        h = abs(w_new - w)
+        # Newton's error after the step: |G''| h^2 / (2 |G'|), G'' from the last two slopes
+        if lo <= w_new <= hi and (h <= 1e-13 * w_new or (
+                h <= 1e-6 * w_new and abs(dg - dg_prev) * h * h
+                <= 2e-14 * abs(dg) * abs(w - w_prev) * w_new)):
             w = w_new
             break
+        w_prev, dg_prev = w, dg
         if not (lo < w_new < hi):
             w_new = 0.5 * (lo + hi) if hi < np.inf else w_lo + 2.0 * (w - w_lo) + 1.0
         w = w_new
