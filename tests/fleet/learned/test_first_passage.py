@@ -220,3 +220,13 @@ def test_kernel_quantiles_nondecreasing_in_level():
     ok = st.n > 0
     assert np.all(w[1:, ok] >= w[:-1, ok])  # inf >= inf: the never-failing levels
     assert (w[:, ok] < delta[ok]).any() and np.isfinite(w[:, ok]).any()
+
+
+def test_a_level_does_not_depend_on_the_levels_asked_with_it():
+    """Same state, same level, same bits: each level's search starts from its own eq. (6)."""
+    model = HiNoiseModel(noise="mixed", shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2),
+                         hi_noise_sd=0.01, log_noise_sd=0.04, walk_sd=0.05, time_scale=1000.0)
+    st = _mixed_states(np.random.default_rng(6), model, 100)
+    med, low, high = model.rul_quantiles(st)
+    for lev, q in ((0.05, low), (0.95, high), (0.5, med)):
+        np.testing.assert_array_equal(model.rul_quantiles(st, (lev,))[0], q)

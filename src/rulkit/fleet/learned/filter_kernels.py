@@ -505,12 +505,11 @@ def _margin_quantile(target):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _quadratic_root(st, q, s2, mu_s, k, w_lo):  # pragma: no cover - compiled
-    """Eq. (6) with the threshold lowered by ``mu_s`` (s mu*) and the variance raised by
-    ``s2`` (s^2 sigma*^2) held fixed: the smallest root w >= ``w_lo`` of
-    (A + m_b w)^2 = k^2 (P_zz + s2 + w (2 P_zb + q) + w^2 P_bb) with A + m_b w of k's sign
-    (squaring lost it), A = m_z - g(1) - mu_s; -1 if none."""
-    a_, b_ = st[0] - mu_s, st[1]
+def _quadratic_root(st, q, s2, k, w_lo):  # pragma: no cover - compiled
+    """Eq. (6) of one measurement (the variance raised by ``s2``, s^2): the smallest root
+    w >= ``w_lo`` of (A + m_b w)^2 = k^2 (P_zz + s2 + w (2 P_zb + q) + w^2 P_bb) with A + m_b w
+    of k's sign (squaring lost it), A = m_z - g(1); -1 if none."""
+    a_, b_ = st[0], st[1]
     k2 = k * k
     a2 = b_ * b_ - k2 * st[4]
     a1 = 2.0 * a_ * b_ - k2 * (2.0 * st[3] + q)
@@ -531,21 +530,19 @@ def _quadratic_root(st, q, s2, mu_s, k, w_lo):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_s, s2, mu_t, sd_t, lc0, dlc, dlj,
+def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_t, sd_t, lc0, dlc, dlj,
              iterations):  # pragma: no cover - compiled
     """The horizon in (w_lo, w_hi) (w_hi may be inf) where S of eq. (5b) falls to Phi(-k),
     known to lie there: G(w) = N(w) - k D(w) = 0 (G < 0 before the root), by Newton's steps
-    from eq. (6)'s root with the threshold lowered by ``mu_s`` (s mu*) and the variance raised
-    by ``s2`` (s^2 sigma*^2), safeguarded by the bracket (a step leaving it is a halving, or a
-    doubling while the bracket is open), until a step is below 1e-13 w or, below 1e-6 w, the
-    error left after it, |G''| h^2 / (2 |G'|) with G'' from the last two slopes, is below
-    1e-14 w (an edge of the table's bilinear cells inside the step adds the slope's jump
-    there times the step: tested against bisection to 1e-9), at most ``iterations`` steps;
-    as soon as the root is known to lie below ``floor``, that bound.
-    Returns the root and (s mu*, s^2 sigma*^2) at the last step (the next level's start)."""
+    from one measurement's eq. (6) root (mu* = 0, sigma* = 1; so a level's root does not
+    depend on the other levels asked), safeguarded by the bracket (a step leaving it is a
+    halving, or a doubling while the bracket is open), until a step is below 1e-13 w or,
+    below 1e-6 w, the error left after it, |G''| h^2 / (2 |G'|) with G'' from the last two
+    slopes, is below 1e-14 w (an edge of the table's bilinear cells inside the step adds the
+    slope's jump there times the step: tested against bisection to 1e-9), at most
+    ``iterations`` steps; as soon as the root is known to lie below ``floor``, that bound."""
     lo, hi = w_lo, w_hi
-    n, d = 0.0, 1.0
-    w = _quadratic_root(st, q, s2, mu_s, k, w_lo)
+    w = _quadratic_root(st, q, s * s, k, w_lo)
     if not (lo < w < hi):
         w = 0.5 * (lo + hi) if hi < np.inf else w_lo + max(w_lo, 1.0)
     w_prev, dg_prev = np.nan, np.nan
@@ -570,8 +567,7 @@ def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_s, s2, mu_t, sd_t, lc0, d
         if not (lo < w_new < hi):
             w_new = 0.5 * (lo + hi) if hi < np.inf else w_lo + 2.0 * (w - w_lo) + 1.0
         w = w_new
-    v = max(st[2] + 2.0 * w * st[3] + w * w * st[4] + q * w, 1e-300)
-    return w, st[0] + st[1] * w - n, d * d - v
+    return w
 
 
 @numba.njit(cache=True)
@@ -586,8 +582,7 @@ def _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0, dlc, dlj,
     if g_first <= 0.0:
         return d * lev / first
     k = _margin_quantile(ls0 + math.log1p(-min(lev / first * g_first, 1.0)))
-    return _fp_root(st, q, s, np.inf, k, 0.0, d, 0.0, 0.0, s * s, mu_t, sd_t, lc0, dlc, dlj,
-                    iterations)[0]
+    return _fp_root(st, q, s, np.inf, k, 0.0, d, 0.0, mu_t, sd_t, lc0, dlc, dlj, iterations)
 
 
 @numba.njit(cache=True)
@@ -597,8 +592,7 @@ def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
     :func:`rulkit.fleet.learned.degradation.rul_quantiles`): +inf beyond the failing mass;
     on the first cadence step, one measurement's eq. (5) scaled to the first reading's
     probability (:func:`_first_step_root`), where the search of (5b) from 0 finds its root
-    below the first reading d and 1 - S(d) >= the level. Each level's root starts from eq. (6)
-    at the moments of the unit's previous level's root (one reading's for the first)."""
+    below the first reading d and 1 - S(d) >= the level."""
     inf = np.inf
     k_fp = np.empty(levels.shape[0])  # the first passage's k per level (its reference is 0)
     for i in range(levels.shape[0]):
@@ -610,7 +604,6 @@ def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
         fp = s > 0.0 and d < inf
         ref = 0.0 if fp else _fp_log_surv(st, q, s, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj)
         ls_inf = log_ndtr(-st[1] / math.sqrt(st[4]))
-        mu_s, s2 = 0.0, s * s
         for i in range(levels.shape[0]):
             lev = levels[i]
             target = ref + math.log1p(-lev)
@@ -621,15 +614,15 @@ def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
                 out[i, b] = 0.0
                 continue
             k = k_fp[i] if fp else _margin_quantile(target)
-            w, mu_s2, s22 = _fp_root(st, q, s, d, k, 0.0, inf, d if fp else 0.0, mu_s, s2,
-                                     mu_t, sd_t, lc0, dlc, dlj, iterations)
+            w = _fp_root(st, q, s, d, k, 0.0, inf, d if fp else 0.0, mu_t, sd_t, lc0, dlc, dlj,
+                         iterations)
             if fp and w <= d:  # before the first reading: on the first step?
                 first = -math.expm1(_fp_log_surv(st, q, s, d, d, mu_t, sd_t, lc0, dlc, dlj))
                 if lev <= first:
                     out[i, b] = _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0,
                                                  dlc, dlj, iterations)
                     continue
-                w, mu_s2, s22 = _fp_root(st, q, s, d, k, d, inf, 0.0, mu_s, s2, mu_t, sd_t,
-                                         lc0, dlc, dlj, iterations)
-            out[i, b], mu_s, s2 = w, mu_s2, s22
+                w = _fp_root(st, q, s, d, k, d, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj,
+                             iterations)
+            out[i, b] = w
     return 0
