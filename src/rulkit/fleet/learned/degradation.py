@@ -506,13 +506,16 @@ def _bisect_levels(model: GrowthLaw, state: UnitState, levels: tuple[float, ...]
     out = np.empty((len(levels), len(state)))
     for k, lev in enumerate(levels):
         lo, hi = np.zeros(len(state)), np.ones(len(state))
-        for _ in range(iterations):
+        with np.errstate(divide="ignore"):  # u = 1 (the never-failing mass): w = inf
+            for _ in range(iterations):
+                u = 0.5 * (lo + hi)
+                w = scale * u / (1.0 - u)
+                below = rul_cdf(model, state, (w * tau)[:, None])[:, 0] < lev
+                lo, hi = np.where(below, u, lo), np.where(below, hi, u)
             u = 0.5 * (lo + hi)
-            below = rul_cdf(model, state, (scale * u / (1.0 - u) * tau)[:, None])[:, 0] < lev
-            lo, hi = np.where(below, u, lo), np.where(below, hi, u)
-        u = 0.5 * (lo + hi)
+            w = scale * u / (1.0 - u)
         never = ref + math.log1p(-lev) <= ls_inf
-        out[k] = np.where(never, np.inf, scale * u / (1.0 - u))
+        out[k] = np.where(never, np.inf, w)
     return out
 
 
