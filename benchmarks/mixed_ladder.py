@@ -1,0 +1,259 @@
+"""Why the mixed-noise fleets' late intervals are too wide: a ladder of oracles.
+
+docs/fleet-models.md section 7. On one goal fleet (``GOAL_FLEETS``, drawn as ``rulkit
+fleet-data`` and ``fleet_goals.py`` draw it) every failed unit's acquisitions are predicted by
+each rung, and each rung's 90 % intervals are scored against the same truths (the measured
+crossing of hi = 1):
+
+a. ``oracle``: the generator's own law per unit, brute-force Monte Carlo of the first measured
+   crossing (``fleet_oracle.py``);
+b. ``true-law``: the model's filter and RUL (eq. (5b)) with each unit's true level and rate as
+   its prior (a point mass), the generator's noise, no walk: the RUL machinery alone;
+c. ``true-prior``: the same with the generator's population (the level all units start from,
+   the mean and variance of its log-normal rates), the generator's noise, no walk: the filter
+   and RUL with the true parameters;
+d. ``paris-mixed``, ``paris-mixed-iid``, ``paris-multiplicative``: the fitted models (on all
+   units, the scored one included; ``fleet_goals.py`` prints their leave-one-unit-out),
+   then ``... walk 0``: the same fitted model with its random walk set to 0, and ``...
+   true noise``: with the generator's noise sds in place of the fitted ones.
+
+Per rung: the coverage over all predictions and over the last half of life, the median width
+of the late intervals relative to the truth, the shares of late truths before the interval
+(optimistic) and after it (pessimistic), the late median relative error; and each rung's
+parameters beside the generator's (on the file's time unit):
+
+    .venv/bin/python benchmarks/mixed_ladder.py                    # mixed, seeds 0 and 2
+    .venv/bin/python benchmarks/mixed_ladder.py --dataset additive --seeds 0
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
+import dataclasses
+import math
+import time
+
+import numpy as np
+import pandas as pd
+
+from fleet_oracle import FleetTruth, fleet_law, fleet_truth, oracle_quantiles
+from rulkit.fleet.learned.datasets import paris_curve, paris_life
+from rulkit.fleet.learned.degradation import time_scale_of
+from rulkit.fleet.learned.growth_filter import boxcox
+from rulkit.fleet.learned.hi_noise import HiNoiseModel, fit_hi_noise
+from rulkit.fleet.learned.histories import Histories
+from rulkit.fleet.learned.scoring import truth_rul
+
+LEVELS = (0.5, 0.05, 0.95)
+POINT_VAR = 1e-12
+"""The prior variance of a known level or rate (scaled units): a point mass the filter accepts."""
+
+
+def population_rate(name: str) -> tuple[float, float]:
+    """Mean and sd of the generator's growth rates c = paris_life(h0, 1, m) / grow (grow
+    log-normal, median ``life_median``, sd of its log ``life_cv``: the defaults of
+    ``synthetic_growth_fleet``), per time unit."""
+    m, h0, _, _ = fleet_law(name)
+    life_median, life_cv = 300.0, 0.25
+    med = float(paris_life(h0, np.ones(1), m)[0]) / life_median
+    mean = med * math.exp(0.5 * life_cv**2)
+    return mean, mean * math.sqrt(math.expm1(life_cv**2))
+
+
+def true_model(name: str, hist: Histories, level_var: float, rate_mean: float,
+               rate_var: float) -> HiNoiseModel:
+    """The model of eq. (7) with the generator's shape, start level, noise and no walk, and
+    the given rate prior (per time unit) and level variance (scaled units)."""
+    m, h0, add, mult = fleet_law(name)
+    lam = 1.0 - 0.5 * m
+    tau = time_scale_of(hist)
+    return HiNoiseModel(noise="mixed" if add and mult else
+                        ("additive" if add else "multiplicative"),
+                        shape=lam, mean=(float(boxcox(np.array(h0), lam)), rate_mean * tau),
+                        cov=(level_var, 0.0, rate_var * tau * tau), hi_noise_sd=add,
+                        log_noise_sd=mult, walk_sd=0.0, time_scale=tau)
+
+
+def model_rows(model: HiNoiseModel, hist: Histories) -> np.ndarray:
+    """RUL quantiles (``LEVELS``) after every row of ``hist``."""
+    return np.column_stack(model.rul_quantiles(model.replay(hist), LEVELS))
+
+
+def true_law_rows(name: str, fleet: FleetTruth) -> np.ndarray:
+    """Rung b: each unit through the model with its own true rate as a point-mass prior."""
+    hist = fleet.hist
+    out = np.full((hist.t.size, len(LEVELS)), np.nan)
+    for u in np.flatnonzero(hist.failed):
+        one = hist.select([int(u)])
+        c = float(fleet.c[fleet.law_index(int(u))])
+        model = true_model(name, hist, POINT_VAR, c, POINT_VAR / time_scale_of(hist) ** 2)
+        out[hist.rows(int(u))] = model_rows(model, one)
+    return out
+
+
+def oracle_rows(name: str, fleet: FleetTruth, seed: int, draws: int, regular: bool = False
+                ) -> np.ndarray:
+    """Rung a: the generator's first measured crossing per prediction (``fleet_oracle.py``;
+    ``regular``: its future acquisitions at a regular cadence, eq. (5b)'s assumption)."""
+    hist, out = fleet.hist, np.full((fleet.hist.t.size, len(LEVELS)), np.nan)
+    rng = np.random.default_rng([seed, 99])
+    for u in np.flatnonzero(hist.failed):
+        s, g = hist.rows(int(u)), fleet.law_index(int(u))
+        out[s] = oracle_quantiles(name, hist.t[s], hist.hi[s], float(fleet.c[g]),
+                                  float(fleet.onset[g]), float(fleet.life[g]), rng, draws,
+                                  regular)
+    return out
+
+
+def reading_log_density(y: np.ndarray, h: np.ndarray, add: float, mult: float,
+                        nodes: int = 24) -> np.ndarray:
+    """log density of a reading y = max(h exp(e1) + e2, 0) given the law's h (broadcast),
+    e1 ~ N(0, mult^2), e2 ~ N(0, add^2), by Gauss-Hermite quadrature over e1 (no reading of
+    these fleets is clipped at 0: their HI starts at 0.1 or more, 5 noise sds up)."""
+    x, wts = np.polynomial.hermite_e.hermegauss(nodes)
+    wts = wts / wts.sum()
+    if mult == 0.0:
+        x, wts = np.zeros(1), np.ones(1)
+    if add == 0.0:  # log-normal: the density of y itself
+        ly = np.log(np.maximum(y, 1e-300))
+        return (-0.5 * ((ly - np.log(h)) / mult) ** 2 - ly - math.log(mult)
+                - 0.5 * math.log(2 * math.pi))
+    mu = h[..., None] * np.exp(mult * x)
+    dens = np.exp(-0.5 * ((y[..., None] - mu) / add) ** 2) @ wts
+    return np.log(np.maximum(dens, 1e-300)) - math.log(add) - 0.5 * math.log(2 * math.pi)
+
+
+def bayes_rows(name: str, fleet: FleetTruth, seed: int, draws: int, grid: int = 400
+               ) -> np.ndarray:
+    """Rung b: the exact Bayesian predictive with the generator's population as the prior:
+    the posterior of each unit's rate on a grid (its start level and the noise are the
+    generator's, known), by brute force from the exact reading density, then ``draws``
+    futures of the generator with rates drawn from it (``fleet_oracle.oracle_quantiles``)."""
+    m, h0, add, mult = fleet_law(name)
+    med = float(paris_life(h0, np.ones(1), m)[0]) / 300.0
+    lc = math.log(med) + 0.25 * np.linspace(-6.0, 6.0, grid)
+    log_prior = -0.5 * ((lc - math.log(med)) / 0.25) ** 2
+    hist, out = fleet.hist, np.full((fleet.hist.t.size, len(LEVELS)), np.nan)
+    rng = np.random.default_rng([seed, 98])
+    for u in np.flatnonzero(hist.failed):
+        s, g = hist.rows(int(u)), fleet.law_index(int(u))
+        t, y = hist.t[s], hist.hi[s]
+        h = np.minimum(paris_curve(h0, np.exp(lc)[None, :], m, t[:, None]), 10.0)
+        post = log_prior + np.cumsum(reading_log_density(y[:, None], h, add, mult), axis=0)
+        cdf = np.cumsum(np.exp(post - post.max(axis=1, keepdims=True)), axis=1)
+        cdf /= cdf[:, -1:]
+        c = np.exp(np.stack([np.interp(rng.random(draws), cdf[i], lc) for i in range(t.size)]))
+        out[s] = oracle_quantiles(name, t, y, c, float(fleet.onset[g]), float(fleet.life[g]),
+                                  rng, draws)
+    return out
+
+
+def score(hist: Histories, q: np.ndarray) -> dict[str, float]:
+    """Coverage (all, last half), late width / truth, late optimistic / pessimistic shares,
+    late median relative error, over the failed units' predictions."""
+    y = truth_rul(hist)
+    t_first = hist.t[hist.start[:-1]][hist.unit]
+    late = hist.t >= t_first + 0.5 * (hist.failure_time()[hist.unit] - t_first)
+    ok = np.isfinite(y)
+    lt = ok & late
+    cov = (q[:, 1] <= y) & (y <= q[:, 2])
+    return {"n": int(ok.sum()), "n_late": int(lt.sum()),
+            "coverage": float(cov[ok].mean()), "coverage_late": float(cov[lt].mean()),
+            "width_late": float(np.median((q[lt, 2] - q[lt, 1]) / y[lt])),
+            "optimistic": float((y[lt] < q[lt, 1]).mean()),
+            "pessimistic": float((y[lt] > q[lt, 2]).mean()),
+            "error_late": float(np.median(np.abs(q[lt, 0] - y[lt]) / y[lt]))}
+
+
+def params(model: HiNoiseModel | None, name: str, fleet: FleetTruth) -> dict[str, float]:
+    """A rung's parameters on the file's time unit (the generator's when ``model`` is None):
+    Paris exponent, start level and its sd, rate mean and sd, noise sds at hi = 1, walk sd."""
+    if model is None:
+        m, h0, add, mult = fleet_law(name)
+        mean, sd = population_rate(name)
+        return {"m": m, "level": float(boxcox(np.array(h0), 1.0 - 0.5 * m)), "level_sd": 0.0,
+                "rate": mean, "rate_sd": sd, "hi_noise_sd": add, "log_noise_sd": mult,
+                "walk_sd": 0.0}
+    tau = model.time_scale
+    return {"m": model.paris_exponent, "level": model.mean[0],
+            "level_sd": math.sqrt(model.cov[0]), "rate": model.mean[1] / tau,
+            "rate_sd": math.sqrt(model.cov[2]) / tau, "hi_noise_sd": model.hi_noise_sd,
+            "log_noise_sd": model.log_noise_sd, "walk_sd": model.walk_sd / math.sqrt(tau)}
+
+
+def fitted_rungs(name: str, hist: Histories) -> list[tuple[str, HiNoiseModel]]:
+    """Rung d: the fitted models, each also with its walk at 0 and with the true noise."""
+    _, _, add, mult = fleet_law(name)
+    out: list[tuple[str, HiNoiseModel]] = []
+    for noise, walk in (("mixed", True), ("mixed", False), ("multiplicative", True)):
+        model = fit_hi_noise(hist, noise, walk=walk)
+        kind = model.name
+        out.append((kind, model))
+        if model.walk_sd > 0:
+            out.append((f"{kind} walk 0", dataclasses.replace(model, walk_sd=0.0)))
+        out.append((f"{kind} true noise", dataclasses.replace(
+            model, hi_noise_sd=add, log_noise_sd=mult, noise="mixed")))
+    return out
+
+
+def ladder(name: str, seed: int, units: int, draws: int) -> None:
+    """Print one fleet's ladder (module docstring)."""
+    t0 = time.perf_counter()
+    fleet = fleet_truth(name, seed, units)
+    hist = fleet.hist
+    print(f"\n== {name}, seed {seed}: {hist.n_units} units, {int(hist.failed.sum())} failed, "
+          f"{hist.t.size} acquisitions", flush=True)
+    rows: list[dict[str, object]] = []
+
+    def rung(label: str, q: np.ndarray, model: HiNoiseModel | None, seconds: float) -> None:
+        rows.append({"rung": label, **score(hist, q), **params(model, name, fleet),
+                     "seconds": round(seconds, 1)})
+
+    t = time.perf_counter()
+    rung("a oracle", oracle_rows(name, fleet, seed, draws), None, time.perf_counter() - t)
+    t = time.perf_counter()
+    rung("a' oracle, regular cadence", oracle_rows(name, fleet, seed, draws, True), None,
+         time.perf_counter() - t)
+    t = time.perf_counter()
+    rung("b exact Bayes, true prior", bayes_rows(name, fleet, seed, draws), None,
+         time.perf_counter() - t)
+    t = time.perf_counter()
+    rung("b true-law", true_law_rows(name, fleet), None, time.perf_counter() - t)
+    mean, sd = population_rate(name)
+    prior = true_model(name, hist, POINT_VAR, mean, sd * sd)
+    t = time.perf_counter()
+    rung("c true-prior", model_rows(prior, hist), prior, time.perf_counter() - t)
+    for label, model in fitted_rungs(name, hist):
+        t = time.perf_counter()
+        rung(f"d {label}", model_rows(model, hist), model, time.perf_counter() - t)
+    table = pd.DataFrame(rows).set_index("rung")
+    with pd.option_context("display.width", 200, "display.max_columns", 30):
+        print(table.iloc[:, :8].round(3).to_string())
+        print(table.iloc[:, 8:].to_string(float_format=lambda v: f"{v:.4g}"))
+    print(f"(the generator's parameters on rungs a and b; scored on {int(hist.failed.sum())} "
+          f"failed units; {time.perf_counter() - t0:.0f} s)", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--dataset", default="mixed", choices=["additive", "multiplicative",
+                                                           "mixed"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 2])
+    ap.add_argument("--units", type=int, default=40)
+    ap.add_argument("--draws", type=int, default=400, help="the oracle's futures per prediction")
+    a = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.1f} at the start")
+    t0 = time.perf_counter()
+    for seed in a.seeds:
+        ladder(a.dataset, seed, a.units, a.draws)
+    print(f"\ntotal {time.perf_counter() - t0:.0f} s; load average {os.getloadavg()[0]:.1f} "
+          "at the end")
+
+
+if __name__ == "__main__":
+    main()
