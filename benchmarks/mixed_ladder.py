@@ -6,23 +6,31 @@ each rung, and each rung's 90 % intervals are scored against the same truths (th
 crossing of hi = 1):
 
 a. ``oracle``: the generator's own law per unit, brute-force Monte Carlo of the first measured
-   crossing (``fleet_oracle.py``);
-b. ``true-law``: the model's filter and RUL (eq. (5b)) with each unit's true level and rate as
-   its prior (a point mass), the generator's noise, no walk: the RUL machinery alone;
+   crossing (``fleet_oracle.py``), with the generator's exponential gaps and with a regular
+   cadence of the same mean (eq. (5b)'s assumption);
+b. ``exact Bayes``: the exact Bayesian predictive with the generator's population as the
+   prior (each unit's rate posterior on a grid from the exact density of its readings, then
+   the generator's futures), the best any model that must learn the rate can do;
+   ``true-law``: the model's filter and RUL (eq. (5b)) with each unit's true level and rate as
+   its prior (a point mass), the generator's noise, no walk: eq. (5b)'s event alone;
 c. ``true-prior``: the same with the generator's population (the level all units start from,
    the mean and variance of its log-normal rates), the generator's noise, no walk: the filter
-   and RUL with the true parameters;
+   and RUL with the true parameters; ``sample-prior``: with the mean and variance of this
+   fleet's own 40 rates instead (what a perfect fit of this fleet would learn);
 d. ``paris-mixed``, ``paris-mixed-iid``, ``paris-multiplicative``: the fitted models (on all
    units, the scored one included; ``fleet_goals.py`` prints their leave-one-unit-out),
    then ``... walk 0``: the same fitted model with its random walk set to 0, and ``...
    true noise``: with the generator's noise sds in place of the fitted ones.
 
-Per rung: the coverage over all predictions and over the last half of life, the median width
-of the late intervals relative to the truth, the shares of late truths before the interval
-(optimistic) and after it (pessimistic), the late median relative error; and each rung's
-parameters beside the generator's (on the file's time unit):
+First, eq. (5b)'s event on a known straight path, per rise c between readings (in noise sds):
+the truth's CDF at (5b)'s 5 % and 95 % quantiles with a regular cadence and with exponential
+gaps, against (5a)'s own event (:func:`event_errors`). Then, per rung: the coverage over all
+predictions and over the last half of life, the median width of the late intervals relative to
+the truth, the shares of late truths before the interval (optimistic) and after it
+(pessimistic), the late median relative error; and each rung's parameters beside the
+generator's (on the file's time unit):
 
-    .venv/bin/python benchmarks/mixed_ladder.py                    # mixed, seeds 0 and 2
+    .venv/bin/python benchmarks/mixed_ladder.py                    # mixed, seeds 0 to 4
     .venv/bin/python benchmarks/mixed_ladder.py --dataset additive --seeds 0
 """
 
@@ -42,6 +50,7 @@ import numpy as np
 import pandas as pd
 
 from fleet_oracle import FleetTruth, fleet_law, fleet_truth, oracle_quantiles
+from fleet_oracle import measured_crossing as fleet_oracle_crossing
 from rulkit.fleet.learned.datasets import paris_curve, paris_life
 from rulkit.fleet.learned.degradation import time_scale_of
 from rulkit.fleet.learned.growth_filter import boxcox
@@ -186,6 +195,49 @@ def params(model: HiNoiseModel | None, name: str, fleet: FleetTruth) -> dict[str
             "log_noise_sd": model.log_noise_sd, "walk_sd": model.walk_sd / math.sqrt(tau)}
 
 
+def event_errors(rises: tuple[float, ...] = (0.3, 0.6, 1.2, 2.5, 5.0), draws: int = 100_000,
+                 seed: int = 0) -> pd.DataFrame:
+    """Eq. (5b) on a known straight path (linear growth, additive noise s, cadence d, no
+    parameter uncertainty, the level 10 s below the threshold), per rise c = b d / s between
+    readings: the truth's CDF (the first reading >= 1, its crossing interpolated from the
+    reading before; brute force) at eq. (5b)'s 5 % and 95 % quantiles, with readings at a
+    regular cadence (eq. (5b)'s assumption) and with exponential gaps of the same mean (the
+    synthetic fleets'), and the widths of the 90 % intervals; beside them the CDF of (5a)'s
+    event itself (a full-noise reading at the horizon r and readings at r - d, r - 2d, ...;
+    brute force) at the same quantiles, which isolates (5b)'s Gaussian Y* from its event."""
+    from rulkit.fleet.learned.degradation import UnitState
+
+    rng, s, d, n = np.random.default_rng(seed), 0.04, 1.0, 50
+    model = HiNoiseModel(noise="additive", shape=1.0, mean=(0.0, 0.0),
+                         cov=(1e-12, 0.0, 1e-12), hi_noise_sd=s, log_noise_sd=0.0,
+                         walk_sd=0.0, time_scale=1.0)
+    rows = []
+    for c in rises:
+        b = c * s / d
+        state = UnitState(m=np.array([[-10.0 * s, b]]), p=np.array([[1e-12, 0.0, 1e-12]]),
+                          t=np.array([n * d]), hi=np.array([1.0 - 10.0 * s]), n=np.array([n]))
+        q = np.array([x[0] for x in model.rul_quantiles(state, (0.05, 0.95))])
+        row: dict[str, float] = {"c": c, "law_rul": 10.0 * s / b, "5b_width": q[1] - q[0]}
+        k = int(4 * (10.0 * s / b) / d + 40)
+        for cadence in ("regular", "exponential"):
+            gaps = (np.full((draws, k), d) if cadence == "regular"
+                    else rng.exponential(d, (draws, k)))
+            tk = np.cumsum(gaps, axis=1)
+            h = 1.0 - 10.0 * s + b * tk + s * rng.standard_normal((draws, k))
+            truth = fleet_oracle_crossing(np.zeros(draws), np.full(draws, 1.0 - 10.0 * s),
+                                          tk, h)
+            row[f"{cadence}_F(q05)"] = float((truth <= q[0]).mean())
+            row[f"{cadence}_F(q95)"] = float((truth <= q[1]).mean())
+            row[f"{cadence}_width"] = float(np.diff(np.quantile(truth, (0.05, 0.95)))[0])
+        for p, r in zip(("05", "95"), q, strict=True):
+            back = r - d * np.arange(int(r / d) + 1)
+            back = back[back > 0]
+            y = 1.0 - 10.0 * s + b * back + s * rng.standard_normal((draws, back.size))
+            row[f"event_F(q{p})"] = float((y >= 1.0).any(axis=1).mean())
+        rows.append(row)
+    return pd.DataFrame(rows).set_index("c")
+
+
 def fitted_rungs(name: str, hist: Histories) -> list[tuple[str, HiNoiseModel]]:
     """Rung d: the fitted models, each also with its walk at 0 and with the true noise."""
     _, _, add, mult = fleet_law(name)
@@ -201,8 +253,8 @@ def fitted_rungs(name: str, hist: Histories) -> list[tuple[str, HiNoiseModel]]:
     return out
 
 
-def ladder(name: str, seed: int, units: int, draws: int) -> None:
-    """Print one fleet's ladder (module docstring)."""
+def ladder(name: str, seed: int, units: int, draws: int) -> pd.DataFrame:
+    """Print one fleet's ladder (module docstring) and return its table."""
     t0 = time.perf_counter()
     fleet = fleet_truth(name, seed, units)
     hist = fleet.hist
@@ -228,6 +280,9 @@ def ladder(name: str, seed: int, units: int, draws: int) -> None:
     prior = true_model(name, hist, POINT_VAR, mean, sd * sd)
     t = time.perf_counter()
     rung("c true-prior", model_rows(prior, hist), prior, time.perf_counter() - t)
+    sample = true_model(name, hist, POINT_VAR, float(fleet.c.mean()), float(fleet.c.var(ddof=1)))
+    t = time.perf_counter()
+    rung("c sample-prior", model_rows(sample, hist), sample, time.perf_counter() - t)
     for label, model in fitted_rungs(name, hist):
         t = time.perf_counter()
         rung(f"d {label}", model_rows(model, hist), model, time.perf_counter() - t)
@@ -237,20 +292,49 @@ def ladder(name: str, seed: int, units: int, draws: int) -> None:
         print(table.iloc[:, 8:].to_string(float_format=lambda v: f"{v:.4g}"))
     print(f"(the generator's parameters on rungs a and b; scored on {int(hist.failed.sum())} "
           f"failed units; {time.perf_counter() - t0:.0f} s)", flush=True)
+    return table.assign(seed=seed)
+
+
+def print_over_seeds(tables: list[pd.DataFrame]) -> None:
+    """Each rung's late coverage and width over the fleets: mean +- standard error, and the
+    rung's paired difference from the oracle and from the exact Bayesian predictive."""
+    if len(tables) < 2:
+        return
+    both = pd.concat(tables)
+    late = both.pivot_table(index="rung", columns="seed", values="coverage_late", sort=False)
+    width = both.pivot_table(index="rung", columns="seed", values="width_late", sort=False)
+    k = math.sqrt(late.shape[1])
+
+    def mse(x: pd.DataFrame) -> pd.Series:
+        return x.mean(axis=1).map("{:.3f}".format) + " +- " + (x.std(axis=1) / k).map(
+            "{:.3f}".format)
+
+    out = pd.DataFrame({
+        "coverage_late": mse(late), "width_late": mse(width),
+        "minus_oracle": mse(late - late.loc["a oracle"]),
+        "minus_exact_bayes": mse(late - late.loc["b exact Bayes, true prior"])})
+    print(f"\n== over {late.shape[1]} fleets (seeds {', '.join(map(str, late.columns))}): "
+          "late coverage and width, mean +- standard error; paired differences")
+    print(out.to_string())
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--dataset", default="mixed", choices=["additive", "multiplicative",
                                                            "mixed"])
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 2])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--units", type=int, default=40)
     ap.add_argument("--draws", type=int, default=400, help="the oracle's futures per prediction")
     a = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.1f} at the start")
     t0 = time.perf_counter()
-    for seed in a.seeds:
-        ladder(a.dataset, seed, a.units, a.draws)
+    t = time.perf_counter()
+    print("\n== eq. (5b) on a known straight path: the truth's CDF at its 5 % and 95 % "
+          "quantiles, per rise c between readings (in noise sds)")
+    with pd.option_context("display.width", 200, "display.max_columns", 30):
+        print(event_errors().round(3).to_string())
+    print(f"({time.perf_counter() - t:.0f} s)", flush=True)
+    print_over_seeds([ladder(a.dataset, seed, a.units, a.draws) for seed in a.seeds])
     print(f"\ntotal {time.perf_counter() - t0:.0f} s; load average {os.getloadavg()[0]:.1f} "
           "at the end")
 
