@@ -16,7 +16,8 @@ b. ``exact Bayes``: the exact Bayesian predictive with the generator's populatio
 c. ``true-prior``: the same with the generator's population (the level all units start from,
    the mean and variance of its log-normal rates), the generator's noise, no walk: the filter
    and RUL with the true parameters; ``sample-prior``: with the mean and variance of this
-   fleet's own 40 rates instead (what a perfect fit of this fleet would learn);
+   fleet's own 40 rates instead (what a perfect fit of this fleet would learn); beside them the
+   filter's posterior of each unit's rate against the exact one of rung b (``exact Bayes``);
 d. ``paris-mixed``, ``paris-mixed-iid``, ``paris-multiplicative``: the fitted models (on all
    units, the scored one included; ``fleet_goals.py`` prints their leave-one-unit-out),
    then ``... walk 0``: the same fitted model with its random walk set to 0, and ``...
@@ -59,19 +60,20 @@ from rulkit.fleet.learned.histories import Histories
 from rulkit.fleet.learned.scoring import truth_rul
 
 LEVELS = (0.5, 0.05, 0.95)
+LIFE_MEDIAN, LIFE_CV = 300.0, 0.25
+"""``synthetic_growth_fleet``'s defaults, which the goal fleets keep: the growth time from h0
+to 1 is log-normal with this median and sd of its log."""
 POINT_VAR = 1e-12
 """The prior variance of a known level or rate (scaled units): a point mass the filter accepts."""
 
 
 def population_rate(name: str) -> tuple[float, float]:
     """Mean and sd of the generator's growth rates c = paris_life(h0, 1, m) / grow (grow
-    log-normal, median ``life_median``, sd of its log ``life_cv``: the defaults of
-    ``synthetic_growth_fleet``), per time unit."""
+    log-normal: :data:`LIFE_MEDIAN`, :data:`LIFE_CV`), per time unit."""
     m, h0, _, _ = fleet_law(name)
-    life_median, life_cv = 300.0, 0.25
-    med = float(paris_life(h0, np.ones(1), m)[0]) / life_median
-    mean = med * math.exp(0.5 * life_cv**2)
-    return mean, mean * math.sqrt(math.expm1(life_cv**2))
+    med = float(paris_life(h0, np.ones(1), m)[0]) / LIFE_MEDIAN
+    mean = med * math.exp(0.5 * LIFE_CV**2)
+    return mean, mean * math.sqrt(math.expm1(LIFE_CV**2))
 
 
 def true_model(name: str, hist: Histories, level_var: float, rate_mean: float,
@@ -137,29 +139,60 @@ def reading_log_density(y: np.ndarray, h: np.ndarray, add: float, mult: float,
     return np.log(np.maximum(dens, 1e-300)) - math.log(add) - 0.5 * math.log(2 * math.pi)
 
 
-def bayes_rows(name: str, fleet: FleetTruth, seed: int, draws: int, grid: int = 400
-               ) -> np.ndarray:
-    """Rung b: the exact Bayesian predictive with the generator's population as the prior:
-    the posterior of each unit's rate on a grid (its start level and the noise are the
-    generator's, known), by brute force from the exact reading density, then ``draws``
-    futures of the generator with rates drawn from it (``fleet_oracle.oracle_quantiles``)."""
+def rate_posterior(name: str, t: np.ndarray, y: np.ndarray, grid: int = 400
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The exact posterior of one unit's rate after each of its readings ``(t, y)``, with
+    the generator's population as the prior (log-normal rates) and its start level and
+    noise known: (log-rate grid, posterior weights ``(t.size, grid)``), by brute force from
+    the exact reading density."""
     m, h0, add, mult = fleet_law(name)
-    med = float(paris_life(h0, np.ones(1), m)[0]) / 300.0
-    lc = math.log(med) + 0.25 * np.linspace(-6.0, 6.0, grid)
-    log_prior = -0.5 * ((lc - math.log(med)) / 0.25) ** 2
+    med = float(paris_life(h0, np.ones(1), m)[0]) / LIFE_MEDIAN
+    lc = math.log(med) + LIFE_CV * np.linspace(-6.0, 6.0, grid)
+    log_prior = -0.5 * ((lc - math.log(med)) / LIFE_CV) ** 2
+    h = np.minimum(paris_curve(h0, np.exp(lc)[None, :], m, t[:, None]), 10.0)
+    post = log_prior + np.cumsum(reading_log_density(y[:, None], h, add, mult), axis=0)
+    w = np.exp(post - post.max(axis=1, keepdims=True))
+    return lc, w / w.sum(axis=1, keepdims=True)
+
+
+def bayes_rows(name: str, fleet: FleetTruth, seed: int, draws: int) -> np.ndarray:
+    """Rung b: the exact Bayesian predictive with the generator's population as the prior:
+    each unit's rate posterior (:func:`rate_posterior`), then ``draws`` futures of the
+    generator with rates drawn from it (``fleet_oracle.oracle_quantiles``)."""
     hist, out = fleet.hist, np.full((fleet.hist.t.size, len(LEVELS)), np.nan)
     rng = np.random.default_rng([seed, 98])
     for u in np.flatnonzero(hist.failed):
         s, g = hist.rows(int(u)), fleet.law_index(int(u))
         t, y = hist.t[s], hist.hi[s]
-        h = np.minimum(paris_curve(h0, np.exp(lc)[None, :], m, t[:, None]), 10.0)
-        post = log_prior + np.cumsum(reading_log_density(y[:, None], h, add, mult), axis=0)
-        cdf = np.cumsum(np.exp(post - post.max(axis=1, keepdims=True)), axis=1)
-        cdf /= cdf[:, -1:]
+        lc, w = rate_posterior(name, t, y)
+        cdf = np.cumsum(w, axis=1)
         c = np.exp(np.stack([np.interp(rng.random(draws), cdf[i], lc) for i in range(t.size)]))
         out[s] = oracle_quantiles(name, t, y, c, float(fleet.onset[g]), float(fleet.life[g]),
                                   rng, draws)
     return out
+
+
+def posterior_check(name: str, fleet: FleetTruth, model: HiNoiseModel) -> str:
+    """The filter's posterior of the rate (``model``: the true prior) against the exact one
+    (:func:`rate_posterior`) over the failed units' late predictions: median ratios of the
+    means and of the sds, and the 5-95 % range of the sd ratio."""
+    hist = fleet.hist
+    state = model.replay(hist)
+    mean, sd = [], []
+    for u in np.flatnonzero(hist.failed):
+        s = hist.rows(int(u))
+        t = hist.t[s]
+        late = t >= t[0] + 0.5 * (t[-1] - t[0])
+        lc, w = rate_posterior(name, t, hist.hi[s])
+        mu = w @ np.exp(lc)
+        sdv = np.sqrt(np.maximum(w @ np.exp(2 * lc) - mu * mu, 0.0))
+        mean.append((state.m[s, 1] / model.time_scale / mu)[late])
+        sd.append((np.sqrt(state.p[s, 2]) / model.time_scale / sdv)[late])
+    rm, rs = np.concatenate(mean), np.concatenate(sd)
+    lo, hi = np.quantile(rs, (0.05, 0.95))
+    return (f"the filter's rate posterior with the true prior against the exact one (late "
+            f"predictions): mean ratio {np.median(rm):.4f}, sd ratio {np.median(rs):.3f} "
+            f"(5-95 % {lo:.3f} - {hi:.3f})")
 
 
 def score(hist: Histories, q: np.ndarray) -> dict[str, float]:
@@ -280,6 +313,7 @@ def ladder(name: str, seed: int, units: int, draws: int) -> pd.DataFrame:
     prior = true_model(name, hist, POINT_VAR, mean, sd * sd)
     t = time.perf_counter()
     rung("c true-prior", model_rows(prior, hist), prior, time.perf_counter() - t)
+    print(posterior_check(name, fleet, prior), flush=True)
     sample = true_model(name, hist, POINT_VAR, float(fleet.c.mean()), float(fleet.c.var(ddof=1)))
     t = time.perf_counter()
     rung("c sample-prior", model_rows(sample, hist), sample, time.perf_counter() - t)
