@@ -18,6 +18,10 @@ c. ``true-prior``: the same with the generator's population (the level all units
    and RUL with the true parameters; ``sample-prior``: with the mean and variance of this
    fleet's own 40 rates instead (what a perfect fit of this fleet would learn); beside them the
    filter's posterior of each unit's rate against the exact one of rung b (``exact Bayes``);
+c'. ``true-prior, brute-force event``: the same model and posterior, its RUL by brute force
+   (the model's own futures, the first reading >= 1, its crossing interpolated as the
+   truth's) instead of eq. (5b), at a regular cadence (eq. (5b)'s assumption) and with
+   exponential gaps (the generator's): what an exact event would give;
 d. ``paris-mixed``, ``paris-mixed-iid``, ``paris-multiplicative``: the fitted models (on all
    units, the scored one included; ``fleet_goals.py`` prints their leave-one-unit-out),
    then ``... walk 0``: the same fitted model with its random walk set to 0, and ``...
@@ -50,7 +54,7 @@ import time
 import numpy as np
 import pandas as pd
 
-from fleet_oracle import FleetTruth, fleet_law, fleet_truth, oracle_quantiles
+from fleet_oracle import N_ACQ, FleetTruth, fleet_law, fleet_truth, oracle_quantiles
 from fleet_oracle import measured_crossing as fleet_oracle_crossing
 from rulkit.fleet.learned.datasets import paris_curve, paris_life
 from rulkit.fleet.learned.degradation import time_scale_of
@@ -195,6 +199,38 @@ def posterior_check(name: str, fleet: FleetTruth, model: HiNoiseModel) -> str:
             f"(5-95 % {lo:.3f} - {hi:.3f})")
 
 
+def model_event_rows(model: HiNoiseModel, hist: Histories, draws: int, seed: int,
+                     regular: bool) -> np.ndarray:
+    """The model's own predictive by brute force instead of eq. (5b): after each failed
+    unit's row, ``draws`` (level, rate) from the filter's posterior, the path on the growth
+    scale, readings by eq. (7) with the model's noise at the unit's cadence t / n (``regular``,
+    (5b)'s assumption; else exponential gaps of that mean), the first reading >= 1 and its
+    crossing interpolated from the reading before, as the truth is (at a unit's first row,
+    which has no cadence, eq. (5b))."""
+    from rulkit.fleet.learned.growth_filter import boxcox_inverse
+
+    state, tau = model.replay(hist), model.time_scale
+    rng = np.random.default_rng([seed, 97])
+    out = model_rows(model, hist)  # eq. (5b) kept at a unit's first row: no cadence yet
+    rows = np.flatnonzero(hist.failed[hist.unit] & (state.n >= 2))
+    steps = int(3 * N_ACQ)
+    for i in rows:
+        d = state.t[i] / state.n[i]
+        chol = np.linalg.cholesky(np.array([[state.p[i, 0], state.p[i, 1]],
+                                            [state.p[i, 1], state.p[i, 2]]]) + 1e-15 * np.eye(2))
+        zb = state.m[i] + rng.standard_normal((draws, 2)) @ chol.T
+        gaps = np.full((draws, steps), d) if regular else rng.exponential(d, (draws, steps))
+        ahead = np.cumsum(gaps, axis=1)
+        z = zb[:, :1] + zb[:, 1:] * ahead / tau + (
+            model.walk_sd * np.cumsum(np.sqrt(gaps / tau) * rng.standard_normal(gaps.shape),
+                                      axis=1) if model.walk_sd > 0 else 0.0)
+        his = (boxcox_inverse(z, model.shape) * np.exp(model.log_noise_sd * rng.standard_normal(
+            z.shape)) + model.hi_noise_sd * rng.standard_normal(z.shape))
+        r = fleet_oracle_crossing(np.zeros(draws), np.full(draws, hist.hi[i]), ahead, his)
+        out[i] = np.quantile(r, LEVELS)
+    return out
+
+
 def score(hist: Histories, q: np.ndarray) -> dict[str, float]:
     """Coverage (all, last half), late width / truth, late optimistic / pessimistic shares,
     late median relative error, over the failed units' predictions."""
@@ -314,6 +350,11 @@ def ladder(name: str, seed: int, units: int, draws: int) -> pd.DataFrame:
     t = time.perf_counter()
     rung("c true-prior", model_rows(prior, hist), prior, time.perf_counter() - t)
     print(posterior_check(name, fleet, prior), flush=True)
+    for regular, what in ((True, "regular cadence"), (False, "exponential gaps")):
+        t = time.perf_counter()
+        rung(f"c' true-prior, brute-force event, {what}",
+             model_event_rows(prior, hist, draws, seed, regular), prior,
+             time.perf_counter() - t)
     sample = true_model(name, hist, POINT_VAR, float(fleet.c.mean()), float(fleet.c.var(ddof=1)))
     t = time.perf_counter()
     rung("c sample-prior", model_rows(sample, hist), sample, time.perf_counter() - t)
