@@ -72,6 +72,14 @@ def fleet_law(name: str) -> tuple[float, float, float, float]:
     return float(kw["m"]), float(kw["h0"]), add, mult
 
 
+def draw_quantiles(r: np.ndarray) -> np.ndarray:
+    """``LEVELS`` quantiles of RUL draws ``r``, +inf where a level falls in the draws that
+    never cross (np.quantile alone gives NaN between two infinite draws)."""
+    big = np.finfo(np.float64).max
+    q = np.quantile(np.where(np.isinf(r), big, r), LEVELS)
+    return np.where(q >= 1e300, np.inf, q)
+
+
 def oracle_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float | np.ndarray,
                      onset: float, life: float, rng: np.random.Generator, draws: int,
                      regular: bool = False) -> np.ndarray:
@@ -96,7 +104,7 @@ def oracle_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float | np.nda
         e2 = add * rng.standard_normal(h.shape)
         his = np.maximum(h * np.exp(e1) + e2, 0.0)
         r = measured_crossing(np.full(draws, t[i]), np.full(draws, hi[i]), times, his)
-        out[i] = np.quantile(r, LEVELS)
+        out[i] = draw_quantiles(r)
     return out
 
 

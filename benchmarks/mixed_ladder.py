@@ -54,7 +54,14 @@ import time
 import numpy as np
 import pandas as pd
 
-from fleet_oracle import N_ACQ, FleetTruth, fleet_law, fleet_truth, oracle_quantiles
+from fleet_oracle import (
+    N_ACQ,
+    FleetTruth,
+    draw_quantiles,
+    fleet_law,
+    fleet_truth,
+    oracle_quantiles,
+)
 from fleet_oracle import measured_crossing as fleet_oracle_crossing
 from rulkit.fleet.learned.datasets import paris_curve, paris_life
 from rulkit.fleet.learned.degradation import time_scale_of
@@ -227,7 +234,7 @@ def model_event_rows(model: HiNoiseModel, hist: Histories, draws: int, seed: int
         his = (boxcox_inverse(z, model.shape) * np.exp(model.log_noise_sd * rng.standard_normal(
             z.shape)) + model.hi_noise_sd * rng.standard_normal(z.shape))
         r = fleet_oracle_crossing(np.zeros(draws), np.full(draws, hist.hi[i]), ahead, his)
-        out[i] = np.quantile(r, LEVELS)
+        out[i] = draw_quantiles(r)
     return out
 
 
