@@ -47,11 +47,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fleet_oracle import oracle_scores
+from fleet_oracle import fleet_truth, oracle_scores
 from rulkit.fleet.learned.candidates import AUTO_CANDIDATES
-from rulkit.fleet.learned.datasets import GOAL_FLEETS, fatigue_histories, goal_fleet
+from rulkit.fleet.learned.datasets import GOAL_FLEETS, fatigue_histories
 from rulkit.fleet.learned.evaluate import predictions, summarise
-from rulkit.fleet.learned.histories import Histories, histories_from_frame
+from rulkit.fleet.learned.histories import Histories
 from rulkit.fleet.learned.selection import select_model
 
 DATASETS = (*GOAL_FLEETS, "fatigue")
@@ -63,10 +63,7 @@ def load(name: str, seed: int, units: int) -> Histories:
     """A data set as ``rulkit fleet-data`` writes it (same seeds)."""
     if name == "fatigue":
         return fatigue_histories()
-    ss = np.random.SeedSequence(seed).spawn(2 + len(GOAL_FLEETS))
-    k = list(GOAL_FLEETS).index(name)
-    df, _ = goal_fleet(name, np.random.default_rng(ss[2 + k]), units)
-    return histories_from_frame(df, f"synthetic_{name}")
+    return fleet_truth(name, seed, units).hist
 
 
 def goals(row: pd.Series, summary: pd.DataFrame) -> list[str]:

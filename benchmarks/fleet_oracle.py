@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -41,7 +42,7 @@ from rulkit.fleet.learned.datasets import (
     paris_curve,
     paris_life,
 )
-from rulkit.fleet.learned.histories import histories_from_frame
+from rulkit.fleet.learned.histories import Histories, histories_from_frame
 from rulkit.fleet.learned.scoring import truth_rul
 
 LEVELS = (0.5, 0.05, 0.95)
@@ -71,22 +72,39 @@ def fleet_law(name: str) -> tuple[float, float, float, float]:
     return float(kw["m"]), float(kw["h0"]), add, mult
 
 
-def oracle_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float, onset: float,
-                     life: float, rng: np.random.Generator, draws: int) -> np.ndarray:
+def draw_quantiles(r: np.ndarray) -> np.ndarray:
+    """``LEVELS`` quantiles of RUL draws ``r``, +inf where a level falls in the draws that
+    never cross (np.quantile alone gives NaN between two infinite draws)."""
+    big = np.finfo(np.float64).max
+    q = np.quantile(np.where(np.isinf(r), big, r), LEVELS)
+    return np.where(q >= 1e300, np.inf, q)
+
+
+def oracle_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float | np.ndarray,
+                     onset: float, life: float, rng: np.random.Generator, draws: int,
+                     regular: bool = False) -> np.ndarray:
     """RUL quantiles (``LEVELS``) after each acquisition ``(t, hi)`` of one unit whose true law
     is (``c``, ``onset``) and whose law reaches hi = 1 at ``life`` (its cadence is ``life /
-    N_ACQ``): ``draws`` futures from the generator."""
+    N_ACQ``): ``draws`` futures from the generator (``regular``: acquisitions at a regular
+    cadence of the same mean instead of the generator's exponential gaps). ``c`` may be an
+    array ``(t.size, draws)``: a rate per prediction and future (a posterior's draws)."""
     m, h0, add, mult = fleet_law(name)
     steps = int(3 * N_ACQ)  # three lives of acquisitions: past any crossing
+    if isinstance(c, np.ndarray):  # three of the slowest drawn law's lives
+        slowest = float(paris_life(h0, np.array([c.min()]), m)[0]) + onset
+        steps = int(3 * N_ACQ * max(slowest / life, 1.0))
     out = np.empty((t.size, len(LEVELS)))
     for i in range(t.size):
-        times = t[i] + np.cumsum(rng.exponential(life / N_ACQ, (draws, steps)), axis=1)
-        h = np.minimum(paris_curve(h0, c, m, np.maximum(times - onset, 0.0)), 10.0)
+        gaps = (np.full((draws, steps), life / N_ACQ) if regular
+                else rng.exponential(life / N_ACQ, (draws, steps)))
+        times = t[i] + np.cumsum(gaps, axis=1)
+        ci = c[i][:, None] if isinstance(c, np.ndarray) else c
+        h = np.minimum(paris_curve(h0, ci, m, np.maximum(times - onset, 0.0)), 10.0)
         e1 = mult * rng.standard_normal(h.shape)
         e2 = add * rng.standard_normal(h.shape)
         his = np.maximum(h * np.exp(e1) + e2, 0.0)
         r = measured_crossing(np.full(draws, t[i]), np.full(draws, hi[i]), times, his)
-        out[i] = np.quantile(r, LEVELS)
+        out[i] = draw_quantiles(r)
     return out
 
 
@@ -109,6 +127,34 @@ def exceedance_quantiles(name: str, t: np.ndarray, hi: np.ndarray, c: float, ons
     return out
 
 
+@dataclass(frozen=True)
+class FleetTruth:
+    """A goal fleet as ``rulkit fleet-data`` and ``fleet_goals.py`` draw it, with each unit's
+    true law: growth rate ``c`` on the Box-Cox scale (per time unit), ``onset`` and the age
+    ``life`` at which the law reaches hi = 1 (indexed by the generator's unit number)."""
+
+    hist: Histories
+    c: np.ndarray
+    onset: np.ndarray
+    life: np.ndarray
+
+    def law_index(self, u: int) -> int:
+        """The generator's number of the histories' unit ``u`` (named ``g{number:04d}``)."""
+        return int(self.hist.names[u][1:])
+
+
+def fleet_truth(name: str, seed: int, units: int) -> FleetTruth:
+    """The goal fleet ``name`` of ``seed`` and its units' true laws (:class:`FleetTruth`)."""
+    ss = np.random.SeedSequence(seed).spawn(2 + len(GOAL_FLEETS))
+    k = list(GOAL_FLEETS).index(name)
+    df, _ = goal_fleet(name, np.random.default_rng(ss[2 + k]), units)
+    kw = GOAL_FLEETS[name]
+    grow, onset = growth_fleet_laws(np.random.default_rng(ss[2 + k]), units,
+                                    onset_frac=float(kw.get("onset_frac", 0.0)))
+    c = paris_life(float(kw["h0"]), np.ones(1), float(kw["m"]))[0] / grow
+    return FleetTruth(histories_from_frame(df, f"synthetic_{name}"), c, onset, onset + grow)
+
+
 def oracle_scores(name: str, seed: int, units: int, draws: int,
                   event: str = "first") -> dict[str, float]:
     """The oracle's median relative error over the last half of life and 90 % coverage (all
@@ -117,21 +163,14 @@ def oracle_scores(name: str, seed: int, units: int, draws: int,
     the generator's first measured crossing (:func:`oracle_quantiles`), ``exceedance``: eq.
     (5)'s (:func:`exceedance_quantiles`)."""
     quantiles = oracle_quantiles if event == "first" else exceedance_quantiles
-    ss = np.random.SeedSequence(seed).spawn(2 + len(GOAL_FLEETS))
-    k = list(GOAL_FLEETS).index(name)
-    df, _ = goal_fleet(name, np.random.default_rng(ss[2 + k]), units)
-    kw = GOAL_FLEETS[name]
-    grow, onset = growth_fleet_laws(np.random.default_rng(ss[2 + k]), units,
-                                    onset_frac=float(kw.get("onset_frac", 0.0)))
-    c = paris_life(float(kw["h0"]), np.ones(1), float(kw["m"]))[0] / grow
-    life = onset + grow
-    hist = histories_from_frame(df, name)
+    fleet = fleet_truth(name, seed, units)
+    hist, c, onset, life = fleet.hist, fleet.c, fleet.onset, fleet.life
     truth = truth_rul(hist)
-    rng = np.random.default_rng([seed, k])
+    rng = np.random.default_rng([seed, list(GOAL_FLEETS).index(name)])
     err, cover, late = [], [], []
     for u in np.flatnonzero(hist.failed):
         s = hist.rows(int(u))
-        g = int(hist.names[u][1:])  # synthetic_growth_fleet names unit g as f"g{g:04d}"
+        g = fleet.law_index(int(u))
         ok = np.isfinite(truth[s])
         t, hi, y = hist.t[s][ok], hist.hi[s][ok], truth[s][ok]
         q = quantiles(name, t, hi, float(c[g]), float(onset[g]), float(life[g]), rng, draws)
