@@ -53,3 +53,41 @@ def test_a_candidate_that_cannot_be_fitted_stays_in_the_table():
     t = sel.table().set_index("candidate")
     assert sel.chosen == "regression"
     assert "not fitted" in t.loc["similarity", "chosen"]
+
+
+def _result(name, crps, loglik):
+    """A scored candidate whose held-out predictions have the per-unit CRPS ``crps`` (one
+    late prediction per unit, life 1)."""
+    import pandas as pd
+
+    from rulkit.fleet.learned.scoring import Scores
+    from rulkit.fleet.learned.selection import CandidateResult
+
+    n = len(crps)
+    pred = pd.DataFrame({"unit": np.arange(n), "t": 0.9, "t_first": 0.0, "t_fail": 1.0,
+                         "true_rul": 0.1, "crps": crps})
+    scores = Scores(median_rel_err=0.1, coverage_90=0.9, score=float(np.mean(crps)), n_late=n)
+    return CandidateResult(name, object(), scores, 0.0, heldout_loglik=loglik), pred
+
+
+@pytest.mark.parametrize(("offsets", "logliks", "chosen", "reason"), [
+    # b is far worse on every unit: the score decides, whatever the likelihoods
+    ((0.0, 0.5), (1.0, 9.0), "a", "the lowest held-out score; no other"),
+    # b ties a on score (noisy, unit by unit): the better likelihood decides
+    (None, (1.0, 9.0), "b", "the best held-out likelihood of the 2 growth models among the 2"),
+    # a tie with a baseline without a likelihood: the one growth model
+    (None, (1.0, float("nan")), "a", "the one growth model among the 2"),
+])
+def test_choose_says_what_decided(offsets, logliks, chosen, reason):
+    from rulkit.fleet.learned.selection import choose
+
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.1, 0.2, 12)
+    if offsets is None:  # b within noise of a, its mean a little higher: a is the best score
+        noise = rng.normal(0.0, 0.05, 12)
+        other = base + noise - noise.mean() + 1e-3
+    else:
+        other = base + offsets[1]
+    (ra, pa), (rb, pb) = _result("a", base, logliks[0]), _result("b", other, logliks[1])
+    name, why = choose([ra, rb], {"a": pa, "b": pb})
+    assert name == chosen and why.startswith(reason), why

@@ -273,8 +273,7 @@ def _choose_and_check(hist: Any, names: tuple[str, ...], folds: int,
     fit_warnings = check_fit(sel.model, coverage)
     for w in fit_warnings:
         typer.echo(f"warning: {w}")
-    typer.echo(f"chosen: {sel.chosen}" + (" (held-out score and likelihood)"
-                                          if len(names) > 1 else ""))
+    typer.echo(f"chosen: {sel.chosen}" + (f" ({sel.reason})" if len(names) > 1 else ""))
     return replace(sel.model, warnings=tuple(warnings + fit_warnings))  # type: ignore
 
 

@@ -64,6 +64,8 @@ class Selection:
     chosen: str
     folds: int
     predictions: dict[str, pd.DataFrame] = field(default_factory=dict)
+    reason: str = ""
+    """Why :attr:`chosen` was chosen (:func:`choose`), as ``rulkit fit`` prints it."""
 
     @property
     def model(self) -> FleetModel:
@@ -143,8 +145,9 @@ def select_model(hist: Histories, names: tuple[str, ...] = AUTO_CANDIDATES,
         results.append(res)
         if progress is not None:
             progress(res)
-    return Selection(results=results, chosen=choose(results, preds), folds=len(groups),
-                     predictions=preds)
+    chosen, reason = choose(results, preds)
+    return Selection(results=results, chosen=chosen, folds=len(groups), predictions=preds,
+                     reason=reason)
 
 
 def unit_scores(pred: pd.DataFrame) -> pd.Series:
@@ -155,8 +158,10 @@ def unit_scores(pred: pd.DataFrame) -> pd.Series:
     return (p["crps"] / life).groupby(p["unit"]).mean()
 
 
-def choose(results: list[CandidateResult], preds: dict[str, pd.DataFrame]) -> str:
-    """The choice of the module docstring: RUL score, ties broken by held-out likelihood."""
+def choose(results: list[CandidateResult], preds: dict[str, pd.DataFrame]
+           ) -> tuple[str, str]:
+    """The choice of the module docstring: RUL score, ties broken by held-out likelihood;
+    (the chosen name, what decided it)."""
     scored = [r for r in results if r.model is not None and r.scores is not None
               and math.isfinite(r.selection_score) and r.name in preds]
     if not scored:
@@ -171,9 +176,16 @@ def choose(results: list[CandidateResult], preds: dict[str, pd.DataFrame]) -> st
         if r is best or float(d.mean()) < 2.0 * se:
             tied.append(r)
     growth = [r for r in tied if math.isfinite(r.heldout_loglik)]
+    if len(tied) == 1:
+        return best.name, "the lowest held-out score; no other within two standard errors of it"
+    near = f"the {len(tied)} candidates within two standard errors of the lowest held-out score"
+    if len(growth) == 1:
+        return growth[0].name, f"the one growth model among {near}"
     if growth:
-        return max(growth, key=lambda r: r.heldout_loglik).name
-    return best.name
+        return (max(growth, key=lambda r: r.heldout_loglik).name,
+                f"the best held-out likelihood of the {len(growth)} growth models among {near}")
+    return best.name, (f"the lowest held-out score ({len(tied)} candidates within two "
+                       "standard errors of it, none with a likelihood)")
 
 
 __all__ = ["DEFAULT_FOLDS", "CandidateResult", "Selection", "choose", "fold_groups",
