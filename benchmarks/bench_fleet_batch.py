@@ -65,6 +65,25 @@ def run(d: Path, db: Path, client: object | None) -> tuple[float, float, float, 
     return wall, cpu, w1 - w0, 0.0
 
 
+def warm() -> float:
+    """CPU seconds of a tiny run of the ingestion in this process (imports, numba's cached
+    kernels loaded): a process's one-off start-up, kept out of the per-acquisition figures."""
+    c0 = _cpu()
+    with tempfile.TemporaryDirectory(prefix="rulkit-warm-") as tmp:
+        t = np.arange(20.0)
+        df = pd.DataFrame({"component": np.repeat(["a", "b"], 10), "time": np.tile(t[:10], 2),
+                           "hi": np.tile(0.2 + 0.01 * t[:10], 2)})
+        track_directory(Path(tmp) / "w.db", _one_partition(Path(tmp), df), config=CFG)
+    return _cpu() - c0
+
+
+def _one_partition(tmp: Path, df: pd.DataFrame) -> Path:
+    d = tmp / "p"
+    d.mkdir()
+    df.to_parquet(d / "p.parquet", index=False)
+    return d
+
+
 def same_history(a: Path, b: Path) -> bool:
     """Whether the two databases hold the same acquisitions' values (the packed history,
     decoded; which ingestion wrote them aside)."""
@@ -91,9 +110,11 @@ def main() -> None:
         print(f"# bench_fleet_batch: {os.cpu_count()} cores, load average "
               f"{os.getloadavg()[0]:.1f}; {n} acquisitions of {args.components} components in "
               f"{args.partitions} partitions; Dask: {args.workers} worker processes x 1 thread")
+        start = warm()
         serial = [run(d, tmp / "serial.db", None) for _ in range(args.repeats)]
         with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                           dashboard_address=None) as lc, Client(lc) as client:
+            w_start = sum(client.run(warm).values())
             dask = [run(d, tmp / "dask.db", client) for _ in range(args.repeats)]
         same = same_history(tmp / "serial.db", tmp / "dask.db")
         size = sum(f.stat().st_size for f in tmp.glob("serial.db*"))
@@ -105,6 +126,8 @@ def main() -> None:
         print(f"dask:   wall {dw:.1f} s, workers' CPU {dwk:.1f} s, this process (split, "
               f"merge) CPU {dc:.1f} s: {n / dw:,.0f} acquisitions/s, "
               f"{n / dw / (args.workers + 1):,.0f} per core ({args.workers} workers + merge)")
+        print(f"start-up (imports, numba's cached kernels; not in the figures above): this "
+              f"process {start:.2f} s, the workers {w_start:.2f} s in all")
         print(f"ratio dask/serial wall = {dw / sw:.2f}; CPU per acquisition: serial "
               f"{sc / n * 1e6:.1f} us, dask {(dc + dwk) / n * 1e6:.1f} us; same history: "
               f"{'yes' if same else 'NO'}; the serial database {size / n:.0f} bytes per "

@@ -13,8 +13,9 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
 * ``status --format table|csv|json`` on a database of ``--status-components`` components
   (default 10^5, 3 acquisitions each), output to /dev/null. Goal: < 1 s for 10^5 (was 8.6 s
   for 10^4 with the rich table).
-* the interpreter start with ``import rulkit.cli`` and the fleet store (pandas), the floor
-  under ``track``, and the floor under ``status`` (typer's pydantic adapters, numpy,
+* the interpreter start with ``import rulkit.cli`` and the fleet store, the floors under
+  ``track`` (its libraries without and with numba's compiled passes), and the floor under
+  ``status`` (typer's pydantic adapters, numpy,
   pyarrow; no pandas since rulkit.fleet.store.status_view).
 
     .venv/bin/python benchmarks/bench_scale.py              # the defaults above (~2 min)
@@ -102,12 +103,15 @@ fd = os.open(db, os.O_RDWR); os.fsync(fd); os.close(fd)
 """.replace("BLOCK", "25_000")
 
 
-# The floor of track's libraries, before any row: rulkit's CLI and store (numpy, pandas,
-# pyarrow) and the two compiled passes a long series takes (the trackers' and the trend's,
-# numba loading them from its on-disk cache; numba imports scipy.linalg for its BLAS check).
-_LIBS = _PEAK + """
+# The floor of track's libraries, before any row: rulkit's CLI and store (numpy, pyarrow;
+# no pandas on a plain CSV) and the two compiled passes a long series takes (the trackers'
+# and the trend's, numba loading them from its on-disk cache; numba imports scipy.linalg for
+# its BLAS check). _LIBS_NO_JIT: the same without numba.
+_LIBS_NO_JIT = _PEAK + """
 import numpy as np
 import rulkit.cli, rulkit.fleet.store.ingest, pyarrow.csv
+"""
+_LIBS = _LIBS_NO_JIT + """
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, TrendState, trend_run
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig, TrackerState
 from rulkit.fleet.tracking.tracker_run import tracker_run
@@ -249,7 +253,7 @@ def main() -> None:
         floor = median3([measure([sys.executable, "-c",
                                   _PEAK + "import rulkit.cli, rulkit.fleet.store.sqlite"])
                          for _ in range(args.repeats)])
-        print(f"import rulkit.cli, rulkit.fleet.store.sqlite (start-up floor, pandas included): "
+        print(f"import rulkit.cli, rulkit.fleet.store.sqlite (start-up floor): "
               f"wall {floor[0]:.2f} s, CPU {floor[1]:.2f} s, peak {floor[2]:.0f} MB")
         status_imports = ("import rulkit.cli, typer._adapters, rulkit.fleet.store.status_view, "
                           "pyarrow.csv, orjson")
@@ -259,6 +263,11 @@ def main() -> None:
               f"status, no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
 
         if not args.status_only:
+            bare_libs = median3([measure([sys.executable, "-c", _LIBS_NO_JIT])
+                                 for _ in range(args.repeats)])
+            print(f"track's libraries without numba (numpy, pyarrow, the store), no data: "
+                  f"wall {bare_libs[0]:.2f} s, CPU {bare_libs[1]:.2f} s, peak "
+                  f"{bare_libs[2]:.0f} MB")
             libs = median3([measure([sys.executable, "-c", _LIBS])
                             for _ in range(args.repeats)])
             print(f"track's libraries and numba's compiled passes loaded, no data (the floor "

@@ -15,9 +15,14 @@ For each backend (SQLite file; PostgreSQL: a throwaway server from the installed
    cursor), then the middle page by ``offset``; PostgreSQL's fill ends with VACUUM ANALYZE
    (what autovacuum does to a freshly loaded table). Prints p50/p99 and service CPU per
    request after ``--warmup`` requests per reader (their worst latency printed apart), the
-   worst p99 of the pages by cursor and how many are under 50 ms.
+   worst p99 of the pages by cursor and how many are under 50 ms, and the full collections of
+   Python's garbage collector in the service meanwhile (its ``/metrics``). With ``--against
+   SRC`` a second server of that checkout's code serves the same database, each page
+   measured on both in turns.
 3. **History reads.** ``GET /api/v1/components/{id}/history?limit=1000`` on a database of
-   ``--history-rows`` rows and on one of 1 % of them: p50 of each and their ratio (flat = 1).
+   ``--history-rows`` rows and on one of 1 % of them, served at once and read in turns: the
+   service's CPU per read (median of ``--turns`` turns) and the p50 of each, and their ratios
+   (flat = 1). Where a read's time goes in process: benchmarks/bench_history_read.py.
 
 Every figure is a median or percentile of one run; the load average at start and end is
 printed, since client and server share the machine's 2 cores with other jobs. Loopback only;
@@ -185,16 +190,20 @@ def _cursor(port: int, token: str, query: str, depth: float) -> str | None:
     return body["next"]
 
 
-def served_over(port: int, route: str, bound: str = "0.05") -> int:
-    """Requests of ``route`` the service itself took longer than ``bound`` seconds to answer
-    so far (its ``/metrics`` histogram: from the app's first byte in to its last byte out,
-    so without the client's time, the connection and uvicorn's HTTP parsing)."""
+def metrics_text(port: int) -> str:
+    """The service's ``/metrics`` text."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
     try:
         conn.request("GET", "/metrics")
-        text = conn.getresponse().read().decode()
+        return conn.getresponse().read().decode()
     finally:
         conn.close()
+
+
+def served_over(text: str, route: str, bound: str = "0.05") -> int:
+    """Requests of ``route`` the service itself took longer than ``bound`` seconds to answer
+    so far, by its ``/metrics`` text (the histogram from the app's first byte in to its last
+    byte out, so without the client's time, the connection and uvicorn's HTTP parsing)."""
     head = f'rulkit_http_request_seconds_bucket{{method="GET",route="{route}",le='
     total = under = 0
     for line in text.splitlines():
@@ -207,73 +216,160 @@ def served_over(port: int, route: str, bound: str = "0.05") -> int:
     return total - under
 
 
-def pages_phase(db: str, args: argparse.Namespace) -> dict[str, float]:
-    """p50/p99 and service CPU of a page of 50 for every sort x level filter x depth (by
-    cursor), then of the middle page of the default order by offset (last: its seconds of
-    CPU do not precede a page by cursor). Each reader's first ``--warmup`` requests of a page
-    are timed apart (their worst is reported beside the p99, not in it)."""
+def gc_pauses(text: str, generation: int = 2) -> tuple[int, float]:
+    """(collections, seconds) of the cyclic garbage collector's ``generation`` so far, by the
+    service's ``/metrics`` text (0 for a service that does not time them)."""
+    count, total = 0, 0.0
+    for line in text.splitlines():
+        if line.startswith(f'rulkit_gc_seconds_count{{generation="{generation}"}} '):
+            count = int(line.rsplit(" ", 1)[1])
+        elif line.startswith(f'rulkit_gc_seconds_sum{{generation="{generation}"}} '):
+            total = float(line.rsplit(" ", 1)[1])
+    return count, total
+
+
+def page_kinds(port: int, token: str, n: int) -> list[tuple[str, str]]:
+    """(label, path) of every page: sort x level filter x depth by cursor, then the middle
+    page of the default order by offset."""
     from urllib.parse import quote
 
+    kinds = []
+    for sort in ("worst", "rul", "due"):
+        for level in ("all", "alarm", "ok", "stale"):
+            query = f"sort={sort}" + ("" if level == "all" else f"&level={level}")
+            for depth, frac in DEPTHS.items():
+                after = ""
+                if frac is not None:
+                    cur = _cursor(port, token, query, frac)
+                    if cur is None:
+                        continue
+                    after = f"&after={quote(cur)}"
+                kinds.append((f"{sort}/{level}/{depth}",
+                              f"/api/v1/components?limit=50&{query}{after}"))
+    kinds.append(("worst/all/middle_offset", f"/api/v1/components?limit=50&offset={n // 2}"))
+    return kinds
+
+
+def measure_page(srv: Any, token: str, path: str, args: argparse.Namespace
+                 ) -> dict[str, float]:
+    """One page's figures on server ``srv``: each reader's ``--warmup`` requests (their
+    worst latency), then ``--readers`` x ``--reads`` timed ones: p50, p99, the service's CPU
+    per request and busy fraction, the requests it served over 50 ms, its full garbage
+    collections meanwhile."""
+    warm = timed_reads(srv.port, token, path, args.readers, args.warmup) \
+        if args.warmup else [math.nan]
+    text = metrics_text(srv.port)
+    over0, gc0 = served_over(text, "/api/v1/components"), gc_pauses(text)
+    cpu0, wall0 = srv.cpu_seconds(), time.perf_counter()
+    lat = timed_reads(srv.port, token, path, args.readers, args.reads)
+    cpu = srv.cpu_seconds() - cpu0
+    busy = cpu / (time.perf_counter() - wall0)
+    text = metrics_text(srv.port)
+    gc1 = gc_pauses(text)
+    return {"warmup_ms": max(warm) * 1e3, "cpu_ms": cpu / len(lat) * 1e3, "busy": busy,
+            "served_over": served_over(text, "/api/v1/components") - over0,
+            "gc2": gc1[0] - gc0[0], "gc2_ms": (gc1[1] - gc0[1]) * 1e3,
+            "p50_ms": float(np.percentile(lat, 50)) * 1e3,
+            "p99_ms": float(np.percentile(lat, 99)) * 1e3}
+
+
+def pages_phase(db: str, args: argparse.Namespace) -> dict[str, Any]:
+    """The figures of every page (:func:`page_kinds`, :func:`measure_page`) at
+    ``--components``; with ``--against SRC``, a second server of that checkout's code on the
+    same database, each page measured on both in turns (ours first)."""
     n = args.components
-    out: dict[str, float] = {"components": n,
-                             "fill_s": fill(db, n, steps=3, rules=PAGE_RULES)}
+    out: dict[str, Any] = {"components": n,
+                           "fill_s": fill(db, n, steps=3, rules=PAGE_RULES)}
     sdb = ServiceDB(db)
     _, token = sdb.create_token("read", "bench")
     sdb.close()
-    srv = start_server(db)
+    servers = {"ours": start_server(db)}
     try:
-        kinds = []
-        for sort in ("worst", "rul", "due"):
-            for level in ("all", "alarm", "ok", "stale"):
-                query = f"sort={sort}" + ("" if level == "all" else f"&level={level}")
-                for depth, frac in DEPTHS.items():
-                    after = ""
-                    if frac is not None:
-                        cur = _cursor(srv.port, token, query, frac)
-                        if cur is None:
-                            continue
-                        after = f"&after={quote(cur)}"
-                    kinds.append((f"{sort}/{level}/{depth}",
-                                  f"/api/v1/components?limit=50&{query}{after}"))
-        kinds.append(("worst/all/middle_offset", f"/api/v1/components?limit=50&offset={n // 2}"))
+        if args.against is not None:
+            servers["theirs"] = start_server(db, env={"PYTHONPATH": str(args.against.resolve())})
+        kinds = page_kinds(servers["ours"].port, token, n)
         for label, path in kinds:
-            warm = timed_reads(srv.port, token, path, args.readers, args.warmup) \
-                if args.warmup else [math.nan]
-            out[f"{label}_warmup_ms"] = max(warm) * 1e3
-            over0 = served_over(srv.port, "/api/v1/components")
-            cpu0, wall0 = srv.cpu_seconds(), time.perf_counter()
-            lat = timed_reads(srv.port, token, path, args.readers, args.reads)
-            cpu = srv.cpu_seconds() - cpu0
-            out[f"{label}_served_over"] = served_over(srv.port, "/api/v1/components") - over0
-            out[f"{label}_cpu_ms"] = cpu / len(lat) * 1e3
-            out[f"{label}_busy"] = cpu / (time.perf_counter() - wall0)
-            out[f"{label}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
-            out[f"{label}_p99_ms"] = float(np.percentile(lat, 99)) * 1e3
+            for side, srv in servers.items():
+                out[(side, label)] = measure_page(srv, token, path, args)
     finally:
-        srv.stop()
-    out["kinds"] = [k for k, _ in kinds]  # type: ignore[assignment]
+        for srv in servers.values():
+            srv.stop()
+    out["kinds"] = [k for k, _ in kinds]
+    out["sides"] = list(servers)
     return out
 
 
+def print_pages(backend: str, r: dict[str, Any], args: argparse.Namespace) -> None:
+    """The pages' lines and, per side, the worst p99 by cursor and how many are under 50 ms."""
+    cores = os.cpu_count() or 1
+    print(f"pages at {int(r['components'])} components (filled in {r['fill_s']:.0f} s"
+          + ("" if backend == "sqlite" else ", then VACUUM ANALYZE") +
+          f"), {args.readers} readers x {args.reads} each after {args.warmup} warm-up "
+          f"request(s) each (warm-up: their worst latency); load average "
+          f"{os.getloadavg()[0]:.1f}" + ("" if args.against is None else
+                                         f"; in turns with {args.against} (theirs)") + ":")
+    print(f"  (queue: {args.readers} readers x service CPU per page / {cores} cores, the "
+          "latency if the pages only waited for CPU; busy: service CPU / wall time, 1.0 = one "
+          f"core; served > 50 ms: of the {args.readers * args.reads} timed requests, those the "
+          "service's app itself took over 50 ms to answer, by its /metrics histogram; gc2: "
+          "full collections of Python's garbage collector during them and their total pause, "
+          "by its /metrics)")
+    for kind in r["kinds"]:
+        for side in r["sides"]:
+            f = r[(side, kind)]
+            name = kind if side == "ours" else "  " + side
+            print(f"  {name:24s} p50 {f['p50_ms']:7.1f} ms  p99 {f['p99_ms']:7.1f} ms  service "
+                  f"CPU {f['cpu_ms']:.2f} ms per request  queue "
+                  f"{args.readers * f['cpu_ms'] / cores:.0f} ms  busy {f['busy']:.2f}  warm-up "
+                  f"{f['warmup_ms']:.0f} ms  served > 50 ms {int(f['served_over'])}  gc2 "
+                  f"{int(f['gc2'])} ({f['gc2_ms']:.1f} ms)")
+    by_cursor = [k for k in r["kinds"] if "offset" not in k]
+    med = {}
+    for side in r["sides"]:
+        worst = max(by_cursor, key=lambda k: r[(side, k)]["p99_ms"])
+        med[side] = float(np.median([r[(side, k)]["cpu_ms"] for k in by_cursor]))
+        under = sum(r[(side, k)]["p99_ms"] < 50.0 for k in by_cursor)
+        print(f"  {side}: worst p99 over the {len(by_cursor)} pages by cursor "
+              f"{r[(side, worst)]['p99_ms']:.1f} ms ({worst}; goal < 50 ms); {under} of "
+              f"{len(by_cursor)} under 50 ms; median service CPU per page {med[side]:.2f} ms; "
+              f"load average {os.getloadavg()[0]:.1f}")
+    if "theirs" in med:
+        print(f"  median service CPU per page, ours / theirs: {med['ours'] / med['theirs']:.2f}")
+
+
 def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
-    """History reads at ``--history-rows`` and at 1 % of them (1000 rows per component): p50
-    latency and the service's CPU per read, after one warm-up read."""
+    """History reads at 1 % of ``--history-rows`` and at all of them (1000 rows per
+    component), both servers up at once and read in turns: ``--turns`` turns of ``--reads``
+    reads each after one warm-up read; the median over the turns of the service's CPU per
+    read (a turn's CPU is counted in the kernel's clock ticks of 10 ms, so a turn must hold
+    tens of milliseconds), the CPU of all turns over all their reads (the finer figure: its
+    resolution is one tick over all the reads) and the p50 latency of all reads."""
     out: dict[str, float] = {}
-    for db, rows in zip(dbs, (args.history_rows // 100, args.history_rows), strict=True):
-        out[f"fill_{rows}_s"] = fill(db, rows // 1000, steps=1000)
-        sdb = ServiceDB(db)
-        _, token = sdb.create_token("read", "bench")
-        sdb.close()
-        srv = start_server(db)
-        try:
-            path = "/api/v1/components/unit-0000000/history?limit=1000"
-            timed_reads(srv.port, token, path, 1, 1)  # warm-up: the first read of the file
-            cpu0 = srv.cpu_seconds()
-            lat = timed_reads(srv.port, token, path, 1, args.reads)
-            out[f"history_{rows}_cpu_ms"] = (srv.cpu_seconds() - cpu0) / len(lat) * 1e3
-        finally:
+    servers = {}
+    path = "/api/v1/components/unit-0000000/history?limit=1000"
+    try:
+        for db, rows in zip(dbs, (args.history_rows // 100, args.history_rows), strict=True):
+            out[f"fill_{rows}_s"] = fill(db, rows // 1000, steps=1000)
+            sdb = ServiceDB(db)
+            _, token = sdb.create_token("read", "bench")
+            sdb.close()
+            servers[rows] = (start_server(db), token)
+            timed_reads(servers[rows][0].port, token, path, 1, 1)  # the first read of the file
+        cpu: dict[int, list[float]] = {rows: [] for rows in servers}
+        lat: dict[int, list[float]] = {rows: [] for rows in servers}
+        for _ in range(args.turns):
+            for rows, (srv, token) in servers.items():
+                cpu0 = srv.cpu_seconds()
+                got = timed_reads(srv.port, token, path, 1, args.reads)
+                cpu[rows].append(srv.cpu_seconds() - cpu0)
+                lat[rows] += got
+    finally:
+        for srv, _ in servers.values():
             srv.stop()
-        out[f"history_{rows}_p50_ms"] = float(np.percentile(lat, 50)) * 1e3
+    for rows in servers:
+        out[f"history_{rows}_cpu_ms"] = float(np.median(cpu[rows])) / args.reads * 1e3
+        out[f"history_{rows}_all_cpu_ms"] = sum(cpu[rows]) / len(lat[rows]) * 1e3
+        out[f"history_{rows}_p50_ms"] = float(np.percentile(lat[rows], 50)) * 1e3
     return out
 
 
@@ -379,13 +475,16 @@ def main() -> None:
     ap.add_argument("--components", type=int, default=1_000_000)
     ap.add_argument("--history-rows", type=int, default=10_000_000)
     ap.add_argument("--reads", type=int, default=50, help="GETs per reader thread and kind.")
+    ap.add_argument("--turns", type=int, default=7,
+                    help="Turns of --reads history reads on each database.")
     ap.add_argument("--warmup", type=int, default=1,
                     help="GETs per reader thread and page before the timed ones (their worst "
                     "latency is printed apart).")
     ap.add_argument("--skip", nargs="*", default=[], choices=["ingest", "pages", "history"])
     ap.add_argument("--quick", action="store_true", help="Small counts (smoke run).")
     ap.add_argument("--against", type=Path, default=None,
-                    help="Another checkout's src/ directory: its ingest in turns with ours.")
+                    help="Another checkout's src/ directory: its ingest and its pages in "
+                    "turns with ours.")
     ap.add_argument("--repeats", type=int, default=3,
                     help="Turns of each side with --against.")
     args = ap.parse_args()
@@ -415,34 +514,7 @@ def main() -> None:
                 for size in args.batch_sizes:
                     ingest_phase(backend, new_db, args, size)
             if "pages" not in args.skip:
-                r = pages_phase(new_db("pages"), args)
-                print(f"pages at {int(r['components'])} components (filled in "
-                      f"{r['fill_s']:.0f} s" + ("" if backend == "sqlite" else
-                                                ", then VACUUM ANALYZE") +
-                      f"), {args.readers} readers x {args.reads} each after {args.warmup} "
-                      "warm-up request(s) each (warm-up: their worst latency); load average "
-                      f"{os.getloadavg()[0]:.1f}:")
-                print(f"  (queue: {args.readers} readers x service CPU per page / "
-                      f"{os.cpu_count()} cores, the latency if the pages only waited for CPU; "
-                      "busy: service CPU / wall time, 1.0 = one core; served > 50 ms: of the "
-                      f"{args.readers * args.reads} timed requests, those the service's app "
-                      "itself took over 50 ms to answer, by its /metrics histogram)")
-                for kind in r["kinds"]:  # type: ignore[attr-defined]
-                    cpu = r[f"{kind}_cpu_ms"]
-                    print(f"  {kind:24s} p50 {r[f'{kind}_p50_ms']:7.1f} ms  p99 "
-                          f"{r[f'{kind}_p99_ms']:7.1f} ms  service CPU {cpu:.1f} ms per "
-                          f"request  queue {args.readers * cpu / (os.cpu_count() or 1):.0f} ms"
-                          f"  busy {r[f'{kind}_busy']:.2f}  warm-up "
-                          f"{r[f'{kind}_warmup_ms']:.0f} ms  served > 50 ms "
-                          f"{int(r[f'{kind}_served_over'])}")
-                by_cursor = [k for k in r["kinds"] if "offset" not in k]  # type: ignore[attr-defined]
-                worst = max(by_cursor, key=lambda k: r[f"{k}_p99_ms"])
-                cpu = np.median([r[f"{k}_cpu_ms"] for k in by_cursor])
-                under = sum(r[f"{k}_p99_ms"] < 50.0 for k in by_cursor)
-                print(f"  worst p99 over the {len(by_cursor)} pages by cursor: "
-                      f"{r[f'{worst}_p99_ms']:.1f} ms ({worst}; goal < 50 ms); {under} of "
-                      f"{len(by_cursor)} under 50 ms; median service CPU per page {cpu:.1f} ms;"
-                      f" load average {os.getloadavg()[0]:.1f}")
+                print_pages(backend, pages_phase(new_db("pages"), args), args)
             if "history" not in args.skip:
                 h = history_phase([new_db("h_small"), new_db("h_large")], args)
                 small, large = args.history_rows // 100, args.history_rows
@@ -453,7 +525,12 @@ def main() -> None:
                       f"service CPU per read {h[f'history_{small}_cpu_ms']:.1f} and "
                       f"{h[f'history_{large}_cpu_ms']:.1f} ms: ratio "
                       f"{h[f'history_{large}_cpu_ms'] / h[f'history_{small}_cpu_ms']:.2f} "
-                      f"(after one warm-up read each); load average {os.getloadavg()[0]:.1f}")
+                      f"(medians of {args.turns} turns of {args.reads} reads on each, in turns,"
+                      f" after one warm-up read each); over all the turns' reads "
+                      f"{h[f'history_{small}_all_cpu_ms']:.2f} and "
+                      f"{h[f'history_{large}_all_cpu_ms']:.2f} ms: ratio "
+                      f"{h[f'history_{large}_all_cpu_ms'] / h[f'history_{small}_all_cpu_ms']:.2f}"
+                      f"; load average {os.getloadavg()[0]:.1f}")
     print(f"\nload average at end {os.getloadavg()[0]:.1f}")
 
 

@@ -2,16 +2,20 @@
 figures"): the service's ASGI app called in this process (no sockets, no client), on a
 database of ``--components`` components filled as bench_service.py fills its pages' database.
 
-Prints the CPU time per request of the whole app for a few pages, and for the default page its
-parts, each measured alone over the same repeats: the SQL of the page and its total, the items
-built from the rows, the JSON text, the token check (a query), and the rest (routing,
-parameters, the access log, a connection from the pool). ``--cprofile`` adds the functions
-with the most CPU time of their own. ``--all-pages`` adds, for every page bench_service.py
-measures (sort x level filter x depth by cursor), the CPU of its SQL, total and items in
-process (best of 3), to tell a page slow in its query from one slow over HTTP; ``--db`` reads
-an existing database filled as bench_service.py fills it instead of filling one. FastAPI
-runs a synchronous endpoint in a worker thread; here it runs in the event loop's thread, so
-one profiler sees the whole request.
+Prints the CPU time per request of the whole app for a few pages and a history, each through
+the lean reads (:mod:`rulkit.fleet.service.lean_reads`) and through the FastAPI routes alone
+(``create_app(lean_reads=False)``) in turns, with their ratio; then a full collection of
+Python's cyclic garbage collector over this process's heap, before and after
+``gc.freeze()`` (what ``rulkit serve`` does after start-up); then, for the default page, its
+parts through the FastAPI routes, each measured alone over the same repeats: the SQL of the
+page and its total, the items built from the rows, the JSON text, the token check (a
+query), and the rest (routing, parameters, the access log, a connection from the pool).
+``--cprofile`` adds the functions with the most CPU time of their own. ``--all-pages`` adds,
+for every page bench_service.py measures (sort x level filter x depth by cursor), the CPU of
+its SQL, total and items in process (best of 3), to tell a page slow in its query from one
+slow over HTTP; ``--db`` reads an existing database filled as bench_service.py fills it
+instead of filling one. FastAPI runs a synchronous endpoint in a worker thread; here it runs
+in the event loop's thread, so one profiler sees the whole request.
 
     .venv/bin/python benchmarks/profile_page.py --components 100000
 """
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import cProfile
+import gc
 import os
 import pstats
 import sys
@@ -30,6 +35,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import orjson
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -37,7 +43,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_service import DEPTHS, PAGE_RULES, fill
 
 PATHS = ("/api/v1/components?limit=50", "/api/v1/components?limit=50&sort=rul&level=ok",
-         "/api/v1/components?limit=50&level=stale", "/api/v1/summary", "/healthz")
+         "/api/v1/components?limit=50&level=stale",
+         "/api/v1/components/unit-0000000/history?limit=1000", "/api/v1/summary", "/healthz")
 
 
 def _caller(app: Any, token: str) -> Any:
@@ -80,6 +87,24 @@ def cpu_ms(fn: Any, n: int) -> float:
     return (time.process_time() - t0) / n * 1e3
 
 
+def gc_pause() -> None:
+    """A full collection of the cyclic garbage collector over this process's heap, then the
+    same after ``gc.freeze()`` (medians of 5), as ``rulkit serve`` freezes after start-up."""
+    def full() -> float:
+        t0 = time.perf_counter()
+        gc.collect()
+        return (time.perf_counter() - t0) * 1e3
+
+    full()
+    before = float(np.median([full() for _ in range(5)]))
+    tracked = len(gc.get_objects())
+    gc.freeze()
+    after = float(np.median([full() for _ in range(5)]))
+    gc.unfreeze()
+    print(f"  a full garbage collection over {tracked} tracked objects: {before:.1f} ms of "
+          f"wall time (every thread waits); after gc.freeze(): {after:.2f} ms")
+
+
 def every_page(sdb: Any) -> None:
     """The CPU of each page's SQL, total and items (:meth:`ServiceDB.components`), best of
     3, for every sort x level filter x depth by cursor of bench_service.py's pages."""
@@ -114,7 +139,9 @@ def main() -> None:
         return func(*a, **k)
 
     fastapi.routing.run_in_threadpool = inline  # type: ignore[assignment]
-    from rulkit.fleet.service import fleet_view
+    from rulkit.fleet.service import fleet_view, lean_reads
+
+    lean_reads.run_in_threadpool = inline  # type: ignore[assignment]
     from rulkit.fleet.service.app import create_app
     from rulkit.fleet.service.db import ServiceDB
     from rulkit.fleet.store.prognosis import current_estimator
@@ -124,14 +151,19 @@ def main() -> None:
         fill_s = 0.0 if args.db else fill(db, args.components, steps=3, rules=PAGE_RULES)
         sdb = ServiceDB(db)
         _, token = sdb.create_token("read", "profile")
-        many = _caller(create_app(sdb), token)
+        lean = _caller(create_app(sdb), token)
+        many = _caller(create_app(sdb, lean_reads=False), token)
         n = args.repeats
         size = sdb.summary()["total"]
         print(f"# profile_page: {size} components (filled in {fill_s:.0f} s), "
-              f"{n} requests each, load average {os.getloadavg()[0]:.1f}")
+              f"{n} requests each, load average {os.getloadavg()[0]:.1f}; CPU per request "
+              "(median of 5 turns), lean reads / FastAPI routes alone:")
         for path in PATHS:
-            many(path, 5)
-            print(f"  {path:52s} {many(path, n):.2f} ms of CPU per request")
+            lean(path, 5), many(path, 5)
+            turns = [(lean(path, n // 5), many(path, n // 5)) for _ in range(5)]
+            a, b = (float(np.median(t)) for t in zip(*turns, strict=True))
+            print(f"  {path:52s} {a:.2f} ms / {b:.2f} ms = {a / b:.2f}")
+        gc_pause()
         now = time.time()
         with sdb.store() as s, s.snapshot() as conn:
             est = current_estimator(s)

@@ -7,10 +7,10 @@ Prints, per stage, the CPU time, the resident memory at its end (``VmRSS``) and 
 resident memory of the process so far (``VmHWM``, Linux's high-water mark) at its end: the
 stage where the high-water mark rises is where the peak is made. Nested stages are indented
 under the stage that calls them. The first call of the trackers and of the trend pass is
-printed apart: it loads numba and its cached machine code (about as much memory as pandas
-and pyarrow together). At the end, the share of the peak that is shared libraries' code
-(``RssFile``: numpy, pandas, pyarrow, numba's LLVM), against the process's own data
-(``RssAnon``).
+printed apart: it loads numba and its cached machine code (more memory than numpy and
+pyarrow together). At the end, the share of the peak that is shared libraries' code
+(``RssFile``: numpy, pyarrow, numba's LLVM; pandas when the input needs it), against the
+process's own data (``RssAnon``).
 
     .venv/bin/python benchmarks/profile_track.py                      # 2000 x 1000 rows
     .venv/bin/python benchmarks/profile_track.py --components 200     # a quick look
@@ -122,7 +122,7 @@ def report(err: str) -> None:
     print(f"  {'interpreter start':30s} {py:7.2f} {py / total:6.1%}")
     print(f"  {'import rulkit.cli':30s} {imp:7.2f} {imp / total:6.1%}")
     print(f"  {'import the store':30s} {store:7.2f} {store / total:6.1%} {rss0:7.0f} "
-          f"{hwm0:8.0f}  (numpy, pandas, pyarrow; the command imports them when it runs)")
+          f"{hwm0:8.0f}  (the command imports numpy and pyarrow when it runs)")
     labels = [label for label, _, _ in STAGES]
     for j, label in enumerate(labels):
         c, n, f, r, h = stages[label]

@@ -10,9 +10,12 @@ from typer.testing import CliRunner
 from rulkit.cli import app
 from rulkit.fleet.learned.histories import HistoryError, histories_from_frame, read_histories
 from rulkit.fleet.rows import (
+    CodedText,
     check_component_ids,
+    component_codes,
     numeric_values,
     previous_per_component,
+    read_csv_columns,
     read_csv_rows,
 )
 from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
@@ -82,6 +85,51 @@ def test_csv_text_ids_stay_text_and_only_an_empty_cell_is_missing(tmp_path):
     assert df["component"].astype(object).tolist()[:4] == ["NA", "None", "null", "007"]
     with pytest.raises(ValueError, match="row 5: empty component name"):
         check_component_ids(df["component"])
+
+
+def test_plain_csv_columns_are_the_frames_values_without_pandas(tmp_path):
+    """read_csv_columns gives a plain CSV as arrays (ids as codes) equal to the frame's
+    columns; any other column type is left to the frame, so it is refused the frame's way."""
+    f = tmp_path / "a.csv"
+    rng = np.random.default_rng(3)
+    ids = rng.choice(["b", "a", " a", "c-9", "\u00e9t\u00e9"], 300)
+    pd.DataFrame({"component": ids, "time": np.arange(300), "hi": rng.uniform(0, 1, 300),
+                  "ci": rng.normal(size=300)}).to_csv(f, index=False)
+    with open(f, "a") as out:
+        out.write("b,300,,0.5\n")  # an empty cell in a floating column: NaN in both
+    cols, frame = read_csv_columns(f), read_csv_rows(f)
+    assert isinstance(cols, dict) and isinstance(cols["component"], CodedText)
+    for c in ("time", "hi", "ci"):
+        assert cols[c].dtype == frame[c].dtype
+        np.testing.assert_array_equal(cols[c], frame[c].to_numpy())
+    codes, names = component_codes(cols["component"])
+    f_codes, f_names = component_codes(frame["component"])
+    np.testing.assert_array_equal(codes, f_codes)
+    assert names == f_names == list(dict.fromkeys(i.strip() for i in ids))  # " a" is "a"
+    for text in ("component,time,hi\nc0,0,True\n",  # a boolean column
+                 "component,time,hi\nc0,2024-01-01T00:00:00,0.1\n",  # date-times
+                 'component,time,hi\n"",0,0.1\n'):  # an empty id
+        f.write_text(text)
+        assert isinstance(read_csv_columns(f), pd.DataFrame)
+
+
+def test_coded_ids_are_numbered_by_first_appearance():
+    """A dictionary in any order, unused entries, and the refusals of component_codes."""
+    values = ["z", "y", "x", "unused"]
+    raw = np.array([2, 0, 2, 1, 0], dtype=np.int32)
+    codes, names = component_codes(CodedText(codes=raw, values=values))
+    np.testing.assert_array_equal(codes, [0, 1, 0, 2, 1])
+    assert names == ["x", "z", "y"]
+    ref = component_codes(np.array([values[k] for k in raw], dtype=object))
+    np.testing.assert_array_equal(codes, ref[0])
+    assert names == ref[1]
+    in_order = CodedText(codes=np.array([0, 0, 1, 0, 2], dtype=np.int32), values=["a", "b", "c"])
+    assert component_codes(in_order)[1] == ["a", "b", "c"]
+    with pytest.raises(ValueError, match="row 2: empty component name"):
+        component_codes(CodedText(codes=np.array([0, -1], dtype=np.int32), values=["a"]))
+    with pytest.raises(ValueError, match=r"row 3: .*non-printable"):
+        component_codes(CodedText(codes=np.array([0, 0, 1], dtype=np.int32),
+                                  values=["a", "b\x1b"]))
 
 
 def _histories(comps=("NA", "None", "null"), hi_last=1.1):

@@ -21,12 +21,15 @@ every command (docs/file-formats.md):
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 from rulkit.tables import cell_repr, safe_text
 
@@ -42,16 +45,31 @@ def _row_1_based(i: int) -> str:
     return f"row {i + 1}"
 
 
+@dataclass(frozen=True)
+class CodedText:
+    """A text column as dictionary codes, as a CSV reader gives it: per row the index of its
+    text in ``values`` (distinct texts), -1 for an empty cell. What :func:`read_csv_columns`
+    gives for the ``text_columns``, read without one Python string per row."""
+
+    codes: NDArray[np.int32]
+    values: list[Any]
+
+    def __len__(self) -> int:
+        return int(self.codes.size)
+
+
 def check_component_ids(comp: pd.Series, error: ErrorType = ValueError) -> pd.Series:
     """Component ids as a categorical of stripped ``str``, or ``error`` at the first bad row
     (:func:`component_codes`: the rules and the refusals)."""
+    import pandas as pd
+
     codes, names = component_codes(comp, error)
     return pd.Series(pd.Categorical.from_codes(codes, categories=pd.Index(names, dtype=object)),
                      index=comp.index)
 
 
 def component_codes(comp: Any, error: ErrorType = ValueError
-                    ) -> tuple[NDArray[np.intp], list[str]]:
+                    ) -> tuple[NDArray[np.integer], list[str]]:
     """Component ids as (per row, the index of its id in ``names``; ``names``: the distinct
     stripped ``str`` ids in order of first appearance), or ``error`` at the first bad row.
 
@@ -60,16 +78,22 @@ def component_codes(comp: Any, error: ErrorType = ValueError
     or empty id, a non-text id (a number in a Parquet column is taken as its text, but bytes
     are refused), text that is not valid Unicode (a lone surrogate), a control or format
     character (ESC, newline, tab, bidi override), and an id longer than the limit. The check
-    runs once per distinct id. ``comp``: a pandas Series or a numpy object array (a batch's
-    JSON column: one dict lookup per row instead of pandas' factorize).
+    runs once per distinct id. ``comp``: a pandas Series, a numpy object array (a batch's
+    JSON column: one dict lookup per row instead of pandas' factorize) or :class:`CodedText`
+    (a CSV's column: the codes renumbered, no string per row).
     """
     values = comp if isinstance(comp, np.ndarray) and comp.dtype == object else None
-    if values is not None and set(map(type, values.tolist())) == {str}:
+    uniques: Any
+    if isinstance(comp, CodedText):
+        codes, uniques = _appearance_codes(comp, error)
+    elif values is not None and set(map(type, values.tolist())) == {str}:
         first: dict[str, int] = {}
         codes = np.fromiter((first.setdefault(v, len(first)) for v in values.tolist()),
                             dtype=np.intp, count=values.size)
-        uniques: Any = list(first)
+        uniques = list(first)
     else:
+        import pandas as pd
+
         series = comp if isinstance(comp, pd.Series) else pd.Series(comp, dtype=object)
         missing = series.isna().to_numpy()
         if missing.any():
@@ -78,7 +102,8 @@ def component_codes(comp: Any, error: ErrorType = ValueError
         codes, uniques = pd.factorize(series, sort=False)
     clean = _plain_ids(uniques)
     if clean is not None:
-        return np.asarray(codes, dtype=np.intp), clean
+        return (codes if isinstance(comp, CodedText)  # its int32 codes, not a copy
+                else np.asarray(codes, dtype=np.intp)), clean
     clean = []
     for k, v in enumerate(uniques):
         text, reason = _clean_id(v)
@@ -86,9 +111,31 @@ def component_codes(comp: Any, error: ErrorType = ValueError
             i = int(np.flatnonzero(codes == k)[0])
             raise error(f"row {i + 1}: {reason}")
         clean.append(text)
-    # ids equal after stripping share one name
-    ucodes, ucats = pd.factorize(pd.Index(clean, dtype=object))
-    return np.asarray(ucodes, dtype=np.intp)[codes], [str(c) for c in ucats]
+    # ids equal after stripping share one name (the first appearance's place)
+    merged: dict[str, int] = {}
+    ucodes = np.fromiter((merged.setdefault(c, len(merged)) for c in clean), dtype=np.intp,
+                         count=len(clean))
+    return ucodes[codes], list(merged)
+
+
+def _appearance_codes(comp: CodedText, error: ErrorType
+                      ) -> tuple[NDArray[np.integer], list[Any]]:
+    """``comp``'s codes renumbered in order of first appearance, with its texts in that order
+    (what pandas' factorize gives), or ``error`` at the first empty cell. A CSV reader's
+    dictionary is built in order of appearance: then the codes are kept as they are (checked
+    with one running maximum: each code is at most one above every code before it)."""
+    codes = comp.codes
+    if codes.size and int(codes.min()) < 0:
+        raise error(f"row {int(np.flatnonzero(codes < 0)[0]) + 1}: empty component name")
+    top = np.maximum.accumulate(codes)
+    if codes.size == 0 or (codes[0] == 0 and not (np.diff(top) > 1).any()
+                           and int(top[-1]) + 1 == len(comp.values)):
+        return codes, list(comp.values)
+    used, first, inverse = np.unique(codes, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty(order.size, dtype=np.intp)
+    rank[order] = np.arange(order.size)
+    return rank[inverse.reshape(-1)], [comp.values[k] for k in used[order]]
 
 
 def _plain_ids(uniques: Any) -> list[str] | None:
@@ -150,6 +197,8 @@ def numeric_values(
     label = f"column {name!r}, "
     if isinstance(col, np.ndarray) and col.dtype.kind in "iuf":  # a batch's JSON numbers
         return _finite(col.astype(np.float64, copy=False), label, error, row_label)
+    import pandas as pd
+
     if not isinstance(col, pd.Series):
         col = pd.Series(col)
     dtype = col.dtype
@@ -213,6 +262,8 @@ def _refuse_text(values: NDArray[np.object_], text: NDArray[np.bool_], label: st
                  error: ErrorType, row_label: Callable[[int], str]) -> None:
     """Raise ``error`` at the first text cell that is not a number (a typo in a CSV), or else
     at the first text cell (numbers stored as text)."""
+    import pandas as pd
+
     idx = np.flatnonzero(text)
     num = pd.to_numeric(pd.Series(values[idx], dtype=object), errors="coerce").to_numpy()
     typo = np.flatnonzero(np.isnan(num.astype(np.float64)))
@@ -233,7 +284,46 @@ def read_csv_rows(
     text_columns: Sequence[str] = ("component",),
     max_rows: int | None = None,
 ) -> pd.DataFrame:
-    """A CSV file (path, ``.gz`` and other compressions by ending) or CSV bytes as a frame.
+    """A CSV file (path, ``.gz`` and other compressions by ending) or CSV bytes as a frame
+    (:func:`read_csv_table`: the reading and the refusals)."""
+    return arrow_frame(read_csv_table(source, error=error, name=name,
+                                      text_columns=text_columns, max_rows=max_rows))
+
+
+def read_csv_columns(
+    source: str | Path | bytes | memoryview,
+    *,
+    error: ErrorType = ValueError,
+    name: str | None = None,
+    text_columns: Sequence[str] = ("component",),
+    max_rows: int | None = None,
+) -> dict[str, Any] | pd.DataFrame:
+    """A CSV file or CSV bytes (:func:`read_csv_table`) as numpy columns without pandas when
+    every column is plain (:func:`arrow_columns`), else as a frame (:func:`arrow_frame`:
+    date-times, booleans, text in a numeric column, an all-empty column), so that what is
+    refused, and how, is the frame's."""
+    import pyarrow as pa
+
+    table = read_csv_table(source, error=error, name=name, text_columns=text_columns,
+                           max_rows=max_rows)
+    cols = arrow_columns(table)
+    if cols is None:
+        return arrow_frame(table)
+    del table
+    pa.default_memory_pool().release_unused()  # the parse buffers and the table's columns
+    return cols
+
+
+def read_csv_table(
+    source: str | Path | bytes | memoryview,
+    *,
+    error: ErrorType = ValueError,
+    name: str | None = None,
+    text_columns: Sequence[str] = ("component",),
+    max_rows: int | None = None,
+) -> Any:
+    """A CSV file (path, ``.gz`` and other compressions by ending) or CSV bytes as a pyarrow
+    table.
 
     pyarrow's reader, with every row checked to have as many fields as the header (module
     docstring) and ``text_columns`` read verbatim as text (categorical: one string per
@@ -289,7 +379,52 @@ def read_csv_rows(
         raise error(f"{where}: {table.num_rows} rows, at most {max_rows} per batch")
     if table.num_rows == 0:
         raise error(f"{where}: no data rows (header only)")
-    return arrow_frame(table)
+    return table
+
+
+def arrow_columns(table: Any) -> dict[str, Any] | None:
+    """A pyarrow table as numpy columns (copies: the table can be freed) when every column is
+    of an integer or floating type (as arrays of that type, NaN for an empty cell of a
+    floating column) or text dictionary-encoded with int32 codes (:class:`CodedText`, as
+    :func:`read_csv_table` reads ``text_columns``); ``None`` when a column
+    is of another type or an integer or text column has empty cells."""
+    import pyarrow.types as pt
+
+    for col in table.columns:
+        typ = col.type
+        if not (pt.is_floating(typ) or (col.null_count == 0 and (pt.is_integer(typ) or (
+                pt.is_dictionary(typ) and pt.is_string(typ.value_type)
+                and pt.is_int32(typ.index_type))))):
+            return None
+    table = table.unify_dictionaries()
+    out: dict[str, Any] = {}
+    for name in table.column_names:
+        col = table.column(name)
+        if pt.is_dictionary(col.type):
+            values = col.chunks[0].dictionary.to_pylist() if col.num_chunks else []
+            codes = _joined([c.indices for c in col.chunks], np.dtype(np.int32))
+            out[name] = CodedText(codes=codes, values=values)
+        else:
+            out[name] = _joined(col.chunks, np.dtype(col.type.to_pandas_dtype()))
+    return out
+
+
+def _joined(chunks: list[Any], dtype: np.dtype) -> NDArray[Any]:
+    """Primitive Arrow arrays joined into one numpy array of ``dtype`` (their type's) from
+    their buffers, an empty cell NaN (pyarrow's ``to_numpy`` imports pandas when installed)."""
+    out = np.empty(sum(len(c) for c in chunks), dtype=dtype)
+    i = 0
+    for c in chunks:
+        n = len(c)
+        if n == 0:  # an empty chunk may have no data buffer
+            continue
+        validity, data = c.buffers()[:2]
+        out[i:i + n] = np.frombuffer(data, dtype=dtype, count=n, offset=c.offset * dtype.itemsize)
+        if c.null_count:
+            bits = np.unpackbits(np.frombuffer(validity, dtype=np.uint8), bitorder="little")
+            out[i:i + n][~bits[c.offset:c.offset + n].astype(bool)] = np.nan
+        i += n
+    return out
 
 
 def arrow_frame(table: Any) -> pd.DataFrame:

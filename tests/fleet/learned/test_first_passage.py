@@ -113,3 +113,120 @@ def test_quantiles_invert_the_cdf_on_and_after_the_first_step():
     f = model.rul_cdf(st.take(np.arange(2)), np.column_stack([lo, med, hi])[:2])
     np.testing.assert_allclose(f, [[0.05, 0.5, 0.95]] * 2, atol=1e-6)
     assert np.isinf(med[2])  # the rate is almost surely negative: never fails
+
+
+def _mixed_states(rng: np.random.Generator, model: HiNoiseModel, size: int) -> UnitState:
+    """Units filtered through 2 to 40 acquisitions of an exponential HI at cadences from
+    dense to sparse (c = b d / s from about 0.05 to above the table's 20), then edge cases:
+    at the threshold's doorstep (the first step), failed (hi >= 1), a negative rate (never
+    fails), one acquisition (no cadence) and none."""
+    st = model.empty_state(size)
+    t = np.zeros(size)
+    gap = np.exp(rng.uniform(np.log(2.0), np.log(400.0), size))
+    n_acq = rng.integers(2, 41, size)
+    rate = rng.uniform(0.5, 3.0, size)
+    for j in range(40):
+        go = np.flatnonzero(j < n_acq)
+        t[go] += gap[go] * rng.uniform(0.5, 1.5, go.size)
+        hi = np.clip(0.1 * np.exp(rate[go] * t[go] / model.time_scale)
+                     * np.exp(0.04 * rng.standard_normal(go.size))
+                     + 0.01 * rng.standard_normal(go.size), 0.01, 0.99)
+        upd = model.update(st.take(go), t[go], hi)
+        st.m[go], st.p[go], st.t[go], st.hi[go], st.n[go] = upd.m, upd.p, upd.t, upd.hi, upd.n
+    edge = UnitState(m=np.array([[-0.01, 2.0], [0.05, 2.0], [-0.3, -1.0], [-0.5, 1.0],
+                                 [-0.5, 1.0]]),
+                     p=np.array([[1e-4, 0.0, 0.01]] * 5), t=np.array([300.0] * 5),
+                     hi=np.array([0.99, 1.02, 0.74, 0.6, 0.6]), n=np.array([100, 100, 30, 1, 0]))
+    return UnitState(m=np.concatenate([st.m, edge.m]), p=np.concatenate([st.p, edge.p]),
+                     t=np.concatenate([st.t, edge.t]), hi=np.concatenate([st.hi, edge.hi]),
+                     n=np.concatenate([st.n, edge.n]))
+
+
+@pytest.mark.parametrize("noise", [(0.01, 0.04), (1e-7, 0.0), (0.05, 0.0)])
+def test_compiled_quantiles_equal_the_bisection_of_the_cdf(noise):
+    """The compiled search against the numpy bisection of :func:`rul_cdf` (eq. (5b)) to 1e-9
+    relative, over random units and the edge cases of :func:`_mixed_states` (tiny s, c beyond
+    the table, the first step, failed, never failing, one acquisition, none), at levels from
+    0.1 % to 99.9 %."""
+    kind = "mixed" if all(noise) else "additive"
+    model = HiNoiseModel(noise=kind, shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2),
+                         hi_noise_sd=noise[0], log_noise_sd=noise[1], walk_sd=0.05,
+                         time_scale=1000.0)
+    st = _mixed_states(np.random.default_rng(3), model, 120)
+    levels = (0.5, 0.001, 0.05, 0.95, 0.999)
+    fast = model.rul_quantiles(st, levels)
+    ref = rul_quantiles(model, st, levels, method="bisect", iterations=80)
+    for x, y in zip(fast, ref, strict=True):
+        np.testing.assert_array_equal(np.isnan(x), np.isnan(y))
+        np.testing.assert_array_equal(np.isinf(x), np.isinf(y))
+        fin = np.isfinite(y)
+        np.testing.assert_allclose(x[fin], y[fin], rtol=1e-9, atol=1e-12)
+    med, low = fast[0], fast[2]
+    assert low[-5] < st.t[-5] / st.n[-5]  # at the doorstep: inside the first step
+    assert med[-4] == 0.0 and np.isinf(med[-3]) and np.isnan(med[-1])
+
+
+def test_latent_quantiles_against_brent_on_eq_5():
+    """s = 0 (no measurement noise): the compiled search against scipy's brentq on eq. (5)'s
+    log S(w) - log S(0) - log(1 - p) unit by unit (an independent root finder and log_ndtr),
+    from 1e-6 (below, the level itself is lost in S(0)'s rounding) to 1 - 1e-9 (the tails of
+    the search's k = -Phi^-1(S))."""
+    from scipy.optimize import brentq
+    from scipy.special import log_ndtr
+
+    rng = np.random.default_rng(4)
+    n = 40
+    latent = SimpleNamespace(walk_sd=0.2, threshold=0.0, time_scale=1.0)
+    m = np.column_stack([rng.uniform(-3.0, -0.05, n), rng.uniform(0.2, 3.0, n)])
+    p = np.column_stack([rng.uniform(1e-4, 0.1, n), rng.uniform(-1e-3, 1e-3, n),
+                         rng.uniform(1e-3, 0.05, n)])
+    st = UnitState(m=m, p=p, t=np.full(n, 10.0), hi=np.full(n, 0.5), n=np.full(n, 5))
+    levels = (1e-6, 0.05, 0.5, 0.95, 1.0 - 1e-9)
+    got = rul_quantiles(latent, st, levels)
+
+    def log_s(w: float, b: int) -> float:
+        v = p[b, 0] + 2.0 * w * p[b, 1] + w * w * p[b, 2] + 0.04 * w
+        return float(log_ndtr(-(m[b, 0] + m[b, 1] * w) / math.sqrt(v)))
+
+    for b in range(n):
+        for lev, q in zip(levels, got, strict=True):
+            target = log_s(0.0, b) + math.log1p(-lev)
+            if target <= float(log_ndtr(-m[b, 1] / math.sqrt(p[b, 2]))):
+                assert np.isinf(q[b])
+                continue
+            hi = 1.0
+            while log_s(hi, b) > target:
+                hi *= 2.0
+            ref = brentq(lambda w, b=b, t=target: log_s(w, b) - t, 0.0, hi, xtol=1e-15,
+                         rtol=1e-14)
+            assert q[b] == pytest.approx(ref, rel=1e-9, abs=1e-13)
+
+
+def test_kernel_quantiles_nondecreasing_in_level():
+    """The kernel's own roots (before :func:`monotone_in_level`) rise with the level, on and
+    after the first step, for random units of a mixed-noise model at 41 levels."""
+    from rulkit.fleet.learned.degradation import _event
+    from rulkit.fleet.learned.filter_kernels import first_passage_quantiles
+    from rulkit.fleet.learned.first_passage import kernel_table
+
+    model = HiNoiseModel(noise="mixed", shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2),
+                         hi_noise_sd=0.01, log_noise_sd=0.04, walk_sd=0.05, time_scale=1000.0)
+    st = _mixed_states(np.random.default_rng(5), model, 200)
+    s, delta = _event(model, st)
+    levels = np.linspace(0.001, 0.999, 41)
+    w = np.empty((levels.size, len(st)))
+    first_passage_quantiles(st.m, st.p, delta, model.walk_sd**2, model.threshold, s, levels,
+                            *kernel_table(), 200, w)
+    ok = st.n > 0
+    assert np.all(w[1:, ok] >= w[:-1, ok])  # inf >= inf: the never-failing levels
+    assert (w[:, ok] < delta[ok]).any() and np.isfinite(w[:, ok]).any()
+
+
+def test_a_level_does_not_depend_on_the_levels_asked_with_it():
+    """Same state, same level, same bits: each level's search starts from its own eq. (6)."""
+    model = HiNoiseModel(noise="mixed", shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2),
+                         hi_noise_sd=0.01, log_noise_sd=0.04, walk_sd=0.05, time_scale=1000.0)
+    st = _mixed_states(np.random.default_rng(6), model, 100)
+    med, low, high = model.rul_quantiles(st)
+    for lev, q in ((0.05, low), (0.95, high), (0.5, med)):
+        np.testing.assert_array_equal(model.rul_quantiles(st, (lev,))[0], q)

@@ -179,6 +179,56 @@ def test_first_crossing_cases():
     assert (-1.0 + 0.2 * r) / np.sqrt(0.01 + 0.01 * r * r) == pytest.approx(1.5)
 
 
+def _first_crossing_before(a, b, v0, v1, v2, c):
+    """first_crossing as it was before its line terms were computed once per unit: every
+    term at the full (levels, units) shape (the reference for its bits)."""
+    a, b, v0, v1, v2, c = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
+                                                for x in (a, b, v0, v1, v2, c)))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        at0 = a >= c * np.sqrt(v0)
+        c2 = c * c
+        q2 = b * b - c2 * v2
+        q1 = 2.0 * a * b - c2 * v1
+        q0 = a * a - c2 * v0
+        disc = q1 * q1 - 4.0 * q2 * q0
+        real = disc >= -(1e-12 * (q1 * q1 + np.abs(4.0 * q2 * q0)))
+        qq = -0.5 * (q1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), q1))
+        lin = np.abs(q2) <= 1e-14 * (np.abs(q1) + np.abs(q0) + 1e-300)
+        r1 = np.where(lin, -q0 / q1, qq / q2)
+        r2 = np.where(lin, np.inf, q0 / qq)
+        best = np.full(a.shape, np.inf)
+        for r in (r1, r2):
+            num = a + b * r
+            sign_ok = (np.sign(num) == np.sign(c)) | (
+                np.abs(num) <= 1e-7 * (np.abs(a) + np.abs(b * r)))
+            ok = real & np.isfinite(r) & (r >= 0.0) & sign_ok
+            best = np.where(ok & (r < best), r, best)
+        best = np.where(c == 0.0, np.where(b > 0.0, -a / b, np.inf), best)
+        out = np.where(at0, 0.0, best)
+    bad = ~(np.isfinite(a) & np.isfinite(b) & np.isfinite(v0) & np.isfinite(v1)
+            & np.isfinite(v2) & np.isfinite(c))
+    return np.where(bad, np.nan, out)
+
+
+def test_first_crossing_keeps_its_bits():
+    """Random lines over many magnitudes with zeros, NaN, infinities and tiny slopes mixed in,
+    a (levels, units) table of c and the scalar cases: the same bits as before."""
+    rng = np.random.default_rng(5)
+    n = 20_000
+
+    def draw(*special):
+        x = rng.normal(size=n) * rng.choice([1e-8, 1e-3, 1.0, 1e3], n)
+        return np.where(rng.random(n) < 0.1, rng.choice(np.array(special), n), x)
+
+    a, b = draw(0.0, np.nan, np.inf, -1.0), draw(0.0, np.nan, 1e-300, -1e-300)
+    v0, v1, v2 = np.abs(draw(0.0, np.nan, np.inf)), draw(0.0, np.nan), np.abs(draw(0.0, 1e-300))
+    c = np.stack([np.zeros(n), draw(0.0, np.nan, 1.645, -1.645), draw(np.inf, 2.0)])
+    for args in ((a, b, v0, v1, v2, c), (a, b, v0, v1, v2, c[1]), (a, b, v0, v1, v2, 1.5),
+                 (-1.0, 0.5, 0.0, 0.0, 0.0, 0.0), (-1.0, 0.2, 0.01, 0.0, 0.01, 1.5)):
+        got, ref = first_crossing(*args), _first_crossing_before(*args)
+        assert got.shape == ref.shape and got.tobytes() == ref.tobytes()
+
+
 def test_t_cdf_and_quantiles_against_scipy():
     nu = np.arange(1.0, 201.0)
     for x in (-40.0, -2.5, -0.3, 0.0, 0.7, 3.0, 25.0):

@@ -266,3 +266,35 @@ def test_track_in_tiny_blocks_writes_the_bits_of_one_block(tmp_path, monkeypatch
     assert one[1] and one[2]  # history written, alerts raised
     assert tiny_out == one_out
     assert tiny == one  # every value of every row (floats compared exactly, NaN stored NULL)
+
+
+def test_track_reads_a_plain_csv_without_pandas_and_stores_the_frames_values(tmp_path):
+    """rulkit track takes a plain CSV as arrays (rulkit.fleet.rows.read_csv_columns) and
+    does not import pandas; the database equals the one the same rows give as a frame."""
+    import subprocess
+    import sys
+
+    from rulkit.fleet.store.ingest import ingest_into
+
+    src = fleet_csv(tmp_path / "a.csv")
+    probe = ("import atexit, sys\n"
+             "atexit.register(lambda: print('pandas' in sys.modules, file=sys.stderr))\n"
+             "sys.argv = ['rulkit', 'track', '--db', sys.argv[1], sys.argv[2]]\n"
+             "from rulkit.cli import main; main()\n")
+    got = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "cli.db"), str(src)],
+                         capture_output=True, text=True, check=True)
+    assert got.stderr.strip().splitlines()[-1] == "False", got.stderr
+    ingest_into(tmp_path / "frame.db", pd.read_csv(src), source=str(src))
+
+    def dump(db):
+        con = sqlite3.connect(db)
+        cols = [c for (c,) in con.execute("SELECT name FROM pragma_table_info('components')")
+                if c not in ("seen", "due")]  # the clock at the ingestion
+        got = (con.execute(f"SELECT {', '.join(cols)} FROM components ORDER BY 1").fetchall(),
+               con.execute("SELECT * FROM history ORDER BY 1, 2").fetchall())
+        con.close()
+        return got
+
+    cli = dump(tmp_path / "cli.db")
+    assert cli == dump(tmp_path / "frame.db")  # every value (floats exactly)
+    assert cli[0] and cli[1]

@@ -139,3 +139,49 @@ def test_conversion_on_postgresql(pg_server, row_history):
     with open_store(url) as s:
         pd.testing.assert_frame_equal(s.history(), before)
         assert s.counts() == (3, 27, 27)
+
+
+def _history_sql(path):
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        return con.execute("SELECT sql FROM sqlite_master WHERE name = 'history'"
+                           ).fetchone()[0]
+    finally:
+        con.close()
+
+
+def test_a_clustered_history_is_rebuilt_with_its_key_indexed_apart(tmp_path):
+    """A new database's history has rowids and its key in an index of its own (a seek does
+    not read whole chunks); one made ``WITHOUT ROWID`` by an older rulkit is rebuilt when
+    opened for writing, every chunk as it was, and read as before."""
+    rng = np.random.default_rng(5)
+    df = fleet(rng, comps=5, steps=30)
+    ingest_into(tmp_path / "f.db", df[df.time < 20])
+    ingest_into(tmp_path / "f.db", df[df.time >= 20])
+    assert "WITHOUT ROWID" not in _history_sql(tmp_path / "f.db").upper()
+    with ComponentStore(tmp_path / "f.db") as s:
+        before = s.history()
+        chunks = s._conn.execute("SELECT * FROM history ORDER BY component, t_first").fetchall()
+        plan = " ".join(str(r[-1]) for r in s._conn.execute(
+            "EXPLAIN QUERY PLAN SELECT t_first, n FROM history WHERE component = ? ORDER BY "
+            "t_first DESC LIMIT 5", ("u0",)).fetchall())
+        assert "sqlite_autoindex_history" in plan, plan
+        cols = ", ".join(hc.COLUMNS)
+        with s._transaction("IMMEDIATE") as conn:  # the table as an older rulkit made it
+            conn.execute("ALTER TABLE history RENAME TO history_now")
+            conn.execute("CREATE TABLE history (component TEXT NOT NULL, t_first REAL NOT NULL,"
+                         " t_last REAL NOT NULL, n INTEGER NOT NULL, ingest INTEGER NOT NULL, "
+                         "data BLOB NOT NULL, PRIMARY KEY (component, t_first)) WITHOUT ROWID")
+            conn.execute(f"INSERT INTO history ({cols}) SELECT {cols} FROM history_now")
+            conn.execute("DROP TABLE history_now")
+    assert "WITHOUT ROWID" in _history_sql(tmp_path / "f.db").upper()
+    with ComponentStore(tmp_path / "f.db", readonly=True) as s:  # read as it is
+        pd.testing.assert_frame_equal(s.history(), before)
+    with ComponentStore(tmp_path / "f.db") as s:  # rebuilt here
+        assert s._conn.execute("SELECT * FROM history ORDER BY component, t_first"
+                               ).fetchall() == chunks
+        with s.snapshot() as conn:
+            last = hc.read_last(conn, "u1", 12)
+        want = before[before.component == "u1"].tail(12)
+        np.testing.assert_array_equal(hc.field(last, "t"), want["t"].to_numpy())
+    assert "WITHOUT ROWID" not in _history_sql(tmp_path / "f.db").upper()

@@ -153,6 +153,41 @@ def test_a_bad_partition_writes_and_creates_nothing(tmp_path, cluster):
     assert not (tmp_path / "b.db").exists()
 
 
+@pytest.mark.parametrize("ids", [
+    ["u1", "u1", None, "u2", "u2", "u2"],  # a missing id
+    [1, 1, 1, 2, 2, 2],  # numbers, taken as their text
+    ["u1", " u1", "u1 ", "u2", "u2 ", "u2"],  # one component, written with blanks
+    [b"u1", b"u1", b"u1", b"\xff", b"u2", b"u2"],  # bytes: refused
+], ids=["null", "numbers", "blanks", "bytes"])
+def test_dask_reads_the_ids_as_the_serial_run(tmp_path, cluster, ids):
+    """The buckets split the components by the ids the ingestion stores (stripped, numbers as
+    text) and refuse the ids it refuses, with its message and row."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    d = tmp_path / "p"
+    d.mkdir()
+    t = np.arange(6.0)
+    pq.write_table(pa.table({"component": pa.array(ids), "time": t, "hi": 0.3 + 0.01 * t}),
+                   d / "p0.parquet")
+    got = {}
+    for name, scheduler in (("serial", None), ("dask", cluster)):
+        try:
+            res, _ = track_directory(tmp_path / f"{name}.db", d, config=CFG,
+                                     scheduler=scheduler, buckets=2)
+            got[name] = (res.n_rows, res.n_components, tables(tmp_path / f"{name}.db"))
+        except IngestError as err:
+            got[name] = (type(err), str(err))
+            assert not (tmp_path / f"{name}.db").exists()
+    if isinstance(got["serial"][0], type):
+        assert got["dask"] == got["serial"]
+    else:
+        assert got["dask"][:2] == got["serial"][:2]
+        for t in got["serial"][2]:
+            pd.testing.assert_frame_equal(got["dask"][2][t], got["serial"][2][t],
+                                          check_exact=True)
+
+
 def test_track_command_takes_a_directory(tmp_path):
     d = partitions(fleet(n_comp=5, steps=12), tmp_path / "p")
     r = CliRunner().invoke(app, ["track", "--db", str(tmp_path / "c.db"), str(d)])

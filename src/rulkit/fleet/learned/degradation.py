@@ -462,11 +462,12 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
     A level p beyond the first reading's probability F(d) is reached where
     log S(w) = log S_ref + log(1 - p) (:func:`_reference`), searched from the first reading
     on; a level p <= F(d) where one measurement's CDF (eq. (5)) reaches p / F(d) of its value
-    at d (:func:`rul_cdf`). ``method="compiled"`` (the default): bisection per unit on
-    u in (0, 1), w = w_0 + W u / (1 - u), W = max(w_0, 1), ``iterations`` halvings
-    (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
-    ``method="bisect"``: the same search vectorised over units in numpy, from the CDF of
-    :func:`rul_cdf` (the reference of the tests). A level beyond the failing mass
+    at d (:func:`rul_cdf`). ``method="compiled"`` (the default): per unit, Newton's steps on
+    (5b)'s margin from eq. (6)'s closed-form root, safeguarded by a bracket, at most
+    ``iterations`` steps (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
+    ``method="bisect"``: bisection on u in (0, 1), w = W u / (1 - u), W = max(age, 1),
+    ``iterations`` halvings, vectorised over units in numpy on the CDF of :func:`rul_cdf`
+    (the reference of the tests). A level beyond the failing mass
     1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf. ``one_reading``: eq. (5) of
     one measurement instead (the exported C's event, docs/rul-on-the-device.md).
     """
@@ -485,11 +486,9 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
                                 delta, model.walk_sd**2, model.threshold, s,
                                 np.asarray(levels, dtype=np.float64), *kernel_table(),
                                 iterations, w)
-    out = []
-    for k in range(len(levels)):
-        r = np.where(state.hi >= 1.0, 0.0, np.maximum(w[k], 0.0) * tau)
-        out.append(np.where(state.n == 0, np.nan, r))
-    return monotone_in_level(levels, out)
+    r = np.where(state.hi >= 1.0, 0.0, np.maximum(w, 0.0) * tau)
+    r[:, state.n == 0] = np.nan
+    return monotone_in_level(levels, list(r))
 
 
 def _bisect_levels(model: GrowthLaw, state: UnitState, levels: tuple[float, ...],
@@ -507,13 +506,16 @@ def _bisect_levels(model: GrowthLaw, state: UnitState, levels: tuple[float, ...]
     out = np.empty((len(levels), len(state)))
     for k, lev in enumerate(levels):
         lo, hi = np.zeros(len(state)), np.ones(len(state))
-        for _ in range(iterations):
+        with np.errstate(divide="ignore"):  # u = 1 (the never-failing mass): w = inf
+            for _ in range(iterations):
+                u = 0.5 * (lo + hi)
+                w = scale * u / (1.0 - u)
+                below = rul_cdf(model, state, (w * tau)[:, None])[:, 0] < lev
+                lo, hi = np.where(below, u, lo), np.where(below, hi, u)
             u = 0.5 * (lo + hi)
-            below = rul_cdf(model, state, (scale * u / (1.0 - u) * tau)[:, None])[:, 0] < lev
-            lo, hi = np.where(below, u, lo), np.where(below, hi, u)
-        u = 0.5 * (lo + hi)
+            w = scale * u / (1.0 - u)
         never = ref + math.log1p(-lev) <= ls_inf
-        out[k] = np.where(never, np.inf, scale * u / (1.0 - u))
+        out[k] = np.where(never, np.inf, w)
     return out
 
 

@@ -10,7 +10,9 @@ recompiled every time). Imported lazily by :mod:`rulkit.fleet.learned.degradatio
   likelihood with its central-difference gradient over the 7 parameters in one call;
 * ``growth_*``: the iterated extended Kalman filter of eq. (8) measuring the HI itself
   (additive noise, multiplicative noise on the log scale, or both, eq. (7)), over an onset grid
-  (eq. (9)).
+  (eq. (9));
+* ``first_passage_quantiles``: the RUL quantiles of the first measured crossing (eq. (5b)),
+  Newton's steps per unit from eq. (6)'s closed-form root.
 """
 
 from __future__ import annotations
@@ -403,88 +405,184 @@ def lognormal_mixture_quantiles(w, lr, bw, levels, iterations, out):  # pragma: 
 def _ystar(c, j, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover - compiled
     """(mu*, sigma*) of eq. (5a) from the tables ``mu_t``, ``sd_t`` over log c (first row
     ``lc0``, step ``dlc``) and log J (step ``dlj``), bilinear as
-    :func:`rulkit.fleet.learned.first_passage.ystar_moments`."""
+    :func:`rulkit.fleet.learned.first_passage.ystar_moments`, and their slopes per step of
+    log c and of log J (0 where c or J is clamped to the table's edge)."""
     nc, nj = mu_t.shape
     lc = (math.log(c) - lc0) / dlc if c > 0.0 else 0.0
+    on_c = 0.0 < lc < nc - 1.0
     lc = min(max(lc, 0.0), nc - 1.0)
     lj = min(math.log(max(j, 1.0)) / dlj, nj - 1.0)
+    on_j = 0.0 < lj < nj - 1.0
     i0 = min(int(lc), nc - 2)
     j0 = min(int(lj), nj - 2)
     a, b = lc - i0, lj - j0
     w00, w01, w10, w11 = (1 - a) * (1 - b), (1 - a) * b, a * (1 - b), a * b
-    mu = (w00 * mu_t[i0, j0] + w01 * mu_t[i0, j0 + 1] + w10 * mu_t[i0 + 1, j0]
-          + w11 * mu_t[i0 + 1, j0 + 1])
-    sd = (w00 * sd_t[i0, j0] + w01 * sd_t[i0, j0 + 1] + w10 * sd_t[i0 + 1, j0]
-          + w11 * sd_t[i0 + 1, j0 + 1])
-    return mu, sd
+    m00, m01, m10, m11 = mu_t[i0, j0], mu_t[i0, j0 + 1], mu_t[i0 + 1, j0], mu_t[i0 + 1, j0 + 1]
+    s00, s01, s10, s11 = sd_t[i0, j0], sd_t[i0, j0 + 1], sd_t[i0 + 1, j0], sd_t[i0 + 1, j0 + 1]
+    mu = w00 * m00 + w01 * m01 + w10 * m10 + w11 * m11
+    sd = w00 * s00 + w01 * s01 + w10 * s10 + w11 * s11
+    gc, gj = (1.0 if on_c else 0.0), (1.0 if on_j else 0.0)  # per table step
+    mu_c = gc * ((1 - b) * (m10 - m00) + b * (m11 - m01))
+    sd_c = gc * ((1 - b) * (s10 - s00) + b * (s11 - s01))
+    mu_j = gj * ((1 - a) * (m01 - m00) + a * (m11 - m10))
+    sd_j = gj * ((1 - a) * (s01 - s00) + a * (s11 - s10))
+    return mu, sd, mu_c, sd_c, mu_j, sd_j
 
 
 @numba.njit(cache=True)
-def _fp_log_surv(mz, mb, pzz, pzb, pbb, q, s, delta, w, mu_t, sd_t, lc0, dlc,
-                 dlj):  # pragma: no cover - compiled
-    """log S(w) of eq. (5b) for one unit, level ``mz`` relative to g(1) (``delta`` inf: one
-    reading; ``s`` 0: the latent level)."""
+def _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover - compiled
+    """(5b)'s numerator N and sd D at horizon ``w`` for one unit (S(w) = Phi(-N / D)) and
+    their derivatives in w (the table's through its bilinear slopes). ``st`` (m_z - g(1),
+    m_b, P_zz, P_zb, P_bb); ``delta`` inf: one reading; ``s`` 0: the latent level."""
+    mz, mb, pzz, pzb, pbb = st[0], st[1], st[2], st[3], st[4]
     a = mz + mb * w
+    g = pzb + w * pbb
     v = max(pzz + 2.0 * w * pzb + w * w * pbb + q * w, 1e-300)
+    dv = 2.0 * g + q
     if s == 0.0:
-        return log_ndtr(-a / math.sqrt(v))
-    mu, sd = 0.0, 1.0
+        d = math.sqrt(v)
+        return a, d, mb, dv / (2.0 * d)
+    mu, sd, dmu, dsd = 0.0, 1.0, 0.0, 0.0
     if delta < np.inf:
-        rate = max(mb - (pzb + w * pbb) * a / v, 0.0)
-        mu, sd = _ystar(rate * delta / s, max(w / delta, 1.0), mu_t, sd_t, lc0, dlc, dlj)
-    return log_ndtr(-(a - s * mu) / math.sqrt(v + s * s * sd * sd))
+        iv = 1.0 / v
+        rate = mb - g * a * iv
+        drate = (g * a * dv * iv - pbb * a - g * mb) * iv
+        if rate <= 0.0:
+            rate, drate = 0.0, 0.0
+        mu, sd, mu_c, sd_c, mu_j, sd_j = _ystar(rate * delta / s, max(w / delta, 1.0), mu_t,
+                                                sd_t, lc0, dlc, dlj)
+        dlog_c = drate / (rate * dlc) if rate > 0.0 else 0.0  # in table steps per unit w
+        dlog_j = 1.0 / (w * dlj) if w > delta else 0.0
+        dmu = mu_c * dlog_c + mu_j * dlog_j
+        dsd = sd_c * dlog_c + sd_j * dlog_j
+    d = math.sqrt(v + s * s * sd * sd)
+    return a - s * mu, d, mb - s * dmu, (dv + 2.0 * s * s * sd * dsd) / (2.0 * d)
 
 
 @numba.njit(cache=True)
-def _fp_root(st, q, s, delta, target, w_lo, w_hi, mu_t, sd_t, lc0, dlc, dlj,
+def _fp_log_surv(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover
+    """log S(w) of eq. (5b) for one unit (:func:`_fp_terms`)."""
+    n, d, _, _ = _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj)
+    return log_ndtr(-n / d)
+
+
+@numba.njit(cache=True)
+def _ndtri_log(lp):  # pragma: no cover - compiled
+    """x <= 0 with log Phi(x) = ``lp`` <= log 1/2: Acklam's rational approximation (relative
+    error 1.2e-9), from log p alone in the lower tail, then one Halley step on
+    :func:`log_ndtr` (cubic: to rounding). scipy's ndtri is not callable from cached code."""
+    if lp >= -0.6931471805599453:
+        return 0.0
+    if lp < -3.719339771724596:  # p < 0.02425
+        t = math.sqrt(-2.0 * lp)
+        x = ((((((-7.784894002430293e-03 * t - 3.223964580411365e-01) * t
+                 - 2.400758277161838e+00) * t - 2.549732539343734e+00) * t
+               + 4.374664141464968e+00) * t + 2.938163982698783e+00)
+             / ((((7.784695709041462e-03 * t + 3.224671290700398e-01) * t
+                  + 2.445134137142996e+00) * t + 3.754408661907416e+00) * t + 1.0))
+    else:
+        h = math.exp(lp) - 0.5
+        r = h * h
+        x = ((((((-3.969683028665376e+01 * r + 2.209460984245205e+02) * r
+                 - 2.759285104469687e+02) * r + 1.383577518672690e+02) * r
+               - 3.066479806614716e+01) * r + 2.506628277459239e+00) * h
+             / (((((-5.447609879822406e+01 * r + 1.615858368580409e+02) * r
+                   - 1.556989798598866e+02) * r + 6.680131188771972e+01) * r
+                 - 1.328068155288572e+01) * r + 1.0))
+    lx = log_ndtr(x)
+    f = lx - lp
+    r = math.exp(-0.5 * x * x - 0.9189385332046728 - lx)  # phi / Phi, log Phi's slope
+    return x - f / r / (1.0 + 0.5 * f * (x + r) / r)
+
+
+@numba.njit(cache=True)
+def _margin_quantile(target):  # pragma: no cover - compiled
+    """k = -Phi^-1(exp(target)): log S(w) = target exactly where N(w) / D(w) = k (eq. (6));
+    precise near S = 1 through 1 - S = -expm1(target)."""
+    if target > -0.6931471805599453:
+        return _ndtri_log(math.log(-math.expm1(target)))
+    return -_ndtri_log(target)
+
+
+@numba.njit(cache=True)
+def _quadratic_root(st, q, s2, k, w_lo):  # pragma: no cover - compiled
+    """Eq. (6) of one measurement (the variance raised by ``s2``, s^2): the smallest root
+    w >= ``w_lo`` of (A + m_b w)^2 = k^2 (P_zz + s2 + w (2 P_zb + q) + w^2 P_bb) with A + m_b w
+    of k's sign (squaring lost it), A = m_z - g(1); -1 if none."""
+    a_, b_ = st[0], st[1]
+    k2 = k * k
+    a2 = b_ * b_ - k2 * st[4]
+    a1 = 2.0 * a_ * b_ - k2 * (2.0 * st[3] + q)
+    a0 = a_ * a_ - k2 * (st[2] + s2)
+    best = -1.0
+    if abs(a2) <= 1e-14 * (abs(a1) + abs(a0) + 1e-300):
+        r1, r2 = (-a0 / a1 if a1 != 0.0 else -1.0), -1.0
+    else:
+        sq = math.sqrt(max(a1 * a1 - 4.0 * a2 * a0, 0.0))
+        qq = -0.5 * (a1 + math.copysign(sq, a1))
+        r1, r2 = qq / a2, (a0 / qq if qq != 0.0 else -1.0)
+    for r in (r1, r2):
+        num = a_ + b_ * r
+        if r >= w_lo and r < np.inf and (best < 0.0 or r < best) and (
+                num * k >= 0.0 or abs(num) <= 1e-7 * (abs(a_) + abs(b_ * r))):
+            best = r
+    return best
+
+
+@numba.njit(cache=True)
+def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_t, sd_t, lc0, dlc, dlj,
              iterations):  # pragma: no cover - compiled
-    """The horizon in [w_lo, w_hi] (w_hi inf: w = w_lo + W u / (1 - u), W = max(w_lo, 1))
-    where log S of eq. (5b) falls to ``target``: regula falsi (Illinois) on u in [0, 1],
-    bracketing, with a halving every third step unless the bracket halved since the last
-    (so never slower than bisection's third), until two successive trials 1e-12 u apart
-    straddle the root (or the bracket is 1e-15 wide), at most ``iterations`` steps.
-    ``st`` (m_z - g(1), m_b, P_zz, P_zb, P_bb)."""
-    scale = max(w_lo, 1.0)
-    bounded = w_hi < np.inf
-    lo, hi = 0.0, 1.0
-    f_lo = _fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, delta, w_lo, mu_t, sd_t,
-                        lc0, dlc, dlj) - target
-    f_hi = (_fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, delta, w_hi, mu_t, sd_t,
-                         lc0, dlc, dlj) if bounded else log_ndtr(-st[1] / math.sqrt(st[4]))
-            ) - target
-    if f_lo <= 0.0:
-        return w_lo
-    if f_hi >= 0.0:
-        return w_hi
-    side = 0
-    u, u_prev, f_prev = 0.5, 2.0, 0.0
-    width = 1.0
-    for it in range(iterations):
-        u = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
-        if it % 3 == 2:  # a halving every third step: bisection's bound on a steep f
-            if hi - lo > 0.5 * width:
-                u = 0.5 * (lo + hi)
-            width = hi - lo
-        if not (lo < u < hi):
-            u = 0.5 * (lo + hi)
-        w = w_lo + (w_hi - w_lo) * u if bounded else w_lo + scale * u / (1.0 - u)
-        f = _fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, delta, w, mu_t, sd_t, lc0,
-                         dlc, dlj) - target
-        if f == 0.0 or hi - lo <= 1e-15 or (
-                f * f_prev < 0.0 and abs(u - u_prev) <= 1e-12 * u):
-            break  # the root lies between the last two trials, 1e-12 u apart
-        u_prev, f_prev = u, f
-        if f > 0.0:
-            lo, f_lo = u, f
-            if side == 1:
-                f_hi *= 0.5
-            side = 1
-        else:
-            hi, f_hi = u, f
-            if side == -1:
-                f_lo *= 0.5
-            side = -1
-    return w_lo + (w_hi - w_lo) * u if bounded else w_lo + scale * u / (1.0 - u)
+    """The horizon in (w_lo, w_hi) (w_hi may be inf) where S of eq. (5b) falls to Phi(-k),
+    known to lie there: G(w) = N(w) - k D(w) = 0 (G < 0 before the root), by Newton's steps
+    from one measurement's eq. (6) root (mu* = 0, sigma* = 1; so a level's root does not
+    depend on the other levels asked), safeguarded by the bracket (a step leaving it is a
+    halving, or a doubling while the bracket is open), until a step is below 1e-13 w or,
+    below 1e-6 w, the error left after it, |G''| h^2 / (2 |G'|) with G'' from the last two
+    slopes, is below 1e-14 w (an edge of the table's bilinear cells inside the step adds the
+    slope's jump there times the step: tested against bisection to 1e-9), at most
+    ``iterations`` steps; as soon as the root is known to lie below ``floor``, that bound."""
+    lo, hi = w_lo, w_hi
+    w = _quadratic_root(st, q, s * s, k, w_lo)
+    if not (lo < w < hi):
+        w = 0.5 * (lo + hi) if hi < np.inf else w_lo + max(w_lo, 1.0)
+    w_prev, dg_prev = np.nan, np.nan
+    for _ in range(iterations):
+        n, d, dn, dd = _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj)
+        g, dg = n - k * d, dn - k * dd
+        if g < 0.0:
+            lo = w
+        elif g > 0.0:
+            hi = w
+            if hi <= floor:
+                break
+        w_new = w - g / dg if g != 0.0 else w
+        h = abs(w_new - w)
+        # Newton's error after the step: |G''| h^2 / (2 |G'|), G'' from the last two slopes
+        if lo <= w_new <= hi and (h <= 1e-13 * w_new or (
+                h <= 1e-6 * w_new and abs(dg - dg_prev) * h * h
+                <= 2e-14 * abs(dg) * abs(w - w_prev) * w_new)):
+            w = w_new
+            break
+        w_prev, dg_prev = w, dg
+        if not (lo < w_new < hi):
+            w_new = 0.5 * (lo + hi) if hi < np.inf else w_lo + 2.0 * (w - w_lo) + 1.0
+        w = w_new
+    return w
+
+
+@numba.njit(cache=True)
+def _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0, dlc, dlj,
+                     iterations):  # pragma: no cover - compiled
+    """A level ``lev`` <= ``first`` (F(d), the first reading's probability) inside the first
+    cadence step: where one measurement's CDF (eq. (5), S(w) / S(0)) reaches lev / F(d) of
+    its value at d; linear in w where that CDF stays 0 on the step."""
+    ls0 = _fp_log_surv(st, q, s, np.inf, 0.0, mu_t, sd_t, lc0, dlc, dlj)
+    g_first = -math.expm1(min(_fp_log_surv(st, q, s, np.inf, d, mu_t, sd_t, lc0, dlc, dlj)
+                              - ls0, 0.0))
+    if g_first <= 0.0:
+        return d * lev / first
+    k = _margin_quantile(ls0 + math.log1p(-min(lev / first * g_first, 1.0)))
+    return _fp_root(st, q, s, np.inf, k, 0.0, d, 0.0, mu_t, sd_t, lc0, dlc, dlj, iterations)
 
 
 @numba.njit(cache=True)
@@ -493,38 +591,38 @@ def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
     """Quantiles of eq. (5b) per unit into ``out (L, B)``, in scaled age (see
     :func:`rulkit.fleet.learned.degradation.rul_quantiles`): +inf beyond the failing mass;
     on the first cadence step, one measurement's eq. (5) scaled to the first reading's
-    probability."""
+    probability (:func:`_first_step_root`), where the search of (5b) from 0 finds its root
+    below the first reading d and 1 - S(d) >= the level."""
     inf = np.inf
+    k_fp = np.empty(levels.shape[0])  # the first passage's k per level (its reference is 0)
+    for i in range(levels.shape[0]):
+        k_fp[i] = _margin_quantile(math.log1p(-levels[i])) if 0.0 < levels[i] < 1.0 else 0.0
     st = np.empty(5)
     for b in range(m.shape[0]):
         d = delta[b]
         st[0], st[1], st[2], st[3], st[4] = m[b, 0] - zs, m[b, 1], p[b, 0], p[b, 1], p[b, 2]
         fp = s > 0.0 and d < inf
-        ls0 = _fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, inf, 0.0, mu_t, sd_t,
-                           lc0, dlc, dlj)
-        ref = 0.0 if fp else ls0
+        ref = 0.0 if fp else _fp_log_surv(st, q, s, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj)
         ls_inf = log_ndtr(-st[1] / math.sqrt(st[4]))
-        first, g_first = 0.0, 1.0
-        if fp:
-            first = -math.expm1(min(_fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s, d,
-                                                 d, mu_t, sd_t, lc0, dlc, dlj), 0.0))
-            g_first = -math.expm1(min(_fp_log_surv(st[0], st[1], st[2], st[3], st[4], q, s,
-                                                   inf, d, mu_t, sd_t, lc0, dlc, dlj) - ls0,
-                                      0.0))
         for i in range(levels.shape[0]):
             lev = levels[i]
             target = ref + math.log1p(-lev)
             if target <= ls_inf:
                 out[i, b] = inf
-            elif target >= 0.0:
+                continue
+            if target >= 0.0 or lev <= 0.0:
                 out[i, b] = 0.0
-            elif fp and lev <= first and g_first <= 0.0:
-                out[i, b] = d * lev / first
-            elif fp and lev <= first:
-                t1 = ls0 + math.log1p(-min(lev / first * g_first, 1.0))
-                out[i, b] = _fp_root(st, q, s, inf, t1, 0.0, d, mu_t, sd_t, lc0, dlc, dlj,
-                                     iterations)
-            else:
-                out[i, b] = _fp_root(st, q, s, d, target, d if fp else 0.0, inf, mu_t, sd_t,
-                                     lc0, dlc, dlj, iterations)
+                continue
+            k = k_fp[i] if fp else _margin_quantile(target)
+            w = _fp_root(st, q, s, d, k, 0.0, inf, d if fp else 0.0, mu_t, sd_t, lc0, dlc, dlj,
+                         iterations)
+            if fp and w <= d:  # before the first reading: on the first step?
+                first = -math.expm1(_fp_log_surv(st, q, s, d, d, mu_t, sd_t, lc0, dlc, dlj))
+                if lev <= first:
+                    out[i, b] = _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0,
+                                                 dlc, dlj, iterations)
+                    continue
+                w = _fp_root(st, q, s, d, k, d, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj,
+                             iterations)
+            out[i, b] = w
     return 0

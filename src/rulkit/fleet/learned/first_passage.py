@@ -22,8 +22,9 @@ b* = E[b | z_J = g(1)]. Then
 V(w) eq. (5)'s variance: eq. (5) with the threshold lowered by s mu* (<= 0, the earlier of
 several noisy readings) and the variance raised by s^2 sigma*^2. With s = 0 it is eq. (5) of
 the latent level (a monotone path's first crossing is its marginal one); with readings far
-apart (c large) it is eq. (5) of one measurement (mu* = 0, sigma* = 1). Quantiles are found by
-a bracketing search of (5b) per unit in one compiled pass
+apart (c large) it is eq. (5) of one measurement (mu* = 0, sigma* = 1). A quantile solves
+N(w) - k D(w) = 0 (N, D (5b)'s numerator and sd, k = -Phi^-1(S)): Newton's steps per unit in
+one compiled pass from eq. (6)'s closed-form root, the table's slope from its bilinear cells
 (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`). The approximations (a
 straight path between readings; the walk's variance at the horizon only; Y* Gaussian; c at b*;
 the cadence d regular) are measured against a brute-force Monte Carlo of the event in

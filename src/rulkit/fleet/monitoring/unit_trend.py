@@ -375,36 +375,43 @@ def first_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
     (EI-19); NaN inputs give NaN. The margin is continuous, so past r = 0 this is the first
     root of (a + b r)^2 = c^2 (v0 + v1 r + v2 r^2) with a + b r of the sign of c: a quadratic,
     solved per element in its numerically stable form."""
-    a, b, v0, v1, v2, c = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
-                                                for x in (a, b, v0, v1, v2, c)))
+    # the line's terms once at its own shape (a unit's, not a unit's per level), then each
+    # level's: the same operations, in the same order, on the same values
+    a, b, v0, v1, v2 = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
+                                             for x in (a, b, v0, v1, v2)))
+    c = np.asarray(c, dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         at0 = a >= c * np.sqrt(v0)
         c2 = c * c
         q2 = b * b - c2 * v2
         q1 = 2.0 * a * b - c2 * v1
         q0 = a * a - c2 * v0
-        disc = q1 * q1 - 4.0 * q2 * q0
-        tol = 1e-12 * (q1 * q1 + np.abs(4.0 * q2 * q0))
-        real = disc >= -tol
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        qq = -0.5 * (q1 + np.copysign(sq, q1))
+        q1q1, q2q0 = q1 * q1, 4.0 * q2 * q0
+        disc = q1q1 - q2q0
+        real = disc >= -(1e-12 * (q1q1 + np.abs(q2q0)))
+        del q1q1, q2q0
+        qq = -0.5 * (q1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), q1))
+        del disc
         lin = np.abs(q2) <= 1e-14 * (np.abs(q1) + np.abs(q0) + 1e-300)
         r1 = np.where(lin, -q0 / q1, qq / q2)
         r2 = np.where(lin, np.inf, q0 / qq)
-        best = np.full(a.shape, np.inf)
+        del q0, q1, q2, qq
+        best = np.full(np.broadcast_shapes(a.shape, c.shape), np.inf)
+        abs_a, sign_c = np.abs(a), np.sign(c)
         for r in (r1, r2):
-            num = a + b * r
+            br = b * r
+            num = a + br
             # near c = 0 the two roots merge and each carries ~sqrt(eps) of rounding
-            sign_ok = (np.sign(num) == np.sign(c)) | (
-                np.abs(num) <= 1e-7 * (np.abs(a) + np.abs(b * r)))
-            ok = real & np.isfinite(r) & (r >= 0.0) & sign_ok
-            best = np.where(ok & (r < best), r, best)
+            sign_ok = (np.sign(num) == sign_c) | (np.abs(num) <= 1e-7 * (abs_a + np.abs(br)))
+            ok = real & np.isfinite(r) & (r >= 0.0) & sign_ok & (r < best)
+            np.copyto(best, r, where=ok)
         # the median (c = 0) exactly: where the line itself reaches the threshold
         best = np.where(c == 0.0, np.where(b > 0.0, -a / b, np.inf), best)
-        out = np.where(at0, 0.0, best)
-    bad = ~(np.isfinite(a) & np.isfinite(b) & np.isfinite(v0) & np.isfinite(v1)
-            & np.isfinite(v2) & np.isfinite(c))
-    return np.where(bad, np.nan, out)
+        best[at0] = 0.0
+    line_ok = (np.isfinite(a) & np.isfinite(b) & np.isfinite(v0) & np.isfinite(v1)
+               & np.isfinite(v2))
+    best[~(line_ok & np.isfinite(c))] = np.nan
+    return best
 
 
 def rul_quantiles(post: TrendPosterior, levels: tuple[float, ...] = (0.5, 0.05, 0.95)

@@ -10,14 +10,20 @@ exposition format 0.0.4 that Prometheus scrapes:
   ``rulkit_ingest_batches_total{outcome}`` (applied, conflict, invalid, too_large, busy):
   what the ingestion did;
 * ``rulkit_ingest_seconds``: time of each batch's validation and transaction (histogram);
-* ``rulkit_errors_total{kind}``: server-side failures (busy or unreachable database, bugs).
+* ``rulkit_errors_total{kind}``: server-side failures (busy or unreachable database, bugs);
+* ``rulkit_gc_seconds{generation}``: the pauses of Python's cyclic garbage collector (every
+  thread waits for a collection, so one over the objects of the whole process is a request's
+  latency), once :meth:`Metrics.watch_gc` is on (``rulkit serve``).
 """
 
 from __future__ import annotations
 
+import gc
 import threading
+import time
 from bisect import bisect_left
 from collections import defaultdict
+from collections.abc import Callable
 
 BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
 """Upper bounds (seconds) of the latency histograms."""
@@ -63,6 +69,8 @@ class Metrics:
             ("rulkit_ingest_seconds", "histogram", "Validation and transaction of a batch.",
              ()),
             ("rulkit_errors_total", "counter", "Server-side failures.", ("kind",)),
+            ("rulkit_gc_seconds", "histogram", "Pauses of the cyclic garbage collector.",
+             ("generation",)),
         ):
             self._meta[name] = (kind, help_, labels)
 
@@ -78,6 +86,21 @@ class Metrics:
             if h is None:
                 h = self._hists[name][labels] = _Histogram()
             h.observe(value)
+
+    def watch_gc(self) -> Callable[[str, dict[str, int]], None]:
+        """Time every collection of the cyclic garbage collector into ``rulkit_gc_seconds``:
+        adds a callback to :data:`gc.callbacks` and returns it (remove it to stop)."""
+        started = [0.0]
+
+        def on_gc(phase: str, info: dict[str, int]) -> None:
+            if phase == "start":
+                started[0] = time.perf_counter()
+            else:
+                self.observe("rulkit_gc_seconds", time.perf_counter() - started[0],
+                             str(info["generation"]))
+
+        gc.callbacks.append(on_gc)
+        return on_gc
 
     def render(self) -> str:
         """Everything in the Prometheus text format."""

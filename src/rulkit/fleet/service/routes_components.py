@@ -10,7 +10,7 @@ from fastapi.responses import Response
 
 from rulkit.fleet.service.auth import DB, ReadToken
 from rulkit.fleet.service.bodies import http_error
-from rulkit.fleet.service.db import NotFound
+from rulkit.fleet.service.db import NotFound, ServiceDB
 from rulkit.fleet.service.fleet_view import CursorError
 from rulkit.fleet.service.responses import OrjsonResponse, error_responses
 
@@ -57,12 +57,20 @@ def list_components(
     after the last): pass it as ``after`` with the same sort and level, and every page
     costs what the first does (``offset`` skips rows, at a cost that grows with it)."""
     try:
-        total, items, nxt = sdb.components(limit=limit, offset=offset, level=level,
-                                           sort=sort, after=after)
+        return OrjsonResponse(page_body(sdb, limit=limit, offset=offset, level=level,
+                                        sort=sort, after=after))
     except CursorError as err:
         raise http_error(422, str(err)) from None
-    return OrjsonResponse({"total": total, "limit": limit, "offset": offset,
-                           "sort": sort, "items": items, "next": nxt})
+
+
+def page_body(sdb: ServiceDB, *, limit: int, offset: int, level: str | None, sort: str,
+              after: str | None) -> dict[str, Any]:
+    """A page's body: the total, the page's own parameters, its items and the next cursor
+    (:meth:`~rulkit.fleet.service.db.ServiceDB.components`)."""
+    total, items, nxt = sdb.components(limit=limit, offset=offset, level=level, sort=sort,
+                                       after=after)
+    return {"total": total, "limit": limit, "offset": offset, "sort": sort, "items": items,
+            "next": nxt}
 
 
 @router.get("/api/v1/components/{component:path}/history", tags=["components"],

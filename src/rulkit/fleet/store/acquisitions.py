@@ -14,10 +14,9 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from rulkit.fleet.rows import (
@@ -25,6 +24,7 @@ from rulkit.fleet.rows import (
     component_codes,
     numeric_values,
     previous_per_component,
+    read_csv_columns,
     read_csv_rows,
 )
 from rulkit.fleet.time_axis import INSTALLED_COLUMN, TimeAxis, TimeAxisError
@@ -35,6 +35,9 @@ from rulkit.fleet.tracking.tracker_chain import (
 )
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text, table_format, time_seconds
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 PARQUET_BYTES_PER_ROW = 512
 """Decoded bytes per allowed row a Parquet input may declare in its metadata (a row is a
@@ -111,7 +114,7 @@ class Batch:
     ages from it; ``calendar``: the time column held date-times (then ``t`` is the time since
     1970 in units of ``seconds_per_unit`` seconds)."""
 
-    codes: NDArray[np.intp]
+    codes: NDArray[np.integer]
     names: list[str]
     t: NDArray[np.float64]
     hi: NDArray[np.float64]
@@ -143,14 +146,17 @@ class Batch:
 
 # --------------------------------------------------------------------------- validation
 def read_acquisitions(source: str | Path | bytes | memoryview, fmt: str | None = None, *,
-                      max_rows: int | None = None, name: str | None = None) -> pd.DataFrame:
+                      max_rows: int | None = None, name: str | None = None,
+                      columns: bool = False) -> pd.DataFrame | Columns:
     """Read a CSV (``.csv``, ``.csv.gz``, ``.txt``) or Parquet (``.parquet``, ``.pq``)
     acquisition file, or the bytes of one (``fmt`` ``"csv"`` / ``"parquet"``; what the
     service receives), ``component`` kept as text. The one reader of ``rulkit track`` and of
     the service's uploads. CSV rows must have as many fields as the header
     (:func:`rulkit.fleet.rows.read_csv_rows`); a Parquet input's row count is read from its
     metadata and refused above ``max_rows`` before any column is decoded. File-level
-    problems raise :class:`IngestError` naming ``name`` (default: the path)."""
+    problems raise :class:`IngestError` naming ``name`` (default: the path). ``columns``: a
+    CSV whose columns are all plain is returned as :data:`Columns` without pandas
+    (:func:`rulkit.fleet.rows.read_csv_columns`; what ``rulkit track`` reads)."""
     if isinstance(source, bytes | memoryview):
         where = name or f"{fmt} body"
     else:
@@ -159,7 +165,8 @@ def read_acquisitions(source: str | Path | bytes | memoryview, fmt: str | None =
                                   csv_suffixes=(".csv", ".csv.gz", ".txt"))
         _check_file(Path(source))
     if fmt == "csv":
-        return read_csv_rows(source, error=IngestError, name=where, max_rows=max_rows)
+        read = read_csv_columns if columns else read_csv_rows
+        return read(source, error=IngestError, name=where, max_rows=max_rows)
     if fmt != "parquet":
         raise IngestError(f"{where}: unknown format {fmt!r}; expected csv or parquet")
     return _read_parquet(source, where, max_rows)
@@ -202,10 +209,9 @@ def _read_parquet(source: str | Path | bytes | memoryview, where: str, max_rows:
     if table.num_rows == 0:
         raise IngestError(f"{where}: no data rows (header only)")
     names = [str(c) for c in table.column_names]
-    dup = pd.Index(names).duplicated()
-    if dup.any():
-        raise IngestError(f"{where}: column {names[int(np.flatnonzero(dup)[0])]!r} appears "
-                          "twice; rename or drop one")
+    dup = [c for j, c in enumerate(names) if c in names[:j]]
+    if dup:
+        raise IngestError(f"{where}: column {dup[0]!r} appears twice; rename or drop one")
     return arrow_frame(table)
 
 
@@ -247,7 +253,7 @@ def validate_acquisitions(
 def _batch_columns(df: pd.DataFrame | Columns) -> dict[str, Any]:
     """The batch's columns by name (text), refused when empty, when a name appears twice or
     when the columns differ in length."""
-    if isinstance(df, pd.DataFrame):
+    if not isinstance(df, Mapping):  # a pandas DataFrame
         n = len(df)
     else:
         lengths = {len(v) for v in df.values()}
@@ -256,14 +262,14 @@ def _batch_columns(df: pd.DataFrame | Columns) -> dict[str, Any]:
         n = lengths.pop() if lengths else 0
     if n == 0:
         raise IngestError("the batch holds no acquisitions (0 rows)")
-    names = [str(c) for c in (df.columns if isinstance(df, pd.DataFrame) else df)]
+    names = [str(c) for c in (df if isinstance(df, Mapping) else df.columns)]
     seen: set[str] = set()
     for c in names:
         if c in seen:
             raise IngestError(f"column {safe_text(c)!r} appears twice; rename or drop one")
         seen.add(c)
-    cols = ({c: df.iloc[:, j] for j, c in enumerate(names)} if isinstance(df, pd.DataFrame)
-            else dict(zip(names, df.values(), strict=True)))
+    cols = (dict(zip(names, df.values(), strict=True)) if isinstance(df, Mapping)
+            else {c: df.iloc[:, j] for j, c in enumerate(names)})
     missing = [c for c in ("component", "time") if c not in cols]
     if missing:
         raise IngestError(f"missing required column(s) {missing}; got {names}")
@@ -309,9 +315,9 @@ def _value_mode(cols: list[str], hi_model: HealthIndexModel | None, installed: b
 
 
 def _is_numbers(col: Any) -> bool:
-    """Whether a column is of an integer or floating type (so it holds no date-times)."""
-    kind = getattr(col.dtype, "kind", "")
-    return kind in "iuf" and not pd.api.types.is_bool_dtype(col.dtype)
+    """Whether a column is of an integer or floating type (so it holds no date-times; a
+    boolean dtype, numpy's or pandas', is of kind ``"b"``)."""
+    return getattr(getattr(col, "dtype", None), "kind", "") in "iuf"
 
 
 def _times(cols: dict[str, Any], time_axis: TimeAxis | None, installed: bool,

@@ -182,7 +182,7 @@ def _fit_baseline(baseline: Path, pfa: float, offset: str):
     from rulkit.tables import numeric_columns
 
     try:
-        base = read_acquisitions(baseline)
+        base: Any = read_acquisitions(baseline)  # a frame (columns=False)
     except IngestError as err:
         fail(f"baseline: {err}")
     if base.shape[1] < 1 or len(base) < 2:
@@ -348,7 +348,7 @@ def _track_inputs(acquisitions: Path, db: str, given: dict[str, float | str],
     if scheduler is not None and is_postgres_url(db):
         bad_option("--scheduler", "tracks into a SQLite database (give a file as --db)")
     try:
-        df = None if acquisitions.is_dir() else read_acquisitions(acquisitions)
+        df = None if acquisitions.is_dir() else read_acquisitions(acquisitions, columns=True)
         settings, stored_rules = _stored_settings(db)
         rules = _rules_options(stored_rules, rule_opts)
     except IngestError as err:
@@ -434,10 +434,11 @@ def _stored_settings(db: str) -> tuple[Any, Any]:
     a ``postgresql://`` URL), ``(None, None)`` when there is none yet."""
     from rulkit.fleet.store.database_file import is_postgres_url
     from rulkit.fleet.store.ingest import read_rules, read_settings
-    from rulkit.fleet.store.postgres import open_store
 
     if not is_postgres_url(db):
         return read_settings(db), read_rules(db)
+    from rulkit.fleet.store.postgres import open_store
+
     try:
         with open_store(db, create=False) as store:
             return (store.config, store.hi_model), store.rules

@@ -7,8 +7,7 @@ Creation is atomic and a rejected batch creates nothing (:mod:`rulkit.fleet.stor
 from __future__ import annotations
 
 from pathlib import Path
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store.acquisitions import IngestResult, validate_acquisitions
@@ -16,6 +15,11 @@ from rulkit.fleet.store.database_file import StoreError, _config_from_meta, _pro
 from rulkit.fleet.store.sqlite import ComponentStore, _build_and_publish
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from rulkit.fleet.store.acquisitions import Columns
 
 
 def read_settings(path: str | Path) -> tuple[TrackerConfig, HealthIndexModel | None] | None:
@@ -39,7 +43,7 @@ def read_rules(path: str | Path) -> MonitoringRules | None:
 
 def ingest_into(
     path: str | Path,
-    df: pd.DataFrame,
+    df: pd.DataFrame | Columns,
     *,
     config: TrackerConfig | None = None,
     hi_model: HealthIndexModel | None = None,

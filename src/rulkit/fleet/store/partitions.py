@@ -4,22 +4,27 @@ docs/systems/embedded-rul.md §4; cost model in docs/service.md ("Fleet batch on
 component's trackers run in time order, but components are independent: the work splits by
 component. :func:`track_directory` without a scheduler reads the whole directory (every
 ``*.parquet`` / ``*.pq`` file under it, in name order) as one batch and ingests it like a file.
-With a scheduler, the components are hashed into ``buckets``; each Dask task reads the rows of
-its bucket from every partition (a pyarrow filter, so no task holds the whole fleet), runs the
-store's one ingestion path on a private SQLite database seeded with those components' stored
-state (tracker state, learned-model state, the stored history they overlap, the settings),
-and returns that database's bytes. The client then copies each bucket's new history rows,
-states and alerts into the database in one transaction. Every bucket ran exactly the code of
-the serial run on exactly its rows, so the stored numbers are the same (tested).
+With a scheduler, the component ids (read as the ingestion reads them) are sorted and cut
+into ``buckets`` of consecutive ids; a Dask task per partition reads it once and splits its
+rows by bucket, and a task per bucket takes its piece of every partition (so no task holds the
+whole fleet), runs the store's one ingestion path on a private SQLite database seeded with
+those components' stored state (tracker state, learned-model state, the stored history they
+overlap, the settings), and returns that database's bytes. The client copies each bucket's new
+history rows, states and alerts into one database as the buckets finish, in the order of their
+ids (each bucket's rows then append after the previous one's in the tables' key order), then
+into the store in one transaction. Every bucket ran exactly the code of the serial run on
+exactly its rows, so the stored numbers are the same (tested).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import tempfile
 import time
-import zlib
+import uuid
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -72,9 +77,87 @@ def read_directory(directory: str | Path, components: list[str] | None = None
     return arrow_frame(table)
 
 
-def _bucket_of(names: np.ndarray, buckets: int) -> np.ndarray:
-    """A stable bucket per component id (CRC-32 of its UTF-8 bytes)."""
-    return np.array([zlib.crc32(str(n).encode("utf-8")) % buckets for n in names])
+def bucket_ranges(names: list[str], buckets: int) -> list[list[int]]:
+    """The indices of ``names`` (distinct component ids) in code-point order of the ids (the
+    store's key order), cut into at most ``buckets`` runs of consecutive ids, as equal in
+    size as can be."""
+    order = sorted(range(len(names)), key=names.__getitem__)
+    n = min(max(buckets, 1), len(order))
+    return [part.tolist() for part in np.array_split(np.asarray(order, dtype=np.intp), n)
+            if part.size]
+
+
+def _bucket_filters(files: list[str], buckets: int
+                    ) -> tuple[list[list[str]], list[Any], Any]:
+    """The components of each bucket (:func:`bucket_ranges` of the ids as the ingestion
+    reads them: stripped, numbers as text), per bucket the values of the partitions'
+    ``component`` column that are its ids (a pyarrow value set of the column's own type),
+    and the partitions' common schema. A refused id raises what the serial run raises,
+    naming its row."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+
+    from rulkit.fleet.rows import component_codes
+    from rulkit.fleet.store.acquisitions import ComponentIdError
+
+    try:
+        dataset = ds.dataset(files, format="parquet")
+        col = dataset.to_table(columns=["component"]).column(0)
+        values = pc.unique(col)
+    except Exception as err:  # pyarrow raises many kinds on bad partitions
+        raise IngestError(f"{files[0]}...: cannot be read as Parquet partitions "
+                          f"({type(err).__name__}: {str(err).strip()[:200]})") from None
+    if isinstance(values, pa.DictionaryArray):
+        values = values.dictionary_decode()
+    raw = np.empty(len(values), dtype=object)
+    raw[:] = values.to_pylist()
+    try:
+        codes, names = component_codes(raw, ComponentIdError)
+    except ComponentIdError:  # the same refusal with the row the serial run names
+        component_codes(col.to_pandas(), ComponentIdError)
+        raise
+    groups = bucket_ranges(names, buckets)
+    bucket_of = np.empty(len(names), dtype=np.intp)
+    for b, idx in enumerate(groups):
+        bucket_of[idx] = b
+    of_value = bucket_of[codes]
+    sets = [values.filter(pa.array(of_value == b)) for b in range(len(groups))]
+    return [[names[i] for i in idx] for idx in groups], sets, dataset.schema
+
+
+def _submit(client: Any, files: list[str], schema: Any, value_sets: list[Any],
+            seeds: list[dict[str, Any]], now: float) -> list[Any]:
+    """The tasks of one run, a future per bucket: each partition read once and split by
+    bucket (:func:`_split_file`), then each bucket's pieces ingested (:func:`_run_bucket`)."""
+    import operator
+
+    import pyarrow as pa
+
+    values = pa.concat_arrays(value_sets)
+    ends = np.cumsum([len(v) for v in value_sets])
+    splits = [client.submit(_split_file, f, schema, values, ends, pure=False) for f in files]
+    pieces = [[client.submit(operator.getitem, sp, b, pure=False) for sp in splits]
+              for b in range(len(value_sets))]
+    return [client.submit(_run_bucket, pieces[b], seeds[b], now, pure=False)
+            for b in range(len(value_sets))]
+
+
+def _split_file(file: str, schema: Any, values: Any, ends: np.ndarray) -> list[Any]:
+    """On a worker: the rows of one partition (read with the partitions' common ``schema``)
+    per bucket, each in the file's row order; bucket ``b``'s ids are ``values[ends[b - 1] :
+    ends[b]]``."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+
+    table = ds.dataset(file, format="parquet", schema=schema).to_table()
+    where = pc.index_in(table.column("component"), value_set=values).to_numpy(
+        zero_copy_only=False)
+    bucket = np.searchsorted(ends, where, side="right")  # every row's id is in values
+    order = np.argsort(bucket, kind="stable")
+    table = table.take(order)
+    cuts = np.searchsorted(bucket[order], np.arange(len(ends) + 1))
+    return [table.slice(cuts[b], cuts[b + 1] - cuts[b]) for b in range(len(ends))]
 
 
 def track_directory(db: str | Path, directory: str | Path, *, config: TrackerConfig,
@@ -92,7 +175,6 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
     if scheduler is None:
         return ingest_into(db, read_directory(directory), config=config, hi_model=hi_model,
                            source=source, timeout=timeout, rules=rules)
-    import pyarrow.dataset as ds
     from distributed import Client
 
     path = Path(db)
@@ -101,71 +183,88 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
     client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
     try:
         files = [str(f) for f in partition_files(directory)]
-        comp = ds.dataset(files, format="parquet").to_table(columns=["component"])
-        names = pd.unique(comp.column("component").to_pandas().astype(str))
         n_buckets = buckets or 4 * max(1, len(client.scheduler_info()["workers"]))
-        bucket = _bucket_of(names, n_buckets)
-        groups = [names[bucket == b].tolist() for b in range(n_buckets) if (bucket == b).any()]
+        groups, value_sets, schema = _bucket_filters(files, n_buckets)
         seeds = _seeds(path, groups, config, hi_model, timeout, rules)
         now = time.time()  # one calendar time of ingestion for every bucket
-        parts = client.gather(client.map(_run_bucket, [files] * len(groups), groups, seeds,
-                                         [now] * len(groups), pure=False))
+        futures = _submit(client, files, schema, value_sets, seeds, now)
+        with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
+            new = not path.exists()
+            combined = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+                                      ".creating") if new else Path(tmp) / "all.db"
+            try:
+                counts = _combine(_in_order(futures), Path(tmp), combined)
+                if new:  # the combined buckets become the new database
+                    res = _publish(path, combined, counts, seeds[0]["meta"] if seeds else [],
+                                   source)
+                    if res is not None:
+                        return res, True
+                    combined = Path(tmp) / "all.db"  # another process created it: merge
+                    counts = _combine(_in_order(futures), Path(tmp), combined)
+            finally:
+                if new:
+                    for side in ("", "-wal", "-shm", "-journal"):
+                        Path(f"{combined}{side}").unlink(missing_ok=True)
+            with ComponentStore(path, config=config, hi_model=hi_model,
+                                timeout=timeout) as store:
+                return _merge(store, combined, counts, seeds, source), False
     finally:
         if not isinstance(scheduler, Client):
             client.close()
-    if not path.exists():  # the combined buckets become the new database
-        res = _publish(path, parts, seeds[0]["meta"] if seeds else [], source)
-        if res is not None:
-            return res, True
-    with ComponentStore(path, config=config, hi_model=hi_model, timeout=timeout) as store:
-        return _merge(store, parts, seeds, source), False
 
 
-def _publish(path: Path, parts: list[tuple[bytes, int]], meta: list[tuple[str, str]],
-             source: str) -> IngestResult | None:
-    """A new database at ``path`` from the buckets (:func:`_combine` written beside it, the
-    settings and the ingestion's audit row added, then linked into place as
-    :func:`~rulkit.fleet.store.ingest.ingest_into` publishes one: complete or absent).
-    ``None`` when another process created ``path`` meanwhile (then the caller merges)."""
-    import os
-    import uuid
+def _in_order(futures: list[Any]) -> Iterator[tuple[bytes, int]]:
+    """The futures' results in the futures' order, each taken as soon as it and every one
+    before it are done (a later bucket that finishes first waits, its bytes held)."""
+    from distributed import as_completed
 
+    index = {f.key: i for i, f in enumerate(futures)}
+    ready: dict[int, tuple[bytes, int]] = {}
+    nxt = 0
+    for fut in as_completed(futures):
+        ready[index[fut.key]] = fut.result()
+        while nxt in ready:
+            yield ready.pop(nxt)
+            nxt += 1
+
+
+def _publish(path: Path, combined: Path, counts: tuple[int, int, int],
+             meta: list[tuple[str, str]], source: str) -> IngestResult | None:
+    """A new database at ``path`` from the buckets combined in the private file ``combined``
+    beside it (:func:`_combine`): the settings and the ingestion's audit row added, then
+    linked into place as :func:`~rulkit.fleet.store.ingest.ingest_into` publishes one
+    (complete or absent). ``None`` when another process created ``path`` meanwhile (then the
+    caller merges)."""
     from rulkit.fleet.store.database_file import _fsync_dir
 
-    tmp_db = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
+    n_rows, n_comp, n_dup = counts
+    conn = sqlite3.connect(str(combined), isolation_level=None)
     try:
-        with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
-            _, n_rows, n_comp = _combine(parts, Path(tmp), tmp_db)
-        conn = sqlite3.connect(str(tmp_db), isolation_level=None)
-        try:
-            conn.execute("BEGIN")
-            conn.executemany("INSERT INTO meta VALUES (?, ?)", meta)
-            conn.execute("INSERT INTO ingests (id, source, n_rows, n_components) VALUES "
-                         "(1, ?, ?, ?)", (source, n_rows, n_comp))
-            alerts = [_alert(r) for r in conn.execute(
-                "SELECT id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
-                "reason, raised FROM alerts ORDER BY id").fetchall()]
-            recount_totals(conn)
-            conn.execute("COMMIT")
-            conn.execute("PRAGMA journal_mode=WAL")
-        finally:
-            conn.close()
-        fd = os.open(tmp_db, os.O_RDWR)  # private until linked: no SQLite connection holds it
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        try:
-            os.link(tmp_db, path)
-        except FileExistsError:
-            return None
-        _fsync_dir(path.parent)
+        conn.execute("BEGIN")
+        conn.executemany("INSERT INTO meta VALUES (?, ?)", meta)
+        conn.execute("INSERT INTO ingests (id, source, n_rows, n_components) VALUES "
+                     "(1, ?, ?, ?)", (source, n_rows, n_comp))
+        alerts = [_alert(r) for r in conn.execute(
+            "SELECT id, component, t, level, previous, hi, fhi, rul, rul_low, rul_high, "
+            "reason, raised FROM alerts ORDER BY id").fetchall()]
+        recount_totals(conn)
+        conn.execute("COMMIT")
+        conn.execute("PRAGMA journal_mode=WAL")
     finally:
-        for side in ("", "-wal", "-shm", "-journal"):
-            Path(f"{tmp_db}{side}").unlink(missing_ok=True)
+        conn.close()
+    fd = os.open(combined, os.O_RDWR)  # private until linked: no SQLite connection holds it
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    try:
+        os.link(combined, path)
+    except FileExistsError:
+        return None
+    _fsync_dir(path.parent)
     return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=n_comp,
                         alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
-                        n_duplicates=sum(d for _, d in parts))
+                        n_duplicates=n_dup)
 
 
 def _seeds(path: Path, groups: list[list[str]], config: TrackerConfig,
@@ -211,20 +310,21 @@ def _rows(conn: Any, table: str, names: list[str]) -> tuple[list[str], list[tupl
     return cols, out
 
 
-def _run_bucket(files: list[str], names: list[str], seed: dict[str, Any], now: float
-                ) -> tuple[bytes, int]:
-    """On a worker: the bucket's rows through the one ingestion path, on a private database
-    seeded with ``seed``; the database's bytes and the number of rows already stored."""
-    import pyarrow.compute as pc
-    import pyarrow.dataset as ds
+def _run_bucket(pieces: list[Any], seed: dict[str, Any], now: float) -> tuple[bytes, int]:
+    """On a worker: a bucket's rows (its piece of each partition, :func:`_split_file`, in
+    partition order) through the one ingestion path, on a private database seeded with
+    ``seed``; the database's bytes and the number of rows already stored."""
+    import pyarrow as pa
 
-    df = ds.dataset(files, format="parquet").to_table(
-        filter=pc.field("component").isin(names)).to_pandas()
+    df = pa.concat_tables(pieces).to_pandas()
     with tempfile.TemporaryDirectory(prefix="rulkit-bucket-") as tmp:
         path = Path(tmp) / "bucket.db"
         _write_seed(path, seed)
         with ComponentStore(path, create=False) as store:
-            store._conn.execute("PRAGMA synchronous=OFF")  # a private scratch file
+            # a private scratch file, set up as a new database is built (sqlite.py's
+            # _build_and_publish): no write-ahead log, no syncs, an 8 MB page cache
+            for pragma in ("journal_mode=MEMORY", "synchronous=OFF", "cache_size=-8192"):
+                store._conn.execute(f"PRAGMA {pragma}")
             store.now = now
             res = store.ingest(df, "bucket")
         return path.read_bytes(), res.n_duplicates
@@ -272,27 +372,27 @@ def _copy(conn: Any, table: str, where: str = "", params: tuple = (), *,
     return conn.execute(sql, params).fetchall()
 
 
-def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
-             ) -> tuple[Path, int, int]:
-    """One private database (``path``, default in ``tmp``) of every bucket's new rows
-    (history of its ingestion, final states, learned states, alerts); (its path,
-    acquisitions, components)."""
-    path = path or tmp / "all.db"
+def _combine(parts: Iterable[tuple[bytes, int]], tmp: Path, path: Path
+             ) -> tuple[int, int, int]:
+    """One private database at ``path`` of every bucket's new rows (history of its
+    ingestion, final states, learned states, alerts), each bucket copied in as it comes;
+    (acquisitions, components, rows already stored)."""
     conn = sqlite3.connect(str(path), isolation_level=None)
-    n_rows = n_comp = 0
+    n_rows = n_comp = n_dup = 0
     try:
         conn.execute("PRAGMA journal_mode=OFF")
         conn.execute("PRAGMA synchronous=OFF")
         create_schema(conn, "sqlite")
-        for k, (data, _) in enumerate(parts):
+        for k, (data, dup) in enumerate(parts):
             f = tmp / f"b{k}.db"
             f.write_bytes(data)
+            del data
             conn.execute("ATTACH DATABASE ? AS part", (str(f),))
             (bid,) = conn.execute("SELECT MAX(id) FROM part.ingests").fetchone()
             got = conn.execute("SELECT n_rows, n_components FROM part.ingests WHERE id = ?",
                                (bid,)).fetchone()
             n, c = got if got is not None else (0, 0)  # every row already stored
-            n_rows, n_comp = n_rows + n, n_comp + c
+            n_rows, n_comp, n_dup = n_rows + n, n_comp + c, n_dup + dup
             _copy(conn, "history", "WHERE ingest = ?", (1, bid), skip=("ingest",),
                   set_ingest=True)
             _copy(conn, "components")
@@ -303,29 +403,28 @@ def _combine(parts: list[tuple[bytes, int]], tmp: Path, path: Path | None = None
             f.unlink()
     finally:
         conn.close()
-    return path, n_rows, n_comp
+    return n_rows, n_comp, n_dup
 
 
-def _merge(store: ComponentStore, parts: list[tuple[bytes, int]], seeds: list[dict[str, Any]],
-           source: str) -> IngestResult:
-    """Copy the buckets' new rows (:func:`_combine`) into the store in one transaction.
-    Refused (nothing written) when a seeded component changed meanwhile (another writer):
-    retry."""
-    with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
-        path, n_rows, n_comp = _combine(parts, Path(tmp))
-        conn = store._conn
-        conn.execute("ATTACH DATABASE ? AS part", (str(path),))
-        try:
-            with store._transaction("IMMEDIATE"):
-                _check_unchanged(store, seeds)
-                ingest_id = store._insert_ingest(source, n_rows, n_comp)
-                alerts = _copy_part(conn, ingest_id)
-        finally:
-            conn.execute("DETACH DATABASE part")
+def _merge(store: ComponentStore, combined: Path, counts: tuple[int, int, int],
+           seeds: list[dict[str, Any]], source: str) -> IngestResult:
+    """Copy the buckets' new rows (combined in ``combined`` by :func:`_combine`) into the
+    store in one transaction. Refused (nothing written) when a seeded component changed
+    meanwhile (another writer): retry."""
+    n_rows, n_comp, n_dup = counts
+    conn = store._conn
+    conn.execute("ATTACH DATABASE ? AS part", (str(combined),))
+    try:
+        with store._transaction("IMMEDIATE"):
+            _check_unchanged(store, seeds)
+            ingest_id = store._insert_ingest(source, n_rows, n_comp)
+            alerts = _copy_part(conn, ingest_id)
+    finally:
+        conn.execute("DETACH DATABASE part")
     n_new = n_comp - sum(len(seed["components"][1]) for seed in seeds)
     return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=max(n_new, 0),
                         alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
-                        n_duplicates=sum(d for _, d in parts))
+                        n_duplicates=n_dup)
 
 
 def _check_unchanged(store: ComponentStore, seeds: list[dict[str, Any]]) -> None:

@@ -152,10 +152,16 @@ HISTORY = Table(
     "history",
     (Column("component", "key"), Column("t_first", "real"), Column("t_last", "real"),
      Column("n", "int"), Column("ingest", "int"), Column("data", "blob")),
-    ("component", "t_first"), without_rowid=True,
+    ("component", "t_first"),
 )
 """The acquisitions of one component and one ingestion per row, packed
-(:mod:`rulkit.fleet.store.history_chunks`)."""
+(:mod:`rulkit.fleet.store.history_chunks`). On SQLite a table with rowids, its key a unique
+index of its own: a ``WITHOUT ROWID`` table keeps whole rows in its B-tree, and a seek
+compares the key of each cell it passes by reading that cell's record whole, the blob's
+overflow pages included (26 pages for a chunk of 1000 acquisitions), so that every read of a
+component's history read more pages the deeper the tree (160 at 10^5 history rows, 320 at
+10^7: ``benchmarks/bench_history_read.py``); the key's index holds the key alone.
+:func:`migrate` rebuilds a ``WITHOUT ROWID`` history of an older rulkit."""
 INGESTS = Table("ingests", (Column("id", "id"), Column("source", "text"),
                             Column("n_rows", "int"), Column("n_components", "int")))
 ALERTS = Table(
@@ -220,6 +226,8 @@ def migrate(conn: Any, dialect: str) -> None:
     have = table_columns(conn, HISTORY.name)
     if is_row_history(have):
         convert_row_history(conn, have, replace(HISTORY, name="history_packed").create(dialect))
+    elif history_without_rowid(conn, dialect):
+        rebuild_history(conn, dialect)
     had_seen_counts = bool(table_columns(conn, SEEN_COUNTS.name))
     for table in TABLES:
         have = table_columns(conn, table.name)
@@ -236,6 +244,27 @@ def migrate(conn: Any, dialect: str) -> None:
         conn.execute(f"DROP INDEX IF EXISTS {name}")
     if not had_seen_counts or not level_counts_valid(conn):
         recount_totals(conn)
+
+
+def history_without_rowid(conn: Any, dialect: str) -> bool:
+    """Whether ``history`` is a SQLite ``WITHOUT ROWID`` table (as older versions made it)."""
+    if dialect != "sqlite":
+        return False
+    row = conn.execute("SELECT sql FROM sqlite_master WHERE type = 'table' AND name = "
+                       "'history'").fetchone()
+    return row is not None and "WITHOUT ROWID" in str(row[0]).upper()
+
+
+def rebuild_history(conn: Any, dialect: str) -> None:
+    """Inside the caller's write transaction: table ``history`` copied into a new table of
+    :data:`HISTORY`'s definition, which then replaces it (every row as it was)."""
+    for stmt in replace(HISTORY, name="history_rebuilt").create(dialect):
+        conn.execute(stmt)
+    cols = ", ".join(HISTORY.names)
+    conn.execute(f"INSERT INTO history_rebuilt ({cols}) SELECT {cols} FROM history "
+                 "ORDER BY component, t_first")
+    conn.execute("DROP TABLE history")
+    conn.execute("ALTER TABLE history_rebuilt RENAME TO history")
 
 
 def level_counts_valid(conn: Any) -> bool:
@@ -300,4 +329,4 @@ def needs_migration(conn: Any, dialect: str) -> bool:
         have = table_columns(conn, table.name)
         if not have or any(c.name not in have for c in table.columns):
             return True
-    return not level_counts_valid(conn)
+    return not level_counts_valid(conn) or history_without_rowid(conn, dialect)

@@ -61,10 +61,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
@@ -129,6 +128,22 @@ from rulkit.fleet.tracking.tracker_chain import (
 from rulkit.fleet.tracking.tracker_run import tracker_run, tracker_strategy
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
+
+if TYPE_CHECKING:  # pandas is imported by the reads that return frames, not by track
+    import pandas as pd
+
+
+def _return_freed_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc's ``malloc_trim``; nothing
+    elsewhere). A batch's checks free arrays of 8 bytes per row that glibc keeps in its heap
+    once its mmap threshold has grown; without this they stay resident through the blocks
+    (docs/service.md, "Where track's 2M rows go")."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).malloc_trim(0)  # the process's own symbols
+    except (OSError, AttributeError, TypeError):  # not glibc
+        pass
 
 
 def _finite(v: float) -> float | None:
@@ -364,6 +379,8 @@ class ComponentStore:
         return out
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
+        import pandas as pd
+
         with self.snapshot() as conn:
             try:
                 return pd.read_sql_query(sql, conn, params=params)
@@ -378,6 +395,8 @@ class ComponentStore:
     def _checked(self, df: pd.DataFrame, table: str) -> pd.DataFrame:
         """Refuse rows rulkit cannot have written (text in a number column, an unknown alert
         level), naming the table, component and column, instead of failing later."""
+        import pandas as pd
+
         for col in df.columns:
             if col == "component":
                 continue
@@ -407,6 +426,8 @@ class ComponentStore:
         estimated yet as 1e308, then id): the tracker chain's columns and the RUL and rules' columns
         ``rul_median``, ``failed_at``, ``seen`` (NaN where NULL; docs/systems/embedded-rul.md
         §6-7)."""
+        import pandas as pd
+
         nullable = ("rul_median", "failed_at", "seen")
         df = self._query("SELECT component, " + ", ".join((*ROW_FIELDS, *nullable))
                          + " FROM components")
@@ -421,6 +442,8 @@ class ComponentStore:
         chain's columns, and the RUL of the estimator in force, ``rul_median`` (NaN: not
         estimated yet) in ``rul_low``/``rul_high``, with the rules' ``level``
         (docs/systems/embedded-rul.md §6-7)."""
+        import pandas as pd
+
         with self.snapshot() as conn:
             if history_chunks.is_row_history(table_columns(conn, "history")):
                 raise StoreError(f"{self.path}: its history has one row per acquisition, the "
@@ -547,7 +570,7 @@ class ComponentStore:
         200k rows) and only one block's outputs are held. Memory and time are linear in the
         batch.
         """
-        codes = acq.codes.astype(np.int32)  # 4 bytes less per acquisition
+        codes = acq.codes.astype(np.int32, copy=False)  # 4 bytes less per acquisition
         names = acq.names
         if stored is None:
             stored = self._load_states(names)
@@ -579,6 +602,8 @@ class ComponentStore:
         # one way to run the trackers for the whole batch (tracker_run's cost model, with the
         # rank loops of all blocks against loading the compiled passes once)
         n_ranks = sum(int(counts[k0:k1].max()) for k0, k1 in blocks)
+        if n > self.BLOCK_ROWS:
+            _return_freed_memory()  # the checks' arrays, before the blocks
         strategy = tracker_strategy(n_ranks, n)
         prog.strategy = trend_strategy(n_ranks, n)  # the same choice for the trend's pass
         for k0, k1 in blocks:
