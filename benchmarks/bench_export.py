@@ -3,6 +3,7 @@
     python benchmarks/bench_export.py            # everything; installs gcc-arm-none-eabi as root
     python benchmarks/bench_export.py --no-arm   # without the Cortex-M4 cross-compilation
     python benchmarks/bench_export.py --only-hi-noise   # the learned HI-noise models alone
+    python benchmarks/bench_export.py --only-table      # the error of a coarser eq. (5b) table
 
 For the Lu & Meeker crack data (the tracker settings fitted by `fit_tracker_config`, the learned
 Paris model fitted by `fit_model`), in each number format: operations per update counted in the
@@ -25,6 +26,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -59,21 +61,28 @@ from timing import median_time
 ARM_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-Os",
              "-ffunction-sections", "-fdata-sections")
 SEED_CHAIN = ("track_hi", "paris_rul", "track_rul")
-QUANTILE_FUNCTIONS = ("learned_quantiles", "quantile_root", "rk_normal_quantile",
-                      "rk_log_normal_cdf")
+QUANTILE_FUNCTIONS = ("learned_quantiles", "learned_monotone", "quantile_root",
+                      "rk_normal_quantile", "rk_log_normal_cdf", "learned_root",
+                      "learned_log_surv", "learned_ystar")
+"""The C functions of the learned RUL quantiles: eq. (5b)'s search, or eq. (6)'s roots with
+one measurement."""
 
 
 def specs() -> dict[str, DeviceSpec]:
     hist = fatigue_histories()
     cfg = fit_tracker_config(hist)
     model = fit_model(hist, "paris", time_unit="kcycles")
-    return {"chain": DeviceSpec("crack", "Lu & Meeker", cfg),
-            "chain+learned": DeviceSpec("crack", "Lu & Meeker", cfg, None, model)}
+    learned = DeviceSpec("crack", "Lu & Meeker", cfg, None, model)
+    return {"chain": DeviceSpec("crack", "Lu & Meeker", cfg), "chain+learned": learned,
+            "chain+learned-1m": replace(learned, one_measurement=True)}
 
 
 def variants(sp: dict[str, DeviceSpec]) -> list[tuple[str, str, DeviceSpec]]:
+    """The chain in every number format; the learned model with the RUL of eq. (5b) (the
+    default) and of one measurement (``-1m``, eq. (5)) in double and float."""
     return [("chain", n, sp["chain"]) for n in ("double", "float", "fixed")] + [
-        ("chain+learned", n, sp["chain+learned"]) for n in ("double", "float")]
+        (part, n, sp[part]) for part in ("chain+learned", "chain+learned-1m")
+        for n in ("double", "float")]
 
 
 def fmt_ops(c: dict[str, float]) -> str:
@@ -86,7 +95,7 @@ def operations(work: Path, sp: dict[str, DeviceSpec]) -> None:
           "11 multiplications, 9 additions, 1 logarithm)")
     for part, number, spec in variants(sp):
         ops = steady_state_operations(spec, work / f"ops_{part}_{number}", number)
-        print(f"{part:14s} {number:6s} whole update: {fmt_ops(ops['total'])}")
+        print(f"{part:16s} {number:6s} whole update: {fmt_ops(ops['total'])}")
         if number == "fixed":  # the work is in the arithmetic helpers
             for f in ("ln_hi", "mul_q", "div_round", "sat"):
                 print(f"{'':21s} in {f}: {fmt_ops(ops[f])}")
@@ -95,6 +104,13 @@ def operations(work: Path, sp: dict[str, DeviceSpec]) -> None:
                      for k in ops["total"]}
             print(f"{'':21s} the seed's chain (track_hi, paris_rul, track_rul): "
                   f"{fmt_ops(chain)}")
+            if "learned" in part:
+                print(f"{'':21s} the learned RUL quantiles: {fmt_ops(_quantile_ops(ops))}")
+
+
+def _quantile_ops(ops: dict[str, dict[str, float]]) -> dict[str, float]:
+    """The operations of :data:`QUANTILE_FUNCTIONS` together."""
+    return {k: sum(ops.get(f, {}).get(k, 0.0) for f in QUANTILE_FUNCTIONS) for k in ops["total"]}
 
 
 def section_sizes(obj: Path, size_tool: str) -> dict[str, int]:
@@ -124,7 +140,7 @@ def sizes_and_speed(work: Path, sp: dict[str, DeviceSpec], repeats: int) -> None
         n_saved = int(template_context(spec, number, "rk")["state_bytes"])
         assert len(saved) >= n_saved
         sec = median_time(lambda lib=lib: lib.run(start, t, hi), repeats)
-        print(f"{part:14s} {number:6s} state {lib.state_struct_bytes} B in RAM "
+        print(f"{part:16s} {number:6s} state {lib.state_struct_bytes} B in RAM "
               f"(sizeof), {n_saved} B saved; code .text {s.get('text', 0)} B, constants "
               f".rodata {s.get('rodata', 0)} B, .data {s.get('data', 0)} B, .bss "
               f"{s.get('bss', 0)} B; {1e9 * sec / n:.1f} ns per update (median of {repeats}, "
@@ -204,12 +220,14 @@ def hi_noise(work: Path, repeats: int) -> None:
                                                           "clip_z")) for k in ops["total"]}
         iters = ops["growth_inverse"]["other_math"] - 1.0
         print(f"{name:21s} whole update: {fmt_ops(ops['total'])}")
-        rul = {k: sum(ops.get(f, {}).get(k, 0.0) for f in QUANTILE_FUNCTIONS)
-               for k in ops["total"]}
+        one_m = replace(spec, one_measurement=True)
+        ops_1m = steady_state_operations(one_m, work / f"ops1m_{name}", "double")
         print(f"{'':21s} of which eq. (8) ({iters:g} Gauss-Newton iterations per update): "
               f"{fmt_ops(upd)}")
-        print(f"{'':21s} of which the RUL quantiles (eq. (6), three normal quantiles): "
-              f"{fmt_ops(rul)}")
+        print(f"{'':21s} of which the RUL quantiles (eq. (5b), three bracketing searches): "
+              f"{fmt_ops(_quantile_ops(ops))}")
+        print(f"{'':21s} (with one measurement, eq. (6), three normal quantiles: "
+              f"{fmt_ops(_quantile_ops(ops_1m))})")
         start1, df = segments(frame)
         reps = 50
         lens = np.tile(np.diff(start1), reps)
@@ -220,8 +238,9 @@ def hi_noise(work: Path, repeats: int) -> None:
         kalman = build(DeviceSpec("g", "kalman", spec.config, None, fit_model(
             histories_from_frame(frame, "bench"), "paris", shape=model.shape)),
             work / f"kalman_{name}", "double")
-        c_all, c_chain, c_kalman = (_c_seconds(x, start, t, hi, repeats)
-                                    for x in (lib, chain, kalman))
+        lib_1m = build(one_m, work / f"lib1m_{name}", "double")
+        c_all, c_chain, c_kalman, c_1m = (_c_seconds(x, start, t, hi, repeats)
+                                          for x in (lib, chain, kalman, lib_1m))
         c_learned = c_all - c_chain
         n_saved = int(template_context(spec, "double", "rk")["state_bytes"])
         print(f"{'':21s} state {lib.state_struct_bytes} B in RAM, {n_saved} B saved; C "
@@ -229,7 +248,9 @@ def hi_noise(work: Path, repeats: int) -> None:
               f"{1e9 * c_learned:.0f} ns (minus the chain alone, {1e9 * c_chain:.0f} ns); the "
               f"Kalman paris model (eq. (2)) of the same shape on the same rows: learned part "
               f"{1e9 * (c_kalman - c_chain):.0f} ns, ratio={c_learned / (c_kalman - c_chain):.2f}"
-              f" (medians of {repeats}, {t.size} updates)")
+              f" (medians of {repeats}, {t.size} updates); with the RUL of one measurement"
+              f" (eq. (5)): learned part {1e9 * (c_1m - c_chain):.0f} ns, eq. (5b) / eq. (5) "
+              f"ratio={c_learned / (c_1m - c_chain):.2f}")
         ref = python_reference(spec, start1, df["time"].to_numpy(), df["hi"].to_numpy())
         got = lib.run(start1, df["time"], df["hi"])
         flt = build(spec, work / f"float_{name}", "float").run(start1, df["time"], df["hi"])
@@ -258,6 +279,53 @@ def hi_noise(work: Path, repeats: int) -> None:
         print(f"{'':21s} Python update + quantiles, one unit per call {1e9 * py1:.0f} ns: "
               f"ratio={py1 / c_learned:.0f} (vs the C's learned part); vectorised over "
               f"{b} units {1e9 * pyb:.0f} ns per unit: ratio={pyb / c_learned:.2f}")
+
+
+def _fp_quantiles(model: HiNoiseModel, st: UnitState, table: tuple) -> np.ndarray:
+    """eq. (5b)'s quantiles (scaled time) of every state with the table ``table`` (the layout
+    of ``first_passage.kernel_table``)."""
+    from rulkit.fleet.learned.filter_kernels import first_passage_quantiles
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = st.t / np.maximum(st.n, 1) / model.time_scale
+    delta = np.where((st.n >= 2) & (d > 0), d, np.inf)
+    out = np.empty((len(LEVELS), len(st)))
+    first_passage_quantiles(np.ascontiguousarray(st.m), np.ascontiguousarray(st.p), delta,
+                            model.walk_sd**2, model.threshold, np.sqrt(model.measured_var),
+                            np.asarray(LEVELS, dtype=np.float64), *table, 200, out)
+    return out
+
+
+def table_grid() -> None:
+    """What a coarser table of mu*, sigma* (eq. (5b)) would cost: the learned RUL quantiles of
+    the HI-noise fleets' every acquisition with the server's table and with coarser grids over
+    the same ranges (filled from the server's table by its bilinear lookup, ``ystar_moments``):
+    the largest relative error and max |error| / max |quantile|."""
+    from rulkit.fleet.learned.first_passage import kernel_table, ystar_moments
+
+    table = kernel_table()
+    mu, lc0, dlc, dlj = table[0], table[2], table[3], table[4]
+    print(f"\n# the table of eq. (5b): {mu.shape[0]} x {mu.shape[1]} nodes, 2 tables: "
+          f"{2 * mu.size * 8} B in double, {2 * mu.size * 4} B in float; coarser grids")
+    fits = [(spec.learned, histories_from_frame(frame, "bench"))
+            for spec, frame in hi_noise_specs().values()]
+    refs = [(model, st, _fp_quantiles(model, st, table))
+            for model, st in ((m, m.replay(h)) for m, h in fits)]
+    for n_c, n_j in ((32, 40), (24, 30), (16, 20)):
+        lc = np.linspace(lc0, lc0 + dlc * (mu.shape[0] - 1), n_c)
+        lj = np.linspace(0.0, dlj * (mu.shape[1] - 1), n_j)
+        c_grid, j_grid = np.meshgrid(np.exp(lc), np.exp(lj), indexing="ij")
+        c_mu, c_sd = ystar_moments(c_grid, j_grid)
+        coarse = (c_mu, c_sd, float(lc[0]), float(lc[1] - lc[0]), float(lj[1] - lj[0]))
+        worst = []
+        for model, st, ref in refs:
+            got = _fp_quantiles(model, st, coarse)
+            ok = np.isfinite(ref) & (ref > 0) & (st.hi < 1.0)
+            err = np.abs(got[ok] - ref[ok])
+            worst.append(f"{model.name} {np.max(err / ref[ok]):.2g} relative, "
+                         f"{np.max(err) / np.max(ref[ok]):.2g} scaled")
+        print(f"{n_c} x {n_j} ({2 * n_c * n_j * 8} B double, {2 * n_c * n_j * 4} B float): "
+              + "; ".join(worst))
 
 
 def ensure_arm() -> str | None:
@@ -304,7 +372,7 @@ def arm(work: Path, sp: dict[str, DeviceSpec]) -> None:
                              text=True, check=True).stdout.splitlines()[1].split()
         img = subprocess.run(["arm-none-eabi-size", "main.elf"], cwd=d, capture_output=True,
                              text=True, check=True).stdout.splitlines()[1].split()
-        print(f"{part:14s} {number:6s} rk.o text {obj[0]} data {obj[1]} bss {obj[2]}; linked "
+        print(f"{part:16s} {number:6s} rk.o text {obj[0]} data {obj[1]} bss {obj[2]}; linked "
               f"program with newlib-nano, libm, startup: text {img[0]} data {img[1]} bss "
               f"{img[2]}")
 
@@ -315,6 +383,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--only-hi-noise", action="store_true",
                     help="only the learned HI-noise models' section")
+    ap.add_argument("--only-table", action="store_true",
+                    help="only the error a coarser table of eq. (5b) would add")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
           f"{os.getloadavg()[2]:.2f} on {os.cpu_count()} cores; python {sys.version.split()[0]}")
@@ -323,12 +393,16 @@ def main() -> None:
         if args.only_hi_noise:
             hi_noise(work, args.repeats)
             return
+        if args.only_table:
+            table_grid()
+            return
         sp = specs()
         build_cache["lib"] = build(sp["chain"], work / "speed", "double")
         operations(work, sp)
         sizes_and_speed(work, sp, args.repeats)
         errors(work)
         hi_noise(work, args.repeats)
+        table_grid()
         if not args.no_arm:
             arm(work, sp)
 

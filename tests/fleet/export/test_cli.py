@@ -2,6 +2,7 @@
 file, and its refusals."""
 
 import subprocess
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -31,13 +32,10 @@ def fleet_db(tmp_path):
 
 def test_export_from_a_database_compiles(cc, tmp_path, fleet_db):
     out = tmp_path / "c"
-    refused = _run("export", "c", "--db", fleet_db, "--out", out)
-    assert refused.exit_code == 1 and "--rul-one-measurement" in refused.output
-    assert "eq. (5b)" in refused.output and not out.exists()
     res = _run("export", "c", "--db", fleet_db, "--out", out, "--prefix", "crack",
-               "--number", "float", "--rul-one-measurement")
+               "--number", "float")
     assert res.exit_code == 0, res.output
-    assert "learned linear model (RUL of one measurement) (float)" in res.output
+    assert "learned linear model (RUL of the first measured crossing) (float)" in res.output
     header = (out / "crack.h").read_text()
     assert "int crack_update(crack_state *s, crack_time t, crack_real hi, crack_output *out);" \
         in header
@@ -48,8 +46,7 @@ def test_export_from_a_database_compiles(cc, tmp_path, fleet_db):
 
 def test_refusals_write_nothing(tmp_path, fleet_db):
     out = tmp_path / "c"
-    res = _run("export", "c", "--db", fleet_db, "--out", out, "--number", "fixed",
-               "--rul-one-measurement")
+    res = _run("export", "c", "--db", fleet_db, "--out", out, "--number", "fixed")
     assert res.exit_code == 1 and "learned linear model" in res.output
     assert not out.exists()
     assert _run("export", "c", "--db", fleet_db, "--out", out, "--number", "fixed",
@@ -107,24 +104,33 @@ def test_export_of_a_paris_mixed_fit_runs_as_its_database(cc, tmp_path):
     fit = _run("fit", csv, "--db", db, "--model", "paris-mixed", "--time-unit", "h")
     assert fit.exit_code == 0, fit.output
     assert _run("track", "--db", db, csv).exit_code == 0
-    res = _run("export", "c", "--db", db, "--out", out, "--prefix", "rk",
-               "--rul-one-measurement")
+    res = _run("export", "c", "--db", db, "--out", out, "--prefix", "rk")
     assert res.exit_code == 0, res.output
-    assert "learned paris-mixed model (RUL of one measurement) (double)" in res.output
+    assert "learned paris-mixed model (RUL of the first measured crossing) (double)" in res.output
     spec = spec_from_database(db)
     assert generate_c(spec)["rk.c"] == (out / "rk.c").read_text()
     with ComponentStore(db, readonly=True) as store:
         hist = store.history()
     start, df = segments(hist.rename(columns={"t": "time"}))
     got = build(spec, tmp_path / "lib").run(start, df["time"], df["hi"], through_bytes=True)
-    # the device's event (one measurement, eq. (5)): the database's replayed with that event
+    # the server's event (the first measured crossing, eq. (5b)): what the database holds
+    # (the learned median and interval in rul_median, rul_low, rul_high)
+    for col, db_col in (("rul_median", "rul_median"), ("rul_p05", "rul_low"),
+                        ("rul_p95", "rul_high")):
+        assert relative_error(got[col], df[db_col]).max() <= 1e-6, col
+    assert np.isfinite(df["rul_median"]).mean() > 0.8
+    # --rul-one-measurement: eq. (5) of one measurement, the database's replayed with that
+    # event, and not the server's
+    one = _run("export", "c", "--db", db, "--out", out, "--prefix", "rk",
+               "--rul-one-measurement")
+    assert "learned paris-mixed model (RUL of one measurement) (double)" in one.output
+    spec = replace(spec, one_measurement=True)
+    assert generate_c(spec)["rk.c"] == (out / "rk.c").read_text()
+    got = build(spec, tmp_path / "lib1").run(start, df["time"], df["hi"], through_bytes=True)
     ref = python_reference(spec, start, df["time"].to_numpy(), df["hi"].to_numpy())
     for col in ("rul_median", "rul_p05", "rul_p95"):
         assert relative_error(got[col], ref[col]).max() <= 1e-6, col
-    # the server's (the first measured crossing, eq. (5b)) is what the database holds: not
-    # the device's, which the export therefore refuses without --rul-one-measurement
     assert relative_error(got["rul_median"], df["rul_median"]).max() > 1e-3
-    assert np.isfinite(df["rul_median"]).mean() > 0.8
 
 
 def test_export_from_a_configuration_file(tmp_path):
@@ -135,7 +141,7 @@ def test_export_from_a_configuration_file(tmp_path):
                    'mean_b = 1.0\ncov_aa = 0.1\ncov_bb = 0.2\nnoise_sd = 0.02\n'
                    'time_scale = 500.0\ntime_unit = "h"\n')
     out = tmp_path / "c"
-    res = _run("export", "c", "--config", cfg, "--out", out, "--rul-one-measurement")
+    res = _run("export", "c", "--config", cfg, "--out", out)
     assert res.exit_code == 0, res.output
     text = (out / "rk.c").read_text()
     assert 'component type "bearing"' in text and "static const double L_TAU = 500.0;" in text

@@ -1,10 +1,12 @@
 """Which learned models the device runs, the refusal of the others by name, and the HI-noise
 variants compiled and run beside their Python models."""
 
+import dataclasses
 import re
 import struct
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from rulkit.fleet.export.device_spec import DeviceSpec, ExportError
@@ -48,7 +50,6 @@ def test_unknown_learned_model_type_is_refused_by_name():
 
 
 def test_a_model_setting_the_template_does_not_implement_is_refused():
-    import dataclasses
 
     @dataclasses.dataclass(frozen=True)
     class Extended(DegradationModel):
@@ -65,13 +66,26 @@ def test_a_model_setting_the_template_does_not_implement_is_refused():
 # Tolerances of the double build against Python. The posterior: 1e-12 of each field's range
 # (the C runs the IEKF of filter_kernels.assimilate operation by operation; the same glibc
 # pow/exp, so only the compiler's and numba's choices of instructions could differ). The RUL
-# quantiles: 1e-6 relative. The C solves eq. (6), a quadratic whose discriminant cancels to
-# ~eps of its terms where the level's normal quantile c is near 0 (the median of a unit far
-# from failure): its roots carry ~sqrt(eps) = 1.5e-8 relative rounding times the spread of
-# the terms, up to 3.8e-7 on these fleets; Python searches eq. (5) for its root (to 1e-12 of
-# the horizon), so the C's rounding is no longer shared by the reference.
+# quantiles of eq. (5b): 1e-6 relative. The C runs the server's search (the same table, the
+# same bracketing steps, stopping where two trials 1e-12 u apart straddle the root): measured
+# within 4e-12 relative; the bound leaves room for a server search that stops earlier (within
+# 1e-6 of a bisection). With one_measurement the C solves eq. (6), a quadratic whose
+# discriminant cancels to ~eps of its terms where the level's normal quantile is near 0 (the
+# median of a unit far from failure): ~sqrt(eps) = 1.5e-8 relative rounding times the spread
+# of the terms, up to 3.8e-7 on these fleets, against Python's search of eq. (5).
 POSTERIOR_TOL = 1e-12
 QUANTILE_RTOL = 1e-6
+
+
+def _with_a_unit_that_never_fails(frame):
+    """``frame`` and one more unit whose HI stays at 0.1 (noise sd 0.005, 60 acquisitions a
+    cadence of 5 apart): its rate's posterior straddles 0, so its median and 95 % quantile lie
+    in the never-failing mass (+inf)."""
+    rng = np.random.default_rng(5)
+    t = 5.0 * np.arange(1, 61)
+    flat = pd.DataFrame({"component": "flat", "time": t,
+                         "hi": 0.1 + 0.005 * rng.standard_normal(t.size)})
+    return pd.concat([frame, flat], ignore_index=True)
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +98,8 @@ def noise_fits():
         frame, _ = goal_fleet(noise, np.random.default_rng(11), 8)
         hist = histories_from_frame(frame, "test")
         model = fit_hi_noise(hist, noise, shape=1.0 - float(GOAL_FLEETS[noise]["m"]) / 2.0)
-        out[noise] = (DeviceSpec("g", "test", fit_tracker_config(hist), None, model), frame)
+        out[noise] = (DeviceSpec("g", "test", fit_tracker_config(hist), None, model),
+                      _with_a_unit_that_never_fails(frame))
     return out
 
 
@@ -134,11 +149,34 @@ def test_hi_noise_variant_in_c_equals_its_python_model(cc, tmp_path, noise_fits,
     assert max(errors.values()) <= QUANTILE_RTOL, errors
     finite = np.isfinite(ref["rul_median"]) & (ref["rul_median"] > 0)
     assert finite.mean() > 0.8  # the comparison covers real quantiles, not 0 / inf only
+    # ... and every other branch of eq. (5b)'s quantiles
+    rows = _event_rows(spec, frame)
+    assert rows["first cadence step"] >= 3 and rows["one reading"] >= 8
+    assert np.sum(ref["rul_median"] == 0) >= 5  # failed units
+    assert np.sum(np.isinf(ref["rul_median"])) >= 20 and np.sum(np.isinf(ref["rul_p95"])) >= 40
+
+
+def _event_rows(spec, frame):
+    """How many rows' 5 % quantile lies within the first cadence step (at most the first
+    reading's probability F(d), eq. (5b)'s special case) and how many rows have one reading
+    (no cadence yet: eq. (5) of one measurement)."""
+    from rulkit.fleet.learned.degradation import rul_cdf
+
+    _, df = segments(frame)
+    st = spec.learned.replay(histories_from_frame(df, "test"))
+    cadence = np.where(st.n >= 2, st.t / np.maximum(st.n, 1), 0.0)
+    first = rul_cdf(spec.learned, st, cadence[:, None])[:, 0]
+    return {"first cadence step": int(np.sum((first >= 0.05) & (st.hi < 1) & (st.n >= 2))),
+            "one reading": int(np.sum(st.n == 1))}
 
 
 MUTATIONS = {
     # one Gauss-Newton step instead of the iterations: the plain EKF
     "EKF instead of IEKF": (r"k < 8;", "k < 1;"),
+    # eq. (5b) without its first cadence step: only the quantiles move
+    "no first step": (r"fp && lev <= first", "0"),
+    # the table's step of log c 1e-3 relative off: mu*, sigma* read at the wrong rise
+    "table grid": (r"L_DLOG_C = ([^;]+);", 1e-3),
     # the additive noise variance 1e-6 relative off: the posterior moves
     "L_R_HI": (r"L_R_HI = ([^;]+);", 1e-6),
     # the measurement variance at hi = 1, 1e-4 relative off: only the quantiles move
@@ -169,20 +207,53 @@ def test_the_comparison_fails_when_the_c_is_wrong(cc, tmp_path, noise_fits, monk
     lib = build(spec, tmp_path / "mutant")
     posterior = max(_posterior_errors(lib, spec, frame).values())
     quantiles = max(_quantile_errors(lib, spec, frame)[0].values())
-    if mutation == "L_MEASURED_VAR":
+    if mutation in ("L_MEASURED_VAR", "no first step", "table grid"):
         assert posterior <= POSTERIOR_TOL and quantiles > 10 * QUANTILE_RTOL
     else:
         assert posterior > 10 * POSTERIOR_TOL
 
 
-def test_hi_noise_quantiles_against_root_finding_and_monte_carlo(cc, tmp_path, noise_fits):
-    """One state's RUL quantiles from the C against eq. (5) solved by scipy's brentq on the
-    survival ratio, and against a Monte Carlo of the model's predictive law: (z, b) from the
-    posterior, the walk and the measurement noise at the threshold drawn, the event z + e >= 0."""
+def test_first_passage_quantiles_against_root_finding_of_the_cdf(cc, tmp_path, noise_fits):
+    """The C's RUL quantiles of eq. (5b) against scipy's brentq on the server's CDF
+    (degradation.rul_cdf, evaluated in numpy, not by the compiled search the server's
+    quantiles use), mid-life and where the first cadence step holds the median."""
+    from scipy.optimize import brentq
+
+    from rulkit.fleet.learned.degradation import rul_cdf
+
+    spec, frame = noise_fits["mixed"]
+    lib = build(spec, tmp_path / "c")
+    start, df = segments(frame)
+    t, hi = df["time"].to_numpy(), df["hi"].to_numpy()
+    states = spec.learned.replay(histories_from_frame(df, "test"))
+    cadence = np.where(states.n >= 2, states.t / np.maximum(states.n, 1), 0.0)
+    first = rul_cdf(spec.learned, states, cadence[:, None])[:, 0]
+    late = int(np.flatnonzero((first >= 0.5) & (states.hi < 1))[0])
+    mid = start[0] + (start[1] - start[0]) // 2
+    for k in (mid, late):
+        s0 = start[np.searchsorted(start, k, side="right") - 1]  # the unit's first row
+        out = lib.run(np.array([0, k + 1 - s0]), t[s0:k + 1], hi[s0:k + 1])
+        state = states.take(np.array([k]))
+        for level, col in zip((0.5, 0.05, 0.95), LEARNED_COLUMNS, strict=True):
+            def excess(r, lv=level, st=state):
+                return rul_cdf(spec.learned, st, np.array([[r]]))[0, 0] - lv
+
+            r = brentq(excess, 0.0, 50.0 * spec.learned.time_scale, xtol=1e-12, rtol=1e-13)
+            assert out[col][-1] == pytest.approx(r, rel=QUANTILE_RTOL), (k, level)
+    assert first[late] >= 0.5 and first[mid] < 0.05
+
+
+def test_one_measurement_quantiles_against_root_finding_and_monte_carlo(cc, tmp_path,
+                                                                      noise_fits):
+    """``one_measurement``: one state's RUL quantiles from the C against eq. (5) solved by
+    scipy's brentq on the survival ratio, and against a Monte Carlo of the model's predictive
+    law: (z, b) from the posterior, the walk and the measurement noise at the threshold drawn,
+    the event z + e >= 0."""
     from scipy.optimize import brentq
     from scipy.stats import norm
 
     spec, frame = noise_fits["mixed"]
+    spec = dataclasses.replace(spec, one_measurement=True)
     model = spec.learned
     lib = build(spec, tmp_path / "c")
     start, df = segments(frame)
@@ -214,7 +285,6 @@ def test_hi_noise_quantiles_against_root_finding_and_monte_carlo(cc, tmp_path, n
 
 
 def test_hi_noise_settings_without_c_are_refused():
-    import dataclasses
 
     @dataclasses.dataclass(frozen=True)
     class Extended(HiNoiseModel):

@@ -78,12 +78,13 @@ def test_double_equals_the_database_rulkit_track_wrote(cc, tmp_path, fleet, kind
     # the tracker's own confidence limits and alert levels (the history holds the learned
     # interval and the store's alert rules, docs/systems/embedded-rul.md section 7, instead)
     ref = python_reference(spec, start, df["time"].to_numpy(), df["hi"].to_numpy())
-    # the learned RUL: the device's event (one measurement, eq. (5)) against Python's; the C's
-    # eq. (6) roots carry ~1e-8 rounding (tests/fleet/export/test_learned_device.py); the
-    # database holds the server's first measured crossing (eq. (5b)), the same here only
-    # because the cracks' readings rise far more between acquisitions than their noise
-    for col in ("rul_median", "rul_p05", "rul_p95"):
+    # the learned RUL (eq. (5b), the server's first measured crossing) against Python's and
+    # the database's (its median and interval in rul_median, rul_low, rul_high); tolerance:
+    # tests/fleet/export/test_learned_device.py
+    for col, db_col in (("rul_median", "rul_median"), ("rul_p05", "rul_low"),
+                        ("rul_p95", "rul_high")):
         assert relative_error(got[col], ref[col]).max() <= 1e-6, col
+        assert relative_error(got[col], df[db_col]).max() <= 1e-6, col
     for col in ("rul_low", "rul_high"):
         assert relative_error(got[col], ref[col]).max() <= 1e-12, col
     np.testing.assert_array_equal(got["level"], ref["level"])

@@ -37,9 +37,10 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                                    help="Leave the CI -> HI map out (the device gets the HI)."),
         rul_one_measurement: bool = typer.Option(
             False, "--rul-one-measurement",
-            help="Export the learned model although the device's RUL is that of one "
-                 "measurement (eq. (5)), not the server's first measured crossing over the "
-                 "cadence (eq. (5b)); without it such an export is refused."),
+            help="The learned RUL of one measurement (eq. (5), closed form: no table, fewer "
+                 "operations) instead of the server's first measured crossing over the "
+                 "unit's cadence (eq. (5b), the default); the device's RUL then differs from "
+                 "rulkit status."),
     ) -> None:
         """Write C99 sources of one component type's prognosis chain (no heap, <math.h> and
         <stdint.h> only).
@@ -74,16 +75,7 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
                 device = replace(device, learned=None)
             if no_ci:
                 device = replace(device, hi_model=None)
-            if device.learned is not None and not rul_one_measurement:
-                from rulkit.fleet.export.learned_device import learned_device
-
-                learned_device(device.learned)  # a type without a C export: its own refusal
-                raise ExportError(
-                    f"learned {device.learned.name} model: the exported C computes the RUL of "
-                    "one measurement (docs/fleet-models.md eq. (5)), the server the first "
-                    "measured crossing over the unit's cadence (eq. (5b)); give "
-                    "--rul-one-measurement to export it with the device's event, or "
-                    "--no-learned")
+            device = replace(device, one_measurement=rul_one_measurement)
             paths = write_c(device, out, number, prefix)
         except (ExportError, MachineFileError) as err:
             fail(f"{err} (nothing written)")
@@ -91,6 +83,8 @@ def register(app: typer.Typer, reproduce: typer.Typer) -> None:
         if device.hi_model is not None:
             parts.insert(0, f"HI from {device.hi_model.n} CIs")
         if device.learned is not None:
-            parts.append(f"learned {device.learned.name} model (RUL of one measurement)")
+            event = ("RUL of one measurement" if rul_one_measurement else
+                     "RUL of the first measured crossing")
+            parts.append(f"learned {device.learned.name} model ({event})")
         typer.echo(f"wrote {', '.join(str(p) for p in paths)}: {', '.join(parts)} "
                    f"({number}) of {device.name!r} from {device.source}")

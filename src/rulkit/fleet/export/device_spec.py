@@ -36,7 +36,10 @@ class DeviceSpec:
 
     ``name``: a label written into the sources; ``source``: where the description came from (the
     database or file path); ``config``: the tracker chain; ``hi_model``: CI -> HI (None: the
-    device is given the HI); ``learned``: the learned degradation model (None: tracker only).
+    device is given the HI); ``learned``: the learned degradation model (None: tracker only);
+    ``one_measurement``: the learned RUL is eq. (5) of one measurement (closed form, no table)
+    instead of the server's first measured crossing over the unit's cadence, eq. (5b)
+    (docs/rul-on-the-device.md section 2).
     """
 
     name: str
@@ -44,6 +47,7 @@ class DeviceSpec:
     config: TrackerConfig
     hi_model: HealthIndexModel | None = None
     learned: LearnedModel | None = None
+    one_measurement: bool = False
 
 
 def spec_from_database(path: str | Path, name: str | None = None) -> DeviceSpec:

@@ -104,6 +104,10 @@ def _math_literals(number: str) -> dict[str, str]:
         "lin_tol": lit(1e-14 if number == "double" else 1e-6),
         "sign_tol": lit(1e-7 if number == "double" else 3e-3),
         "tiny": lit(1e-300 if number == "double" else 1e-30),
+        # eq. (5b)'s search stops where two successive trials this close (relative, in u)
+        # straddle the root, or the bracket is this wide: Python's in double, a few float eps
+        "fp_utol": lit(1e-12 if number == "double" else 1e-6),
+        "fp_width": lit(1e-15 if number == "double" else 1e-7),
     }
 
 
@@ -140,7 +144,7 @@ def template_context(device: DeviceSpec, number: str, prefix: str) -> dict[str, 
     learned = None
     learned_fields: list[str] = []
     if device.learned is not None:
-        dev = learned_device(device.learned)
+        dev = learned_device(device.learned, device.one_measurement)
         consts = {k: (v if isinstance(v, (bool, int, str)) else
                       [lit(x) for x in v] if isinstance(v, list) else lit(v))
                   for k, v in dev.constants.items()}

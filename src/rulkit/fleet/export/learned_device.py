@@ -13,16 +13,15 @@ interval from that posterior). A model type becomes exportable by one entry in
 
 The three models of :mod:`rulkit.fleet.learned.degradation` (linear, exponential, paris) share
 one template: a Gaussian random-effects model of a transformed HI, updated by an exact Kalman
-step (docs/fleet-models.md eq. (2)) with closed-form quantiles (eqs. (5), (6)) of one
-measurement; they differ in the transform g only. The server's RUL is the first measured
-crossing over the unit's cadence (eq. (5b)); the C computes eq. (5) of one measurement, so
-``rulkit export c`` refuses a learned model unless ``--rul-one-measurement`` accepts that event
-(docs/rul-on-the-device.md). The models measuring the HI itself (paris-additive,
-paris-multiplicative, paris-mixed, :mod:`rulkit.fleet.learned.hi_noise`) keep that posterior
-and its RUL law (their
-own template shares the prior and the quantiles) and update it by the iterated extended
-Kalman step of eq. (8). Any other model type (onset, similarity, regression) is refused by
-:func:`learned_device` with its name.
+step (docs/fleet-models.md eq. (2)); they differ in the transform g only. The RUL is the
+server's: the first measured crossing over the unit's cadence (eq. (5b)), with the table of
+mu*, sigma* (:func:`rulkit.fleet.learned.first_passage.ystar_table`) written into the C
+(:func:`first_passage_constants`); or, with ``DeviceSpec.one_measurement``, the closed-form
+quantiles (eqs. (5), (6)) of one measurement. The models measuring the HI itself
+(paris-additive, paris-multiplicative, paris-mixed, :mod:`rulkit.fleet.learned.hi_noise`) keep
+that posterior and its RUL law (their own template shares the prior and the quantiles) and
+update it by the iterated extended Kalman step of eq. (8). Any other model type (onset,
+similarity, regression) is refused by :func:`learned_device` with its name.
 """
 
 from __future__ import annotations
@@ -91,7 +90,32 @@ def _gaussian_posterior(model: LearnedModel) -> dict[str, Any]:
         "threshold": float(model.threshold),
         "q": float(model.walk_sd) ** 2,
         "prior": [*map(float, model.mean), *map(float, model.cov)],
+        "levels": [float(p) for p in LEVELS],
         "log1m_levels": [math.log1p(-p) for p in LEVELS],
+    }
+
+
+FP_ITERATIONS = 200
+"""The cap of the C's bracketing search per quantile (``rul_quantiles``' default); the search
+stops long before it (the C's first_passage_root)."""
+
+
+def first_passage_constants(model: LearnedModel) -> dict[str, Any]:
+    """The constants of eq. (5b) in C (learned_first_passage.c.j2): the measurement sd s at the
+    threshold, the table of mu*(c, J) and sigma*(c, J) row-major over (log c, log J) with its
+    grid (the same numbers :func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`
+    reads) and the search's cap."""
+    from rulkit.fleet.learned.first_passage import kernel_table
+
+    mu, sd, lc0, dlc, dlj = kernel_table()
+    return {
+        "first_passage": True,
+        "s": math.sqrt(float(model.measured_var)),
+        "n_c": int(mu.shape[0]), "n_j": int(mu.shape[1]),
+        "ystar_mu": [float(x) for x in mu.ravel()],
+        "ystar_sd": [float(x) for x in sd.ravel()],
+        "log_c0": lc0, "dlog_c": dlc, "dlog_j": dlj,
+        "fp_iterations": FP_ITERATIONS,
     }
 
 
@@ -171,15 +195,20 @@ EXPORTERS: dict[str, Callable[[Any], LearnedDevice]] = {
 """Learned model name -> its device description. Add an entry to make a new kind exportable."""
 
 
-def learned_device(model: LearnedModel) -> LearnedDevice:
-    """The device description of ``model``; :class:`ExportError` for a kind without one."""
+def learned_device(model: LearnedModel, one_measurement: bool = False) -> LearnedDevice:
+    """The device description of ``model`` with the RUL of the first measured crossing
+    (eq. (5b); ``one_measurement``: eq. (5) of one measurement); :class:`ExportError` for a
+    kind without one."""
     kind = str(getattr(model, "name", None) or getattr(model, "kind", type(model).__name__))
     if kind not in EXPORTERS:
         raise ExportError(
             f"learned model type {kind!r} has no C export (exportable: "
             f"{', '.join(sorted(EXPORTERS))}); export the tracker chain alone with "
             "--no-learned, or add the type to rulkit.fleet.export.learned_device.EXPORTERS")
-    return EXPORTERS[kind](model)
+    dev = EXPORTERS[kind](model)
+    event = {"first_passage": False} if one_measurement else first_passage_constants(model)
+    return dataclasses.replace(dev, constants={**dev.constants, **event})
 
 
-__all__ = ["EXPORTERS", "LearnedDevice", "learned_device"]
+__all__ = ["EXPORTERS", "FP_ITERATIONS", "LearnedDevice", "first_passage_constants",
+           "learned_device"]

@@ -263,8 +263,9 @@ def python_reference(device: DeviceSpec, start: np.ndarray, t: np.ndarray, hi: n
                          hi=np.asarray(hi, dtype=np.float64),
                          names=np.arange(b).astype(object), start=start.astype(np.int64),
                          failed=np.zeros(b, dtype=bool), source="reference")
-        # the device's event: one measurement (eq. (5)), not the cadence's first crossing
-        q = device.learned.rul_quantiles(device.learned.replay(hist), LEVELS, one_reading=True)
+        # the device's event: the first measured crossing (eq. (5b)), or one measurement's
+        q = device.learned.rul_quantiles(device.learned.replay(hist), LEVELS,
+                                         one_reading=device.one_measurement)
         out.update(dict(zip(LEARNED_COLUMNS, q, strict=True)))
     return out
 
