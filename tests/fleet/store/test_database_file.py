@@ -337,3 +337,23 @@ def test_nothing_but_sqlite_opens_the_database_file(tmp_path, monkeypatch):
         ingest_into(db, acq(t0=200.0))
         read_status(db, now=0.0)
     assert opened == []
+
+
+@pytest.mark.parametrize("links", [True, False], ids=["hard link", "no hard links"])
+def test_link_into_place_publishes_once(tmp_path, monkeypatch, links):
+    """A finished private database becomes the path, or gives way to one that appeared
+    first (then nothing of the existing file changes), with or without hard links."""
+    from rulkit.fleet.store.database_file import creation_path, link_into_place
+
+    if not links:
+        def no_link(src, dst):
+            raise OSError(1, "hard links not supported")
+        monkeypatch.setattr(os, "link", no_link)
+    target = tmp_path / "fleet.db"
+    mine = creation_path(target)
+    assert mine.parent == tmp_path and mine.name.endswith(".creating")
+    mine.write_bytes(b"mine")
+    assert link_into_place(mine, target) and target.read_bytes() == b"mine"
+    theirs = creation_path(target)
+    theirs.write_bytes(b"theirs")
+    assert not link_into_place(theirs, target) and target.read_bytes() == b"mine"

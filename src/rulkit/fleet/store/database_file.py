@@ -32,6 +32,7 @@ import glob
 import json
 import os
 import sqlite3
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
@@ -323,6 +324,36 @@ def rows_of_components(conn: Any, table: str, cols: tuple[str, ...], names: list
              f"({','.join('?' * len(chunk))})")
         for row in conn.execute(q, chunk).fetchall():
             yield pos[row[0]], tuple(row[1:])
+
+
+def creation_path(path: Path) -> Path:
+    """A private file beside ``path`` in which a new database is built before it is linked
+    into place (:func:`link_into_place`); creations of ``path`` left by dead processes are
+    removed first (:func:`remove_stale_creations`)."""
+    remove_stale_creations(path)
+    return path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
+
+
+def link_into_place(tmp: Path, path: Path) -> bool:
+    """Publish the finished private database ``tmp`` (no SQLite connection holds it) as
+    ``path``: synced, then hard-linked, which fails if ``path`` appeared meanwhile (then
+    ``False``: another process created it first); on a file system without hard links
+    renamed, with a small race window. The directory is synced after."""
+    fd = os.open(tmp, os.O_RDWR)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        return False
+    except OSError:  # a file system without hard links: rename, a small race window
+        if path.exists():
+            return False
+        os.replace(tmp, path)
+    _fsync_dir(path.parent)
+    return True
 
 
 def remove_stale_creations(path: Path) -> None:

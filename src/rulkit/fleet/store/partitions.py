@@ -19,11 +19,9 @@ exactly its rows, so the stored numbers are the same (tested).
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
 import tempfile
 import time
-import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -34,6 +32,7 @@ import pandas as pd
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.rows import arrow_frame
 from rulkit.fleet.store.acquisitions import Alert, IngestError, IngestResult
+from rulkit.fleet.store.database_file import creation_path, link_into_place
 from rulkit.fleet.store.ingest import ingest_into
 from rulkit.fleet.store.schema import (
     COMPONENTS,
@@ -190,8 +189,7 @@ def track_directory(db: str | Path, directory: str | Path, *, config: TrackerCon
         futures = _submit(client, files, schema, value_sets, seeds, now)
         with tempfile.TemporaryDirectory(prefix="rulkit-merge-") as tmp:
             new = not path.exists()
-            combined = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
-                                      ".creating") if new else Path(tmp) / "all.db"
+            combined = creation_path(path) if new else Path(tmp) / "all.db"
             try:
                 counts = _combine(_in_order(futures), Path(tmp), combined)
                 if new:  # the combined buckets become the new database
@@ -235,8 +233,6 @@ def _publish(path: Path, combined: Path, counts: tuple[int, int, int],
     linked into place as :func:`~rulkit.fleet.store.ingest.ingest_into` publishes one
     (complete or absent). ``None`` when another process created ``path`` meanwhile (then the
     caller merges)."""
-    from rulkit.fleet.store.database_file import _fsync_dir
-
     n_rows, n_comp, n_dup = counts
     conn = sqlite3.connect(str(combined), isolation_level=None)
     try:
@@ -252,16 +248,8 @@ def _publish(path: Path, combined: Path, counts: tuple[int, int, int],
         conn.execute("PRAGMA journal_mode=WAL")
     finally:
         conn.close()
-    fd = os.open(combined, os.O_RDWR)  # private until linked: no SQLite connection holds it
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    try:
-        os.link(combined, path)
-    except FileExistsError:
+    if not link_into_place(combined, path):
         return None
-    _fsync_dir(path.parent)
     return IngestResult(n_rows=n_rows, n_components=n_comp, n_new_components=n_comp,
                         alerts=sorted(alerts, key=lambda a: (a.t, a.component)),
                         n_duplicates=n_dup)

@@ -53,10 +53,8 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sqlite3
 import time
-import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -87,10 +85,10 @@ from rulkit.fleet.store.database_file import (
     StoreError,
     _config_from_meta,
     _degradation_from_meta,
-    _fsync_dir,
     _meta_rows,
+    creation_path,
+    link_into_place,
     open_database,
-    remove_stale_creations,
     store_error,
     time_axis_from_meta,
 )
@@ -160,8 +158,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     ``path`` appeared meanwhile. Returns the batch's result, or ``None`` when another process
     created ``path`` first (then nothing of ours is kept and the caller applies the batch to
     that database)."""
-    remove_stale_creations(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.creating")
+    tmp = creation_path(path)
     result: IngestResult | None = None
     try:
         try:
@@ -201,21 +198,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             conn.close()
         for side in ("-wal", "-shm"):
             Path(f"{tmp}{side}").unlink(missing_ok=True)
-        fd = os.open(tmp, os.O_RDWR)  # no SQLite connection holds this private file
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        try:
-            os.link(tmp, path)
-        except FileExistsError:
-            return None
-        except OSError:  # a file system without hard links: rename, a small race window
-            if path.exists():
-                return None
-            os.replace(tmp, path)
-        _fsync_dir(path.parent)
-        return result
+        return result if link_into_place(tmp, path) else None
     finally:
         for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm"), Path(f"{tmp}-journal")):
             p.unlink(missing_ok=True)
