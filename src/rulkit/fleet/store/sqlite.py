@@ -104,12 +104,14 @@ from rulkit.fleet.store.prognosis import (
     write_monitoring,
 )
 from rulkit.fleet.store.schema import (
+    COMPONENTS,
     add_level_counts,
     add_seen_counts,
     create_schema,
     needs_migration,
     table_columns,
 )
+from rulkit.fleet.store.state_cache import StateCache
 from rulkit.fleet.store.tracker_rows import (
     HISTORY_FIELDS,
     ROW_FIELDS,
@@ -224,7 +226,11 @@ class ComponentStore:
     """Acquisitions per block of components run together: bounds the per-acquisition outputs
     and the RUL quantiles' temporaries held at once (about 500 bytes an acquisition at the peak of
     a block: the RUL quantiles of three levels hold some 15 arrays of every row)."""
+    STATE_COLUMNS = (*ROW_FIELDS, *PROGNOSIS_COLUMNS)
+    """The columns of a component's stored row a batch starts from (:meth:`_load_states`)."""
     hi_model: HealthIndexModel | None
+    _states: StateCache | None = None  # the rows this connection committed (keep_states)
+    _ingesting = False  # inside ingest_many, which keeps _states up to date
 
     def __init__(
         self,
@@ -305,6 +311,20 @@ class ComponentStore:
         self.time_axis = None  # the time axis rulkit fit stored, set from meta by __init__
         self.rules, self.trend = MonitoringRules(), TrendConfig()  # set from meta by __init__
         self.now: float | None = None  # the calendar time of ingestion (None: the clock)
+        self._states = None
+
+    def keep_states(self, limit: int = 100_000) -> None:
+        """Keep the ``components`` rows of the batches :meth:`ingest_many` commits in memory
+        (at most ``limit`` components, about 1 KB each) and start each next batch from them
+        instead of reading them back, for as long as no other connection commits to the
+        database (:class:`~rulkit.fleet.store.state_cache.StateCache`). Any other write
+        through this store forgets them."""
+        ints = {c.name for c in COMPONENTS.columns if c.kind in ("int", "small", "bool")}
+        self._states = StateCache(self.STATE_COLUMNS, ints, limit)
+
+    def _data_version(self) -> int:
+        """SQLite's ``PRAGMA data_version``: changes whenever another connection commits."""
+        return int(self._conn.execute("PRAGMA data_version").fetchone()[0])
 
     # -- plumbing
     def close(self) -> None:
@@ -321,6 +341,8 @@ class ComponentStore:
         """``BEGIN mode`` ... ``COMMIT``, rolled back on any exception. SQLite errors become
         :class:`StoreBusyError` (another writer held the lock past the timeout) or
         :class:`StoreError` (corrupt file, disk full, read-only), with the path."""
+        if self._states is not None and mode != "DEFERRED" and not self._ingesting:
+            self._states.drop()  # a write the kept rows do not follow
         try:
             self._conn.execute(f"BEGIN {mode}")
         except sqlite3.Error as err:
@@ -352,8 +374,12 @@ class ComponentStore:
 
     # -- reading
     def _load_states(self, names: list[str]) -> dict[str, tuple]:
+        """The stored rows (:attr:`STATE_COLUMNS`) of the components ``names`` that are
+        stored, by name: those :meth:`keep_states` kept, the others read."""
         out: dict[str, tuple] = {}
-        cols = ", ".join(("component", *ROW_FIELDS, *PROGNOSIS_COLUMNS))
+        if self._states is not None:
+            out, names = self._states.split(names)
+        cols = ", ".join(("component", *self.STATE_COLUMNS))
         for i in range(0, len(names), 500):
             chunk = names[i : i + 500]
             q = f"SELECT {cols} FROM components WHERE component IN ({','.join('?' * len(chunk))})"
@@ -491,18 +517,35 @@ class ComponentStore:
         committed together (one commit, one sync: group commit). A failing commit raises
         for all of them; nothing is then stored."""
         out: list[IngestResult | IngestError] = []
-        with self._transaction("IMMEDIATE"):
-            for acq, source, now in batches:
-                self._conn.execute("SAVEPOINT batch")
-                self.now = now
-                try:
-                    out.append(self._ingest_in_transaction(acq, source))
-                except IngestError as err:
-                    self._conn.execute("ROLLBACK TO SAVEPOINT batch")
-                    out.append(err)
-                finally:
-                    self.now = None
-                self._conn.execute("RELEASE SAVEPOINT batch")
+        states = self._states
+        self._ingesting = True
+        try:
+            with self._transaction("IMMEDIATE"):
+                if states is not None:
+                    states.begin(self._data_version())
+                for acq, source, now in batches:
+                    self._conn.execute("SAVEPOINT batch")
+                    self.now = now
+                    try:
+                        out.append(self._ingest_in_transaction(acq, source))
+                    except IngestError as err:
+                        self._conn.execute("ROLLBACK TO SAVEPOINT batch")
+                        if states is not None:
+                            states.rollback()
+                        out.append(err)
+                    finally:
+                        self.now = None
+                    self._conn.execute("RELEASE SAVEPOINT batch")
+                    if states is not None:
+                        states.release()
+        except BaseException:
+            if states is not None:
+                states.drop()
+            raise
+        finally:
+            self._ingesting = False
+        if states is not None:
+            states.commit()
         return out
 
     def _ingest_in_transaction(self, acq: Batch, source: str) -> IngestResult:
@@ -656,6 +699,8 @@ class ComponentStore:
     def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
+        if self._states is not None and self._ingesting:
+            self._states.put(cols, rows)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
         self._conn.executemany(
             f"INSERT INTO components ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))}) "
