@@ -38,9 +38,15 @@ def stored_rows(path, names):
         return other._load_states(names)
 
 
-def same(a, b):
-    """Equal values of equal types, NaN-free (the database returns NULL as None)."""
-    return a == b and [type(v) for v in a] == [type(v) for v in b]
+def same(kept, read):
+    """The same float64 bits as the batch builds its arrays from (None: NaN), and integers
+    where the read returns integers."""
+    bits = [np.array(r, dtype=np.float64).view(np.int64) for r in (kept, read)]
+    nan = [np.isnan(np.array(r, dtype=np.float64)) for r in (kept, read)]
+    ints = [[isinstance(v, int) for v in r] for r in (kept, read)]
+    return (np.array_equal(nan[0], nan[1]) and np.array_equal(bits[0][~nan[0]],
+                                                               bits[1][~nan[1]])
+            and ints[0] == ints[1])
 
 
 def test_kept_rows_are_the_rows_the_database_returns(tmp_path):
@@ -163,24 +169,31 @@ def test_other_writes_through_the_store_forget_the_rows(tmp_path):
 
 def test_values_as_sqlite_returns_them_and_the_limit():
     cache = StateCache(("x", "k"), {"k"}, limit=2)
+    written = [(-0.0, 3), (float("nan"), True), (5, 0), (-2.5, False)]
     cache.begin(7)
-    cache.put(("c", "x", "k"), [("a", -0.0, 3.0), ("b", float("nan"), True),
-                                ("c", 5, 1e300)])
+    cache.put(list("abcd"), {"x": [r[0] for r in written], "k": [r[1] for r in written]})
     cache.release()
     cache.commit()
-    kept, missing = cache.split(["a", "b", "c"])
-    assert missing == ["a"]  # the least recently written went over the limit
-    assert same(kept["b"], (None, 1)) and same(kept["c"], (5.0, 1e300))
-    cache.begin(8)  # another connection committed
-    assert cache.split(["b", "c"]) == ({}, ["b", "c"])
+    kept, missing = cache.split(list("abcd"))
+    assert missing == ["a", "b"]  # the least recently written went over the limit
+    cache.begin(7)
+    cache.put(list("abcd"), {"x": [r[0] for r in written], "k": [r[1] for r in written]})
+    cache.release()
+    cache.commit()
     with sqlite3.connect(":memory:") as con:  # the oracle: SQLite's own round trip
         con.execute("CREATE TABLE t (x REAL, k INTEGER)")
-        con.executemany("INSERT INTO t VALUES (?, ?)", [(-0.0, 3.0), (float("nan"), True),
-                                                        (5, 1e300)])
+        con.executemany("INSERT INTO t VALUES (?, ?)", written)
         rows = con.execute("SELECT x, k FROM t ORDER BY rowid").fetchall()
-    cache.put(("c", "x", "k"), [("a", -0.0, 3.0), ("b", float("nan"), True),
-                                ("c", 5, 1e300)])
-    kept, _ = cache.split(["a", "b", "c"])
-    for name, row in zip("abc", rows, strict=True):
-        assert same(kept[name], row)
-    assert str(kept["a"][0]) == str(rows[0][0]) == "0.0"
+    kept, _ = cache.split(["c", "d"])
+    assert same(kept["c"], rows[2]) and same(kept["d"], rows[3])
+    cache.limit = 4
+    cache.begin(7)
+    cache.put(list("abcd"), {"x": [r[0] for r in written], "k": [r[1] for r in written]})
+    cache.release()
+    cache.commit()
+    kept, _ = cache.split(list("abcd"))
+    for name, row in zip("abcd", rows, strict=True):
+        assert same(kept[name], row), name
+    assert rows[0][0] == 0.0 and str(kept["a"][0]) == str(rows[0][0]) == "0.0"
+    cache.begin(8)  # another connection committed
+    assert cache.split(["c", "d"]) == ({}, ["c", "d"])

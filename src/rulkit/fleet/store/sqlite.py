@@ -661,6 +661,9 @@ class ComponentStore:
         final.update({k: extra.pop(k) for k in ("level", "rul_low", "rul_high")})
         rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
         rows += list(extra.values())
+        if self._states is not None and self._ingesting:
+            self._states.put(names, dict(zip(("component", *ROW_FIELDS, "max_level", *extra),
+                                             rows, strict=True)))
         self._write_states(list(zip(*rows, strict=True)), tuple(extra))
         lv, sn = ROW_FIELDS.index("level"), k_row + PROGNOSIS_COLUMNS.index("seen")
         add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
@@ -699,8 +702,6 @@ class ComponentStore:
     def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
-        if self._states is not None and self._ingesting:
-            self._states.put(cols, rows)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
         self._conn.executemany(
             f"INSERT INTO components ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))}) "

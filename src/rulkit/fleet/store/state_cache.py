@@ -2,9 +2,10 @@
 that its next batch need not read them back (docs/systems/embedded-rul.md §4: a component's
 state is read before each of its acquisitions is applied).
 
-A :class:`StateCache` holds, per component, the row as the store's read of the batch's
-stored rows returns it (``SELECT component, <columns> FROM components``: the values SQLite
-gives back for what was written, NaN as ``None``, integers where the column is an integer).
+A :class:`StateCache` holds, per component, the row the store's read of the batch's stored
+rows would return (``SELECT component, <columns> FROM components``), as the batch uses it: the
+same float64 values (a NULL of a real column as NaN, where the read gives ``None``; -0.0 as
+0.0, as SQLite stores it), integers as integers.
 It is trusted only while no other connection has committed: SQLite's ``PRAGMA
 data_version`` changes for a connection whenever another connection, in this process or
 another, commits to the database, and the cache is emptied when it does. Rows written in an
@@ -14,11 +15,10 @@ rolled-back batch or a failed commit leaves nothing of theirs.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-_INT64 = 2.0**63
+import numpy as np
 
 
 class StateCache:
@@ -60,13 +60,20 @@ class StateCache:
                 found[name] = row
         return found, missing
 
-    def put(self, columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
-        """Rows ``(component, *values)`` of ``columns`` (``columns[0]`` the component)
-        written in the current batch, as the database returns them."""
-        pos = {c: i for i, c in enumerate(columns)}
-        take = [(pos[c], c in self._int) for c in self.columns]
-        for row in rows:
-            self._batch[row[0]] = tuple(_stored(row[i], as_int) for i, as_int in take)
+    def put(self, names: Sequence[str], columns: Mapping[str, Sequence[Any]]) -> None:
+        """The rows of components ``names`` written in the current batch: ``columns`` maps
+        each column to its values (in the order of ``names``). A column converts at once
+        (float64 and back, -0.0 made 0.0; integers as int64 and back)."""
+        cols = []
+        for c in self.columns:
+            v = columns[c]
+            if c not in self._int:
+                cols.append((np.asarray(v, dtype=np.float64) + 0.0).tolist())
+            elif None in v:  # NULL: read back as None
+                cols.append([None if x is None else int(x) for x in v])
+            else:
+                cols.append(np.asarray(v, dtype=np.int64).tolist())
+        self._batch.update(zip(names, zip(*cols, strict=True), strict=True))
 
     def release(self) -> None:
         """The batch was kept (its savepoint released)."""
@@ -94,25 +101,6 @@ class StateCache:
         self._open.clear()
         self._batch.clear()
         self.version = None
-
-
-def _stored(v: Any, as_int: bool) -> Any:
-    """``v`` as SQLite returns it from a column of integer (``as_int``) or real type: NaN
-    as ``None`` (SQLite stores a NaN as NULL), a bool or a whole float of an integer
-    column within 64 bits as ``int``, an int of a real column as ``float``, -0.0 as 0.0."""
-    if v is None:
-        return None
-    if isinstance(v, bool):
-        return int(v) if as_int else float(v)
-    if isinstance(v, int):
-        return v if as_int else float(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return None
-        if as_int and v.is_integer() and -_INT64 <= v < _INT64:
-            return int(v)
-        return float(v) + 0.0  # -0.0 is stored as the integer 0: read back as 0.0
-    return v
 
 
 __all__ = ["StateCache"]
