@@ -39,14 +39,10 @@ def stored_rows(path, names):
 
 
 def same(kept, read):
-    """The same float64 bits as the batch builds its arrays from (None: NaN), and integers
-    where the read returns integers."""
-    bits = [np.array(r, dtype=np.float64).view(np.int64) for r in (kept, read)]
-    nan = [np.isnan(np.array(r, dtype=np.float64)) for r in (kept, read)]
-    ints = [[isinstance(v, int) for v in r] for r in (kept, read)]
-    return (np.array_equal(nan[0], nan[1]) and np.array_equal(bits[0][~nan[0]],
-                                                               bits[1][~nan[1]])
-            and ints[0] == ints[1])
+    """The same float64 bits as the batch builds its arrays from (None and NaN alike)."""
+    x, y = (np.array(r, dtype=np.float64) for r in (kept, read))
+    return (np.array_equal(np.isnan(x), np.isnan(y))
+            and np.array_equal(x[~np.isnan(x)].view(np.int64), y[~np.isnan(y)].view(np.int64)))
 
 
 def test_kept_rows_are_the_rows_the_database_returns(tmp_path):

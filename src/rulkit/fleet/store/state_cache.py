@@ -3,9 +3,10 @@ that its next batch need not read them back (docs/systems/embedded-rul.md §4: a
 state is read before each of its acquisitions is applied).
 
 A :class:`StateCache` holds, per component, the row the store's read of the batch's stored
-rows would return (``SELECT component, <columns> FROM components``), as the batch uses it: the
-same float64 values (a NULL of a real column as NaN, where the read gives ``None``; -0.0 as
-0.0, as SQLite stores it), integers as integers.
+rows would return (``SELECT component, <columns> FROM components``), as the batch uses it:
+every value the same float64 (the batch builds its arrays from the rows with
+``dtype=float64``: ``None`` and NaN alike, a bool or an int of the same value alike; -0.0 is
+made 0.0, as SQLite stores it).
 It is trusted only while no other connection has committed: SQLite's ``PRAGMA
 data_version`` changes for a connection whenever another connection, in this process or
 another, commits to the database, and the cache is emptied when it does. Rows written in an
@@ -62,17 +63,16 @@ class StateCache:
 
     def put(self, names: Sequence[str], columns: Mapping[str, Sequence[Any]]) -> None:
         """The rows of components ``names`` written in the current batch: ``columns`` maps
-        each column to its values (in the order of ``names``). A column converts at once
-        (float64 and back, -0.0 made 0.0; integers as int64 and back)."""
+        each column to its values (in the order of ``names``; ``None`` or NaN for NULL). A
+        column of reals holding a zero is taken through float64 with -0.0 made 0.0, as
+        SQLite stores it; the others are kept as given (a bool of an integer column reads
+        as the same float64 as SQLite's integer)."""
         cols = []
         for c in self.columns:
             v = columns[c]
-            if c not in self._int:
-                cols.append((np.asarray(v, dtype=np.float64) + 0.0).tolist())
-            elif None in v:  # NULL: read back as None
-                cols.append([None if x is None else int(x) for x in v])
-            else:
-                cols.append(np.asarray(v, dtype=np.int64).tolist())
+            if c not in self._int and 0.0 in v:  # == compares -0.0 equal: one C loop
+                v = (np.asarray(v, dtype=np.float64) + 0.0).tolist()
+            cols.append(v)
         self._batch.update(zip(names, zip(*cols, strict=True), strict=True))
 
     def release(self) -> None:
