@@ -16,6 +16,7 @@ rolled-back batch or a failed commit leaves nothing of theirs.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -24,8 +25,7 @@ import numpy as np
 
 class StateCache:
     """``StateCache(columns, int_columns, limit)``: rows of ``columns`` (the read's order) per
-    component; ``int_columns`` the columns of integer type; at most ``limit`` components
-    (the least recently written are dropped first)."""
+    component; ``int_columns`` the columns of integer type; at most ``limit`` components."""
 
     def __init__(self, columns: Sequence[str], int_columns: Iterable[str], limit: int) -> None:
         self.columns = tuple(columns)
@@ -85,14 +85,13 @@ class StateCache:
         self._batch.clear()
 
     def commit(self) -> None:
-        """The transaction committed: its rows become the committed state."""
-        for name, row in self._open.items():
-            self._committed.pop(name, None)  # re-inserted last: the most recent
-            self._committed[name] = row
+        """The transaction committed: its rows become the committed state (over the limit,
+        the components kept first are dropped first)."""
+        self._committed.update(self._open)
         self._open.clear()
         excess = len(self._committed) - self.limit
         if excess > 0:
-            for name in list(self._committed)[:excess]:
+            for name in list(itertools.islice(self._committed, excess)):
                 del self._committed[name]
 
     def drop(self) -> None:
