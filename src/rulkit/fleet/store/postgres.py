@@ -170,7 +170,7 @@ class PgComponentStore(ComponentStore):
             self._conn.close()
             raise
 
-    def keep_states(self, limit: int = 100_000) -> None:
+    def keep_states(self, limit: int = 25_000) -> None:
         """Nothing on PostgreSQL: no counter tells this connection that another committed
         (SQLite's ``data_version``), so every batch reads its stored rows."""
 
