@@ -74,6 +74,7 @@ from rulkit.fleet.store.acquisitions import (
     read_acquisitions,
     validate_acquisitions,
 )
+from rulkit.fleet.store.batch_groups import Queued, disjoint_runs, join
 from rulkit.fleet.store.batch_order import (
     check_spacing,
     component_blocks,
@@ -231,6 +232,9 @@ class ComponentStore:
     hi_model: HealthIndexModel | None
     _states: StateCache | None = None  # the rows this connection committed (keep_states)
     _ingesting = False  # inside ingest_many, which keeps _states up to date
+    JOIN_BATCHES = True
+    """:meth:`ingest_many` applies consecutive batches with no component in common in one
+    pass (:meth:`_ingest_joined`)."""
 
     def __init__(
         self,
@@ -525,21 +529,11 @@ class ComponentStore:
             with self._transaction("IMMEDIATE"):
                 if states is not None:
                     states.begin(self._data_version())
-                for acq, source, now in batches:
-                    self._conn.execute("SAVEPOINT batch")
-                    self.now = now
-                    try:
-                        out.append(self._ingest_in_transaction(acq, source))
-                    except IngestError as err:
-                        self._conn.execute("ROLLBACK TO SAVEPOINT batch")
-                        if states is not None:
-                            states.rollback()
-                        out.append(err)
-                    finally:
-                        self.now = None
-                    self._conn.execute("RELEASE SAVEPOINT batch")
-                    if states is not None:
-                        states.release()
+                runs = disjoint_runs(batches) if self.JOIN_BATCHES else ([b] for b in batches)
+                for run in runs:
+                    joined = self._ingest_joined(run) if len(run) > 1 else None
+                    out += joined if joined is not None else [
+                        self._ingest_savepoint(acq, source, now) for acq, source, now in run]
         except BaseException:
             if states is not None:
                 states.drop()
@@ -548,6 +542,82 @@ class ComponentStore:
             self._ingesting = False
         if states is not None:
             states.commit()
+        return out
+
+    def _ingest_savepoint(self, acq: Batch, source: str, now: float | None
+                          ) -> IngestResult | IngestError:
+        """One batch of :meth:`ingest_many` under its own savepoint: its result, or its
+        error with the batch rolled back."""
+        self._conn.execute("SAVEPOINT batch")
+        self.now = now
+        try:
+            res: IngestResult | IngestError = self._ingest_in_transaction(acq, source)
+        except IngestError as err:
+            self._conn.execute("ROLLBACK TO SAVEPOINT batch")
+            if self._states is not None:
+                self._states.rollback()
+            res = err
+        finally:
+            self.now = None
+        self._conn.execute("RELEASE SAVEPOINT batch")
+        if self._states is not None:
+            self._states.release()
+        return res
+
+    def _ingest_joined(self, run: list[Queued]) -> list[IngestResult | IngestError] | None:
+        """Batches of :meth:`ingest_many` with no component in common
+        (:func:`~rulkit.fleet.store.batch_groups.disjoint_runs`) applied in one pass under one
+        savepoint: each batch's duplicates split off, its spacing checked and its ``ingests``
+        row inserted as alone, their rows joined (:func:`~rulkit.fleet.store.batch_groups.
+        join`) and applied once (:meth:`_apply`), each batch's alerts recorded in turn. The
+        results are those of the batches applied one by one (tests/fleet/store/
+        test_batch_groups.py). ``None``, with nothing applied, when any of them is refused:
+        the caller then applies them one by one, each with its own error."""
+        self._conn.execute("SAVEPOINT joined")
+        self.now = run[0][2]
+        try:
+            parts, stored = [], {}
+            for acq, source, _ in run:
+                mine = self._load_states(acq.names)
+                acq, n_dup = split_duplicates(self._conn, acq,
+                                              {k: float(v[0]) for k, v in mine.items()})
+                if len(acq):  # the batch's own spacing (a median: not the union's)
+                    order = order_by_component(acq.codes.astype(np.int32), acq.names)
+                    last = np.array([mine[k][0] if k in mine else np.nan
+                                     for k in acq.names], dtype=np.float64)
+                    check_spacing(self.config, gaps_after_stored(
+                        order, acq.t, acq.row, acq.names, last[order.sorted_pos]))
+                parts.append((acq, source, n_dup, len(acq.names) - len(
+                    [n for n in acq.names if n in mine])))
+                stored.update(mine)
+            live = [p for p in parts if len(p[0])]
+            ids = [self._insert_ingest(source, len(acq), len(acq.names))
+                   for acq, source, _, _ in live]
+            alerts: list[list[Alert]] = [[] for _ in parts]
+            if live:
+                counts = [len(p[0].names) for p in live]
+                res = self._apply(join([p[0] for p in live]), "", stored,
+                                  ingest_ids=np.repeat(np.asarray(ids, np.int64), counts))
+                batch_of = {n: i for i, p in enumerate(parts) for n in p[0].names}
+                for a in res.alerts:  # in the order each batch alone gives them
+                    alerts[batch_of[a.component]].append(a)
+            out: list[IngestResult | IngestError] = []
+            for (acq, _, n_dup, n_new), mine_alerts in zip(parts, alerts, strict=True):
+                out.append(IngestResult(
+                    n_rows=len(acq), n_components=len(acq.names) if len(acq) else 0,
+                    n_new_components=n_new if len(acq) else 0,
+                    alerts=self._record_alerts(mine_alerts), n_duplicates=n_dup))
+        except IngestError:
+            self._conn.execute("ROLLBACK TO SAVEPOINT joined")
+            self._conn.execute("RELEASE SAVEPOINT joined")
+            if self._states is not None:
+                self._states.rollback()
+            return None
+        finally:
+            self.now = None
+        self._conn.execute("RELEASE SAVEPOINT joined")
+        if self._states is not None:
+            self._states.release()
         return out
 
     def _ingest_in_transaction(self, acq: Batch, source: str) -> IngestResult:
@@ -582,8 +652,8 @@ class ComponentStore:
             out.append(replace(a, id=int(aid), raised=now))
         return out
 
-    def _apply(self, acq: Batch, source: str,
-               stored: dict[str, tuple] | None = None) -> IngestResult:
+    def _apply(self, acq: Batch, source: str, stored: dict[str, tuple] | None = None,
+               ingest_ids: np.ndarray | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction). ``stored``: the batch's stored component rows
         (:meth:`_load_states`), read here when not given.
@@ -612,7 +682,9 @@ class ComponentStore:
                                                    order.counts, order.start)
         check_spacing(self.config, gaps_after_stored(order, t, rows_all, names,
                                                      state.t[sorted_pos]))
-        ingest_id = self._insert_ingest(source, n, b)
+        ingest_id: Any = ingest_ids  # per component (joined batches), or this batch's row
+        if ingest_ids is None:
+            ingest_id = self._insert_ingest(source, n, b)
         # the RUL of the estimator in force and the alert rules (rulkit.fleet.monitoring), per
         # block below; the history holds them in rul_median / rul_low / rul_high and level
         inst = None
@@ -653,7 +725,8 @@ class ComponentStore:
             del rank_b
             for f in ("t", "n", "hi", "ab", "rul", "abg"):
                 getattr(state, f)[comps] = getattr(sub, f)
-            self._write_block_history(names_arr[comps], seg, t_b, hi_b, out, got, ingest_id)
+            self._write_block_history(names_arr[comps], seg, t_b, hi_b, out, got,
+                                      ingest_id if ingest_ids is None else ingest_ids[comps])
             del cidx, comp_b, out, t_b, hi_b, got
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
         fin = tracker_outputs(state, self.config)
@@ -675,7 +748,7 @@ class ComponentStore:
 
     def _write_block_history(self, names: np.ndarray, seg: np.ndarray, t: np.ndarray,
                              hi: np.ndarray, out: dict[str, np.ndarray], got: Any,
-                             ingest_id: int) -> None:
+                             ingest_id: Any) -> None:
         """The history of one block (component ``names[i]`` owns rows ``seg[i]:seg[i + 1]``,
         key order), packed in rows of at most :attr:`HISTORY_CHUNK` acquisitions: the
         tracker's ``out``, the rules' level and the stored RUL interval of ``got``."""
