@@ -1,6 +1,7 @@
-"""The batches of one group commit that can be applied in one pass (docs/systems/
-embedded-rul.md §4): consecutive batches with no component in common, received at the same
-calendar time ``now`` and read on the same time axis, joined into one :class:`Batch`.
+"""The batches of one group commit that can be applied in one pass
+(docs/systems/embedded-rul.md §4): consecutive batches with no component in common, received
+at the same calendar time ``now`` and read on the same time axis, joined into one
+:class:`Batch`.
 
 A component's acquisitions are applied in time order, batch after batch; batches that share
 no component do not depend on each other, so the trackers, the estimator and the rules run
