@@ -5,7 +5,13 @@ import math
 
 import numpy as np
 
-from rulkit.fleet.store.cli import _aligned_table, _fmt, _format_all, _format_rul
+from rulkit.fleet.store.cli import (
+    _aligned_table,
+    _ascii_rows,
+    _fmt,
+    _format_all,
+    rul_texts,
+)
 from rulkit.tables import safe_text, text_table
 
 EDGES = [0.0, -0.0, 1e-300, 5e-324, -1.5, 0.0005, 0.9995, 123456.789, 1e16, -2.5e-7, 1e308,
@@ -26,12 +32,6 @@ def test_format_all_equals_format_for_every_spec():
     assert _format_all("%g", []) == []
 
 
-def test_format_rul_equals_fmt_with_nan_and_negative_zero():
-    rng = np.random.default_rng(2)
-    vals = [*values(rng), math.nan, -0.0, math.nan]
-    assert _format_rul(np.array(vals)) == [_fmt(v) for v in vals]
-
-
 def test_aligned_table_equals_text_table():
     rng = np.random.default_rng(3)
     n = 50
@@ -41,7 +41,8 @@ def test_aligned_table_equals_text_table():
         "component": ids,
         "level": rng.choice(["ok", "warning", "alarm"], n).tolist(),
         "HI": _format_all("%.3f", rng.uniform(0, 2, n).tolist()),
-        "RUL": _format_rul(np.where(rng.random(n) < 0.2, np.nan, rng.normal(0, 1e3, n))),
+        "RUL": rul_texts(np.where(rng.random(n) < 0.2, np.nan, rng.normal(0, 1e3, n)),
+                         rng.normal(0, 1e3, n), rng.normal(0, 1e3, n), np.zeros(n, bool)),
         "valid": rng.choice(["yes", "no"], n).tolist(),
         "last t": _format_all("%g", rng.uniform(0, 1e7, n).tolist()),
     }
@@ -51,3 +52,39 @@ def test_aligned_table_equals_text_table():
     cols2 = {"x": ["1", "22"], "name": ["a", "bbbbb"]}
     assert _aligned_table(cols2, ("name",)) == text_table(cols2, left=("name",))
     assert _aligned_table({"a": [], "b": []}, ()) == text_table({"a": [], "b": []})
+
+
+def test_aligned_table_of_ascii_cells_equals_text_table():
+    """Printable ASCII cells take the byte-matrix layout: the same text as text_table with
+    empty cells, blank rows, a last column of width 0, a name wider than its cells, one row."""
+    rng = np.random.default_rng(4)
+    n = 200
+    words = ["", "a", "ok", "warning", "12.5 [3, 40]", "x" * 40, "~!#$%&'()*+,-./:;<=>?@[\\]^_`{|}"]
+    cols = {
+        "component": [f"c{i}" for i in range(n)],
+        "level": rng.choice(words, n).tolist(),
+        "a much longer heading": rng.choice(words, n).tolist(),
+        "HI": _format_all("%.3f", rng.uniform(0, 2, n).tolist()),
+        "": rng.choice(["", "stale"], n).tolist(),
+    }
+    assert _ascii_rows(list(cols), list(cols.values()), [False] * 5) is not None  # this path
+    for left in [("component", "level", ""), (), tuple(cols)]:
+        assert _aligned_table(cols, left) == text_table(cols, left=left), left
+    blank = {"x": ["", "", "1"], "": ["", "", ""]}  # the dashes' line ends in two blanks
+    assert _aligned_table(blank, ("",)) == text_table(blank, left=("",))
+    one = {"component": ["c1"], "level": ["ok"]}
+    assert _aligned_table(one, ("level",)) == text_table(one, left=("level",))
+    assert _aligned_table({"a": [], "": []}, ()) == text_table({"a": [], "": []})
+
+
+def test_rul_texts_equal_per_row_format():
+    """The RUL cells from one %-format equal the per-row texts: `.3g` with NaN as `-` inside
+    the brackets, -0.0 as 0, `-` while not estimated, `failed` once failed."""
+    rng = np.random.default_rng(5)
+    vals = [*values(rng), math.nan, -0.0]
+    m, lo, hi = (rng.permutation(vals) for _ in range(3))
+    failed = rng.random(len(vals)) < 0.2
+    want = ["failed" if f else "-" if math.isnan(a) else f"{_fmt(a)} [{_fmt(b)}, {_fmt(c)}]"
+            for a, b, c, f in zip(m, lo, hi, failed, strict=True)]
+    assert rul_texts(m, lo, hi, failed) == want
+    assert rul_texts([], [], [], []) == []

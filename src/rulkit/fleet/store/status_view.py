@@ -361,19 +361,18 @@ def _ascii_json(text: bytes) -> bytes:
     return "".join(esc(ch) if ord(ch) > 0x7F else ch for ch in text.decode()).encode()
 
 
-def _json_texts(values: Any) -> np.ndarray:
-    """Each value of a column as orjson writes it inside a record, as a NUL-padded ``bytes``
-    array: a column's list through one :func:`orjson.dumps` split at its commas when that
-    gives one text per value (numbers, booleans, null and strings without commas), else one
-    :func:`orjson.dumps` per value."""
+def _json_texts(values: Any) -> list[bytes]:
+    """Each value of a column as orjson writes it inside a record: a column's list through one
+    :func:`orjson.dumps` split at its commas when that gives one text per value (numbers,
+    booleans, null and strings without commas), else one :func:`orjson.dumps` per value."""
     import orjson
 
     if isinstance(values, np.ndarray):  # NaN and inf stay floats: orjson writes them as null
         values = values.tolist()
-    texts = orjson.dumps(values)[1:-1].split(b",")
+    texts: list[bytes] = orjson.dumps(values)[1:-1].split(b",")
     if len(texts) != len(values):
         texts = list(map(orjson.dumps, values))
-    return np.array(texts, dtype=np.bytes_)
+    return texts
 
 
 def format_json(cols: dict[str, Any]) -> list[bytes]:
@@ -386,38 +385,35 @@ def format_json(cols: dict[str, Any]) -> list[bytes]:
     strings (``2024-05-01T12:00:00Z``) or ``null``; booleans ``true``/``false``; ASCII only
     (:func:`_ascii_json`).
 
-    Written by columns, no dict per row: each column's texts (:func:`_json_texts`) are a
-    block of NUL-padded bytes, the blocks and the keys between them are laid side by side in
-    one array of rows, and the padding is dropped in one pass (JSON text holds no NUL byte:
-    orjson escapes it)."""
+    Written by columns, no dict per row: each column's texts (:func:`_json_texts`) fill one
+    column of a grid of rows, and one ``%``-operation lays the grid into a record template
+    that holds the keys and the columns with one value in every row."""
     import orjson
 
     n = len(cols["component"])
     if n == 0:
         return [b"[]"]
-    blocks: list[np.ndarray] = []
-    between = b"{"  # the literal text before the next block
-    for k, c in enumerate(STATUS_COLUMNS):
+    template: list[bytes] = []
+    columns: list[Any] = []
+    for c in STATUS_COLUMNS:
         v = cols[c]
-        between += (b"," if k else b"") + orjson.dumps(c) + b":"
         if c == "level":
-            names = {i: orjson.dumps(name) for i, name in LEVEL_NAMES.items()}
-            texts = np.array([names[i] for i in np.asarray(v, dtype=np.int64).tolist()],
-                             dtype=np.bytes_)
+            names = np.array([orjson.dumps(LEVEL_NAMES.get(k))
+                              for k in range(max(LEVEL_NAMES) + 1)], dtype=object)
+            texts: Any = names[np.asarray(v, dtype=np.int64)]
         elif c in BOOL_COLUMNS:
-            texts = np.where(np.asarray(v, dtype=bool), b"true", b"false")
+            texts = np.array([b"false", b"true"], dtype=object)[np.asarray(v, dtype=np.int64)]
         elif not isinstance(v, np.ndarray) and v.count(v[0]) == n:  # one value in every row
-            between += orjson.dumps(v[0])
+            template.append(orjson.dumps(c) + b":" + orjson.dumps(v[0]).replace(b"%", b"%%"))
             continue
         else:
             texts = _json_texts(v)
-        blocks += [_repeated(between, n), texts.view(np.uint8).reshape(n, texts.itemsize)]
-        between = b""
-    blocks.append(_repeated(between + b"},", n))
-    body = np.concatenate(blocks, axis=1).tobytes().replace(b"\x00", b"")
-    return [_ascii_json(b"[" + body[:-1] + b"]")]
-
-
-def _repeated(text: bytes, n: int) -> np.ndarray:
-    """``n`` rows of the bytes of ``text`` (an ``(n, len(text))`` uint8 array)."""
-    return np.broadcast_to(np.frombuffer(text, dtype=np.uint8), (n, len(text)))
+        template.append(orjson.dumps(c) + b":%s")
+        columns.append(texts)
+    grid = np.empty((n, len(columns)), dtype=object)
+    for k, texts in enumerate(columns):
+        grid[:, k] = texts
+    record = b"{" + b",".join(template) + b"}"
+    records = [record] * n
+    records[0], records[-1] = b"[" + records[0], records[-1] + b"]"
+    return [_ascii_json(b",".join(records) % tuple(grid.ravel().tolist()))]
