@@ -121,6 +121,45 @@ trend_run(TrendState.empty(1), seg, t, hi, TrendConfig(), strategy="jit")
 """
 
 
+# The SQL read of ``rulkit status`` alone (rulkit.fleet.store.status_view.read_status: a
+# read-only connection, one read transaction, the stored columns fetched), with SQLite's
+# mmap_size from argv, after evicting the file's pages from the page cache when asked
+# (posix_fadvise DONTNEED: the next read comes from the disk). Prints "wall_s cpu_s".
+_MMAP_READ = """
+import os, sqlite3, sys, time
+from rulkit.fleet.store.status_view import STORED_COLUMNS
+db, mmap_size, cold = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "cold"
+if cold:
+    fd = os.open(db, os.O_RDONLY)
+    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    os.close(fd)
+w0, c0 = time.perf_counter(), time.process_time()
+conn = sqlite3.connect(f"file:{db}?mode=ro", uri=True, isolation_level=None)
+conn.execute(f"PRAGMA mmap_size = {mmap_size}")
+conn.execute("BEGIN DEFERRED")
+rows = conn.execute(f"SELECT {', '.join(STORED_COLUMNS)} FROM components").fetchall()
+conn.execute("COMMIT")
+conn.close()
+print(time.perf_counter() - w0, time.process_time() - c0)
+"""
+
+
+def mmap_part(sdb: Path, repeats: int) -> None:
+    """The SQL read of ``status`` with and without SQLite's memory map (mmap_size 1 GB or
+    0), warm (the file in the page cache) and cold (evicted first), in turns."""
+    sides = {(m, state): [] for state in ("warm", "cold") for m in (0, 1 << 30)}
+    for _ in range(max(repeats, 5)):
+        for (m, state), got in sides.items():
+            out = subprocess.run([sys.executable, "-c", _MMAP_READ, str(sdb), str(m), state],
+                                 capture_output=True, text=True, check=True).stdout.split()
+            got.append((float(out[0]), float(out[1])))
+    for (m, state), got in sides.items():
+        print(f"  status's SQL read, mmap_size {m:>10}, {state}: wall "
+              f"{1000 * statistics.median(g[0] for g in got):.0f} ms, CPU "
+              f"{1000 * statistics.median(g[1] for g in got):.0f} ms")
+    print(f"  load average {os.getloadavg()[0]:.1f}")
+
+
 def measure(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float, float]:
     """(wall s, CPU s, peak RSS MB) of one process running ``cmd`` (stdout discarded), with
     ``env`` added to the environment."""
@@ -145,6 +184,12 @@ def measure(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, f
 
 def median3(rows: list[tuple[float, float, float]]) -> tuple[float, float, float]:
     return tuple(statistics.median(r[i] for r in rows) for i in range(3))  # type: ignore[return-value]
+
+
+def warm_median(cmd: list[str], repeats: int) -> tuple[float, float, float]:
+    """:func:`median3` of ``repeats`` runs of ``cmd`` after an untimed one (bytecode written)."""
+    measure(cmd)
+    return median3([measure(cmd) for _ in range(repeats)])
 
 
 def fleet_csv(path: Path, n_comp: int, n_acq: int, rng: np.random.Generator) -> None:
@@ -232,6 +277,8 @@ def status_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator,
             mine, theirs = cpu.values()
             print(f"  CPU ratio this code / {args.against}: {mine / theirs:.2f}; load average "
                   f"{os.getloadavg()[0]:.1f}")
+    if args.mmap:
+        mmap_part(sdb, args.repeats)
 
 
 def main() -> None:
@@ -242,34 +289,38 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--status-only", action="store_true", help="skip track and its floor")
+    ap.add_argument("--mmap", action="store_true",
+                    help="also status's SQL read with and without SQLite's mmap, warm and cold")
     ap.add_argument("--against", type=Path, default=None,
                     help="the src/ of another checkout: track and status with its code, in turns")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-scale-"))
+    # the measured processes read compiled bytecode as an installed package does (pip writes
+    # it at install): written by each command's untimed first run, kept apart from the trees
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    os.environ["PYTHONPYCACHEPREFIX"] = str(tmp / "bytecode")
     try:
         print(f"rulkit bench_scale: {os.cpu_count()} cores, load average "
-              f"{os.getloadavg()[0]:.1f}, seed {args.seed}, medians of {args.repeats} runs")
-        floor = median3([measure([sys.executable, "-c",
-                                  _PEAK + "import rulkit.cli, rulkit.fleet.store.sqlite"])
-                         for _ in range(args.repeats)])
+              f"{os.getloadavg()[0]:.1f}, seed {args.seed}, medians of {args.repeats} runs "
+              f"(bytecode cached)")
+        floor = warm_median([sys.executable, "-c",
+                             _PEAK + "import rulkit.cli, rulkit.fleet.store.sqlite"],
+                            args.repeats)
         print(f"import rulkit.cli, rulkit.fleet.store.sqlite (start-up floor): "
               f"wall {floor[0]:.2f} s, CPU {floor[1]:.2f} s, peak {floor[2]:.0f} MB")
         status_imports = ("import rulkit.cli, typer._adapters, rulkit.fleet.store.status_view, "
                           "pyarrow.csv, orjson")
-        sfloor = median3([measure([sys.executable, "-c", _PEAK + status_imports])
-                          for _ in range(args.repeats)])
+        sfloor = warm_median([sys.executable, "-c", _PEAK + status_imports], args.repeats)
         print(f"import rulkit.cli, rulkit.fleet.store.status_view, pyarrow (start-up floor of "
               f"status, no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
 
         if not args.status_only:
-            bare_libs = median3([measure([sys.executable, "-c", _LIBS_NO_JIT])
-                                 for _ in range(args.repeats)])
+            bare_libs = warm_median([sys.executable, "-c", _LIBS_NO_JIT], args.repeats)
             print(f"track's libraries without numba (numpy, pyarrow, the store), no data: "
                   f"wall {bare_libs[0]:.2f} s, CPU {bare_libs[1]:.2f} s, peak "
                   f"{bare_libs[2]:.0f} MB")
-            libs = median3([measure([sys.executable, "-c", _LIBS])
-                            for _ in range(args.repeats)])
+            libs = warm_median([sys.executable, "-c", _LIBS], args.repeats)
             print(f"track's libraries and numba's compiled passes loaded, no data (the floor "
                   f"of its start-up): wall {libs[0]:.2f} s, CPU {libs[1]:.2f} s, peak "
                   f"{libs[2]:.0f} MB")

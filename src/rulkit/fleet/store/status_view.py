@@ -121,28 +121,32 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
     est = est_box[0]
     if not rows:
         return status_columns({c: [] for c in STORED_COLUMNS}, est, now, sort)
-    # one object per value already exists; a column-major copy of the references is the
-    # cheapest way to columns (zip(*rows) builds a tuple per column: ~2x slower)
-    by_col = np.array(rows, dtype=object).T.copy()
+    # one object per value already exists: the rows' references copied into one record array
+    # in one C loop, a field of which is a column (zip(*rows) builds a tuple per column and
+    # numpy.array(rows) looks for nested sequences: both slower)
+    by_col = np.fromiter(rows, dtype=_OBJECT_RECORD, count=len(rows))
     del rows
-    lists = dict(zip(STORED_COLUMNS, (c.tolist() for c in by_col), strict=True))
+    lists = {c: by_col[c].tolist() for c in STORED_COLUMNS}
     if not _canonical(lists):
         return None
     return status_columns(_typed(lists, by_col), est, now, sort)
 
 
+_OBJECT_RECORD = np.dtype([(c, object) for c in STORED_COLUMNS])
+
+
 def _typed(lists: dict[str, list], by_col: np.ndarray) -> dict[str, Any]:
     """The canonical stored columns with their numbers as arrays: a column without NULL cast
-    from its object row in one C loop, a nullable one through :func:`numpy.array` (None as
+    from its object field in one C loop, a nullable one through :func:`numpy.array` (None as
     NaN), instead of :func:`_floats`' elementwise comparison with None."""
     typed: dict[str, Any] = dict(lists)
-    for k, c in enumerate(STORED_COLUMNS):
+    for c in STORED_COLUMNS:
         if c in NULLABLE:
             typed[c] = np.array(lists[c], dtype=np.float64)
         elif c in ("hi", "t", "rul_low", "rul_high"):
-            typed[c] = by_col[k].astype(np.float64)
+            typed[c] = by_col[c].astype(np.float64)
         elif c in ("level", "n"):
-            typed[c] = by_col[k].astype(np.int64)
+            typed[c] = by_col[c].astype(np.int64)
     return typed
 
 
@@ -191,7 +195,9 @@ def status_columns(stored: dict[str, Any], est: Estimator, now: float, sort: str
     ``sort`` (:data:`SORTS`)."""
     if sort not in SORTS:
         raise ValueError(f"sort: expected one of {SORTS}, got {sort!r}")
-    comp = [str(c) for c in stored["component"]]
+    comp = stored["component"]
+    if not (isinstance(comp, list) and all(type(c) is str for c in comp)):
+        comp = [str(c) for c in comp]
     n = len(comp)
     a = {c: _floats(stored[c]) for c in ("hi", "t", "rul_median", "rul_low", "rul_high",
                                           "failed_at", "seen")}
@@ -312,8 +318,13 @@ def _with_nulls(arr: Any, missing: np.ndarray) -> Any:
 
 
 def _text(values: list[str | None]) -> Any:
-    """A ``large_string`` array, None as null."""
-    missing = np.fromiter((v is None for v in values), dtype=bool, count=len(values))
+    """A ``large_string`` array, None as null (one value in every row written once)."""
+    n = len(values)
+    if n and values.count(values[0]) == n:
+        return _with_nulls(_const(values[0] or "", n), np.full(n, values[0] is None))
+    if None not in values:
+        return _strs(values)  # type: ignore[arg-type]
+    missing = np.fromiter((v is None for v in values), dtype=bool, count=n)
     return _with_nulls(_strs([v or "" for v in values]), missing)
 
 
@@ -326,7 +337,10 @@ def format_csv(cols: dict[str, Any]) -> bytes:
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
-    arrays = [_strs([printable_id(c) for c in cols["component"]]), _levels(cols["level"])]
+    ids = cols["component"]
+    if not "".join(ids).isprintable():
+        ids = [printable_id(c) for c in ids]
+    arrays = [_strs(ids), _levels(cols["level"])]
     for c in STATUS_COLUMNS[2:]:
         if c in BOOL_COLUMNS:
             arrays.append(_bools(cols[c]))
