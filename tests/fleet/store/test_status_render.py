@@ -4,10 +4,12 @@ per-cell reference (format(), rulkit.tables.text_table) it replaced."""
 import math
 
 import numpy as np
+import pytest
 
+from rulkit.fleet.store import status_view
 from rulkit.fleet.store.cli import (
     _aligned_table,
-    _ascii_rows,
+    _ascii_texts,
     _fmt,
     _format_all,
     rul_texts,
@@ -47,16 +49,19 @@ def test_aligned_table_equals_text_table():
         "last t": _format_all("%g", rng.uniform(0, 1e7, n).tolist()),
     }
     left = ("component", "level")
-    assert _aligned_table(cols, left) == text_table(cols, left=left)
+    assert "".join(_aligned_table(cols, left)) == text_table(cols, left=left)
     # a left-aligned last column: trailing blanks are stripped as in text_table
     cols2 = {"x": ["1", "22"], "name": ["a", "bbbbb"]}
-    assert _aligned_table(cols2, ("name",)) == text_table(cols2, left=("name",))
-    assert _aligned_table({"a": [], "b": []}, ()) == text_table({"a": [], "b": []})
+    assert "".join(_aligned_table(cols2, ("name",))) == text_table(cols2, left=("name",))
+    assert "".join(_aligned_table({"a": [], "b": []}, ())) == text_table({"a": [], "b": []})
 
 
-def test_aligned_table_of_ascii_cells_equals_text_table():
+@pytest.mark.parametrize("chunk", [4096, 7, 1])
+def test_aligned_table_of_ascii_cells_equals_text_table(monkeypatch, chunk):
     """Printable ASCII cells take the byte-matrix layout: the same text as text_table with
-    empty cells, blank rows, a last column of width 0, a name wider than its cells, one row."""
+    empty cells, blank rows, a last column of width 0, a name wider than its cells, one row,
+    in one chunk of rows or many."""
+    monkeypatch.setattr(status_view, "CHUNK_ROWS", chunk)
     rng = np.random.default_rng(4)
     n = 200
     words = ["", "a", "ok", "warning", "12.5 [3, 40]", "x" * 40, "~!#$%&'()*+,-./:;<=>?@[\\]^_`{|}"]
@@ -67,14 +72,14 @@ def test_aligned_table_of_ascii_cells_equals_text_table():
         "HI": _format_all("%.3f", rng.uniform(0, 2, n).tolist()),
         "": rng.choice(["", "stale"], n).tolist(),
     }
-    assert _ascii_rows(list(cols), list(cols.values()), [False] * 5) is not None  # this path
+    assert _ascii_texts(list(cols), list(cols.values())) is not None  # this path
     for left in [("component", "level", ""), (), tuple(cols)]:
-        assert _aligned_table(cols, left) == text_table(cols, left=left), left
+        assert "".join(_aligned_table(cols, left)) == text_table(cols, left=left), left
     blank = {"x": ["", "", "1"], "": ["", "", ""]}  # the dashes' line ends in two blanks
-    assert _aligned_table(blank, ("",)) == text_table(blank, left=("",))
+    assert "".join(_aligned_table(blank, ("",))) == text_table(blank, left=("",))
     one = {"component": ["c1"], "level": ["ok"]}
-    assert _aligned_table(one, ("level",)) == text_table(one, left=("level",))
-    assert _aligned_table({"a": [], "": []}, ()) == text_table({"a": [], "": []})
+    assert "".join(_aligned_table(one, ("level",))) == text_table(one, left=("level",))
+    assert "".join(_aligned_table({"a": [], "": []}, ())) == text_table({"a": [], "": []})
 
 
 def test_rul_texts_equal_per_row_format():

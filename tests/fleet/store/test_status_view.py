@@ -38,7 +38,7 @@ FLOAT_COLS = ("t", "hi", "fhi", "rul_low", "rul_high")
 NULLABLE_COLS = ("rul_median", "failed_at", "seen")
 
 
-def _random_db(path, rng, n=60):
+def _random_db(path, rng, n=60, hostile=True):
     t = np.arange(6.0)
     frame = pd.DataFrame({
         "component": np.repeat([f"u{i:03d}" for i in range(n)], len(t)),
@@ -52,7 +52,7 @@ def _random_db(path, rng, n=60):
     ids = [r[0] for r in con.execute("SELECT component FROM components ORDER BY component")]
     seen = [1714564800.0 - 7200.0, 1714564800.0, 1e9, None, -5.0]
     with con:
-        for new, old in zip(HOSTILE_IDS, ids, strict=False):  # ids rulkit refuses to ingest
+        for new, old in zip(HOSTILE_IDS if hostile else [], ids, strict=False):  # refused ids
             con.execute("UPDATE components SET component = ? WHERE component = ?", (new, old))
         values = EDGE + rng.normal(0, 10.0 ** rng.integers(-20, 22, 200)).tolist()
         for i, comp in enumerate(r[0] for r in con.execute("SELECT component FROM components")
@@ -167,11 +167,14 @@ def _expected_table(db, recs):
     return text_table(cells, left=("component", "level", ""))
 
 
-@pytest.mark.parametrize("seed", [0, 3])
-def test_formats_against_an_independent_rendering(tmp_path, seed):
+@pytest.mark.parametrize(("seed", "hostile", "chunk"),
+                         [(0, True, 4096), (3, True, 7), (1, False, 4096), (2, False, 7)])
+def test_formats_against_an_independent_rendering(tmp_path, monkeypatch, seed, hostile, chunk):
     """Each format's bytes equal the same rows rendered the plain way: JSON as orjson writes
     a list of dicts (non-ASCII escaped by the json module), CSV as pyarrow writes a table
-    built by pa.array from Python lists, the table's rows by format() and text_table."""
+    built by pa.array from Python lists, the table's rows by format() and text_table; with
+    hostile ids or printable ASCII ones (the table's byte-matrix layout), in one chunk of
+    rows or many."""
     import orjson
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -179,8 +182,9 @@ def test_formats_against_an_independent_rendering(tmp_path, seed):
     from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
     from rulkit.tables import safe_text
 
+    monkeypatch.setattr(sv, "CHUNK_ROWS", chunk)
     db = tmp_path / "s.db"
-    _random_db(db, np.random.default_rng(seed))
+    _random_db(db, np.random.default_rng(seed), hostile=hostile)
     recs = _records(db)
     out = {fmt: runner.invoke(app, ["status", "--db", str(db), "--now", NOW, "--format", fmt])
            for fmt in ("table", "csv", "json")}

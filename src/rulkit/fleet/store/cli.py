@@ -7,6 +7,7 @@ docs/systems/embedded-rul.md: the per-component tracker chain with its state in 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -28,63 +29,80 @@ def _format_all(pattern: str, values: list) -> list[str]:
     return ((pattern + "\n") * len(values) % tuple(values)).split("\n")[:-1]
 
 
-def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> str:
-    """:func:`rulkit.tables.text_table` (same text): each column justified to its width, two
-    blanks between columns, trailing blanks stripped. Printable ASCII cells are laid out by
-    :func:`_ascii_rows` in a few array operations; others by one %-format per row. Cells must
-    already be terminal-safe."""
+def _aligned_table(columns: dict[str, list[str]], left: tuple[str, ...]) -> Iterator[str]:
+    """:func:`rulkit.tables.text_table` (same text), in chunks of rows: each column justified
+    to its width, two blanks between columns, trailing blanks stripped. Printable ASCII
+    cells are laid out by :func:`_ascii_rows` in a few array operations; others by one
+    %-format per row. Cells must already be terminal-safe."""
     names = list(columns)
     cells = list(columns.values())
-    fast = _ascii_rows(names, cells, [n in left for n in names])
-    if fast is not None:
-        return fast
+    texts = _ascii_texts(names, cells)
+    if texts is not None:
+        yield from _ascii_rows(*texts, [n in left for n in names])
+        return
     widths = [max(len(n), max(map(len, c), default=0)) for n, c in zip(names, cells, strict=True)]
     row_fmt = "  ".join(f"%-{w}s" if n in left else f"%{w}s"
                         for n, w in zip(names, widths, strict=True))
     lines = [(row_fmt % tuple(names)).rstrip(), "  ".join("-" * w for w in widths)]
     lines += [(row_fmt % row).rstrip() for row in zip(*cells, strict=True)]
-    return "\n".join(lines) + "\n"
+    yield "\n".join(lines) + "\n"
 
 
-def _ascii_rows(names: list[str], cells: list[list[str]], left: list[bool]) -> str | None:
-    """:func:`_aligned_table` when every cell is printable ASCII (else None): the heading as
-    one row more, every character copied to its place in one byte matrix of blanks (a row
-    per line), each line then cut after its last non-blank character."""
+def _ascii_texts(names: list[str], cells: list[list[str]]) -> tuple[list, list] | None:
+    """Each column's name and cells as ``(bytes, lengths)``
+    (:func:`~rulkit.fleet.store.status_view.split_texts`) with no characters on the dashes'
+    row, when every one is printable ASCII (else None)."""
     import numpy as np
+
+    from rulkit.fleet.store.status_view import split_texts
 
     if not cells or not cells[0]:
         return None
     raws, lens = [], []
     for name, texts in zip(names, cells, strict=True):
         try:  # the name, then the cells joined by newlines, which no terminal-safe cell holds
-            raw = np.frombuffer("\n".join([name, *texts]).encode("ascii"), dtype=np.uint8)
+            joined = "\n".join([name, *texts]).encode("ascii")
         except UnicodeEncodeError:
             return None
-        if not np.all((raw >= ord(" ")) & (raw <= ord("~")) | (raw == ord("\n"))):
+        raw, ln = split_texts(joined, ord("\n"))
+        if not np.all((raw >= ord(" ")) & (raw <= ord("~"))):
             return None
-        ends = np.append(np.flatnonzero(raw == ord("\n")), raw.size)
-        ln = np.diff(ends, prepend=-1) - 1
-        lens.append(np.concatenate([ln[:1], [0], ln[1:]]))  # no characters on the dashes' row
-        raws.append(raw[raw != ord("\n")])
+        raws.append(raw)
+        lens.append(np.concatenate([ln[:1], [0], ln[1:]]))
+    return raws, lens
+
+
+def _ascii_rows(raws: list, lens: list, left: list[bool]) -> Iterator[str]:
+    """The lines of :func:`_aligned_table` from :func:`_ascii_texts`, by chunk of rows: every
+    character copied to its place in a byte matrix of blanks (a row per line,
+    :func:`~rulkit.fleet.store.status_view.place_texts`), each line then cut after its last
+    non-blank character (the dashes' line kept whole: a last column may have width 0)."""
+    import numpy as np
+
+    from rulkit.fleet.store.status_view import CHUNK_ROWS, place_texts
+
     widths = [int(ln.max()) for ln in lens]
-    rows = len(cells[0]) + 2  # the names, the dashes, the cells
     size = sum(widths) + 2 * len(widths) - 1  # the columns, the blanks between, a newline
-    out = np.full((rows, size), ord(" "), dtype=np.uint8)
-    out[:, -1] = ord("\n")
-    at = 0
-    line_start = np.arange(rows, dtype=np.int64) * size
-    for raw, ln, w, is_left in zip(raws, lens, widths, left, strict=True):
-        out[1, at:at + w] = ord("-")
-        first = line_start + (at if is_left else at + w - ln)  # where each cell begins
-        # a character's place: its cell's beginning plus its index within the cell
-        out.reshape(-1)[np.repeat(first - (np.cumsum(ln) - ln), ln) + np.arange(raw.size)] = raw
-        at += w + 2
-    filled = out[:, :-1] != ord(" ")
-    last = np.where(filled.any(axis=1), size - 2 - np.argmax(filled[:, ::-1], axis=1), -1)
-    last[1] = size - 2  # the dashes' row is kept whole (a last column may have width 0)
-    keep = np.arange(size)[None, :] <= last[:, None]
-    keep[:, -1] = True
-    return out[keep].tobytes().decode("ascii")
+    starts = np.cumsum([0] + [w + 2 for w in widths[:-1]])
+    ends = [np.concatenate([[0], np.cumsum(ln)]) for ln in lens]
+    rows = len(lens[0])  # the names, the dashes, the cells
+    for r0 in range(0, rows, CHUNK_ROWS):
+        r1 = min(r0 + CHUNK_ROWS, rows)
+        out = np.full((r1 - r0, size), ord(" "), dtype=np.uint8)
+        out[:, -1] = ord("\n")
+        for raw, ln, end, at, w, is_left in zip(raws, lens, ends, starts, widths, left,
+                                                strict=True):
+            if r0 <= 1 < r1:
+                out[1 - r0, at:at + w] = ord("-")
+            piece = ln[r0:r1]
+            place_texts(out, raw[end[r0]:end[r1]], piece, at if is_left else at + w - piece)
+        filled = out[:, :-1] != ord(" ")
+        last = np.where(filled.any(axis=1), size - 2 - np.argmax(filled[:, ::-1], axis=1), -1)
+        if r0 <= 1 < r1:
+            last[1 - r0] = size - 2
+        keep = np.arange(size)[None, :] <= last[:, None]
+        keep[:, -1] = True
+        yield out[keep].tobytes().decode("ascii")
 
 
 def rul_texts(med: Any, low: Any, high: Any, failed: Any) -> list[str]:
@@ -167,7 +185,8 @@ def _echo_table(db: str, info: Any, cols: dict[str, Any]) -> None:
     c = info.counts
     typer.echo(f"{safe_text(db)}: {info.n_all} components ({c['alarm']} alarm, "
                f"{c['warning']} warning, {c['ok']} ok; {c['stale']} stale){shown}")
-    typer.echo(_aligned_table(table, left=("component", "level", "")), nl=False)
+    for chunk in _aligned_table(table, left=("component", "level", "")):
+        typer.echo(chunk, nl=False)
     for line in status_footer(info):
         typer.echo(safe_text(line))
 
@@ -205,8 +224,9 @@ def _print_status(db: str, info: Any, cols: dict[str, Any], limit: int, fmt: str
     if fmt == "csv":  # UTF-8 bytes, written as they are
         typer.echo(format_csv(cols), nl=False)
     elif fmt == "json":  # ASCII (non-ASCII and control characters escaped)
-        for chunk in [*format_json(cols), b"\n"]:
+        for chunk in format_json(cols):
             typer.echo(chunk, nl=False)
+        typer.echo(b"\n", nl=False)
     else:
         _echo_table(db, info, cols)
 

@@ -27,6 +27,7 @@ same bytes (tested, tests/fleet/store/test_status_view.py):
 from __future__ import annotations
 
 import sqlite3
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
@@ -137,12 +138,15 @@ _OBJECT_RECORD = np.dtype([(c, object) for c in STORED_COLUMNS])
 
 def _typed(lists: dict[str, list], by_col: np.ndarray) -> dict[str, Any]:
     """The canonical stored columns with their numbers as arrays: a column without NULL cast
-    from its object field in one C loop, a nullable one through :func:`numpy.array` (None as
-    NaN), instead of :func:`_floats`' elementwise comparison with None."""
+    from its object field in one C loop (None as NaN)."""
     typed: dict[str, Any] = dict(lists)
     for c in STORED_COLUMNS:
         if c in NULLABLE:
-            typed[c] = np.array(lists[c], dtype=np.float64)
+            values = by_col[c]
+            if None in lists[c]:
+                values = values.copy()
+                values[values == None] = np.nan  # noqa: E711 (elementwise)
+            typed[c] = values.astype(np.float64)
         elif c in ("hi", "t", "rul_low", "rul_high"):
             typed[c] = by_col[c].astype(np.float64)
         elif c in ("level", "n"):
@@ -196,7 +200,7 @@ def status_columns(stored: dict[str, Any], est: Estimator, now: float, sort: str
     if sort not in SORTS:
         raise ValueError(f"sort: expected one of {SORTS}, got {sort!r}")
     comp = stored["component"]
-    if not (isinstance(comp, list) and all(type(c) is str for c in comp)):
+    if not isinstance(comp, list) or set(map(type, comp)) - {str}:
         comp = [str(c) for c in comp]
     n = len(comp)
     a = {c: _floats(stored[c]) for c in ("hi", "t", "rul_median", "rul_low", "rul_high",
@@ -375,59 +379,105 @@ def _ascii_json(text: bytes) -> bytes:
     return "".join(esc(ch) if ord(ch) > 0x7F else ch for ch in text.decode()).encode()
 
 
-def _json_texts(values: Any) -> list[bytes]:
-    """Each value of a column as orjson writes it inside a record: a column's list through one
-    :func:`orjson.dumps` split at its commas when that gives one text per value (numbers,
-    booleans, null and strings without commas), else one :func:`orjson.dumps` per value."""
+def _json_texts(values: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Each value of a column as orjson writes it inside a record, as ``(bytes, lengths)``
+    (:func:`split_texts`): a column's list through one :func:`orjson.dumps` cut at its commas
+    when that gives one text per value (numbers, booleans, null and strings without commas),
+    else one :func:`orjson.dumps` per value."""
     import orjson
 
     if isinstance(values, np.ndarray):  # NaN and inf stay floats: orjson writes them as null
         values = values.tolist()
-    texts: list[bytes] = orjson.dumps(values)[1:-1].split(b",")
-    if len(texts) != len(values):
-        texts = list(map(orjson.dumps, values))
-    return texts
+    text = orjson.dumps(values)[1:-1]
+    if text.count(b",") != len(values) - 1:  # a comma inside a string
+        return split_texts(b"\x00".join(map(orjson.dumps, values)), 0)  # JSON holds no NUL
+    return split_texts(text, ord(","))
 
 
-def format_json(cols: dict[str, Any]) -> list[bytes]:
+def split_texts(text: bytes, sep: int) -> tuple[np.ndarray, np.ndarray]:
+    """The texts joined by the byte ``sep`` in ``text`` as ``(bytes, lengths)``: their bytes
+    one after another (a uint8 array, the separators dropped) and the length of each."""
+    raw = np.frombuffer(text, dtype=np.uint8)
+    cuts = np.flatnonzero(raw == sep)
+    lens = np.diff(cuts, prepend=-1, append=raw.size) - 1
+    return np.delete(raw, cuts), lens
+
+
+def place_texts(out: np.ndarray, raw: np.ndarray, lens: np.ndarray, first: Any) -> None:
+    """Copy one text per row of the byte matrix ``out`` (``raw`` and ``lens`` as
+    :func:`split_texts` gives them) to that row from column ``first`` (one for all rows, or
+    one per row): every character's place computed at once, no Python per text."""
+    rows, width = out.shape
+    begin = np.arange(rows, dtype=np.int64) * width + first - (np.cumsum(lens) - lens)
+    out.reshape(-1)[np.repeat(begin, lens) + np.arange(raw.size)] = raw
+
+
+CHUNK_ROWS = 4096
+"""Rows per chunk of the JSON and table writers: their byte matrices stay a few MB, reused
+chunk after chunk, whatever the number of components."""
+
+
+def format_json(cols: dict[str, Any]) -> Iterator[bytes]:
     """The JSON text of ``rulkit status --format json``: an array of records of
     :data:`STATUS_COLUMNS`, the bytes :func:`orjson.dumps` writes for a list of dicts,
-    without the final newline, as byte chunks.
+    without the final newline, in chunks of :data:`CHUNK_ROWS` records.
 
     Floats are the shortest text that reads back as the same float64 (``json.loads`` gives
     the stored value bit for bit); NaN and infinities ``null``; date-times ISO 8601 UTC
     strings (``2024-05-01T12:00:00Z``) or ``null``; booleans ``true``/``false``; ASCII only
     (:func:`_ascii_json`).
 
-    Written by columns, no dict per row: each column's texts (:func:`_json_texts`) fill one
-    column of a grid of rows, and one ``%``-operation lays the grid into a record template
-    that holds the keys and the columns with one value in every row."""
-    import orjson
-
+    Written by columns, no dict per row: a byte matrix of NUL (a row per record) gets the
+    keys and the columns with one value in every row as blocks, and each other column's
+    texts (:func:`_json_texts`) at their block (:func:`place_texts`); the NUL left between
+    them is dropped in one pass (JSON text holds no NUL byte: orjson escapes it)."""
     n = len(cols["component"])
     if n == 0:
-        return [b"[]"]
-    template: list[bytes] = []
-    columns: list[Any] = []
-    for c in STATUS_COLUMNS:
+        yield b"[]"
+        return
+    blocks = _json_blocks(cols, n)
+    widths = [len(b) if isinstance(b, bytes) else int(b[1].max()) for b in blocks]
+    # each column's texts by chunk of rows: where a chunk's texts begin and end
+    bounds: list[Any] = [None if isinstance(b, bytes)
+                         else np.concatenate([[0], np.cumsum(b[1])]) for b in blocks]
+    for r0 in range(0, n, CHUNK_ROWS):
+        r1 = min(r0 + CHUNK_ROWS, n)
+        out = np.zeros((r1 - r0, sum(widths)), dtype=np.uint8)
+        at = 0
+        for block, width, ends in zip(blocks, widths, bounds, strict=True):
+            if isinstance(block, bytes):
+                out[:, at:at + width] = np.frombuffer(block, dtype=np.uint8)
+            else:
+                raw, lens = block
+                place_texts(out, raw[ends[r0]:ends[r1]], lens[r0:r1], at)
+            at += width
+        if r1 == n:
+            out[-1, -1] = ord("]")  # the last record's comma
+        yield _ascii_json((b"[" if r0 == 0 else b"") + out[out != 0].tobytes())
+
+
+def _json_blocks(cols: dict[str, Any], n: int) -> list[Any]:
+    """The blocks of a record of :func:`format_json`, in order: literal bytes (keys, the
+    columns with one value in every row), or a column's texts as ``(bytes, lengths)``."""
+    import orjson
+
+    blocks: list[Any] = []
+    between = b"{"  # the literal text before the next column of texts
+    for k, c in enumerate(STATUS_COLUMNS):
         v = cols[c]
+        between += (b"," if k else b"") + orjson.dumps(c) + b":"
         if c == "level":
-            names = np.array([orjson.dumps(LEVEL_NAMES.get(k))
-                              for k in range(max(LEVEL_NAMES) + 1)], dtype=object)
-            texts: Any = names[np.asarray(v, dtype=np.int64)]
+            names = {i: orjson.dumps(name) for i, name in LEVEL_NAMES.items()}
+            texts = split_texts(b"\x00".join(
+                [names[i] for i in np.asarray(v, dtype=np.int64).tolist()]), 0)
         elif c in BOOL_COLUMNS:
-            texts = np.array([b"false", b"true"], dtype=object)[np.asarray(v, dtype=np.int64)]
+            texts = split_texts(b",".join(np.where(np.asarray(v, dtype=bool), b"true", b"false")
+                                          .tolist()), ord(","))
         elif not isinstance(v, np.ndarray) and v.count(v[0]) == n:  # one value in every row
-            template.append(orjson.dumps(c) + b":" + orjson.dumps(v[0]).replace(b"%", b"%%"))
+            between += orjson.dumps(v[0])
             continue
         else:
             texts = _json_texts(v)
-        template.append(orjson.dumps(c) + b":%s")
-        columns.append(texts)
-    grid = np.empty((n, len(columns)), dtype=object)
-    for k, texts in enumerate(columns):
-        grid[:, k] = texts
-    record = b"{" + b",".join(template) + b"}"
-    records = [record] * n
-    records[0], records[-1] = b"[" + records[0], records[-1] + b"]"
-    return [_ascii_json(b",".join(records) % tuple(grid.ravel().tolist()))]
+        blocks += [between, texts]
+        between = b""
+    return [*blocks, between + b"},"]
