@@ -83,6 +83,7 @@ def _both(db, args, monkeypatch):
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_same_output_as_the_pandas_path(tmp_path, monkeypatch, fmt, seed):
+    monkeypatch.setattr(sv, "READ_ROWS", 7 if seed else sv.READ_ROWS)  # chunks of rows or one
     db = tmp_path / "s.db"
     _random_db(db, np.random.default_rng(seed))
     assert sv.read_status(db, now=0.0) is not None  # the fast path is the one compared
@@ -173,8 +174,8 @@ def test_formats_against_an_independent_rendering(tmp_path, monkeypatch, seed, h
     """Each format's bytes equal the same rows rendered the plain way: JSON as orjson writes
     a list of dicts (non-ASCII escaped by the json module), CSV as pyarrow writes a table
     built by pa.array from Python lists, the table's rows by format() and text_table; with
-    hostile ids or printable ASCII ones (the table's byte-matrix layout), in one chunk of
-    rows or many."""
+    hostile ids or printable ASCII ones (the table's byte-matrix layout), read and written in
+    one chunk of rows or many."""
     import orjson
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -183,6 +184,7 @@ def test_formats_against_an_independent_rendering(tmp_path, monkeypatch, seed, h
     from rulkit.tables import safe_text
 
     monkeypatch.setattr(sv, "CHUNK_ROWS", chunk)
+    monkeypatch.setattr(sv, "READ_ROWS", chunk)
     db = tmp_path / "s.db"
     _random_db(db, np.random.default_rng(seed), hostile=hostile)
     recs = _records(db)
@@ -238,6 +240,8 @@ def test_row_rulkit_cannot_have_written_takes_the_pandas_path(tmp_path, monkeypa
         con.execute(f"UPDATE components SET {col} = {bad} WHERE rowid = 2")
     con.close()
     # '1.5' in a REAL column is stored as the number 1.5 (SQLite's type affinity)
+    assert (sv.read_status(db, now=0.0) is None) == (bad != "'1.5'")
+    monkeypatch.setattr(sv, "READ_ROWS", 1)  # the bad row in the second chunk read
     assert (sv.read_status(db, now=0.0) is None) == (bad != "'1.5'")
     new, old = _both(db, ["--format", "json"], monkeypatch)
     assert (new.exit_code, new.output) == (old.exit_code, old.output)

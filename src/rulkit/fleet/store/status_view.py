@@ -101,7 +101,7 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
     path = Path(path)
     est_box: list[Any] = []
 
-    def read(conn: sqlite3.Connection) -> list[tuple]:
+    def read(conn: sqlite3.Connection) -> list[dict[str, Any]] | None:
         meta = _read_meta(conn)
         est_box[:] = [estimator_of_meta(path, meta)]
         try:
@@ -111,63 +111,59 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
                                  "`rulkit track` or `rulkit serve` on it upgrades it in place")
             conn.execute("PRAGMA mmap_size = 1073741824")  # reads pages in place, no copies
             conn.execute("BEGIN DEFERRED")
-            rows = conn.execute(
-                f"SELECT {', '.join(STORED_COLUMNS)} FROM components").fetchall()
+            cur = conn.execute(f"SELECT {', '.join(STORED_COLUMNS)} FROM components")
+            chunks = []
+            while rows := cur.fetchmany(READ_ROWS):  # each chunk's objects freed for the next
+                chunk = _typed(np.fromiter(rows, dtype=_OBJECT_RECORD, count=len(rows)))
+                if chunk is None:
+                    return None
+                chunks.append(chunk)
             conn.execute("COMMIT")
         except sqlite3.Error as err:
             raise store_error(path, err, timeout) from err
-        return rows
+        return chunks
 
-    rows = read_verified(path, timeout, read)
-    est = est_box[0]
-    if not rows:
-        return status_columns({c: [] for c in STORED_COLUMNS}, est, now, sort)
-    # one object per value already exists: the rows' references copied into one record array
-    # in one C loop, a field of which is a column (zip(*rows) builds a tuple per column and
-    # numpy.array(rows) looks for nested sequences: both slower)
-    by_col = np.fromiter(rows, dtype=_OBJECT_RECORD, count=len(rows))
-    del rows
-    lists = {c: by_col[c].tolist() for c in STORED_COLUMNS}
-    if not _canonical(lists):
+    chunks = read_verified(path, timeout, read)
+    if chunks is None:
         return None
-    return status_columns(_typed(lists, by_col), est, now, sort)
+    est = est_box[0]
+    if not chunks:
+        return status_columns({c: [] for c in STORED_COLUMNS}, est, now, sort)
+    stored = {c: [v for ch in chunks for v in ch[c]] if c == "component"
+              else np.concatenate([ch[c] for ch in chunks]) for c in STORED_COLUMNS}
+    return status_columns(stored, est, now, sort)
 
 
+READ_ROWS = 8192
+"""Rows fetched and converted at a time by :func:`read_status`."""
 _OBJECT_RECORD = np.dtype([(c, object) for c in STORED_COLUMNS])
 
 
-def _typed(lists: dict[str, list], by_col: np.ndarray) -> dict[str, Any]:
-    """The canonical stored columns with their numbers as arrays: a column without NULL cast
-    from its object field in one C loop (None as NaN)."""
-    typed: dict[str, Any] = dict(lists)
-    for c in STORED_COLUMNS:
+def _typed(rows: np.ndarray) -> dict[str, Any] | None:
+    """The stored columns of a chunk of rows (a record array of objects, one field per
+    column; the fields are copied into it in one C loop, faster than ``zip(*rows)``) with
+    their numbers as arrays (None as NaN), or None when a value is not of the type rulkit
+    writes (what the pandas path accepts unchanged)."""
+    typed: dict[str, Any] = {"component": rows["component"].tolist()}
+    if set(map(type, typed["component"])) != {str}:
+        return None
+    for c in STORED_COLUMNS[1:]:
+        values = rows[c]
+        kinds = set(map(type, values))
         if c in NULLABLE:
-            values = by_col[c]
-            if None in lists[c]:
+            if not kinds <= {float, type(None)}:
+                return None
+            if type(None) in kinds:
                 values = values.copy()
                 values[values == None] = np.nan  # noqa: E711 (elementwise)
             typed[c] = values.astype(np.float64)
-        elif c in ("hi", "t", "rul_low", "rul_high"):
-            typed[c] = by_col[c].astype(np.float64)
-        elif c in ("level", "n"):
-            typed[c] = by_col[c].astype(np.int64)
+        elif kinds != ({int} if c in ("level", "n") else {float}):
+            return None
+        else:
+            typed[c] = values.astype(np.int64 if c in ("level", "n") else np.float64)
+    if not np.isin(typed["level"], list(LEVEL_NAMES)).all():
+        return None
     return typed
-
-
-def _canonical(cols: dict[str, list]) -> bool:
-    """Every value of the type rulkit writes (what the pandas path accepts unchanged)."""
-    if set(map(type, cols["component"])) != {str}:
-        return False
-    for c in ("hi", "t", "rul_low", "rul_high"):
-        if set(map(type, cols[c])) != {float}:
-            return False
-    for c in NULLABLE:
-        if not set(map(type, cols[c])) <= {float, type(None)}:
-            return False
-    for c in ("level", "n"):
-        if set(map(type, cols[c])) != {int}:
-            return False
-    return set(cols["level"]) <= set(LEVEL_NAMES)
 
 
 def _floats(values: Any) -> np.ndarray:
