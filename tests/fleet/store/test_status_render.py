@@ -12,6 +12,7 @@ from rulkit.fleet.store.cli import (
     _ascii_texts,
     _fmt,
     _format_all,
+    _format_distinct,
     rul_texts,
 )
 from rulkit.tables import safe_text, text_table
@@ -93,3 +94,15 @@ def test_rul_texts_equal_per_row_format():
             for a, b, c, f in zip(m, lo, hi, failed, strict=True)]
     assert rul_texts(m, lo, hi, failed) == want
     assert rul_texts([], [], [], []) == []
+
+
+def test_format_distinct_equals_format_per_value():
+    """Each distinct value formatted once gives the per-value texts: -0.0 apart from 0.0,
+    NaN and infinities, repeats in any order, int64 counts."""
+    rng = np.random.default_rng(6)
+    vals = np.array([*values(rng), -0.0, 0.0, math.nan, -math.nan])
+    vals = rng.choice(vals, 1000)
+    assert _format_distinct("%g", vals) == [format(v, "g") for v in vals.tolist()]
+    ints = rng.choice([0, 1, 3, 12, 2**62, -7], 500)
+    assert _format_distinct("%d", ints) == [str(v) for v in ints.tolist()]
+    assert _format_distinct("%g", np.zeros(0)) == []

@@ -107,22 +107,34 @@ def _ascii_rows(raws: list, lens: list, left: list[bool]) -> Iterator[str]:
 
 def rul_texts(med: Any, low: Any, high: Any, failed: Any) -> list[str]:
     """``median [low, high]`` per component (``.3g``; ``-`` while not estimated, ``failed``
-    once the alarm rule held), vectorised: one %-format for all rows, a row with a missing
-    bound (``-`` inside the brackets) written apart."""
+    once the alarm rule held), vectorised: one %-format for the rows that show numbers, a
+    row with a missing bound (``-`` inside the brackets) written apart."""
     import numpy as np
 
     m, lo, hi = (np.asarray(v, dtype=np.float64).reshape(-1) + 0.0  # -0.0 printed as 0
                  for v in (med, low, high))
-    if m.size == 0:
-        return []
-    out = (("%.3g [%.3g, %.3g]\n" * m.size) % tuple(np.column_stack([m, lo, hi]).ravel().tolist())
-           ).split("\n")[:-1]
-    for i in np.flatnonzero(np.isnan(lo) | np.isnan(hi)).tolist():
+    is_failed = np.asarray(failed, dtype=bool).reshape(-1)
+    out = np.where(is_failed, "failed", "-").astype(object)
+    shown = np.flatnonzero(~is_failed & ~np.isnan(m))
+    if shown.size:
+        values = np.column_stack([m[shown], lo[shown], hi[shown]]).ravel().tolist()
+        out[shown] = (("%.3g [%.3g, %.3g]\n" * shown.size) % tuple(values)).split("\n")[:-1]
+    for i in shown[np.isnan(lo[shown]) | np.isnan(hi[shown])].tolist():
         out[i] = f"{_fmt(m[i])} [{_fmt(lo[i])}, {_fmt(hi[i])}]"
-    for i in np.flatnonzero(np.isnan(m)).tolist():
-        out[i] = "-"
-    for i in np.flatnonzero(np.asarray(failed, dtype=bool)).tolist():
-        out[i] = "failed"
+    texts: list[str] = out.tolist()
+    return texts
+
+
+def _format_distinct(pattern: str, values: Any) -> list[str]:
+    """:func:`_format_all` of a float64 or int64 array, each distinct value (bit pattern:
+    -0.0 apart from 0.0) formatted once: acquisition counts and last times repeat across a
+    fleet fed in batches."""
+    import numpy as np
+
+    a = np.ascontiguousarray(values)
+    distinct, where = np.unique(a.view(np.int64), return_inverse=True)
+    texts = np.array(_format_all(pattern, distinct.view(a.dtype).tolist()), dtype=object)
+    out: list[str] = texts[where.reshape(-1)].tolist()
     return out
 
 
@@ -177,8 +189,8 @@ def _echo_table(db: str, info: Any, cols: dict[str, Any]) -> None:
                                                         cols["rul_high"], cols["failed"]),
         "due": _minutes(cols["due"]),
         "HI": _format_all("%.3f", cols["hi"].tolist()),
-        "n": _format_all("%d", cols["n"].tolist()),
-        "last t": _format_all("%g", cols["t"].tolist()),
+        "n": _format_distinct("%d", np.asarray(cols["n"], dtype=np.int64)),
+        "last t": _format_distinct("%g", np.asarray(cols["t"], dtype=np.float64)),
         "last seen": _minutes(cols["last_seen"]),
         "": flags.tolist(),
     }
