@@ -109,7 +109,8 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
             if not set(STORED_COLUMNS) <= have:
                 raise StoreError(f"{path}: written by an older rulkit (no one-RUL columns); "
                                  "`rulkit track` or `rulkit serve` on it upgrades it in place")
-            conn.execute("PRAGMA mmap_size = 1073741824")  # reads pages in place, no copies
+            # no memory map: it saved no CPU, warm or cold (bench_scale.py --mmap), and a
+            # mapped file's I/O error is a signal that ends the process, not an exception
             conn.execute("BEGIN DEFERRED")
             cur = conn.execute(f"SELECT {', '.join(STORED_COLUMNS)} FROM components")
             chunks = []
