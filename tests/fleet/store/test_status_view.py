@@ -295,11 +295,34 @@ def test_json_parses_back_to_the_stored_values(tmp_path, seed):
                 assert math.copysign(1.0, r[k]) == math.copysign(1.0, want[k]), (comp, k)
 
 
+def _fitted_db(path):
+    """A database whose RULs come from a fitted model (a transformed-noise growth model)."""
+    from dataclasses import replace
+
+    from rulkit.fleet.learned.datasets import synthetic_growth_fleet
+    from rulkit.fleet.learned.hi_noise import HiNoiseModel
+    from rulkit.fleet.time_axis import TimeAxis
+
+    fleet, _ = synthetic_growth_fleet(np.random.default_rng(0), 6, n_acq=12)
+    axis = TimeAxis(unit="d", origin="first")
+    model = HiNoiseModel(noise="additive", shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2),
+                         hi_noise_sd=0.02, log_noise_sd=0.0, walk_sd=0.05, time_scale=300.0)
+    with ComponentStore(path) as store:
+        store.set_degradation_model(replace(model, time_axis=axis.to_dict(),
+                                            time_unit=axis.unit))
+        store.ingest(fleet)
+
+
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
-def test_status_imports_no_pandas(tmp_path, fmt):
-    """Nor any other module the command does not use (each costs start-up time)."""
+@pytest.mark.parametrize("fitted", [False, True])
+def test_status_imports_no_pandas(tmp_path, fmt, fitted):
+    """Nor any other module the command does not use (each costs start-up time), also when a
+    fitted model gives the RULs (its classes load without pandas)."""
     db = tmp_path / "p.db"
-    _random_db(db, np.random.default_rng(4), n=5)
+    if fitted:
+        _fitted_db(db)
+    else:
+        _random_db(db, np.random.default_rng(4), n=5)
     code = ("import atexit, sys\n"
             "atexit.register(lambda: sys.stderr.write(' '.join(m for m in ('pandas', 'scipy', "
             "'rich', 'numba', 'matplotlib', 'fastapi', 'pyarrow.compute', 'threadpoolctl', "
