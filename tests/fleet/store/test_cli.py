@@ -268,6 +268,59 @@ def test_track_in_tiny_blocks_writes_the_bits_of_one_block(tmp_path, monkeypatch
     assert tiny == one  # every value of every row (floats compared exactly, NaN stored NULL)
 
 
+def test_track_in_rank_windows_stores_the_values_of_the_per_component_path(tmp_path,
+                                                                           monkeypatch):
+    """A wide batch runs in windows of acquisition ranks across all units, the state carried
+    from window to window (ComponentStore._pieces): two batches, the second onto the stored
+    state, give the per-component path's components, alerts, printout and history values, bit
+    for bit; the history in a chunk per component and window."""
+    import rulkit.fleet.store.sqlite as store_module
+    from rulkit.fleet.store import history_chunks
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    rng = np.random.default_rng(12)
+    rows = [(f"u{i:02d}", float(s + 4 * i), min(0.05 * np.exp((0.02 + 0.004 * i) * s)
+                                                + rng.normal(0, 0.01), 1.2))
+            for i in range(9) for s in range(int(rng.integers(1, 70)))]  # later starts: rank
+    # order is not time order
+    df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sort_values("time", kind="stable")
+    df["hi"] = df["hi"].abs()
+    srcs = [tmp_path / "a.csv", tmp_path / "b.csv"]
+    df[df.time < 25].to_csv(srcs[0], index=False)
+    df[df.time >= 25].to_csv(srcs[1], index=False)
+    monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", 3)
+
+    def track(strategy, name):
+        monkeypatch.setattr(store_module, "tracker_strategy", lambda ranks, n: strategy)
+        db, outs = tmp_path / name, []
+        for src in srcs:
+            r = runner.invoke(app, ["track", "--db", str(db), str(src), "--lead-time", "40",
+                                    "--stale-after", "1d"])
+            assert r.exit_code == 0, r.output
+            outs.append(r.output.replace(str(db), "DB"))
+        con = sqlite3.connect(db)
+        cols = [c for (c,) in con.execute("SELECT name FROM pragma_table_info('components')")
+                if c not in ("seen", "due")]  # the clock at the ingestion
+        chunks = con.execute("SELECT component, n, data FROM history ORDER BY 1, "
+                             "t_first").fetchall()
+        rec = history_chunks.decode([d for _, _, d in chunks], [k for _, k, _ in chunks])
+        owner = np.repeat([c for c, _, _ in chunks], [k for _, k, _ in chunks])
+        dump = (con.execute(f"SELECT {', '.join(cols)} FROM components ORDER BY 1").fetchall(),
+                con.execute("SELECT component, t, level, previous, hi, fhi, rul, valid, "
+                            "rul_low, rul_high, reason FROM alerts ORDER BY id").fetchall(),
+                owner.tolist(), rec.tobytes())
+        con.close()
+        return outs, dump, len(chunks)
+
+    monkeypatch.setattr(ComponentStore, "WINDOW_ROWS", 5)
+    win_out, win, win_chunks = track("ranks", "windows.db")
+    comp_out, comp, comp_chunks = track("python", "components.db")
+    assert comp[1] and len(comp[3]) == len(df) * history_chunks.WIDTH * 8  # alerts, history
+    assert comp_chunks <= 2 * 9 and win_chunks > 3 * comp_chunks, win_chunks  # per window
+    assert win_out == comp_out
+    assert win == comp  # every stored value (floats exactly, NaN stored NULL)
+
+
 def test_track_reads_a_plain_csv_without_pandas_and_stores_the_frames_values(tmp_path):
     """rulkit track takes a plain CSV as arrays (rulkit.fleet.rows.read_csv_columns) and
     does not import pandas; the database equals the one the same rows give as a frame."""

@@ -233,7 +233,13 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
     counts = np.diff(seg)
     b = counts.size
     rows_s = np.empty((t.size, len(SUM_NAMES)))
+    full = bool(b) and bool((counts == counts[0]).all())  # every unit at every rank
     for r in range(int(counts.max(initial=0))):
+        if full:
+            idx = seg[:-1] + r
+            state = trend_update(state, t[idx], hi[idx], config)
+            rows_s[idx] = state.s
+            continue
         have = np.flatnonzero(counts > r)
         idx = seg[have] + r
         tt, hh = np.full(b, np.nan), np.full(b, np.nan)

@@ -112,6 +112,52 @@ def component_blocks(order: ComponentOrder, block_rows: int) -> list[tuple[int, 
     return blocks
 
 
+@dataclass(frozen=True)
+class Piece:
+    """Rows of a batch run together: ``keys`` the key-order positions of its components,
+    ``seg`` offsets (length ``keys.size + 1``) of each one's rows in ``rows`` (batch
+    positions, component by component, time order inside) and ``rank0`` the acquisition rank
+    (within the batch) of every component's first row of the piece."""
+
+    keys: IntArray
+    seg: IntArray
+    rows: IntArray
+    rank0: int
+
+
+def block_pieces(order: ComponentOrder, blocks: list[tuple[int, int]]) -> list[Piece]:
+    """The :class:`Piece` of each block ``(k0, k1)`` of consecutive components
+    (:func:`component_blocks`): all their rows."""
+    st = order.start
+    return [Piece(np.arange(k0, k1), st[k0:k1 + 1] - st[k0], order.by_comp[st[k0]:st[k1]], 0)
+            for k0, k1 in blocks]
+
+
+def rank_windows(order: ComponentOrder, window_rows: int) -> list[tuple[int, int]]:
+    """Windows ``(r0, r1)`` of consecutive acquisition ranks holding at most ``window_rows``
+    rows of all components together (a rank with more is a window of its own): a wide batch
+    run rank by rank across every unit, as a time-ordered feed delivers it, holding one
+    window's outputs."""
+    width = np.cumsum(np.bincount(order.counts)[::-1])[::-1][1:]  # rows at each rank
+    cum = np.cumsum(width)
+    windows, r0, done = [], 0, 0
+    while r0 < width.size:
+        r1 = max(r0 + 1, int(np.searchsorted(cum, done + window_rows, side="right")))
+        windows.append((r0, r1))
+        done, r0 = int(cum[r1 - 1]), r1
+    return windows
+
+
+def window_piece(order: ComponentOrder, r0: int, r1: int) -> Piece:
+    """The :class:`Piece` of the rows of ranks ``r0`` to ``r1 - 1`` of every component."""
+    cw = np.clip(order.counts - r0, 0, r1 - r0)
+    keys = np.flatnonzero(cw)
+    cw = cw[keys]
+    seg = np.concatenate([[0], np.cumsum(cw)])
+    pos = np.repeat(order.start[keys] + r0 - seg[:-1], cw) + np.arange(int(seg[-1]))
+    return Piece(keys, seg, order.by_comp[pos], r0)
+
+
 def split_duplicates(conn: Any, acq: Batch, last: dict[str, float]) -> tuple[Batch, int]:
     """Split off rows at or before a component's stored last time (inside the write
     transaction on ``conn``, a DB-API connection): rows stored with the same HI (to
@@ -154,5 +200,6 @@ def _check_stored(conn: Any, name: str, rows: list[int], ts: list[float], his: l
                 f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
 
 
-__all__ = ["SAME_HI_RTOL", "ComponentOrder", "check_spacing", "component_blocks",
-           "gaps_after_stored", "order_by_component", "split_duplicates"]
+__all__ = ["SAME_HI_RTOL", "ComponentOrder", "Piece", "block_pieces", "check_spacing",
+           "component_blocks", "gaps_after_stored", "order_by_component", "rank_windows",
+           "split_duplicates", "window_piece"]
