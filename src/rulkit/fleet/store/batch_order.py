@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from rulkit.fleet.store.acquisitions import Batch, ConflictError, IngestError
 from rulkit.fleet.store.history_chunks import field, read_range
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
-from rulkit.fleet.tracking.tracker_settings import check_time_unit
+from rulkit.fleet.tracking.tracker_settings import check_intervals
 from rulkit.tables import cell_repr as _fmt
 
 IntArray = NDArray[np.int64]
@@ -54,9 +54,9 @@ def order_by_component(codes: NDArray[np.int32], names: list[str]) -> ComponentO
 def gaps_after_stored(order: ComponentOrder, t: np.ndarray, rows: np.ndarray,
                       names: list[str], last_t: np.ndarray) -> np.ndarray:
     """Each acquisition's interval since the previous one of its component (NaN for a
-    component's first ever), in batch order. ``last_t``: the stored last time of each
-    component in key order (NaN: new). A component's first acquisition of the batch that is
-    not after its stored last, or whose interval overflows float64, raises
+    component's first ever), in key order (``order.by_comp``'s). ``last_t``: the stored last
+    time of each component in key order (NaN: new). A component's first acquisition of the
+    batch that is not after its stored last, or whose interval overflows float64, raises
     :class:`IngestError` naming the first such row in batch order."""
     n = t.size
     first = order.by_comp[order.start[:-1]]  # batch position of each component's first row
@@ -74,23 +74,19 @@ def gaps_after_stored(order: ComponentOrder, t: np.ndarray, rows: np.ndarray,
                 else f"row {rows[i]} (component {names[g]!r}): time {_fmt(t[i])} is "
                 f"not after the component's last stored acquisition at {_fmt(last_t[k])}")
     ts = t[order.by_comp]
-    prev = np.empty(n)
-    prev[1:] = ts[:-1]
-    prev[order.start[:-1]] = last_t
     gaps = np.empty(n)
-    gaps[order.by_comp] = ts - prev
+    np.subtract(ts[1:], ts[:-1], out=gaps[1:])
+    head = order.start[:-1][order.counts > 0]
+    gaps[head] = ts[head] - last_t[order.counts > 0]
     return gaps
 
 
 def check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
     """The batch's acquisition spacing against ``design_life`` (time-unit check,
-    :func:`rulkit.fleet.tracking.tracker_settings.check_time_unit`), as an
+    :func:`rulkit.fleet.tracking.tracker_settings.check_intervals`), as an
     :class:`IngestError`. ``gaps``: as :func:`gaps_after_stored` gives them."""
-    gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
     try:
-        # a cumulative sum of positive numbers is nondecreasing in floating point too
-        check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column",
-                        assume_sorted=True)
+        check_intervals(config, gaps[np.isfinite(gaps) & (gaps > 0)], source="time column")
     except ValueError as err:
         raise IngestError(str(err)) from err
 
