@@ -38,11 +38,23 @@ def fleet(rng, b, k, sd=0.01):
     return seg, np.concatenate(t), np.concatenate(hi)
 
 
+def equal_lengths(seg, t, hi, k):
+    """The first ``k`` rows of every unit that has them (every unit at every rank: the ranks'
+    direct path)."""
+    keep = np.diff(seg) >= k
+    idx = (seg[:-1][keep][:, None] + np.arange(k)).ravel()
+    return np.arange(0, int(keep.sum()) * k + 1, k), t[idx], hi[idx]
+
+
+@pytest.mark.parametrize("equal", [False, True])
 @pytest.mark.parametrize("strategy", ["python", "jit", "ranks", None])
-def test_run_equals_one_update_per_row(strategy):
+def test_run_equals_one_update_per_row(strategy, equal):
     rng = np.random.default_rng(0)
     cfg = TrendConfig(forgetting=0.9)
     seg, t, hi = fleet(rng, 30, 25)
+    if equal:
+        seg, t, hi = equal_lengths(seg, t, hi, 16)
+        assert seg.size > 10
     b = seg.size - 1
     cut = seg[:-1] + np.diff(seg) // 2
     ref = TrendState.empty(b)

@@ -234,11 +234,11 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
     b = counts.size
     rows_s = np.empty((t.size, len(SUM_NAMES)))
     full = bool(b) and bool((counts == counts[0]).all())  # every unit at every rank
+    every = int(counts[0]) if full else 0
     for r in range(int(counts.max(initial=0))):
-        if full:
-            idx = seg[:-1] + r
-            state = trend_update(state, t[idx], hi[idx], config)
-            rows_s[idx] = state.s
+        if full:  # unit c's row of rank r is c * every + r
+            state = trend_update(state, t[r::every], hi[r::every], config)
+            rows_s[r::every] = state.s
             continue
         have = np.flatnonzero(counts > r)
         idx = seg[have] + r

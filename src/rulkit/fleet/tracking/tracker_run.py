@@ -168,10 +168,12 @@ def _run_by_rank(state: TrackerState, seg: np.ndarray, t: np.ndarray, z: np.ndar
         "fhi", "dhi", "rul", "frul", "drul", "d2rul")}
     n = np.empty(m, dtype=np.int64)
     full = bool(counts.size) and bool((counts == counts[0]).all())  # every unit at every rank
+    every = int(counts[0]) if full else 0
+    idx: np.ndarray | slice
     for r in range(int(counts.max(initial=0))):
-        if full:
-            idx = seg[:-1] + r
-            t_r, z_r = t[idx], z[idx]
+        if full:  # unit c's row of rank r is c * every + r
+            idx = slice(r, None, every)
+            t_r, z_r = t[idx].copy(), z[idx].copy()
         else:
             have = np.flatnonzero(counts > r)
             idx = seg[have] + r
