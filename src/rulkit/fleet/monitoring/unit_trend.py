@@ -197,11 +197,12 @@ def _trend_pass(seg, t, z, w, lam, t0, n0, s_in, s_out):  # type: ignore[no-unty
 
 _COMPILED: dict[str, Any] = {}
 # Cost model of trend_run's three equal-result ways, in seconds (measured on the 2-core
-# development machine): one vectorised trend_update per acquisition rank (~60 us a call:
-# many components, few acquisitions each), the per-unit pass as Python (~5 us a row: small
-# batches) or compiled by numba (~0.05 us a row, but ~0.5 s to load numba once per process).
-_COST_PER_RANK, _COST_PER_RANK_ROW = 6e-5, 2e-7
-_COST_PER_PYTHON_ROW, _COST_PER_JIT_ROW, _COST_JIT_LOAD = 5e-6, 5e-8, 0.5
+# development machine, `benchmarks/bench_tracker_steps.py`): one vectorised trend_update per
+# acquisition rank (~40 us a call plus ~75 ns a row: many components, few acquisitions each),
+# the per-unit pass as Python (~5 us a row: small batches) or compiled by numba (~0.02 us a
+# row, but ~0.5 s to load numba once per process).
+_COST_PER_RANK, _COST_PER_RANK_ROW = 4e-5, 7.5e-8
+_COST_PER_PYTHON_ROW, _COST_PER_JIT_ROW, _COST_JIT_LOAD = 5e-6, 2e-8, 0.5
 
 
 def trend_strategy(n_ranks: int, n_rows: int) -> str:

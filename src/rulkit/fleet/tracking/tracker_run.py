@@ -26,15 +26,17 @@ from rulkit.fleet.tracking.tracker_chain import (
 )
 
 # Cost model of :func:`tracker_run`'s three equal-result strategies, in seconds, measured on
-# the 2-core development machine (`benchmarks/bench_scale.py` shows the outcome):
-# one vectorised tracker_update per acquisition rank (~0.12 ms a call: few ranks, many
-# components, e.g. a fleet's periodic batch), the per-component passes as plain Python
-# (~3 us an acquisition: small batches) or compiled by numba (~0.15 us an acquisition, but
-# loading numba and its cache costs ~0.55 s and ~100 MB once per process: long series).
-_COST_PER_RANK = 1.2e-4
-_COST_PER_RANK_ROW = 2.5e-7
+# the 2-core development machine (`benchmarks/bench_tracker_steps.py` prints the rank steps'
+# constants and the compiled pass per row, `benchmarks/bench_scale.py` the outcome): one
+# vectorised tracker_update per acquisition rank (~0.11 ms a call plus ~0.13 us a row: many
+# components, few ranks, e.g. a fleet's periodic batch or the rank windows of a wide one), the
+# per-component passes as plain Python (~3 us an acquisition: small batches) or compiled by
+# numba (~0.06 us an acquisition, but loading numba and its cache costs ~0.55 s and ~100 MB
+# once per process: long series).
+_COST_PER_RANK = 1.1e-4
+_COST_PER_RANK_ROW = 1.3e-7
 _COST_PER_PYTHON_ROW = 3e-6
-_COST_PER_JIT_ROW = 1.5e-7
+_COST_PER_JIT_ROW = 6e-8
 _COST_JIT_LOAD = 0.55
 
 
