@@ -235,7 +235,9 @@ def test_first_crossing_keeps_its_bits():
     a, b = draw(0.0, np.nan, np.inf, -1.0), draw(0.0, np.nan, 1e-300, -1e-300)
     v0, v1, v2 = np.abs(draw(0.0, np.nan, np.inf)), draw(0.0, np.nan), np.abs(draw(0.0, 1e-300))
     c = np.stack([np.zeros(n), draw(0.0, np.nan, 1.645, -1.645), draw(np.inf, 2.0)])
+    median = np.where(rng.random(n) < 0.1, np.nan, 0.0)  # the median's pass: no quadratic
     for args in ((a, b, v0, v1, v2, c), (a, b, v0, v1, v2, c[1]), (a, b, v0, v1, v2, 1.5),
+                 (a, b, v0, v1, v2, c[0]), (a, b, v0, v1, v2, median),
                  (-1.0, 0.5, 0.0, 0.0, 0.0, 0.0), (-1.0, 0.2, 0.01, 0.0, 0.01, 1.5)):
         got, ref = first_crossing(*args), _first_crossing_before(*args)
         assert got.shape == ref.shape and got.tobytes() == ref.tobytes()
