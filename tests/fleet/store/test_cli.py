@@ -271,11 +271,11 @@ def test_track_in_tiny_blocks_writes_the_bits_of_one_block(tmp_path, monkeypatch
 def test_track_in_rank_windows_stores_the_values_of_the_per_component_path(tmp_path,
                                                                            monkeypatch):
     """A wide batch runs in windows of acquisition ranks across all units, the state carried
-    from window to window (ComponentStore._pieces): two batches, the second onto the stored
-    state, give the per-component path's components, alerts, printout and history values, bit
-    for bit; the history in a chunk per component and window."""
+    from window to window (ComponentStore._pieces), its history staged and written per
+    component: two batches, the second onto the stored state, give the per-component path's
+    database (components, alerts, history rows: every value, bit for bit) and printout."""
     import rulkit.fleet.store.sqlite as store_module
-    from rulkit.fleet.store import history_chunks
+    from rulkit.fleet.store.history_stage import HistoryStage
     from rulkit.fleet.store.sqlite import ComponentStore
 
     rng = np.random.default_rng(12)
@@ -301,22 +301,24 @@ def test_track_in_rank_windows_stores_the_values_of_the_per_component_path(tmp_p
         con = sqlite3.connect(db)
         cols = [c for (c,) in con.execute("SELECT name FROM pragma_table_info('components')")
                 if c not in ("seen", "due")]  # the clock at the ingestion
-        chunks = con.execute("SELECT component, n, data FROM history ORDER BY 1, "
-                             "t_first").fetchall()
-        rec = history_chunks.decode([d for _, _, d in chunks], [k for _, k, _ in chunks])
-        owner = np.repeat([c for c, _, _ in chunks], [k for _, k, _ in chunks])
         dump = (con.execute(f"SELECT {', '.join(cols)} FROM components ORDER BY 1").fetchall(),
                 con.execute("SELECT component, t, level, previous, hi, fhi, rul, valid, "
                             "rul_low, rul_high, reason FROM alerts ORDER BY id").fetchall(),
-                owner.tolist(), rec.tobytes())
+                con.execute("SELECT * FROM history ORDER BY 1, 2").fetchall())
         con.close()
-        return outs, dump, len(chunks)
+        return outs, dump
 
     monkeypatch.setattr(ComponentStore, "WINDOW_ROWS", 5)
-    win_out, win, win_chunks = track("ranks", "windows.db")
-    comp_out, comp, comp_chunks = track("python", "components.db")
-    assert comp[1] and len(comp[3]) == len(df) * history_chunks.WIDTH * 8  # alerts, history
-    assert comp_chunks <= 2 * 9 and win_chunks > 3 * comp_chunks, win_chunks  # per window
+    staged = []
+    monkeypatch.setattr(HistoryStage, "add", lambda self, piece, rec, _add=HistoryStage.add:
+                        staged.append(piece.rank0) or _add(self, piece, rec))
+    win_out, win = track("ranks", "windows.db")
+    n_windows = len(staged)
+    assert n_windows > 20  # windows of at most 5 rows
+    comp_out, comp = track("python", "components.db")
+    assert len(staged) == n_windows  # nothing staged on the per-component path
+    n_acq = sum(n for *_, n, _, _ in comp[2])
+    assert comp[1] and n_acq == len(df) and len(comp[2]) <= 2 * 9  # alerts; a chunk per batch
     assert win_out == comp_out
     assert win == comp  # every stored value (floats exactly, NaN stored NULL)
 

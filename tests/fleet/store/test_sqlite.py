@@ -289,16 +289,19 @@ def test_a_wide_batch_runs_in_rank_windows_without_compiled_passes(tmp_path, mon
     monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", 100)
     monkeypatch.setattr(ComponentStore, "WINDOW_ROWS", 700)
     store = ComponentStore.__new__(ComponentStore)
+    store.path = tmp_path / "x.db"  # the windows' history is staged beside it
 
     def pieces(units, ranks):
         codes = np.tile(np.arange(units, dtype=np.int32), ranks)
         order = order_by_component(codes, [f"u{i}" for i in range(units)])
-        got, tracker, trend = store._pieces(order, codes.size)
-        return [p.rank0 for p in got], tracker, trend
+        got, tracker, trend, stage = store._pieces(order, codes.size)
+        if stage is not None:
+            stage.__exit__()
+        return [p.rank0 for p in got], tracker, trend, stage is not None
 
     monkeypatch.setattr(tracker_run, "_JITTED", {})  # numba not loaded yet
     monkeypatch.setattr(unit_trend, "_COMPILED", {})
-    assert pieces(300, 10) == ([0, 2, 4, 6, 8], "ranks", "ranks")  # 2 ranks of 300 a window
+    assert pieces(300, 10) == ([0, 2, 4, 6, 8], "ranks", "ranks", True)  # 2 ranks a window
     assert pieces(2, 1500)[0] == [0, 0]  # one block per component
     rng = np.random.default_rng(3)
     df = pd.DataFrame({"component": np.tile([f"u{i:03d}" for i in range(300)], 10),
