@@ -2,6 +2,7 @@
 components (rulkit.fleet.store.history_stage) against the records laid out by component."""
 
 import itertools
+import tempfile
 
 import numpy as np
 import pytest
@@ -34,7 +35,11 @@ def test_blocks_give_each_components_records_in_time_order(tmp_path, window_rows
     assert list(tmp_path.iterdir()) == []  # the temporary file has no name
 
 
-def test_a_directory_that_cannot_hold_the_stage_is_a_store_error(tmp_path):
+def test_the_system_temporary_directory_when_the_databases_cannot_hold_the_stage(
+        tmp_path, monkeypatch):
     order = order_by_component(np.zeros(3, dtype=np.int32), ["a"])
+    with HistoryStage(order, tmp_path / "missing") as stage:  # a directory it cannot write
+        assert stage.directory is None
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "missing-too"))
     with pytest.raises(StoreError, match="cannot stage the batch's history"):
         HistoryStage(order, tmp_path / "missing")

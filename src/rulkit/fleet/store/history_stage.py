@@ -30,7 +30,8 @@ from rulkit.tables import safe_text
 class HistoryStage:
     """The records of the rank windows of one batch, with ``order`` its
     :class:`~rulkit.fleet.store.batch_order.ComponentOrder`, in a temporary file in
-    ``directory`` (default: the system's); use as a context manager."""
+    ``directory`` (the database's: room for the history it will hold), else in the system's
+    temporary directory; use as a context manager."""
 
     def __init__(self, order: ComponentOrder, directory: Path | None = None) -> None:
         self.order = order
@@ -38,7 +39,13 @@ class HistoryStage:
         try:
             self._file = tempfile.TemporaryFile(dir=directory)
         except OSError as err:
-            raise self._error(err) from err
+            if directory is None:
+                raise self._error(err) from err
+            self.directory = None  # e.g. a database file writable in a directory that is not
+            try:
+                self._file = tempfile.TemporaryFile()
+            except OSError as err2:
+                raise self._error(err2) from err2
         self._windows: list[tuple[np.ndarray, np.ndarray, int, int]] = []
         self._size = 0
 
