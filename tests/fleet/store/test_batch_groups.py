@@ -21,8 +21,8 @@ TABLES = ("components", "history", "ingests", "alerts", "level_counts", "seen_co
 def frame(names, times, rate=0.06, seed=0):
     """HI of each component and time the same in every frame (a repeated row is a
     duplicate); ``seed`` shifts the components' levels."""
-    rows = [(c, float(t), (0.3 + 0.08 * (j + seed)) * np.exp(rate * t)
-             + 0.003 * np.sin(7.3 * t + ord(c)))
+    rows = [(c, float(t), (0.3 + 0.08 * ((j + seed) % 8)) * np.exp(rate * t)
+             + 0.003 * np.sin(7.3 * t + sum(map(ord, c))))
             for t in times for j, c in enumerate(names)]
     return pd.DataFrame(rows, columns=["component", "time", "hi"])
 
@@ -43,10 +43,12 @@ GROUPS = [
 ]
 
 
-def ingest_groups(path, join_batches):
+def ingest_groups(path, join_batches, block_rows=None):
     out = []
     with ComponentStore(path, config=CFG) as store:
         store.JOIN_BATCHES = join_batches
+        if block_rows is not None:  # blocks, and windows of ranks with a staged history
+            store.BLOCK_ROWS, store.WINDOW_ROWS = block_rows, block_rows
         store.keep_states()
         for group in GROUPS:
             res = store.ingest_many([(validate_acquisitions(f, CFG, None), f"s{i}", NOW)
@@ -69,7 +71,8 @@ def _result(r):
              for a in r.alerts])
 
 
-def test_joined_batches_store_and_answer_as_one_by_one(tmp_path, monkeypatch):
+@pytest.mark.parametrize("block_rows", [None, 8])
+def test_joined_batches_store_and_answer_as_one_by_one(tmp_path, monkeypatch, block_rows):
     applied = []
     real = ComponentStore._apply
 
@@ -78,9 +81,9 @@ def test_joined_batches_store_and_answer_as_one_by_one(tmp_path, monkeypatch):
         return real(self, acq, *a, **k)
 
     monkeypatch.setattr(ComponentStore, "_apply", counted)
-    joined = ingest_groups(tmp_path / "joined.db", True)
+    joined = ingest_groups(tmp_path / "joined.db", True, block_rows)
     n_joined = len(applied)
-    alone = ingest_groups(tmp_path / "alone.db", False)
+    alone = ingest_groups(tmp_path / "alone.db", False, block_rows)
     assert n_joined < len(applied) - n_joined  # the runs were joined
     assert joined[0] == alone[0]
     for table in TABLES:
@@ -102,6 +105,34 @@ def test_runs_cut_where_a_component_repeats_or_the_time_differs():
     both = join([q(["a", "b"])[0], q(["c"])[0]])
     assert both.names == ["a", "b", "c"]
     assert [both.names[c] for c in both.codes] == ["a", "b", "a", "b", "c", "c"]
+
+
+def test_a_wide_run_through_windows_of_ranks_as_one_by_one(tmp_path):
+    """Batches joined past a block: windows of acquisition ranks with a staged history, each
+    component's history row carrying its own batch's ingests row."""
+    group = [frame([f"w{w}-{i}" for i in range(150)], range(2), rate=0.0) for w in range(3)]
+    tables = []
+    for join_batches in (True, False):
+        path = tmp_path / f"{join_batches}.db"
+        with ComponentStore(path, config=CFG) as store:
+            store.JOIN_BATCHES = join_batches
+            store.BLOCK_ROWS, store.WINDOW_ROWS = 100, 100
+            assert store._pieces(order_of(group), 900)[3] is not None  # staged, if joined
+            store.ingest_many([(validate_acquisitions(f, CFG, None), f"s{i}", NOW)
+                               for i, f in enumerate(group)])
+        con = sqlite3.connect(path)
+        tables.append([con.execute(f"SELECT * FROM {t} ORDER BY 1, 2").fetchall()
+                       for t in TABLES])
+        con.close()
+    assert tables[0] == tables[1]
+    assert {r[4] for r in tables[0][1]} == {1, 2, 3}  # three batches' ingests rows
+
+
+def order_of(frames):
+    from rulkit.fleet.store.batch_order import order_by_component
+
+    acq = join([validate_acquisitions(f, CFG, None) for f in frames])
+    return order_by_component(acq.codes.astype(np.int32), acq.names)
 
 
 @pytest.mark.parametrize("join_batches", [True, False])
