@@ -10,6 +10,7 @@ import pytest
 
 from rulkit.fleet.store.acquisitions import IngestError, validate_acquisitions
 from rulkit.fleet.store.batch_groups import disjoint_runs, join
+from rulkit.fleet.store.history_stage import plan_pieces
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
@@ -117,7 +118,9 @@ def test_a_wide_run_through_windows_of_ranks_as_one_by_one(tmp_path):
         with ComponentStore(path, config=CFG) as store:
             store.JOIN_BATCHES = join_batches
             store.BLOCK_ROWS, store.WINDOW_ROWS = 100, 100
-            assert store._pieces(order_of(group), 900)[3] is not None  # staged, if joined
+            staged = plan_pieces(order_of(group), 900, 100, 100, tmp_path)[3]
+            assert staged is not None  # staged, if joined
+            staged.__exit__()
             store.ingest_many([(validate_acquisitions(f, CFG, None), f"s{i}", NOW)
                                for i, f in enumerate(group)])
         con = sqlite3.connect(path)

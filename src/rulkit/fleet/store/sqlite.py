@@ -64,28 +64,22 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
-from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
+from rulkit.fleet.monitoring.unit_trend import TrendConfig
 from rulkit.fleet.store import history_chunks
 from rulkit.fleet.store.acquisitions import (
     Alert,
     Batch,
-    IngestError,
     IngestResult,
     read_acquisitions,
     validate_acquisitions,
 )
-from rulkit.fleet.store.batch_groups import Queued, disjoint_runs, join
+from rulkit.fleet.store.batch_groups import GroupCommits
 from rulkit.fleet.store.batch_order import (
     ComponentOrder,
-    Piece,
-    block_pieces,
     check_spacing,
-    component_blocks,
     gaps_after_stored,
     order_by_component,
-    rank_windows,
     split_duplicates,
-    window_piece,
 )
 from rulkit.fleet.store.database_file import (
     StoreError,
@@ -98,7 +92,7 @@ from rulkit.fleet.store.database_file import (
     store_error,
     time_axis_from_meta,
 )
-from rulkit.fleet.store.history_stage import HistoryStage
+from rulkit.fleet.store.history_stage import plan_pieces
 from rulkit.fleet.store.prognosis import (
     PROGNOSIS_COLUMNS,
     BatchPrognosis,
@@ -133,7 +127,7 @@ from rulkit.fleet.tracking.tracker_chain import (
     TrackerState,
     tracker_outputs,
 )
-from rulkit.fleet.tracking.tracker_run import tracker_run, tracker_strategy
+from rulkit.fleet.tracking.tracker_run import tracker_run
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
 
@@ -220,8 +214,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             p.unlink(missing_ok=True)
 
 
-# --------------------------------------------------------------------------- the store
-class ComponentStore:
+class ComponentStore(GroupCommits):
     """SQLite store of component tracker state and acquisition history (see module docstring).
 
     ``ComponentStore(path, config=None, hi_model=None)`` opens (creating if needed, atomically)
@@ -243,15 +236,12 @@ class ComponentStore:
     STATE_COLUMNS = (*ROW_FIELDS, *PROGNOSIS_COLUMNS)
     """The columns of a component's stored row a batch starts from (:meth:`_load_states`)."""
     WINDOW_ROWS = 100_000
-    """Acquisitions per window of acquisition ranks of a wide batch (:meth:`_pieces`): the
-    same bound, wider because its numpy steps cost per rank; each window writes a history
-    chunk per component."""
+    """Acquisitions per window of acquisition ranks of a wide batch
+    (:func:`~rulkit.fleet.store.history_stage.plan_pieces`): the same bound, wider because its
+    numpy steps cost per rank."""
     hi_model: HealthIndexModel | None
     _states: StateCache | None = None  # the rows this connection committed (keep_states)
     _ingesting = False  # inside ingest_many, which keeps _states up to date
-    JOIN_BATCHES = True
-    """:meth:`ingest_many` applies consecutive batches with no component in common in one
-    pass (:meth:`_ingest_joined`)."""
 
     def __init__(
         self,
@@ -531,112 +521,6 @@ class ComponentStore:
             self.hi_model = new_model
         return res
 
-    def ingest_many(self, batches: list[tuple[Batch, str, float | None]]
-                    ) -> list[IngestResult | IngestError]:
-        """Validated batches (:func:`validate_acquisitions`' :class:`Batch`, their sources and the
-        calendar times ``now`` they were received at, ``None``: the clock) in one write
-        transaction, each under its own savepoint: a batch that fails (conflict, a
-        non-finite tracker output) is rolled back alone and gets its error, the others are
-        committed together (one commit, one sync: group commit). A failing commit raises
-        for all of them; nothing is then stored."""
-        out: list[IngestResult | IngestError] = []
-        states = self._states
-        self._ingesting = True
-        try:
-            with self._transaction("IMMEDIATE"):
-                if states is not None:
-                    states.begin(self._data_version())
-                runs = disjoint_runs(batches) if self.JOIN_BATCHES else ([b] for b in batches)
-                for run in runs:
-                    joined = self._ingest_joined(run) if len(run) > 1 else None
-                    out += joined if joined is not None else [
-                        self._ingest_savepoint(acq, source, now) for acq, source, now in run]
-        except BaseException:
-            if states is not None:
-                states.drop()
-            raise
-        finally:
-            self._ingesting = False
-        if states is not None:
-            states.commit()
-        return out
-
-    def _ingest_savepoint(self, acq: Batch, source: str, now: float | None
-                          ) -> IngestResult | IngestError:
-        """One batch of :meth:`ingest_many` under its own savepoint: its result, or its
-        error with the batch rolled back."""
-        self._conn.execute("SAVEPOINT batch")
-        self.now = now
-        try:
-            res: IngestResult | IngestError = self._ingest_in_transaction(acq, source)
-        except IngestError as err:
-            self._conn.execute("ROLLBACK TO SAVEPOINT batch")
-            if self._states is not None:
-                self._states.rollback()
-            res = err
-        finally:
-            self.now = None
-        self._conn.execute("RELEASE SAVEPOINT batch")
-        if self._states is not None:
-            self._states.release()
-        return res
-
-    def _ingest_joined(self, run: list[Queued]) -> list[IngestResult | IngestError] | None:
-        """Batches of :meth:`ingest_many` with no component in common
-        (:func:`~rulkit.fleet.store.batch_groups.disjoint_runs`) applied in one pass under one
-        savepoint: each batch's duplicates split off, its spacing checked and its ``ingests``
-        row inserted as alone, their rows joined (:func:`~rulkit.fleet.store.batch_groups.
-        join`) and applied once (:meth:`_apply`), each batch's alerts recorded in turn. The
-        results are those of the batches applied one by one (tests/fleet/store/
-        test_batch_groups.py). ``None``, with nothing applied, when any of them is refused:
-        the caller then applies them one by one, each with its own error."""
-        self._conn.execute("SAVEPOINT joined")
-        self.now = run[0][2]
-        try:
-            parts, stored = [], {}
-            for acq, source, _ in run:
-                mine = self._load_states(acq.names)
-                acq, n_dup = split_duplicates(self._conn, acq,
-                                              {k: float(v[0]) for k, v in mine.items()})
-                if len(acq):  # the batch's own spacing (a median: not the union's)
-                    order = order_by_component(acq.codes.astype(np.int32), acq.names)
-                    last = np.array([mine[k][0] if k in mine else np.nan
-                                     for k in acq.names], dtype=np.float64)
-                    check_spacing(self.config, gaps_after_stored(
-                        order, acq.t, acq.row, acq.names, last[order.sorted_pos]))
-                parts.append((acq, source, n_dup, len(acq.names) - len(
-                    [n for n in acq.names if n in mine])))
-                stored.update(mine)
-            live = [p for p in parts if len(p[0])]
-            ids = [self._insert_ingest(source, len(acq), len(acq.names))
-                   for acq, source, _, _ in live]
-            alerts: list[list[Alert]] = [[] for _ in parts]
-            if live:
-                counts = [len(p[0].names) for p in live]
-                res = self._apply(join([p[0] for p in live]), "", stored,
-                                  ingest_ids=np.repeat(np.asarray(ids, np.int64), counts))
-                batch_of = {n: i for i, p in enumerate(parts) for n in p[0].names}
-                for a in res.alerts:  # in the order each batch alone gives them
-                    alerts[batch_of[a.component]].append(a)
-            out: list[IngestResult | IngestError] = []
-            for (acq, _, n_dup, n_new), mine_alerts in zip(parts, alerts, strict=True):
-                out.append(IngestResult(
-                    n_rows=len(acq), n_components=len(acq.names) if len(acq) else 0,
-                    n_new_components=n_new if len(acq) else 0,
-                    alerts=self._record_alerts(mine_alerts), n_duplicates=n_dup))
-        except IngestError:
-            self._conn.execute("ROLLBACK TO SAVEPOINT joined")
-            self._conn.execute("RELEASE SAVEPOINT joined")
-            if self._states is not None:
-                self._states.rollback()
-            return None
-        finally:
-            self.now = None
-        self._conn.execute("RELEASE SAVEPOINT joined")
-        if self._states is not None:
-            self._states.release()
-        return out
-
     def _ingest_in_transaction(self, acq: Batch, source: str) -> IngestResult:
         """Inside the caller's write transaction: skip the rows already stored
         (:func:`~rulkit.fleet.store.batch_order.split_duplicates`; a contradiction raises
@@ -675,7 +559,8 @@ class ComponentStore:
         caller's transaction). ``stored``: the batch's stored component rows
         (:meth:`_load_states`), read here when not given.
 
-        The rows are processed in pieces (:meth:`_pieces`): blocks of consecutive components
+        The rows are processed in pieces
+        (:func:`~rulkit.fleet.store.history_stage.plan_pieces`): blocks of consecutive components
         in SQLite's key order (BINARY collation: UTF-8 byte order = code point order =
         Python's str order) of at most :attr:`BLOCK_ROWS` acquisitions, or, for a wide
         batch, windows of consecutive acquisition ranks of every component. Each piece runs
@@ -737,14 +622,17 @@ class ComponentStore:
     def _run_pieces(self, acq: Batch, order: ComponentOrder, state: TrackerState,
                     prog: BatchPrognosis, ingest_id: Any) -> list[tuple[int, int, Alert]]:
         """The trackers, the estimator, the rules and the history of every piece of the
-        batch (:meth:`_pieces`), the trackers' ``state`` (and ``prog``'s) carried from piece
-        to piece; the alerts as (acquisition rank, batch row, :class:`Alert`). ``ingest_id``:
-        the batch's ``ingests`` row, or one per component (joined batches)."""
+        batch (:func:`~rulkit.fleet.store.history_stage.plan_pieces`), the trackers' ``state``
+        (and ``prog``'s) carried from piece to piece; the alerts as (acquisition rank, batch
+        row, :class:`Alert`). ``ingest_id``: the batch's ``ingests`` row, or one per component
+        (joined batches)."""
         t, hi, rows_all, names = acq.t, acq.hi, acq.row, acq.names
         names_arr = np.array(names, dtype=object)
         sorted_pos = order.sorted_pos
         alerts: list[tuple[int, int, Alert]] = []
-        pieces, strategy, prog.strategy, stage = self._pieces(order, len(acq))
+        pieces, strategy, prog.strategy, stage = plan_pieces(
+            order, len(acq), self.BLOCK_ROWS, self.WINDOW_ROWS,
+            self.path.parent if isinstance(self.path, Path) else None)
         with stage if stage is not None else nullcontext():
             for piece in pieces:
                 comps = sorted_pos[piece.keys]  # component indices (into names / state)
@@ -776,31 +664,6 @@ class ComponentStore:
                                               order.start[k0:k1 + 1] - order.start[k0], rec,
                                               _of_components(ingest_id, sorted_pos[k0:k1]))
         return alerts
-
-    def _pieces(self, order: ComponentOrder, n: int
-                ) -> tuple[Iterator[Piece], str, str, HistoryStage | None]:
-        """How :meth:`_apply` runs a batch of ``n`` rows: its pieces, the trackers' and the
-        trend's strategy. A batch wider than long by the trackers' cost rule
-        (:func:`~rulkit.fleet.tracking.tracker_run.tracker_strategy` of its longest series:
-        ``"ranks"``) and larger than a block runs in windows of consecutive acquisition ranks
-        of every component (:func:`~rulkit.fleet.store.batch_order.rank_windows`, at most
-        :attr:`WINDOW_ROWS` rows each: one numpy step per rank across all units, no compiled
-        pass to load); any other in blocks of consecutive components of at most
-        :attr:`BLOCK_ROWS` rows, each way the cheapest for the rank loops of all blocks
-        against loading the compiled passes once. The windows' history is staged
-        (:class:`~rulkit.fleet.store.history_stage.HistoryStage`, returned) and written per
-        block of components after the last window: one chunk per component, as in blocks."""
-        longest = int(order.counts.max(initial=0))
-        if n > self.BLOCK_ROWS and tracker_strategy(longest, n) == "ranks":
-            windows = rank_windows(order, self.WINDOW_ROWS)
-            stage = HistoryStage(order, self.path.parent if isinstance(self.path, Path)
-                                 else None)
-            return ((window_piece(order, r0, r1) for r0, r1 in windows), "ranks", "ranks",
-                    stage)
-        blocks = component_blocks(order, self.BLOCK_ROWS)
-        n_ranks = sum(int(order.counts[k0:k1].max()) for k0, k1 in blocks)
-        return (iter(block_pieces(order, blocks)), tracker_strategy(n_ranks, n),
-                trend_strategy(n_ranks, n), None)
 
     @staticmethod
     def _block_records(t: np.ndarray, hi: np.ndarray, out: dict[str, np.ndarray],
