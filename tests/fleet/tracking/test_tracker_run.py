@@ -107,7 +107,7 @@ def test_ingest_history_and_alerts_equal_the_rank_by_rank_reference(tmp_path, mo
     from rulkit.fleet.tracking.tracker_chain import tracker_rul_interval
 
     monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", block)
-    import rulkit.fleet.store.sqlite as store_module
+    import rulkit.fleet.store.history_stage as store_module
 
     monkeypatch.setattr(store_module, "tracker_strategy", lambda n_ranks, n_rows: strategy)
     rng = np.random.default_rng(5)
