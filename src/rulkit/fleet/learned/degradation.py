@@ -398,57 +398,61 @@ def _filter_kernel(*args: Any) -> None:
 
 # ------------------------------------------------------------------------------ RUL
 def _event(model: Any, state: UnitState, one_reading: bool = False
-           ) -> tuple[float, FloatArray]:
+           ) -> tuple[float, FloatArray, FloatArray]:
     """The measurement sd at the threshold (``model.measured_var``; 0 for a model without
-    one: eq. (5) of the latent level) and each unit's cadence in scaled time, derived from its
+    one: eq. (5) of the latent level), each unit's cadence in scaled time, derived from its
     state: its mean interval since age 0, t / n (inf before two acquisitions, at age <= 0 or
-    with ``one_reading``: eq. (5) of one measurement)."""
+    with ``one_reading``: eq. (5) of one measurement), and its last reading on the growth
+    scale (the first step's interpolation starts from it, eq. (5b))."""
     s = math.sqrt(float(getattr(model, "measured_var", 0.0)))
     with np.errstate(invalid="ignore", divide="ignore"):
         d = state.t / np.maximum(state.n, 1) / model.time_scale
-    return s, np.where((state.n >= 2) & (d > 0) & (not one_reading), d, np.inf)
+    z0 = _last_reading(model, state) if s > 0 else np.full(len(state), np.nan)
+    return s, np.where((state.n >= 2) & (d > 0) & (not one_reading), d, np.inf), z0
+
+
+def _last_reading(model: Any, state: UnitState) -> FloatArray:
+    """z_0 = g(hi) of each unit's last reading (the model's transform, or the Box-Cox of its
+    ``shape`` for the models measuring the HI itself)."""
+    from rulkit.fleet.learned.growth_filter import boxcox
+
+    hi = np.nan_to_num(np.asarray(state.hi, dtype=np.float64), nan=1.0)
+    if hasattr(model, "transform"):
+        return np.asarray(model.transform(hi), dtype=np.float64)
+    return np.asarray(boxcox(np.maximum(hi, 1e-12), float(model.shape)), dtype=np.float64)
 
 
 def _log_surv(model: Any, state: UnitState, w: FloatArray, s: float,
-              delta: FloatArray) -> FloatArray:
-    """log S(w): log P(no reading >= 1 up to the scaled horizon w) (eq. (5b))."""
+              delta: FloatArray, z0: FloatArray) -> FloatArray:
+    """log S(w): log P(the interpolated crossing comes after the scaled horizon w) (eq.
+    (5b))."""
     from scipy.special import log_ndtr
 
     from rulkit.fleet.learned.first_passage import level_terms
 
-    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w)
-    return log_ndtr(-num / sd)
+    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w, z0)
+    return np.asarray(log_ndtr(-num / sd))
 
 
-def _reference(model: Any, state: UnitState, s: float, delta: FloatArray) -> FloatArray:
+def _reference(model: Any, state: UnitState, s: float, delta: FloatArray,
+               z0: FloatArray) -> FloatArray:
     """log of the survival the RUL's is relative to: 0 for the first measured crossing over a
     known cadence (the posterior already holds the last reading < 1; eq. (5b)); log S(0) for
     the latent level (s = 0) or one reading (no cadence), eq. (5)'s S(r) / S(0)."""
-    ls0 = _log_surv(model, state, np.zeros(len(state)), s, delta)
+    ls0 = _log_surv(model, state, np.zeros(len(state)), s, delta, z0)
     return np.where((s > 0) & np.isfinite(delta), 0.0, ls0)
 
 
 def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
-    """P(RUL <= r) (eq. (5b)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1. Within
-    one cadence step d of the last acquisition, where the truth interpolates the crossing
-    between the last reading and the first, the CDF is that of one measurement (eq. (5),
-    S(r)/S(0)) scaled to reach the first reading's probability at d."""
+    """P(RUL <= r) (eq. (5b)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1."""
     w = np.asarray(r, dtype=np.float64) / model.time_scale
-    s, delta = _event(model, state)
-    ref = _reference(model, state, s, delta)
-    one = np.full(len(state), np.inf)
+    s, delta, z0 = _event(model, state)
+    ref = _reference(model, state, s, delta, z0)
+    out = np.empty_like(w)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN horizons stay
-        first = 1.0 - np.exp(np.minimum(_log_surv(model, state, delta, s, delta) - ref, 0.0))
-        ls1 = _log_surv(model, state, np.zeros(len(state)), s, one)
-        g_first = -np.expm1(np.minimum(_log_surv(model, state, delta, s, one) - ls1, 0.0))
-        out = np.empty_like(w)
         for k in range(w.shape[1]):
-            f = 1.0 - np.exp(np.minimum(_log_surv(model, state, w[:, k], s, delta) - ref, 0.0))
-            g = -np.expm1(np.minimum(_log_surv(model, state, w[:, k], s, one) - ls1, 0.0))
-            # the shape of one measurement's CDF on the step (linear where it stays 0)
-            shape = np.where(g_first > 0, g / np.where(g_first > 0, g_first, 1.0),
-                             w[:, k] / delta)
-            out[:, k] = np.where((w[:, k] < delta) & np.isfinite(delta), first * shape, f)
+            ls = _log_surv(model, state, w[:, k], s, delta, z0)
+            out[:, k] = -np.expm1(np.minimum(ls - ref, 0.0))
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
@@ -459,22 +463,20 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
                   one_reading: bool = False) -> tuple[FloatArray, ...]:
     """Quantiles of eq. (5b); see :meth:`DegradationModel.rul_quantiles`.
 
-    A level p beyond the first reading's probability F(d) is reached where
-    log S(w) = log S_ref + log(1 - p) (:func:`_reference`), searched from the first reading
-    on; a level p <= F(d) where one measurement's CDF (eq. (5)) reaches p / F(d) of its value
-    at d (:func:`rul_cdf`). ``method="compiled"`` (the default): per unit, Newton's steps on
-    (5b)'s margin from eq. (6)'s closed-form root, safeguarded by a bracket, at most
-    ``iterations`` steps (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
+    A level p is reached where log S(w) = log S_ref + log(1 - p) (:func:`_reference`).
+    ``method="compiled"`` (the default): per unit, Newton's steps on (5b)'s margin from eq.
+    (6)'s closed-form root, safeguarded by a bracket, at most ``iterations`` steps
+    (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
     ``method="bisect"``: bisection on u in (0, 1), w = W u / (1 - u), W = max(age, 1),
     ``iterations`` halvings, vectorised over units in numpy on the CDF of :func:`rul_cdf`
     (the reference of the tests). A level beyond the failing mass
     1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf. ``one_reading``: eq. (5) of
-    one measurement instead (the exported C's event, docs/rul-on-the-device.md).
+    one measurement instead (the exported C's optional event, docs/rul-on-the-device.md).
     """
     if method not in ("compiled", "bisect"):
         raise ValueError(f"method: expected 'compiled' or 'bisect', got {method!r}")
     tau = model.time_scale
-    s, delta = _event(model, state, one_reading)
+    s, delta, z0 = _event(model, state, one_reading)
     if method == "bisect":
         w = _bisect_levels(model, state, levels, iterations)
     else:
@@ -483,7 +485,7 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
 
         w = np.empty((len(levels), len(state)))
         first_passage_quantiles(np.ascontiguousarray(state.m), np.ascontiguousarray(state.p),
-                                delta, model.walk_sd**2, model.threshold, s,
+                                z0, delta, model.walk_sd**2, model.threshold, s,
                                 np.asarray(levels, dtype=np.float64), *kernel_table(),
                                 iterations, w)
     r = np.where(state.hi >= 1.0, 0.0, np.maximum(w, 0.0) * tau)
@@ -500,9 +502,9 @@ def _bisect_levels(model: GrowthLaw, state: UnitState, levels: tuple[float, ...]
     tau = model.time_scale
     x0 = np.where(state.n > 0, state.t, 0.0) / tau
     scale = np.maximum(np.abs(x0), 1.0)
-    s, delta = _event(model, state)
+    s, delta, z0 = _event(model, state)
     ls_inf = log_ndtr(-state.m[:, 1] / np.sqrt(state.p[:, 2]))
-    ref = _reference(model, state, s, delta)
+    ref = _reference(model, state, s, delta, z0)
     out = np.empty((len(levels), len(state)))
     for k, lev in enumerate(levels):
         lo, hi = np.zeros(len(state)), np.ones(len(state))
