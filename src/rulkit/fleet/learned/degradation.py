@@ -419,7 +419,7 @@ def _last_reading(model: Any, state: UnitState) -> FloatArray:
     hi = np.nan_to_num(np.asarray(state.hi, dtype=np.float64), nan=1.0)
     if hasattr(model, "transform"):
         return np.asarray(model.transform(hi), dtype=np.float64)
-    return np.asarray(boxcox(np.maximum(hi, 1e-12), float(model.shape)), dtype=np.float64)
+    return np.asarray(boxcox(hi, float(model.shape)), dtype=np.float64)
 
 
 def _log_surv(model: Any, state: UnitState, w: FloatArray, s: float,
