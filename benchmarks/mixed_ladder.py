@@ -29,7 +29,7 @@ d. ``paris-mixed``, ``paris-mixed-iid``, ``paris-multiplicative``: the fitted mo
 
 First, eq. (5b)'s event on a known straight path, per rise c between readings (in noise sds):
 the truth's CDF at (5b)'s 5 % and 95 % quantiles with a regular cadence and with exponential
-gaps, against (5a)'s own event (:func:`event_errors`). Then, per rung: the coverage over all
+gaps, against the event of a full-noise reading at the horizon (:func:`event_errors`). Then, per rung: the coverage over all
 predictions and over the last half of life, the median width of the late intervals relative to
 the truth, the shares of late truths before the interval (optimistic) and after it
 (pessimistic), the late median relative error; and each rung's parameters beside the
@@ -278,9 +278,10 @@ def event_errors(rises: tuple[float, ...] = (0.3, 0.6, 1.2, 2.5, 5.0), draws: in
     readings: the truth's CDF (the first reading >= 1, its crossing interpolated from the
     reading before; brute force) at eq. (5b)'s 5 % and 95 % quantiles, with readings at a
     regular cadence (eq. (5b)'s assumption) and with exponential gaps of the same mean (the
-    synthetic fleets'), and the widths of the 90 % intervals; beside them the CDF of (5a)'s
-    event itself (a full-noise reading at the horizon r and readings at r - d, r - 2d, ...;
-    brute force) at the same quantiles, which isolates (5b)'s Gaussian Y* from its event."""
+    synthetic fleets'), and the widths of the 90 % intervals; beside them (``event_F``) the
+    CDF of the event of one full-noise reading at the horizon r and readings at r - d,
+    r - 2d, ... (brute force) at the same quantiles: how far that event, which ignores the
+    interpolation, is from (5b)'s."""
     from rulkit.fleet.learned.degradation import UnitState
 
     rng, s, d, n = np.random.default_rng(seed), 0.04, 1.0, 50
