@@ -284,15 +284,15 @@ def hi_noise(work: Path, repeats: int) -> None:
 def _fp_quantiles(model: HiNoiseModel, st: UnitState, table: tuple) -> np.ndarray:
     """eq. (5b)'s quantiles (scaled time) of every state with the table ``table`` (the layout
     of ``first_passage.kernel_table``)."""
+    from rulkit.fleet.learned.degradation import growth_scale_of
     from rulkit.fleet.learned.filter_kernels import first_passage_quantiles
-    from rulkit.fleet.learned.growth_filter import boxcox
 
     with np.errstate(invalid="ignore", divide="ignore"):
         d = st.t / np.maximum(st.n, 1) / model.time_scale
     delta = np.where((st.n >= 2) & (d > 0), d, np.inf)
     out = np.empty((len(LEVELS), len(st)))
-    z0 = boxcox(np.nan_to_num(st.hi, nan=1.0), model.shape)
-    first_passage_quantiles(np.ascontiguousarray(st.m), np.ascontiguousarray(st.p), z0, delta,
+    first_passage_quantiles(np.ascontiguousarray(st.m), np.ascontiguousarray(st.p), st.hi,
+                            growth_scale_of(model), delta,
                             model.walk_sd**2, model.threshold, np.sqrt(model.measured_var),
                             np.asarray(LEVELS, dtype=np.float64), *table, 200, out)
     return out

@@ -103,8 +103,9 @@ stops long before it (the C's first_passage_root)."""
 def first_passage_constants(model: LearnedModel) -> dict[str, Any]:
     """The constants of eq. (5b) in C (learned_first_passage.c.j2): the measurement sd s at the
     threshold, the table of mu*(c, n, theta) and sigma*(c, n, theta) row-major over
-    (log c, log n, theta) with its grid (the same numbers :func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`
-    reads) and the search's cap."""
+    (log c, log n, theta) with its grid (the same numbers
+    :func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles` reads) and the
+    search's cap."""
     from rulkit.fleet.learned.first_passage import kernel_table
 
     mu, sd, lc0, dlc, dlj, dth = kernel_table()

@@ -47,6 +47,7 @@ Usage::
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any, Protocol, cast
 
@@ -398,60 +399,73 @@ def _filter_kernel(*args: Any) -> None:
 
 # ------------------------------------------------------------------------------ RUL
 def _event(model: Any, state: UnitState, one_reading: bool = False
-           ) -> tuple[float, FloatArray, FloatArray]:
+           ) -> tuple[float, FloatArray]:
     """The measurement sd at the threshold (``model.measured_var``; 0 for a model without
-    one: eq. (5) of the latent level), each unit's cadence in scaled time, derived from its
+    one: eq. (5) of the latent level) and each unit's cadence in scaled time, derived from its
     state: its mean interval since age 0, t / n (inf before two acquisitions, at age <= 0 or
-    with ``one_reading``: eq. (5) of one measurement), and its last reading on the growth
-    scale (the first step's interpolation starts from it, eq. (5b))."""
+    with ``one_reading``: eq. (5) of one measurement)."""
     s = math.sqrt(float(getattr(model, "measured_var", 0.0)))
     with np.errstate(invalid="ignore", divide="ignore"):
         d = state.t / np.maximum(state.n, 1) / model.time_scale
-    z0 = _last_reading(model, state) if s > 0 else np.full(len(state), np.nan)
-    return s, np.where((state.n >= 2) & (d > 0) & (not one_reading), d, np.inf), z0
+    return s, np.where((state.n >= 2) & (d > 0) & (not one_reading), d, np.inf)
 
 
-def _last_reading(model: Any, state: UnitState) -> FloatArray:
-    """z_0 = g(hi) of each unit's last reading (the model's transform, or the Box-Cox of its
-    ``shape`` for the models measuring the HI itself)."""
+def growth_scale_of(model: Any) -> FloatArray:
+    """The model's growth scale g as the compiled kernels read it (kind 0 linear, 1
+    ln(h - shape), 2 Box-Cox of shape; the clip of h): the first step of eq. (5b)
+    interpolates the last reading and the next on the HI scale and maps the bound on the next
+    reading through g (:func:`~rulkit.fleet.learned.filter_kernels.growth_scale`)."""
+    from rulkit.fleet.learned.growth_filter import HI_HI, HI_LO
+
+    kind = getattr(model, "kind", "paris")
+    shape = float(getattr(model, "shape", 0.0))
+    if not hasattr(model, "transform"):  # the models measuring the HI itself: boxcox
+        return np.array([2.0, shape, HI_LO, HI_HI])
+    return np.array([{"linear": 0.0, "exponential": 1.0}.get(kind, 2.0), shape, HI_MIN,
+                     np.inf])
+
+
+def _growth(model: Any) -> Callable[[FloatArray], FloatArray]:
+    """g(h) of the model (its transform, or the Box-Cox of its shape)."""
     from rulkit.fleet.learned.growth_filter import boxcox
 
-    hi = np.nan_to_num(np.asarray(state.hi, dtype=np.float64), nan=1.0)
     if hasattr(model, "transform"):
-        return np.asarray(model.transform(hi), dtype=np.float64)
-    return np.asarray(boxcox(hi, float(model.shape)), dtype=np.float64)
+        return cast(Callable[[FloatArray], FloatArray], model.transform)
+    shape = float(model.shape)
+    return lambda h: boxcox(h, shape)
 
 
 def _log_surv(model: Any, state: UnitState, w: FloatArray, s: float,
-              delta: FloatArray, z0: FloatArray) -> FloatArray:
+              delta: FloatArray) -> FloatArray:
     """log S(w): log P(the interpolated crossing comes after the scaled horizon w) (eq.
     (5b))."""
     from scipy.special import log_ndtr
 
     from rulkit.fleet.learned.first_passage import level_terms
 
-    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w, z0)
+    g = _growth(model) if s > 0 else None
+    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w,
+                          state.hi, g)
     return np.asarray(log_ndtr(-num / sd))
 
 
-def _reference(model: Any, state: UnitState, s: float, delta: FloatArray,
-               z0: FloatArray) -> FloatArray:
+def _reference(model: Any, state: UnitState, s: float, delta: FloatArray) -> FloatArray:
     """log of the survival the RUL's is relative to: 0 for the first measured crossing over a
     known cadence (the posterior already holds the last reading < 1; eq. (5b)); log S(0) for
     the latent level (s = 0) or one reading (no cadence), eq. (5)'s S(r) / S(0)."""
-    ls0 = _log_surv(model, state, np.zeros(len(state)), s, delta, z0)
+    ls0 = _log_surv(model, state, np.zeros(len(state)), s, delta)
     return np.where((s > 0) & np.isfinite(delta), 0.0, ls0)
 
 
 def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
     """P(RUL <= r) (eq. (5b)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1."""
     w = np.asarray(r, dtype=np.float64) / model.time_scale
-    s, delta, z0 = _event(model, state)
-    ref = _reference(model, state, s, delta, z0)
+    s, delta = _event(model, state)
+    ref = _reference(model, state, s, delta)
     out = np.empty_like(w)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN horizons stay
         for k in range(w.shape[1]):
-            ls = _log_surv(model, state, w[:, k], s, delta, z0)
+            ls = _log_surv(model, state, w[:, k], s, delta)
             out[:, k] = -np.expm1(np.minimum(ls - ref, 0.0))
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
@@ -476,7 +490,7 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
     if method not in ("compiled", "bisect"):
         raise ValueError(f"method: expected 'compiled' or 'bisect', got {method!r}")
     tau = model.time_scale
-    s, delta, z0 = _event(model, state, one_reading)
+    s, delta = _event(model, state, one_reading)
     if method == "bisect":
         w = _bisect_levels(model, state, levels, iterations)
     else:
@@ -485,7 +499,8 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
 
         w = np.empty((len(levels), len(state)))
         first_passage_quantiles(np.ascontiguousarray(state.m), np.ascontiguousarray(state.p),
-                                z0, delta, model.walk_sd**2, model.threshold, s,
+                                np.asarray(state.hi, dtype=np.float64),
+                                growth_scale_of(model), delta, model.walk_sd**2, model.threshold, s,
                                 np.asarray(levels, dtype=np.float64), *kernel_table(),
                                 iterations, w)
     r = np.where(state.hi >= 1.0, 0.0, np.maximum(w, 0.0) * tau)
@@ -502,9 +517,9 @@ def _bisect_levels(model: GrowthLaw, state: UnitState, levels: tuple[float, ...]
     tau = model.time_scale
     x0 = np.where(state.n > 0, state.t, 0.0) / tau
     scale = np.maximum(np.abs(x0), 1.0)
-    s, delta, z0 = _event(model, state)
+    s, delta = _event(model, state)
     ls_inf = log_ndtr(-state.m[:, 1] / np.sqrt(state.p[:, 2]))
-    ref = _reference(model, state, s, delta, z0)
+    ref = _reference(model, state, s, delta)
     out = np.empty((len(levels), len(state)))
     for k, lev in enumerate(levels):
         lo, hi = np.zeros(len(state)), np.ones(len(state))

@@ -441,21 +441,43 @@ def _ystar(c, j, th, mu_t, sd_t, lc0, dlc, dlj, dth):  # pragma: no cover - comp
 
 
 @numba.njit(cache=True)
+def growth_scale(h, kind, shape, lo, hi):  # pragma: no cover - compiled
+    """(g(h), g'(h)) of a growth scale: ``kind`` 0 linear, 1 ln(h - shape), 2 Box-Cox of
+    ``shape``; h (h - shape for kind 1) clipped to [lo, hi] (g' = 0 where clipped), as
+    :func:`rulkit.fleet.learned.degradation.transform` and
+    :func:`rulkit.fleet.learned.growth_filter.boxcox` clip."""
+    if kind == 0:
+        return h, 1.0
+    x = h - shape if kind == 1 else h
+    inside = lo <= x <= hi
+    x = min(max(x, lo), hi)
+    if kind == 1 or abs(shape) < 1e-12:
+        return math.log(x), (1.0 / x if inside else 0.0)
+    return (x**shape - 1.0) / shape, (x ** (shape - 1.0) if inside else 0.0)
+
+
+@numba.njit(cache=True)
 def _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj, dth):  # pragma: no cover
     """(5b)'s numerator N and sd D at horizon ``w`` for one unit (S(w) = Phi(-N / D)) and
     their derivatives in w (the table's through its trilinear slopes). ``st`` (m_z - g(1),
-    m_b, P_zz, P_zb, P_bb, z_0 - g(1)) with z_0 the last reading; ``delta`` inf: one reading
-    at the horizon; ``s`` 0: the latent level. Before the first reading (w < delta) the
-    interpolation between the last reading and the next, (1 - theta) y_0 + theta y_1 < 1:
-    N = theta A(d) + (1 - theta) (z_0 - g(1)), D = theta (V(d) + s^2)^(1/2), linear in w."""
+    m_b, P_zz, P_zb, P_bb, h_0, g(1), and the growth scale's kind, shape, lower and upper
+    clip, :func:`growth_scale`) with h_0 the last reading; ``delta`` inf: one reading at the
+    horizon; ``s`` 0: the latent level. Before the first reading (w < delta) the
+    interpolation between the last reading and the next on the HI scale,
+    (1 - theta) h_0 + theta h_1 < 1, i.e. the next reading below
+    H = 1 + (1 - theta) (1 - h_0) / theta: N = m_z + m_b d - g(H), D = (V(d) + s^2)^(1/2)."""
     mz, mb, pzz, pzb, pbb = st[0], st[1], st[2], st[3], st[4]
     if s > 0.0 and delta < np.inf and w < delta:
-        a1 = mz + mb * delta
         d1 = math.sqrt(max(pzz + 2.0 * delta * pzb + delta * delta * pbb + q * delta, 0.0)
                        + s * s)
         th = w / delta
-        return (th * a1 + (1.0 - th) * st[5], max(th * d1, 1e-300), (a1 - st[5]) / delta,
-                d1 / delta)
+        if th <= 0.0:
+            return -1e300, d1, 0.0, 0.0
+        gap = 1.0 - st[5]
+        big = 1.0 + (1.0 - th) * gap / th
+        g, dg = growth_scale(big, int(st[7]), st[8], st[9], st[10])
+        dbig = -gap / (th * th * delta)
+        return mz + mb * delta + st[6] - g, d1, -dg * dbig, 0.0
     a = mz + mb * w
     g = pzb + w * pbb
     v = max(pzz + 2.0 * w * pzb + w * w * pbb + q * w, 1e-300)
@@ -591,21 +613,23 @@ def _fp_root(st, q, s, delta, k, mu_t, sd_t, lc0, dlc, dlj, dth,
 
 
 @numba.njit(cache=True)
-def first_passage_quantiles(m, p, z0, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc, dlj,
-                            dth, iterations, out):  # pragma: no cover - compiled
+def first_passage_quantiles(m, p, h0, growth, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
+                            dlj, dth, iterations, out):  # pragma: no cover - compiled
     """Quantiles of eq. (5b) per unit into ``out (L, B)``, in scaled age (see
     :func:`rulkit.fleet.learned.degradation.rul_quantiles`): +inf beyond the failing mass.
-    ``z0 (B,)`` each unit's last reading on the growth scale (the first step's interpolation
-    from it, :func:`_fp_terms`)."""
+    ``h0 (B,)`` each unit's last reading (the first step's interpolation from it,
+    :func:`_fp_terms`), ``growth`` the growth scale's (kind, shape, lower, upper clip) of
+    :func:`growth_scale`."""
     inf = np.inf
     k_fp = np.empty(levels.shape[0])  # the first passage's k per level (its reference is 0)
     for i in range(levels.shape[0]):
         k_fp[i] = _margin_quantile(math.log1p(-levels[i])) if 0.0 < levels[i] < 1.0 else 0.0
-    st = np.empty(6)
+    st = np.empty(11)
+    st[6], st[7], st[8], st[9], st[10] = zs, growth[0], growth[1], growth[2], growth[3]
     for b in range(m.shape[0]):
         d = delta[b]
         st[0], st[1], st[2], st[3], st[4] = m[b, 0] - zs, m[b, 1], p[b, 0], p[b, 1], p[b, 2]
-        st[5] = z0[b] - zs
+        st[5] = h0[b]
         fp = s > 0.0 and d < inf
         ref = 0.0 if fp else _fp_log_surv(st, q, s, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj, dth)
         ls_inf = log_ndtr(-st[1] / math.sqrt(st[4]))
@@ -615,7 +639,7 @@ def first_passage_quantiles(m, p, z0, delta, q, zs, s, levels, mu_t, sd_t, lc0, 
             if target <= ls_inf:
                 out[i, b] = inf
                 continue
-            if target >= 0.0 or lev <= 0.0 or (fp and st[5] >= 0.0):  # or already read >= 1
+            if target >= 0.0 or lev <= 0.0 or (fp and st[5] >= 1.0):  # or already read >= 1
                 out[i, b] = 0.0
                 continue
             k = k_fp[i] if fp else _margin_quantile(target)

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -233,15 +234,18 @@ def _level(m: FloatArray, p: FloatArray, q: float, zs: float, w: FloatArray
 
 
 def level_terms(m: FloatArray, p: FloatArray, q: float, zs: float, s: float,
-                delta: FloatArray, w: FloatArray, z0: FloatArray | None = None
+                delta: FloatArray, w: FloatArray, h0: FloatArray | None = None,
+                g: Callable[[FloatArray], FloatArray] | None = None
                 ) -> tuple[FloatArray, FloatArray]:
     """(5b)'s numerator and sd at scaled horizons ``w (B,)``: S(w) = Phi(-num / sd).
 
     ``m (B, 2)``, ``p (B, 3)`` the posterior of (level, rate), ``q`` the walk's variance,
     ``zs`` g(1), ``s`` the measurement sd at the threshold (0: the latent level's eq. (5)),
     ``delta (B,)`` the cadence in scaled time (inf: one reading at the horizon, eq. (5) of one
-    measurement), ``z0 (B,)`` the last reading on the growth scale (the first step's
-    interpolation from it; needed where ``delta`` is finite).
+    measurement), ``h0 (B,)`` the last reading and ``g`` the growth scale (needed where
+    ``delta`` is finite: before the next reading the crossing is interpolated between the
+    last reading and the next on the HI scale, (1 - theta) h_0 + theta h_1 < 1, so the next
+    reading is below H = 1 + (1 - theta) (1 - h_0) / theta, one Gaussian on the growth scale).
     """
     a, v = _level(m, p, q, zs, w)
     if s == 0.0:
@@ -255,11 +259,13 @@ def level_terms(m: FloatArray, p: FloatArray, q: float, zs: float, s: float,
         mu, sig = np.where(one, 0.0, mu), np.where(one, 1.0, sig)
         num, sd = a - s * mu, np.sqrt(np.maximum(v + s * s * sig * sig, 1e-300))
         first = np.isfinite(delta) & (n < 1.0)
-        if first.any():  # (1 - theta) y_0 + theta y_1 < 1: one Gaussian
-            assert z0 is not None, "level_terms: z0 is needed with a finite cadence"
+        if first.any():
+            if h0 is None or g is None:
+                raise ValueError("level_terms: h0 and g are needed with a finite cadence")
             a1, v1 = _level(m, p, q, zs, np.where(first, delta, 0.0))
-            num = np.where(first, x * a1 + (1.0 - x) * (z0 - zs), num)
-            sd = np.where(first, np.maximum(x * np.sqrt(v1 + s * s), 1e-300), sd)
+            big = np.where(x > 0.0, 1.0 + (1.0 - x) * (1.0 - h0) / x, np.inf)
+            num = np.where(first, np.where(x > 0.0, a1 + zs - g(big), -1e300), num)
+            sd = np.where(first, np.sqrt(np.maximum(v1, 0.0) + s * s), sd)
     return num, sd
 
 
