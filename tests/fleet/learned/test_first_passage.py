@@ -252,8 +252,9 @@ def test_kernel_quantiles_nondecreasing_in_level():
     s, delta = _event(model, st)
     levels = np.linspace(0.001, 0.999, 41)
     w = np.empty((levels.size, len(st)))
-    first_passage_quantiles(st.m, st.p, st.hi, growth_scale_of(model), delta, model.walk_sd**2, model.threshold, s, levels,
-                            *kernel_table(), 200, w)
+    first_passage_quantiles(st.m, st.p, st.hi, growth_scale_of(model), delta,
+                            model.walk_sd**2, model.threshold, s, levels, *kernel_table(), 200,
+                            w)
     ok = st.n > 0
     assert np.all(w[1:, ok] >= w[:-1, ok])  # inf >= inf: the never-failing levels
     assert (w[:, ok] < delta[ok]).any() and np.isfinite(w[:, ok]).any()
