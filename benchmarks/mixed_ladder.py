@@ -31,9 +31,9 @@ First, eq. (5b)'s event on a known straight path, per rise c between readings (i
 the truth's CDF at (5b)'s 5 % and 95 % quantiles with a regular cadence and with exponential
 gaps, against the event of a full-noise reading at the horizon (:func:`event_errors`). Then,
 per rung: the coverage over all predictions and over the last half of life, the median width
-of the late intervals relative to the truth, the shares of late truths before the interval (optimistic) and after it
-(pessimistic), the late median relative error; and each rung's parameters beside the
-generator's (on the file's time unit):
+of the late intervals relative to the truth, the shares of late truths before the interval
+(optimistic) and after it (pessimistic), the late median relative error; and each rung's
+parameters beside the generator's (on the file's time unit):
 
     .venv/bin/python benchmarks/mixed_ladder.py                    # mixed, seeds 0 to 4
     .venv/bin/python benchmarks/mixed_ladder.py --dataset additive --seeds 0
