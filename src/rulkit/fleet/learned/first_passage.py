@@ -16,8 +16,10 @@ exactly when
                                                                                      (5a)
 
 with eps_k, eps' i.i.d. N(0, 1) (eps_0 the noise of reading n, in both terms). With n = 0
-(before the first reading) only the interpolation between the last reading y_0 (known) and the
-next is left: S(r) = P((1 - theta) y_0 + theta y_1 < 1), one Gaussian in closed form. For
+(before the first reading) only the interpolation between the last reading h_0 (known) and
+the next is left, on the HI scale as the truth's: S(r) = P((1 - theta) h_0 + theta h_1 < 1),
+the next reading below H = 1 + (1 - theta) (1 - h_0) / theta, one Gaussian on the growth
+scale. For
 n >= 1, x(r) is eq. (5)'s Gaussian level at the horizon (the posterior of level and rate, plus
 the random walk's variance) and Y* depends only on (c, n, theta). Y* is replaced by the
 Gaussian of its mean mu*(c, n, theta) and sd sigma*(c, n, theta) (tabulated once by quadrature,
@@ -35,7 +37,7 @@ numerator and sd, k = -Phi^-1(S)): Newton's steps per unit in one compiled pass 
 closed-form root, the table's slope from its trilinear cells
 (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`). The approximations (a
 straight path between readings; the walk's variance at the horizon only; Y* Gaussian; c at b*;
-the cadence d regular; the interpolation on the model's growth scale) are measured against a
+the cadence d regular; for n >= 1 the interpolation on the model's growth scale) are measured against a
 brute-force Monte Carlo of the event in tests/fleet/learned/test_first_passage.py.
 """
 
