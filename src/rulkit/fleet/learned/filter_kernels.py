@@ -471,7 +471,7 @@ def _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj, dth):  # pragma: no
         d1 = math.sqrt(max(pzz + 2.0 * delta * pzb + delta * delta * pbb + q * delta, 0.0)
                        + s * s)
         th = w / delta
-        if th <= 0.0:
+        if th <= 1e-100:  # H beyond every HI: S = 1 (and no 1 / theta^2 overflow)
             return -1e300, d1, 0.0, 0.0
         gap = 1.0 - st[5]
         big = 1.0 + (1.0 - th) * gap / th
@@ -597,7 +597,12 @@ def _fp_root(st, q, s, delta, k, mu_t, sd_t, lc0, dlc, dlj, dth,
             lo = w
         elif g > 0.0:
             hi = w
-        w_new = w - g / dg if g != 0.0 else w
+        if g == 0.0:
+            w_new = w
+        elif dg != 0.0:
+            w_new = w - g / dg
+        else:  # a flat stretch (g's bound clipped): no step, a halving below
+            w_new = np.nan
         h = abs(w_new - w)
         # Newton's error after the step: |G''| h^2 / (2 |G'|), G'' from the last two slopes
         if lo <= w_new <= hi and (h <= 1e-13 * w_new or (
