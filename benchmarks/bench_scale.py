@@ -11,17 +11,23 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
   its writes: the same rows read by pyarrow and written bare as the same packed history rows;
   with ``--against SRC``, another checkout's ``track`` (e.g. main's ``src/``) in turns.
 * ``status --format table|csv|json`` on a database of ``--status-components`` components
-  (default 10^5, 3 acquisitions each), output to /dev/null. Goal: < 1 s for 10^5 (was 8.6 s
-  for 10^4 with the rich table).
+  (default 10^5; ``--status-fleet flat``: 3 acquisitions each, no RUL estimated yet;
+  ``growing``: 12 each, every running unit with its own RUL), output to /dev/null. Goal:
+  < 1 s for 10^5 (was 8.6 s for 10^4 with the rich table). ``--mmap``: the SQL read of
+  status alone with and without SQLite's memory map, the page cache warm and cold.
+* the measured processes read compiled bytecode, as an installed package does (written by
+  an untimed first run under ``PYTHONPYCACHEPREFIX``, whatever ``PYTHONDONTWRITEBYTECODE``
+  says).
 * the interpreter start with ``import rulkit.cli`` and the fleet store, the floors under
   ``track`` (its libraries without and with numba's compiled passes), and the floor under
-  ``status`` (typer's pydantic adapters, numpy,
-  pyarrow; no pandas since rulkit.fleet.store.status_view).
+  ``status``: the same command on a database of one component (start-up, typer's option
+  parsing with its pydantic adapters, the database opened, the format's libraries).
 
     .venv/bin/python benchmarks/bench_scale.py              # the defaults above (~2 min)
     .venv/bin/python benchmarks/bench_scale.py --components 200 --repeats 1   # quick look
     git archive main src | tar -x -C /tmp/main     # track and status against main's code, in turns:
     .venv/bin/python benchmarks/bench_scale.py --against /tmp/main/src --repeats 5
+    .venv/bin/python benchmarks/bench_scale.py --status-only --status-fleet growing --mmap
 """
 
 from __future__ import annotations
@@ -121,6 +127,45 @@ trend_run(TrendState.empty(1), seg, t, hi, TrendConfig(), strategy="jit")
 """
 
 
+# The SQL read of ``rulkit status`` alone (rulkit.fleet.store.status_view.read_status: a
+# read-only connection, one read transaction, the stored columns fetched), with SQLite's
+# mmap_size from argv, after evicting the file's pages from the page cache when asked
+# (posix_fadvise DONTNEED: the next read comes from the disk). Prints "wall_s cpu_s".
+_MMAP_READ = """
+import os, sqlite3, sys, time
+from rulkit.fleet.store.status_view import STORED_COLUMNS
+db, mmap_size, cold = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "cold"
+if cold:
+    fd = os.open(db, os.O_RDONLY)
+    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    os.close(fd)
+w0, c0 = time.perf_counter(), time.process_time()
+conn = sqlite3.connect(f"file:{db}?mode=ro", uri=True, isolation_level=None)
+conn.execute(f"PRAGMA mmap_size = {mmap_size}")
+conn.execute("BEGIN DEFERRED")
+rows = conn.execute(f"SELECT {', '.join(STORED_COLUMNS)} FROM components").fetchall()
+conn.execute("COMMIT")
+conn.close()
+print(time.perf_counter() - w0, time.process_time() - c0)
+"""
+
+
+def mmap_part(sdb: Path, repeats: int) -> None:
+    """The SQL read of ``status`` with and without SQLite's memory map (mmap_size 1 GB or
+    0), warm (the file in the page cache) and cold (evicted first), in turns."""
+    sides = {(m, state): [] for state in ("warm", "cold") for m in (0, 1 << 30)}
+    for _ in range(max(repeats, 5)):
+        for (m, state), got in sides.items():
+            out = subprocess.run([sys.executable, "-c", _MMAP_READ, str(sdb), str(m), state],
+                                 capture_output=True, text=True, check=True).stdout.split()
+            got.append((float(out[0]), float(out[1])))
+    for (m, state), got in sides.items():
+        print(f"  status's SQL read, mmap_size {m:>10}, {state}: wall "
+              f"{1000 * statistics.median(g[0] for g in got):.0f} ms, CPU "
+              f"{1000 * statistics.median(g[1] for g in got):.0f} ms")
+    print(f"  load average {os.getloadavg()[0]:.1f}")
+
+
 def measure(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float, float]:
     """(wall s, CPU s, peak RSS MB) of one process running ``cmd`` (stdout discarded), with
     ``env`` added to the environment."""
@@ -147,6 +192,14 @@ def median3(rows: list[tuple[float, float, float]]) -> tuple[float, float, float
     return tuple(statistics.median(r[i] for r in rows) for i in range(3))  # type: ignore[return-value]
 
 
+def warm_median(cmd: list[str], repeats: int, env: dict[str, str] | None = None
+                ) -> tuple[float, float, float]:
+    """:func:`median3` of ``repeats`` runs of ``cmd`` (with ``env`` added) after an untimed
+    one (bytecode written)."""
+    measure(cmd, env)
+    return median3([measure(cmd, env) for _ in range(repeats)])
+
+
 def fleet_csv(path: Path, n_comp: int, n_acq: int, rng: np.random.Generator) -> None:
     t = np.arange(n_acq, dtype=np.float64)
     h0 = rng.uniform(0.05, 0.3, n_comp)
@@ -157,6 +210,31 @@ def fleet_csv(path: Path, n_comp: int, n_acq: int, rng: np.random.Generator) -> 
     hi = np.clip(np.tile(h0, n_acq) * np.exp(0.002 * tt)
                  + rng.normal(0.0, 0.005, n_comp * n_acq), 0.0, 10.0)
     pd.DataFrame({"component": comp, "time": tt, "hi": hi}).to_csv(path, index=False)
+
+
+STATUS_FLEETS = {
+    "flat": "3 acquisitions each at times 0, 1, 2, a constant HI: no RUL estimated yet, "
+            "the units at HI >= 1 failed",
+    "growing": "12 acquisitions each, 10 apart from a start drawn in [0, 1000), HI growing "
+               "exponentially with multiplicative noise: every running unit has its own RUL "
+               "median and interval, about half have failed"}
+
+
+def status_fleet(kind: str, n: int, rng: np.random.Generator) -> pd.DataFrame:
+    """The acquisitions of the ``status`` database (:data:`STATUS_FLEETS`), in time order."""
+    if kind == "flat":
+        return pd.DataFrame({"component": np.repeat([f"c{i:07d}" for i in range(n)], 3),
+                             "time": np.tile([0.0, 1.0, 2.0], n),
+                             "hi": np.repeat(rng.uniform(0.05, 1.2, n), 3)})
+    steps = np.arange(12) * 10.0
+    t = rng.integers(0, 1000, n).astype(np.float64)[:, None] + steps
+    hi = (rng.uniform(0.05, 0.6, n)[:, None] * np.exp(rng.uniform(0.002, 0.02, n)[:, None]
+                                                      * steps)
+          * np.exp(rng.normal(0.0, 0.02, (n, steps.size))))
+    order = np.argsort(t.ravel(), kind="stable")
+    return pd.DataFrame({"component": np.repeat([f"c{i:07d}" for i in range(n)],
+                                                steps.size)[order],
+                         "time": t.ravel()[order], "hi": hi.ravel()[order]})
 
 
 def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) -> None:
@@ -197,22 +275,28 @@ def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) ->
     src.unlink()
 
 
-def status_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator,
-                sfloor_cpu: float) -> None:
+def status_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) -> None:
     """``status`` in each format on a database of ``--status-components`` components; with
     ``--against SRC``, the same commands with ``PYTHONPATH=SRC`` (another checkout's code)
     measured in turns with ours, and the ratio of the CPU medians."""
     n = args.status_components
     sdb = tmp / "status.db"
-    frame = pd.DataFrame({
-        "component": np.repeat([f"c{i:07d}" for i in range(n)], 3),
-        "time": np.tile([0.0, 1.0, 2.0], n),
-        "hi": np.repeat(rng.uniform(0.05, 1.2, n), 3)})
     from rulkit.fleet.store.ingest import ingest_into
 
-    ingest_into(sdb, frame)
+    ingest_into(sdb, status_fleet(args.status_fleet, n, rng))
+    print(f"status database: {n:,} components, the {args.status_fleet} fleet "
+          f"({STATUS_FLEETS[args.status_fleet]})")
     sides = {"": None} if args.against is None else {
         "this code": None, f"{args.against}": {"PYTHONPATH": str(args.against)}}
+    one = tmp / "one.db"  # the floor: start-up, options, the database opened, the format's code
+    ingest_into(one, status_fleet(args.status_fleet, 1, rng))
+    floor = {(side, fmt): warm_median([*RULKIT, "status", "--db", str(one), "--format", fmt],
+                                      args.repeats, env)[1]
+             for side, env in sides.items() for fmt in ("table", "csv", "json")}
+    for side in sides:
+        print(f"status of 1 component{f' ({side})' if side else ''}, its floor (start-up, "
+              "option parsing, the database opened, the format's libraries), CPU: "
+              + ", ".join(f"{fmt} {floor[side, fmt]:.2f} s" for fmt in ("table", "csv", "json")))
     for fmt in ("table", "csv", "json"):
         cmd = [*RULKIT, "status", "--db", str(sdb), "--format", fmt]
         runs: dict[str, list[tuple[float, float, float]]] = {k: [] for k in sides}
@@ -226,12 +310,14 @@ def status_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator,
             w, c, m = median3(runs[side])
             cpu[side] = c
             print(f"status --format {fmt:5s} {n:,} components{f' ({side})' if side else ''}: "
-                  f"wall {w:.2f} s, CPU {c:.2f} s (minus its start-up "
-                  f"{max(c - sfloor_cpu, 0):.2f} s), peak {m:.0f} MB; goal < 1 s")
+                  f"wall {w:.2f} s, CPU {c:.2f} s (minus its floor "
+                  f"{c - floor[side, fmt]:.2f} s), peak {m:.0f} MB; goal < 1 s")
         if args.against is not None:
             mine, theirs = cpu.values()
             print(f"  CPU ratio this code / {args.against}: {mine / theirs:.2f}; load average "
                   f"{os.getloadavg()[0]:.1f}")
+    if args.mmap:
+        mmap_part(sdb, args.repeats)
 
 
 def main() -> None:
@@ -242,39 +328,40 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--status-only", action="store_true", help="skip track and its floor")
+    ap.add_argument("--status-fleet", choices=sorted(STATUS_FLEETS), default="flat",
+                    help="the status database's acquisitions (flat: no RUL estimated yet)")
+    ap.add_argument("--mmap", action="store_true",
+                    help="also status's SQL read with and without SQLite's mmap, warm and cold")
     ap.add_argument("--against", type=Path, default=None,
                     help="the src/ of another checkout: track and status with its code, in turns")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-scale-"))
+    # the measured processes read compiled bytecode as an installed package does (pip writes
+    # it at install): written by each command's untimed first run, kept apart from the trees
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    os.environ["PYTHONPYCACHEPREFIX"] = str(tmp / "bytecode")
     try:
         print(f"rulkit bench_scale: {os.cpu_count()} cores, load average "
-              f"{os.getloadavg()[0]:.1f}, seed {args.seed}, medians of {args.repeats} runs")
-        floor = median3([measure([sys.executable, "-c",
-                                  _PEAK + "import rulkit.cli, rulkit.fleet.store.sqlite"])
-                         for _ in range(args.repeats)])
+              f"{os.getloadavg()[0]:.1f}, seed {args.seed}, medians of {args.repeats} runs "
+              f"(bytecode cached)")
+        floor = warm_median([sys.executable, "-c",
+                             _PEAK + "import rulkit.cli, rulkit.fleet.store.sqlite"],
+                            args.repeats)
         print(f"import rulkit.cli, rulkit.fleet.store.sqlite (start-up floor): "
               f"wall {floor[0]:.2f} s, CPU {floor[1]:.2f} s, peak {floor[2]:.0f} MB")
-        status_imports = ("import rulkit.cli, typer._adapters, rulkit.fleet.store.status_view, "
-                          "pyarrow.csv, orjson")
-        sfloor = median3([measure([sys.executable, "-c", _PEAK + status_imports])
-                          for _ in range(args.repeats)])
-        print(f"import rulkit.cli, rulkit.fleet.store.status_view, pyarrow (start-up floor of "
-              f"status, no pandas): wall {sfloor[0]:.2f} s, CPU {sfloor[1]:.2f} s")
 
         if not args.status_only:
-            bare_libs = median3([measure([sys.executable, "-c", _LIBS_NO_JIT])
-                                 for _ in range(args.repeats)])
+            bare_libs = warm_median([sys.executable, "-c", _LIBS_NO_JIT], args.repeats)
             print(f"track's libraries without numba (numpy, pyarrow, the store), no data: "
                   f"wall {bare_libs[0]:.2f} s, CPU {bare_libs[1]:.2f} s, peak "
                   f"{bare_libs[2]:.0f} MB")
-            libs = median3([measure([sys.executable, "-c", _LIBS])
-                            for _ in range(args.repeats)])
+            libs = warm_median([sys.executable, "-c", _LIBS], args.repeats)
             print(f"track's libraries and numba's compiled passes loaded, no data (the floor "
                   f"of its start-up): wall {libs[0]:.2f} s, CPU {libs[1]:.2f} s, peak "
                   f"{libs[2]:.0f} MB")
             track_part(args, tmp, rng)
-        status_part(args, tmp, rng, sfloor[1])
+        status_part(args, tmp, rng)
         print(f"load average at end {os.getloadavg()[0]:.1f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -97,6 +97,28 @@ for _name in COMMAND_MODULES:
     importlib.import_module(_name).register(app, reproduce)
 
 
+def _invoked_app(args: list[str]) -> typer.Typer:
+    """``app`` with only the command that ``args`` start with, when they start with the name
+    of one (``rulkit status --db f``): typer reads the signature of every registered command
+    to build the group before it runs one, and a run needs only its own. The same app
+    otherwise (no command, an option first, an unknown name, ``--help``)."""
+    import copy
+
+    from typer.main import get_command_name
+
+    if not args:
+        return app
+    name = args[0]
+    commands = [c for c in app.registered_commands
+                if (c.name or get_command_name(getattr(c.callback, "__name__", ""))) == name]
+    groups = [g for g in app.registered_groups if g.name == name]
+    if len(commands) + len(groups) != 1:
+        return app
+    one = copy.copy(app)  # the root callback and settings; the lists below are new ones
+    one.registered_commands, one.registered_groups = commands, groups
+    return one
+
+
 def main() -> None:
     """Entry point of the ``rulkit`` console script.
 
@@ -109,7 +131,7 @@ def main() -> None:
     from rulkit.cli.errors import EXIT_INTERNAL
 
     try:
-        app()
+        _invoked_app(sys.argv[1:])()
     except SystemExit:
         raise
     except KeyboardInterrupt:

@@ -357,10 +357,11 @@ def read_csv_table(
     parse = pacsv.ParseOptions(invalid_row_handler=invalid)
     try:
         try:  # streamed in blocks: the text is not held whole beside the table
-            reader = pacsv.open_csv(_csv_input(source), convert_options=convert,
-                                    read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES),
-                                    parse_options=parse)
-            batches = list(reader)
+            with _stream_input(source) as inp:
+                reader = pacsv.open_csv(
+                    inp, convert_options=convert, parse_options=parse,
+                    read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES))
+                batches = list(reader)
             table = pa.Table.from_batches(batches, schema=reader.schema).unify_dictionaries()
             del batches
         except pa.ArrowInvalid as err:
@@ -448,17 +449,33 @@ def _csv_input(source: str | Path | bytes | memoryview) -> Any:
     return str(source)
 
 
+_COMPRESSED = (".gz", ".bz2", ".lz4", ".zst")
+"""The endings by which pyarrow reads a path as compressed."""
+
+
+def _stream_input(source: str | Path | bytes | memoryview) -> Any:
+    """The streaming reader's input, as a context: a plain file opened by Python, read as the
+    reader asks for blocks (given the path, pyarrow reads ahead of the parse: on a 71 MB file
+    the read's peak was 40 to 45 MB higher, ``benchmarks/profile_track.py``); a compressed
+    path or bytes as :func:`_csv_input` gives them."""
+    from contextlib import nullcontext
+
+    if isinstance(source, str | Path) and not str(source).endswith(_COMPRESSED):
+        return open(source, "rb")  # the caller's with closes it
+    return nullcontext(_csv_input(source))
+
+
 def _csv_header(source: str | Path | bytes | memoryview, error: ErrorType, where: str) -> list[str]:
     """The names of the first line, verbatim (an empty list for an empty input)."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
     try:
-        reader = pacsv.open_csv(
-            _csv_input(source),
-            read_options=pacsv.ReadOptions(block_size=1 << 16, use_threads=False),
-            parse_options=pacsv.ParseOptions(invalid_row_handler=lambda row: "skip"),
-            convert_options=pacsv.ConvertOptions(column_types={}, null_values=[""]))
+        with _stream_input(source) as inp:
+            reader = pacsv.open_csv(
+                inp, read_options=pacsv.ReadOptions(block_size=1 << 16, use_threads=False),
+                parse_options=pacsv.ParseOptions(invalid_row_handler=lambda row: "skip"),
+                convert_options=pacsv.ConvertOptions(column_types={}, null_values=[""]))
     except pa.ArrowInvalid as err:
         if "Empty CSV file" in str(err):
             return []

@@ -38,11 +38,23 @@ def fleet(rng, b, k, sd=0.01):
     return seg, np.concatenate(t), np.concatenate(hi)
 
 
+def equal_lengths(seg, t, hi, k):
+    """The first ``k`` rows of every unit that has them (every unit at every rank: the ranks'
+    direct path)."""
+    keep = np.diff(seg) >= k
+    idx = (seg[:-1][keep][:, None] + np.arange(k)).ravel()
+    return np.arange(0, int(keep.sum()) * k + 1, k), t[idx], hi[idx]
+
+
+@pytest.mark.parametrize("equal", [False, True])
 @pytest.mark.parametrize("strategy", ["python", "jit", "ranks", None])
-def test_run_equals_one_update_per_row(strategy):
+def test_run_equals_one_update_per_row(strategy, equal):
     rng = np.random.default_rng(0)
     cfg = TrendConfig(forgetting=0.9)
     seg, t, hi = fleet(rng, 30, 25)
+    if equal:
+        seg, t, hi = equal_lengths(seg, t, hi, 16)
+        assert seg.size > 10
     b = seg.size - 1
     cut = seg[:-1] + np.diff(seg) // 2
     ref = TrendState.empty(b)
@@ -223,7 +235,9 @@ def test_first_crossing_keeps_its_bits():
     a, b = draw(0.0, np.nan, np.inf, -1.0), draw(0.0, np.nan, 1e-300, -1e-300)
     v0, v1, v2 = np.abs(draw(0.0, np.nan, np.inf)), draw(0.0, np.nan), np.abs(draw(0.0, 1e-300))
     c = np.stack([np.zeros(n), draw(0.0, np.nan, 1.645, -1.645), draw(np.inf, 2.0)])
+    median = np.where(rng.random(n) < 0.1, np.nan, 0.0)  # the median's pass: no quadratic
     for args in ((a, b, v0, v1, v2, c), (a, b, v0, v1, v2, c[1]), (a, b, v0, v1, v2, 1.5),
+                 (a, b, v0, v1, v2, c[0]), (a, b, v0, v1, v2, median),
                  (-1.0, 0.5, 0.0, 0.0, 0.0, 0.0), (-1.0, 0.2, 0.01, 0.0, 0.01, 1.5)):
         got, ref = first_crossing(*args), _first_crossing_before(*args)
         assert got.shape == ref.shape and got.tobytes() == ref.tobytes()

@@ -268,6 +268,61 @@ def test_track_in_tiny_blocks_writes_the_bits_of_one_block(tmp_path, monkeypatch
     assert tiny == one  # every value of every row (floats compared exactly, NaN stored NULL)
 
 
+def test_track_in_rank_windows_stores_the_values_of_the_per_component_path(tmp_path,
+                                                                           monkeypatch):
+    """A wide batch runs in windows of acquisition ranks across all units, the state carried
+    from window to window (ComponentStore._pieces), its history staged and written per
+    component: two batches, the second onto the stored state, give the per-component path's
+    database (components, alerts, history rows: every value, bit for bit) and printout."""
+    import rulkit.fleet.store.sqlite as store_module
+    from rulkit.fleet.store.history_stage import HistoryStage
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    rng = np.random.default_rng(12)
+    rows = [(f"u{i:02d}", float(s + 4 * i), min(0.05 * np.exp((0.02 + 0.004 * i) * s)
+                                                + rng.normal(0, 0.01), 1.2))
+            for i in range(9) for s in range(int(rng.integers(1, 70)))]  # later starts: rank
+    # order is not time order
+    df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sort_values("time", kind="stable")
+    df["hi"] = df["hi"].abs()
+    srcs = [tmp_path / "a.csv", tmp_path / "b.csv"]
+    df[df.time < 25].to_csv(srcs[0], index=False)
+    df[df.time >= 25].to_csv(srcs[1], index=False)
+    monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", 3)
+
+    def track(strategy, name):
+        monkeypatch.setattr(store_module, "tracker_strategy", lambda ranks, n: strategy)
+        db, outs = tmp_path / name, []
+        for src in srcs:
+            r = runner.invoke(app, ["track", "--db", str(db), str(src), "--lead-time", "40",
+                                    "--stale-after", "1d"])
+            assert r.exit_code == 0, r.output
+            outs.append(r.output.replace(str(db), "DB"))
+        con = sqlite3.connect(db)
+        cols = [c for (c,) in con.execute("SELECT name FROM pragma_table_info('components')")
+                if c not in ("seen", "due")]  # the clock at the ingestion
+        dump = (con.execute(f"SELECT {', '.join(cols)} FROM components ORDER BY 1").fetchall(),
+                con.execute("SELECT component, t, level, previous, hi, fhi, rul, valid, "
+                            "rul_low, rul_high, reason FROM alerts ORDER BY id").fetchall(),
+                con.execute("SELECT * FROM history ORDER BY 1, 2").fetchall())
+        con.close()
+        return outs, dump
+
+    monkeypatch.setattr(ComponentStore, "WINDOW_ROWS", 5)
+    staged = []
+    monkeypatch.setattr(HistoryStage, "add", lambda self, piece, rec, _add=HistoryStage.add:
+                        staged.append(piece.rank0) or _add(self, piece, rec))
+    win_out, win = track("ranks", "windows.db")
+    n_windows = len(staged)
+    assert n_windows > 20  # windows of at most 5 rows
+    comp_out, comp = track("python", "components.db")
+    assert len(staged) == n_windows  # nothing staged on the per-component path
+    n_acq = sum(n for *_, n, _, _ in comp[2])
+    assert comp[1] and n_acq == len(df) and len(comp[2]) <= 2 * 9  # alerts; a chunk per batch
+    assert win_out == comp_out
+    assert win == comp  # every stored value (floats exactly, NaN stored NULL)
+
+
 def test_track_reads_a_plain_csv_without_pandas_and_stores_the_frames_values(tmp_path):
     """rulkit track takes a plain CSV as arrays (rulkit.fleet.rows.read_csv_columns) and
     does not import pandas; the database equals the one the same rows give as a frame."""

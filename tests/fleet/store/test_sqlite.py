@@ -275,3 +275,38 @@ def test_open_checks(tmp_path):
         with pytest.raises(IngestError, match="unknown file type"):
             (tmp_path / "a.xlsx").write_text("x")
             store.ingest_file(tmp_path / "a.xlsx")
+
+
+def test_a_wide_batch_runs_in_rank_windows_without_compiled_passes(tmp_path, monkeypatch):
+    """By the trackers' cost rule a batch wider than long runs in windows of acquisition ranks
+    (no compiled pass loaded: numba's load would cost more than the rank steps) and a narrow,
+    long one in blocks of components (the per-component passes)."""
+    from rulkit.fleet.monitoring import unit_trend
+    from rulkit.fleet.store.batch_order import order_by_component
+    from rulkit.fleet.store.ingest import ingest_into
+    from rulkit.fleet.tracking import tracker_run
+
+    monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", 100)
+    monkeypatch.setattr(ComponentStore, "WINDOW_ROWS", 700)
+    store = ComponentStore.__new__(ComponentStore)
+    store.path = tmp_path / "x.db"  # the windows' history is staged beside it
+
+    def pieces(units, ranks):
+        codes = np.tile(np.arange(units, dtype=np.int32), ranks)
+        order = order_by_component(codes, [f"u{i}" for i in range(units)])
+        got, tracker, trend, stage = store._pieces(order, codes.size)
+        if stage is not None:
+            stage.__exit__()
+        return [p.rank0 for p in got], tracker, trend, stage is not None
+
+    monkeypatch.setattr(tracker_run, "_JITTED", {})  # numba not loaded yet
+    monkeypatch.setattr(unit_trend, "_COMPILED", {})
+    assert pieces(300, 10) == ([0, 2, 4, 6, 8], "ranks", "ranks", True)  # 2 ranks a window
+    assert pieces(2, 1500)[0] == [0, 0]  # one block per component
+    rng = np.random.default_rng(3)
+    df = pd.DataFrame({"component": np.tile([f"u{i:03d}" for i in range(300)], 10),
+                       "time": np.repeat(np.arange(10.0), 300),
+                       "hi": rng.uniform(0.1, 0.3, 3000)})
+    res, _ = ingest_into(tmp_path / "w.db", df)
+    assert res.n_rows == 3000
+    assert not tracker_run._JITTED and not unit_trend._COMPILED  # no compiled pass loaded

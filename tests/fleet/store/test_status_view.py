@@ -38,7 +38,7 @@ FLOAT_COLS = ("t", "hi", "fhi", "rul_low", "rul_high")
 NULLABLE_COLS = ("rul_median", "failed_at", "seen")
 
 
-def _random_db(path, rng, n=60):
+def _random_db(path, rng, n=60, hostile=True):
     t = np.arange(6.0)
     frame = pd.DataFrame({
         "component": np.repeat([f"u{i:03d}" for i in range(n)], len(t)),
@@ -52,7 +52,7 @@ def _random_db(path, rng, n=60):
     ids = [r[0] for r in con.execute("SELECT component FROM components ORDER BY component")]
     seen = [1714564800.0 - 7200.0, 1714564800.0, 1e9, None, -5.0]
     with con:
-        for new, old in zip(HOSTILE_IDS, ids, strict=False):  # ids rulkit refuses to ingest
+        for new, old in zip(HOSTILE_IDS if hostile else [], ids, strict=False):  # refused ids
             con.execute("UPDATE components SET component = ? WHERE component = ?", (new, old))
         values = EDGE + rng.normal(0, 10.0 ** rng.integers(-20, 22, 200)).tolist()
         for i, comp in enumerate(r[0] for r in con.execute("SELECT component FROM components")
@@ -83,6 +83,7 @@ def _both(db, args, monkeypatch):
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_same_output_as_the_pandas_path(tmp_path, monkeypatch, fmt, seed):
+    monkeypatch.setattr(sv, "READ_ROWS", 7 if seed else sv.READ_ROWS)  # chunks of rows or one
     db = tmp_path / "s.db"
     _random_db(db, np.random.default_rng(seed))
     assert sv.read_status(db, now=0.0) is not None  # the fast path is the one compared
@@ -167,11 +168,14 @@ def _expected_table(db, recs):
     return text_table(cells, left=("component", "level", ""))
 
 
-@pytest.mark.parametrize("seed", [0, 3])
-def test_formats_against_an_independent_rendering(tmp_path, seed):
+@pytest.mark.parametrize(("seed", "hostile", "chunk"),
+                         [(0, True, 4096), (3, True, 7), (1, False, 4096), (2, False, 7)])
+def test_formats_against_an_independent_rendering(tmp_path, monkeypatch, seed, hostile, chunk):
     """Each format's bytes equal the same rows rendered the plain way: JSON as orjson writes
     a list of dicts (non-ASCII escaped by the json module), CSV as pyarrow writes a table
-    built by pa.array from Python lists, the table's rows by format() and text_table."""
+    built by pa.array from Python lists, the table's rows by format() and text_table; with
+    hostile ids or printable ASCII ones (the table's byte-matrix layout), read and written in
+    one chunk of rows or many."""
     import orjson
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -179,8 +183,10 @@ def test_formats_against_an_independent_rendering(tmp_path, seed):
     from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
     from rulkit.tables import safe_text
 
+    monkeypatch.setattr(sv, "CHUNK_ROWS", chunk)
+    monkeypatch.setattr(sv, "READ_ROWS", chunk)
     db = tmp_path / "s.db"
-    _random_db(db, np.random.default_rng(seed))
+    _random_db(db, np.random.default_rng(seed), hostile=hostile)
     recs = _records(db)
     out = {fmt: runner.invoke(app, ["status", "--db", str(db), "--now", NOW, "--format", fmt])
            for fmt in ("table", "csv", "json")}
@@ -235,6 +241,8 @@ def test_row_rulkit_cannot_have_written_takes_the_pandas_path(tmp_path, monkeypa
     con.close()
     # '1.5' in a REAL column is stored as the number 1.5 (SQLite's type affinity)
     assert (sv.read_status(db, now=0.0) is None) == (bad != "'1.5'")
+    monkeypatch.setattr(sv, "READ_ROWS", 1)  # the bad row in the second chunk read
+    assert (sv.read_status(db, now=0.0) is None) == (bad != "'1.5'")
     new, old = _both(db, ["--format", "json"], monkeypatch)
     assert (new.exit_code, new.output) == (old.exit_code, old.output)
     if bad != "'1.5'":
@@ -287,11 +295,34 @@ def test_json_parses_back_to_the_stored_values(tmp_path, seed):
                 assert math.copysign(1.0, r[k]) == math.copysign(1.0, want[k]), (comp, k)
 
 
+def _fitted_db(path):
+    """A database whose RULs come from a fitted model (a transformed-noise growth model)."""
+    from dataclasses import replace
+
+    from rulkit.fleet.learned.datasets import synthetic_growth_fleet
+    from rulkit.fleet.learned.hi_noise import HiNoiseModel
+    from rulkit.fleet.time_axis import TimeAxis
+
+    fleet, _ = synthetic_growth_fleet(np.random.default_rng(0), 6, n_acq=12)
+    axis = TimeAxis(unit="d", origin="first")
+    model = HiNoiseModel(noise="additive", shape=0.0, mean=(-2.3, 1.5), cov=(0.01, 0.0, 0.2),
+                         hi_noise_sd=0.02, log_noise_sd=0.0, walk_sd=0.05, time_scale=300.0)
+    with ComponentStore(path) as store:
+        store.set_degradation_model(replace(model, time_axis=axis.to_dict(),
+                                            time_unit=axis.unit))
+        store.ingest(fleet)
+
+
 @pytest.mark.parametrize("fmt", ["table", "csv", "json"])
-def test_status_imports_no_pandas(tmp_path, fmt):
-    """Nor any other module the command does not use (each costs start-up time)."""
+@pytest.mark.parametrize("fitted", [False, True])
+def test_status_imports_no_pandas(tmp_path, fmt, fitted):
+    """Nor any other module the command does not use (each costs start-up time), also when a
+    fitted model gives the RULs (its classes load without pandas)."""
     db = tmp_path / "p.db"
-    _random_db(db, np.random.default_rng(4), n=5)
+    if fitted:
+        _fitted_db(db)
+    else:
+        _random_db(db, np.random.default_rng(4), n=5)
     code = ("import atexit, sys\n"
             "atexit.register(lambda: sys.stderr.write(' '.join(m for m in ('pandas', 'scipy', "
             "'rich', 'numba', 'matplotlib', 'fastapi', 'pyarrow.compute', 'threadpoolctl', "

@@ -51,7 +51,8 @@ def reference(state, seg, t, hi, cfg):
 @pytest.mark.parametrize("initiation,clip,m", [("floor", False, 2.0), ("two-point", False, 2.0),
                                                ("measured", True, 2.0), ("floor", True, 3.0),
                                                ("measured", False, 2.4)])
-def test_tracker_run_equals_rank_by_rank_updates(strategy, initiation, clip, m):
+@pytest.mark.parametrize("equal", [False, True])
+def test_tracker_run_equals_rank_by_rank_updates(strategy, initiation, clip, m, equal):
     rng = np.random.default_rng(11)
     cfg = TrackerConfig(dt=1.0, lambda_hi=0.1, lambda_rul=0.1, design_life=1e4,
                         warn_rul=60.0, hi_sigma=0.02, initiation=initiation, rul_clip=clip,
@@ -61,6 +62,14 @@ def test_tracker_run_equals_rank_by_rank_updates(strategy, initiation, clip, m):
     seg1, t1, h1 = random_fleet(rng, b, 4)
     start, _ = reference(TrackerState.empty(b), seg1, t1, h1, cfg)
     seg2, t2, h2 = random_fleet(rng, b, 60)
+    if equal:  # every unit at every rank (the ranks' direct path): the same length each
+        k = 45
+        seg2, t2, h2 = random_fleet(rng, b, 200)
+        keep = np.diff(seg2) >= k
+        idx = (seg2[:-1][keep][:, None] + np.arange(k)).ravel()
+        b = int(keep.sum())
+        start = start.take(np.flatnonzero(keep))
+        seg2, t2, h2 = np.arange(0, b * k + 1, k), t2[idx], h2[idx]
     last = np.where(np.isfinite(start.t), start.t, 0.0)
     t2 = t2 + np.repeat(last, np.diff(seg2))  # after each component's stored time
     exp_state, exp = reference(start, seg2, t2, h2, cfg)

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from rulkit.fleet.rows import (
@@ -35,6 +35,9 @@ from rulkit.fleet.time_axis import (
     infer_axis,
     unit_origins,
 )
+
+if TYPE_CHECKING:  # pandas is imported where a frame is made or read: a stored model's
+    import pandas as pd  # classes (rulkit status of a fitted database) load without it
 
 FloatArray = NDArray[np.float64]
 DEFAULT_AXIS = TimeAxis()
@@ -108,6 +111,8 @@ class Histories:
 
     def to_frame(self) -> pd.DataFrame:
         """Back to rows (component, time, hi, failed)."""
+        import pandas as pd
+
         return pd.DataFrame({"component": self.names[self.unit], "time": self.t, "hi": self.hi,
                              "failed": self.failed[self.unit]})
 
@@ -180,6 +185,8 @@ def histories_from_frame(
     module docstring. ``axis`` reads the time column as a fitted model did; without it the axis
     is inferred from the column (:func:`rulkit.fleet.time_axis.infer_axis` with ``unit`` and
     ``origin``)."""
+    import pandas as pd
+
     where = source
     extra = _check_columns(df, where)
     if len(df) == 0:
@@ -258,6 +265,8 @@ def _failed(df: pd.DataFrame, codes: NDArray[np.int64], counts: NDArray[np.int64
 def read_histories(path: str | Path, **kwargs: object) -> Histories:
     """Read a CSV or Parquet file (or a directory of Parquet partitions) of histories;
     ``kwargs`` go to :func:`histories_from_frame`."""
+    import pandas as pd
+
     p = Path(path)
     if not p.exists():
         raise HistoryError(f"{p}: no such file or directory")

@@ -197,11 +197,12 @@ def _trend_pass(seg, t, z, w, lam, t0, n0, s_in, s_out):  # type: ignore[no-unty
 
 _COMPILED: dict[str, Any] = {}
 # Cost model of trend_run's three equal-result ways, in seconds (measured on the 2-core
-# development machine): one vectorised trend_update per acquisition rank (~60 us a call:
-# many components, few acquisitions each), the per-unit pass as Python (~5 us a row: small
-# batches) or compiled by numba (~0.05 us a row, but ~0.5 s to load numba once per process).
-_COST_PER_RANK, _COST_PER_RANK_ROW = 6e-5, 2e-7
-_COST_PER_PYTHON_ROW, _COST_PER_JIT_ROW, _COST_JIT_LOAD = 5e-6, 5e-8, 0.5
+# development machine, `benchmarks/bench_tracker_steps.py`): one vectorised trend_update per
+# acquisition rank (~40 us a call plus ~75 ns a row: many components, few acquisitions each),
+# the per-unit pass as Python (~5 us a row: small batches) or compiled by numba (~0.02 us a
+# row, but ~0.5 s to load numba once per process).
+_COST_PER_RANK, _COST_PER_RANK_ROW = 4e-5, 7.5e-8
+_COST_PER_PYTHON_ROW, _COST_PER_JIT_ROW, _COST_JIT_LOAD = 5e-6, 2e-8, 0.5
 
 
 def trend_strategy(n_ranks: int, n_rows: int) -> str:
@@ -233,7 +234,13 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
     counts = np.diff(seg)
     b = counts.size
     rows_s = np.empty((t.size, len(SUM_NAMES)))
+    full = bool(b) and bool((counts == counts[0]).all())  # every unit at every rank
+    every = int(counts[0]) if full else 0
     for r in range(int(counts.max(initial=0))):
+        if full:  # unit c's row of rank r is c * every + r
+            state = trend_update(state, t[r::every], hi[r::every], config)
+            rows_s[r::every] = state.s
+            continue
         have = np.flatnonzero(counts > r)
         idx = seg[have] + r
         tt, hh = np.full(b, np.nan), np.full(b, np.nan)
@@ -382,35 +389,46 @@ def first_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
     c = np.asarray(c, dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         at0 = a >= c * np.sqrt(v0)
-        c2 = c * c
-        q2 = b * b - c2 * v2
-        q1 = 2.0 * a * b - c2 * v1
-        q0 = a * a - c2 * v0
-        q1q1, q2q0 = q1 * q1, 4.0 * q2 * q0
-        disc = q1q1 - q2q0
-        real = disc >= -(1e-12 * (q1q1 + np.abs(q2q0)))
-        del q1q1, q2q0
-        qq = -0.5 * (q1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), q1))
-        del disc
-        lin = np.abs(q2) <= 1e-14 * (np.abs(q1) + np.abs(q0) + 1e-300)
-        r1 = np.where(lin, -q0 / q1, qq / q2)
-        r2 = np.where(lin, np.inf, q0 / qq)
-        del q0, q1, q2, qq
-        best = np.full(np.broadcast_shapes(a.shape, c.shape), np.inf)
-        abs_a, sign_c = np.abs(a), np.sign(c)
-        for r in (r1, r2):
-            br = b * r
-            num = a + br
-            # near c = 0 the two roots merge and each carries ~sqrt(eps) of rounding
-            sign_ok = (np.sign(num) == sign_c) | (np.abs(num) <= 1e-7 * (abs_a + np.abs(br)))
-            ok = real & np.isfinite(r) & (r >= 0.0) & sign_ok & (r < best)
-            np.copyto(best, r, where=ok)
+        if np.all((c == 0.0) | np.isnan(c)):  # the median: the line's own crossing below
+            best = np.full(np.broadcast_shapes(a.shape, c.shape), np.inf)
+        else:
+            best = _quadratic_crossing(a, b, v0, v1, v2, c)
         # the median (c = 0) exactly: where the line itself reaches the threshold
         best = np.where(c == 0.0, np.where(b > 0.0, -a / b, np.inf), best)
         best[at0] = 0.0
     line_ok = (np.isfinite(a) & np.isfinite(b) & np.isfinite(v0) & np.isfinite(v1)
                & np.isfinite(v2))
     best[~(line_ok & np.isfinite(c))] = np.nan
+    return best
+
+
+def _quadratic_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
+                        v2: FloatArray, c: FloatArray) -> FloatArray:
+    """:func:`first_crossing`'s smallest root r >= 0 of the quadratic (+inf if none), before
+    its median and r = 0 cases (inside its error state)."""
+    c2 = c * c
+    q2 = b * b - c2 * v2
+    q1 = 2.0 * a * b - c2 * v1
+    q0 = a * a - c2 * v0
+    q1q1, q2q0 = q1 * q1, 4.0 * q2 * q0
+    disc = q1q1 - q2q0
+    real = disc >= -(1e-12 * (q1q1 + np.abs(q2q0)))
+    del q1q1, q2q0
+    qq = -0.5 * (q1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), q1))
+    del disc
+    lin = np.abs(q2) <= 1e-14 * (np.abs(q1) + np.abs(q0) + 1e-300)
+    r1 = np.where(lin, -q0 / q1, qq / q2)
+    r2 = np.where(lin, np.inf, q0 / qq)
+    del q0, q1, q2, qq
+    best = np.full(np.broadcast_shapes(a.shape, c.shape), np.inf)
+    abs_a, sign_c = np.abs(a), np.sign(c)
+    for r in (r1, r2):
+        br = b * r
+        num = a + br
+        # near c = 0 the two roots merge and each carries ~sqrt(eps) of rounding
+        sign_ok = (np.sign(num) == sign_c) | (np.abs(num) <= 1e-7 * (abs_a + np.abs(br)))
+        ok = real & np.isfinite(r) & (r >= 0.0) & sign_ok & (r < best)
+        np.copyto(best, r, where=ok)
     return best
 
 
@@ -421,9 +439,17 @@ def rul_quantiles(post: TrendPosterior, levels: tuple[float, ...] = (0.5, 0.05, 
     for p in levels:
         if not 0.0 < p < 1.0:
             raise ValueError(f"levels: expected probabilities in (0, 1), got {p!r}")
-    # every level in one pass: the posterior's (n,) arrays broadcast against (levels, n)
+    # every level in one pass: the posterior's (n,) arrays broadcast against (levels, n); the
+    # median's own pass (the line's crossing: no quadratic to solve)
     c = t_quantiles(post.nu, tuple(levels))
-    return tuple(first_crossing(post.a, post.b, post.vaa, 2.0 * post.vab, post.vbb, c))
+    line = (post.a, post.b, post.vaa, 2.0 * post.vab, post.vbb)
+    med = [j for j, p in enumerate(levels) if p == 0.5]
+    rest = [j for j, p in enumerate(levels) if p != 0.5]
+    out = np.empty_like(c)
+    for group in (med, rest):
+        if group:
+            out[group] = first_crossing(*line, c[group])
+    return tuple(out)
 
 
 def hi_quantiles(post: TrendPosterior, horizons: np.ndarray,

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from rulkit.fleet.store.acquisitions import Batch, ConflictError, IngestError
 from rulkit.fleet.store.history_chunks import field, read_range
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
-from rulkit.fleet.tracking.tracker_settings import check_time_unit
+from rulkit.fleet.tracking.tracker_settings import check_intervals
 from rulkit.tables import cell_repr as _fmt
 
 IntArray = NDArray[np.int64]
@@ -54,9 +54,9 @@ def order_by_component(codes: NDArray[np.int32], names: list[str]) -> ComponentO
 def gaps_after_stored(order: ComponentOrder, t: np.ndarray, rows: np.ndarray,
                       names: list[str], last_t: np.ndarray) -> np.ndarray:
     """Each acquisition's interval since the previous one of its component (NaN for a
-    component's first ever), in batch order. ``last_t``: the stored last time of each
-    component in key order (NaN: new). A component's first acquisition of the batch that is
-    not after its stored last, or whose interval overflows float64, raises
+    component's first ever), in key order (``order.by_comp``'s). ``last_t``: the stored last
+    time of each component in key order (NaN: new). A component's first acquisition of the
+    batch that is not after its stored last, or whose interval overflows float64, raises
     :class:`IngestError` naming the first such row in batch order."""
     n = t.size
     first = order.by_comp[order.start[:-1]]  # batch position of each component's first row
@@ -74,23 +74,19 @@ def gaps_after_stored(order: ComponentOrder, t: np.ndarray, rows: np.ndarray,
                 else f"row {rows[i]} (component {names[g]!r}): time {_fmt(t[i])} is "
                 f"not after the component's last stored acquisition at {_fmt(last_t[k])}")
     ts = t[order.by_comp]
-    prev = np.empty(n)
-    prev[1:] = ts[:-1]
-    prev[order.start[:-1]] = last_t
     gaps = np.empty(n)
-    gaps[order.by_comp] = ts - prev
+    np.subtract(ts[1:], ts[:-1], out=gaps[1:])
+    head = order.start[:-1][order.counts > 0]
+    gaps[head] = ts[head] - last_t[order.counts > 0]
     return gaps
 
 
 def check_spacing(config: TrackerConfig, gaps: np.ndarray) -> None:
     """The batch's acquisition spacing against ``design_life`` (time-unit check,
-    :func:`rulkit.fleet.tracking.tracker_settings.check_time_unit`), as an
+    :func:`rulkit.fleet.tracking.tracker_settings.check_intervals`), as an
     :class:`IngestError`. ``gaps``: as :func:`gaps_after_stored` gives them."""
-    gaps = gaps[np.isfinite(gaps) & (gaps > 0)]
     try:
-        # a cumulative sum of positive numbers is nondecreasing in floating point too
-        check_time_unit(config, np.cumsum(np.concatenate([[0.0], gaps])), source="time column",
-                        assume_sorted=True)
+        check_intervals(config, gaps[np.isfinite(gaps) & (gaps > 0)], source="time column")
     except ValueError as err:
         raise IngestError(str(err)) from err
 
@@ -110,6 +106,52 @@ def component_blocks(order: ComponentOrder, block_rows: int) -> list[tuple[int, 
         blocks.append((k0, k1))
         k0 = k1
     return blocks
+
+
+@dataclass(frozen=True)
+class Piece:
+    """Rows of a batch run together: ``keys`` the key-order positions of its components,
+    ``seg`` offsets (length ``keys.size + 1``) of each one's rows in ``rows`` (batch
+    positions, component by component, time order inside) and ``rank0`` the acquisition rank
+    (within the batch) of every component's first row of the piece."""
+
+    keys: IntArray
+    seg: IntArray
+    rows: IntArray
+    rank0: int
+
+
+def block_pieces(order: ComponentOrder, blocks: list[tuple[int, int]]) -> list[Piece]:
+    """The :class:`Piece` of each block ``(k0, k1)`` of consecutive components
+    (:func:`component_blocks`): all their rows."""
+    st = order.start
+    return [Piece(np.arange(k0, k1), st[k0:k1 + 1] - st[k0], order.by_comp[st[k0]:st[k1]], 0)
+            for k0, k1 in blocks]
+
+
+def rank_windows(order: ComponentOrder, window_rows: int) -> list[tuple[int, int]]:
+    """Windows ``(r0, r1)`` of consecutive acquisition ranks holding at most ``window_rows``
+    rows of all components together (a rank with more is a window of its own): a wide batch
+    run rank by rank across every unit, as a time-ordered feed delivers it, holding one
+    window's outputs."""
+    width = np.cumsum(np.bincount(order.counts)[::-1])[::-1][1:]  # rows at each rank
+    cum = np.cumsum(width)
+    windows, r0, done = [], 0, 0
+    while r0 < width.size:
+        r1 = max(r0 + 1, int(np.searchsorted(cum, done + window_rows, side="right")))
+        windows.append((r0, r1))
+        done, r0 = int(cum[r1 - 1]), r1
+    return windows
+
+
+def window_piece(order: ComponentOrder, r0: int, r1: int) -> Piece:
+    """The :class:`Piece` of the rows of ranks ``r0`` to ``r1 - 1`` of every component."""
+    cw = np.clip(order.counts - r0, 0, r1 - r0)
+    keys = np.flatnonzero(cw)
+    cw = cw[keys]
+    seg = np.concatenate([[0], np.cumsum(cw)])
+    pos = np.repeat(order.start[keys] + r0 - seg[:-1], cw) + np.arange(int(seg[-1]))
+    return Piece(keys, seg, order.by_comp[pos], r0)
 
 
 def split_duplicates(conn: Any, acq: Batch, last: dict[str, float]) -> tuple[Batch, int]:
@@ -154,5 +196,6 @@ def _check_stored(conn: Any, name: str, rows: list[int], ts: list[float], his: l
                 f"stored with hi = {_fmt(h)}; this batch gives {_fmt(hi)}")
 
 
-__all__ = ["SAME_HI_RTOL", "ComponentOrder", "check_spacing", "component_blocks",
-           "gaps_after_stored", "order_by_component", "split_duplicates"]
+__all__ = ["SAME_HI_RTOL", "ComponentOrder", "Piece", "block_pieces", "check_spacing",
+           "component_blocks", "gaps_after_stored", "order_by_component", "rank_windows",
+           "split_duplicates", "window_piece"]

@@ -82,22 +82,26 @@ def chunk_rows(names: Any, seg: np.ndarray, rec: np.ndarray, ingest: Any,
 
 
 def _blobs(rec: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> list[memoryview]:
-    """The blob of each chunk ``rec[p0[i]:p1[i]]`` (the header, then its records), as views
-    of one buffer: the records are copied once, into place beside their headers (no bytes
-    object per chunk; SQLite and psycopg bind a memoryview as a blob)."""
+    """The blob of each chunk ``rec[p0[i]:p1[i]]`` (the header, then its records; the chunks
+    consecutive: ``p0[i + 1] == p1[i]``), as views of one buffer: the records are copied
+    once, in one operation, into place beside their headers (no bytes object per chunk;
+    SQLite and psycopg bind a memoryview as a blob)."""
     p0 = np.asarray(p0, dtype=np.int64)
     p1 = np.asarray(p1, dtype=np.int64)
+    if not np.array_equal(p0[1:], p1[:-1]):
+        raise ValueError("history chunks: expected consecutive record ranges")
     per = 1 + WIDTH * (p1 - p0)
     start = np.cumsum(per) - per  # each chunk's first word
     words = np.empty(int(per.sum()), dtype="<f8")
-    words.view("<u8")[start] = _HEADER_WORD
+    body = np.ones(words.size, dtype=bool)
+    body[start] = False
     flat = np.ascontiguousarray(rec, dtype="<f8").reshape(-1)
+    if p0.size:
+        words[body] = flat[int(p0[0]) * WIDTH:int(p1[-1]) * WIDTH]
+    del body
+    words.view("<u8")[start] = _HEADER_WORD
     raw = words.data.cast("B")
-    out = []
-    for a, b, s, m in zip(p0.tolist(), p1.tolist(), start.tolist(), per.tolist(), strict=True):
-        words[s + 1:s + m] = flat[a * WIDTH:b * WIDTH]
-        out.append(raw[8 * s:8 * (s + m)])
-    return out
+    return [raw[8 * s:8 * (s + m)] for s, m in zip(start.tolist(), per.tolist(), strict=True)]
 
 
 def decode(blobs: list[Any], n: Any) -> np.ndarray:

@@ -70,6 +70,9 @@ PROGNOSIS_COLUMNS = ("hits", "failed_at", "max_level", "seen", *TREND_COLUMNS)
 the tracker state, in one query: :class:`BatchPrognosis` ``stored``)."""
 REPLAY_ROWS = 200_000
 """History rows replayed at once (bounds the memory of :func:`replay`)."""
+QUANTILE_ROWS = 25_000
+"""Rows whose trend RUL quantiles are computed at once (their temporaries: some 45 arrays of
+a row each at three levels)."""
 
 
 # ----------------------------------------------------------------------------- schema
@@ -217,7 +220,7 @@ class BatchPrognosis:
             assert learned is not None
             med, low, high = learned
         elif est.kind == "trend":
-            med, low, high = rul_quantiles(trend_posterior(rows, est.trend), levels)
+            med, low, high = _trend_quantiles(rows, est.trend, levels)
         else:
             med, low, high = tracker_rul_interval(tracker_rows["fhi"], tracker_rows["frul"],
                                                   est.tracker)
@@ -253,6 +256,20 @@ class BatchPrognosis:
         for j, c in enumerate(TREND_COLUMNS):
             cols[c] = self.trend.s[:, j]
         return {k: _sql_list(v) for k, v in cols.items()}
+
+
+def _trend_quantiles(rows: TrendState, config: TrendConfig, levels: tuple[float, ...]
+                     ) -> tuple[FloatArray, ...]:
+    """The trend's RUL quantiles of every row of ``rows``, :data:`QUANTILE_ROWS` rows at a time
+    (the same element-wise operations: the quantiles' temporaries of a slice, not of all)."""
+    m = len(rows)
+    out = tuple(np.empty(m) for _ in levels)
+    for a in range(0, m, QUANTILE_ROWS):
+        sl = slice(a, a + QUANTILE_ROWS)
+        part = TrendState(t=rows.t[sl], hi=rows.hi[sl], n=rows.n[sl], s=rows.s[sl])
+        for o, q in zip(out, rul_quantiles(trend_posterior(part, config), levels), strict=True):
+            o[a:a + QUANTILE_ROWS] = q
+    return out
 
 
 def block_alerts(got: BlockRows, rules: MonitoringRules, unit: str, comps: list[str],

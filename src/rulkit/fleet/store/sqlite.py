@@ -56,7 +56,7 @@ import math
 import sqlite3
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -75,11 +75,16 @@ from rulkit.fleet.store.acquisitions import (
     validate_acquisitions,
 )
 from rulkit.fleet.store.batch_order import (
+    ComponentOrder,
+    Piece,
+    block_pieces,
     check_spacing,
     component_blocks,
     gaps_after_stored,
     order_by_component,
+    rank_windows,
     split_duplicates,
+    window_piece,
 )
 from rulkit.fleet.store.database_file import (
     StoreError,
@@ -92,6 +97,7 @@ from rulkit.fleet.store.database_file import (
     store_error,
     time_axis_from_meta,
 )
+from rulkit.fleet.store.history_stage import HistoryStage
 from rulkit.fleet.store.prognosis import (
     PROGNOSIS_COLUMNS,
     BatchPrognosis,
@@ -121,6 +127,7 @@ from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
     TrackerConfig,
+    TrackerState,
     tracker_outputs,
 )
 from rulkit.fleet.tracking.tracker_run import tracker_run, tracker_strategy
@@ -224,6 +231,10 @@ class ComponentStore:
     """Acquisitions per block of components run together: bounds the per-acquisition outputs
     and the RUL quantiles' temporaries held at once (about 500 bytes an acquisition at the peak of
     a block: the RUL quantiles of three levels hold some 15 arrays of every row)."""
+    WINDOW_ROWS = 100_000
+    """Acquisitions per window of acquisition ranks of a wide batch (:meth:`_pieces`): the
+    same bound, wider because its numpy steps cost per rank; each window writes a history
+    chunk per component."""
     hi_model: HealthIndexModel | None
 
     def __init__(
@@ -543,28 +554,28 @@ class ComponentStore:
         caller's transaction). ``stored``: the batch's stored component rows
         (:meth:`_load_states`), read here when not given.
 
-        Components are processed in blocks of consecutive names in SQLite's key order (BINARY
-        collation: UTF-8 byte order = code point order = Python's str order) of at most
-        :attr:`BLOCK_ROWS` acquisitions. Each block runs
-        :func:`~rulkit.fleet.tracking.tracker_run.tracker_run` over every component's acquisitions
-        (equal to one vectorised update per acquisition rank) and writes its history sorted
-        by (component, t) in chunks of :attr:`HISTORY_CHUNK` rows, so SQLite appends to its
-        B-tree (rank order visited every component's page once per rank: 3.5x the time on
-        200k rows) and only one block's outputs are held. Memory and time are linear in the
-        batch.
+        The rows are processed in pieces (:meth:`_pieces`): blocks of consecutive components
+        in SQLite's key order (BINARY collation: UTF-8 byte order = code point order =
+        Python's str order) of at most :attr:`BLOCK_ROWS` acquisitions, or, for a wide
+        batch, windows of consecutive acquisition ranks of every component. Each piece runs
+        :func:`~rulkit.fleet.tracking.tracker_run.tracker_run` over its components' rows
+        (equal to one vectorised update per acquisition rank), the state carried from piece
+        to piece, and writes its history in key order, a chunk of at most
+        :attr:`HISTORY_CHUNK` rows per component and piece (appended to the table's rowids;
+        its key index takes the order), so only one piece's outputs are held. Memory and
+        time are linear in the batch.
         """
         codes = acq.codes.astype(np.int32, copy=False)  # 4 bytes less per acquisition
         names = acq.names
         if stored is None:
             stored = self._load_states(names)
         state, known = stored_state(names, stored)
-        t, hi, rows_all = acq.t, acq.hi, acq.row
+        t, rows_all = acq.t, acq.row
         n, b = len(acq), len(names)
         # rows grouped by component in key order, batch order (= time order) inside; the
         # spacing check sees every interval, in batch order
         order = order_by_component(codes, names)
-        sorted_pos, by_comp, counts, comp_start = (order.sorted_pos, order.by_comp,
-                                                   order.counts, order.start)
+        sorted_pos = order.sorted_pos
         check_spacing(self.config, gaps_after_stored(order, t, rows_all, names,
                                                      state.t[sorted_pos]))
         ingest_id = self._insert_ingest(source, n, b)
@@ -579,37 +590,9 @@ class ComponentStore:
                               seconds_per_unit=acq.seconds_per_unit, installed=inst,
                               stored=(known, [stored[names[i]][k_row:] for i in known]))
         del codes
-        names_arr = np.array(names, dtype=object)
-        alerts: list[tuple[int, int, Alert]] = []
-        blocks = component_blocks(order, self.BLOCK_ROWS)
-        # one way to run the trackers for the whole batch (tracker_run's cost model, with the
-        # rank loops of all blocks against loading the compiled passes once)
-        n_ranks = sum(int(counts[k0:k1].max()) for k0, k1 in blocks)
         if n > self.BLOCK_ROWS:
-            _return_freed_memory()  # the checks' arrays, before the blocks
-        strategy = tracker_strategy(n_ranks, n)
-        prog.strategy = trend_strategy(n_ranks, n)  # the same choice for the trend's pass
-        for k0, k1 in blocks:
-            rows_b = by_comp[comp_start[k0]:comp_start[k1]]  # block rows, key order
-            comps = sorted_pos[k0:k1]  # component indices (into names / state)
-            seg = comp_start[k0:k1 + 1] - comp_start[k0]
-            cidx = np.repeat(np.arange(k1 - k0), counts[k0:k1])  # block-local component
-            t_b, hi_b = t[rows_b], hi[rows_b]
-            sub, out = tracker_run(state.take(comps), seg, t_b, hi_b, self.config, self.gains,
-                                   strategy=strategy)
-            rank_b = np.arange(rows_b.size) - seg[cidx]
-            comp_b = names_arr[comps][cidx]
-            refuse_non_finite(out, rank_b, rows_all[rows_b], comp_b, t_b)
-            # the RUL and the rules' level per row; alerts where the level passes the highest
-            # the component reached before (latched)
-            got = prog.block(comps, seg, t_b, hi_b, out)
-            alerts += block_alerts(got, self.rules, prog.est.time_unit, [names[c] for c in comps],
-                                   seg, rank_b, rows_b, t_b, hi_b)
-            del rank_b
-            for f in ("t", "n", "hi", "ab", "rul", "abg"):
-                getattr(state, f)[comps] = getattr(sub, f)
-            self._write_block_history(names_arr[comps], seg, t_b, hi_b, out, got, ingest_id)
-            del cidx, comp_b, out, t_b, hi_b, got
+            _return_freed_memory()  # the checks' arrays, before the pieces
+        alerts = self._run_pieces(acq, order, state, prog, ingest_id)
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
         fin = tracker_outputs(state, self.config)
         extra = prog.finish()
@@ -625,17 +608,88 @@ class ComponentStore:
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
 
-    def _write_block_history(self, names: np.ndarray, seg: np.ndarray, t: np.ndarray,
-                             hi: np.ndarray, out: dict[str, np.ndarray], got: Any,
-                             ingest_id: int) -> None:
-        """The history of one block (component ``names[i]`` owns rows ``seg[i]:seg[i + 1]``,
-        key order), packed in rows of at most :attr:`HISTORY_CHUNK` acquisitions: the
-        tracker's ``out``, the rules' level and the stored RUL interval of ``got``."""
+    def _run_pieces(self, acq: Batch, order: ComponentOrder, state: TrackerState,
+                    prog: BatchPrognosis, ingest_id: int) -> list[tuple[int, int, Alert]]:
+        """The trackers, the estimator, the rules and the history of every piece of the
+        batch (:meth:`_pieces`), the trackers' ``state`` (and ``prog``'s) carried from piece
+        to piece; the alerts as (acquisition rank, batch row, :class:`Alert`)."""
+        t, hi, rows_all, names = acq.t, acq.hi, acq.row, acq.names
+        names_arr = np.array(names, dtype=object)
+        sorted_pos = order.sorted_pos
+        alerts: list[tuple[int, int, Alert]] = []
+        pieces, strategy, prog.strategy, stage = self._pieces(order, len(acq))
+        with stage if stage is not None else nullcontext():
+            for piece in pieces:
+                comps = sorted_pos[piece.keys]  # component indices (into names / state)
+                seg, rows_b = piece.seg, piece.rows
+                cidx = np.repeat(np.arange(comps.size), np.diff(seg))  # piece-local component
+                t_b, hi_b = t[rows_b], hi[rows_b]
+                sub, out = tracker_run(state.take(comps), seg, t_b, hi_b, self.config,
+                                       self.gains, strategy=strategy)
+                rank_b = np.arange(rows_b.size) - seg[cidx] + piece.rank0
+                comp_b = names_arr[comps][cidx]
+                refuse_non_finite(out, rank_b, rows_all[rows_b], comp_b, t_b)
+                # the RUL and the rules' level per row; alerts where the level passes the
+                # highest the component reached before (latched)
+                got = prog.block(comps, seg, t_b, hi_b, out)
+                alerts += block_alerts(got, self.rules, prog.est.time_unit,
+                                       [names[c] for c in comps], seg, rank_b, rows_b, t_b, hi_b)
+                for f in ("t", "n", "hi", "ab", "rul", "abg"):
+                    getattr(state, f)[comps] = getattr(sub, f)
+                rec = self._block_records(t_b, hi_b, out, got)
+                if stage is None:
+                    self._write_block_history(names_arr[comps], seg, rec, ingest_id)
+                else:
+                    stage.add(piece, rec)
+                del rank_b, cidx, comp_b, out, t_b, hi_b, got, rows_b, seg, piece, rec
+            if stage is not None:  # the windows' history, one chunk per component
+                for k0, k1, rec in stage.blocks(self.BLOCK_ROWS):
+                    self._write_block_history(names_arr[sorted_pos[k0:k1]],
+                                              order.start[k0:k1 + 1] - order.start[k0], rec,
+                                              ingest_id)
+        return alerts
+
+    def _pieces(self, order: ComponentOrder, n: int
+                ) -> tuple[Iterator[Piece], str, str, HistoryStage | None]:
+        """How :meth:`_apply` runs a batch of ``n`` rows: its pieces, the trackers' and the
+        trend's strategy. A batch wider than long by the trackers' cost rule
+        (:func:`~rulkit.fleet.tracking.tracker_run.tracker_strategy` of its longest series:
+        ``"ranks"``) and larger than a block runs in windows of consecutive acquisition ranks
+        of every component (:func:`~rulkit.fleet.store.batch_order.rank_windows`, at most
+        :attr:`WINDOW_ROWS` rows each: one numpy step per rank across all units, no compiled
+        pass to load); any other in blocks of consecutive components of at most
+        :attr:`BLOCK_ROWS` rows, each way the cheapest for the rank loops of all blocks
+        against loading the compiled passes once. The windows' history is staged
+        (:class:`~rulkit.fleet.store.history_stage.HistoryStage`, returned) and written per
+        block of components after the last window: one chunk per component, as in blocks."""
+        longest = int(order.counts.max(initial=0))
+        if n > self.BLOCK_ROWS and tracker_strategy(longest, n) == "ranks":
+            windows = rank_windows(order, self.WINDOW_ROWS)
+            stage = HistoryStage(order, self.path.parent if isinstance(self.path, Path)
+                                 else None)
+            return ((window_piece(order, r0, r1) for r0, r1 in windows), "ranks", "ranks",
+                    stage)
+        blocks = component_blocks(order, self.BLOCK_ROWS)
+        n_ranks = sum(int(order.counts[k0:k1].max()) for k0, k1 in blocks)
+        return (iter(block_pieces(order, blocks)), tracker_strategy(n_ranks, n),
+                trend_strategy(n_ranks, n), None)
+
+    @staticmethod
+    def _block_records(t: np.ndarray, hi: np.ndarray, out: dict[str, np.ndarray],
+                       got: Any) -> np.ndarray:
+        """The history records of a piece's rows: the tracker's ``out``, the rules' level and
+        the stored RUL interval of ``got`` (:func:`history_chunks.records`)."""
         med, low, high = stored_interval(got.rules.median, got.rules.low, got.rules.high)
-        rec = history_chunks.records({
+        return history_chunks.records({
             "t": t, "hi": hi, **{f: out[f] for f in TRACKER_OUT[:6]}, "valid": out["valid"],
             "level": got.rules.level, "rul_low": low, "rul_high": high, "rul_median": med},
             t.size)
+
+    def _write_block_history(self, names: np.ndarray, seg: np.ndarray, rec: np.ndarray,
+                             ingest_id: int) -> None:
+        """The history of one block (component ``names[i]`` owns records
+        ``rec[seg[i]:seg[i + 1]]``, key order, time order inside), packed in rows of at most
+        :attr:`HISTORY_CHUNK` acquisitions."""
         self._write_history(history_chunks.chunk_rows(names, seg, rec, ingest_id,
                                                       self.HISTORY_CHUNK))
 

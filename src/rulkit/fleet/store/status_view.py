@@ -27,6 +27,7 @@ same bytes (tested, tests/fleet/store/test_status_view.py):
 from __future__ import annotations
 
 import sqlite3
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
@@ -100,7 +101,7 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
     path = Path(path)
     est_box: list[Any] = []
 
-    def read(conn: sqlite3.Connection) -> list[tuple]:
+    def read(conn: sqlite3.Connection) -> list[dict[str, Any]] | None:
         meta = _read_meta(conn)
         est_box[:] = [estimator_of_meta(path, meta)]
         try:
@@ -108,58 +109,62 @@ def read_status(path: str | Path, *, now: float, sort: str = "worst", timeout: f
             if not set(STORED_COLUMNS) <= have:
                 raise StoreError(f"{path}: written by an older rulkit (no one-RUL columns); "
                                  "`rulkit track` or `rulkit serve` on it upgrades it in place")
-            conn.execute("PRAGMA mmap_size = 1073741824")  # reads pages in place, no copies
+            # no memory map: it saved no CPU, warm or cold (bench_scale.py --mmap), and a
+            # mapped file's I/O error is a signal that ends the process, not an exception
             conn.execute("BEGIN DEFERRED")
-            rows = conn.execute(
-                f"SELECT {', '.join(STORED_COLUMNS)} FROM components").fetchall()
+            cur = conn.execute(f"SELECT {', '.join(STORED_COLUMNS)} FROM components")
+            chunks = []
+            while rows := cur.fetchmany(READ_ROWS):  # each chunk's objects freed for the next
+                chunk = _typed(np.fromiter(rows, dtype=_OBJECT_RECORD, count=len(rows)))
+                if chunk is None:
+                    return None
+                chunks.append(chunk)
             conn.execute("COMMIT")
         except sqlite3.Error as err:
             raise store_error(path, err, timeout) from err
-        return rows
+        return chunks
 
-    rows = read_verified(path, timeout, read)
-    est = est_box[0]
-    if not rows:
-        return status_columns({c: [] for c in STORED_COLUMNS}, est, now, sort)
-    # one object per value already exists; a column-major copy of the references is the
-    # cheapest way to columns (zip(*rows) builds a tuple per column: ~2x slower)
-    by_col = np.array(rows, dtype=object).T.copy()
-    del rows
-    lists = dict(zip(STORED_COLUMNS, (c.tolist() for c in by_col), strict=True))
-    if not _canonical(lists):
+    chunks = read_verified(path, timeout, read)
+    if chunks is None:
         return None
-    return status_columns(_typed(lists, by_col), est, now, sort)
+    est = est_box[0]
+    if not chunks:
+        return status_columns({c: [] for c in STORED_COLUMNS}, est, now, sort)
+    stored = {c: [v for ch in chunks for v in ch[c]] if c == "component"
+              else np.concatenate([ch[c] for ch in chunks]) for c in STORED_COLUMNS}
+    return status_columns(stored, est, now, sort)
 
 
-def _typed(lists: dict[str, list], by_col: np.ndarray) -> dict[str, Any]:
-    """The canonical stored columns with their numbers as arrays: a column without NULL cast
-    from its object row in one C loop, a nullable one through :func:`numpy.array` (None as
-    NaN), instead of :func:`_floats`' elementwise comparison with None."""
-    typed: dict[str, Any] = dict(lists)
-    for k, c in enumerate(STORED_COLUMNS):
+READ_ROWS = 8192
+"""Rows fetched and converted at a time by :func:`read_status`."""
+_OBJECT_RECORD = np.dtype([(c, object) for c in STORED_COLUMNS])
+
+
+def _typed(rows: np.ndarray) -> dict[str, Any] | None:
+    """The stored columns of a chunk of rows (a record array of objects, one field per
+    column; the fields are copied into it in one C loop, faster than ``zip(*rows)``) with
+    their numbers as arrays (None as NaN), or None when a value is not of the type rulkit
+    writes (what the pandas path accepts unchanged)."""
+    typed: dict[str, Any] = {"component": rows["component"].tolist()}
+    if set(map(type, typed["component"])) != {str}:
+        return None
+    for c in STORED_COLUMNS[1:]:
+        values = rows[c]
+        kinds = set(map(type, values))
         if c in NULLABLE:
-            typed[c] = np.array(lists[c], dtype=np.float64)
-        elif c in ("hi", "t", "rul_low", "rul_high"):
-            typed[c] = by_col[k].astype(np.float64)
-        elif c in ("level", "n"):
-            typed[c] = by_col[k].astype(np.int64)
+            if not kinds <= {float, type(None)}:
+                return None
+            if type(None) in kinds:
+                values = values.copy()
+                values[values == None] = np.nan  # noqa: E711 (elementwise)
+            typed[c] = values.astype(np.float64)
+        elif kinds != ({int} if c in ("level", "n") else {float}):
+            return None
+        else:
+            typed[c] = values.astype(np.int64 if c in ("level", "n") else np.float64)
+    if not np.isin(typed["level"], list(LEVEL_NAMES)).all():
+        return None
     return typed
-
-
-def _canonical(cols: dict[str, list]) -> bool:
-    """Every value of the type rulkit writes (what the pandas path accepts unchanged)."""
-    if set(map(type, cols["component"])) != {str}:
-        return False
-    for c in ("hi", "t", "rul_low", "rul_high"):
-        if set(map(type, cols[c])) != {float}:
-            return False
-    for c in NULLABLE:
-        if not set(map(type, cols[c])) <= {float, type(None)}:
-            return False
-    for c in ("level", "n"):
-        if set(map(type, cols[c])) != {int}:
-            return False
-    return set(cols["level"]) <= set(LEVEL_NAMES)
 
 
 def _floats(values: Any) -> np.ndarray:
@@ -191,7 +196,9 @@ def status_columns(stored: dict[str, Any], est: Estimator, now: float, sort: str
     ``sort`` (:data:`SORTS`)."""
     if sort not in SORTS:
         raise ValueError(f"sort: expected one of {SORTS}, got {sort!r}")
-    comp = [str(c) for c in stored["component"]]
+    comp = stored["component"]
+    if not isinstance(comp, list) or set(map(type, comp)) - {str}:
+        comp = [str(c) for c in comp]
     n = len(comp)
     a = {c: _floats(stored[c]) for c in ("hi", "t", "rul_median", "rul_low", "rul_high",
                                           "failed_at", "seen")}
@@ -312,8 +319,13 @@ def _with_nulls(arr: Any, missing: np.ndarray) -> Any:
 
 
 def _text(values: list[str | None]) -> Any:
-    """A ``large_string`` array, None as null."""
-    missing = np.fromiter((v is None for v in values), dtype=bool, count=len(values))
+    """A ``large_string`` array, None as null (one value in every row written once)."""
+    n = len(values)
+    if n and values.count(values[0]) == n:
+        return _with_nulls(_const(values[0] or "", n), np.full(n, values[0] is None))
+    if None not in values:
+        return _strs(values)  # type: ignore[arg-type]
+    missing = np.fromiter((v is None for v in values), dtype=bool, count=n)
     return _with_nulls(_strs([v or "" for v in values]), missing)
 
 
@@ -326,7 +338,10 @@ def format_csv(cols: dict[str, Any]) -> bytes:
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
-    arrays = [_strs([printable_id(c) for c in cols["component"]]), _levels(cols["level"])]
+    ids = cols["component"]
+    if not "".join(ids).isprintable():
+        ids = [printable_id(c) for c in ids]
+    arrays = [_strs(ids), _levels(cols["level"])]
     for c in STATUS_COLUMNS[2:]:
         if c in BOOL_COLUMNS:
             arrays.append(_bools(cols[c]))
@@ -361,63 +376,105 @@ def _ascii_json(text: bytes) -> bytes:
     return "".join(esc(ch) if ord(ch) > 0x7F else ch for ch in text.decode()).encode()
 
 
-def _json_texts(values: Any) -> np.ndarray:
-    """Each value of a column as orjson writes it inside a record, as a NUL-padded ``bytes``
-    array: a column's list through one :func:`orjson.dumps` split at its commas when that
-    gives one text per value (numbers, booleans, null and strings without commas), else one
-    :func:`orjson.dumps` per value."""
+def _json_texts(values: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Each value of a column as orjson writes it inside a record, as ``(bytes, lengths)``
+    (:func:`split_texts`): a column's list through one :func:`orjson.dumps` cut at its commas
+    when that gives one text per value (numbers, booleans, null and strings without commas),
+    else one :func:`orjson.dumps` per value."""
     import orjson
 
     if isinstance(values, np.ndarray):  # NaN and inf stay floats: orjson writes them as null
         values = values.tolist()
-    texts = orjson.dumps(values)[1:-1].split(b",")
-    if len(texts) != len(values):
-        texts = list(map(orjson.dumps, values))
-    return np.array(texts, dtype=np.bytes_)
+    text = orjson.dumps(values)[1:-1]
+    if text.count(b",") != len(values) - 1:  # a comma inside a string
+        return split_texts(b"\x00".join(map(orjson.dumps, values)), 0)  # JSON holds no NUL
+    return split_texts(text, ord(","))
 
 
-def format_json(cols: dict[str, Any]) -> list[bytes]:
+def split_texts(text: bytes, sep: int) -> tuple[np.ndarray, np.ndarray]:
+    """The texts joined by the byte ``sep`` in ``text`` as ``(bytes, lengths)``: their bytes
+    one after another (a uint8 array, the separators dropped) and the length of each."""
+    raw = np.frombuffer(text, dtype=np.uint8)
+    cuts = np.flatnonzero(raw == sep)
+    lens = np.diff(cuts, prepend=-1, append=raw.size) - 1
+    return np.delete(raw, cuts), lens
+
+
+def place_texts(out: np.ndarray, raw: np.ndarray, lens: np.ndarray, first: Any) -> None:
+    """Copy one text per row of the byte matrix ``out`` (``raw`` and ``lens`` as
+    :func:`split_texts` gives them) to that row from column ``first`` (one for all rows, or
+    one per row): every character's place computed at once, no Python per text."""
+    rows, width = out.shape
+    begin = np.arange(rows, dtype=np.int64) * width + first - (np.cumsum(lens) - lens)
+    out.reshape(-1)[np.repeat(begin, lens) + np.arange(raw.size)] = raw
+
+
+CHUNK_ROWS = 4096
+"""Rows per chunk of the JSON and table writers: their byte matrices stay a few MB, reused
+chunk after chunk, whatever the number of components."""
+
+
+def format_json(cols: dict[str, Any]) -> Iterator[bytes]:
     """The JSON text of ``rulkit status --format json``: an array of records of
     :data:`STATUS_COLUMNS`, the bytes :func:`orjson.dumps` writes for a list of dicts,
-    without the final newline, as byte chunks.
+    without the final newline, in chunks of :data:`CHUNK_ROWS` records.
 
     Floats are the shortest text that reads back as the same float64 (``json.loads`` gives
     the stored value bit for bit); NaN and infinities ``null``; date-times ISO 8601 UTC
     strings (``2024-05-01T12:00:00Z``) or ``null``; booleans ``true``/``false``; ASCII only
     (:func:`_ascii_json`).
 
-    Written by columns, no dict per row: each column's texts (:func:`_json_texts`) are a
-    block of NUL-padded bytes, the blocks and the keys between them are laid side by side in
-    one array of rows, and the padding is dropped in one pass (JSON text holds no NUL byte:
-    orjson escapes it)."""
-    import orjson
-
+    Written by columns, no dict per row: a byte matrix of NUL (a row per record) gets the
+    keys and the columns with one value in every row as blocks, and each other column's
+    texts (:func:`_json_texts`) at their block (:func:`place_texts`); the NUL left between
+    them is dropped in one pass (JSON text holds no NUL byte: orjson escapes it)."""
     n = len(cols["component"])
     if n == 0:
-        return [b"[]"]
-    blocks: list[np.ndarray] = []
-    between = b"{"  # the literal text before the next block
+        yield b"[]"
+        return
+    blocks = _json_blocks(cols, n)
+    widths = [len(b) if isinstance(b, bytes) else int(b[1].max()) for b in blocks]
+    # each column's texts by chunk of rows: where a chunk's texts begin and end
+    bounds: list[Any] = [None if isinstance(b, bytes)
+                         else np.concatenate([[0], np.cumsum(b[1])]) for b in blocks]
+    for r0 in range(0, n, CHUNK_ROWS):
+        r1 = min(r0 + CHUNK_ROWS, n)
+        out = np.zeros((r1 - r0, sum(widths)), dtype=np.uint8)
+        at = 0
+        for block, width, ends in zip(blocks, widths, bounds, strict=True):
+            if isinstance(block, bytes):
+                out[:, at:at + width] = np.frombuffer(block, dtype=np.uint8)
+            else:
+                raw, lens = block
+                place_texts(out, raw[ends[r0]:ends[r1]], lens[r0:r1], at)
+            at += width
+        if r1 == n:
+            out[-1, -1] = ord("]")  # the last record's comma
+        yield _ascii_json((b"[" if r0 == 0 else b"") + out[out != 0].tobytes())
+
+
+def _json_blocks(cols: dict[str, Any], n: int) -> list[Any]:
+    """The blocks of a record of :func:`format_json`, in order: literal bytes (keys, the
+    columns with one value in every row), or a column's texts as ``(bytes, lengths)``."""
+    import orjson
+
+    blocks: list[Any] = []
+    between = b"{"  # the literal text before the next column of texts
     for k, c in enumerate(STATUS_COLUMNS):
         v = cols[c]
         between += (b"," if k else b"") + orjson.dumps(c) + b":"
         if c == "level":
             names = {i: orjson.dumps(name) for i, name in LEVEL_NAMES.items()}
-            texts = np.array([names[i] for i in np.asarray(v, dtype=np.int64).tolist()],
-                             dtype=np.bytes_)
+            texts = split_texts(b"\x00".join(
+                [names[i] for i in np.asarray(v, dtype=np.int64).tolist()]), 0)
         elif c in BOOL_COLUMNS:
-            texts = np.where(np.asarray(v, dtype=bool), b"true", b"false")
+            texts = split_texts(b",".join(np.where(np.asarray(v, dtype=bool), b"true", b"false")
+                                          .tolist()), ord(","))
         elif not isinstance(v, np.ndarray) and v.count(v[0]) == n:  # one value in every row
             between += orjson.dumps(v[0])
             continue
         else:
             texts = _json_texts(v)
-        blocks += [_repeated(between, n), texts.view(np.uint8).reshape(n, texts.itemsize)]
+        blocks += [between, texts]
         between = b""
-    blocks.append(_repeated(between + b"},", n))
-    body = np.concatenate(blocks, axis=1).tobytes().replace(b"\x00", b"")
-    return [_ascii_json(b"[" + body[:-1] + b"]")]
-
-
-def _repeated(text: bytes, n: int) -> np.ndarray:
-    """``n`` rows of the bytes of ``text`` (an ``(n, len(text))`` uint8 array)."""
-    return np.broadcast_to(np.frombuffer(text, dtype=np.uint8), (n, len(text)))
+    return [*blocks, between + b"},"]

@@ -26,15 +26,17 @@ from rulkit.fleet.tracking.tracker_chain import (
 )
 
 # Cost model of :func:`tracker_run`'s three equal-result strategies, in seconds, measured on
-# the 2-core development machine (`benchmarks/bench_scale.py` shows the outcome):
-# one vectorised tracker_update per acquisition rank (~0.12 ms a call: few ranks, many
-# components, e.g. a fleet's periodic batch), the per-component passes as plain Python
-# (~3 us an acquisition: small batches) or compiled by numba (~0.15 us an acquisition, but
-# loading numba and its cache costs ~0.55 s and ~100 MB once per process: long series).
-_COST_PER_RANK = 1.2e-4
-_COST_PER_RANK_ROW = 2.5e-7
+# the 2-core development machine (`benchmarks/bench_tracker_steps.py` prints the rank steps'
+# constants and the compiled pass per row, `benchmarks/bench_scale.py` the outcome): one
+# vectorised tracker_update per acquisition rank (~0.11 ms a call plus ~0.13 us a row: many
+# components, few ranks, e.g. a fleet's periodic batch or the rank windows of a wide one), the
+# per-component passes as plain Python (~3 us an acquisition: small batches) or compiled by
+# numba (~0.06 us an acquisition, but loading numba and its cache costs ~0.55 s and ~100 MB
+# once per process: long series).
+_COST_PER_RANK = 1.1e-4
+_COST_PER_RANK_ROW = 1.3e-7
 _COST_PER_PYTHON_ROW = 3e-6
-_COST_PER_JIT_ROW = 1.5e-7
+_COST_PER_JIT_ROW = 6e-8
 _COST_JIT_LOAD = 0.55
 
 
@@ -159,32 +161,50 @@ def _run_by_rank(state: TrackerState, seg: np.ndarray, t: np.ndarray, z: np.ndar
                  config: TrackerConfig, gains: TrackerGains
                  ) -> tuple[TrackerState, dict[str, np.ndarray]]:
     """:func:`tracker_run` as one :func:`tracker_update` per acquisition rank over the
-    components that have one (the reference the passes are tested against)."""
+    components that have one (the definition the passes are tested against), the outputs
+    (:func:`_row_outputs`) over all rows at the end."""
     m = t.shape[0]
     b = len(state)
     counts = np.diff(seg)
     rows: dict[str, np.ndarray] = {k: np.empty(m) for k in (
-        "fhi", "dhi", "rul", "frul", "drul", "d2rul", "rul_low", "rul_high")}
-    rows["n"] = np.empty(m, dtype=np.int64)
-    rows["valid"] = np.empty(m, dtype=bool)
-    rows["level"] = np.empty(m, dtype=np.int8)
+        "fhi", "dhi", "rul", "frul", "drul", "d2rul")}
+    n = np.empty(m, dtype=np.int64)
+    full = bool(counts.size) and bool((counts == counts[0]).all())  # every unit at every rank
+    every = int(counts[0]) if full else 0
+    idx: np.ndarray | slice
     for r in range(int(counts.max(initial=0))):
-        have = np.flatnonzero(counts > r)
-        idx = seg[have] + r
-        t_r = np.full(b, np.nan)  # fresh: the new state may hold these arrays
-        z_r = np.full(b, np.nan)
-        t_r[have] = t[idx]
-        z_r[have] = z[idx]
-        state, out = tracker_update(state, t_r, z_r, config, gains)
-        assert out is not None
-        cols = state.columns()
-        for k in ("fhi", "dhi", "rul", "frul", "drul", "d2rul", "n"):
-            rows[k][idx] = cols[k][have]
-        rows["rul_low"][idx] = out.rul_low[have]
-        rows["rul_high"][idx] = out.rul_high[have]
-        rows["valid"][idx] = out.valid[have]
-        rows["level"][idx] = out.level[have]
+        if full:  # unit c's row of rank r is c * every + r
+            idx = slice(r, None, every)
+            t_r, z_r = t[idx].copy(), z[idx].copy()
+        else:
+            have = np.flatnonzero(counts > r)
+            idx = seg[have] + r
+            t_r = np.full(b, np.nan)  # fresh: the new state may hold these arrays
+            z_r = np.full(b, np.nan)
+            t_r[have] = t[idx]
+            z_r[have] = z[idx]
+        state, _ = tracker_update(state, t_r, z_r, config, gains, outputs=False)
+        sel = slice(None) if full else have
+        rows["fhi"][idx], rows["dhi"][idx] = state.ab[sel, 0], state.ab[sel, 1]
+        rows["frul"][idx], rows["drul"][idx] = state.abg[sel, 0], state.abg[sel, 1]
+        rows["d2rul"][idx], rows["rul"][idx], n[idx] = state.abg[sel, 2], state.rul[sel], \
+            state.n[sel]
+    rows.update(_row_outputs(rows["fhi"], rows["dhi"], rows["drul"], rows["d2rul"],
+                             rows["frul"], n, config))
     return state, rows
+
+
+def _row_outputs(fhi: np.ndarray, dhi: np.ndarray, drul: np.ndarray, d2rul: np.ndarray,
+                 frul: np.ndarray, n: np.ndarray, config: TrackerConfig
+                 ) -> dict[str, np.ndarray]:
+    """Each row's ``n``, ``valid``, ``level``, ``rul_low`` and ``rul_high`` from its state
+    after the update: :func:`~rulkit.fleet.tracking.tracker_chain.tracker_outputs`'
+    element-wise operations over rows instead of components."""
+    valid = rul_validity(drul, d2rul, config) & (n >= MIN_UPDATES_VALID)
+    level = alert_level(fhi, frul, valid, config)
+    with np.errstate(invalid="ignore"):
+        lo, hi_lim = rul_confidence_limits(fhi, dhi, config)
+    return {"n": n, "valid": valid, "level": level, "rul_low": lo, "rul_high": hi_lim}
 
 
 def tracker_run(
@@ -247,12 +267,8 @@ def tracker_run(
              float(config.hi_floor), bool(config.rul_clip), frul, drul, d2rul)
     del dt
     n = np.repeat(n0 - seg[:-1], counts) + np.arange(1, m + 1)  # n0[c] + rank + 1
-    valid = rul_validity(drul, d2rul, config) & (n >= MIN_UPDATES_VALID)
-    level = alert_level(fhi, frul, valid, config)
-    with np.errstate(invalid="ignore"):
-        lo, hi_lim = rul_confidence_limits(fhi, dhi, config)
     rows = {"fhi": fhi, "dhi": dhi, "rul": rul, "frul": frul, "drul": drul, "d2rul": d2rul,
-            "rul_low": lo, "rul_high": hi_lim, "n": n, "valid": valid, "level": level}
+            **_row_outputs(fhi, dhi, drul, d2rul, frul, n, config)}
     new = state.take(np.arange(b))
     last = seg[1:][counts > 0] - 1
     upd = np.flatnonzero(counts > 0)

@@ -100,13 +100,20 @@ def check_time_unit(config: TrackerConfig, t: np.ndarray, *, max_floor_step: flo
     """
     t = np.asarray(t, dtype=np.float64)
     d = np.diff(t if assume_sorted else np.sort(t))
-    d = d[d > 0]
+    check_intervals(config, d[d > 0], max_floor_step=max_floor_step, source=source)
+
+
+def check_intervals(config: TrackerConfig, d: np.ndarray, *, max_floor_step: float = 0.01,
+                    source: str = "acquisitions") -> None:
+    """:func:`check_time_unit` of the positive acquisition intervals ``d`` (in any order;
+    reordered in place)."""
     if d.size == 0:
         return
-    step = float(np.median(d)) / config.design_life
+    med = float(np.median(d, overwrite_input=True))
+    step = med / config.design_life
     if step > max_floor_step:
         raise ValueError(
-            f"{source}: acquisitions are {float(np.median(d)):g} time units apart but "
+            f"{source}: acquisitions are {med:g} time units apart but "
             f"design_life = {config.design_life:g}: the no-healing floor 1/design_life alone "
             f"raises the HI by {step:.3g} per acquisition. design_life, dt, warn_rul and "
             "valid_d2rul are in the database's time unit: give them in that unit (or convert "
@@ -114,4 +121,4 @@ def check_time_unit(config: TrackerConfig, t: np.ndarray, *, max_floor_step: flo
         )
 
 
-__all__ = ["check_time_unit", "fit_tracker_config"]
+__all__ = ["check_intervals", "check_time_unit", "fit_tracker_config"]

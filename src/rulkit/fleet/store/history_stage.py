@@ -1,0 +1,114 @@
+"""A wide batch's history records staged by rank window in a temporary file, then given back
+per block of consecutive components in the order of the per-component path, so that the
+history holds one chunk per component and ingestion whatever the windows
+(docs/systems/embedded-rul.md §4; docs/service.md, "Where track's 2M rows go").
+
+A batch run in windows of acquisition ranks (:func:`~rulkit.fleet.store.batch_order.
+rank_windows`) has each component's records spread over the windows; holding them until the
+last window would hold the file's (104 bytes an acquisition). The stage appends each window's
+records to an unlinked temporary file (the operating system's page cache holds them, not the
+process) and reads a block's back with one read per window: a block of consecutive components
+is one contiguous range of each window's records (both are in key order).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from rulkit.fleet.store.batch_order import ComponentOrder, Piece, component_blocks
+from rulkit.fleet.store.database_file import StoreError, StoreFullError, StoreReadOnlyError
+from rulkit.fleet.store.history_chunks import WIDTH
+from rulkit.tables import safe_text
+
+
+class HistoryStage:
+    """The records of the rank windows of one batch, with ``order`` its
+    :class:`~rulkit.fleet.store.batch_order.ComponentOrder`, in a temporary file in
+    ``directory`` (the database's: room for the history it will hold), else in the system's
+    temporary directory; use as a context manager."""
+
+    def __init__(self, order: ComponentOrder, directory: Path | None = None) -> None:
+        self.order = order
+        self.directory = directory
+        try:
+            self._file = tempfile.TemporaryFile(dir=directory)
+        except OSError as err:
+            if directory is None:
+                raise self._error(err) from err
+            self.directory = None  # e.g. a database file writable in a directory that is not
+            try:
+                self._file = tempfile.TemporaryFile()
+            except OSError as err2:
+                raise self._error(err2) from err2
+        self._windows: list[tuple[np.ndarray, np.ndarray, int, int]] = []
+        self._size = 0
+
+    def __enter__(self) -> HistoryStage:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._file.close()
+
+    def add(self, piece: Piece, rec: np.ndarray) -> None:
+        """Stage the records ``rec`` of the window ``piece`` (its rows' order)."""
+        rec = np.ascontiguousarray(rec, dtype="<f8")
+        try:
+            self._file.write(rec.data.cast("B"))
+        except OSError as err:
+            raise self._error(err) from err
+        self._windows.append((piece.keys, piece.seg, piece.rank0, self._size))
+        self._size += rec.nbytes
+
+    def blocks(self, block_rows: int) -> Iterator[tuple[int, int, np.ndarray]]:
+        """``(k0, k1, records)`` per block of consecutive components (at most ``block_rows``
+        acquisitions, :func:`~rulkit.fleet.store.batch_order.component_blocks`): the records
+        of the components at key-order positions ``k0`` to ``k1 - 1``, component by
+        component, time order inside."""
+        self._file.flush()
+        fd = self._file.fileno()
+        st = self.order.start
+        for k0, k1 in component_blocks(self.order, block_rows):
+            rec = np.empty((int(st[k1] - st[k0]), WIDTH), dtype="<f8")
+            for keys, seg, rank0, offset in self._windows:
+                a, b = (int(x) for x in np.searchsorted(keys, (k0, k1)))
+                if a == b:
+                    continue
+                part = np.empty((int(seg[b] - seg[a]), WIDTH), dtype="<f8")
+                _read_into(fd, part, offset + int(seg[a]) * WIDTH * 8)
+                # component keys[i]'s rows of this window: its ranks rank0, rank0 + 1, ...
+                first = st[keys[a:b]] - st[k0] + rank0 - (seg[a:b] - seg[a])
+                rec[np.repeat(first, np.diff(seg[a:b + 1])) + np.arange(part.shape[0])] = part
+            yield k0, k1, rec
+
+    def _error(self, err: OSError) -> StoreError:
+        """The store's error for a failed write of the temporary file (nothing is stored)."""
+        where = self.directory or tempfile.gettempdir()
+        msg = (f"{where}: cannot stage the batch's history in a temporary file: "
+               f"{safe_text(err)}; nothing was written")
+        if err.errno == errno.ENOSPC:
+            return StoreFullError(msg)
+        if err.errno in (errno.EACCES, errno.EROFS, errno.EPERM):
+            return StoreReadOnlyError(msg)
+        return StoreError(msg)
+
+
+
+def _read_into(fd: int, out: np.ndarray, offset: int) -> None:
+    """Fill ``out`` from the file ``fd`` at ``offset``."""
+    view = out.data.cast("B")
+    done = 0
+    while done < view.nbytes:
+        got = os.preadv(fd, [view[done:]], offset + done)
+        if got <= 0:
+            raise StoreError("the batch's staged history ended early (its temporary file was "
+                             "truncated)")
+        done += got
+
+
+__all__ = ["HistoryStage"]
