@@ -37,8 +37,8 @@ numerator and sd, k = -Phi^-1(S)): Newton's steps per unit in one compiled pass 
 closed-form root, the table's slope from its trilinear cells
 (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`). The approximations (a
 straight path between readings; the walk's variance at the horizon only; Y* Gaussian; c at b*;
-the cadence d regular; for n >= 1 the interpolation on the model's growth scale) are measured against a
-brute-force Monte Carlo of the event in tests/fleet/learned/test_first_passage.py.
+the cadence d regular; for n >= 1 the interpolation on the model's growth scale) are measured
+against a brute-force Monte Carlo of the event in tests/fleet/learned/test_first_passage.py.
 """
 
 from __future__ import annotations
