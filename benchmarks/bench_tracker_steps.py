@@ -3,7 +3,7 @@
 (docs/service.md, "Where track's 2M rows go").
 
 ``rulkit track`` runs a wide batch in windows of acquisition ranks of every unit
-(``ComponentStore._pieces``): one vectorised update per rank, whose cost per row falls with
+(``history_stage.plan_pieces``): one vectorised update per rank, whose cost per row falls with
 the width (its fixed cost per call is spread over more units), and no compiled pass to load.
 A narrow-and-long batch keeps the compiled passes, whose load (numba and its cache) costs
 about 0.5 s of CPU and 100 MB once per process. Printed, per width, for

@@ -99,3 +99,34 @@ def test_acknowledged_batches_survive_other_processes_and_the_stop(tmp_path, sto
     assert con.execute("PRAGMA integrity_check").fetchone() == ("ok",)
     assert con.execute("SELECT SUM(n) FROM components").fetchone()[0] == 200 + 3 + 1
     con.close()
+
+
+def test_the_service_continues_from_rows_another_process_wrote(tmp_path):
+    """The service's writer starts a batch from the component rows it kept only while no
+    other connection wrote: here ``rulkit track`` in another process appends to a component
+    between two of the service's batches, and the service continues from track's row."""
+    from rulkit.fleet.service.db import ServiceDB
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    def frame(times, names):
+        return pd.DataFrame([(c, float(t), 0.3 + 0.01 * t + 0.001 * j) for t in times
+                             for j, c in enumerate(names)], columns=["component", "time", "hi"])
+
+    db, ref = tmp_path / "fleet.db", tmp_path / "ref.db"
+    sdb = ServiceDB(str(db))
+    try:
+        sdb.ingest(frame([0, 1], ["s0", "s1"]), "first", now=1.7e9)
+        frame([2, 3], ["s0"]).to_csv(tmp_path / "more.csv", index=False)
+        r = _cli("track", "--db", str(db), str(tmp_path / "more.csv"))
+        assert r.returncode == 0, r.stderr
+        sdb.ingest(frame([4], ["s0", "s1"]), "second", now=1.7e9)
+    finally:
+        sdb.close()
+    with ComponentStore(ref) as store:  # the same acquisitions, every row read back
+        for times, names in (([0, 1], ["s0", "s1"]), ([2, 3], ["s0"]), ([4], ["s0", "s1"])):
+            store.ingest(frame(times, names))
+    with ComponentStore(db) as got, ComponentStore(ref) as want:
+        cols = ["component", "t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul"]
+        pd.testing.assert_frame_equal(got.status()[cols], want.status()[cols],
+                                      check_exact=True)
+        assert got.status().set_index("component")["n"].to_dict() == {"s0": 5, "s1": 3}

@@ -10,11 +10,12 @@ import time
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from rulkit.fleet.service.app import create_app
 from rulkit.fleet.service.db import ServiceDB
 from rulkit.fleet.service.loadgen import request, start_server
-from rulkit.fleet.service.server import JsonFormatter, config
+from rulkit.fleet.service.server import JsonFormatter, config, protocol
 
 
 def test_half_sent_requests_are_closed_and_the_server_keeps_serving(tmp_path):
@@ -39,6 +40,36 @@ def test_half_sent_requests_are_closed_and_the_server_keeps_serving(tmp_path):
         for s in socks:
             s.close()
         srv.stop()
+
+
+@pytest.mark.parametrize("parser", ["httptools", "h11"])
+def test_both_parsers_close_half_sent_requests_and_serve(tmp_path, parser):
+    import uvicorn
+
+    sdb = ServiceDB(str(tmp_path / "fleet.db"))
+    cfg = config(create_app(sdb), "127.0.0.1", 0, log_level="warning")
+    cfg.http = protocol(0.5, parser)
+    server = uvicorn.Server(cfg)
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    try:
+        while not server.started:
+            time.sleep(0.02)
+        port = server.servers[0].sockets[0].getsockname()[1]
+        with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
+            s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+            t0 = time.monotonic()
+            try:
+                assert s.recv(1024) == b""  # closed by the server, not by our timeout
+            except ConnectionResetError:
+                pass
+            assert time.monotonic() - t0 < 20
+        assert request(port, "GET", "/healthz")[0] == 200
+        assert cfg.http.__mro__[2].__module__.endswith(f".{parser}_impl")
+    finally:
+        server.should_exit = True
+        th.join(30)
+        sdb.close()
 
 
 def test_shutdown_finishes_the_batch_in_flight(tmp_path):

@@ -228,7 +228,7 @@ def test_track_in_tiny_blocks_writes_the_bits_of_one_block(tmp_path, monkeypatch
     """The file path processes components in blocks of at most BLOCK_ROWS acquisitions (the
     memory of one block, not of the file): blocks of 3 rows write the same database, bit for
     bit, and print the same alerts as one block holding the whole file."""
-    import rulkit.fleet.store.sqlite as store_module
+    import rulkit.fleet.store.history_stage as store_module
     from rulkit.fleet.store.sqlite import ComponentStore
 
     blocks = []
@@ -271,10 +271,10 @@ def test_track_in_tiny_blocks_writes_the_bits_of_one_block(tmp_path, monkeypatch
 def test_track_in_rank_windows_stores_the_values_of_the_per_component_path(tmp_path,
                                                                            monkeypatch):
     """A wide batch runs in windows of acquisition ranks across all units, the state carried
-    from window to window (ComponentStore._pieces), its history staged and written per
+    from window to window (history_stage.plan_pieces), its history staged and written per
     component: two batches, the second onto the stored state, give the per-component path's
     database (components, alerts, history rows: every value, bit for bit) and printout."""
-    import rulkit.fleet.store.sqlite as store_module
+    import rulkit.fleet.store.history_stage as store_module
     from rulkit.fleet.store.history_stage import HistoryStage
     from rulkit.fleet.store.sqlite import ComponentStore
 

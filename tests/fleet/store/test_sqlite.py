@@ -288,13 +288,12 @@ def test_a_wide_batch_runs_in_rank_windows_without_compiled_passes(tmp_path, mon
 
     monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", 100)
     monkeypatch.setattr(ComponentStore, "WINDOW_ROWS", 700)
-    store = ComponentStore.__new__(ComponentStore)
-    store.path = tmp_path / "x.db"  # the windows' history is staged beside it
+    from rulkit.fleet.store.history_stage import plan_pieces
 
     def pieces(units, ranks):
         codes = np.tile(np.arange(units, dtype=np.int32), ranks)
         order = order_by_component(codes, [f"u{i}" for i in range(units)])
-        got, tracker, trend, stage = store._pieces(order, codes.size)
+        got, tracker, trend, stage = plan_pieces(order, codes.size, 100, 700, tmp_path)
         if stage is not None:
             stage.__exit__()
         return [p.rank0 for p in got], tracker, trend, stage is not None

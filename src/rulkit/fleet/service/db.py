@@ -105,7 +105,9 @@ class ServiceDB:
     first of them: SQLite drops a connection's page cache whenever another connection has
     written since its last transaction, so with the groups spread over the pool every
     commit read the tables' and indexes' pages afresh from the file (PostgreSQL's server
-    keeps the statements that connection prepared).
+    keeps the statements that connection prepared). On SQLite that connection keeps the
+    component rows it committed and starts the next batches from them while no other
+    connection has written (:meth:`~rulkit.fleet.store.sqlite.ComponentStore.keep_states`).
     """
 
     def __init__(self, db: str | Path, *, pool_size: int = 8, create: bool = True) -> None:
@@ -258,6 +260,7 @@ class ServiceDB:
         try:
             if self._writer is None:
                 self._writer = open_store(self.db, create=False)
+                self._writer.keep_states()
             outcomes: list[Any] = list(self._writer.ingest_many(
                 [(r.acq, r.source, r.now) for r in group]))
             self._writes += 1

@@ -2,7 +2,7 @@
 
 uvicorn bounds the idle time between requests (keep-alive) but not the time a client may take
 to send a request's headers, so a thousand half-sent requests held the server's connections
-for as long as their clients liked. :class:`DeadlineH11Protocol` closes a connection whose
+for as long as their clients liked. :class:`HeaderDeadline` closes a connection whose
 request line and headers are not complete within ``header_timeout`` seconds of the connection
 (or of the previous response), and one whose body stalls (no data for ``header_timeout``
 seconds); the acquisitions' body also has its own deadline
@@ -33,14 +33,18 @@ GRACE = 30.0
 """Seconds the requests in flight get to finish on shutdown."""
 
 
-class DeadlineH11Protocol(H11Protocol):
-    """uvicorn's HTTP/1.1 protocol with a deadline on each request's headers."""
+class HeaderDeadline:
+    """A deadline on each request's headers, mixed into one of uvicorn's HTTP/1.1 protocols
+    (:func:`protocol`)."""
 
     header_timeout = HEADER_TIMEOUT
+    loop: asyncio.AbstractEventLoop
+    transport: asyncio.Transport
+    cycle: Any
 
-    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport: asyncio.Transport) -> None:
         """Accept the connection and start the headers' deadline."""
-        super().connection_made(transport)
+        super().connection_made(transport)  # type: ignore[misc]
         self._deadline: asyncio.TimerHandle | None = None
         self._last_data = self.loop.time()
         self._arm()
@@ -64,24 +68,35 @@ class DeadlineH11Protocol(H11Protocol):
     def data_received(self, data: bytes) -> None:
         """Note when data last arrived (a stalled body is cut off)."""
         self._last_data = self.loop.time()
-        super().data_received(data)
+        super().data_received(data)  # type: ignore[misc]
 
     def on_response_complete(self) -> None:
         """After each response the next request's headers get a new deadline."""
-        super().on_response_complete()
+        super().on_response_complete()  # type: ignore[misc]
         self._arm()
 
     def connection_lost(self, exc: Exception | None) -> None:
         """Stop the deadline with the connection."""
         if self._deadline is not None:
             self._deadline.cancel()
-        super().connection_lost(exc)
+        super().connection_lost(exc)  # type: ignore[misc]
 
 
-def protocol(header_timeout: float) -> type[DeadlineH11Protocol]:
-    """:class:`DeadlineH11Protocol` with ``header_timeout``."""
-    return type("DeadlineH11Protocol", (DeadlineH11Protocol,),
-                {"header_timeout": header_timeout})
+def protocol(header_timeout: float, parser: str = "auto") -> type[asyncio.Protocol]:
+    """The HTTP/1.1 protocol with ``header_timeout``: ``parser`` ``"httptools"`` (llhttp, in
+    C), ``"h11"`` (pure Python) or ``"auto"`` (httptools when it is installed)."""
+    base: type = H11Protocol
+    if parser != "h11":
+        try:
+            from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+        except ImportError:
+            if parser == "httptools":
+                raise
+        else:
+            base = HttpToolsProtocol
+    made: type[asyncio.Protocol] = type(f"HeaderDeadline{base.__name__}", (HeaderDeadline, base),
+                                        {"header_timeout": header_timeout})
+    return made
 
 
 def config(app: Any, host: str, port: int, *, header_timeout: float = HEADER_TIMEOUT,

@@ -21,9 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
-from rulkit.fleet.store.batch_order import ComponentOrder, Piece, component_blocks
+from rulkit.fleet.monitoring.unit_trend import trend_strategy
+from rulkit.fleet.store.batch_order import (
+    ComponentOrder,
+    Piece,
+    block_pieces,
+    component_blocks,
+    rank_windows,
+    window_piece,
+)
 from rulkit.fleet.store.database_file import StoreError, StoreFullError, StoreReadOnlyError
 from rulkit.fleet.store.history_chunks import WIDTH
+from rulkit.fleet.tracking.tracker_run import tracker_strategy
 from rulkit.tables import safe_text
 
 
@@ -111,4 +120,28 @@ def _read_into(fd: int, out: np.ndarray, offset: int) -> None:
         done += got
 
 
-__all__ = ["HistoryStage"]
+def plan_pieces(order: ComponentOrder, n: int, block_rows: int, window_rows: int,
+                directory: Path | None) -> tuple[Iterator[Piece], str, str, HistoryStage | None]:
+    """How a store runs a batch of ``n`` rows: its pieces, the trackers' and the trend's
+    strategy, and the stage of its history (or ``None``). A batch wider than long by the
+    trackers' cost rule (:func:`~rulkit.fleet.tracking.tracker_run.tracker_strategy` of its
+    longest series: ``"ranks"``) and larger than a block runs in windows of consecutive
+    acquisition ranks of every component (:func:`~rulkit.fleet.store.batch_order.
+    rank_windows`, at most ``window_rows`` rows each: one numpy step per rank across all
+    units, no compiled pass to load); any other in blocks of consecutive components of at
+    most ``block_rows`` rows, each way the cheapest for the rank loops of all blocks against
+    loading the compiled passes once. The windows' history is staged (a
+    :class:`HistoryStage` in ``directory``) and written per block of components after the
+    last window: one chunk per component, as in blocks."""
+    longest = int(order.counts.max(initial=0))
+    if n > block_rows and tracker_strategy(longest, n) == "ranks":
+        windows = rank_windows(order, window_rows)
+        return ((window_piece(order, r0, r1) for r0, r1 in windows), "ranks", "ranks",
+                HistoryStage(order, directory))
+    blocks = component_blocks(order, block_rows)
+    n_ranks = sum(int(order.counts[k0:k1].max()) for k0, k1 in blocks)
+    return (iter(block_pieces(order, blocks)), tracker_strategy(n_ranks, n),
+            trend_strategy(n_ranks, n), None)
+
+
+__all__ = ["HistoryStage", "plan_pieces"]

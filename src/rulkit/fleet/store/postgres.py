@@ -170,6 +170,10 @@ class PgComponentStore(ComponentStore):
             self._conn.close()
             raise
 
+    def keep_states(self, limit: int = 25_000) -> None:
+        """Nothing on PostgreSQL: no counter tells this connection that another committed
+        (SQLite's ``data_version``), so every batch reads its stored rows."""
+
     def _read_meta(self) -> dict[str, str]:
         if self._conn.execute("SELECT to_regclass('meta')").fetchone()[0] is None:
             return {}

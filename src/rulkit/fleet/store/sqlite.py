@@ -64,27 +64,22 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
-from rulkit.fleet.monitoring.unit_trend import TrendConfig, trend_strategy
+from rulkit.fleet.monitoring.unit_trend import TrendConfig
 from rulkit.fleet.store import history_chunks
 from rulkit.fleet.store.acquisitions import (
     Alert,
     Batch,
-    IngestError,
     IngestResult,
     read_acquisitions,
     validate_acquisitions,
 )
+from rulkit.fleet.store.batch_groups import GroupCommits
 from rulkit.fleet.store.batch_order import (
     ComponentOrder,
-    Piece,
-    block_pieces,
     check_spacing,
-    component_blocks,
     gaps_after_stored,
     order_by_component,
-    rank_windows,
     split_duplicates,
-    window_piece,
 )
 from rulkit.fleet.store.database_file import (
     StoreError,
@@ -97,7 +92,7 @@ from rulkit.fleet.store.database_file import (
     store_error,
     time_axis_from_meta,
 )
-from rulkit.fleet.store.history_stage import HistoryStage
+from rulkit.fleet.store.history_stage import plan_pieces
 from rulkit.fleet.store.prognosis import (
     PROGNOSIS_COLUMNS,
     BatchPrognosis,
@@ -110,12 +105,14 @@ from rulkit.fleet.store.prognosis import (
     write_monitoring,
 )
 from rulkit.fleet.store.schema import (
+    COMPONENTS,
     add_level_counts,
     add_seen_counts,
     create_schema,
     needs_migration,
     table_columns,
 )
+from rulkit.fleet.store.state_cache import StateCache
 from rulkit.fleet.store.tracker_rows import (
     HISTORY_FIELDS,
     ROW_FIELDS,
@@ -130,7 +127,7 @@ from rulkit.fleet.tracking.tracker_chain import (
     TrackerState,
     tracker_outputs,
 )
-from rulkit.fleet.tracking.tracker_run import tracker_run, tracker_strategy
+from rulkit.fleet.tracking.tracker_run import tracker_run
 from rulkit.tables import cell_repr as _fmt
 from rulkit.tables import safe_text
 
@@ -149,6 +146,12 @@ def _return_freed_memory() -> None:
         ctypes.CDLL(None).malloc_trim(0)  # the process's own symbols
     except (OSError, AttributeError, TypeError):  # not glibc
         pass
+
+
+def _of_components(ingest_id: Any, comps: np.ndarray) -> Any:
+    """The ``ingests`` row of components ``comps``: the batch's one, or theirs of one per
+    component (joined batches)."""
+    return ingest_id if np.ndim(ingest_id) == 0 else ingest_id[comps]
 
 
 def _finite(v: float) -> float | None:
@@ -211,8 +214,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
             p.unlink(missing_ok=True)
 
 
-# --------------------------------------------------------------------------- the store
-class ComponentStore:
+class ComponentStore(GroupCommits):
     """SQLite store of component tracker state and acquisition history (see module docstring).
 
     ``ComponentStore(path, config=None, hi_model=None)`` opens (creating if needed, atomically)
@@ -231,11 +233,15 @@ class ComponentStore:
     """Acquisitions per block of components run together: bounds the per-acquisition outputs
     and the RUL quantiles' temporaries held at once (about 500 bytes an acquisition at the peak of
     a block: the RUL quantiles of three levels hold some 15 arrays of every row)."""
+    STATE_COLUMNS = (*ROW_FIELDS, *PROGNOSIS_COLUMNS)
+    """The columns of a component's stored row a batch starts from (:meth:`_load_states`)."""
     WINDOW_ROWS = 100_000
-    """Acquisitions per window of acquisition ranks of a wide batch (:meth:`_pieces`): the
-    same bound, wider because its numpy steps cost per rank; each window writes a history
-    chunk per component."""
+    """Acquisitions per window of acquisition ranks of a wide batch
+    (:func:`~rulkit.fleet.store.history_stage.plan_pieces`): the same bound, wider because its
+    numpy steps cost per rank."""
     hi_model: HealthIndexModel | None
+    _states: StateCache | None = None  # the rows this connection committed (keep_states)
+    _ingesting = False  # inside ingest_many, which keeps _states up to date
 
     def __init__(
         self,
@@ -316,6 +322,22 @@ class ComponentStore:
         self.time_axis = None  # the time axis rulkit fit stored, set from meta by __init__
         self.rules, self.trend = MonitoringRules(), TrendConfig()  # set from meta by __init__
         self.now: float | None = None  # the calendar time of ingestion (None: the clock)
+        self._states = None
+
+    def keep_states(self, limit: int = 25_000) -> None:
+        """Keep the ``components`` rows of the batches :meth:`ingest_many` commits in memory
+        (at most ``limit`` components, about 0.9 KB each: 23 MB at the default; a fleet
+        writing more components than that between two batches of a component reads them
+        back, as without it) and start each next batch from them
+        instead of reading them back, for as long as no other connection commits to the
+        database (:class:`~rulkit.fleet.store.state_cache.StateCache`). Any other write
+        through this store forgets them."""
+        ints = {c.name for c in COMPONENTS.columns if c.kind in ("int", "small", "bool")}
+        self._states = StateCache(self.STATE_COLUMNS, ints, limit)
+
+    def _data_version(self) -> int:
+        """SQLite's ``PRAGMA data_version``: changes whenever another connection commits."""
+        return int(self._conn.execute("PRAGMA data_version").fetchone()[0])
 
     # -- plumbing
     def close(self) -> None:
@@ -332,6 +354,8 @@ class ComponentStore:
         """``BEGIN mode`` ... ``COMMIT``, rolled back on any exception. SQLite errors become
         :class:`StoreBusyError` (another writer held the lock past the timeout) or
         :class:`StoreError` (corrupt file, disk full, read-only), with the path."""
+        if self._states is not None and mode != "DEFERRED" and not self._ingesting:
+            self._states.drop()  # a write the kept rows do not follow
         try:
             self._conn.execute(f"BEGIN {mode}")
         except sqlite3.Error as err:
@@ -363,8 +387,12 @@ class ComponentStore:
 
     # -- reading
     def _load_states(self, names: list[str]) -> dict[str, tuple]:
+        """The stored rows (:attr:`STATE_COLUMNS`) of the components ``names`` that are
+        stored, by name: those :meth:`keep_states` kept, the others read."""
         out: dict[str, tuple] = {}
-        cols = ", ".join(("component", *ROW_FIELDS, *PROGNOSIS_COLUMNS))
+        if self._states is not None:
+            out, names = self._states.split(names)
+        cols = ", ".join(("component", *self.STATE_COLUMNS))
         for i in range(0, len(names), 500):
             chunk = names[i : i + 500]
             q = f"SELECT {cols} FROM components WHERE component IN ({','.join('?' * len(chunk))})"
@@ -493,29 +521,6 @@ class ComponentStore:
             self.hi_model = new_model
         return res
 
-    def ingest_many(self, batches: list[tuple[Batch, str, float | None]]
-                    ) -> list[IngestResult | IngestError]:
-        """Validated batches (:func:`validate_acquisitions`' :class:`Batch`, their sources and the
-        calendar times ``now`` they were received at, ``None``: the clock) in one write
-        transaction, each under its own savepoint: a batch that fails (conflict, a
-        non-finite tracker output) is rolled back alone and gets its error, the others are
-        committed together (one commit, one sync: group commit). A failing commit raises
-        for all of them; nothing is then stored."""
-        out: list[IngestResult | IngestError] = []
-        with self._transaction("IMMEDIATE"):
-            for acq, source, now in batches:
-                self._conn.execute("SAVEPOINT batch")
-                self.now = now
-                try:
-                    out.append(self._ingest_in_transaction(acq, source))
-                except IngestError as err:
-                    self._conn.execute("ROLLBACK TO SAVEPOINT batch")
-                    out.append(err)
-                finally:
-                    self.now = None
-                self._conn.execute("RELEASE SAVEPOINT batch")
-        return out
-
     def _ingest_in_transaction(self, acq: Batch, source: str) -> IngestResult:
         """Inside the caller's write transaction: skip the rows already stored
         (:func:`~rulkit.fleet.store.batch_order.split_duplicates`; a contradiction raises
@@ -548,13 +553,14 @@ class ComponentStore:
             out.append(replace(a, id=int(aid), raised=now))
         return out
 
-    def _apply(self, acq: Batch, source: str,
-               stored: dict[str, tuple] | None = None) -> IngestResult:
+    def _apply(self, acq: Batch, source: str, stored: dict[str, tuple] | None = None,
+               ingest_ids: np.ndarray | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction). ``stored``: the batch's stored component rows
         (:meth:`_load_states`), read here when not given.
 
-        The rows are processed in pieces (:meth:`_pieces`): blocks of consecutive components
+        The rows are processed in pieces
+        (:func:`~rulkit.fleet.store.history_stage.plan_pieces`): blocks of consecutive components
         in SQLite's key order (BINARY collation: UTF-8 byte order = code point order =
         Python's str order) of at most :attr:`BLOCK_ROWS` acquisitions, or, for a wide
         batch, windows of consecutive acquisition ranks of every component. Each piece runs
@@ -578,7 +584,9 @@ class ComponentStore:
         sorted_pos = order.sorted_pos
         check_spacing(self.config, gaps_after_stored(order, t, rows_all, names,
                                                      state.t[sorted_pos]))
-        ingest_id = self._insert_ingest(source, n, b)
+        ingest_id: Any = ingest_ids  # per component (joined batches), or this batch's row
+        if ingest_ids is None:
+            ingest_id = self._insert_ingest(source, n, b)
         # the RUL of the estimator in force and the alert rules (rulkit.fleet.monitoring), per
         # block below; the history holds them in rul_median / rul_low / rul_high and level
         inst = None
@@ -601,6 +609,9 @@ class ComponentStore:
         final.update({k: extra.pop(k) for k in ("level", "rul_low", "rul_high")})
         rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
         rows += list(extra.values())
+        if self._states is not None and self._ingesting:
+            self._states.put(names, dict(zip(("component", *ROW_FIELDS, "max_level", *extra),
+                                             rows, strict=True)))
         self._write_states(list(zip(*rows, strict=True)), tuple(extra))
         lv, sn = ROW_FIELDS.index("level"), k_row + PROGNOSIS_COLUMNS.index("seen")
         add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
@@ -609,15 +620,19 @@ class ComponentStore:
                             alerts=[a for _, _, a in alerts])
 
     def _run_pieces(self, acq: Batch, order: ComponentOrder, state: TrackerState,
-                    prog: BatchPrognosis, ingest_id: int) -> list[tuple[int, int, Alert]]:
+                    prog: BatchPrognosis, ingest_id: Any) -> list[tuple[int, int, Alert]]:
         """The trackers, the estimator, the rules and the history of every piece of the
-        batch (:meth:`_pieces`), the trackers' ``state`` (and ``prog``'s) carried from piece
-        to piece; the alerts as (acquisition rank, batch row, :class:`Alert`)."""
+        batch (:func:`~rulkit.fleet.store.history_stage.plan_pieces`), the trackers' ``state``
+        (and ``prog``'s) carried from piece to piece; the alerts as (acquisition rank, batch
+        row, :class:`Alert`). ``ingest_id``: the batch's ``ingests`` row, or one per component
+        (joined batches)."""
         t, hi, rows_all, names = acq.t, acq.hi, acq.row, acq.names
         names_arr = np.array(names, dtype=object)
         sorted_pos = order.sorted_pos
         alerts: list[tuple[int, int, Alert]] = []
-        pieces, strategy, prog.strategy, stage = self._pieces(order, len(acq))
+        pieces, strategy, prog.strategy, stage = plan_pieces(
+            order, len(acq), self.BLOCK_ROWS, self.WINDOW_ROWS,
+            self.path.parent if isinstance(self.path, Path) else None)
         with stage if stage is not None else nullcontext():
             for piece in pieces:
                 comps = sorted_pos[piece.keys]  # component indices (into names / state)
@@ -638,7 +653,8 @@ class ComponentStore:
                     getattr(state, f)[comps] = getattr(sub, f)
                 rec = self._block_records(t_b, hi_b, out, got)
                 if stage is None:
-                    self._write_block_history(names_arr[comps], seg, rec, ingest_id)
+                    self._write_block_history(names_arr[comps], seg, rec,
+                                              _of_components(ingest_id, comps))
                 else:
                     stage.add(piece, rec)
                 del rank_b, cidx, comp_b, out, t_b, hi_b, got, rows_b, seg, piece, rec
@@ -646,33 +662,8 @@ class ComponentStore:
                 for k0, k1, rec in stage.blocks(self.BLOCK_ROWS):
                     self._write_block_history(names_arr[sorted_pos[k0:k1]],
                                               order.start[k0:k1 + 1] - order.start[k0], rec,
-                                              ingest_id)
+                                              _of_components(ingest_id, sorted_pos[k0:k1]))
         return alerts
-
-    def _pieces(self, order: ComponentOrder, n: int
-                ) -> tuple[Iterator[Piece], str, str, HistoryStage | None]:
-        """How :meth:`_apply` runs a batch of ``n`` rows: its pieces, the trackers' and the
-        trend's strategy. A batch wider than long by the trackers' cost rule
-        (:func:`~rulkit.fleet.tracking.tracker_run.tracker_strategy` of its longest series:
-        ``"ranks"``) and larger than a block runs in windows of consecutive acquisition ranks
-        of every component (:func:`~rulkit.fleet.store.batch_order.rank_windows`, at most
-        :attr:`WINDOW_ROWS` rows each: one numpy step per rank across all units, no compiled
-        pass to load); any other in blocks of consecutive components of at most
-        :attr:`BLOCK_ROWS` rows, each way the cheapest for the rank loops of all blocks
-        against loading the compiled passes once. The windows' history is staged
-        (:class:`~rulkit.fleet.store.history_stage.HistoryStage`, returned) and written per
-        block of components after the last window: one chunk per component, as in blocks."""
-        longest = int(order.counts.max(initial=0))
-        if n > self.BLOCK_ROWS and tracker_strategy(longest, n) == "ranks":
-            windows = rank_windows(order, self.WINDOW_ROWS)
-            stage = HistoryStage(order, self.path.parent if isinstance(self.path, Path)
-                                 else None)
-            return ((window_piece(order, r0, r1) for r0, r1 in windows), "ranks", "ranks",
-                    stage)
-        blocks = component_blocks(order, self.BLOCK_ROWS)
-        n_ranks = sum(int(order.counts[k0:k1].max()) for k0, k1 in blocks)
-        return (iter(block_pieces(order, blocks)), tracker_strategy(n_ranks, n),
-                trend_strategy(n_ranks, n), None)
 
     @staticmethod
     def _block_records(t: np.ndarray, hi: np.ndarray, out: dict[str, np.ndarray],
@@ -686,7 +677,7 @@ class ComponentStore:
             t.size)
 
     def _write_block_history(self, names: np.ndarray, seg: np.ndarray, rec: np.ndarray,
-                             ingest_id: int) -> None:
+                             ingest_id: Any) -> None:
         """The history of one block (component ``names[i]`` owns records
         ``rec[seg[i]:seg[i + 1]]``, key order, time order inside), packed in rows of at most
         :attr:`HISTORY_CHUNK` acquisitions."""

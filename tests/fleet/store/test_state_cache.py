@@ -1,0 +1,191 @@
+"""The component rows a writing connection keeps (rulkit.fleet.store.state_cache): always the
+rows the database returns, and forgotten whenever something else writes."""
+
+import sqlite3
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rulkit.fleet.monitoring.rules import MonitoringRules
+from rulkit.fleet.store import sqlite as sqlite_module
+from rulkit.fleet.store.acquisitions import ConflictError, IngestError, validate_acquisitions
+from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.store.state_cache import StateCache
+from rulkit.fleet.tracking.tracker_chain import TrackerConfig
+
+CFG = TrackerConfig(dt=1.0, lambda_hi=0.5, lambda_rul=0.5, design_life=1e4, warn_rul=30.0)
+NOW = 1.7e9
+"""The calendar time of every ingestion here (the stored ``seen``; default the clock)."""
+
+
+def frame(components, times, rng, rate=0.05):
+    """One acquisition per component and time, HI growing past the alarm for some."""
+    rows = [(c, float(t), (0.3 + 0.1 * j) * np.exp(rate * t) + rng.normal(0, 0.003))
+            for t in times for j, c in enumerate(components)]
+    return pd.DataFrame(rows, columns=["component", "time", "hi"])
+
+
+def many(store, *frames):
+    """``frames`` through :meth:`ComponentStore.ingest_many`, one group."""
+    return store.ingest_many([(validate_acquisitions(f, store.config, store.hi_model), "t",
+                               NOW) for f in frames])
+
+
+def stored_rows(path, names):
+    """The rows of ``names`` as a fresh connection reads them (no cache)."""
+    with ComponentStore(path) as other:
+        return other._load_states(names)
+
+
+def same(kept, read):
+    """The same float64 bits as the batch builds its arrays from (None and NaN alike)."""
+    x, y = (np.array(r, dtype=np.float64) for r in (kept, read))
+    return (np.array_equal(np.isnan(x), np.isnan(y))
+            and np.array_equal(x[~np.isnan(x)].view(np.int64), y[~np.isnan(y)].view(np.int64)))
+
+
+def test_kept_rows_are_the_rows_the_database_returns(tmp_path):
+    db = tmp_path / "c.db"
+    rng = np.random.default_rng(1)
+    names = [f"u{i}" for i in range(6)]
+    with ComponentStore(db, config=CFG) as store:
+        store.keep_states()
+        for k in range(8):  # new components, then updates crossing the warning and alarm
+            res = many(store, frame(names[: 3 + k % 4], range(5 * k, 5 * k + 5), rng))
+            assert not isinstance(res[0], Exception)
+            kept, missing = store._states.split(names)
+            truth = stored_rows(db, names)
+            assert set(kept) | set(missing) == set(names)
+            for name, row in kept.items():
+                assert same(row, truth[name]), name
+        assert any(r[store.STATE_COLUMNS.index("level")] > 0 for r in truth.values())
+
+
+def test_results_equal_a_store_that_reads_every_row(tmp_path):
+    rng = np.random.default_rng(2)
+    frames = [frame(["a", "b", "c"], range(4 * k, 4 * k + 4), rng) for k in range(10)]
+    out = []
+    for name, keep in (("kept.db", True), ("read.db", False)):
+        with ComponentStore(tmp_path / name, config=CFG) as store:
+            if keep:
+                store.keep_states()
+            for k in range(0, 10, 2):
+                many(store, frames[k], frames[k + 1])
+            out.append((store.status(), store.history()))
+    pd.testing.assert_frame_equal(out[0][0], out[1][0], check_exact=True)
+    pd.testing.assert_frame_equal(out[0][1], out[1][1], check_exact=True)
+
+
+def test_another_connections_write_is_not_overlooked(tmp_path):
+    db = tmp_path / "c.db"
+    rng = np.random.default_rng(3)
+    with ComponentStore(db, config=CFG) as store:
+        store.keep_states()
+        many(store, frame(["a", "b"], range(5), rng))
+        assert len(store._states) == 2
+        with ComponentStore(db) as other:  # e.g. rulkit track in another process
+            other.now = NOW
+            other.ingest(frame(["a"], range(5, 9), rng))
+        # the kept row of "a" is now stale: the next batch must start from the other's
+        res = many(store, frame(["a", "b"], range(9, 12), rng))
+        assert not isinstance(res[0], Exception)
+        n = store.status().set_index("component")["n"]
+        assert n["a"] == 12 and n["b"] == 8
+    with ComponentStore(tmp_path / "r.db", config=CFG) as ref:  # the same, read each time
+        rng = np.random.default_rng(3)
+        ref.now = NOW
+        ref.ingest(frame(["a", "b"], range(5), rng))
+        ref.ingest(frame(["a"], range(5, 9), rng))
+        ref.ingest(frame(["a", "b"], range(9, 12), rng))
+        pd.testing.assert_frame_equal(ref.status(), ComponentStore(db).status(),
+                                      check_exact=True)
+
+
+def test_a_rolled_back_batch_leaves_nothing_kept(tmp_path, monkeypatch):
+    db = tmp_path / "c.db"
+    rng = np.random.default_rng(4)
+    with ComponentStore(db, config=CFG) as store:
+        store.keep_states()
+        many(store, frame(["a", "b", "c"], range(5), rng))
+        good = frame(["a"], range(5, 8), rng)
+        bad = frame(["b"], [6.0, 2.0], rng).iloc[[1, 0]]  # time 2 before b's last: conflict
+        res = many(store, good, bad)
+        assert not isinstance(res[0], Exception) and isinstance(res[1], ConflictError)
+        # a batch refused after its rows were written (none is today: the checks come
+        # first) is rolled back to its savepoint, and so are its kept rows
+        real = sqlite_module.add_level_counts
+
+        def refuse_c(conn, old, new):
+            real(conn, old, new)
+            if store._states.split(["c"])[0]["c"][1] == 8:  # c written, alone or joined
+                raise IngestError("refused after the write")
+
+        monkeypatch.setattr(sqlite_module, "add_level_counts", refuse_c)
+        res = many(store, frame(["c"], range(5, 8), rng), frame(["a"], range(8, 9), rng))
+        assert isinstance(res[0], IngestError) and not isinstance(res[1], Exception)
+        kept, _ = store._states.split(["a", "b", "c"])
+        truth = stored_rows(db, ["a", "b", "c"])
+        for name in "abc":
+            assert same(kept[name], truth[name]), name
+        n = store.STATE_COLUMNS.index("n")
+        assert (kept["a"][n], kept["b"][n], kept["c"][n]) == (9, 5, 5)
+
+
+def test_a_failed_commit_forgets_everything(tmp_path, monkeypatch):
+    db = tmp_path / "c.db"
+    rng = np.random.default_rng(5)
+    with ComponentStore(db, config=CFG) as store:
+        store.keep_states()
+        many(store, frame(["a"], range(3), rng))
+
+        def boom(*a, **k):
+            raise sqlite3.OperationalError("disk I/O error")
+
+        monkeypatch.setattr(store, "_insert_ingest", boom)
+        with pytest.raises(Exception, match="disk I/O"):
+            many(store, frame(["a"], range(3, 6), rng))
+        assert len(store._states) == 0
+
+
+def test_other_writes_through_the_store_forget_the_rows(tmp_path):
+    db = tmp_path / "c.db"
+    rng = np.random.default_rng(6)
+    with ComponentStore(db, config=CFG) as store:
+        store.keep_states()
+        many(store, frame(["a", "b"], range(30), rng))
+        assert len(store._states) == 2
+        store.set_rules(MonitoringRules(alarm_hi=0.5))  # replays every component's level
+        assert len(store._states) == 0
+        many(store, frame(["a", "b"], range(30, 32), rng))
+        kept, _ = store._states.split(["a", "b"])
+        truth = stored_rows(db, ["a", "b"])
+        assert same(kept["a"], truth["a"]) and same(kept["b"], truth["b"])
+
+
+def test_values_as_sqlite_returns_them_and_the_limit():
+    cache = StateCache(("x", "k"), {"k"}, limit=2)
+    written = [(-0.0, 3), (float("nan"), True), (5, 0), (-2.5, False)]
+    cache.begin(7)
+    cache.put(list("abcd"), {"x": [r[0] for r in written], "k": [r[1] for r in written]})
+    cache.release()
+    cache.commit()
+    kept, missing = cache.split(list("abcd"))
+    assert missing == ["a", "b"]  # over the limit: the first kept are dropped
+    with sqlite3.connect(":memory:") as con:  # the oracle: SQLite's own round trip
+        con.execute("CREATE TABLE t (x REAL, k INTEGER)")
+        con.executemany("INSERT INTO t VALUES (?, ?)", written)
+        rows = con.execute("SELECT x, k FROM t ORDER BY rowid").fetchall()
+    kept, _ = cache.split(["c", "d"])
+    assert same(kept["c"], rows[2]) and same(kept["d"], rows[3])
+    cache.limit = 4
+    cache.begin(7)
+    cache.put(list("abcd"), {"x": [r[0] for r in written], "k": [r[1] for r in written]})
+    cache.release()
+    cache.commit()
+    kept, _ = cache.split(list("abcd"))
+    for name, row in zip("abcd", rows, strict=True):
+        assert same(kept[name], row), name
+    assert rows[0][0] == 0.0 and str(kept["a"][0]) == str(rows[0][0]) == "0.0"
+    cache.begin(8)  # another connection committed
+    assert cache.split(["c", "d"]) == ({}, ["c", "d"])
