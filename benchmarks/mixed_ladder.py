@@ -401,6 +401,25 @@ def print_over_seeds(tables: list[pd.DataFrame]) -> None:
     print(out.to_string())
 
 
+def phase_errors(rises: tuple[float, ...] = (0.1, 0.3, 0.6, 1.2, 2.5, 5.0, 10.0)) -> None:
+    """:func:`event_errors` with the table of a known phase theta between readings (the
+    models') and with the theta-averaged one (``first_passage.ystar_table(phase="averaged")``,
+    a horizon of unknown phase), the table swapped for the second run."""
+    import functools
+
+    import rulkit.fleet.learned.first_passage as fp
+
+    known = fp.kernel_table
+    for phase in ("known", "averaged"):
+        fp.kernel_table = functools.partial(known, phase)  # type: ignore[assignment]
+        try:
+            print(f"== {phase}")
+            with pd.option_context("display.width", 250, "display.max_columns", 30):
+                print(event_errors(rises).round(3).to_string(), flush=True)
+        finally:
+            fp.kernel_table = known  # type: ignore[assignment]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--dataset", default="mixed", choices=["additive", "multiplicative",
@@ -408,7 +427,12 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--units", type=int, default=40)
     ap.add_argument("--draws", type=int, default=400, help="the oracle's futures per prediction")
+    ap.add_argument("--phases", action="store_true",
+                    help="only eq. (5b)'s event per rise, known theta against theta-averaged")
     a = ap.parse_args()
+    if a.phases:
+        phase_errors()
+        return
     print(f"load average {os.getloadavg()[0]:.1f} at the start")
     t0 = time.perf_counter()
     t = time.perf_counter()
