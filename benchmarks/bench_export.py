@@ -284,13 +284,15 @@ def hi_noise(work: Path, repeats: int) -> None:
 def _fp_quantiles(model: HiNoiseModel, st: UnitState, table: tuple) -> np.ndarray:
     """eq. (5b)'s quantiles (scaled time) of every state with the table ``table`` (the layout
     of ``first_passage.kernel_table``)."""
+    from rulkit.fleet.learned.degradation import growth_scale_of
     from rulkit.fleet.learned.filter_kernels import first_passage_quantiles
 
     with np.errstate(invalid="ignore", divide="ignore"):
         d = st.t / np.maximum(st.n, 1) / model.time_scale
     delta = np.where((st.n >= 2) & (d > 0), d, np.inf)
     out = np.empty((len(LEVELS), len(st)))
-    first_passage_quantiles(np.ascontiguousarray(st.m), np.ascontiguousarray(st.p), delta,
+    first_passage_quantiles(np.ascontiguousarray(st.m), np.ascontiguousarray(st.p), st.hi,
+                            growth_scale_of(model), delta,
                             model.walk_sd**2, model.threshold, np.sqrt(model.measured_var),
                             np.asarray(LEVELS, dtype=np.float64), *table, 200, out)
     return out
@@ -299,24 +301,26 @@ def _fp_quantiles(model: HiNoiseModel, st: UnitState, table: tuple) -> np.ndarra
 def table_grid() -> None:
     """What a coarser table of mu*, sigma* (eq. (5b)) would cost: the learned RUL quantiles of
     the HI-noise fleets' every acquisition with the server's table and with coarser grids over
-    the same ranges (filled from the server's table by its bilinear lookup, ``ystar_moments``):
-    the largest relative error and max |error| / max |quantile|."""
+    the same ranges (filled from the server's table by its trilinear lookup,
+    ``ystar_moments``): the largest relative error and max |error| / max |quantile|."""
     from rulkit.fleet.learned.first_passage import kernel_table, ystar_moments
 
     table = kernel_table()
     mu, lc0, dlc, dlj = table[0], table[2], table[3], table[4]
-    print(f"\n# the table of eq. (5b): {mu.shape[0]} x {mu.shape[1]} nodes, 2 tables: "
+    print(f"\n# the table of eq. (5b): {' x '.join(map(str, mu.shape))} nodes, 2 tables: "
           f"{2 * mu.size * 8} B in double, {2 * mu.size * 4} B in float; coarser grids")
     fits = [(spec.learned, histories_from_frame(frame, "bench"))
             for spec, frame in hi_noise_specs().values()]
     refs = [(model, st, _fp_quantiles(model, st, table))
             for model, st in ((m, m.replay(h)) for m, h in fits)]
-    for n_c, n_j in ((32, 40), (24, 30), (16, 20)):
+    for n_c, n_j, n_t in ((48, 60, 5), (32, 40, 9), (32, 40, 5), (24, 30, 5)):
         lc = np.linspace(lc0, lc0 + dlc * (mu.shape[0] - 1), n_c)
         lj = np.linspace(0.0, dlj * (mu.shape[1] - 1), n_j)
-        c_grid, j_grid = np.meshgrid(np.exp(lc), np.exp(lj), indexing="ij")
-        c_mu, c_sd = ystar_moments(c_grid, j_grid)
-        coarse = (c_mu, c_sd, float(lc[0]), float(lc[1] - lc[0]), float(lj[1] - lj[0]))
+        th = np.linspace(0.0, 1.0, n_t)
+        c_grid, j_grid, t_grid = np.meshgrid(np.exp(lc), np.exp(lj), th, indexing="ij")
+        c_mu, c_sd = ystar_moments(c_grid, j_grid, t_grid)
+        coarse = (c_mu, c_sd, float(lc[0]), float(lc[1] - lc[0]), float(lj[1] - lj[0]),
+                  float(th[1] - th[0]))
         worst = []
         for model, st, ref in refs:
             got = _fp_quantiles(model, st, coarse)
@@ -324,7 +328,8 @@ def table_grid() -> None:
             err = np.abs(got[ok] - ref[ok])
             worst.append(f"{model.name} {np.max(err / ref[ok]):.2g} relative, "
                          f"{np.max(err) / np.max(ref[ok]):.2g} scaled")
-        print(f"{n_c} x {n_j} ({2 * n_c * n_j * 8} B double, {2 * n_c * n_j * 4} B float): "
+        size = 2 * n_c * n_j * n_t
+        print(f"{n_c} x {n_j} x {n_t} ({size * 8} B double, {size * 4} B float): "
               + "; ".join(worst))
 
 

@@ -29,11 +29,11 @@ d. ``paris-mixed``, ``paris-mixed-iid``, ``paris-multiplicative``: the fitted mo
 
 First, eq. (5b)'s event on a known straight path, per rise c between readings (in noise sds):
 the truth's CDF at (5b)'s 5 % and 95 % quantiles with a regular cadence and with exponential
-gaps, against (5a)'s own event (:func:`event_errors`). Then, per rung: the coverage over all
-predictions and over the last half of life, the median width of the late intervals relative to
-the truth, the shares of late truths before the interval (optimistic) and after it
-(pessimistic), the late median relative error; and each rung's parameters beside the
-generator's (on the file's time unit):
+gaps, against the event of a full-noise reading at the horizon (:func:`event_errors`). Then,
+per rung: the coverage over all predictions and over the last half of life, the median width
+of the late intervals relative to the truth, the shares of late truths before the interval
+(optimistic) and after it (pessimistic), the late median relative error; and each rung's
+parameters beside the generator's (on the file's time unit):
 
     .venv/bin/python benchmarks/mixed_ladder.py                    # mixed, seeds 0 to 4
     .venv/bin/python benchmarks/mixed_ladder.py --dataset additive --seeds 0
@@ -278,9 +278,10 @@ def event_errors(rises: tuple[float, ...] = (0.3, 0.6, 1.2, 2.5, 5.0), draws: in
     readings: the truth's CDF (the first reading >= 1, its crossing interpolated from the
     reading before; brute force) at eq. (5b)'s 5 % and 95 % quantiles, with readings at a
     regular cadence (eq. (5b)'s assumption) and with exponential gaps of the same mean (the
-    synthetic fleets'), and the widths of the 90 % intervals; beside them the CDF of (5a)'s
-    event itself (a full-noise reading at the horizon r and readings at r - d, r - 2d, ...;
-    brute force) at the same quantiles, which isolates (5b)'s Gaussian Y* from its event."""
+    synthetic fleets'), and the widths of the 90 % intervals; beside them (``event_F``) the
+    CDF of the event of one full-noise reading at the horizon r and readings at r - d,
+    r - 2d, ... (brute force) at the same quantiles: how far that event, which ignores the
+    interpolation, is from (5b)'s."""
     from rulkit.fleet.learned.degradation import UnitState
 
     rng, s, d, n = np.random.default_rng(seed), 0.04, 1.0, 50
@@ -400,6 +401,25 @@ def print_over_seeds(tables: list[pd.DataFrame]) -> None:
     print(out.to_string())
 
 
+def phase_errors(rises: tuple[float, ...] = (0.1, 0.3, 0.6, 1.2, 2.5, 5.0, 10.0)) -> None:
+    """:func:`event_errors` with the table of a known phase theta between readings (the
+    models') and with the theta-averaged one (``first_passage.ystar_table(phase="averaged")``,
+    a horizon of unknown phase), the table swapped for the second run."""
+    import functools
+
+    import rulkit.fleet.learned.first_passage as fp
+
+    known = fp.kernel_table
+    for phase in ("known", "averaged"):
+        fp.kernel_table = functools.partial(known, phase)  # type: ignore[assignment]
+        try:
+            print(f"== {phase}")
+            with pd.option_context("display.width", 250, "display.max_columns", 30):
+                print(event_errors(rises).round(3).to_string(), flush=True)
+        finally:
+            fp.kernel_table = known  # type: ignore[assignment]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--dataset", default="mixed", choices=["additive", "multiplicative",
@@ -407,7 +427,12 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--units", type=int, default=40)
     ap.add_argument("--draws", type=int, default=400, help="the oracle's futures per prediction")
+    ap.add_argument("--phases", action="store_true",
+                    help="only eq. (5b)'s event per rise, known theta against theta-averaged")
     a = ap.parse_args()
+    if a.phases:
+        phase_errors()
+        return
     print(f"load average {os.getloadavg()[0]:.1f} at the start")
     t0 = time.perf_counter()
     t = time.perf_counter()

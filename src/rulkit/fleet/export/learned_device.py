@@ -102,16 +102,18 @@ stops long before it (the C's first_passage_root)."""
 
 def first_passage_constants(model: LearnedModel) -> dict[str, Any]:
     """The constants of eq. (5b) in C (learned_first_passage.c.j2): the measurement sd s at the
-    threshold, the table of mu*(c, J) and sigma*(c, J) row-major over (log c, log J) with its
-    grid (the same numbers :func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`
-    reads) and the search's cap."""
+    threshold, the table of mu*(c, n, theta) and sigma*(c, n, theta) row-major over
+    (log c, log n, theta) with its grid (the same numbers
+    :func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles` reads) and the
+    search's cap."""
     from rulkit.fleet.learned.first_passage import kernel_table
 
-    mu, sd, lc0, dlc, dlj = kernel_table()
+    mu, sd, lc0, dlc, dlj, dth = kernel_table()
     return {
         "first_passage": True,
         "s": math.sqrt(float(model.measured_var)),
-        "n_c": int(mu.shape[0]), "n_j": int(mu.shape[1]),
+        "n_c": int(mu.shape[0]), "n_j": int(mu.shape[1]), "n_t": int(mu.shape[2]),
+        "dtheta": dth,
         "ystar_mu": [float(x) for x in mu.ravel()],
         "ystar_sd": [float(x) for x in sd.ravel()],
         "log_c0": lc0, "dlog_c": dlc, "dlog_j": dlj,

@@ -47,6 +47,7 @@ Usage::
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any, Protocol, cast
 
@@ -409,15 +410,43 @@ def _event(model: Any, state: UnitState, one_reading: bool = False
     return s, np.where((state.n >= 2) & (d > 0) & (not one_reading), d, np.inf)
 
 
+def growth_scale_of(model: Any) -> FloatArray:
+    """The model's growth scale g as the compiled kernels read it (kind 0 linear, 1
+    ln(h - shape), 2 Box-Cox of shape; the clip of h): the first step of eq. (5b)
+    interpolates the last reading and the next on the HI scale and maps the bound on the next
+    reading through g (:func:`~rulkit.fleet.learned.filter_kernels.growth_scale`)."""
+    from rulkit.fleet.learned.growth_filter import HI_HI, HI_LO
+
+    kind = getattr(model, "kind", "paris")
+    shape = float(getattr(model, "shape", 0.0))
+    if not hasattr(model, "transform"):  # the models measuring the HI itself: boxcox
+        return np.array([2.0, shape, HI_LO, HI_HI])
+    return np.array([{"linear": 0.0, "exponential": 1.0}.get(kind, 2.0), shape, HI_MIN,
+                     np.inf])
+
+
+def _growth(model: Any) -> Callable[[FloatArray], FloatArray]:
+    """g(h) of the model (its transform, or the Box-Cox of its shape)."""
+    from rulkit.fleet.learned.growth_filter import boxcox
+
+    if hasattr(model, "transform"):
+        return cast(Callable[[FloatArray], FloatArray], model.transform)
+    shape = float(model.shape)
+    return lambda h: boxcox(h, shape)
+
+
 def _log_surv(model: Any, state: UnitState, w: FloatArray, s: float,
               delta: FloatArray) -> FloatArray:
-    """log S(w): log P(no reading >= 1 up to the scaled horizon w) (eq. (5b))."""
+    """log S(w): log P(the interpolated crossing comes after the scaled horizon w) (eq.
+    (5b))."""
     from scipy.special import log_ndtr
 
     from rulkit.fleet.learned.first_passage import level_terms
 
-    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w)
-    return log_ndtr(-num / sd)
+    g = _growth(model) if s > 0 else None
+    num, sd = level_terms(state.m, state.p, model.walk_sd**2, model.threshold, s, delta, w,
+                          state.hi, g)
+    return np.asarray(log_ndtr(-num / sd))
 
 
 def _reference(model: Any, state: UnitState, s: float, delta: FloatArray) -> FloatArray:
@@ -429,26 +458,15 @@ def _reference(model: Any, state: UnitState, s: float, delta: FloatArray) -> Flo
 
 
 def rul_cdf(model: GrowthLaw, state: UnitState, r: FloatArray) -> FloatArray:
-    """P(RUL <= r) (eq. (5b)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1. Within
-    one cadence step d of the last acquisition, where the truth interpolates the crossing
-    between the last reading and the first, the CDF is that of one measurement (eq. (5),
-    S(r)/S(0)) scaled to reach the first reading's probability at d."""
+    """P(RUL <= r) (eq. (5b)); ``r (B, K)`` in the file's time unit; 1 once hi >= 1."""
     w = np.asarray(r, dtype=np.float64) / model.time_scale
     s, delta = _event(model, state)
     ref = _reference(model, state, s, delta)
-    one = np.full(len(state), np.inf)
+    out = np.empty_like(w)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN horizons stay
-        first = 1.0 - np.exp(np.minimum(_log_surv(model, state, delta, s, delta) - ref, 0.0))
-        ls1 = _log_surv(model, state, np.zeros(len(state)), s, one)
-        g_first = -np.expm1(np.minimum(_log_surv(model, state, delta, s, one) - ls1, 0.0))
-        out = np.empty_like(w)
         for k in range(w.shape[1]):
-            f = 1.0 - np.exp(np.minimum(_log_surv(model, state, w[:, k], s, delta) - ref, 0.0))
-            g = -np.expm1(np.minimum(_log_surv(model, state, w[:, k], s, one) - ls1, 0.0))
-            # the shape of one measurement's CDF on the step (linear where it stays 0)
-            shape = np.where(g_first > 0, g / np.where(g_first > 0, g_first, 1.0),
-                             w[:, k] / delta)
-            out[:, k] = np.where((w[:, k] < delta) & np.isfinite(delta), first * shape, f)
+            ls = _log_surv(model, state, w[:, k], s, delta)
+            out[:, k] = -np.expm1(np.minimum(ls - ref, 0.0))
     out = np.maximum.accumulate(out, axis=1)
     return np.where((state.hi >= 1.0)[:, None], 1.0, out)
 
@@ -459,17 +477,15 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
                   one_reading: bool = False) -> tuple[FloatArray, ...]:
     """Quantiles of eq. (5b); see :meth:`DegradationModel.rul_quantiles`.
 
-    A level p beyond the first reading's probability F(d) is reached where
-    log S(w) = log S_ref + log(1 - p) (:func:`_reference`), searched from the first reading
-    on; a level p <= F(d) where one measurement's CDF (eq. (5)) reaches p / F(d) of its value
-    at d (:func:`rul_cdf`). ``method="compiled"`` (the default): per unit, Newton's steps on
-    (5b)'s margin from eq. (6)'s closed-form root, safeguarded by a bracket, at most
-    ``iterations`` steps (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
+    A level p is reached where log S(w) = log S_ref + log(1 - p) (:func:`_reference`).
+    ``method="compiled"`` (the default): per unit, Newton's steps on (5b)'s margin from eq.
+    (6)'s closed-form root, safeguarded by a bracket, at most ``iterations`` steps
+    (:func:`~rulkit.fleet.learned.filter_kernels.first_passage_quantiles`);
     ``method="bisect"``: bisection on u in (0, 1), w = W u / (1 - u), W = max(age, 1),
     ``iterations`` halvings, vectorised over units in numpy on the CDF of :func:`rul_cdf`
     (the reference of the tests). A level beyond the failing mass
     1 - S(inf)/S_ref, S(inf) = Phi(-m_b / sqrt(P_bb)), is +inf. ``one_reading``: eq. (5) of
-    one measurement instead (the exported C's event, docs/rul-on-the-device.md).
+    one measurement instead (the exported C's optional event, docs/rul-on-the-device.md).
     """
     if method not in ("compiled", "bisect"):
         raise ValueError(f"method: expected 'compiled' or 'bisect', got {method!r}")
@@ -483,7 +499,8 @@ def rul_quantiles(model: GrowthLaw, state: UnitState,
 
         w = np.empty((len(levels), len(state)))
         first_passage_quantiles(np.ascontiguousarray(state.m), np.ascontiguousarray(state.p),
-                                delta, model.walk_sd**2, model.threshold, s,
+                                np.asarray(state.hi, dtype=np.float64),
+                                growth_scale_of(model), delta, model.walk_sd**2, model.threshold, s,
                                 np.asarray(levels, dtype=np.float64), *kernel_table(),
                                 iterations, w)
     r = np.where(state.hi >= 1.0, 0.0, np.maximum(w, 0.0) * tau)

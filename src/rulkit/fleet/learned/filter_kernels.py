@@ -402,39 +402,82 @@ def lognormal_mixture_quantiles(w, lr, bw, levels, iterations, out):  # pragma: 
 
 # ------------------------------------------------------------------- first measured crossing
 @numba.njit(cache=True)
-def _ystar(c, j, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover - compiled
+def _ystar(c, j, th, mu_t, sd_t, lc0, dlc, dlj, dth):  # pragma: no cover - compiled
     """(mu*, sigma*) of eq. (5a) from the tables ``mu_t``, ``sd_t`` over log c (first row
-    ``lc0``, step ``dlc``) and log J (step ``dlj``), bilinear as
+    ``lc0``, step ``dlc``), log n (step ``dlj``) and theta (step ``dth``), trilinear as
     :func:`rulkit.fleet.learned.first_passage.ystar_moments`, and their slopes per step of
-    log c and of log J (0 where c or J is clamped to the table's edge)."""
-    nc, nj = mu_t.shape
+    log c and of theta (0 where c is clamped to the table's edge; n is fixed between
+    readings)."""
+    nc, nj, nt = mu_t.shape
     lc = (math.log(c) - lc0) / dlc if c > 0.0 else 0.0
     on_c = 0.0 < lc < nc - 1.0
     lc = min(max(lc, 0.0), nc - 1.0)
     lj = min(math.log(max(j, 1.0)) / dlj, nj - 1.0)
-    on_j = 0.0 < lj < nj - 1.0
+    lt = min(max(th / dth, 0.0), nt - 1.0)
     i0 = min(int(lc), nc - 2)
     j0 = min(int(lj), nj - 2)
-    a, b = lc - i0, lj - j0
-    w00, w01, w10, w11 = (1 - a) * (1 - b), (1 - a) * b, a * (1 - b), a * b
-    m00, m01, m10, m11 = mu_t[i0, j0], mu_t[i0, j0 + 1], mu_t[i0 + 1, j0], mu_t[i0 + 1, j0 + 1]
-    s00, s01, s10, s11 = sd_t[i0, j0], sd_t[i0, j0 + 1], sd_t[i0 + 1, j0], sd_t[i0 + 1, j0 + 1]
-    mu = w00 * m00 + w01 * m01 + w10 * m10 + w11 * m11
-    sd = w00 * s00 + w01 * s01 + w10 * s10 + w11 * s11
-    gc, gj = (1.0 if on_c else 0.0), (1.0 if on_j else 0.0)  # per table step
-    mu_c = gc * ((1 - b) * (m10 - m00) + b * (m11 - m01))
-    sd_c = gc * ((1 - b) * (s10 - s00) + b * (s11 - s01))
-    mu_j = gj * ((1 - a) * (m01 - m00) + a * (m11 - m10))
-    sd_j = gj * ((1 - a) * (s01 - s00) + a * (s11 - s10))
-    return mu, sd, mu_c, sd_c, mu_j, sd_j
+    t0 = min(int(lt), nt - 2)
+    a, b, e = lc - i0, lj - j0, lt - t0
+    mu = sd = mu_c = sd_c = mu_t_ = sd_t_ = 0.0
+    for di in range(2):
+        wi = a if di else 1.0 - a
+        si = 1.0 if di else -1.0
+        for dj in range(2):
+            wj = b if dj else 1.0 - b
+            for dt in range(2):
+                wt = e if dt else 1.0 - e
+                st = 1.0 if dt else -1.0
+                m = mu_t[i0 + di, j0 + dj, t0 + dt]
+                v = sd_t[i0 + di, j0 + dj, t0 + dt]
+                mu += wi * wj * wt * m
+                sd += wi * wj * wt * v
+                mu_c += si * wj * wt * m
+                sd_c += si * wj * wt * v
+                mu_t_ += wi * wj * st * m
+                sd_t_ += wi * wj * st * v
+    if not on_c:
+        mu_c, sd_c = 0.0, 0.0
+    return mu, sd, mu_c, sd_c, mu_t_, sd_t_
 
 
 @numba.njit(cache=True)
-def _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover - compiled
+def growth_scale(h, kind, shape, lo, hi):  # pragma: no cover - compiled
+    """(g(h), g'(h)) of a growth scale: ``kind`` 0 linear, 1 ln(h - shape), 2 Box-Cox of
+    ``shape``; h (h - shape for kind 1) clipped to [lo, hi] (g' = 0 where clipped), as
+    :func:`rulkit.fleet.learned.degradation.transform` and
+    :func:`rulkit.fleet.learned.growth_filter.boxcox` clip."""
+    if kind == 0:
+        return h, 1.0
+    x = h - shape if kind == 1 else h
+    inside = lo <= x <= hi
+    x = min(max(x, lo), hi)
+    if kind == 1 or abs(shape) < 1e-12:
+        return math.log(x), (1.0 / x if inside else 0.0)
+    return (x**shape - 1.0) / shape, (x ** (shape - 1.0) if inside else 0.0)
+
+
+@numba.njit(cache=True)
+def _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj, dth):  # pragma: no cover
     """(5b)'s numerator N and sd D at horizon ``w`` for one unit (S(w) = Phi(-N / D)) and
-    their derivatives in w (the table's through its bilinear slopes). ``st`` (m_z - g(1),
-    m_b, P_zz, P_zb, P_bb); ``delta`` inf: one reading; ``s`` 0: the latent level."""
+    their derivatives in w (the table's through its trilinear slopes). ``st`` (m_z - g(1),
+    m_b, P_zz, P_zb, P_bb, h_0, g(1), and the growth scale's kind, shape, lower and upper
+    clip, :func:`growth_scale`) with h_0 the last reading; ``delta`` inf: one reading at the
+    horizon; ``s`` 0: the latent level. Before the first reading (w < delta) the
+    interpolation between the last reading and the next on the HI scale,
+    (1 - theta) h_0 + theta h_1 < 1, i.e. the next reading below
+    H = 1 + (1 - theta) (1 - h_0) / theta: N = m_z + m_b d - g(H), D = (V(d) + s^2)^(1/2)."""
     mz, mb, pzz, pzb, pbb = st[0], st[1], st[2], st[3], st[4]
+    if s > 0.0 and delta < np.inf and w < delta:
+        d1 = math.sqrt(max(pzz + 2.0 * delta * pzb + delta * delta * pbb + q * delta, 0.0)
+                       + s * s)
+        th = w / delta
+        if th <= 1e-100:  # H beyond every HI: S = 1 (and no 1 / theta^2 overflow)
+            return -1e300, d1, 0.0, 0.0
+        gap = 1.0 - st[5]
+        big = 1.0 + (1.0 - th) * gap / th
+        g, dg = growth_scale(big, int(st[7]), st[8], st[9], st[10])
+        dbig = -gap / (th * th * delta)
+        return mz + mb * delta + st[6] - g, d1, -dg * dbig, 0.0
     a = mz + mb * w
     g = pzb + w * pbb
     v = max(pzz + 2.0 * w * pzb + w * w * pbb + q * w, 1e-300)
@@ -449,20 +492,22 @@ def _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cove
         drate = (g * a * dv * iv - pbb * a - g * mb) * iv
         if rate <= 0.0:
             rate, drate = 0.0, 0.0
-        mu, sd, mu_c, sd_c, mu_j, sd_j = _ystar(rate * delta / s, max(w / delta, 1.0), mu_t,
-                                                sd_t, lc0, dlc, dlj)
+        x = w / delta
+        n = math.floor(x)
+        mu, sd, mu_c, sd_c, mu_th, sd_th = _ystar(rate * delta / s, n, x - n, mu_t, sd_t,
+                                                  lc0, dlc, dlj, dth)
         dlog_c = drate / (rate * dlc) if rate > 0.0 else 0.0  # in table steps per unit w
-        dlog_j = 1.0 / (w * dlj) if w > delta else 0.0
-        dmu = mu_c * dlog_c + mu_j * dlog_j
-        dsd = sd_c * dlog_c + sd_j * dlog_j
+        dth_w = 1.0 / (delta * dth)
+        dmu = mu_c * dlog_c + mu_th * dth_w
+        dsd = sd_c * dlog_c + sd_th * dth_w
     d = math.sqrt(v + s * s * sd * sd)
     return a - s * mu, d, mb - s * dmu, (dv + 2.0 * s * s * sd * dsd) / (2.0 * d)
 
 
 @numba.njit(cache=True)
-def _fp_log_surv(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj):  # pragma: no cover
+def _fp_log_surv(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj, dth):  # pragma: no cover
     """log S(w) of eq. (5b) for one unit (:func:`_fp_terms`)."""
-    n, d, _, _ = _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj)
+    n, d, _, _ = _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj, dth)
     return log_ndtr(-n / d)
 
 
@@ -530,32 +575,34 @@ def _quadratic_root(st, q, s2, k, w_lo):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_t, sd_t, lc0, dlc, dlj,
+def _fp_root(st, q, s, delta, k, mu_t, sd_t, lc0, dlc, dlj, dth,
              iterations):  # pragma: no cover - compiled
-    """The horizon in (w_lo, w_hi) (w_hi may be inf) where S of eq. (5b) falls to Phi(-k),
-    known to lie there: G(w) = N(w) - k D(w) = 0 (G < 0 before the root), by Newton's steps
-    from one measurement's eq. (6) root (mu* = 0, sigma* = 1; so a level's root does not
-    depend on the other levels asked), safeguarded by the bracket (a step leaving it is a
-    halving, or a doubling while the bracket is open), until a step is below 1e-13 w or,
-    below 1e-6 w, the error left after it, |G''| h^2 / (2 |G'|) with G'' from the last two
-    slopes, is below 1e-14 w (an edge of the table's bilinear cells inside the step adds the
-    slope's jump there times the step: tested against bisection to 1e-9), at most
-    ``iterations`` steps; as soon as the root is known to lie below ``floor``, that bound."""
-    lo, hi = w_lo, w_hi
-    w = _quadratic_root(st, q, s * s, k, w_lo)
+    """The horizon w > 0 where S of eq. (5b) falls to Phi(-k), known to lie there:
+    G(w) = N(w) - k D(w) = 0 (G < 0 before the root), by Newton's steps from one
+    measurement's eq. (6) root (mu* = 0, sigma* = 1; so a level's root does not depend on the
+    other levels asked), safeguarded by the bracket (a step leaving it is a halving, or a
+    doubling while the bracket is open: G has kinks at the readings and at the table's cell
+    edges, the bracket holds across them), until a step is below 1e-13 w or, below 1e-6 w,
+    the error left after it, |G''| h^2 / (2 |G'|) with G'' from the last two slopes, is below
+    1e-14 w (tested against bisection to 1e-9), at most ``iterations`` steps."""
+    lo, hi = 0.0, np.inf
+    w = _quadratic_root(st, q, s * s, k, 0.0)
     if not (lo < w < hi):
-        w = 0.5 * (lo + hi) if hi < np.inf else w_lo + max(w_lo, 1.0)
+        w = 1.0
     w_prev, dg_prev = np.nan, np.nan
     for _ in range(iterations):
-        n, d, dn, dd = _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj)
+        n, d, dn, dd = _fp_terms(st, q, s, delta, w, mu_t, sd_t, lc0, dlc, dlj, dth)
         g, dg = n - k * d, dn - k * dd
         if g < 0.0:
             lo = w
         elif g > 0.0:
             hi = w
-            if hi <= floor:
-                break
-        w_new = w - g / dg if g != 0.0 else w
+        if g == 0.0:
+            w_new = w
+        elif dg != 0.0:
+            w_new = w - g / dg
+        else:  # a flat stretch (g's bound clipped): no step, a halving below
+            w_new = np.nan
         h = abs(w_new - w)
         # Newton's error after the step: |G''| h^2 / (2 |G'|), G'' from the last two slopes
         if lo <= w_new <= hi and (h <= 1e-13 * w_new or (
@@ -565,44 +612,31 @@ def _fp_root(st, q, s, delta, k, w_lo, w_hi, floor, mu_t, sd_t, lc0, dlc, dlj,
             break
         w_prev, dg_prev = w, dg
         if not (lo < w_new < hi):
-            w_new = 0.5 * (lo + hi) if hi < np.inf else w_lo + 2.0 * (w - w_lo) + 1.0
+            w_new = 0.5 * (lo + hi) if hi < np.inf else 2.0 * w + 1.0
         w = w_new
     return w
 
 
 @numba.njit(cache=True)
-def _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0, dlc, dlj,
-                     iterations):  # pragma: no cover - compiled
-    """A level ``lev`` <= ``first`` (F(d), the first reading's probability) inside the first
-    cadence step: where one measurement's CDF (eq. (5), S(w) / S(0)) reaches lev / F(d) of
-    its value at d; linear in w where that CDF stays 0 on the step."""
-    ls0 = _fp_log_surv(st, q, s, np.inf, 0.0, mu_t, sd_t, lc0, dlc, dlj)
-    g_first = -math.expm1(min(_fp_log_surv(st, q, s, np.inf, d, mu_t, sd_t, lc0, dlc, dlj)
-                              - ls0, 0.0))
-    if g_first <= 0.0:
-        return d * lev / first
-    k = _margin_quantile(ls0 + math.log1p(-min(lev / first * g_first, 1.0)))
-    return _fp_root(st, q, s, np.inf, k, 0.0, d, 0.0, mu_t, sd_t, lc0, dlc, dlj, iterations)
-
-
-@numba.njit(cache=True)
-def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc, dlj,
-                            iterations, out):  # pragma: no cover - compiled
+def first_passage_quantiles(m, p, h0, growth, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
+                            dlj, dth, iterations, out):  # pragma: no cover - compiled
     """Quantiles of eq. (5b) per unit into ``out (L, B)``, in scaled age (see
-    :func:`rulkit.fleet.learned.degradation.rul_quantiles`): +inf beyond the failing mass;
-    on the first cadence step, one measurement's eq. (5) scaled to the first reading's
-    probability (:func:`_first_step_root`), where the search of (5b) from 0 finds its root
-    below the first reading d and 1 - S(d) >= the level."""
+    :func:`rulkit.fleet.learned.degradation.rul_quantiles`): +inf beyond the failing mass.
+    ``h0 (B,)`` each unit's last reading (the first step's interpolation from it,
+    :func:`_fp_terms`), ``growth`` the growth scale's (kind, shape, lower, upper clip) of
+    :func:`growth_scale`."""
     inf = np.inf
     k_fp = np.empty(levels.shape[0])  # the first passage's k per level (its reference is 0)
     for i in range(levels.shape[0]):
         k_fp[i] = _margin_quantile(math.log1p(-levels[i])) if 0.0 < levels[i] < 1.0 else 0.0
-    st = np.empty(5)
+    st = np.empty(11)
+    st[6], st[7], st[8], st[9], st[10] = zs, growth[0], growth[1], growth[2], growth[3]
     for b in range(m.shape[0]):
         d = delta[b]
         st[0], st[1], st[2], st[3], st[4] = m[b, 0] - zs, m[b, 1], p[b, 0], p[b, 1], p[b, 2]
+        st[5] = h0[b]
         fp = s > 0.0 and d < inf
-        ref = 0.0 if fp else _fp_log_surv(st, q, s, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj)
+        ref = 0.0 if fp else _fp_log_surv(st, q, s, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj, dth)
         ls_inf = log_ndtr(-st[1] / math.sqrt(st[4]))
         for i in range(levels.shape[0]):
             lev = levels[i]
@@ -610,19 +644,9 @@ def first_passage_quantiles(m, p, delta, q, zs, s, levels, mu_t, sd_t, lc0, dlc,
             if target <= ls_inf:
                 out[i, b] = inf
                 continue
-            if target >= 0.0 or lev <= 0.0:
+            if target >= 0.0 or lev <= 0.0 or (fp and st[5] >= 1.0):  # or already read >= 1
                 out[i, b] = 0.0
                 continue
             k = k_fp[i] if fp else _margin_quantile(target)
-            w = _fp_root(st, q, s, d, k, 0.0, inf, d if fp else 0.0, mu_t, sd_t, lc0, dlc, dlj,
-                         iterations)
-            if fp and w <= d:  # before the first reading: on the first step?
-                first = -math.expm1(_fp_log_surv(st, q, s, d, d, mu_t, sd_t, lc0, dlc, dlj))
-                if lev <= first:
-                    out[i, b] = _first_step_root(st, q, s, d, lev, first, mu_t, sd_t, lc0,
-                                                 dlc, dlj, iterations)
-                    continue
-                w = _fp_root(st, q, s, d, k, d, inf, 0.0, mu_t, sd_t, lc0, dlc, dlj,
-                             iterations)
-            out[i, b] = w
+            out[i, b] = _fp_root(st, q, s, d, k, mu_t, sd_t, lc0, dlc, dlj, dth, iterations)
     return 0
