@@ -137,15 +137,11 @@ class GroupCommits:
         try:
             res: IngestResult | IngestError = self._ingest_in_transaction(acq, source)
         except IngestError as err:
-            self._conn.execute("ROLLBACK TO SAVEPOINT batch")
-            if self._states is not None:
-                self._states.rollback()
+            self._roll_back("batch")
             res = err
         finally:
             self.now = None
-        self._conn.execute("RELEASE SAVEPOINT batch")
-        if self._states is not None:
-            self._states.release()
+        self._release("batch")
         return res
 
     def _ingest_joined(self, run: list[Queued]) -> list[IngestResult | IngestError] | None:
@@ -192,17 +188,25 @@ class GroupCommits:
                     n_new_components=n_new if len(acq) else 0,
                     alerts=self._record_alerts(mine_alerts), n_duplicates=n_dup))
         except IngestError:
-            self._conn.execute("ROLLBACK TO SAVEPOINT joined")
+            self._roll_back("joined")
             self._conn.execute("RELEASE SAVEPOINT joined")
-            if self._states is not None:
-                self._states.rollback()
             return None
         finally:
             self.now = None
-        self._conn.execute("RELEASE SAVEPOINT joined")
+        self._release("joined")
+        return out
+
+    def _roll_back(self, savepoint: str) -> None:
+        """Undo the writes since ``savepoint`` and the component rows kept under it."""
+        self._conn.execute(f"ROLLBACK TO SAVEPOINT {savepoint}")
+        if self._states is not None:
+            self._states.rollback()
+
+    def _release(self, savepoint: str) -> None:
+        """Keep the writes since ``savepoint`` in the transaction, and the rows kept under it."""
+        self._conn.execute(f"RELEASE SAVEPOINT {savepoint}")
         if self._states is not None:
             self._states.release()
-        return out
 
 
 
