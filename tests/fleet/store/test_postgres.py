@@ -4,6 +4,7 @@ Validation first, one transaction per batch, concurrent writers without lost or 
 rows, consistent snapshots, and the same numbers as the tracker chain run directly.
 """
 
+import struct
 import threading
 
 import numpy as np
@@ -120,3 +121,48 @@ def test_concurrent_writers_lose_and_duplicate_nothing(db_url):
     # every snapshot a reader took is a committed state: per-component counts add up
     assert snapshots and all(s[1] == s[2] for s in snapshots)
     sdb.close()
+
+
+EDGE_FLOATS = [0.1, -0.0, 5e-324, 1.7976931348623157e308, 1 / 3, -2.5e-310, np.nan, np.inf,
+               -np.inf, 123456.78901234567]
+
+
+def _bits(v):
+    return struct.pack("<d", v) if isinstance(v, float) else v
+
+
+def test_bulk_writes_store_every_float64_bit_and_upsert(pg_server):
+    """The binary COPY of component and history rows: values read back (binary results)
+    are the bits written, on insert and on the conflict's update, and a second write in the
+    same transaction upserts only its own rows."""
+    from rulkit.fleet.store import history_chunks
+    from rulkit.fleet.store.tracker_rows import ROW_FIELDS
+
+    cols = ("component", *ROW_FIELDS, "max_level")
+    ints = {"n": 7, "level": 2, "max_level": 1, "valid": True}
+
+    def rows(names, shift):
+        return [tuple([name] + [ints[c] if c in ints else
+                                EDGE_FLOATS[(j + k + shift) % len(EDGE_FLOATS)]
+                                for j, c in enumerate(cols[1:])])
+                for k, name in enumerate(names)]
+
+    rec = np.array(EDGE_FLOATS * 13, dtype=np.float64).reshape(10, 13)
+    hist = history_chunks.chunk_rows(["a", "b"], np.array([0, 4, 10]), rec, 3)
+    with open_store(pg_server.create_schema(), config=CFG) as store:
+        with store._transaction():
+            store._write_states(rows(["a", "b", "c"], 0))
+            store._write_history(hist)
+        with store._transaction():  # a and b updated, d new; then c alone
+            store._write_states(rows(["a", "b", "d"], 3))
+            store._write_states(rows(["c"], 5))
+        with store._conn.raw.cursor(binary=True) as cur:
+            got = cur.execute(f"SELECT {', '.join(cols)} FROM components "
+                              "ORDER BY component").fetchall()
+            blobs = cur.execute("SELECT component, t_first, t_last, n, ingest, data FROM "
+                                "history ORDER BY component").fetchall()
+    second = rows(["a", "b", "d"], 3)
+    want = second[:2] + rows(["c"], 5) + second[2:]
+    assert [tuple(map(_bits, r)) for r in got] == [tuple(map(_bits, r)) for r in want]
+    assert [(r[0], _bits(r[1]), _bits(r[2]), r[3], r[4], bytes(r[5])) for r in blobs] == [
+        (r[0], _bits(r[1]), _bits(r[2]), r[3], r[4], bytes(r[5])) for r in hist]

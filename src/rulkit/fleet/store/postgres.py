@@ -43,14 +43,22 @@ from rulkit.fleet.store.database_file import (
     time_axis_from_meta,
 )
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
-from rulkit.fleet.store.schema import create_schema, needs_migration
+from rulkit.fleet.store.schema import COMPONENTS, HISTORY, create_schema, needs_migration
 from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.store.tracker_rows import ROW_FIELDS
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
 # Key of the advisory lock that serialises writers (any fixed 64-bit number; "rulkit" in ASCII).
 WRITE_LOCK_KEY = 0x72756C6B6974
-
+_BINARY_TYPES = {"key": "text", "text": "text", "real": "float8", "int": "int8",
+                 "small": "int2", "bool": "bool", "blob": "bytea"}
+"""PostgreSQL's type of each column kind of :mod:`rulkit.fleet.store.schema`, as binary COPY
+sends it (the column's own type: binary COPY converts nothing)."""
+STAGING = "components_in"
+"""The temporary table a write's ``components`` rows are copied into before their upsert
+(one per connection, made before its first write transaction; emptied at every commit, and
+before a second write of the same transaction)."""
 
 
 @lru_cache(maxsize=256)
@@ -66,7 +74,8 @@ class PgConnection:
 
     def __init__(self, raw: Any) -> None:
         self.raw = raw
-
+        self.staging = False  # STAGING made on this connection
+        self.staged = False  # rows copied into STAGING since the last commit or rollback
     def execute(self, sql: str, params: Any = ()) -> Any:
         cur = self.raw.cursor()
         cur.execute(_pg_sql(sql), tuple(params) if params else None)
@@ -76,6 +85,17 @@ class PgConnection:
         cur = self.raw.cursor()
         cur.executemany(_pg_sql(sql), rows)
         return cur
+
+    def copy_binary(self, table: str, columns: tuple[str, ...], types: list[str],
+                    rows: Any) -> None:
+        """``rows`` into ``table``'s ``columns`` by one ``COPY ... FROM STDIN (FORMAT
+        BINARY)``: every value sent as the bits of its column's type (a float8 as its 8 bytes,
+        so stored exactly as given), no statement per row."""
+        with self.raw.cursor() as cur, cur.copy(
+                f"COPY {table} ({', '.join(columns)}) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.set_types(types)
+            for row in rows:
+                copy.write_row(row)
 
     def close(self) -> None:
         self.raw.close()
@@ -184,6 +204,9 @@ class PgComponentStore(ComponentStore):
         if mode == "DEFERRED":
             self._conn.execute("BEGIN ISOLATION LEVEL REPEATABLE READ READ ONLY")
         else:
+            if not self._conn.staging:  # outside any transaction: no rollback undoes it
+                self._conn.execute(_staging_sql())
+                self._conn.staging = True
             self._conn.execute("BEGIN")
             self._conn.execute("SELECT pg_advisory_xact_lock(?)", (WRITE_LOCK_KEY,))
         try:
@@ -191,9 +214,11 @@ class PgComponentStore(ComponentStore):
         except BaseException:
             if not self._conn.raw.closed:
                 self._conn.execute("ROLLBACK")
+                self._conn.staged = False
             raise
         else:
             self._conn.execute("COMMIT")
+            self._conn.staged = False
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
         """A query in one read snapshot as a DataFrame (the base class's reads and checks,
@@ -206,17 +231,52 @@ class PgComponentStore(ComponentStore):
             {c: pd.Series(dtype=object if c == "component" else float) for c in cols})
 
     def _write_history(self, rows: list[tuple]) -> None:
-        """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by ``COPY ... FROM
-        STDIN`` (the server parses no statement per row)."""
-        with self._conn.raw.cursor() as cur, cur.copy(
-                f"COPY history ({', '.join(history_chunks.COLUMNS)}) FROM STDIN") as copy:
-            for row in rows:
-                copy.write_row(row)
+        """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by binary ``COPY``
+        (:meth:`PgConnection.copy_binary`: the blobs as raw bytes, not hex text; the server
+        parses no statement per row). The cheapest of the ways measured by
+        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL")."""
+        self._conn.copy_binary("history", history_chunks.COLUMNS,
+                               [_column_type(HISTORY, c) for c in history_chunks.COLUMNS], rows)
+
+    def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+        """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``: binary
+        ``COPY`` into the connection's temporary table :data:`STAGING`, then one statement
+        that empties it into ``components`` (``INSERT ... SELECT ... ON CONFLICT (component)
+        DO UPDATE``), instead of one upsert per row: the same stored values (float8 bits as
+        sent), the same conflict handling. The cheapest of the ways measured by
+        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL"). The commit empties the
+        table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction (group
+        commits whose batches share components) empties it first."""
+        cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
+        if self._conn.staged:
+            self._conn.execute(f"DELETE FROM {STAGING}")
+        self._conn.staged = True
+        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
+        names = ", ".join(cols)
+        updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
+        self._conn.execute(
+            f"INSERT INTO components ({names}) SELECT {names} FROM {STAGING} "
+            f"ON CONFLICT (component) DO UPDATE SET {updates}")
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return int(self._conn.execute(
             "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?) RETURNING id",
             (source, n_rows, n_components)).fetchone()[0])
+
+
+@lru_cache(maxsize=64)
+def _column_type(table: Any, name: str) -> str:
+    """PostgreSQL's type of column ``name`` of ``table`` (a :class:`~rulkit.fleet.store.
+    schema.Table`), as binary COPY sends it."""
+    return _BINARY_TYPES[next(c.kind for c in table.columns if c.name == name)]
+
+
+@lru_cache(maxsize=1)
+def _staging_sql() -> str:
+    """The temporary table :data:`STAGING`: the columns of ``components``, no key, no index;
+    PostgreSQL empties it at every commit too."""
+    cols = ", ".join(c.sql("postgresql") for c in COMPONENTS.columns)
+    return f"CREATE TEMP TABLE IF NOT EXISTS {STAGING} ({cols}) ON COMMIT DELETE ROWS"
 
 
 def _redact(url: str) -> str:
