@@ -166,3 +166,93 @@ def test_bulk_writes_store_every_float64_bit_and_upsert(pg_server):
     assert [tuple(map(_bits, r)) for r in got] == [tuple(map(_bits, r)) for r in want]
     assert [(r[0], _bits(r[1]), _bits(r[2]), r[3], r[4], bytes(r[5])) for r in blobs] == [
         (r[0], _bits(r[1]), _bits(r[2]), r[3], r[4], bytes(r[5])) for r in hist]
+
+
+def _many(store, frames, now=1.7e9):
+    from rulkit.fleet.store.acquisitions import validate_acquisitions
+
+    return store.ingest_many([(validate_acquisitions(f, store.config, store.hi_model), "t", now)
+                              for f in frames])
+
+
+def _row_bits(row):
+    """A stored row as the batch reads it: float64 bits, NaN (and NULL) as None."""
+    return [None if np.isnan(v) else _bits(v) for v in np.array(row, dtype=np.float64).tolist()]
+
+
+def test_kept_rows_are_the_rows_postgresql_returns(pg_server):
+    """The writer's kept rows (keep_states) hold the bits a fresh connection reads, batch
+    after batch; a write by any other connection (here plain SQL that takes no rulkit lock)
+    is seen by the next batch."""
+    url = pg_server.create_schema()
+    names = [f"u{i}" for i in range(6)]
+    with open_store(url, config=CFG) as store, open_store(url) as other:
+        store.keep_states()
+        for k in range(6):
+            res = _many(store, [batch(names[: 3 + k % 4], 4 * k, 4, seed=k)])
+            assert not isinstance(res[0], Exception)
+            kept, _ = store._states.split(names)
+            truth = other._load_states(names)
+            assert set(kept) == set(names[:max(3 + j % 4 for j in range(k + 1))])
+            for n in kept:
+                assert _row_bits(kept[n]) == _row_bits(truth[n]), n
+        n0 = int(other.status().set_index("component")["n"]["u1"])
+        other._conn.execute("UPDATE components SET n = n + 100 WHERE component = 'u1'")
+        _many(store, [batch(["u1"], 40, 1)])
+        assert int(store.status().set_index("component")["n"]["u1"]) == n0 + 101
+
+
+def test_kept_negative_zero_is_the_one_postgresql_returns(pg_server):
+    """-0.0 written to a float8 column reads back as -0.0: the kept rows keep it."""
+    from rulkit.fleet.store.state_cache import StateCache
+
+    with open_store(pg_server.create_schema(), config=CFG) as store:
+        back = store._conn.execute("SELECT ?::float8", (-0.0,)).fetchone()[0]
+        store.keep_states()
+        assert isinstance(store._states, StateCache) and store._states.signed_zeros
+    cache = StateCache(("x",), (), limit=2, signed_zeros=True)
+    cache.begin(1)
+    cache.put(["a"], {"x": [-0.0]})
+    assert _bits(cache.split(["a"])[0]["a"][0]) == _bits(back) == _bits(-0.0)
+
+
+def test_writers_with_kept_rows_in_turns_lose_nothing(pg_server):
+    """Two writers keeping rows on one database (e.g. two services) write the same
+    components in turns, then halves of them at once, then in turns again: every batch
+    starts from the other's rows, as one writer that reads every row."""
+    url, ref = pg_server.create_schema(), pg_server.create_schema()
+    names = [f"c{i}" for i in range(4)]
+    turns = [batch(names, 3 * k, 3, seed=k) for k in range(6)]
+    halves = [[batch(names[:2], 18 + 3 * k, 3, seed=k) for k in range(4)],
+              [batch(names[2:], 18 + 3 * k, 3, seed=10 + k) for k in range(4)]]
+    after = [batch(names, 30 + 3 * k, 3, seed=20 + k) for k in range(4)]
+    errors = []
+
+    def run(store, frames):
+        try:
+            for f in frames:
+                res = _many(store, [f])
+                assert not isinstance(res[0], Exception), res[0]
+        except Exception as err:  # pragma: no cover - reported below
+            errors.append(err)
+
+    with open_store(url, config=CFG) as a, open_store(url) as b:
+        a.keep_states()
+        b.keep_states()
+        for k, f in enumerate(turns):
+            run((a, b)[k % 2], [f])
+        threads = [threading.Thread(target=run, args=(w, h))
+                   for w, h in zip((a, b), halves, strict=True)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        for k, f in enumerate(after):
+            run((b, a)[k % 2], [f])
+        assert errors == []
+        got = a.status()
+    with open_store(ref, config=CFG) as store:
+        for f in [*turns, *halves[0], *halves[1], *after]:
+            run(store, [f])
+        want = store.status()
+    pd.testing.assert_frame_equal(got, want, check_exact=True)

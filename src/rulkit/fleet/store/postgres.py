@@ -17,6 +17,12 @@ Guarantees, as for SQLite (tested against both in tests/fleet/store/test_postgre
   the previous batch committed (no lost update, no duplicated history row; the history primary
   key (component, t) is the backstop).
 * **Consistent readers**: :meth:`snapshot` is a ``REPEATABLE READ READ ONLY`` transaction.
+* **Kept rows** (:meth:`PgComponentStore.keep_states`, the service's writer): trusted only
+  while nobody else wrote ``components``. A statement-level trigger on ``components`` counts
+  every statement that writes it, whoever runs it, in the one row of :data:`WRITES`; the
+  writer locks that row (``FOR UPDATE``) at the start of each write transaction, so the
+  count it reads is final until its commit, and compares it with the count it read back
+  before its own last commit: any difference, and the kept rows are dropped.
 
 ``psycopg`` (the ``service`` extra) is imported only when a ``postgresql://`` URL is opened.
 """
@@ -55,6 +61,9 @@ _BINARY_TYPES = {"key": "text", "text": "text", "real": "float8", "int": "int8",
                  "small": "int2", "bool": "bool", "blob": "bytea"}
 """PostgreSQL's type of each column kind of :mod:`rulkit.fleet.store.schema`, as binary COPY
 sends it (the column's own type: binary COPY converts nothing)."""
+WRITES = "rulkit_writes"
+"""The table of one row ``n``: the statements that wrote ``components`` so far (counted by
+the trigger ``components_written``; made by :meth:`PgComponentStore.keep_states`)."""
 STAGING = "components_in"
 """The temporary table a write's ``components`` rows are copied into before their upsert
 (one per connection, made before its first write transaction; emptied at every commit, and
@@ -191,8 +200,35 @@ class PgComponentStore(ComponentStore):
             raise
 
     def keep_states(self, limit: int = 25_000) -> None:
-        """Nothing on PostgreSQL: no counter tells this connection that another committed
-        (SQLite's ``data_version``), so every batch reads its stored rows."""
+        """Keep the ``components`` rows of the batches :meth:`ingest_many` commits, as on
+        SQLite (:meth:`ComponentStore.keep_states`), for as long as the write counter
+        (:data:`WRITES`, made here when missing) says that nobody else wrote ``components``
+        since this connection's last commit (module docstring)."""
+        with self._transaction("IMMEDIATE"):
+            _count_writes(self._conn)
+        super().keep_states(limit)
+        assert self._states is not None
+        self._states.signed_zeros = True  # float8 keeps -0.0 (SQLite makes it 0.0)
+
+    def _data_version(self) -> int:
+        """The write counter (:data:`WRITES`), its row locked until this transaction ends:
+        nobody else's write to ``components`` can commit meanwhile."""
+        return int(self._conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE").fetchone()[0])
+
+    def _load_states(self, names: list[str]) -> dict[str, tuple]:
+        """The stored rows of ``names`` (:meth:`ComponentStore._load_states`): those kept,
+        the others read in one query of an array parameter (``= ANY``: no statement text
+        of one placeholder per name to parse), results in binary."""
+        out: dict[str, tuple] = {}
+        if self._states is not None:
+            out, names = self._states.split(names)
+        if names:
+            cols = ", ".join(("component", *self.STATE_COLUMNS))
+            with self._conn.raw.cursor(binary=True) as cur:
+                cur.execute(f"SELECT {cols} FROM components WHERE component = ANY(%s)",
+                            (names,))
+                out.update((row[0], row[1:]) for row in cur.fetchall())
+        return out
 
     def _read_meta(self) -> dict[str, str]:
         if self._conn.execute("SELECT to_regclass('meta')").fetchone()[0] is None:
@@ -201,6 +237,8 @@ class PgComponentStore(ComponentStore):
 
     @contextmanager
     def _transaction(self, mode: str = "IMMEDIATE") -> Iterator[Any]:
+        if self._states is not None and mode != "DEFERRED" and not self._ingesting:
+            self._states.drop()  # a write the kept rows do not follow
         if mode == "DEFERRED":
             self._conn.execute("BEGIN ISOLATION LEVEL REPEATABLE READ READ ONLY")
         else:
@@ -217,6 +255,9 @@ class PgComponentStore(ComponentStore):
                 self._conn.staged = False
             raise
         else:
+            if self._states is not None and self._ingesting:  # the count after our writes
+                self._states.version = int(
+                    self._conn.execute(f"SELECT n FROM {WRITES}").fetchone()[0])
             self._conn.execute("COMMIT")
             self._conn.staged = False
 
@@ -262,6 +303,25 @@ class PgComponentStore(ComponentStore):
         return int(self._conn.execute(
             "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?) RETURNING id",
             (source, n_rows, n_components)).fetchone()[0])
+
+
+def _count_writes(conn: PgConnection) -> None:
+    """Inside a write transaction: the write counter :data:`WRITES` and the trigger that
+    counts every statement writing ``components`` (each made when missing; the function
+    names the table with its schema, so that a writer with another ``search_path`` counts
+    in the same row)."""
+    if conn.execute("SELECT 1 FROM pg_trigger WHERE tgrelid = 'components'::regclass AND "
+                    "tgname = 'components_written'").fetchone() is not None:
+        return
+    schema = conn.execute("SELECT quote_ident(current_schema())").fetchone()[0]
+    conn.execute(f"CREATE TABLE IF NOT EXISTS {WRITES} (n BIGINT NOT NULL)")
+    conn.execute(f"INSERT INTO {WRITES} SELECT 0 WHERE NOT EXISTS (SELECT 1 FROM {WRITES})")
+    conn.execute("CREATE OR REPLACE FUNCTION rulkit_count_write() RETURNS trigger LANGUAGE "
+                 f"plpgsql AS $$ BEGIN UPDATE {schema}.{WRITES} SET n = n + 1; RETURN NULL; "
+                 "END $$")
+    conn.execute("CREATE TRIGGER components_written AFTER INSERT OR UPDATE OR DELETE OR "
+                 "TRUNCATE ON components FOR EACH STATEMENT EXECUTE FUNCTION "
+                 "rulkit_count_write()")
 
 
 @lru_cache(maxsize=64)

@@ -6,10 +6,11 @@ A :class:`StateCache` holds, per component, the row the store's read of the batc
 rows would return (``SELECT component, <columns> FROM components``), as the batch uses it:
 every value the same float64 (the batch builds its arrays from the rows with
 ``dtype=float64``: ``None`` and NaN alike, a bool or an int of the same value alike; -0.0 is
-made 0.0, as SQLite stores it).
+made 0.0, as SQLite stores it, unless ``signed_zeros``: PostgreSQL's float8 keeps it).
 It is trusted only while no other connection has committed: SQLite's ``PRAGMA
 data_version`` changes for a connection whenever another connection, in this process or
-another, commits to the database, and the cache is emptied when it does. Rows written in an
+another, commits to the database, and the cache is emptied when it does (PostgreSQL: the
+write counter of :mod:`rulkit.fleet.store.postgres`). Rows written in an
 open transaction are kept apart (per batch, for the batch's savepoint) until the commit; a
 rolled-back batch or a failed commit leaves nothing of theirs.
 """
@@ -25,10 +26,13 @@ import numpy as np
 
 class StateCache:
     """``StateCache(columns, int_columns, limit)``: rows of ``columns`` (the read's order) per
-    component; ``int_columns`` the columns of integer type; at most ``limit`` components."""
+    component; ``int_columns`` the columns of integer type; at most ``limit`` components.
+    ``signed_zeros``: a real column's -0.0 kept as given (the database stores it)."""
 
-    def __init__(self, columns: Sequence[str], int_columns: Iterable[str], limit: int) -> None:
+    def __init__(self, columns: Sequence[str], int_columns: Iterable[str], limit: int,
+                 signed_zeros: bool = False) -> None:
         self.columns = tuple(columns)
+        self.signed_zeros = signed_zeros
         self._int = frozenset(int_columns)
         self.limit = limit
         self.version: int | None = None  # PRAGMA data_version when last trusted
@@ -70,7 +74,7 @@ class StateCache:
         cols = []
         for c in self.columns:
             v = columns[c]
-            if c not in self._int and 0.0 in v:  # == compares -0.0 equal: one C loop
+            if not self.signed_zeros and c not in self._int and 0.0 in v:  # -0.0 == 0.0
                 v = (np.asarray(v, dtype=np.float64) + 0.0).tolist()
             cols.append(v)
         self._batch.update(zip(names, zip(*cols, strict=True), strict=True))
