@@ -114,18 +114,19 @@ def bare_floor(db: str, args: argparse.Namespace, batch_size: int,
     them (the store's own connection: WAL and synchronous=FULL on SQLite, the write lock on
     PostgreSQL): the packed history rows (one per component of the batch,
     :mod:`rulkit.fleet.store.history_chunks`) by the store's own history write
-    (``executemany`` on SQLite, COPY on PostgreSQL), then one upsert per component of its row
-    in ``components`` (tracker state and RUL columns, the five secondary indexes). No HTTP, no
+    (``executemany`` on SQLite, binary COPY on PostgreSQL), then the upsert of each
+    component's row in ``components`` (tracker state and RUL columns, the five secondary
+    indexes) by the store's own write (one statement per row on SQLite; on PostgreSQL a
+    binary COPY and one statement, :meth:`~rulkit.fleet.store.postgres.PgComponentStore.
+    _write_states`). No HTTP, no
     validation, no tracker, no rules. CPU of this process, and of the database server's
     processes by ``db_cpu`` (PostgreSQL)."""
     from rulkit.fleet.store import history_chunks as hc
     from rulkit.fleet.store.schema import COMPONENTS
 
     ccols = COMPONENTS.names
+    extra = ccols[ccols.index("max_level") + 1:]  # _write_states' order: the table's
     with open_store(db) as store:
-        upsert = (f"INSERT INTO components ({', '.join(ccols)}) VALUES "
-                  f"({', '.join('?' * len(ccols))}) ON CONFLICT(component) DO UPDATE SET "
-                  + ", ".join(f"{c} = excluded.{c}" for c in ccols[1:]))
         cpu0, t0, db0 = time.process_time(), time.perf_counter(), _cpu_or_nan(db_cpu)
         for kb in range(args.batches):
             for w in range(args.writers):
@@ -136,9 +137,9 @@ def bare_floor(db: str, args: argparse.Namespace, batch_size: int,
                 hist = hc.chunk_rows([r["component"] for r in rows],
                                      np.arange(len(rows) + 1), rec, 1)
                 comps = [tuple(_bare_value(c, r) for c in ccols) for r in rows]
-                with store._transaction("IMMEDIATE") as conn:
+                with store._transaction("IMMEDIATE"):
                     store._write_history(hist)
-                    conn.executemany(upsert, comps)
+                    store._write_states(comps, extra)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - t0
         db_s = _cpu_or_nan(db_cpu) - db0
     return {"cpu_s": cpu, "wall_s": wall, "db_cpu_s": db_s,
