@@ -475,9 +475,9 @@ def _print_db_cpu(size: int, w: dict[str, float], bare: dict[str, float],
           f"{per(bare, 'cpu_s'):.1f} us in this process + {per(bare, 'db_cpu_s'):.1f} us in "
           f"PostgreSQL = {floor:.1f} us (ceiling {cores * 1e6 / floor:.0f}/s)")
     print(f"  the goal of {goal}/s at batches of {size} leaves {cores * 1e6 / goal:.1f} us of "
-          f"CPU per acquisition on {cores} cores for service, PostgreSQL and client together: "
-          f"{total / (cores * 1e6 / goal):.1f}x over it, bare writes "
-          f"{floor / (cores * 1e6 / goal):.2f}x")
+          f"CPU per acquisition on {cores} cores for service, PostgreSQL and client together; "
+          f"they take {total / (cores * 1e6 / goal):.2f} times that, the bare writes "
+          f"{floor / (cores * 1e6 / goal):.2f} times")
     if theirs is not None:
         print(f"  PostgreSQL's CPU per acquisition, ours against theirs: "
               f"{per(w, 'db_cpu_s'):.1f} against {per(theirs, 'db_cpu_s'):.1f} us (ratio "
