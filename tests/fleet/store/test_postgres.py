@@ -256,3 +256,37 @@ def test_writers_with_kept_rows_in_turns_lose_nothing(pg_server):
             run(store, [f])
         want = store.status()
     pd.testing.assert_frame_equal(got, want, check_exact=True)
+
+
+def test_a_role_that_may_not_make_the_counter_keeps_no_rows(pg_server):
+    """A writing role that does not own the tables cannot make the write counter: it keeps
+    no rows and reads every one; once the owner has made it, that role's writes are counted
+    (the trigger runs as its owner) and the owner's kept rows see them."""
+    import psycopg
+
+    url = pg_server.create_schema()
+    schema = url.rsplit("%3D", 1)[1]
+    with open_store(url, config=CFG) as owner:
+        owner.ingest(batch(["a", "b"], 0, 3))
+    with psycopg.connect(pg_server.url(), autocommit=True) as admin:
+        admin.execute("DROP ROLE IF EXISTS limited")
+        admin.execute("CREATE ROLE limited LOGIN")
+        admin.execute(f'GRANT USAGE ON SCHEMA "{schema}" TO limited')
+        admin.execute(f'GRANT SELECT, INSERT, UPDATE, DELETE ON ALL TABLES IN SCHEMA "{schema}" '
+                      "TO limited")
+        admin.execute(f'GRANT USAGE ON ALL SEQUENCES IN SCHEMA "{schema}" TO limited')
+    limited_url = url.replace("rulkit@", "limited@")
+    with open_store(limited_url) as store:
+        store.keep_states()
+        assert store._states is None
+        _many(store, [batch(["a", "b"], 3, 2)])
+    with open_store(url) as owner, open_store(limited_url) as other:
+        owner.keep_states()
+        assert owner._states is not None
+        _many(owner, [batch(["a", "b"], 5, 2)])
+        other.keep_states()  # may not lock the owner's counter: keeps nothing
+        assert other._states is None
+        _many(other, [batch(["a"], 7, 2)])
+        _many(owner, [batch(["a", "b"], 9, 1)])
+        n = owner.status().set_index("component")["n"]
+        assert (n["a"], n["b"]) == (3 + 2 + 2 + 2 + 1, 3 + 2 + 2 + 1)

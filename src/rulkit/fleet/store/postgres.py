@@ -85,6 +85,7 @@ class PgConnection:
         self.raw = raw
         self.staging = False  # STAGING made on this connection
         self.staged = False  # rows copied into STAGING since the last commit or rollback
+
     def execute(self, sql: str, params: Any = ()) -> Any:
         cur = self.raw.cursor()
         cur.execute(_pg_sql(sql), tuple(params) if params else None)
@@ -203,9 +204,15 @@ class PgComponentStore(ComponentStore):
         """Keep the ``components`` rows of the batches :meth:`ingest_many` commits, as on
         SQLite (:meth:`ComponentStore.keep_states`), for as long as the write counter
         (:data:`WRITES`, made here when missing) says that nobody else wrote ``components``
-        since this connection's last commit (module docstring)."""
-        with self._transaction("IMMEDIATE"):
-            _count_writes(self._conn)
+        since this connection's last commit (module docstring). A role that may not make the
+        counter (not the owner of ``components``) keeps nothing: every batch reads its rows."""
+        import psycopg
+
+        try:
+            with self._transaction("IMMEDIATE"):
+                _count_writes(self._conn)
+        except psycopg.errors.InsufficientPrivilege:
+            return
         super().keep_states(limit)
         assert self._states is not None
         self._states.signed_zeros = True  # float8 keeps -0.0 (SQLite makes it 0.0)
@@ -275,7 +282,7 @@ class PgComponentStore(ComponentStore):
         """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by binary ``COPY``
         (:meth:`PgConnection.copy_binary`: the blobs as raw bytes, not hex text; the server
         parses no statement per row). The cheapest of the ways measured by
-        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL")."""
+        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest")."""
         self._conn.copy_binary("history", history_chunks.COLUMNS,
                                [_column_type(HISTORY, c) for c in history_chunks.COLUMNS], rows)
 
@@ -285,7 +292,7 @@ class PgComponentStore(ComponentStore):
         that empties it into ``components`` (``INSERT ... SELECT ... ON CONFLICT (component)
         DO UPDATE``), instead of one upsert per row: the same stored values (float8 bits as
         sent), the same conflict handling. The cheapest of the ways measured by
-        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL"). The commit empties the
+        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest"). The commit empties the
         table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction (group
         commits whose batches share components) empties it first."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
@@ -307,21 +314,24 @@ class PgComponentStore(ComponentStore):
 
 def _count_writes(conn: PgConnection) -> None:
     """Inside a write transaction: the write counter :data:`WRITES` and the trigger that
-    counts every statement writing ``components`` (each made when missing; the function
-    names the table with its schema, so that a writer with another ``search_path`` counts
-    in the same row)."""
+    counts every statement writing ``components`` (each made when missing), then a lock of
+    the counter's row, as each write transaction of the kept rows takes it. The function
+    names the table with its schema (a writer with another ``search_path`` counts in the same
+    row) and runs as its owner (a role that may write ``components`` but not the counter
+    still counts). Raises ``InsufficientPrivilege`` for a role that may not make them or lock
+    the row."""
     if conn.execute("SELECT 1 FROM pg_trigger WHERE tgrelid = 'components'::regclass AND "
-                    "tgname = 'components_written'").fetchone() is not None:
-        return
-    schema = conn.execute("SELECT quote_ident(current_schema())").fetchone()[0]
-    conn.execute(f"CREATE TABLE IF NOT EXISTS {WRITES} (n BIGINT NOT NULL)")
-    conn.execute(f"INSERT INTO {WRITES} SELECT 0 WHERE NOT EXISTS (SELECT 1 FROM {WRITES})")
-    conn.execute("CREATE OR REPLACE FUNCTION rulkit_count_write() RETURNS trigger LANGUAGE "
-                 f"plpgsql AS $$ BEGIN UPDATE {schema}.{WRITES} SET n = n + 1; RETURN NULL; "
-                 "END $$")
-    conn.execute("CREATE TRIGGER components_written AFTER INSERT OR UPDATE OR DELETE OR "
-                 "TRUNCATE ON components FOR EACH STATEMENT EXECUTE FUNCTION "
-                 "rulkit_count_write()")
+                    "tgname = 'components_written'").fetchone() is None:
+        schema = conn.execute("SELECT quote_ident(current_schema())").fetchone()[0]
+        conn.execute(f"CREATE TABLE IF NOT EXISTS {WRITES} (n BIGINT NOT NULL)")
+        conn.execute(f"INSERT INTO {WRITES} SELECT 0 WHERE NOT EXISTS (SELECT 1 FROM {WRITES})")
+        conn.execute("CREATE OR REPLACE FUNCTION rulkit_count_write() RETURNS trigger LANGUAGE "
+                     "plpgsql SECURITY DEFINER SET search_path = pg_catalog AS $$ BEGIN UPDATE "
+                     f"{schema}.{WRITES} SET n = n + 1; RETURN NULL; END $$")
+        conn.execute("CREATE TRIGGER components_written AFTER INSERT OR UPDATE OR DELETE OR "
+                     "TRUNCATE ON components FOR EACH STATEMENT EXECUTE FUNCTION "
+                     "rulkit_count_write()")
+    conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE")
 
 
 @lru_cache(maxsize=64)
