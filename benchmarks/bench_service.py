@@ -91,15 +91,17 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int,
         loop = srv.loop_cpu_seconds() - loop0
         db_s = _cpu_or_nan(db_cpu) - db0
         cpu1 = srv.cpu_seconds()  # the pollers' GET alone, to part it from the batches' CPU
+        db1 = _cpu_or_nan(db_cpu)
         timed_reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
         get_cpu = (srv.cpu_seconds() - cpu1) / GET_SAMPLE
+        get_db = (_cpu_or_nan(db_cpu) - db1) / GET_SAMPLE
     finally:
         srv.stop()
     if res.errors:
         raise SystemExit(f"errors during the load: {res.errors[:5]}")
     verify_exactly_once(db, args.writers, args.batches, batch_size)
     return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client,
-            "get_cpu_s": get_cpu, "loop_cpu_s": loop, "db_cpu_s": db_s}
+            "get_cpu_s": get_cpu, "loop_cpu_s": loop, "db_cpu_s": db_s, "get_db_cpu_s": get_db}
 
 
 def _cpu_or_nan(db_cpu: Callable[[], float] | None) -> float:
@@ -478,12 +480,17 @@ def _print_db_cpu(size: int, w: dict[str, float], bare: dict[str, float],
           f"CPU per acquisition on {cores} cores for service, PostgreSQL and client together; "
           f"they take {total / (cores * 1e6 / goal):.2f} times that, the bare writes "
           f"{floor / (cores * 1e6 / goal):.2f} times")
+    print(f"  the pollers' GET timed alone after the load: PostgreSQL's processes "
+          f"{w['get_db_cpu_s'] * 1e3:.2f} ms of CPU per GET meanwhile (its autovacuum of the "
+          "load's old row versions included, if it ran then; the service's is above)")
     if theirs is not None:
         print(f"  PostgreSQL's CPU per acquisition, ours against theirs: "
               f"{per(w, 'db_cpu_s'):.1f} against {per(theirs, 'db_cpu_s'):.1f} us (ratio "
               f"{w['db_cpu_s'] / theirs['db_cpu_s']:.2f}); service + PostgreSQL "
               f"{per(w, 'server_cpu_s') + per(w, 'db_cpu_s'):.1f} against "
-              f"{per(theirs, 'server_cpu_s') + per(theirs, 'db_cpu_s'):.1f} us")
+              f"{per(theirs, 'server_cpu_s') + per(theirs, 'db_cpu_s'):.1f} us; during the "
+              f"pollers' GET alone after the load {w['get_db_cpu_s'] * 1e3:.2f} against "
+              f"{theirs['get_db_cpu_s'] * 1e3:.2f} ms")
 
 
 def ingest_phase(backend: str, new_db: Any, args: argparse.Namespace, size: int,
@@ -505,7 +512,7 @@ def ingest_phase(backend: str, new_db: Any, args: argparse.Namespace, size: int,
                                           db_cpu))
     med = {side: {key: float(np.median([r[key] for r in rs])) for key in
                   ("acq_per_s", "server_cpu_s", "acquisitions", "get_cpu_s", "loop_cpu_s",
-                   "db_cpu_s", "client_cpu_s")}
+                   "db_cpu_s", "client_cpu_s", "get_db_cpu_s")}
            for side, rs in runs.items()}
     bare = bare_floor(new_db(f"bare{size}"), args, size, db_cpu)
     _print_write(backend, size, {**runs["ours"][-1], **med["ours"]}, bare)
