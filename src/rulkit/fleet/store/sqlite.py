@@ -55,7 +55,7 @@ import json
 import math
 import sqlite3
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import replace
 from pathlib import Path
@@ -105,7 +105,6 @@ from rulkit.fleet.store.prognosis import (
     write_monitoring,
 )
 from rulkit.fleet.store.schema import (
-    COMPONENTS,
     add_level_counts,
     add_seen_counts,
     create_schema,
@@ -117,6 +116,8 @@ from rulkit.fleet.store.tracker_rows import (
     HISTORY_FIELDS,
     ROW_FIELDS,
     TRACKER_OUT,
+    StoredRows,
+    component_rows,
     refuse_non_finite,
     stored_state,
 )
@@ -332,8 +333,7 @@ class ComponentStore(GroupCommits):
         instead of reading them back, for as long as no other connection commits to the
         database (:class:`~rulkit.fleet.store.state_cache.StateCache`). Any other write
         through this store forgets them."""
-        ints = {c.name for c in COMPONENTS.columns if c.kind in ("int", "small", "bool")}
-        self._states = StateCache(self.STATE_COLUMNS, ints, limit)
+        self._states = StateCache(self.STATE_COLUMNS, limit)
 
     def _data_version(self) -> int:
         """SQLite's ``PRAGMA data_version``: changes whenever another connection commits."""
@@ -386,19 +386,21 @@ class ComponentStore(GroupCommits):
             yield conn
 
     # -- reading
-    def _load_states(self, names: list[str]) -> dict[str, tuple]:
+    def _load_states(self, names: list[str]) -> StoredRows:
         """The stored rows (:attr:`STATE_COLUMNS`) of the components ``names`` that are
-        stored, by name: those :meth:`keep_states` kept, the others read."""
-        out: dict[str, tuple] = {}
+        stored: those :meth:`keep_states` kept, the others read."""
+        parts = []
         if self._states is not None:
-            out, names = self._states.split(names)
+            kept, names = self._states.split(names)
+            parts.append(kept)
         cols = ", ".join(("component", *self.STATE_COLUMNS))
+        read: list[tuple] = []
         for i in range(0, len(names), 500):
             chunk = names[i : i + 500]
             q = f"SELECT {cols} FROM components WHERE component IN ({','.join('?' * len(chunk))})"
-            for row in self._conn.execute(q, chunk):
-                out[row[0]] = row[1:]
-        return out
+            read += self._conn.execute(q, chunk).fetchall()
+        parts.append(StoredRows.of_tuples(read, len(self.STATE_COLUMNS)))
+        return StoredRows.joined(parts)
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
         import pandas as pd
@@ -527,8 +529,7 @@ class ComponentStore(GroupCommits):
         :class:`ConflictError`), run and store the trackers (:meth:`_apply`) and record the new
         alerts in table ``alerts`` with their ids."""
         stored = self._load_states(acq.names)
-        acq, n_dup = split_duplicates(self._conn, acq,
-                                      {k: float(v[0]) for k, v in stored.items()})
+        acq, n_dup = split_duplicates(self._conn, acq, stored.last_t())
         if len(acq):
             res = self._apply(acq, source, stored)
         else:
@@ -553,7 +554,7 @@ class ComponentStore(GroupCommits):
             out.append(replace(a, id=int(aid), raised=now))
         return out
 
-    def _apply(self, acq: Batch, source: str, stored: dict[str, tuple] | None = None,
+    def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                ingest_ids: np.ndarray | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction). ``stored``: the batch's stored component rows
@@ -575,7 +576,7 @@ class ComponentStore(GroupCommits):
         names = acq.names
         if stored is None:
             stored = self._load_states(names)
-        state, known = stored_state(names, stored)
+        state, known, stored_vals = stored_state(names, stored)
         t, rows_all = acq.t, acq.row
         n, b = len(acq), len(names)
         # rows grouped by component in key order, batch order (= time order) inside; the
@@ -596,26 +597,25 @@ class ComponentStore(GroupCommits):
         prog = BatchPrognosis(self, names, state.t, state.hi, state.n,
                               calendar=acq.calendar, now=self.now,
                               seconds_per_unit=acq.seconds_per_unit, installed=inst,
-                              stored=(known, [stored[names[i]][k_row:] for i in known]))
+                              stored=(known, stored_vals[:, k_row:]))
         del codes
         if n > self.BLOCK_ROWS:
             _return_freed_memory()  # the checks' arrays, before the pieces
         alerts = self._run_pieces(acq, order, state, prog, ingest_id)
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
         fin = tracker_outputs(state, self.config)
-        extra = prog.finish()
-        final = {**{k: np.asarray(v).tolist() for k, v in state.columns().items()},
-                 "valid": fin.valid.tolist()}
-        final.update({k: extra.pop(k) for k in ("level", "rul_low", "rul_high")})
-        rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
-        rows += list(extra.values())
+        prog_cols = prog.finish_arrays()
+        cols = {**state.columns(), "valid": fin.valid, **prog_cols}
+        write = (*ROW_FIELDS, "max_level", *(c for c in prog_cols if c not in ROW_FIELDS
+                                             and c != "max_level"))
+        values = np.column_stack([cols[c] for c in write]).astype(np.float64, copy=False)
         if self._states is not None and self._ingesting:
-            self._states.put(names, dict(zip(("component", *ROW_FIELDS, "max_level", *extra),
-                                             rows, strict=True)))
-        self._write_states(list(zip(*rows, strict=True)), tuple(extra))
+            self._states.put(names, values[:, [write.index(c) for c in self.STATE_COLUMNS]])
+        self._write_states(component_rows(names, values, write, nullable=prog_cols),
+                           write[len(ROW_FIELDS) + 1:])
         lv, sn = ROW_FIELDS.index("level"), k_row + PROGNOSIS_COLUMNS.index("seen")
-        add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
-        add_seen_counts(self._conn, [stored[names[i]][sn] for i in known], extra["seen"])
+        add_level_counts(self._conn, stored_vals[:, lv], cols["level"])
+        add_seen_counts(self._conn, stored_vals[:, sn], cols["seen"])
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
 
@@ -698,7 +698,8 @@ class ComponentStore(GroupCommits):
         (backend hook)."""
         history_chunks.write_chunks(self._conn, rows)
 
-    def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+    def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                      ) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
