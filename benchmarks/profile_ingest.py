@@ -54,6 +54,7 @@ STAGES = (
     ("    final columns", "rulkit.fleet.store.prognosis.BatchPrognosis", "finish"),
     ("    history rows", "rulkit.fleet.store.sqlite.ComponentStore", "_write_block_history"),
     ("    components upsert", "rulkit.fleet.store.sqlite.ComponentStore", "_write_states"),
+    ("    components update", "rulkit.fleet.store.sqlite.ComponentStore", "_update_states"),
     ("    level counts", "rulkit.fleet.store.sqlite", "add_level_counts"),
     ("    ingests row", "rulkit.fleet.store.sqlite.ComponentStore", "_insert_ingest"),
     ("  alerts", "rulkit.fleet.store.sqlite.ComponentStore", "_record_alerts"),

@@ -14,6 +14,10 @@ def test_component_rows_are_typed_as_the_columns_and_null_where_allowed():
     assert [type(v) for v in rows[0]] == [str, float, int, bool, type(None), float]
     assert np.isnan(rows[0][5]) and np.isnan(rows[1][5])  # not nullable: NaN kept
     assert str(rows[1][1]) == "-0.0"
+    last = component_rows(["a", "b"], values, ("t", "n", "valid", "failed_at", "rul"),
+                          nullable=("failed_at",), key_last=True)
+    assert [r[:4] + r[5:] for r in last] == [[1.5, 3, True, None, "a"],
+                                             [-0.0, 0, False, 2.25, "b"]]
 
 
 def test_stored_rows_joined_and_taken_by_name():

@@ -603,6 +603,16 @@ class ComponentStore(GroupCommits):
             _return_freed_memory()  # the checks' arrays, before the pieces
         alerts = self._run_pieces(acq, order, state, prog, ingest_id)
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
+        self._write_final(names, state, prog, known, stored_vals)
+        return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
+                            alerts=[a for _, _, a in alerts])
+
+    def _write_final(self, names: list[str], state: TrackerState, prog: BatchPrognosis,
+                     known: np.ndarray, stored_vals: np.ndarray) -> None:
+        """The batch's ``components`` rows from the trackers' final ``state`` and ``prog``'s
+        final columns: an ``UPDATE`` of the stored ones (``known``, indices into ``names``,
+        their stored rows ``stored_vals``), the upsert of the new ones, kept by
+        :meth:`keep_states` and counted by level and last-seen window."""
         fin = tracker_outputs(state, self.config)
         prog_cols = prog.finish_arrays()
         cols = {**state.columns(), "valid": fin.valid, **prog_cols}
@@ -611,13 +621,18 @@ class ComponentStore(GroupCommits):
         values = np.column_stack([cols[c] for c in write]).astype(np.float64, copy=False)
         if self._states is not None and self._ingesting:
             self._states.put(names, values[:, [write.index(c) for c in self.STATE_COLUMNS]])
-        self._write_states(component_rows(names, values, write, nullable=prog_cols),
-                           write[len(ROW_FIELDS) + 1:])
-        lv, sn = ROW_FIELDS.index("level"), k_row + PROGNOSIS_COLUMNS.index("seen")
-        add_level_counts(self._conn, stored_vals[:, lv], cols["level"])
-        add_seen_counts(self._conn, stored_vals[:, sn], cols["seen"])
-        return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
-                            alerts=[a for _, _, a in alerts])
+        extra = write[len(ROW_FIELDS) + 1:]
+        if known.size:  # the stored ones first: the new ones' rowids in batch order
+            self._update_states(component_rows([names[i] for i in known.tolist()],
+                                               values[known], write, prog_cols, key_last=True),
+                                extra)
+        new = np.setdiff1d(np.arange(len(names)), known)
+        if new.size:
+            self._write_states(component_rows([names[i] for i in new.tolist()], values[new],
+                                              write, prog_cols), extra)
+        add_level_counts(self._conn, stored_vals[:, ROW_FIELDS.index("level")], cols["level"])
+        add_seen_counts(self._conn, stored_vals[:, len(ROW_FIELDS) + PROGNOSIS_COLUMNS.index(
+            "seen")], cols["seen"])
 
     def _run_pieces(self, acq: Batch, order: ComponentOrder, state: TrackerState,
                     prog: BatchPrognosis, ingest_id: Any) -> list[tuple[int, int, Alert]]:
@@ -697,6 +712,13 @@ class ComponentStore(GroupCommits):
         """Insert packed history rows ``(component, t_first, t_last, n, ingest, data)``
         (backend hook)."""
         history_chunks.write_chunks(self._conn, rows)
+
+    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                       ) -> None:
+        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
+        (cheaper than the upsert: no insert tried first; backend hook)."""
+        sets = ", ".join(f"{c} = ?" for c in (*ROW_FIELDS, "max_level", *extra_cols))
+        self._conn.executemany(f"UPDATE components SET {sets} WHERE component = ?", rows)
 
     def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
                       ) -> None:

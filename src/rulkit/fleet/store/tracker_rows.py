@@ -93,27 +93,28 @@ def stored_state(names: list[str], stored: StoredRows
 
 
 def component_rows(names: Sequence[str], values: np.ndarray, columns: Sequence[str],
-                   nullable: Iterable[str] = ()) -> list[list]:
-    """The ``components`` rows ``[component, *columns]`` of ``names`` for SQL, from ``values``
-    (one float64 row per name, a column per name of ``columns``): Python floats, ints in the
-    integer columns and bools in the boolean ones, NaN as ``None`` (NULL) in the
-    ``nullable`` columns. One conversion of the whole array, no loop over its rows."""
+                   nullable: Iterable[str] = (), key_last: bool = False) -> list[list]:
+    """The ``components`` rows ``[component, *columns]`` (``[*columns, component]`` with
+    ``key_last``) of ``names`` for SQL, from ``values`` (one float64 row per name, a column
+    per name of ``columns``): Python floats, ints in the integer columns and bools in the
+    boolean ones, NaN as ``None`` (NULL) in the ``nullable`` columns. One conversion of the
+    whole array, no loop over its rows."""
     b, k = values.shape
     obj = np.empty((b, k + 1), dtype=object)
-    obj[:, 0] = names
-    obj[:, 1:] = values
+    key, first = (k, 0) if key_last else (0, 1)
+    obj[:, key] = names
+    obj[:, first:first + k] = values
     nulls = set(nullable)
     null_cols = []
     for j, c in enumerate(columns):
         kind = _WHOLE.get(c)
         if kind is not None:
-            obj[:, j + 1] = values[:, j].astype(kind)
+            obj[:, first + j] = values[:, j].astype(kind)
         elif c in nulls:
             null_cols.append(j)
     if null_cols:
-        part = values[:, null_cols]
-        rows, cols = np.nonzero(np.isnan(part))
-        obj[rows, np.asarray(null_cols, dtype=np.intp)[cols] + 1] = None
+        rows, cols = np.nonzero(np.isnan(values[:, null_cols]))
+        obj[rows, np.asarray(null_cols, dtype=np.intp)[cols] + first] = None
     return list(obj.tolist())
 
 
