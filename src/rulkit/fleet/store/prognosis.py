@@ -152,9 +152,8 @@ class BatchPrognosis:
     """The estimators and rules of one ingestion (inside its transaction): load the stored
     state of the batch's components ``names`` (or take it as ``stored``: the indices into
     ``names`` of the stored ones and their :data:`PROGNOSIS_COLUMNS`, float64 rows with NULL
-    as NaN), run :meth:`block` over
-    each block of components, :meth:`finish` gives the final columns and stores the model
-    states."""
+    as NaN), run :meth:`block` over each block of components, :meth:`finish` gives the final
+    columns and stores the model states."""
 
     def __init__(self, store: Any, names: list[str], t_last: FloatArray, hi_last: FloatArray,
                  n_last: NDArray[np.int64], calendar: bool, now: float | None = None,

@@ -327,7 +327,8 @@ class ComponentStore(GroupCommits):
 
     def keep_states(self, limit: int = 25_000) -> None:
         """Keep the ``components`` rows of the batches :meth:`ingest_many` commits in memory
-        (at most ``limit`` components, about 0.9 KB each: 23 MB at the default; a fleet
+        (at most ``limit`` components, a float64 row of :attr:`STATE_COLUMNS` and the name
+        each, about 0.4 KB with the array's spare rows: 11 MB at the default; a fleet
         writing more components than that between two batches of a component reads them
         back, as without it) and start each next batch from them
         instead of reading them back, for as long as no other connection commits to the
