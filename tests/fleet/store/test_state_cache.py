@@ -10,6 +10,7 @@ import pytest
 from rulkit.fleet.monitoring.rules import MonitoringRules
 from rulkit.fleet.store import sqlite as sqlite_module
 from rulkit.fleet.store.acquisitions import ConflictError, IngestError, validate_acquisitions
+from rulkit.fleet.store.database_file import StoreError
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.store.state_cache import StateCache
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -237,3 +238,22 @@ def test_kept_rows_follow_a_dictionary_of_rows():
         assert set(missing) == {str(v) for v in range(12)} - set(expect)
         for name, row in kept.items():
             assert same(row, expect[name]), name
+
+
+def test_a_kept_row_the_table_lacks_fails_the_group_and_writes_nothing(tmp_path):
+    db = tmp_path / "c.db"
+    rng = np.random.default_rng(9)
+    with ComponentStore(db, config=CFG) as store:
+        store.keep_states()
+        many(store, frame(["a"], range(3), rng))
+        before = (store.status(), store.history())
+        kept = store._states
+        kept.begin(kept.version)  # a row of "b" kept as if committed, which no one wrote
+        kept.put(["b"], np.asarray(split(kept, ["a"])[0]["a"])[None, :])
+        kept.release()
+        kept.commit()
+        with pytest.raises(StoreError, match="not in table components"):
+            many(store, frame(["a", "b"], range(3, 5), rng))
+        pd.testing.assert_frame_equal(store.status(), before[0], check_exact=True)
+        pd.testing.assert_frame_equal(store.history(), before[1], check_exact=True)
+        assert len(store._states) == 0

@@ -717,9 +717,14 @@ class ComponentStore(GroupCommits):
     def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
                        ) -> None:
         """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
-        (cheaper than the upsert: no insert tried first; backend hook)."""
+        (cheaper than the upsert: no insert tried first; backend hook). A row that is not
+        stored raises :class:`StoreError` (the write transaction is then rolled back), never
+        a row lost in silence."""
         sets = ", ".join(f"{c} = ?" for c in (*ROW_FIELDS, "max_level", *extra_cols))
-        self._conn.executemany(f"UPDATE components SET {sets} WHERE component = ?", rows)
+        cur = self._conn.executemany(f"UPDATE components SET {sets} WHERE component = ?", rows)
+        if isinstance(self._conn, sqlite3.Connection) and cur.rowcount != len(rows):
+            raise StoreError(f"{self.path}: {len(rows) - cur.rowcount} of the batch's "
+                             "components read as stored are not in table components")
 
     def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
                       ) -> None:
