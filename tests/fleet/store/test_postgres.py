@@ -193,9 +193,10 @@ def test_kept_rows_are_the_rows_postgresql_returns(pg_server):
             assert not isinstance(res[0], Exception)
             kept, _ = store._states.split(names)
             truth = other._load_states(names)
-            assert set(kept) == set(names[:max(3 + j % 4 for j in range(k + 1))])
-            for n in kept:
-                assert _row_bits(kept[n]) == _row_bits(truth[n]), n
+            assert set(kept.pos) == set(names[:max(3 + j % 4 for j in range(k + 1))])
+            for n in kept.pos:
+                assert _row_bits(kept.values[kept.pos[n]]) == _row_bits(
+                    truth.values[truth.pos[n]]), n
         n0 = int(other.status().set_index("component")["n"]["u1"])
         other._conn.execute("UPDATE components SET n = n + 100 WHERE component = 'u1'")
         _many(store, [batch(["u1"], 40, 1)])
@@ -210,10 +211,11 @@ def test_kept_negative_zero_is_the_one_postgresql_returns(pg_server):
         back = store._conn.execute("SELECT ?::float8", (-0.0,)).fetchone()[0]
         store.keep_states()
         assert isinstance(store._states, StateCache) and store._states.signed_zeros
-    cache = StateCache(("x",), (), limit=2, signed_zeros=True)
+    cache = StateCache(("x",), limit=2, signed_zeros=True)
     cache.begin(1)
-    cache.put(["a"], {"x": [-0.0]})
-    assert _bits(cache.split(["a"])[0]["a"][0]) == _bits(back) == _bits(-0.0)
+    cache.put(["a"], np.array([[-0.0]]))
+    kept = cache.split(["a"])[0]
+    assert _bits(float(kept.values[kept.pos["a"], 0])) == _bits(back) == _bits(-0.0)
 
 
 def test_writers_with_kept_rows_in_turns_lose_nothing(pg_server):

@@ -30,7 +30,7 @@ Guarantees, as for SQLite (tested against both in tests/fleet/store/test_postgre
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
@@ -51,7 +51,8 @@ from rulkit.fleet.store.database_file import (
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
 from rulkit.fleet.store.schema import COMPONENTS, HISTORY, create_schema, needs_migration
 from rulkit.fleet.store.sqlite import ComponentStore
-from rulkit.fleet.store.tracker_rows import ROW_FIELDS
+from rulkit.fleet.store.state_cache import StateCache
+from rulkit.fleet.store.tracker_rows import ROW_FIELDS, StoredRows
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
@@ -213,29 +214,30 @@ class PgComponentStore(ComponentStore):
                 _count_writes(self._conn)
         except psycopg.errors.InsufficientPrivilege:
             return
-        super().keep_states(limit)
-        assert self._states is not None
-        self._states.signed_zeros = True  # float8 keeps -0.0 (SQLite makes it 0.0)
+        self._states = StateCache(self.STATE_COLUMNS, limit, signed_zeros=True)  # float8 -0.0
 
     def _data_version(self) -> int:
         """The write counter (:data:`WRITES`), its row locked until this transaction ends:
         nobody else's write to ``components`` can commit meanwhile."""
         return int(self._conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE").fetchone()[0])
 
-    def _load_states(self, names: list[str]) -> dict[str, tuple]:
+    def _load_states(self, names: list[str]) -> StoredRows:
         """The stored rows of ``names`` (:meth:`ComponentStore._load_states`): those kept,
         the others read in one query of an array parameter (``= ANY``: no statement text
         of one placeholder per name to parse), results in binary."""
-        out: dict[str, tuple] = {}
+        parts = []
         if self._states is not None:
-            out, names = self._states.split(names)
+            kept, names = self._states.split(names)
+            parts.append(kept)
+        read: list[tuple] = []
         if names:
             cols = ", ".join(("component", *self.STATE_COLUMNS))
             with self._conn.raw.cursor(binary=True) as cur:
                 cur.execute(f"SELECT {cols} FROM components WHERE component = ANY(%s)",
                             (names,))
-                out.update((row[0], row[1:]) for row in cur.fetchall())
-        return out
+                read = cur.fetchall()
+        parts.append(StoredRows.of_tuples(read, len(self.STATE_COLUMNS)))
+        return StoredRows.joined(parts)
 
     def _read_meta(self) -> dict[str, str]:
         if self._conn.execute("SELECT to_regclass('meta')").fetchone()[0] is None:
@@ -286,7 +288,8 @@ class PgComponentStore(ComponentStore):
         self._conn.copy_binary("history", history_chunks.COLUMNS,
                                [_column_type(HISTORY, c) for c in history_chunks.COLUMNS], rows)
 
-    def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+    def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                      ) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``: binary
         ``COPY`` into the connection's temporary table :data:`STAGING`, then one statement
         that empties it into ``components`` (``INSERT ... SELECT ... ON CONFLICT (component)
@@ -296,15 +299,35 @@ class PgComponentStore(ComponentStore):
         table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction (group
         commits whose batches share components) empties it first."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
-        if self._conn.staged:
-            self._conn.execute(f"DELETE FROM {STAGING}")
-        self._conn.staged = True
-        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
+        self._stage(cols, rows)
         names = ", ".join(cols)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
         self._conn.execute(
             f"INSERT INTO components ({names}) SELECT {names} FROM {STAGING} "
             f"ON CONFLICT (component) DO UPDATE SET {updates}")
+
+    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                       ) -> None:
+        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
+        (:meth:`ComponentStore._update_states`): binary ``COPY`` into :data:`STAGING`, then one
+        ``UPDATE ... FROM`` it; a row that is not stored raises :class:`StoreError` (the
+        write transaction is then rolled back)."""
+        cols = (*ROW_FIELDS, "max_level", *extra_cols, "component")
+        self._stage(cols, rows)
+        sets = ", ".join(f"{c} = s.{c}" for c in cols[:-1])
+        n = self._conn.execute(f"UPDATE components AS c SET {sets} FROM {STAGING} AS s "
+                               "WHERE c.component = s.component").rowcount
+        if n != len(rows):
+            raise StoreError(f"{self.path}: {len(rows) - n} of the batch's components read "
+                             "as stored are not in table components")
+
+    def _stage(self, cols: tuple[str, ...], rows: Sequence[Sequence[Any]]) -> None:
+        """``rows`` of columns ``cols`` into the empty :data:`STAGING` (emptied first when an
+        earlier write of this transaction used it)."""
+        if self._conn.staged:
+            self._conn.execute(f"DELETE FROM {STAGING}")
+        self._conn.staged = True
+        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return int(self._conn.execute(
