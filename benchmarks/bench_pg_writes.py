@@ -114,6 +114,13 @@ def states_store(store: PgComponentStore, states: Rows) -> None:
     store._write_states(*states)
 
 
+def states_store_update(store: PgComponentStore, states: Rows) -> None:
+    """The store's own write of stored components (:meth:`PgComponentStore._update_states`:
+    COPY binary, one ``UPDATE ... FROM``; the rows' reordering, key last, timed with it)."""
+    rows, extra = states
+    store._update_states([(*r[1:], r[0]) for r in rows], extra)
+
+
 def _unnest(fmt: str) -> Callable[[PgComponentStore, Rows], None]:
     def write(store: PgComponentStore, states: Rows) -> None:
         rows, extra = states
@@ -209,7 +216,8 @@ def history_unnest(store: PgComponentStore, rows: list[tuple]) -> None:
 STATE_WAYS: dict[str, Callable[[PgComponentStore, Rows], None]] = {
     "executemany": states_executemany, "unnest %s": _unnest("s"), "unnest %b": _unnest("b"),
     "copy text + insert": _copy_temp(False), "copy binary + insert": _copy_temp(True),
-    "copy binary + merge": copy_merge, "store: copy binary + insert": states_store}
+    "copy binary + merge": copy_merge, "store: copy binary + insert": states_store,
+    "store: copy binary + update": states_store_update}
 HISTORY_WAYS: dict[str, Callable[[PgComponentStore, list[tuple]], None]] = {
     "executemany": history_executemany, "copy text": history_copy(False),
     "unnest %b": history_unnest, "store (copy binary)": history_store}

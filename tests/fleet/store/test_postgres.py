@@ -292,3 +292,26 @@ def test_a_role_that_may_not_make_the_counter_keeps_no_rows(pg_server):
         _many(owner, [batch(["a", "b"], 9, 1)])
         n = owner.status().set_index("component")["n"]
         assert (n["a"], n["b"]) == (3 + 2 + 2 + 2 + 1, 3 + 2 + 2 + 1)
+
+
+def test_a_kept_row_the_table_lacks_fails_the_group_on_postgresql(pg_server):
+    """The UPDATE of the stored components (COPY, then UPDATE ... FROM) counts the rows it
+    updated: a component read as stored that the table lacks fails the group, nothing is
+    written and the kept rows are dropped."""
+    from rulkit.fleet.store.database_file import StoreError
+
+    with open_store(pg_server.create_schema(), config=CFG) as store:
+        store.keep_states()
+        _many(store, [batch(["a"], 0, 3)])
+        before = (store.status(), store.history())
+        kept = store._states
+        kept.begin(kept.version)  # a row of "b" kept as if committed, which no one wrote
+        got = kept.split(["a"])[0]
+        kept.put(["b"], got.values[[got.pos["a"]]])
+        kept.release()
+        kept.commit()
+        with pytest.raises(StoreError, match="not in table components"):
+            _many(store, [batch(["a", "b"], 3, 2)])
+        pd.testing.assert_frame_equal(store.status(), before[0], check_exact=True)
+        pd.testing.assert_frame_equal(store.history(), before[1], check_exact=True)
+        assert len(store._states) == 0
