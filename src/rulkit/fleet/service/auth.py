@@ -3,9 +3,11 @@ metrics, and the bearer token (any valid token for reads, a write token for writ
 
 Each is a coroutine: FastAPI runs a plain function dependency in its thread pool, a hand-off
 to a worker thread and back per dependency and request, which cost more CPU than the rest of
-the framework's share of a request. Only the token's database lookup
-(:meth:`~rulkit.fleet.service.db.ServiceDB.check_token`, which may wait for a pooled
-connection) goes to a worker thread, once per request.
+the framework's share of a request. The token's database lookup
+(:meth:`~rulkit.fleet.service.db.ServiceDB.check_token`) runs on the event loop on SQLite
+(a few microseconds on the connection of :mod:`.commit_watch`, which never waits for a
+writer) and in a worker thread on PostgreSQL (a round trip to its server, and a wait for a
+pooled connection).
 """
 
 from typing import Annotated
@@ -41,7 +43,10 @@ async def authenticated(
     """The request's valid token (401 when it has none, or one unknown or revoked)."""
     if creds is None or creds.scheme.lower() != "bearer":
         raise http_error(401, "missing bearer token", {"WWW-Authenticate": "Bearer"})
-    tok = await run_in_threadpool(sdb.check_token, creds.credentials)
+    if sdb.watch is not None:
+        tok = sdb.check_token(creds.credentials)
+    else:
+        tok = await run_in_threadpool(sdb.check_token, creds.credentials)
     if tok is None:
         raise http_error(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
     return tok
