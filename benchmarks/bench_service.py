@@ -4,7 +4,9 @@ For each backend (SQLite file; PostgreSQL: a throwaway server from the installed
 
 1. **Ingest.** ``rulkit serve`` in a subprocess; ``--writers`` threads each POST ``--batches``
    JSON batches of each ``--batch-sizes`` (one acquisition per component, distinct components
-   per writer) while ``--readers`` threads poll ``GET /api/v1/components?limit=50``. Prints
+   per writer) while ``--readers`` threads poll ``GET /api/v1/components?limit=50`` (every
+   request's bytes built before the clock starts: :func:`~rulkit.fleet.service.loadgen.run_load`;
+   ``--readers 0`` is issue 19's setup, 8 writers alone). Prints
    acquisitions/s (wall time until the last writer is done), the service's CPU time per
    acquisition (GETs included; the figure that does not depend on other jobs on the
    machine), p50/p99 latencies, then checks every acquisition is stored exactly once.

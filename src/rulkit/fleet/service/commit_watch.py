@@ -1,5 +1,6 @@
-"""A SQLite connection of the service's own that only reads (docs/service.md, "The
-framework's share"): the tokens, and whether anything was committed since it last looked.
+"""A SQLite connection of the service's own that only reads (docs/service.md, "The client,
+the fixed cost of a request and the pollers' pages"): the tokens, and whether anything was
+committed since it last looked.
 
 ``PRAGMA data_version`` of a connection changes whenever another connection, in this process
 or another, has committed since this connection's previous read, and this connection never
