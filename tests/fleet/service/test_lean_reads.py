@@ -175,5 +175,8 @@ def test_the_clock_moving_the_stale_cutoff_is_seen(tmp_path, monkeypatch):
             assert read(t0 + after + 61.0, False) == {"all": ["c0", "c1"],
                                                       "stale": ["c0", "c1"]}
             assert read(t0 + after - 1.0, False) == {"all": [], "stale": []}  # set back
+            metrics = client.get("/metrics").text
+            assert 'rulkit_page_cache_total{outcome="hit"} 4' in metrics
+            assert 'rulkit_page_cache_total{outcome="miss"} 8' in metrics
     finally:
         sdb.close()

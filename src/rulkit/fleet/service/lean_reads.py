@@ -222,8 +222,11 @@ class LeanReads:
         except READ_ERRORS:
             return None
         body = self.cache.get(key, version, now)
+        metrics = scope["app"].state.metrics
         if body is not None:
+            metrics.inc("rulkit_page_cache_total", "hit")
             return Response(body, media_type=OrjsonResponse.media_type)
+        metrics.inc("rulkit_page_cache_total", "miss")
         return await run_in_threadpool(self._fill, sdb, read, key, version, now)
 
     def _fill(self, sdb: ServiceDB, read: Read, key: Hashable, version: int, now: float
