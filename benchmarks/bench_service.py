@@ -449,8 +449,8 @@ def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, f
           f"{w['gets'] / batches:.1f} GETs {gets_ms:.2f} ms ({w['get_cpu_s'] * 1e3:.2f} ms "
           f"each, timed alone after the load) and the POST {ms - gets_ms:.2f} ms; bare writes "
           f"{bare_ms:.2f} ms; the POST's cost above its writes {ms - gets_ms - bare_ms:.2f} ms")
-    if w["gets"]:
-        hits, reads = w.get("cache_hits", 0), w.get("cache_hits", 0) + w.get("cache_misses", 0)
+    hits, reads = w.get("cache_hits", 0), w.get("cache_hits", 0) + w.get("cache_misses", 0)
+    if reads:  # a service with a page cache (SQLite)
         print(f"  the pollers' pages during the load: {int(hits)} of {int(reads)} served from "
               "the page cache, the others read after a commit")
     loop_ms = w["loop_cpu_s"] / batches * 1e3
