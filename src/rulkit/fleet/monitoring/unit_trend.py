@@ -364,7 +364,7 @@ def t_quantiles(nu: FloatArray, levels: tuple[float, ...]) -> FloatArray:
     up; the normal quantile above :data:`NU_TABLE`; NaN where ``nu`` is NaN."""
     nu = np.asarray(nu, dtype=np.float64)
     key = np.where(np.isfinite(nu), np.clip(nu, 1, NU_TABLE + 1), 0).astype(np.int64)
-    present = [int(k) for k in np.unique(key).tolist() if k > 0]
+    present = (np.flatnonzero(np.bincount(key, minlength=NU_TABLE + 2)[1:]) + 1).tolist()
     table = np.full((len(levels), NU_TABLE + 2), np.nan)
     for j, p in enumerate(levels):
         need = [k for k in present if (k, p) not in _T_QUANTILES]
