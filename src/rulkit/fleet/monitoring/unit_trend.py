@@ -373,7 +373,7 @@ def t_quantiles(nu: FloatArray, levels: tuple[float, ...]) -> FloatArray:
             for k, v in zip(need, _t_quantiles(arr, p).tolist(), strict=True):
                 _T_QUANTILES[(k, p)] = v
         table[j, present] = [_T_QUANTILES[(k, p)] for k in present]
-    return table[:, key]
+    return np.take(table, key, axis=1)  # a faster gather than table[:, key]
 
 
 def first_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
