@@ -202,12 +202,14 @@ def test_a_typo_in_a_later_block_is_named_by_row(tmp_path, monkeypatch):
     lines[300] = f"c{299 % 7},{299 // 7},0.3x"
     f = tmp_path / "t.csv"
     f.write_text("\n".join(lines) + "\n")
-    with pytest.raises(IngestError, match=r"column 'hi', row 300 .*'0.3x' is not a number"):
-        ingest_into(tmp_path / "t.db", read_acquisitions(f))
+    for columns in (False, True):  # the frame, and track's float64 columns (read again)
+        with pytest.raises(IngestError, match=r"column 'hi', row 300 .*'0.3x' is not a numb"):
+            ingest_into(tmp_path / "t.db", read_acquisitions(f, columns=columns))
     lines[300] = "c0,1,0.3,7"
     f.write_text("\n".join(lines) + "\n")
-    with pytest.raises(IngestError, match=r"line 301 \(data row 300\) has 4 fields"):
-        read_acquisitions(f)
+    for columns in (False, True):
+        with pytest.raises(IngestError, match=r"line 301 \(data row 300\) has 4 fields"):
+            read_acquisitions(f, columns=columns)
     lines[300] = "c0,1,0.3"
     f.write_text("\n".join(lines) + "\n")
     assert len(read_csv_rows(f)) == 400
