@@ -293,7 +293,9 @@ def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
 def trend_posterior(state: TrendState, config: TrendConfig) -> TrendPosterior:
     """The line's Student-t posterior per unit (EI-17); NaN where fewer than
     ``min_points`` acquisitions or a degenerate design (all weight on one time)."""
-    n_, s0, s1, s2, sz, sxz, szz = (state.s[:, k] for k in range(len(SUM_NAMES)))
+    # the sums as contiguous columns (one transposing copy): the passes below read each
+    # column many times
+    n_, s0, s1, s2, sz, sxz, szz = np.ascontiguousarray(state.s.T)
     with np.errstate(invalid="ignore", divide="ignore"):
         det = s0 * s2 - s1 * s1
         ok = (state.n >= config.min_points) & (det > 1e-12 * s0 * s2) & (n_ > 3.0)
