@@ -54,14 +54,11 @@ STAGES = (
     ("    final columns", "rulkit.fleet.store.prognosis.BatchPrognosis", "finish"),
     ("    components upsert", "rulkit.fleet.store.sqlite.ComponentStore", "_write_states"),
     ("printout", "rulkit.fleet.store.cli", "_echo_track"),
-    ("stage's worker thread: writes", "rulkit.fleet.store.history_stage", "_write_at"),
-    ("stage's worker thread: blocks read back", "rulkit.fleet.store.history_stage.HistoryStage",
-     "_chunks"),
 )
 """(label, where the name is looked up, name): the stages measured. The stages from "new
-database" on are timed with the CPU clock of the thread that runs them (the history stage's
-worker thread runs beside the batch's: its stages are printed apart); the others with the
-process's (pyarrow's reader parses on its own threads)."""
+database" on are timed with the CPU clock of the thread that runs them (work another thread
+does beside them is not theirs); the others with the process's (pyarrow's reader parses on
+its own threads)."""
 THREAD_CLOCK = "new database"
 
 # The child: the stages wrapped, then rulkit's console entry point on the given arguments.
