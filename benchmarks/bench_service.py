@@ -4,7 +4,9 @@ For each backend (SQLite file; PostgreSQL: a throwaway server from the installed
 
 1. **Ingest.** ``rulkit serve`` in a subprocess; ``--writers`` threads each POST ``--batches``
    JSON batches of each ``--batch-sizes`` (one acquisition per component, distinct components
-   per writer) while ``--readers`` threads poll ``GET /api/v1/components?limit=50``. Prints
+   per writer) while ``--readers`` threads poll ``GET /api/v1/components?limit=50`` (every
+   request's bytes built before the clock starts: :func:`~rulkit.fleet.service.loadgen.run_load`;
+   ``--readers 0``: the 8 writers alone, the goals' setup). Prints
    acquisitions/s (wall time until the last writer is done), the service's CPU time per
    acquisition (GETs included; the figure that does not depend on other jobs on the
    machine), p50/p99 latencies, then checks every acquisition is stored exactly once.
@@ -85,6 +87,7 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int,
                        max_reads=args.batches * 4)
         cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
         loop = srv.loop_cpu_seconds() - loop0
+        hits, misses = page_cache_counts(metrics_text(srv.port))  # the pollers' pages
         cpu1 = srv.cpu_seconds()  # the pollers' GET alone, to part it from the batches' CPU
         timed_reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
         get_cpu = (srv.cpu_seconds() - cpu1) / GET_SAMPLE
@@ -94,7 +97,20 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int,
         raise SystemExit(f"errors during the load: {res.errors[:5]}")
     verify_exactly_once(db, args.writers, args.batches, batch_size)
     return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client,
-            "get_cpu_s": get_cpu, "loop_cpu_s": loop}
+            "get_cpu_s": get_cpu, "loop_cpu_s": loop, "cache_hits": hits,
+            "cache_misses": misses}
+
+
+def page_cache_counts(text: str) -> tuple[int, int]:
+    """(hits, misses) of the service's page cache so far, by its ``/metrics`` text (0, 0 for
+    a service without one, or on PostgreSQL)."""
+    counts = {"hit": 0, "miss": 0}
+    for outcome in counts:
+        head = f'rulkit_page_cache_total{{outcome="{outcome}"}} '
+        for line in text.splitlines():
+            if line.startswith(head):
+                counts[outcome] = int(float(line[len(head):]))
+    return counts["hit"], counts["miss"]
 
 
 def bare_floor(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
@@ -433,6 +449,10 @@ def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, f
           f"{w['gets'] / batches:.1f} GETs {gets_ms:.2f} ms ({w['get_cpu_s'] * 1e3:.2f} ms "
           f"each, timed alone after the load) and the POST {ms - gets_ms:.2f} ms; bare writes "
           f"{bare_ms:.2f} ms; the POST's cost above its writes {ms - gets_ms - bare_ms:.2f} ms")
+    hits, reads = w.get("cache_hits", 0), w.get("cache_hits", 0) + w.get("cache_misses", 0)
+    if reads:  # a service with a page cache (SQLite)
+        print(f"  the pollers' pages during the load: {int(hits)} of {int(reads)} served from "
+              "the page cache, the others read after a commit")
     loop_ms = w["loop_cpu_s"] / batches * 1e3
     print(f"  by thread: the event loop (HTTP, routing, the routes' coroutines) {loop_ms:.2f} ms"
           f" per batch, the worker threads (bodies, validation, the writes, the GETs' "

@@ -13,7 +13,10 @@ savepoint, commit and its sync); the framework's share (routing, the token check
 response) is the request's CPU less the stages. It also counts the SQL statements one batch
 executes (SQLite's trace callback: every execution, so an ``executemany`` of 100 rows counts
 100), by kind, over one more round of batches that is not timed (the callback builds each
-execution's SQL text in Python).
+execution's SQL text in Python). Beside the stages it prints the CPU of every statement the
+writer's connection executes (its ``execute`` and ``executemany`` timed through a proxy:
+SQLite's own work, most of it in ``sqlite3_step``, which runs without the interpreter lock,
+and the binding of the values), the SQL's floor per acquisition.
 
     .venv/bin/python benchmarks/profile_ingest.py --batches 20
 """
@@ -54,6 +57,7 @@ STAGES = (
     ("    final columns", "rulkit.fleet.store.prognosis.BatchPrognosis", "finish"),
     ("    history rows", "rulkit.fleet.store.sqlite.ComponentStore", "_write_block_history"),
     ("    components upsert", "rulkit.fleet.store.sqlite.ComponentStore", "_write_states"),
+    ("    components update", "rulkit.fleet.store.sqlite.ComponentStore", "_update_states"),
     ("    level counts", "rulkit.fleet.store.sqlite", "add_level_counts"),
     ("    ingests row", "rulkit.fleet.store.sqlite.ComponentStore", "_insert_ingest"),
     ("  alerts", "rulkit.fleet.store.sqlite.ComponentStore", "_record_alerts"),
@@ -77,6 +81,31 @@ def instrument(totals: Counter[str]) -> None:
                 totals[_label] += time.process_time() - t0
 
         setattr(owner, name, timed)
+
+
+class TimedConnection:
+    """A connection whose ``execute`` and ``executemany`` add their CPU time to
+    ``totals["SQL"]``; everything else is the wrapped connection's."""
+
+    def __init__(self, conn: Any, totals: Counter[str]) -> None:
+        self._wrapped, self._totals = conn, totals
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._wrapped, name)
+
+    def execute(self, *a: Any) -> Any:
+        t0 = time.process_time()
+        try:
+            return self._wrapped.execute(*a)
+        finally:
+            self._totals["SQL"] += time.process_time() - t0
+
+    def executemany(self, *a: Any) -> Any:
+        t0 = time.process_time()
+        try:
+            return self._wrapped.executemany(*a)
+        finally:
+            self._totals["SQL"] += time.process_time() - t0
 
 
 def body_bytes(rows: list[dict[str, Any]], kind: str) -> bytes:
@@ -130,6 +159,9 @@ def profile(kind: str, args: argparse.Namespace, tmp: str, totals: Counter[str])
     bodies = bodies[:-args.writers]
     for b in bodies[:args.writers]:  # the first batch creates the components: not timed
         _post(app, token, b, BODY_TYPES[kind])
+    writer = getattr(sdb, "_writer", None)  # the group commits' own connection, if any
+    if writer is not None:
+        writer._conn = TimedConnection(writer._conn, totals)
     totals.clear()
     t0 = time.process_time()
     for b in bodies[args.writers:]:
@@ -143,8 +175,8 @@ def profile(kind: str, args: argparse.Namespace, tmp: str, totals: Counter[str])
     # during the timed batches
     with sdb.store() as s:  # one thread: the pool hands out this connection every time
         s._conn.set_trace_callback(statements.append)
-    writer = getattr(sdb, "_writer", None)  # the group commits' own connection, if any
     if writer is not None:
+        writer._conn = writer._conn._wrapped
         writer._conn.set_trace_callback(statements.append)
     for b in traced:
         _post(app, token, b, BODY_TYPES[kind])
@@ -188,6 +220,10 @@ def _print(kind: str, n: int, n_traced: int, size: int, ms: dict[str, float],
     outer = sum(ms.get(label, 0.0) for label in labels if stage_depth(label) == 0)
     print(f"  {'framework and token':26s} {whole - outer:6.2f} ms  "
           f"{(whole - outer) / whole:5.1%}  (routing, the token check, the response)")
+    sql = ms.get("SQL", 0.0)
+    print(f"  {'SQL (writer, all stages)':26s} {sql:6.2f} ms  {sql / whole:5.1%}  "
+          f"({sql / size * 1e3:.1f} us per acquisition; the rest "
+          f"{(whole - sql) / size * 1e3:.1f} us, under one interpreter lock)")
     per = {k: v / n_traced for k, v in statements.items()}
     print(f"  SQL statements executed per batch (another {n_traced} batches, traced, not "
           f"timed): {sum(per.values()):.1f}: "

@@ -92,3 +92,91 @@ def test_canonical_int_takes_only_plain_digits_in_range():
     assert [canonical_int(t, 0, 9) for t in ("0", "00", "07", "+1", "-1", " 1", "1 ", "",
                                              "١", "10", "1_0")] == \
         [0, None, None, None, None, None, None, None, None, None, None]
+
+
+def test_a_page_is_read_again_once_another_process_commits(tmp_path):
+    """The server's cached page, then a write by this process (another one to the server):
+    the next GET has it."""
+    import pandas as pd
+
+    from rulkit.fleet.service.db import ServiceDB
+    from rulkit.fleet.service.loadgen import request, start_server
+    from rulkit.fleet.store.postgres import open_store
+
+    db = str(tmp_path / "fleet.db")
+    sdb = ServiceDB(db)
+    _, token = sdb.create_token("read", "dash")
+    sdb.close()
+    srv = start_server(db)
+    try:
+        path = "/api/v1/components?limit=5&sort=rul"
+        first = [request(srv.port, "GET", path, token=token) for _ in range(3)]
+        assert first[0] == first[1] == first[2] == (200, first[0][1])
+        assert first[0][1]["total"] == 0
+        for k in range(3):
+            with open_store(db, create=False) as store:
+                store.ingest(pd.DataFrame({"component": [f"n{k}"], "time": [0.0],
+                                           "hi": [0.3]}), "other process")
+            status, body = request(srv.port, "GET", path, token=token)
+            assert status == 200 and body["total"] == k + 1
+            assert {i["component"] for i in body["items"]} == {f"n{j}" for j in range(k + 1)}
+    finally:
+        srv.stop()
+
+
+def test_the_clock_moving_the_stale_cutoff_is_seen(tmp_path, monkeypatch):
+    """A cached page at one clock; the clock passes a component's stale time: the page,
+    its filter and its total change, as a fresh read at that time gives them."""
+    import pandas as pd
+
+    from rulkit.fleet.monitoring.rules import MonitoringRules
+    from rulkit.fleet.service import lean_reads
+    from rulkit.fleet.service.app import create_app
+    from rulkit.fleet.service.db import ServiceDB
+    from rulkit.fleet.service.routes_components import page_body
+    from rulkit.fleet.store.postgres import open_store
+
+    t0, after = 1.7e9, 3600.0
+    db = str(tmp_path / "fleet.db")
+    with open_store(db) as s:
+        s.set_rules(MonitoringRules(stale_after=after))
+        for i, seen in enumerate((t0, t0 + 60.0)):
+            s.now = seen
+            s.ingest(pd.DataFrame({"component": [f"c{i}"], "time": [0.0], "hi": [0.3]}), "t")
+    sdb = ServiceDB(db)
+    _, token = sdb.create_token("read", "dash")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from fastapi.testclient import TestClient
+    app = create_app(sdb)
+    try:
+        with TestClient(app) as client:
+            layer = _lean_layer(app)
+            pages = {"all": "/api/v1/components", "stale": "/api/v1/components?level=stale"}
+
+            def read(now: float, cached: bool) -> dict[str, list[str]]:
+                monkeypatch.setattr(lean_reads, "clock", lambda: now)
+                out = {}
+                for name, path in pages.items():
+                    hits = layer.cache.hits
+                    got = client.get(path, headers=auth(token))
+                    assert got.status_code == 200 and layer.cache.hits - hits == cached
+                    level = None if name == "all" else name
+                    want = page_body(sdb, limit=50, offset=0, level=level, sort="worst",
+                                     after=None, now=now)
+                    assert got.json() == want, (now, name)
+                    out[name] = [i["component"] for i in got.json()["items"] if i["stale"]]
+                return out
+
+            assert read(t0 + after - 1.0, False) == {"all": [], "stale": []}
+            assert read(t0 + after - 0.5, True) == {"all": [], "stale": []}
+            assert read(t0 + after + 1.0, False) == {"all": ["c0"], "stale": ["c0"]}
+            assert read(t0 + after + 30.0, True) == {"all": ["c0"], "stale": ["c0"]}
+            assert read(t0 + after + 61.0, False) == {"all": ["c0", "c1"],
+                                                      "stale": ["c0", "c1"]}
+            assert read(t0 + after - 1.0, False) == {"all": [], "stale": []}  # set back
+            metrics = client.get("/metrics").text
+            assert 'rulkit_page_cache_total{outcome="hit"} 4' in metrics
+            assert 'rulkit_page_cache_total{outcome="miss"} 8' in metrics
+    finally:
+        sdb.close()

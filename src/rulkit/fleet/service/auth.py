@@ -3,9 +3,11 @@ metrics, and the bearer token (any valid token for reads, a write token for writ
 
 Each is a coroutine: FastAPI runs a plain function dependency in its thread pool, a hand-off
 to a worker thread and back per dependency and request, which cost more CPU than the rest of
-the framework's share of a request. Only the token's database lookup
-(:meth:`~rulkit.fleet.service.db.ServiceDB.check_token`, which may wait for a pooled
-connection) goes to a worker thread, once per request.
+the framework's share of a request. The token's database lookup
+(:meth:`~rulkit.fleet.service.db.ServiceDB.check_token`) runs on the event loop on SQLite
+(a few microseconds on the connection of :mod:`.commit_watch`, which never waits for a
+writer) and in a worker thread on PostgreSQL (a round trip to its server, and a wait for a
+pooled connection).
 """
 
 from typing import Annotated
@@ -39,9 +41,16 @@ async def authenticated(
     sdb: Annotated[ServiceDB, Depends(service_db)],
 ) -> Token:
     """The request's valid token (401 when it has none, or one unknown or revoked)."""
+    return await _valid(creds, sdb)
+
+
+async def _valid(creds: HTTPAuthorizationCredentials | None, sdb: ServiceDB) -> Token:
     if creds is None or creds.scheme.lower() != "bearer":
         raise http_error(401, "missing bearer token", {"WWW-Authenticate": "Bearer"})
-    tok = await run_in_threadpool(sdb.check_token, creds.credentials)
+    if sdb.watch is not None:
+        tok = sdb.check_token(creds.credentials)
+    else:
+        tok = await run_in_threadpool(sdb.check_token, creds.credentials)
     if tok is None:
         raise http_error(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
     return tok
@@ -49,6 +58,17 @@ async def authenticated(
 
 async def writer(tok: Annotated[Token, Depends(authenticated)]) -> Token:
     """The request's write token (403 for a read-only token)."""
+    return _writes(tok)
+
+
+async def write_token(request: Request) -> Token:
+    """The request's write token, as :func:`writer` gives it (the same 401 and 403), read
+    without FastAPI's resolution of the four dependencies behind it: the ingest route calls
+    it, once per batch, and declares the security scheme in its OpenAPI operation."""
+    return _writes(await _valid(await BEARER(request), request.app.state.db))
+
+
+def _writes(tok: Token) -> Token:
     if not tok.can_write:
         raise http_error(403, "this token is read-only; writes and acknowledgements need "
                               "a write token")

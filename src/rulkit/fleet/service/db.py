@@ -41,6 +41,7 @@ import pandas as pd
 
 from rulkit.fleet.monitoring.rules import unit_seconds
 from rulkit.fleet.service import fleet_view
+from rulkit.fleet.service.commit_watch import CommitWatch
 from rulkit.fleet.service.fleet_view import num as _num
 from rulkit.fleet.store import history_chunks
 from rulkit.fleet.store.acquisitions import (
@@ -63,6 +64,11 @@ ALERT_FIELDS = ("id", "component", "t", "level", "previous", "hi", "fhi", "rul",
                 "ack_token")
 _ALERT_NOW = ("level", "rul_median", "rul_low", "rul_high", "failed_at", "seen")
 """The alerted component's current columns, read with each alert (the table's values)."""
+
+STALE_MARGIN = 1e-3
+"""Seconds within which a component's last acquisition counts as at the stale cutoff
+(:meth:`ServiceDB.stale_horizon`): far above the rounding of calendar times."""
+
 
 class NotFound(LookupError):
     """No such component or alert (HTTP 404)."""
@@ -108,6 +114,10 @@ class ServiceDB:
     keeps the statements that connection prepared). On SQLite that connection keeps the
     component rows it committed and starts the next batches from them while no other
     connection has written (:meth:`~rulkit.fleet.store.sqlite.ComponentStore.keep_states`).
+
+    On SQLite, ``watch`` is a read-only connection of its own
+    (:class:`~rulkit.fleet.service.commit_watch.CommitWatch`): the token check and the
+    commit counter the page cache is keyed on; ``None`` on PostgreSQL.
     """
 
     def __init__(self, db: str | Path, *, pool_size: int = 8, create: bool = True) -> None:
@@ -129,6 +139,13 @@ class ServiceDB:
         self._queue: list[_Pending] = []
         self._writes = 0  # committed groups (tests count them)
         self._writer: ComponentStore | None = None  # the group commits' own connection
+        self.watch: CommitWatch | None = None
+        if self.dialect == "sqlite":
+            try:
+                self.watch = CommitWatch(db)
+            except BaseException:
+                first.close()
+                raise
 
     @contextmanager
     def store(self) -> Iterator[ComponentStore]:
@@ -173,7 +190,9 @@ class ServiceDB:
                 yield s
 
     def close(self) -> None:
-        """Close every connection (the pool's and the group commits')."""
+        """Close every connection (the pool's, the group commits' and the watch's)."""
+        if self.watch is not None:
+            self.watch.close()
         with self._write_lock:
             if self._writer is not None:
                 self._writer.close()
@@ -220,6 +239,9 @@ class ServiceDB:
         """The active token with this value, or None."""
         if not token or len(token) > 256:
             return None
+        if self.watch is not None:  # SQLite: read on the watch's connection, every time
+            found = self.watch.token_row(hash_token(token))
+            return None if found is None else Token(*found)
         with self.store() as s:
             row = s._conn.execute(
                 "SELECT id, name, role FROM api_tokens WHERE hash = ? AND revoked IS NULL",
@@ -291,6 +313,21 @@ class ServiceDB:
             return fleet_view.list_components(conn, current_estimator(s), limit=limit,
                                               offset=offset, level=level, sort=sort, now=now,
                                               after=after)
+
+    def stale_horizon(self, now: float) -> float:
+        """The calendar time until which the components stale at ``now`` are exactly the
+        stale ones: the first component not stale at ``now`` turns stale ``stale_after``
+        after its last acquisition (less :data:`STALE_MARGIN`; one within it of the cutoff
+        gives ``now`` or less: nothing is certain). ``inf`` without a stale rule or without
+        a component that is not stale. Later clocks stale more components; none turns fresh
+        without a commit."""
+        with self.store() as s, s.snapshot() as conn:
+            after = current_estimator(s).rules.stale_after
+            if after is None:
+                return math.inf
+            row = conn.execute("SELECT MIN(seen) FROM components WHERE seen >= ?",
+                               (now - after - STALE_MARGIN,)).fetchone()
+        return math.inf if row[0] is None else float(row[0]) + after - STALE_MARGIN
 
     def component(self, component: str, *, now: float | None = None) -> dict[str, Any]:
         now = time.time() if now is None else now

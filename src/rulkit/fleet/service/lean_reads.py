@@ -11,6 +11,11 @@ query and the JSON text then run in one worker thread (FastAPI hands the token's
 and the endpoint to the thread pool one after the other), and the response is the same
 :class:`~rulkit.fleet.service.responses.OrjsonResponse` of the same body.
 
+On SQLite the token is checked on the event loop (:mod:`.commit_watch`), and a page is
+served from the :class:`~rulkit.fleet.service.page_cache.PageCache` while nothing was
+committed and the clock stales no other component; only a page not found there, or a
+history, goes to a worker thread.
+
 Everything else, and every read that does not end in a 200 (an unknown component, a bad
 cursor, a busy database), goes to the FastAPI app, which answers it as it always has: the
 errors (401, 404, 422, 503), their bodies and the OpenAPI schema are the routes' own
@@ -21,16 +26,19 @@ only answer sooner.
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable, MutableMapping
+import time
+from collections.abc import Callable, Hashable, MutableMapping
 from typing import Any
 from urllib.parse import parse_qsl, unquote
 
 from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import Response
 from fastapi.routing import APIRoute
 from fastapi.security.utils import get_authorization_scheme_param
 
 from rulkit.fleet.service.db import NotFound, ServiceDB
 from rulkit.fleet.service.fleet_view import CursorError
+from rulkit.fleet.service.page_cache import PageCache
 from rulkit.fleet.service.responses import OrjsonResponse
 from rulkit.fleet.service.routes_components import page_body, router
 from rulkit.fleet.store.database_file import StoreError
@@ -129,8 +137,11 @@ def history_tail(scope: MutableMapping[str, Any]) -> str | None:
     return component
 
 
-Read = Callable[[ServiceDB], dict[str, Any]]
-"""A read of the lean path: the body of its 200 from the database."""
+Read = Callable[[ServiceDB, float], dict[str, Any]]
+"""A read of the lean path: the body of its 200 from the database, staleness judged at the
+calendar time it is given."""
+clock = time.time
+"""The calendar time the lean reads judge staleness at (seconds since 1970)."""
 
 
 def history_read(component: str, args: dict[str, str]) -> Read | None:
@@ -139,25 +150,30 @@ def history_read(component: str, args: dict[str, str]) -> Read | None:
     limit = canonical_int(args.get("limit", "10000"), 1, 100_000)
     if limit is None:
         return None
-    return lambda sdb: sdb.history(component, limit=limit)
+    return lambda sdb, now: sdb.history(component, limit=limit, now=now)
 
 
 class LeanReads:
     """ASGI layer over ``app`` (the FastAPI app's middleware stack): answers the reads of
     the module docstring itself, hands everything else to ``app``. ``served`` counts the
-    requests it answered."""
+    requests it answered, ``cache`` holds the pages (SQLite)."""
 
     def __init__(self, app: Any) -> None:
         self.app = app
         self.served = 0
+        self.cache = PageCache()
 
     async def __call__(self, scope: MutableMapping[str, Any], receive: Any, send: Any) -> None:
         """Serve one ASGI call (anything but a plain ``GET`` passes through)."""
         if scope["type"] == "http" and scope["method"] == "GET" and not scope.get("root_path"):
             found = self._plan(scope)
             if found is not None:
-                template, read = found
-                response = await run_in_threadpool(self._answer, scope, read)
+                template, read, key = found
+                sdb: ServiceDB = scope["app"].state.db
+                if sdb.watch is not None:
+                    response = await self._watched(scope, sdb, read, key)
+                else:
+                    response = await run_in_threadpool(self._answer, scope, read)
                 if response is not None:
                     self.served += 1
                     scope["route"] = ROUTES[template]
@@ -165,13 +181,17 @@ class LeanReads:
                     return
         await self.app(scope, receive, send)
 
-    def _plan(self, scope: MutableMapping[str, Any]) -> tuple[str, Read] | None:
-        """(the route's template, the read) of a request the lean path answers, or ``None``."""
+    def _plan(self, scope: MutableMapping[str, Any]
+              ) -> tuple[str, Read, Hashable | None] | None:
+        """(the route's template, the read, the page's cache key or ``None`` for a history)
+        of a request the lean path answers, or ``None``."""
         path = scope["path"]
         if path == PAGE:
             args = query_args(scope, ("limit", "offset", "level", "sort", "after"))
             kw = None if args is None else page_args(args)
-            return None if kw is None else (PAGE, lambda sdb: page_body(sdb, **kw))
+            if kw is None:
+                return None
+            return PAGE, lambda sdb, now: page_body(sdb, **kw, now=now), tuple(kw.items())
         if path == HISTORY_BY_QUERY:
             args = query_args(scope, ("component", "limit"))
             component = None if args is None else args.pop("component", None)
@@ -179,13 +199,56 @@ class LeanReads:
                     or "\x00" in component:
                 return None
             read = history_read(component, args)
-            return None if read is None else (HISTORY_BY_QUERY, read)
+            return None if read is None else (HISTORY_BY_QUERY, read, None)
         if path.endswith("/history"):
             component = history_tail(scope)
             args = None if component is None else query_args(scope, ("limit",))
             read = None if args is None or component is None else history_read(component, args)
-            return None if read is None else (HISTORY_TEMPLATE, read)
+            return None if read is None else (HISTORY_TEMPLATE, read, None)
         return None
+
+    async def _watched(self, scope: MutableMapping[str, Any], sdb: ServiceDB, read: Read,
+                       key: Hashable | None) -> Response | None:
+        """On SQLite: the token checked on the event loop, then the page from the cache or
+        the read in a worker thread; ``None`` as :meth:`_answer`."""
+        assert sdb.watch is not None
+        token = bearer_token(scope)
+        try:
+            if token is None or sdb.check_token(token) is None:
+                return None
+            if key is None:
+                return await run_in_threadpool(self._read, sdb, read, clock())
+            version, now = sdb.watch.version(), clock()
+        except READ_ERRORS:
+            return None
+        body = self.cache.get(key, version, now)
+        metrics = scope["app"].state.metrics
+        if body is not None:
+            metrics.inc("rulkit_page_cache_total", "hit")
+            return Response(body, media_type=OrjsonResponse.media_type)
+        metrics.inc("rulkit_page_cache_total", "miss")
+        return await run_in_threadpool(self._fill, sdb, read, key, version, now)
+
+    def _fill(self, sdb: ServiceDB, read: Read, key: Hashable, version: int, now: float
+              ) -> OrjsonResponse | None:
+        """In a worker thread: the page read at ``now``, kept in the cache under ``version``
+        (read before it) until the clock stales another component."""
+        try:
+            response = OrjsonResponse(read(sdb, now))
+            until = sdb.stale_horizon(now)
+        except READ_ERRORS:
+            return None
+        self.cache.put(key, version, now, until, bytes(response.body))
+        return response
+
+    @staticmethod
+    def _read(sdb: ServiceDB, read: Read, now: float) -> OrjsonResponse | None:
+        """In a worker thread: the 200 of ``read``, or ``None`` for one the FastAPI app
+        answers with an error."""
+        try:
+            return OrjsonResponse(read(sdb, now))
+        except READ_ERRORS:
+            return None
 
     def _answer(self, scope: MutableMapping[str, Any],
                 read: Read) -> OrjsonResponse | None:
@@ -198,11 +261,11 @@ class LeanReads:
         try:
             if sdb.check_token(token) is None:
                 return None
-            return OrjsonResponse(read(sdb))
         except READ_ERRORS:
             return None
+        return self._read(sdb, read, clock())
 
 
 __all__ = ["HISTORY_BY_QUERY", "HISTORY_TEMPLATE", "PAGE", "PAGE_CHOICES", "READ_ERRORS",
-           "ROUTES", "LeanReads", "Read", "bearer_token", "canonical_int", "history_read",
+           "ROUTES", "LeanReads", "Read", "bearer_token", "canonical_int", "clock", "history_read",
            "history_tail", "page_args", "query_args"]

@@ -10,6 +10,8 @@ exposition format 0.0.4 that Prometheus scrapes:
   ``rulkit_ingest_batches_total{outcome}`` (applied, conflict, invalid, too_large, busy):
   what the ingestion did;
 * ``rulkit_ingest_seconds``: time of each batch's validation and transaction (histogram);
+* ``rulkit_page_cache_total{outcome}``: pages of components served from the page cache
+  (``hit``) or read for it (``miss``; SQLite only, :mod:`.page_cache`);
 * ``rulkit_errors_total{kind}``: server-side failures (busy or unreachable database, bugs);
 * ``rulkit_gc_seconds{generation}``: the pauses of Python's cyclic garbage collector (every
   thread waits for a collection, so one over the objects of the whole process is a request's
@@ -68,6 +70,9 @@ class Metrics:
             ("rulkit_ingest_batches_total", "counter", "Batches by outcome.", ("outcome",)),
             ("rulkit_ingest_seconds", "histogram", "Validation and transaction of a batch.",
              ()),
+            ("rulkit_page_cache_total", "counter",
+             "Pages of components from the page cache (hit) or read for it (miss).",
+             ("outcome",)),
             ("rulkit_errors_total", "counter", "Server-side failures.", ("kind",)),
             ("rulkit_gc_seconds", "histogram", "Pauses of the cyclic garbage collector.",
              ("generation",)),

@@ -3,13 +3,13 @@ Parquet, whose documented rows require ``hi`` or exactly the CI columns of the d
 model."""
 
 import time
-from typing import Annotated, Any
+from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 
-from rulkit.fleet.service.auth import DB, WriteToken, service_metrics
+from rulkit.fleet.service.auth import BEARER, write_token
 from rulkit.fleet.service.bodies import batch_frame, http_error, read_body
 from rulkit.fleet.service.db import ServiceDB
 from rulkit.fleet.service.metrics import Metrics
@@ -58,14 +58,14 @@ def acquisitions_body(hi_model: HealthIndexModel | None) -> dict[str, Any]:
     }
 
 
-async def post_acquisitions(
-    request: Request, tok: WriteToken, sdb: DB,
-    metrics: Annotated[Metrics, Depends(service_metrics)],
-) -> Response:
+async def post_acquisitions(request: Request) -> Response:
     """Ingest a batch: validated completely, applied in one transaction.
 
     Rows already stored (same component, time and HI) are skipped and counted in
     ``duplicates``; the response lists the new alerts."""
+    tok = await write_token(request)  # the route's only dependency: a write token
+    sdb: ServiceDB = request.app.state.db
+    metrics: Metrics = request.app.state.metrics
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     t0 = time.perf_counter()
     try:
@@ -105,7 +105,8 @@ def acquisitions_router(hi_model: HealthIndexModel | None) -> APIRouter:
     router = APIRouter()
     router.add_api_route(
         "/api/v1/acquisitions", post_acquisitions, methods=["POST"], tags=["acquisitions"],
-        openapi_extra={"requestBody": acquisitions_body(hi_model)},
+        openapi_extra={"requestBody": acquisitions_body(hi_model),
+                       "security": [{BEARER.scheme_name: []}]},
         response_model=dict[str, Any], response_class=OrjsonResponse,
         responses=error_responses(401, 403, 408, 409, 413, 415, 422, 503))
     return router

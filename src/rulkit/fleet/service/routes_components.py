@@ -64,11 +64,12 @@ def list_components(
 
 
 def page_body(sdb: ServiceDB, *, limit: int, offset: int, level: str | None, sort: str,
-              after: str | None) -> dict[str, Any]:
+              after: str | None, now: float | None = None) -> dict[str, Any]:
     """A page's body: the total, the page's own parameters, its items and the next cursor
-    (:meth:`~rulkit.fleet.service.db.ServiceDB.components`)."""
+    (:meth:`~rulkit.fleet.service.db.ServiceDB.components`; staleness judged at ``now``,
+    default the clock)."""
     total, items, nxt = sdb.components(limit=limit, offset=offset, level=level, sort=sort,
-                                       after=after)
+                                       after=after, now=now)
     return {"total": total, "limit": limit, "offset": offset, "sort": sort, "items": items,
             "next": nxt}
 

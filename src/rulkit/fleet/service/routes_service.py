@@ -15,8 +15,9 @@ router = APIRouter()
 
 
 @router.get("/healthz", tags=["service"])
-def healthz() -> dict[str, Any]:
-    """Liveness: the process answers (no auth, no database access)."""
+async def healthz() -> dict[str, Any]:
+    """Liveness: the process answers (no auth, no database access; on the event loop, so it
+    answers while every worker thread is busy)."""
     return {"status": "ok", "version": __version__}
 
 

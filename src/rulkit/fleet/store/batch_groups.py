@@ -25,6 +25,7 @@ from rulkit.fleet.store.batch_order import (
     order_by_component,
     split_duplicates,
 )
+from rulkit.fleet.store.tracker_rows import StoredRows
 
 if TYPE_CHECKING:
     from rulkit.fleet.store.state_cache import StateCache
@@ -91,9 +92,9 @@ class GroupCommits:
         def _transaction(self, mode: str = "IMMEDIATE"
                          ) -> AbstractContextManager[sqlite3.Connection]: ...
         def _data_version(self) -> int: ...
-        def _load_states(self, names: list[str]) -> dict[str, tuple]: ...
+        def _load_states(self, names: list[str]) -> StoredRows: ...
         def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int: ...
-        def _apply(self, acq: Batch, source: str, stored: dict[str, tuple] | None = None,
+        def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                    ingest_ids: Any = None) -> IngestResult: ...
         def _record_alerts(self, alerts: list[Alert]) -> list[Alert]: ...
         def _ingest_in_transaction(self, acq: Batch, source: str) -> IngestResult: ...
@@ -156,27 +157,26 @@ class GroupCommits:
         self._conn.execute("SAVEPOINT joined")
         self.now = run[0][2]
         try:
-            parts, stored = [], {}
+            parts, stored = [], []
             for acq, source, _ in run:
                 mine = self._load_states(acq.names)
-                acq, n_dup = split_duplicates(self._conn, acq,
-                                              {k: float(v[0]) for k, v in mine.items()})
+                acq, n_dup = split_duplicates(self._conn, acq, mine.last_t())
+                known, rows = mine.rows_of(acq.names)
                 if len(acq):  # the batch's own spacing (a median: not the union's)
                     order = order_by_component(acq.codes.astype(np.int32), acq.names)
-                    last = np.array([mine[k][0] if k in mine else np.nan
-                                     for k in acq.names], dtype=np.float64)
+                    last = np.full(len(acq.names), np.nan)
+                    last[known] = rows[:, 0]
                     check_spacing(self.config, gaps_after_stored(
                         order, acq.t, acq.row, acq.names, last[order.sorted_pos]))
-                parts.append((acq, source, n_dup, len(acq.names) - len(
-                    [n for n in acq.names if n in mine])))
-                stored.update(mine)
+                parts.append((acq, source, n_dup, len(acq.names) - known.size))
+                stored.append(mine)
             live = [p for p in parts if len(p[0])]
             ids = [self._insert_ingest(source, len(acq), len(acq.names))
                    for acq, source, _, _ in live]
             alerts: list[list[Alert]] = [[] for _ in parts]
             if live:
                 counts = [len(p[0].names) for p in live]
-                res = self._apply(join([p[0] for p in live]), "", stored,
+                res = self._apply(join([p[0] for p in live]), "", StoredRows.joined(stored),
                                   ingest_ids=np.repeat(np.asarray(ids, np.int64), counts))
                 batch_of = {n: i for i, p in enumerate(parts) for n in p[0].names}
                 for a in res.alerts:  # in the order each batch alone gives them

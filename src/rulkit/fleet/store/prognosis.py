@@ -151,14 +151,14 @@ class BlockRows:
 class BatchPrognosis:
     """The estimators and rules of one ingestion (inside its transaction): load the stored
     state of the batch's components ``names`` (or take it as ``stored``: the indices into
-    ``names`` of the stored ones and their :data:`PROGNOSIS_COLUMNS`), run :meth:`block` over
-    each block of components, :meth:`finish` gives the final columns and stores the model
-    states."""
+    ``names`` of the stored ones and their :data:`PROGNOSIS_COLUMNS`, float64 rows with NULL
+    as NaN), run :meth:`block` over each block of components, :meth:`finish` gives the final
+    columns and stores the model states."""
 
     def __init__(self, store: Any, names: list[str], t_last: FloatArray, hi_last: FloatArray,
                  n_last: NDArray[np.int64], calendar: bool, now: float | None = None,
                  seconds_per_unit: float = 1.0, installed: dict[str, float] | None = None,
-                 stored: tuple[list[int], list[tuple]] | None = None) -> None:
+                 stored: tuple[Any, np.ndarray] | None = None) -> None:
         self.store, self.names = store, names
         self.est = current_estimator(store)
         self.calendar = calendar
@@ -183,25 +183,25 @@ class BatchPrognosis:
         self.level = np.zeros(b, dtype=np.int8)
         self.strategy: str | None = None  # trend_run's way (None: the cheapest per block)
 
-    def _read(self, names: list[str]) -> tuple[list[int], list[tuple]]:
+    def _read(self, names: list[str]) -> tuple[list[int], np.ndarray]:
         """The stored :data:`PROGNOSIS_COLUMNS` of those of ``names`` in ``components``:
-        (indices into ``names``, rows)."""
+        (indices into ``names``, their rows as float64, NULL as NaN)."""
         got = list(rows_of_components(self.store._conn, "components", PROGNOSIS_COLUMNS,
                                       names))
-        return [i for i, _ in got], [row for _, row in got]
+        return [i for i, _ in got], np.array([row for _, row in got], dtype=np.float64
+                                             ).reshape(len(got), len(PROGNOSIS_COLUMNS))
 
-    def _set_stored(self, idx: list[int], rows: list[tuple]) -> None:
-        """Start components ``idx`` from their stored :data:`PROGNOSIS_COLUMNS` ``rows``
-        (one array per column, NULL as NaN: no Python loop per component)."""
-        if not idx:
+    def _set_stored(self, idx: Any, vals: np.ndarray) -> None:
+        """Start components ``idx`` from their stored :data:`PROGNOSIS_COLUMNS` ``vals``
+        (float64 rows, NULL as NaN; a NULL ``hits`` is 0)."""
+        if not len(idx):
             return
         pos = np.asarray(idx, dtype=np.intp)
-        self.rule_state.hits[pos] = [r[0] or 0 for r in rows]
-        vals = np.array([r[1:] for r in rows], dtype=np.float64)
-        self.rule_state.failed_at[pos] = vals[:, 0]
-        self.rule_state.max_level[pos] = vals[:, 1]
-        self.seen[pos] = vals[:, 2]
-        self.trend.s[pos] = vals[:, 3:]
+        self.rule_state.hits[pos] = np.nan_to_num(vals[:, 0], nan=0.0)
+        self.rule_state.failed_at[pos] = vals[:, 1]
+        self.rule_state.max_level[pos] = vals[:, 2]
+        self.seen[pos] = vals[:, 3]
+        self.trend.s[pos] = vals[:, 4:]
 
     def block(self, comps: np.ndarray, seg: np.ndarray, t: FloatArray, hi: FloatArray,
               tracker_rows: dict[str, np.ndarray]) -> BlockRows:
@@ -239,10 +239,14 @@ class BatchPrognosis:
         return BlockRows(rules=out, fhi=np.asarray(tracker_rows["fhi"]))
 
     def finish(self, seen: FloatArray | None = None) -> dict[str, Any]:
+        """:meth:`finish_arrays` as lists, NaN as None, ready for SQL."""
+        return {k: _sql_list(v) for k, v in self.finish_arrays(seen).items()}
+
+    def finish_arrays(self, seen: FloatArray | None = None) -> dict[str, np.ndarray]:
         """The columns of :data:`~rulkit.fleet.store.schema.RUL_COLUMNS` plus ``rul_low``,
-        ``rul_high``, ``level`` and ``max_level`` per component of the batch (lists, NaN as
-        None, ready for SQL); stores the fitted model's states. ``seen``: the calendar times
-        of the last acquisitions (default: this batch's)."""
+        ``rul_high``, ``level`` and ``max_level`` per component of the batch (arrays, NaN
+        where NULL); stores the fitted model's states. ``seen``: the calendar times of the
+        last acquisitions (default: this batch's)."""
         if self.learned is not None:
             self.learned.finish()
         med, low, high = stored_interval(self.final["rul_median"], self.final["rul_low"],
@@ -255,7 +259,7 @@ class BatchPrognosis:
                                 "due": due_time(seen, med, self.est.time_unit)}
         for j, c in enumerate(TREND_COLUMNS):
             cols[c] = self.trend.s[:, j]
-        return {k: _sql_list(v) for k, v in cols.items()}
+        return cols
 
 
 def _trend_quantiles(rows: TrendState, config: TrendConfig, levels: tuple[float, ...]

@@ -55,7 +55,7 @@ import json
 import math
 import sqlite3
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import replace
 from pathlib import Path
@@ -105,7 +105,6 @@ from rulkit.fleet.store.prognosis import (
     write_monitoring,
 )
 from rulkit.fleet.store.schema import (
-    COMPONENTS,
     add_level_counts,
     add_seen_counts,
     create_schema,
@@ -117,6 +116,8 @@ from rulkit.fleet.store.tracker_rows import (
     HISTORY_FIELDS,
     ROW_FIELDS,
     TRACKER_OUT,
+    StoredRows,
+    component_rows,
     refuse_non_finite,
     stored_state,
 )
@@ -326,14 +327,14 @@ class ComponentStore(GroupCommits):
 
     def keep_states(self, limit: int = 25_000) -> None:
         """Keep the ``components`` rows of the batches :meth:`ingest_many` commits in memory
-        (at most ``limit`` components, about 0.9 KB each: 23 MB at the default; a fleet
+        (at most ``limit`` components, a float64 row of :attr:`STATE_COLUMNS` and the name
+        each, about 0.4 KB with the array's spare rows: 11 MB at the default; a fleet
         writing more components than that between two batches of a component reads them
         back, as without it) and start each next batch from them
         instead of reading them back, for as long as no other connection commits to the
         database (:class:`~rulkit.fleet.store.state_cache.StateCache`). Any other write
         through this store forgets them."""
-        ints = {c.name for c in COMPONENTS.columns if c.kind in ("int", "small", "bool")}
-        self._states = StateCache(self.STATE_COLUMNS, ints, limit)
+        self._states = StateCache(self.STATE_COLUMNS, limit)
 
     def _data_version(self) -> int:
         """SQLite's ``PRAGMA data_version``: changes whenever another connection commits."""
@@ -386,19 +387,21 @@ class ComponentStore(GroupCommits):
             yield conn
 
     # -- reading
-    def _load_states(self, names: list[str]) -> dict[str, tuple]:
+    def _load_states(self, names: list[str]) -> StoredRows:
         """The stored rows (:attr:`STATE_COLUMNS`) of the components ``names`` that are
-        stored, by name: those :meth:`keep_states` kept, the others read."""
-        out: dict[str, tuple] = {}
+        stored: those :meth:`keep_states` kept, the others read."""
+        parts = []
         if self._states is not None:
-            out, names = self._states.split(names)
+            kept, names = self._states.split(names)
+            parts.append(kept)
         cols = ", ".join(("component", *self.STATE_COLUMNS))
+        read: list[tuple] = []
         for i in range(0, len(names), 500):
             chunk = names[i : i + 500]
             q = f"SELECT {cols} FROM components WHERE component IN ({','.join('?' * len(chunk))})"
-            for row in self._conn.execute(q, chunk):
-                out[row[0]] = row[1:]
-        return out
+            read += self._conn.execute(q, chunk).fetchall()
+        parts.append(StoredRows.of_tuples(read, len(self.STATE_COLUMNS)))
+        return StoredRows.joined(parts)
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
         import pandas as pd
@@ -527,8 +530,7 @@ class ComponentStore(GroupCommits):
         :class:`ConflictError`), run and store the trackers (:meth:`_apply`) and record the new
         alerts in table ``alerts`` with their ids."""
         stored = self._load_states(acq.names)
-        acq, n_dup = split_duplicates(self._conn, acq,
-                                      {k: float(v[0]) for k, v in stored.items()})
+        acq, n_dup = split_duplicates(self._conn, acq, stored.last_t())
         if len(acq):
             res = self._apply(acq, source, stored)
         else:
@@ -553,7 +555,7 @@ class ComponentStore(GroupCommits):
             out.append(replace(a, id=int(aid), raised=now))
         return out
 
-    def _apply(self, acq: Batch, source: str, stored: dict[str, tuple] | None = None,
+    def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                ingest_ids: np.ndarray | None = None) -> IngestResult:
         """Run the trackers over a validated batch and write history and states (inside the
         caller's transaction). ``stored``: the batch's stored component rows
@@ -575,7 +577,7 @@ class ComponentStore(GroupCommits):
         names = acq.names
         if stored is None:
             stored = self._load_states(names)
-        state, known = stored_state(names, stored)
+        state, known, stored_vals = stored_state(names, stored)
         t, rows_all = acq.t, acq.row
         n, b = len(acq), len(names)
         # rows grouped by component in key order, batch order (= time order) inside; the
@@ -596,28 +598,42 @@ class ComponentStore(GroupCommits):
         prog = BatchPrognosis(self, names, state.t, state.hi, state.n,
                               calendar=acq.calendar, now=self.now,
                               seconds_per_unit=acq.seconds_per_unit, installed=inst,
-                              stored=(known, [stored[names[i]][k_row:] for i in known]))
+                              stored=(known, stored_vals[:, k_row:]))
         del codes
         if n > self.BLOCK_ROWS:
             _return_freed_memory()  # the checks' arrays, before the pieces
         alerts = self._run_pieces(acq, order, state, prog, ingest_id)
         alerts.sort(key=lambda a: (a[0], a[1]))  # by acquisition rank, then batch position
-        fin = tracker_outputs(state, self.config)
-        extra = prog.finish()
-        final = {**{k: np.asarray(v).tolist() for k, v in state.columns().items()},
-                 "valid": fin.valid.tolist()}
-        final.update({k: extra.pop(k) for k in ("level", "rul_low", "rul_high")})
-        rows = [names] + [final[f] for f in ROW_FIELDS] + [extra.pop("max_level")]
-        rows += list(extra.values())
-        if self._states is not None and self._ingesting:
-            self._states.put(names, dict(zip(("component", *ROW_FIELDS, "max_level", *extra),
-                                             rows, strict=True)))
-        self._write_states(list(zip(*rows, strict=True)), tuple(extra))
-        lv, sn = ROW_FIELDS.index("level"), k_row + PROGNOSIS_COLUMNS.index("seen")
-        add_level_counts(self._conn, [stored[names[i]][lv] for i in known], final["level"])
-        add_seen_counts(self._conn, [stored[names[i]][sn] for i in known], extra["seen"])
+        self._write_final(names, state, prog, known, stored_vals)
         return IngestResult(n_rows=n, n_components=b, n_new_components=b - len(known),
                             alerts=[a for _, _, a in alerts])
+
+    def _write_final(self, names: list[str], state: TrackerState, prog: BatchPrognosis,
+                     known: np.ndarray, stored_vals: np.ndarray) -> None:
+        """The batch's ``components`` rows from the trackers' final ``state`` and ``prog``'s
+        final columns: an ``UPDATE`` of the stored ones (``known``, indices into ``names``,
+        their stored rows ``stored_vals``), the upsert of the new ones, kept by
+        :meth:`keep_states` and counted by level and last-seen window."""
+        fin = tracker_outputs(state, self.config)
+        prog_cols = prog.finish_arrays()
+        cols = {**state.columns(), "valid": fin.valid, **prog_cols}
+        write = (*ROW_FIELDS, "max_level", *(c for c in prog_cols if c not in ROW_FIELDS
+                                             and c != "max_level"))
+        values = np.column_stack([cols[c] for c in write]).astype(np.float64, copy=False)
+        if self._states is not None and self._ingesting:
+            self._states.put(names, values[:, [write.index(c) for c in self.STATE_COLUMNS]])
+        extra = write[len(ROW_FIELDS) + 1:]
+        if known.size:  # the stored ones first: the new ones' rowids in batch order
+            self._update_states(component_rows([names[i] for i in known.tolist()],
+                                               values[known], write, prog_cols, key_last=True),
+                                extra)
+        new = np.setdiff1d(np.arange(len(names)), known)
+        if new.size:
+            self._write_states(component_rows([names[i] for i in new.tolist()], values[new],
+                                              write, prog_cols), extra)
+        add_level_counts(self._conn, stored_vals[:, ROW_FIELDS.index("level")], cols["level"])
+        add_seen_counts(self._conn, stored_vals[:, len(ROW_FIELDS) + PROGNOSIS_COLUMNS.index(
+            "seen")], cols["seen"])
 
     def _run_pieces(self, acq: Batch, order: ComponentOrder, state: TrackerState,
                     prog: BatchPrognosis, ingest_id: Any) -> list[tuple[int, int, Alert]]:
@@ -698,7 +714,20 @@ class ComponentStore(GroupCommits):
         (backend hook)."""
         history_chunks.write_chunks(self._conn, rows)
 
-    def _write_states(self, rows: list[tuple], extra_cols: tuple[str, ...] = ()) -> None:
+    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                       ) -> None:
+        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
+        (cheaper than the upsert: no insert tried first; backend hook). A row that is not
+        stored raises :class:`StoreError` (the write transaction is then rolled back), never
+        a row lost in silence."""
+        sets = ", ".join(f"{c} = ?" for c in (*ROW_FIELDS, "max_level", *extra_cols))
+        cur = self._conn.executemany(f"UPDATE components SET {sets} WHERE component = ?", rows)
+        if isinstance(self._conn, sqlite3.Connection) and cur.rowcount != len(rows):
+            raise StoreError(f"{self.path}: {len(rows) - cur.rowcount} of the batch's "
+                             "components read as stored are not in table components")
+
+    def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                      ) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
