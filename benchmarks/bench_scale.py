@@ -28,6 +28,7 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
     git archive main src | tar -x -C /tmp/main     # track and status against main's code, in turns:
     .venv/bin/python benchmarks/bench_scale.py --against /tmp/main/src --repeats 5
     .venv/bin/python benchmarks/bench_scale.py --status-only --status-fleet growing --mmap
+    .venv/bin/python benchmarks/bench_scale.py --track-only --against /tmp/main/src
 """
 
 from __future__ import annotations
@@ -328,6 +329,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--status-only", action="store_true", help="skip track and its floor")
+    ap.add_argument("--track-only", action="store_true", help="skip status")
     ap.add_argument("--status-fleet", choices=sorted(STATUS_FLEETS), default="flat",
                     help="the status database's acquisitions (flat: no RUL estimated yet)")
     ap.add_argument("--mmap", action="store_true",
@@ -361,7 +363,8 @@ def main() -> None:
                   f"of its start-up): wall {libs[0]:.2f} s, CPU {libs[1]:.2f} s, peak "
                   f"{libs[2]:.0f} MB")
             track_part(args, tmp, rng)
-        status_part(args, tmp, rng)
+        if not args.track_only:
+            status_part(args, tmp, rng)
         print(f"load average at end {os.getloadavg()[0]:.1f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

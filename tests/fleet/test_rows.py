@@ -17,6 +17,7 @@ from rulkit.fleet.rows import (
     previous_per_component,
     read_csv_columns,
     read_csv_rows,
+    read_csv_table,
 )
 from rulkit.fleet.store.acquisitions import IngestError, read_acquisitions
 from rulkit.fleet.store.ingest import ingest_into
@@ -99,9 +100,10 @@ def test_plain_csv_columns_are_the_frames_values_without_pandas(tmp_path):
         out.write("b,300,,0.5\n")  # an empty cell in a floating column: NaN in both
     cols, frame = read_csv_columns(f), read_csv_rows(f)
     assert isinstance(cols, dict) and isinstance(cols["component"], CodedText)
+    assert frame["time"].dtype == np.int64  # inferred; read as float64 without inference
     for c in ("time", "hi", "ci"):
-        assert cols[c].dtype == frame[c].dtype
-        np.testing.assert_array_equal(cols[c], frame[c].to_numpy())
+        assert cols[c].dtype == np.float64
+        np.testing.assert_array_equal(cols[c], frame[c].to_numpy(dtype=np.float64))
     codes, names = component_codes(cols["component"])
     f_codes, f_names = component_codes(frame["component"])
     np.testing.assert_array_equal(codes, f_codes)
@@ -111,6 +113,33 @@ def test_plain_csv_columns_are_the_frames_values_without_pandas(tmp_path):
                  'component,time,hi\n"",0,0.1\n'):  # an empty id
         f.write_text(text)
         assert isinstance(read_csv_columns(f), pd.DataFrame)
+
+
+def test_float_columns_parse_as_the_inferred_types_convert(tmp_path):
+    """The float64 parse of read_csv_columns gives the values of pyarrow's inferred types
+    converted to float64 (integers beyond 2**53, exponents, NaN and infinity texts, empty
+    cells), and a column that is not all numbers, in the first block or a later one, is read
+    with its inferred type, as without the float parse (the frame, and its refusal)."""
+    import pyarrow as pa
+
+    f = tmp_path / "a.csv"
+    cells = ["0", "-7", "9007199254740993", "18446744073709551615", "1e308", "2.5e-320",
+             "0.1", "-0.0", "nan", "inf", "", "123456789012345678"]
+    f.write_text("component,time,hi\n" + "".join(
+        f"c{i % 3},{c or 1},{c}\n" for i, c in enumerate(cells)))
+    cols = read_csv_columns(f)
+    inferred = read_csv_table(f)
+    for c in ("time", "hi"):
+        ref = inferred.column(c).cast(pa.float64()).to_numpy(zero_copy_only=False)
+        np.testing.assert_array_equal(cols[c], ref)
+        assert cols[c].tobytes() == ref.tobytes()  # the same bits (-0.0, NaN)
+    rows = [f"c{i % 7},{i},0.{i}" for i in range(200_000)]  # beyond the first 4 MB block
+    for late in ("True", "x1", "2024-01-01"):
+        f.write_text("component,time,hi\n" + "\n".join(rows) + f"\nc0,200001,{late}\n")
+        got = read_csv_columns(f)
+        assert isinstance(got, pd.DataFrame)
+        pd.testing.assert_frame_equal(got, read_csv_rows(f))
+        assert got["hi"].iloc[-1] == late
 
 
 def test_coded_ids_are_numbered_by_first_appearance():
@@ -173,12 +202,14 @@ def test_a_typo_in_a_later_block_is_named_by_row(tmp_path, monkeypatch):
     lines[300] = f"c{299 % 7},{299 // 7},0.3x"
     f = tmp_path / "t.csv"
     f.write_text("\n".join(lines) + "\n")
-    with pytest.raises(IngestError, match=r"column 'hi', row 300 .*'0.3x' is not a number"):
-        ingest_into(tmp_path / "t.db", read_acquisitions(f))
+    for columns in (False, True):  # the frame, and track's float64 columns (read again)
+        with pytest.raises(IngestError, match=r"column 'hi', row 300 .*'0.3x' is not a numb"):
+            ingest_into(tmp_path / "t.db", read_acquisitions(f, columns=columns))
     lines[300] = "c0,1,0.3,7"
     f.write_text("\n".join(lines) + "\n")
-    with pytest.raises(IngestError, match=r"line 301 \(data row 300\) has 4 fields"):
-        read_acquisitions(f)
+    for columns in (False, True):
+        with pytest.raises(IngestError, match=r"line 301 \(data row 300\) has 4 fields"):
+            read_acquisitions(f, columns=columns)
     lines[300] = "c0,1,0.3"
     f.write_text("\n".join(lines) + "\n")
     assert len(read_csv_rows(f)) == 400

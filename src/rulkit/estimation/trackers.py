@@ -32,6 +32,8 @@ without an acquisition yet (it overwrites those rows at their first one).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -173,14 +175,19 @@ def _check_z(z: ArrayLike, B: int) -> tuple[FloatArray, FloatArray | None]:
 
 
 def _check_step_and_gains(dt: ArrayLike, B: int, **gains: ArrayLike) -> None:
-    """``dt`` must be finite and > 0 and the gains finite, each a scalar or (B,)."""
+    """``dt`` must be finite and > 0 and the gains finite, each a scalar or (B,) (a Python
+    float is checked without numpy: the trackers' rank steps pass their gains so, per call)."""
     for name, val in (("dt", dt), *gains.items()):
+        if type(val) is float:
+            if not math.isfinite(val):
+                raise ValueError(f"{name}: must be finite")
+            continue
         arr = np.asarray(val, dtype=np.float64)
         if arr.ndim > 1 or (arr.ndim == 1 and arr.shape != (B,)):
             raise ValueError(f"{name}: expected a scalar or shape ({B},), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
+        if not np.isfinite(arr).all():
             raise ValueError(f"{name}: must be finite")
-    if not np.all(np.asarray(dt) > 0.0):
+    if not (np.asarray(dt) > 0.0).all():
         raise ValueError("dt: must be > 0 (time must advance between acquisitions)")
 
 

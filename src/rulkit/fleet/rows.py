@@ -301,11 +301,14 @@ def read_csv_columns(
     """A CSV file or CSV bytes (:func:`read_csv_table`) as numpy columns without pandas when
     every column is plain (:func:`arrow_columns`), else as a frame (:func:`arrow_frame`:
     date-times, booleans, text in a numeric column, an all-empty column), so that what is
-    refused, and how, is the frame's."""
+    refused, and how, is the frame's. Every other column is parsed as float64 first (what
+    validation makes of a number: :func:`numeric_values`; no type inference over the rows);
+    a column that is not all numbers (date-times, booleans, text) is read as
+    :func:`read_csv_table` reads it otherwise."""
     import pyarrow as pa
 
     table = read_csv_table(source, error=error, name=name, text_columns=text_columns,
-                           max_rows=max_rows)
+                           max_rows=max_rows, float_columns=True)
     cols = arrow_columns(table)
     if cols is None:
         return arrow_frame(table)
@@ -321,6 +324,7 @@ def read_csv_table(
     name: str | None = None,
     text_columns: Sequence[str] = ("component",),
     max_rows: int | None = None,
+    float_columns: bool = False,
 ) -> Any:
     """A CSV file (path, ``.gz`` and other compressions by ending) or CSV bytes as a pyarrow
     table.
@@ -330,7 +334,9 @@ def read_csv_table(
     distinct id); only an empty cell is missing, in every column (``NA`` in a numeric column
     is text, reported by :func:`numeric_values`). Refused, naming ``name`` (the path, or
     ``"CSV body"``): no header, a duplicated column name, a row with too few or too many
-    fields (its line number and text), more than ``max_rows`` rows, unparseable bytes."""
+    fields (its line number and text), more than ``max_rows`` rows, unparseable bytes.
+    ``float_columns``: the columns other than ``text_columns`` are read as float64 when every
+    cell of each is a number (else read again with the types inferred)."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
@@ -355,15 +361,20 @@ def read_csv_table(
         column_types={c: text for c in text_columns if c in seen},
         null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True)
     parse = pacsv.ParseOptions(invalid_row_handler=invalid)
+    if float_columns:
+        typed = pacsv.ConvertOptions(
+            column_types={**convert.column_types, **{
+                c: pa.float64() for c in header if c not in text_columns}},
+            null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True)
+        try:
+            table = _read_blocks(source, typed, parse)
+        except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError):
+            bad.clear()  # a cell that is not a number, or a problem reported below
+        else:
+            return _checked_table(table, source, error, where, bad, convert, max_rows)
     try:
         try:  # streamed in blocks: the text is not held whole beside the table
-            with _stream_input(source) as inp:
-                reader = pacsv.open_csv(
-                    inp, convert_options=convert, parse_options=parse,
-                    read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES))
-                batches = list(reader)
-            table = pa.Table.from_batches(batches, schema=reader.schema).unify_dictionaries()
-            del batches
+            table = _read_blocks(source, convert, parse)
         except pa.ArrowInvalid as err:
             if "conversion error" not in str(err):
                 raise
@@ -374,6 +385,26 @@ def read_csv_table(
                                    parse_options=parse)
     except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as err:
         raise error(f"{where}: cannot be read as CSV: {safe_text(err, 300)}") from None
+    return _checked_table(table, source, error, where, bad, convert, max_rows)
+
+
+def _read_blocks(source: str | Path | bytes | memoryview, convert: Any, parse: Any) -> Any:
+    """The CSV as a pyarrow table, streamed in blocks of :data:`CSV_BLOCK_BYTES` (the text is
+    not held whole beside the table), its dictionaries unified."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    with _stream_input(source) as inp:
+        reader = pacsv.open_csv(inp, convert_options=convert, parse_options=parse,
+                                read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES))
+        batches = list(reader)
+    return pa.Table.from_batches(batches, schema=reader.schema).unify_dictionaries()
+
+
+def _checked_table(table: Any, source: str | Path | bytes | memoryview, error: ErrorType,
+                   where: str, bad: list[Any], convert: Any, max_rows: int | None) -> Any:
+    """``table``, or ``error`` at its first row of another field count than the header's
+    (``bad``: the rows the reader skipped), above ``max_rows`` rows, or without rows."""
     if bad:
         _raise_bad_row(source, error, where, len(bad), convert)
     if max_rows is not None and table.num_rows > max_rows:

@@ -488,6 +488,7 @@ def _track_run(acquisitions: Path, db: str, df: Any, cfg: Any, hi_model: Any, ru
 
 def _echo_track(res: Any, created: bool, db: str, rules: Any) -> None:
     """``track``'s summary line and its new warnings and alarms."""
+    from rulkit.fleet.tracking.tracker_chain import LEVEL_NAMES
     from rulkit.tables import safe_text
 
     typer.echo(f"ingested {res.n_rows} acquisitions of {res.n_components} components "
@@ -497,14 +498,19 @@ def _echo_track(res: Any, created: bool, db: str, rules: Any) -> None:
                   else ""))
     if not res.alerts:
         typer.echo("no new warnings or alarms")
-    for a in res.alerts:
-        word = typer.style(f"{a.name.upper():7s}", fg="red" if a.name == "alarm"
-                           else "yellow", bold=a.name == "alarm")
-        rul = "failed" if a.name == "alarm" else (
-            f"RUL={rul_texts([a.rul], [a.rul_low], [a.rul_high], [False])[0]}"
-            + (f" {safe_text(rules.time_unit)}" if rules.time_unit else ""))
-        typer.echo(f"{word} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  {rul}: "
-                   f"{safe_text(a.reason)}")
+        return
+    words = {name: typer.style(f"{name.upper():7s}", fg="red" if name == "alarm"
+                               else "yellow", bold=name == "alarm")
+             for name in LEVEL_NAMES.values()}
+    unit = f" {safe_text(rules.time_unit)}" if rules.time_unit else ""
+    ruls = rul_texts([a.rul for a in res.alerts], [a.rul_low for a in res.alerts],
+                     [a.rul_high for a in res.alerts], [False] * len(res.alerts))
+    reasons: dict[str, str] = {}
+    typer.echo("\n".join(
+        f"{words[a.name]} {safe_text(a.component)}  t={a.t:g}  HI={a.hi:.3f}  "
+        + ("failed" if a.name == "alarm" else f"RUL={rul}{unit}") + ": "
+        + (reasons.get(a.reason) or reasons.setdefault(a.reason, safe_text(a.reason)))
+        for a, rul in zip(res.alerts, ruls, strict=True)))
 
 
 def register(app: typer.Typer, reproduce: typer.Typer) -> None:

@@ -26,6 +26,7 @@ caller's write transaction by :func:`convert_row_history`
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -60,48 +61,72 @@ def records(columns: dict[str, Any], m: int) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class Chunks:
+    """History chunks laid out as their blobs, end to end in one buffer: chunk ``i`` of
+    ``n[i]`` acquisitions belongs to component ``owner[i]`` (an index into the caller's
+    names); ``words[start[i]]`` is its header and its records follow (:func:`layout`)."""
+
+    owner: np.ndarray
+    n: np.ndarray
+    words: np.ndarray
+    start: np.ndarray
+
+    def rows(self, names: Any, ingest: Any) -> list[tuple]:
+        """The history rows ``(component, t_first, t_last, n, ingest, data)``: component
+        ``names[owner]``, written by ingestion ``ingest[owner]`` (or one ``ingest`` for all);
+        each blob a view of the buffer (SQLite and psycopg bind a memoryview as a blob)."""
+        owner, n, start = self.owner, self.n, self.start
+        first = start + 1 + _F["t"]
+        t_first = self.words[first].tolist()
+        t_last = self.words[first + (n - 1) * WIDTH].tolist()
+        comp = np.asarray(names, dtype=object)[owner].tolist()
+        ing = (np.asarray(ingest)[owner].tolist() if np.ndim(ingest)
+               else [int(ingest)] * owner.size)
+        return list(zip(comp, t_first, t_last, n.tolist(), ing, self.blobs(), strict=True))
+
+    def blobs(self) -> list[memoryview]:
+        """Each chunk's blob (its header and records), a view of the buffer."""
+        raw = self.words.data.cast("B")
+        return [raw[8 * s:8 * (s + 1 + WIDTH * m)]
+                for s, m in zip(self.start.tolist(), self.n.tolist(), strict=True)]
+
+
+def layout(seg: np.ndarray, max_chunk: int = MAX_CHUNK) -> Chunks:
+    """The chunks of components whose records are ``seg[i]:seg[i + 1]`` (a component's run
+    split into chunks of at most ``max_chunk``, each chunk's first record at a multiple of
+    ``max_chunk`` of its component's), headers in place, the records' words not yet
+    written."""
+    seg = np.asarray(seg, dtype=np.int64)
+    counts = np.diff(seg)
+    pieces = -(-counts // max_chunk)
+    owner = np.repeat(np.arange(counts.size), pieces)
+    within = np.arange(owner.size) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    n = np.minimum(counts[owner] - within * max_chunk, max_chunk)
+    per = 1 + WIDTH * n
+    start = np.cumsum(per) - per  # each chunk's first word
+    words = np.empty(int(per.sum()), dtype="<f8")
+    words.view("<u8")[start] = _HEADER_WORD
+    return Chunks(owner, n, words, start)
+
+
 def chunk_rows(names: Any, seg: np.ndarray, rec: np.ndarray, ingest: Any,
                max_chunk: int = MAX_CHUNK) -> list[tuple]:
     """The history rows of records ``rec`` (time order within each component): component
     ``names[i]`` owns ``rec[seg[i]:seg[i + 1]]``, written by ingestion ``ingest[i]`` (or one
     ``ingest`` for all), split into chunks of at most ``max_chunk``."""
     seg = np.asarray(seg, dtype=np.int64)
-    counts = np.diff(seg)
-    pieces = -(-counts // max_chunk)
-    owner = np.repeat(np.arange(counts.size), pieces)
-    within = np.arange(owner.size) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    p0 = seg[owner] + within * max_chunk
-    p1 = np.minimum(p0 + max_chunk, seg[owner + 1])
-    blobs = _blobs(rec, p0, p1)
-    comp = np.asarray(names, dtype=object)[owner].tolist()
-    ing = (np.asarray(ingest)[owner].tolist() if np.ndim(ingest)
-           else [int(ingest)] * owner.size)
-    t = rec[:, _F["t"]]
-    return list(zip(comp, t[p0].tolist(), t[p1 - 1].tolist(), (p1 - p0).tolist(), ing, blobs,
-                    strict=True))
+    chunks = layout(seg, max_chunk)
+    _fill(chunks, np.ascontiguousarray(rec[seg[0]:seg[-1]], dtype="<f8"))
+    return chunks.rows(names, ingest)
 
 
-def _blobs(rec: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> list[memoryview]:
-    """The blob of each chunk ``rec[p0[i]:p1[i]]`` (the header, then its records; the chunks
-    consecutive: ``p0[i + 1] == p1[i]``), as views of one buffer: the records are copied
-    once, in one operation, into place beside their headers (no bytes object per chunk;
-    SQLite and psycopg bind a memoryview as a blob)."""
-    p0 = np.asarray(p0, dtype=np.int64)
-    p1 = np.asarray(p1, dtype=np.int64)
-    if not np.array_equal(p0[1:], p1[:-1]):
-        raise ValueError("history chunks: expected consecutive record ranges")
-    per = 1 + WIDTH * (p1 - p0)
-    start = np.cumsum(per) - per  # each chunk's first word
-    words = np.empty(int(per.sum()), dtype="<f8")
-    body = np.ones(words.size, dtype=bool)
-    body[start] = False
-    flat = np.ascontiguousarray(rec, dtype="<f8").reshape(-1)
-    if p0.size:
-        words[body] = flat[int(p0[0]) * WIDTH:int(p1[-1]) * WIDTH]
-    del body
-    words.view("<u8")[start] = _HEADER_WORD
-    raw = words.data.cast("B")
-    return [raw[8 * s:8 * (s + m)] for s, m in zip(start.tolist(), per.tolist(), strict=True)]
+def _fill(chunks: Chunks, rec: np.ndarray) -> None:
+    """Write the records ``rec`` (every chunk's, end to end) beside the headers, in one
+    operation (the records are copied once)."""
+    body = np.ones(chunks.words.size, dtype=bool)
+    body[chunks.start] = False
+    chunks.words[body] = rec.reshape(-1)
 
 
 def decode(blobs: list[Any], n: Any) -> np.ndarray:
@@ -202,10 +227,11 @@ def rewrite(conn: Any, chunks: list[tuple[str, float, int]], rec: np.ndarray) ->
     """Replace the data of ``chunks`` ((component, t_first, n) each, as
     :func:`read_components` gives them) by ``rec``, their records end to end."""
     n = np.array([c[2] for c in chunks], dtype=np.int64)
-    seg = np.concatenate([[0], np.cumsum(n)])
+    packed = layout(np.concatenate([[0], np.cumsum(n)]), int(n.max(initial=1)))  # a chunk each
+    _fill(packed, np.ascontiguousarray(rec, dtype="<f8"))
     conn.executemany("UPDATE history SET data = ? WHERE component = ? AND t_first = ?",
                      [(blob, c[0], c[1]) for c, blob in
-                      zip(chunks, _blobs(rec, seg[:-1], seg[1:]), strict=True)])
+                      zip(chunks, packed.blobs(), strict=True)])
 
 
 def count(conn: Any) -> int:
@@ -255,6 +281,6 @@ def convert_row_history(conn: Any, columns: list[str], create: list[str]) -> int
 
 
 __all__ = ["COLUMNS", "CONVERT_ROWS", "HEADER", "MAX_CHUNK", "PACKED_FIELDS", "WIDTH",
-           "LayoutError", "chunk_rows", "convert_row_history", "count", "decode", "field",
-           "is_row_history", "read_all", "read_components", "read_last", "read_range",
-           "records", "rewrite", "write_chunks"]
+           "Chunks", "LayoutError", "chunk_rows", "convert_row_history", "count", "decode",
+           "field", "is_row_history", "layout", "read_all", "read_components", "read_last",
+           "read_range", "records", "rewrite", "write_chunks"]

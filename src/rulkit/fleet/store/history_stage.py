@@ -31,7 +31,7 @@ from rulkit.fleet.store.batch_order import (
     window_piece,
 )
 from rulkit.fleet.store.database_file import StoreError, StoreFullError, StoreReadOnlyError
-from rulkit.fleet.store.history_chunks import WIDTH
+from rulkit.fleet.store.history_chunks import MAX_CHUNK, WIDTH, Chunks, layout
 from rulkit.fleet.tracking.tracker_run import tracker_strategy
 from rulkit.tables import safe_text
 
@@ -74,26 +74,30 @@ class HistoryStage:
         self._windows.append((piece.keys, piece.seg, piece.rank0, self._size))
         self._size += rec.nbytes
 
-    def blocks(self, block_rows: int) -> Iterator[tuple[int, int, np.ndarray]]:
-        """``(k0, k1, records)`` per block of consecutive components (at most ``block_rows``
-        acquisitions, :func:`~rulkit.fleet.store.batch_order.component_blocks`): the records
-        of the components at key-order positions ``k0`` to ``k1 - 1``, component by
-        component, time order inside."""
+    def blocks(self, block_rows: int, max_chunk: int = MAX_CHUNK
+               ) -> Iterator[tuple[int, int, Chunks]]:
+        """``(k0, k1, chunks)`` per block of consecutive components (at most ``block_rows``
+        acquisitions, :func:`~rulkit.fleet.store.batch_order.component_blocks`): the
+        history chunks (:func:`~rulkit.fleet.store.history_chunks.layout`, at most
+        ``max_chunk`` acquisitions each) of the components at key-order positions ``k0`` to
+        ``k1 - 1``, ``owner`` counted from ``k0``. Each window's records of the block are
+        read straight into their places beside the chunks' headers: one scattered read per
+        window (a component's run of ranks is one contiguous stretch of its chunk)."""
         self._file.flush()
-        fd = self._file.fileno()
         st = self.order.start
         for k0, k1 in component_blocks(self.order, block_rows):
-            rec = np.empty((int(st[k1] - st[k0]), WIDTH), dtype="<f8")
+            chunks = layout(st[k0:k1 + 1] - st[k0], max_chunk)
+            first = np.searchsorted(chunks.owner, np.arange(k1 - k0))  # each one's first chunk
+            raw = chunks.words.data.cast("B")
             for keys, seg, rank0, offset in self._windows:
                 a, b = (int(x) for x in np.searchsorted(keys, (k0, k1)))
-                if a == b:
-                    continue
-                part = np.empty((int(seg[b] - seg[a]), WIDTH), dtype="<f8")
-                _read_into(fd, part, offset + int(seg[a]) * WIDTH * 8)
-                # component keys[i]'s rows of this window: its ranks rank0, rank0 + 1, ...
-                first = st[keys[a:b]] - st[k0] + rank0 - (seg[a:b] - seg[a])
-                rec[np.repeat(first, np.diff(seg[a:b + 1])) + np.arange(part.shape[0])] = part
-            yield k0, k1, rec
+                if a < b:
+                    at, size = _runs(keys[a:b] - k0, np.diff(seg[a:b + 1]), rank0, max_chunk,
+                                     first, chunks.start)
+                    _read_scattered(self._file.fileno(), [
+                        raw[8 * w:8 * (w + m)] for w, m in zip(at, size, strict=True)],
+                        offset + int(seg[a]) * WIDTH * 8)
+            yield k0, k1, chunks
 
     def _error(self, err: OSError) -> StoreError:
         """The store's error for a failed write of the temporary file (nothing is stored)."""
@@ -108,16 +112,45 @@ class HistoryStage:
 
 
 
-def _read_into(fd: int, out: np.ndarray, offset: int) -> None:
-    """Fill ``out`` from the file ``fd`` at ``offset``."""
-    view = out.data.cast("B")
-    done = 0
-    while done < view.nbytes:
-        got = os.preadv(fd, [view[done:]], offset + done)
+def _runs(comp: np.ndarray, length: np.ndarray, rank0: int, max_chunk: int,
+          first: np.ndarray, start: np.ndarray) -> tuple[list[int], list[int]]:
+    """Where a window's records of a block go: components ``comp`` (block-local, ascending)
+    have ``length`` records each, of ranks ``rank0`` on; each run split at its component's
+    chunk bounds (ranks at multiples of ``max_chunk``). Returns the word offset of each
+    piece in the chunks' buffer and its length in words, in the window's record order."""
+    end = rank0 + length
+    parts = []
+    for q in range(rank0 // max_chunk, int(end.max() - 1) // max_chunk + 1):
+        lo = max(rank0, q * max_chunk)
+        hi = np.minimum(end, (q + 1) * max_chunk)
+        keep = np.flatnonzero(hi > lo)
+        at = start[first[comp[keep]] + q] + 1 + (lo - q * max_chunk) * WIDTH
+        parts.append((keep, at, (hi[keep] - lo) * WIDTH))
+    keep, at, size = (np.concatenate(x) for x in zip(*parts, strict=True))
+    order = np.argsort(keep, kind="stable")  # by component, then rank
+    return at[order].tolist(), size[order].tolist()
+
+
+_IOV_MAX = os.sysconf("SC_IOV_MAX") if "SC_IOV_MAX" in os.sysconf_names else 16
+"""Buffers per scattered read at most (the system's limit)."""
+
+
+def _read_scattered(fd: int, views: list[memoryview], offset: int) -> None:
+    """Fill ``views`` in turn from the file ``fd``'s bytes from ``offset`` on."""
+    i = 0
+    while i < len(views):
+        group = views[i:i + _IOV_MAX]
+        got = os.preadv(fd, group, offset)
         if got <= 0:
             raise StoreError("the batch's staged history ended early (its temporary file was "
                              "truncated)")
-        done += got
+        offset += got
+        for v in group:
+            if got < v.nbytes:  # the rest of a view filled in part
+                views[i] = v[got:]
+                break
+            got -= v.nbytes
+            i += 1
 
 
 def plan_pieces(order: ComponentOrder, n: int, block_rows: int, window_rows: int,

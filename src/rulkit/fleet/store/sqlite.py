@@ -675,10 +675,10 @@ class ComponentStore(GroupCommits):
                     stage.add(piece, rec)
                 del rank_b, cidx, comp_b, out, t_b, hi_b, got, rows_b, seg, piece, rec
             if stage is not None:  # the windows' history, one chunk per component
-                for k0, k1, rec in stage.blocks(self.BLOCK_ROWS):
-                    self._write_block_history(names_arr[sorted_pos[k0:k1]],
-                                              order.start[k0:k1 + 1] - order.start[k0], rec,
-                                              _of_components(ingest_id, sorted_pos[k0:k1]))
+                for k0, k1, chunks in stage.blocks(self.BLOCK_ROWS, self.HISTORY_CHUNK):
+                    self._write_history(chunks.rows(
+                        names_arr[sorted_pos[k0:k1]], _of_components(ingest_id,
+                                                                     sorted_pos[k0:k1])))
         return alerts
 
     @staticmethod
