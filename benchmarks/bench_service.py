@@ -48,6 +48,7 @@ import shutil
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from contextlib import ExitStack
 from functools import partial
 from pathlib import Path
@@ -73,24 +74,30 @@ GET_SAMPLE = 50
 
 
 def write_phase(db: str, args: argparse.Namespace, batch_size: int,
-                src: Path | None = None) -> dict[str, float]:
+                src: Path | None = None, db_cpu: Callable[[], float] | None = None
+                ) -> dict[str, float]:
     """The ingest load on a new database ``db``, served by this code or, with ``src``, by
-    that checkout's ``src`` directory (``PYTHONPATH``)."""
+    that checkout's ``src`` directory (``PYTHONPATH``); ``db_cpu``: the database server's
+    CPU seconds so far (PostgreSQL's processes), counted over the load."""
     sdb = ServiceDB(db)
     _, token = sdb.create_token("write", "bench")
     sdb.close()
     srv = start_server(db, env=None if src is None else {"PYTHONPATH": str(src.resolve())})
     try:
         cpu0, client0, loop0 = srv.cpu_seconds(), time.process_time(), srv.loop_cpu_seconds()
+        db0 = _cpu_or_nan(db_cpu)
         res = run_load(srv.port, token, writers=args.writers, readers=args.readers,
                        batches=args.batches, batch_size=batch_size,
                        max_reads=args.batches * 4)
         cpu, client = srv.cpu_seconds() - cpu0, time.process_time() - client0
         loop = srv.loop_cpu_seconds() - loop0
+        db_s = _cpu_or_nan(db_cpu) - db0
         hits, misses = page_cache_counts(metrics_text(srv.port))  # the pollers' pages
         cpu1 = srv.cpu_seconds()  # the pollers' GET alone, to part it from the batches' CPU
+        db1 = _cpu_or_nan(db_cpu)
         timed_reads(srv.port, token, "/api/v1/components?limit=50", 1, GET_SAMPLE)
         get_cpu = (srv.cpu_seconds() - cpu1) / GET_SAMPLE
+        get_db = (_cpu_or_nan(db_cpu) - db1) / GET_SAMPLE
     finally:
         srv.stop()
     if res.errors:
@@ -98,7 +105,7 @@ def write_phase(db: str, args: argparse.Namespace, batch_size: int,
     verify_exactly_once(db, args.writers, args.batches, batch_size)
     return {**res.summary(), "server_cpu_s": cpu, "client_cpu_s": client,
             "get_cpu_s": get_cpu, "loop_cpu_s": loop, "cache_hits": hits,
-            "cache_misses": misses}
+            "cache_misses": misses, "db_cpu_s": db_s, "get_db_cpu_s": get_db}
 
 
 def page_cache_counts(text: str) -> tuple[int, int]:
@@ -113,38 +120,49 @@ def page_cache_counts(text: str) -> tuple[int, int]:
     return counts["hit"], counts["miss"]
 
 
-def bare_floor(db: str, args: argparse.Namespace, batch_size: int) -> dict[str, float]:
+def _cpu_or_nan(db_cpu: Callable[[], float] | None) -> float:
+    """The database server's CPU seconds so far, or NaN (SQLite: no server)."""
+    return math.nan if db_cpu is None else db_cpu()
+
+
+def bare_floor(db: str, args: argparse.Namespace, batch_size: int,
+               db_cpu: Callable[[], float] | None = None) -> dict[str, float]:
     """The hardware estimate under the ingest phase: the same acquisitions' rows written bare
     into a new database of the same schema, one transaction per batch as the service commits
     them (the store's own connection: WAL and synchronous=FULL on SQLite, the write lock on
     PostgreSQL): the packed history rows (one per component of the batch,
     :mod:`rulkit.fleet.store.history_chunks`) by the store's own history write
-    (``executemany`` on SQLite, COPY on PostgreSQL), then one upsert per component of its row
-    in ``components`` (tracker state and RUL columns, the five secondary indexes). No HTTP, no
-    validation, no tracker, no rules. CPU of this process (PostgreSQL's own not counted)."""
+    (``executemany`` on SQLite, binary COPY on PostgreSQL), then the upsert of each
+    component's row in ``components`` (tracker state and RUL columns, the five secondary
+    indexes) by the store's own write (one statement per row on SQLite; on PostgreSQL a
+    binary COPY and one statement, :meth:`~rulkit.fleet.store.postgres.PgComponentStore.
+    _write_states`). No HTTP, no validation, no tracker, no rules; the rows' values are made
+    before the clock starts (the history's packing is timed: the store's work). CPU of this
+    process, and of the database server's processes by ``db_cpu`` (PostgreSQL)."""
     from rulkit.fleet.store import history_chunks as hc
     from rulkit.fleet.store.schema import COMPONENTS
 
     ccols = COMPONENTS.names
+    extra = ccols[ccols.index("max_level") + 1:]  # _write_states' order: the table's
+    batches = []
+    for kb in range(args.batches):
+        for w in range(args.writers):
+            rows = writer_batch(w, kb, batch_size)
+            rec = np.empty((len(rows), hc.WIDTH))
+            rec[:] = np.array([r["hi"] for r in rows])[:, None]
+            rec[:, 0] = [r["time"] for r in rows]
+            batches.append(([r["component"] for r in rows], rec,
+                            [tuple(_bare_value(c, r) for c in ccols) for r in rows]))
     with open_store(db) as store:
-        upsert = (f"INSERT INTO components ({', '.join(ccols)}) VALUES "
-                  f"({', '.join('?' * len(ccols))}) ON CONFLICT(component) DO UPDATE SET "
-                  + ", ".join(f"{c} = excluded.{c}" for c in ccols[1:]))
-        cpu0, t0 = time.process_time(), time.perf_counter()
-        for kb in range(args.batches):
-            for w in range(args.writers):
-                rows = writer_batch(w, kb, batch_size)
-                rec = np.empty((len(rows), hc.WIDTH))
-                rec[:] = np.array([r["hi"] for r in rows])[:, None]
-                rec[:, 0] = [r["time"] for r in rows]
-                hist = hc.chunk_rows([r["component"] for r in rows],
-                                     np.arange(len(rows) + 1), rec, 1)
-                comps = [tuple(_bare_value(c, r) for c in ccols) for r in rows]
-                with store._transaction("IMMEDIATE") as conn:
-                    store._write_history(hist)
-                    conn.executemany(upsert, comps)
+        cpu0, t0, db0 = time.process_time(), time.perf_counter(), _cpu_or_nan(db_cpu)
+        for names, rec, comps in batches:
+            hist = hc.chunk_rows(names, np.arange(len(names) + 1), rec, 1)
+            with store._transaction("IMMEDIATE"):
+                store._write_history(hist)
+                store._write_states(comps, extra)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - t0
-    return {"cpu_s": cpu, "wall_s": wall,
+        db_s = _cpu_or_nan(db_cpu) - db0
+    return {"cpu_s": cpu, "wall_s": wall, "db_cpu_s": db_s,
             "acquisitions": float(args.batches * args.writers * batch_size)}
 
 
@@ -459,23 +477,67 @@ def _print_write(backend: str, size: int, w: dict[str, float], bare: dict[str, f
           f"queries) {ms - loop_ms:.2f} ms")
 
 
-def ingest_phase(backend: str, new_db: Any, args: argparse.Namespace, size: int) -> None:
+def _print_db_cpu(size: int, w: dict[str, float], bare: dict[str, float],
+                  theirs: dict[str, float] | None) -> None:
+    """The database server's CPU per acquisition beside the service's and the client's, the
+    bare writes' likewise, and what the goals (100,000/s at batches of 1,000, 20,000/s at
+    100) leave per acquisition on this machine's cores for all three together."""
+    cores = os.cpu_count() or 1
+
+    def per(d: dict[str, float], key: str, n_key: str = "acquisitions") -> float:
+        return d[key] / d[n_key] * 1e6
+
+    total = sum(per(w, k) for k in ("server_cpu_s", "db_cpu_s", "client_cpu_s"))
+    floor = per(bare, "cpu_s") + per(bare, "db_cpu_s")
+    goal = 100_000 if size >= 1000 else 20_000
+    print(f"  PostgreSQL's processes: {per(w, 'db_cpu_s'):.1f} us of CPU per acquisition "
+          f"under the load (service {per(w, 'server_cpu_s'):.1f}, client "
+          f"{per(w, 'client_cpu_s'):.1f}: {total:.1f} us in all, a CPU-bound ceiling of "
+          f"{cores * 1e6 / total:.0f} acquisitions/s on {cores} cores); bare writes: "
+          f"{per(bare, 'cpu_s'):.1f} us in this process + {per(bare, 'db_cpu_s'):.1f} us in "
+          f"PostgreSQL = {floor:.1f} us (ceiling {cores * 1e6 / floor:.0f}/s)")
+    print(f"  the goal of {goal}/s at batches of {size} leaves {cores * 1e6 / goal:.1f} us of "
+          f"CPU per acquisition on {cores} cores for service, PostgreSQL and client together; "
+          f"they take {total / (cores * 1e6 / goal):.2f} times that, the bare writes "
+          f"{floor / (cores * 1e6 / goal):.2f} times")
+    print(f"  the pollers' GET timed alone after the load: PostgreSQL's processes "
+          f"{w['get_db_cpu_s'] * 1e3:.2f} ms of CPU per GET meanwhile (its autovacuum of the "
+          "load's old row versions included, if it ran then; the service's is above)")
+    if theirs is not None:
+        print(f"  PostgreSQL's CPU per acquisition, ours against theirs: "
+              f"{per(w, 'db_cpu_s'):.1f} against {per(theirs, 'db_cpu_s'):.1f} us (ratio "
+              f"{w['db_cpu_s'] / theirs['db_cpu_s']:.2f}); service + PostgreSQL "
+              f"{per(w, 'server_cpu_s') + per(w, 'db_cpu_s'):.1f} against "
+              f"{per(theirs, 'server_cpu_s') + per(theirs, 'db_cpu_s'):.1f} us; during the "
+              f"pollers' GET alone after the load {w['get_db_cpu_s'] * 1e3:.2f} against "
+              f"{theirs['get_db_cpu_s'] * 1e3:.2f} ms")
+
+
+def ingest_phase(backend: str, new_db: Any, args: argparse.Namespace, size: int,
+                 db_cpu: Callable[[], float] | None = None) -> None:
     """The ingest load with batches of ``size`` and its bare floor; with ``--against SRC``,
     ``--repeats`` turns of this code then SRC's on new databases, and the ratios of their
-    medians."""
+    medians. ``db_cpu``: the database server's CPU seconds so far (PostgreSQL)."""
     if args.against is None:
-        w = write_phase(new_db(f"w{size}"), args, size)
-        _print_write(backend, size, w, bare_floor(new_db(f"bare{size}"), args, size))
+        w = write_phase(new_db(f"w{size}"), args, size, db_cpu=db_cpu)
+        bare = bare_floor(new_db(f"bare{size}"), args, size, db_cpu)
+        _print_write(backend, size, w, bare)
+        if db_cpu is not None:
+            _print_db_cpu(size, w, bare, None)
         return
     runs: dict[str, list[dict[str, float]]] = {"ours": [], "theirs": []}
     for k in range(args.repeats):
-        runs["ours"].append(write_phase(new_db(f"w{size}_{k}"), args, size))
-        runs["theirs"].append(write_phase(new_db(f"a{size}_{k}"), args, size, args.against))
+        runs["ours"].append(write_phase(new_db(f"w{size}_{k}"), args, size, db_cpu=db_cpu))
+        runs["theirs"].append(write_phase(new_db(f"a{size}_{k}"), args, size, args.against,
+                                          db_cpu))
     med = {side: {key: float(np.median([r[key] for r in rs])) for key in
-                  ("acq_per_s", "server_cpu_s", "acquisitions", "get_cpu_s", "loop_cpu_s")}
+                  ("acq_per_s", "server_cpu_s", "acquisitions", "get_cpu_s", "loop_cpu_s",
+                   "db_cpu_s", "client_cpu_s", "get_db_cpu_s")}
            for side, rs in runs.items()}
-    _print_write(backend, size, {**runs["ours"][-1], **med["ours"]},
-                 bare_floor(new_db(f"bare{size}"), args, size))
+    bare = bare_floor(new_db(f"bare{size}"), args, size, db_cpu)
+    _print_write(backend, size, {**runs["ours"][-1], **med["ours"]}, bare)
+    if db_cpu is not None:
+        _print_db_cpu(size, med["ours"], bare, med["theirs"])
     cpu = {side: m["server_cpu_s"] / m["acquisitions"] * 1e6 for side, m in med.items()}
     print(f"  in turns with {args.against} ({args.repeats} each, medians): "
           f"{med['ours']['acq_per_s']:.0f} against {med['theirs']['acq_per_s']:.0f} "
@@ -532,7 +594,8 @@ def main() -> None:
             print(f"\n## {backend}")
             if "ingest" not in args.skip:
                 for size in args.batch_sizes:
-                    ingest_phase(backend, new_db, args, size)
+                    ingest_phase(backend, new_db, args, size,
+                                 None if backend == "sqlite" else pg.cpu_seconds)
             if "pages" not in args.skip:
                 print_pages(backend, pages_phase(new_db("pages"), args), args)
             if "history" not in args.skip:

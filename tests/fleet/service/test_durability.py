@@ -101,19 +101,22 @@ def test_acknowledged_batches_survive_other_processes_and_the_stop(tmp_path, sto
     con.close()
 
 
-def test_the_service_continues_from_rows_another_process_wrote(tmp_path):
+def test_the_service_continues_from_rows_another_process_wrote(tmp_path, db_url, request):
     """The service's writer starts a batch from the component rows it kept only while no
     other connection wrote: here ``rulkit track`` in another process appends to a component
-    between two of the service's batches, and the service continues from track's row."""
+    between two of the service's batches, and the service continues from track's row (on
+    both backends; the reference on the same backend)."""
     from rulkit.fleet.service.db import ServiceDB
-    from rulkit.fleet.store.sqlite import ComponentStore
+    from rulkit.fleet.store.postgres import open_store
 
     def frame(times, names):
         return pd.DataFrame([(c, float(t), 0.3 + 0.01 * t + 0.001 * j) for t in times
                              for j, c in enumerate(names)], columns=["component", "time", "hi"])
 
-    db, ref = tmp_path / "fleet.db", tmp_path / "ref.db"
-    sdb = ServiceDB(str(db))
+    db, ref = db_url, str(tmp_path / "ref.db")
+    if "postgresql" in request.node.callspec.id:
+        ref = request.getfixturevalue("pg_server").create_schema()
+    sdb = ServiceDB(db)
     try:
         sdb.ingest(frame([0, 1], ["s0", "s1"]), "first", now=1.7e9)
         frame([2, 3], ["s0"]).to_csv(tmp_path / "more.csv", index=False)
@@ -122,10 +125,10 @@ def test_the_service_continues_from_rows_another_process_wrote(tmp_path):
         sdb.ingest(frame([4], ["s0", "s1"]), "second", now=1.7e9)
     finally:
         sdb.close()
-    with ComponentStore(ref) as store:  # the same acquisitions, every row read back
+    with open_store(ref) as store:  # the same acquisitions, every row read back
         for times, names in (([0, 1], ["s0", "s1"]), ([2, 3], ["s0"]), ([4], ["s0", "s1"])):
             store.ingest(frame(times, names))
-    with ComponentStore(db) as got, ComponentStore(ref) as want:
+    with open_store(db) as got, open_store(ref) as want:
         cols = ["component", "t", "n", "hi", "fhi", "dhi", "rul", "frul", "drul", "d2rul"]
         pd.testing.assert_frame_equal(got.status()[cols], want.status()[cols],
                                       check_exact=True)

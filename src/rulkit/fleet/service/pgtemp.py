@@ -59,6 +59,21 @@ def _run_as_user() -> str | None:
     return None
 
 
+def _proc_ticks(pid: int, *, parent: int | None = None, reaped: bool = False
+                ) -> tuple[int, ...]:
+    """A process's user and system clock ticks from ``/proc/PID/stat`` (with ``reaped``,
+    also those of its children it has waited for); ``()`` when it has exited or its parent is
+    not ``parent``."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return ()
+    if parent is not None and int(fields[1]) != parent:
+        return ()
+    return tuple(int(v) for v in fields[11:15 if reaped else 13])
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -126,6 +141,20 @@ class TempPostgres:
         with psycopg.connect(self.url(), autocommit=True) as conn:
             conn.execute(f'CREATE SCHEMA "{name}"')
         return f"{self.url()}?options=-csearch_path%3D{name}"
+
+    def cpu_seconds(self) -> float:
+        """User + system CPU seconds the server's processes have used so far (Linux /proc):
+        the postmaster's own, its live children's (the connections' backends, the WAL writer,
+        the checkpointer, autovacuum) and those of the children it has reaped (a closed
+        connection's backend), so that the difference over a load is the server's CPU for it."""
+        with open(self.dir / "data" / "postmaster.pid") as f:
+            pid = int(f.readline())
+        total = sum(_proc_ticks(pid, reaped=True))
+        for entry in os.scandir("/proc"):
+            if entry.name.isdigit() and entry.name != str(pid):
+                ticks = _proc_ticks(int(entry.name), parent=pid)
+                total += sum(ticks)
+        return total / os.sysconf("SC_CLK_TCK")
 
     def stop(self) -> None:
         if self._started:

@@ -17,6 +17,12 @@ Guarantees, as for SQLite (tested against both in tests/fleet/store/test_postgre
   the previous batch committed (no lost update, no duplicated history row; the history primary
   key (component, t) is the backstop).
 * **Consistent readers**: :meth:`snapshot` is a ``REPEATABLE READ READ ONLY`` transaction.
+* **Kept rows** (:meth:`PgComponentStore.keep_states`, the service's writer): trusted only
+  while nobody else wrote ``components``. A statement-level trigger on ``components`` counts
+  every statement that writes it, whoever runs it, in the one row of :data:`WRITES`; the
+  writer locks that row (``FOR UPDATE``) at the start of each write transaction, so the
+  count it reads is final until its commit, and compares it with the count it read back
+  before its own last commit: any difference, and the kept rows are dropped.
 
 ``psycopg`` (the ``service`` extra) is imported only when a ``postgresql://`` URL is opened.
 """
@@ -24,7 +30,7 @@ Guarantees, as for SQLite (tested against both in tests/fleet/store/test_postgre
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
@@ -43,14 +49,26 @@ from rulkit.fleet.store.database_file import (
     time_axis_from_meta,
 )
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
-from rulkit.fleet.store.schema import create_schema, needs_migration
+from rulkit.fleet.store.schema import COMPONENTS, HISTORY, create_schema, needs_migration
 from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.store.state_cache import StateCache
+from rulkit.fleet.store.tracker_rows import ROW_FIELDS, StoredRows
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
 
 # Key of the advisory lock that serialises writers (any fixed 64-bit number; "rulkit" in ASCII).
 WRITE_LOCK_KEY = 0x72756C6B6974
-
+_BINARY_TYPES = {"key": "text", "text": "text", "real": "float8", "int": "int8",
+                 "small": "int2", "bool": "bool", "blob": "bytea"}
+"""PostgreSQL's type of each column kind of :mod:`rulkit.fleet.store.schema`, as binary COPY
+sends it (the column's own type: binary COPY converts nothing)."""
+WRITES = "rulkit_writes"
+"""The table of one row ``n``: the statements that wrote ``components`` so far (counted by
+the trigger ``components_written``; made by :meth:`PgComponentStore.keep_states`)."""
+STAGING = "components_in"
+"""The temporary table a write's ``components`` rows are copied into before their upsert
+(one per connection, made before its first write transaction; emptied at every commit, and
+before a second write of the same transaction)."""
 
 
 @lru_cache(maxsize=256)
@@ -66,6 +84,8 @@ class PgConnection:
 
     def __init__(self, raw: Any) -> None:
         self.raw = raw
+        self.staging = False  # STAGING made on this connection
+        self.staged = False  # rows copied into STAGING since the last commit or rollback
 
     def execute(self, sql: str, params: Any = ()) -> Any:
         cur = self.raw.cursor()
@@ -76,6 +96,17 @@ class PgConnection:
         cur = self.raw.cursor()
         cur.executemany(_pg_sql(sql), rows)
         return cur
+
+    def copy_binary(self, table: str, columns: tuple[str, ...], types: list[str],
+                    rows: Any) -> None:
+        """``rows`` into ``table``'s ``columns`` by one ``COPY ... FROM STDIN (FORMAT
+        BINARY)``: every value sent as the bits of its column's type (a float8 as its 8 bytes,
+        so stored exactly as given), no statement per row."""
+        with self.raw.cursor() as cur, cur.copy(
+                f"COPY {table} ({', '.join(columns)}) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.set_types(types)
+            for row in rows:
+                copy.write_row(row)
 
     def close(self) -> None:
         self.raw.close()
@@ -171,8 +202,42 @@ class PgComponentStore(ComponentStore):
             raise
 
     def keep_states(self, limit: int = 25_000) -> None:
-        """Nothing on PostgreSQL: no counter tells this connection that another committed
-        (SQLite's ``data_version``), so every batch reads its stored rows."""
+        """Keep the ``components`` rows of the batches :meth:`ingest_many` commits, as on
+        SQLite (:meth:`ComponentStore.keep_states`), for as long as the write counter
+        (:data:`WRITES`, made here when missing) says that nobody else wrote ``components``
+        since this connection's last commit (module docstring). A role that may not make the
+        counter (not the owner of ``components``) keeps nothing: every batch reads its rows."""
+        import psycopg
+
+        try:
+            with self._transaction("IMMEDIATE"):
+                _count_writes(self._conn)
+        except psycopg.errors.InsufficientPrivilege:
+            return
+        self._states = StateCache(self.STATE_COLUMNS, limit, signed_zeros=True)  # float8 -0.0
+
+    def _data_version(self) -> int:
+        """The write counter (:data:`WRITES`), its row locked until this transaction ends:
+        nobody else's write to ``components`` can commit meanwhile."""
+        return int(self._conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE").fetchone()[0])
+
+    def _load_states(self, names: list[str]) -> StoredRows:
+        """The stored rows of ``names`` (:meth:`ComponentStore._load_states`): those kept,
+        the others read in one query of an array parameter (``= ANY``: no statement text
+        of one placeholder per name to parse), results in binary."""
+        parts = []
+        if self._states is not None:
+            kept, names = self._states.split(names)
+            parts.append(kept)
+        read: list[tuple] = []
+        if names:
+            cols = ", ".join(("component", *self.STATE_COLUMNS))
+            with self._conn.raw.cursor(binary=True) as cur:
+                cur.execute(f"SELECT {cols} FROM components WHERE component = ANY(%s)",
+                            (names,))
+                read = cur.fetchall()
+        parts.append(StoredRows.of_tuples(read, len(self.STATE_COLUMNS)))
+        return StoredRows.joined(parts)
 
     def _read_meta(self) -> dict[str, str]:
         if self._conn.execute("SELECT to_regclass('meta')").fetchone()[0] is None:
@@ -181,9 +246,14 @@ class PgComponentStore(ComponentStore):
 
     @contextmanager
     def _transaction(self, mode: str = "IMMEDIATE") -> Iterator[Any]:
+        if self._states is not None and mode != "DEFERRED" and not self._ingesting:
+            self._states.drop()  # a write the kept rows do not follow
         if mode == "DEFERRED":
             self._conn.execute("BEGIN ISOLATION LEVEL REPEATABLE READ READ ONLY")
         else:
+            if not self._conn.staging:  # outside any transaction: no rollback undoes it
+                self._conn.execute(_staging_sql())
+                self._conn.staging = True
             self._conn.execute("BEGIN")
             self._conn.execute("SELECT pg_advisory_xact_lock(?)", (WRITE_LOCK_KEY,))
         try:
@@ -191,9 +261,14 @@ class PgComponentStore(ComponentStore):
         except BaseException:
             if not self._conn.raw.closed:
                 self._conn.execute("ROLLBACK")
+                self._conn.staged = False
             raise
         else:
+            if self._states is not None and self._ingesting:  # the count after our writes
+                self._states.version = int(
+                    self._conn.execute(f"SELECT n FROM {WRITES}").fetchone()[0])
             self._conn.execute("COMMIT")
+            self._conn.staged = False
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
         """A query in one read snapshot as a DataFrame (the base class's reads and checks,
@@ -206,17 +281,95 @@ class PgComponentStore(ComponentStore):
             {c: pd.Series(dtype=object if c == "component" else float) for c in cols})
 
     def _write_history(self, rows: list[tuple]) -> None:
-        """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by ``COPY ... FROM
-        STDIN`` (the server parses no statement per row)."""
-        with self._conn.raw.cursor() as cur, cur.copy(
-                f"COPY history ({', '.join(history_chunks.COLUMNS)}) FROM STDIN") as copy:
-            for row in rows:
-                copy.write_row(row)
+        """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by binary ``COPY``
+        (:meth:`PgConnection.copy_binary`: the blobs as raw bytes, not hex text; the server
+        parses no statement per row). The cheapest of the ways measured by
+        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest")."""
+        self._conn.copy_binary("history", history_chunks.COLUMNS,
+                               [_column_type(HISTORY, c) for c in history_chunks.COLUMNS], rows)
+
+    def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                      ) -> None:
+        """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``: binary
+        ``COPY`` into the connection's temporary table :data:`STAGING`, then one statement
+        that empties it into ``components`` (``INSERT ... SELECT ... ON CONFLICT (component)
+        DO UPDATE``), instead of one upsert per row: the same stored values (float8 bits as
+        sent), the same conflict handling. The cheapest of the ways measured by
+        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest"). The commit empties the
+        table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction (group
+        commits whose batches share components) empties it first."""
+        cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
+        self._stage(cols, rows)
+        names = ", ".join(cols)
+        updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
+        self._conn.execute(
+            f"INSERT INTO components ({names}) SELECT {names} FROM {STAGING} "
+            f"ON CONFLICT (component) DO UPDATE SET {updates}")
+
+    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                       ) -> None:
+        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
+        (:meth:`ComponentStore._update_states`): binary ``COPY`` into :data:`STAGING`, then one
+        ``UPDATE ... FROM`` it; a row that is not stored raises :class:`StoreError` (the
+        write transaction is then rolled back)."""
+        cols = (*ROW_FIELDS, "max_level", *extra_cols, "component")
+        self._stage(cols, rows)
+        sets = ", ".join(f"{c} = s.{c}" for c in cols[:-1])
+        n = self._conn.execute(f"UPDATE components AS c SET {sets} FROM {STAGING} AS s "
+                               "WHERE c.component = s.component").rowcount
+        if n != len(rows):
+            raise StoreError(f"{self.path}: {len(rows) - n} of the batch's components read "
+                             "as stored are not in table components")
+
+    def _stage(self, cols: tuple[str, ...], rows: Sequence[Sequence[Any]]) -> None:
+        """``rows`` of columns ``cols`` into the empty :data:`STAGING` (emptied first when an
+        earlier write of this transaction used it)."""
+        if self._conn.staged:
+            self._conn.execute(f"DELETE FROM {STAGING}")
+        self._conn.staged = True
+        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return int(self._conn.execute(
             "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?) RETURNING id",
             (source, n_rows, n_components)).fetchone()[0])
+
+
+def _count_writes(conn: PgConnection) -> None:
+    """Inside a write transaction: the write counter :data:`WRITES` and the trigger that
+    counts every statement writing ``components`` (each made when missing), then a lock of
+    the counter's row, as each write transaction of the kept rows takes it. The function
+    names the table with its schema (a writer with another ``search_path`` counts in the same
+    row) and runs as its owner (a role that may write ``components`` but not the counter
+    still counts). Raises ``InsufficientPrivilege`` for a role that may not make them or lock
+    the row."""
+    if conn.execute("SELECT 1 FROM pg_trigger WHERE tgrelid = 'components'::regclass AND "
+                    "tgname = 'components_written'").fetchone() is None:
+        schema = conn.execute("SELECT quote_ident(current_schema())").fetchone()[0]
+        conn.execute(f"CREATE TABLE IF NOT EXISTS {WRITES} (n BIGINT NOT NULL)")
+        conn.execute(f"INSERT INTO {WRITES} SELECT 0 WHERE NOT EXISTS (SELECT 1 FROM {WRITES})")
+        conn.execute("CREATE OR REPLACE FUNCTION rulkit_count_write() RETURNS trigger LANGUAGE "
+                     "plpgsql SECURITY DEFINER SET search_path = pg_catalog AS $$ BEGIN UPDATE "
+                     f"{schema}.{WRITES} SET n = n + 1; RETURN NULL; END $$")
+        conn.execute("CREATE TRIGGER components_written AFTER INSERT OR UPDATE OR DELETE OR "
+                     "TRUNCATE ON components FOR EACH STATEMENT EXECUTE FUNCTION "
+                     "rulkit_count_write()")
+    conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE")
+
+
+@lru_cache(maxsize=64)
+def _column_type(table: Any, name: str) -> str:
+    """PostgreSQL's type of column ``name`` of ``table`` (a :class:`~rulkit.fleet.store.
+    schema.Table`), as binary COPY sends it."""
+    return _BINARY_TYPES[next(c.kind for c in table.columns if c.name == name)]
+
+
+@lru_cache(maxsize=1)
+def _staging_sql() -> str:
+    """The temporary table :data:`STAGING`: the columns of ``components``, no key, no index;
+    PostgreSQL empties it at every commit too."""
+    cols = ", ".join(c.sql("postgresql") for c in COMPONENTS.columns)
+    return f"CREATE TEMP TABLE IF NOT EXISTS {STAGING} ({cols}) ON COMMIT DELETE ROWS"
 
 
 def _redact(url: str) -> str:

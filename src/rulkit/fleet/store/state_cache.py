@@ -6,11 +6,12 @@ A :class:`StateCache` holds, per component, the row the store's read of the batc
 rows would return (``SELECT component, <columns> FROM components``), as the batch uses it
 (:class:`~rulkit.fleet.store.tracker_rows.StoredRows`): every value the same float64 (NULL
 as NaN, a bool or an int as the float64 of its value; -0.0 is made 0.0, as SQLite stores
-it), kept in one array of rows, so that a batch takes its components' rows with one index
-per name and one copy.
+it, unless ``signed_zeros``: PostgreSQL's float8 keeps it), kept in one array of rows, so
+that a batch takes its components' rows with one index per name and one copy.
 It is trusted only while no other connection has committed: SQLite's ``PRAGMA
 data_version`` changes for a connection whenever another connection, in this process or
-another, commits to the database, and the cache is emptied when it does. Rows written in an
+another, commits to the database, and the cache is emptied when it does (PostgreSQL: the
+write counter of :mod:`rulkit.fleet.store.postgres`). Rows written in an
 open transaction are kept apart (per batch, for the batch's savepoint) until the commit; a
 rolled-back batch or a failed commit leaves nothing of theirs.
 """
@@ -56,10 +57,13 @@ class _Layer:
 
 class StateCache:
     """``StateCache(columns, limit)``: rows of ``columns`` (the read's order) per component,
-    at most ``limit`` components."""
+    at most ``limit`` components. ``signed_zeros``: -0.0 kept as given (the database stores
+    it)."""
 
-    def __init__(self, columns: Sequence[str], limit: int) -> None:
+    def __init__(self, columns: Sequence[str], limit: int, signed_zeros: bool = False
+                 ) -> None:
         self.columns = tuple(columns)
+        self.signed_zeros = signed_zeros
         self.limit = limit
         self.version: int | None = None  # PRAGMA data_version when last trusted
         self._slot: dict[str, int] = {}  # committed: name -> row of _rows, oldest first
@@ -103,8 +107,9 @@ class StateCache:
     def put(self, names: Sequence[str], values: np.ndarray) -> None:
         """The rows of components ``names`` written in the current batch: ``values`` one row
         per name of :attr:`columns` (NaN for NULL), taken as float64 with -0.0 made 0.0, as
-        SQLite stores it."""
-        self._batch.add(names, np.asarray(values, dtype=np.float64) + 0.0)
+        SQLite stores it (kept as given with ``signed_zeros``)."""
+        self._batch.add(names, np.array(values, dtype=np.float64) if self.signed_zeros
+                        else np.asarray(values, dtype=np.float64) + 0.0)
 
     def release(self) -> None:
         """The batch was kept (its savepoint released)."""
