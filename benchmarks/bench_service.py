@@ -589,9 +589,10 @@ def main() -> None:
                 if reason:
                     print(f"postgresql: skipped ({reason})")
                     continue
-                pg = stack.enter_context(TempPostgres())
+                pg = stack.enter_context(TempPostgres(durable=True))
                 new_db = pg.create_database
-            print(f"\n## {backend}")
+            print(f"\n## {backend}" + (" (WAL, synchronous=FULL)" if backend == "sqlite" else
+                                        " (fsync, synchronous_commit and full_page_writes on)"))
             if "ingest" not in args.skip:
                 for size in args.batch_sizes:
                     ingest_phase(backend, new_db, args, size,

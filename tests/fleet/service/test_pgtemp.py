@@ -27,3 +27,26 @@ def test_cpu_seconds_counts_a_backend_also_after_its_connection_closed(pg_server
     assert not os.path.exists(f"/proc/{pid}")
     assert own > 0.05
     assert pg_server.cpu_seconds() - before >= own - 1e-9
+
+
+def _settings(url):
+    import psycopg
+
+    with psycopg.connect(url) as conn:
+        return {k: conn.execute(f"SHOW {k}").fetchone()[0]
+                for k in ("fsync", "synchronous_commit", "full_page_writes")}
+
+
+def test_the_tests_server_trades_durability_for_speed(pg_server):
+    assert _settings(pg_server.url()) == {"fsync": "off", "synchronous_commit": "off",
+                                          "full_page_writes": "off"}
+
+
+def test_a_durable_server_keeps_postgresqls_durable_defaults(need):
+    """What bench_service.py measures: a commit returns after its WAL is flushed."""
+    from rulkit.fleet.service.pgtemp import TempPostgres, unavailable_reason
+
+    need(unavailable_reason())
+    with TempPostgres(durable=True) as pg:
+        assert _settings(pg.url()) == {"fsync": "on", "synchronous_commit": "on",
+                                       "full_page_writes": "on"}

@@ -5,7 +5,10 @@ Uses the server binaries of an installed PostgreSQL (Debian: ``/usr/lib/postgres
 authentication for the local user ``rulkit``, and ``pg_ctl stop -m immediate`` plus removal of
 the directory at the end. PostgreSQL refuses to run as root, so as root the binaries run as the
 ``postgres`` user (or ``nobody``) through ``runuser``, on a directory chowned to that user.
-Durability is off (``fsync=off``): the data is thrown away anyway.
+Durability is off by default (``fsync=off``, ``synchronous_commit=off``): the tests' data is
+thrown away anyway. ``TempPostgres(durable=True)`` keeps PostgreSQL's durable defaults (a commit
+returns after its write-ahead log is flushed), as a benchmark of the service must: the SQLite
+store it is compared with syncs every commit.
 """
 
 from __future__ import annotations
@@ -81,9 +84,11 @@ def free_port() -> int:
 
 
 class TempPostgres:
-    """``with TempPostgres() as pg: url = pg.create_database("t1")``."""
+    """``with TempPostgres() as pg: url = pg.create_database("t1")``; ``durable``: the
+    server's durable defaults instead of ``fsync=off`` (module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, durable: bool = False) -> None:
+        self.durable = durable
         bindir = find_pg_bin()
         if bindir is None:
             raise RuntimeError(unavailable_reason() or "PostgreSQL not found")
@@ -108,8 +113,9 @@ class TempPostgres:
         subprocess.run(self._cmd(str(self.bindir / "initdb"), "-D", str(data), "-U", "rulkit",
                                  "--auth=trust", "-E", "UTF8", "--no-locale", "--no-sync"),
                        check=True, capture_output=True, timeout=120)
-        opts = (f"-p {self.port} -k {self.dir} -c listen_addresses=127.0.0.1 -c fsync=off "
-                "-c synchronous_commit=off -c full_page_writes=off -c max_connections=100")
+        opts = f"-p {self.port} -k {self.dir} -c listen_addresses=127.0.0.1 -c max_connections=100"
+        if not self.durable:
+            opts += " -c fsync=off -c synchronous_commit=off -c full_page_writes=off"
         subprocess.run(self._cmd(str(self.bindir / "pg_ctl"), "-D", str(data), "-o", opts, "-w",
                                  "-t", "60", "-l", str(self.dir / "log"), "start"),
                        check=True, capture_output=True, timeout=90)
