@@ -134,19 +134,26 @@ def _unnest(fmt: str) -> Callable[[PgComponentStore, Rows], None]:
     return write
 
 
-def copy_merge(store: PgComponentStore, states: Rows) -> None:
-    """COPY binary into a temporary table, one MERGE (update the matched, insert the rest)."""
+def _stage(store: PgComponentStore, states: Rows, binary: bool) -> tuple[Any, tuple[str, ...]]:
+    """The rows copied into the temporary table ``bench_in``; (the cursor, the columns)."""
     rows, extra = states
     cols = ("component", *_state_names(extra))
-    raw = store._conn.raw
-    cur = raw.cursor()
+    cur = store._conn.raw.cursor()
     cur.execute("CREATE TEMP TABLE IF NOT EXISTS bench_in (LIKE components) "
                 "ON COMMIT DELETE ROWS")
     types = column_types(store)
-    with cur.copy(f"COPY bench_in ({', '.join(cols)}) FROM STDIN (FORMAT BINARY)") as copy:
-        copy.set_types([types[c] for c in cols])
+    fmt = " (FORMAT BINARY)" if binary else ""
+    with cur.copy(f"COPY bench_in ({', '.join(cols)}) FROM STDIN{fmt}") as copy:
+        if binary:
+            copy.set_types([types[c] for c in cols])
         for r in rows:
             copy.write_row(r)
+    return cur, cols
+
+
+def copy_merge(store: PgComponentStore, states: Rows) -> None:
+    """COPY binary into a temporary table, one MERGE (update the matched, insert the rest)."""
+    cur, cols = _stage(store, states, binary=True)
     sets = ", ".join(f"{c} = b.{c}" for c in cols[1:])
     cur.execute(f"MERGE INTO components c USING bench_in b ON c.component = b.component "
                 f"WHEN MATCHED THEN UPDATE SET {sets} WHEN NOT MATCHED THEN INSERT "
@@ -155,19 +162,7 @@ def copy_merge(store: PgComponentStore, states: Rows) -> None:
 
 def _copy_temp(binary: bool) -> Callable[[PgComponentStore, Rows], None]:
     def write(store: PgComponentStore, states: Rows) -> None:
-        rows, extra = states
-        cols = ("component", *_state_names(extra))
-        raw = store._conn.raw
-        cur = raw.cursor()
-        cur.execute("CREATE TEMP TABLE IF NOT EXISTS bench_in "
-                    "(LIKE components) ON COMMIT DELETE ROWS")
-        types = column_types(store)
-        fmt = " (FORMAT BINARY)" if binary else ""
-        with cur.copy(f"COPY bench_in ({', '.join(cols)}) FROM STDIN{fmt}") as copy:
-            if binary:
-                copy.set_types([types[c] for c in cols])
-            for r in rows:
-                copy.write_row(r)
+        cur, cols = _stage(store, states, binary)
         cur.execute(upsert_sql(cols, f"SELECT {', '.join(cols)} FROM bench_in"))
     write.__doc__ = ("COPY " + ("binary" if binary else "text") + " into a temporary table, "
                      "one INSERT ... SELECT ... ON CONFLICT")
