@@ -1,6 +1,7 @@
 """A batch's stored rows and the components rows it writes (rulkit.fleet.store.tracker_rows)."""
 
 import numpy as np
+import pytest
 
 from rulkit.fleet.store.tracker_rows import StoredRows, component_rows
 
@@ -18,6 +19,16 @@ def test_component_rows_are_typed_as_the_columns_and_null_where_allowed():
                           nullable=("failed_at",), key_last=True)
     assert [r[:4] + r[5:] for r in last] == [[1.5, 3, True, None, "a"],
                                              [-0.0, 0, False, 2.25, "b"]]
+
+
+def test_component_rows_null_in_a_nullable_integer_column_and_refused_in_another():
+    values = np.array([[1.0, np.nan, 2.0], [2.0, 4.0, 1.0]])
+    rows = component_rows(["a", "b"], values, ("t", "hits", "n"), nullable=("hits",))
+    assert rows == [["a", 1.0, None, 2], ["b", 2.0, 4, 1]]
+    assert type(rows[1][2]) is int
+    values[0, 2] = np.nan
+    with pytest.raises(ValueError, match="column n: NaN"):
+        component_rows(["a", "b"], values, ("t", "hits", "n"), nullable=("hits",))
 
 
 def test_stored_rows_joined_and_taken_by_name():

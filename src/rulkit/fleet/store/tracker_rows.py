@@ -97,21 +97,23 @@ def component_rows(names: Sequence[str], values: np.ndarray, columns: Sequence[s
     """The ``components`` rows ``[component, *columns]`` (``[*columns, component]`` with
     ``key_last``) of ``names`` for SQL, from ``values`` (one float64 row per name, a column
     per name of ``columns``): Python floats, ints in the integer columns and bools in the
-    boolean ones, NaN as ``None`` (NULL) in the ``nullable`` columns. One conversion of the
-    whole array, no loop over its rows."""
+    boolean ones, NaN as ``None`` (NULL) in the ``nullable`` columns. A NaN in an integer or
+    boolean column that is not nullable raises ``ValueError`` (it has no value to write). One
+    conversion of the whole array, no loop over its rows."""
     b, k = values.shape
     obj = np.empty((b, k + 1), dtype=object)
     key, first = (k, 0) if key_last else (0, 1)
     obj[:, key] = names
     obj[:, first:first + k] = values
     nulls = set(nullable)
-    null_cols = []
+    null_cols = [j for j, c in enumerate(columns) if c in nulls]
     for j, c in enumerate(columns):
         kind = _WHOLE.get(c)
-        if kind is not None:
-            obj[:, first + j] = values[:, j].astype(kind)
-        elif c in nulls:
-            null_cols.append(j)
+        if kind is None:
+            continue
+        if c not in nulls and np.isnan(values[:, j]).any():
+            raise ValueError(f"components column {c}: NaN where an integer is required")
+        obj[:, first + j] = np.nan_to_num(values[:, j]).astype(kind)
     if null_cols:
         rows, cols = np.nonzero(np.isnan(values[:, null_cols]))
         obj[rows, np.asarray(null_cols, dtype=np.intp)[cols] + first] = None
