@@ -93,19 +93,18 @@ class TimedConnection:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._wrapped, name)
 
-    def execute(self, *a: Any) -> Any:
+    def _timed(self, method: str, *a: Any) -> Any:
         t0 = time.process_time()
         try:
-            return self._wrapped.execute(*a)
+            return getattr(self._wrapped, method)(*a)
         finally:
             self._totals["SQL"] += time.process_time() - t0
 
+    def execute(self, *a: Any) -> Any:
+        return self._timed("execute", *a)
+
     def executemany(self, *a: Any) -> Any:
-        t0 = time.process_time()
-        try:
-            return self._wrapped.executemany(*a)
-        finally:
-            self._totals["SQL"] += time.process_time() - t0
+        return self._timed("executemany", *a)
 
 
 def body_bytes(rows: list[dict[str, Any]], kind: str) -> bytes:
