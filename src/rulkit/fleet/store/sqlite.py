@@ -120,6 +120,7 @@ from rulkit.fleet.store.tracker_rows import (
     refuse_non_finite,
     stored_state,
 )
+from rulkit.fleet.store.writeback import EarlyWriteback
 from rulkit.fleet.tracking.health_index import HealthIndexModel
 from rulkit.fleet.tracking.tracker_chain import (
     LEVEL_NAMES,
@@ -170,6 +171,7 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
     that database)."""
     tmp = creation_path(path)
     result: IngestResult | None = None
+    writeback: EarlyWriteback | None = None
     try:
         try:
             conn = sqlite3.connect(str(tmp), isolation_level=None)
@@ -193,6 +195,8 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
                          monitoring_meta(rules or MonitoringRules(), TrendConfig()))
             conn.execute("COMMIT")
             if acq is not None:
+                writeback = EarlyWriteback(tmp)  # the file's pages written while it grows
+                writeback.start()
                 store = ComponentStore.__new__(ComponentStore)
                 store._attach(tmp, conn, config, hi_model, timeout=0.0)
                 store.rules, store.trend = rules or MonitoringRules(), TrendConfig()
@@ -206,6 +210,8 @@ def _build_and_publish(path: Path, config: TrackerConfig, hi_model: HealthIndexM
                              ) from err
         finally:
             conn.close()
+            if writeback is not None:  # closed after SQLite's connection: its locks kept
+                writeback.close()
         for side in ("-wal", "-shm"):
             Path(f"{tmp}{side}").unlink(missing_ok=True)
         return result if link_into_place(tmp, path) else None
