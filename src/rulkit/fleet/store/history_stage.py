@@ -109,6 +109,8 @@ class HistoryStage:
             chunks = ahead.pop().result()
             if i + 1 < len(bounds):
                 ahead.append(self._worker.submit(self._chunks, *bounds[i + 1], max_chunk))
+                if i + 2 == len(bounds):  # the file's pages freed once the last block is read
+                    self._worker.submit(os.ftruncate, self._file.fileno(), 0)
             yield k0, k1, chunks
 
     def _chunks(self, k0: int, k1: int, max_chunk: int) -> Chunks:
