@@ -3,7 +3,8 @@
 runs it, with each stage's function wrapped to add up its CPU time and to read the
 process's resident memory (``/proc/self/status``) as the stage ends.
 
-Prints, per stage, the CPU time, the resident memory at its end (``VmRSS``) and the highest
+Prints, per stage, the CPU time, the wall time (a stage whose wall exceeds its CPU waited:
+for the disk, another thread or a core), the resident memory at its end (``VmRSS``) and the highest
 resident memory of the process so far (``VmHWM``, Linux's high-water mark) at its end: the
 stage where the high-water mark rises is where the peak is made. Nested stages are indented
 under the stage that calls them. The first call of the trackers and of the trend pass is
@@ -32,6 +33,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from timing import stage_depth
 
+WORKER = "stage's worker: "
+"""The label's start of a stage the history stage's worker thread runs."""
 STAGES = (
     ("inputs (settings, the file)", "rulkit.fleet.store.cli", "_track_inputs"),
     ("  read the file", "rulkit.fleet.store.acquisitions", "read_acquisitions"),
@@ -55,11 +58,16 @@ STAGES = (
     ("    final columns", "rulkit.fleet.store.prognosis.BatchPrognosis", "finish"),
     ("    components upsert", "rulkit.fleet.store.sqlite.ComponentStore", "_write_states"),
     ("printout", "rulkit.fleet.store.cli", "_echo_track"),
+    (f"{WORKER}records made, written", "rulkit.fleet.store.history_stage",
+     "_write_at"),
+    (f"{WORKER}blocks read back", "rulkit.fleet.store.history_stage.HistoryStage",
+     "_chunks"),
 )
 """(label, where the name is looked up, name): the stages measured. The stages from "new
 database" on are timed with the CPU clock of the thread that runs them (work another thread
-does beside them is not theirs); the others with the process's (pyarrow's reader parses on
-its own threads)."""
+does beside them is not theirs; the history stage's worker thread, which makes and writes a
+window's records while the next window is computed and reads the next block back while
+SQLite inserts this one, is timed apart); the others with the process's."""
 THREAD_CLOCK = "new database"
 
 # The child: the stages wrapped, then rulkit's console entry point on the given arguments.
@@ -150,20 +158,20 @@ def report(err: str, wall: float) -> None:
     total = py + imp + store + run
     print(f"CPU {total:.2f} s in all, wall {wall:.2f} s, peak resident memory {peak:.0f} MB "
           f"(at exit: {file_mb:.0f} MB of it shared libraries' code, {anon_mb:.0f} MB data)")
-    print(f"  {'stage':34s} {'CPU s':>6s} {'share':>6s} {'wall s':>6s} {'RSS MB':>7s} "
+    print(f"  {'stage':38s} {'CPU s':>6s} {'share':>6s} {'wall s':>6s} {'RSS MB':>7s} "
           f"{'peak MB':>8s}")
-    print(f"  {'interpreter start':34s} {py:6.2f} {py / total:6.1%}")
-    print(f"  {'import rulkit.cli':34s} {imp:6.2f} {imp / total:6.1%}")
-    print(f"  {'import the store':34s} {store:6.2f} {store / total:6.1%} {'':6s} {rss0:7.0f} "
+    print(f"  {'interpreter start':38s} {py:6.2f} {py / total:6.1%}")
+    print(f"  {'import rulkit.cli':38s} {imp:6.2f} {imp / total:6.1%}")
+    print(f"  {'import the store':38s} {store:6.2f} {store / total:6.1%} {'':6s} {rss0:7.0f} "
           f"{hwm0:8.0f}  (the command imports numpy and pyarrow when it runs)")
-    print(f"  {'(the three above, and the exit)':34s} {'':6s} {'':6s} {wall - run_wall:6.2f}")
+    print(f"  {'(the three above, and the exit)':38s} {'':6s} {'':6s} {wall - run_wall:6.2f}")
     labels = [label for label, _, _ in STAGES]
     for j, label in enumerate(labels):
         c, w, n, f, r, h = stages[label]
         note = f"  ({n} calls; the first {f:.2f} s: numba loaded)" if (
             label.strip() in ("trackers", "trend pass") and n > 1 and f > 0.05) else (
             f"  ({n} calls)" if n > 1 else "")
-        print(f"  {label:34s} {c:6.2f} {c / total:6.1%} {w:6.2f} {r:7d} {h:8d}{note}")
+        print(f"  {label:38s} {c:6.2f} {c / total:6.1%} {w:6.2f} {r:7d} {h:8d}{note}")
         kids = []
         for other in labels[j + 1:]:
             if stage_depth(other) <= stage_depth(label):
@@ -173,11 +181,12 @@ def report(err: str, wall: float) -> None:
         if kids:
             rest = c - sum(stages[k][0] for k in kids)
             rest_w = w - sum(stages[k][1] for k in kids)
-            print(f"  {'  ' * (stage_depth(label) + 1) + 'the rest':34s} {rest:6.2f} "
+            print(f"  {'  ' * (stage_depth(label) + 1) + 'the rest':38s} {rest:6.2f} "
                   f"{rest / total:6.1%} {rest_w:6.2f}")
     outer = sum(stages[k][0] for k in labels if stage_depth(k) == 0)
-    outer_w = sum(stages[k][1] for k in labels if stage_depth(k) == 0)
-    print(f"  {'the command otherwise':34s} {run - outer:6.2f} {(run - outer) / total:6.1%} "
+    outer_w = sum(stages[k][1] for k in labels if stage_depth(k) == 0
+                  and not k.startswith(WORKER))  # the worker's time overlaps the others'
+    print(f"  {'the command otherwise':38s} {run - outer:6.2f} {(run - outer) / total:6.1%} "
           f"{run_wall - outer_w:6.2f}"
           "  (typer, options, imports inside the command)")
 
