@@ -26,7 +26,6 @@ caller's write transaction by :func:`convert_row_history`
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,7 +52,7 @@ class LayoutError(ValueError):
     """A stored chunk that is not of this layout (header, length or count)."""
 
 
-def records(columns: Mapping[str, Any], m: int) -> np.ndarray:
+def records(columns: dict[str, Any], m: int) -> np.ndarray:
     """An ``(m, WIDTH)`` float64 array of records from ``columns`` (every field of
     :data:`PACKED_FIELDS`, arrays of length ``m``)."""
     out = np.empty((m, WIDTH), dtype="<f8")

@@ -22,7 +22,7 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
@@ -38,7 +38,7 @@ from rulkit.fleet.store.batch_order import (
     window_piece,
 )
 from rulkit.fleet.store.database_file import StoreError, StoreFullError, StoreReadOnlyError
-from rulkit.fleet.store.history_chunks import MAX_CHUNK, WIDTH, Chunks, layout, records
+from rulkit.fleet.store.history_chunks import MAX_CHUNK, WIDTH, Chunks, layout
 from rulkit.fleet.tracking.tracker_run import tracker_strategy
 from rulkit.tables import safe_text
 
@@ -74,18 +74,14 @@ class HistoryStage:
         self._worker.shutdown(wait=True, cancel_futures=True)
         self._file.close()
 
-    def add(self, piece: Piece, rec: np.ndarray | Mapping[str, np.ndarray]) -> None:
-        """Stage the records ``rec`` of the window ``piece`` (its rows' order), or the
-        fields they are made of (:func:`~rulkit.fleet.store.history_chunks.records`, then
-        made on the worker): written by the worker once the previous window's are."""
-        m = piece.rows.size
-        if not isinstance(rec, Mapping):
-            rec = np.ascontiguousarray(rec, dtype="<f8")
+    def add(self, piece: Piece, rec: np.ndarray) -> None:
+        """Stage the records ``rec`` of the window ``piece`` (its rows' order): written by
+        the worker once the previous window's are."""
+        rec = np.ascontiguousarray(rec, dtype="<f8")
         self._wait_written()
-        self._written = self._worker.submit(_write_at, self._file.fileno(), rec, m,
-                                            self._size)
+        self._written = self._worker.submit(_write_at, self._file.fileno(), rec, self._size)
         self._windows.append((piece.keys, piece.seg, piece.rank0, self._size))
-        self._size += m * WIDTH * 8
+        self._size += rec.nbytes
 
     def _wait_written(self) -> None:
         """Wait for the window in flight; a failed write raises the store's error."""
@@ -147,14 +143,8 @@ class HistoryStage:
 
 
 
-def _write_at(fd: int, rec: np.ndarray | Mapping[str, np.ndarray], m: int, offset: int
-              ) -> None:
-    """Write the ``m`` records ``rec`` (contiguous), or those made of the fields ``rec``,
-    to the file ``fd`` at ``offset``."""
-    if isinstance(rec, Mapping):
-        rec = records(rec, m)
-    if rec.shape != (m, WIDTH):
-        raise ValueError(f"a window of {m} rows staged {rec.shape} values, not ({m}, {WIDTH})")
+def _write_at(fd: int, rec: np.ndarray, offset: int) -> None:
+    """Write the bytes of ``rec`` (contiguous) to the file ``fd`` at ``offset``."""
     view = rec.data.cast("B")
     done = 0
     while done < view.nbytes:

@@ -675,13 +675,13 @@ class ComponentStore(GroupCommits, StoreSettings):
                                        [names[c] for c in comps], seg, rank_b, rows_b, t_b, hi_b)
                 for f in ("t", "n", "hi", "ab", "rul", "abg"):
                     getattr(state, f)[comps] = getattr(sub, f)
-                fields = self._block_fields(t_b, hi_b, out, got)
+                rec = self._block_records(t_b, hi_b, out, got)
                 if stage is None:
-                    self._write_block_history(names_arr[comps], seg, history_chunks.records(
-                        fields, t_b.size), _of_components(ingest_id, comps))
-                else:  # its records made and staged on the stage's worker
-                    stage.add(piece, fields)
-                del rank_b, cidx, comp_b, out, t_b, hi_b, got, rows_b, seg, piece, fields
+                    self._write_block_history(names_arr[comps], seg, rec,
+                                              _of_components(ingest_id, comps))
+                else:
+                    stage.add(piece, rec)
+                del rank_b, cidx, comp_b, out, t_b, hi_b, got, rows_b, seg, piece, rec
             if stage is not None:  # the windows' history, one chunk per component
                 for k0, k1, chunks in stage.blocks(self.BLOCK_ROWS, self.HISTORY_CHUNK):
                     self._write_history(chunks.rows(
@@ -690,13 +690,15 @@ class ComponentStore(GroupCommits, StoreSettings):
         return alerts
 
     @staticmethod
-    def _block_fields(t: np.ndarray, hi: np.ndarray, out: dict[str, np.ndarray],
-                      got: Any) -> dict[str, np.ndarray]:
-        """The history fields of a piece's rows (what :func:`history_chunks.records` packs):
-        the tracker's ``out``, the rules' level and the stored RUL interval of ``got``."""
+    def _block_records(t: np.ndarray, hi: np.ndarray, out: dict[str, np.ndarray],
+                       got: Any) -> np.ndarray:
+        """The history records of a piece's rows: the tracker's ``out``, the rules' level and
+        the stored RUL interval of ``got`` (:func:`history_chunks.records`)."""
         med, low, high = stored_interval(got.rules.median, got.rules.low, got.rules.high)
-        return {"t": t, "hi": hi, **{f: out[f] for f in TRACKER_OUT[:6]}, "valid": out["valid"],
-                "level": got.rules.level, "rul_low": low, "rul_high": high, "rul_median": med}
+        return history_chunks.records({
+            "t": t, "hi": hi, **{f: out[f] for f in TRACKER_OUT[:6]}, "valid": out["valid"],
+            "level": got.rules.level, "rul_low": low, "rul_high": high, "rul_median": med},
+            t.size)
 
     def _write_block_history(self, names: np.ndarray, seg: np.ndarray, rec: np.ndarray,
                              ingest_id: Any) -> None:
