@@ -99,3 +99,13 @@ def test_a_batch_that_fails_late_leaves_no_file_thread_or_descriptor(
     assert list(tmp_path.iterdir()) == []
     assert not [t for t in threading.enumerate() if t.name == "rulkit-writeback"]
     assert _open_fds() == fds
+
+
+def test_a_file_that_cannot_be_opened_is_left_to_the_final_fsync(tmp_path):
+    """No descriptor (the file is gone): no thread, and stop and close do nothing."""
+    wb = writeback.EarlyWriteback(tmp_path / "missing.db")
+    assert wb.fd is None
+    wb.start()
+    assert not [t for t in threading.enumerate() if t.name == "rulkit-writeback"]
+    wb.close()
+    wb.close()

@@ -34,7 +34,7 @@ def _sync_file_range() -> Any:
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
         fn = libc.sync_file_range
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):  # no C library by that name, or no call
         return None
     fn.argtypes = (ctypes.c_int, ctypes.c_longlong, ctypes.c_longlong, ctypes.c_uint)
     fn.restype = ctypes.c_int
@@ -43,10 +43,14 @@ def _sync_file_range() -> Any:
 
 class EarlyWriteback:
     """The file at ``path`` (existing), its dirty pages written out while :meth:`start` ..
-    :meth:`stop` runs; :attr:`fd` its descriptor, open until :meth:`close`."""
+    :meth:`stop` runs; :attr:`fd` its descriptor, open until :meth:`close` (``None``, and
+    nothing done, when it cannot be opened: the final ``fsync`` does the work)."""
 
     def __init__(self, path: Path) -> None:
-        self.fd = os.open(path, os.O_RDWR)
+        try:
+            self.fd: int | None = os.open(path, os.O_RDWR)
+        except OSError:
+            self.fd = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -54,15 +58,16 @@ class EarlyWriteback:
         """Start the thread that asks for the file's pages to be written (none where the
         call is missing)."""
         fn = _sync_file_range()
-        if fn is None or self._thread is not None:
+        if fn is None or self.fd is None or self._thread is not None:
             return
         self._thread = threading.Thread(target=self._run, args=(fn,), daemon=True,
                                         name="rulkit-writeback")
         self._thread.start()
 
     def _run(self, fn: Any) -> None:
+        fd = self.fd
         while not self._stop.wait(PERIOD):
-            if fn(self.fd, 0, 0, _SYNC_FILE_RANGE_WRITE) != 0:
+            if fn(fd, 0, 0, _SYNC_FILE_RANGE_WRITE) != 0:
                 return  # e.g. a file system without it: the final fsync does the work
 
     def stop(self) -> None:
@@ -75,4 +80,6 @@ class EarlyWriteback:
     def close(self) -> None:
         """Stop, and close the descriptor (only once no SQLite connection holds the file)."""
         self.stop()
-        os.close(self.fd)
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
