@@ -107,3 +107,15 @@ def test_small_files_and_compressed_ones_are_read_in_one_pass(tmp_path):
     f.write_text("component,time,hi\nc0,0,0.1\n")
     assert csv_halves.read(f, None, 512) is None
     assert isinstance(read_csv_columns(f), dict)
+
+
+def test_no_newline_near_the_middle_reads_the_file_in_one_pass(tmp_path, monkeypatch):
+    """A line longer than the scan past the middle (or a header longer than half the file):
+    no halves, the file read as one pass reads it."""
+    monkeypatch.setattr(csv_halves, "MIN_BYTES", 0)
+    monkeypatch.setattr(csv_halves, "_SCAN_BYTES", 64)
+    f = tmp_path / "long.csv"
+    f.write_text("component,time,hi\n" + "c0,0," + "1" * 400 + "\nc0,1,0.5\n")
+    assert csv_halves.read(f, None, 512) is None
+    f.write_text("component,time," + "x" * 400 + "\nc0,0,0.5\n")
+    assert csv_halves.read(f, None, 512) is None

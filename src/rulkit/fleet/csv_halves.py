@@ -58,14 +58,14 @@ class _Range:
 def _cut(path: Path) -> tuple[int, int] | None:
     """Where the second half starts (after the first newline past the middle) and the
     file's size; ``None`` for a file too small, or without a newline past its first line
-    and its middle."""
+    and within :data:`_SCAN_BYTES` of its middle."""
     size = path.stat().st_size
     if size < MIN_BYTES:
         return None
-    with open(path, "rb") as f:
-        first = f.readline()
+    with open(path, "rb") as f:  # each line read bounded: a file may hold no newline
+        first = f.readline(size // 2 + 1)
         f.seek(size // 2)
-        rest = f.readline()
+        rest = f.readline(_SCAN_BYTES)
     cut = size // 2 + len(rest)
     if not first.endswith(b"\n") or not first.strip() or len(first) > size // 2 or (
             not rest.endswith(b"\n") or cut >= size):
