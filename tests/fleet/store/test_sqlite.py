@@ -355,3 +355,29 @@ def test_new_databases_have_16_kb_pages_and_4_kb_ones_store_the_same_values(tmp_
     assert dump(big) == dump(small)
     with ComponentStore(small, readonly=True) as store:
         assert store.history("u3")["t"].tolist() == df[df.component == "u3"].time.tolist()
+
+
+def test_recorded_alerts_carry_the_ids_they_were_stored_with(tmp_path):
+    """The alerts of a batch are inserted in one statement: each alert returned carries the
+    id of its own row (read back by component and time), also after the table's last rows
+    were deleted (ids continue from the largest one left)."""
+    rng = np.random.default_rng(8)
+    rows = [(f"u{i}", float(s), min(0.05 * np.exp((0.04 + 0.01 * i) * s)
+                                    + abs(rng.normal(0, 0.01)), 1.5))
+            for i in range(12) for s in range(60)]
+    df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sort_values("time",
+                                                                            kind="stable")
+    db = tmp_path / "a.db"
+    with ComponentStore(db, config=CFG) as store:
+        first = store.ingest(df[df.time < 30]).alerts
+        store._conn.execute("DELETE FROM alerts WHERE id >= ?", (first[-1].id - 1,))
+        second = store.ingest(df[df.time >= 30]).alerts
+    assert len(first) > 2 and len(second) > 2
+    con = sqlite3.connect(db)
+    stored = {(c, t, lvl): i for i, c, t, lvl in con.execute(
+        "SELECT id, component, t, level FROM alerts")}
+    top = con.execute("SELECT max(id) FROM alerts WHERE id < ?", (second[0].id,)).fetchone()[0]
+    con.close()
+    assert [stored[(a.component, a.t, a.level)] for a in second] == [a.id for a in second]
+    assert [a.id for a in second] == list(range(top + 1, top + 1 + len(second)))
+    assert top == first[-1].id - 2

@@ -551,17 +551,26 @@ class ComponentStore(GroupCommits, StoreSettings):
         same alerts with their ids and the time they were raised (the ingestion's calendar
         time ``now``, default the clock)."""
         now = time.time() if self.now is None else self.now
-        out = []
-        for a in alerts:
-            vals = (a.component, a.t, a.level, a.previous, _finite(a.hi), _finite(a.fhi),
-                    _finite(a.rul), math.isfinite(a.rul), _finite(a.rul_low),
-                    _finite(a.rul_high), a.reason, now)
-            aid = self._conn.execute(
-                "INSERT INTO alerts (component, t, level, previous, hi, fhi, rul, valid, "
-                "rul_low, rul_high, reason, raised) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                "?) RETURNING id", vals).fetchone()[0]
-            out.append(replace(a, id=int(aid), raised=now))
-        return out
+        rows = [(a.component, a.t, a.level, a.previous, _finite(a.hi), _finite(a.fhi),
+                 _finite(a.rul), math.isfinite(a.rul), _finite(a.rul_low),
+                 _finite(a.rul_high), a.reason, now) for a in alerts]
+        insert = ("INSERT INTO alerts (component, t, level, previous, hi, fhi, rul, valid, "
+                  "rul_low, rul_high, reason, raised) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                  "?, ?)")
+        first = None
+        if rows and isinstance(self._conn, sqlite3.Connection):
+            # SQLite numbers a row one above the table's largest id while that stays below
+            # the largest integer: the rows of one statement take consecutive ids
+            top = self._conn.execute("SELECT max(id) FROM alerts").fetchone()[0] or 0
+            if top + len(rows) < 2**63 - 1:
+                self._conn.executemany(insert, rows)
+                first = top + 1
+        if first is None:
+            ids = [int(self._conn.execute(f"{insert} RETURNING id", r).fetchone()[0])
+                   for r in rows]
+        else:
+            ids = list(range(first, first + len(rows)))
+        return [replace(a, id=i, raised=now) for a, i in zip(alerts, ids, strict=True)]
 
     def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                ingest_ids: np.ndarray | None = None) -> IngestResult:
