@@ -57,6 +57,7 @@ STAGES = (
     ("    SQLite inserts", "rulkit.fleet.store.sqlite.ComponentStore", "_write_history"),
     ("    final columns", "rulkit.fleet.store.prognosis.BatchPrognosis", "finish"),
     ("    components upsert", "rulkit.fleet.store.sqlite.ComponentStore", "_write_states"),
+    ("  alerts recorded", "rulkit.fleet.store.sqlite.ComponentStore", "_record_alerts"),
     ("printout", "rulkit.fleet.store.cli", "_echo_track"),
     (f"{WORKER}records made, written", "rulkit.fleet.store.history_stage",
      "_write_at"),
