@@ -49,25 +49,38 @@ def small_pieces(monkeypatch):
 
 def test_the_writes_are_started_while_the_batch_runs_and_change_nothing(
         tmp_path, monkeypatch, small_pieces):
-    """With a request after every piece's wait (PERIOD 0), the kernel is asked to write the
-    new file while its history is inserted; the database equals the one built without the
-    requests (every value, the history's blobs byte for byte, in rowid order)."""
+    """The kernel is asked to write the new file while its history is inserted (each history
+    insert here waits for a request made after the file grew, so the test does not depend on
+    the thread's timing); the database equals the one built without the requests (every
+    value, the history's blobs byte for byte, in rowid order)."""
     real = writeback._sync_file_range()
     if real is None:
         pytest.skip("no sync_file_range on this system")
     calls = []
+    asked = threading.Event()
 
     def counted():
         def fn(fd, offset, nbytes, flags):
-            calls.append((os.fstat(fd).st_size, flags))
+            size = os.fstat(fd).st_size
+            calls.append((size, flags))
+            if size > 0:
+                asked.set()
             return real(fd, offset, nbytes, flags)
         return fn
 
     df = _batch()
     monkeypatch.setattr(writeback, "_sync_file_range", lambda: None)
     ingest_into(tmp_path / "plain.db", df)
-    monkeypatch.setattr(writeback, "PERIOD", 0.0)
+    monkeypatch.setattr(writeback, "PERIOD", 0.001)
     monkeypatch.setattr(writeback, "_sync_file_range", counted)
+    write = ComponentStore._write_history
+
+    def after_a_request(self, rows):
+        write(self, rows)
+        asked.clear()
+        assert asked.wait(30.0), "no request to write the file"
+
+    monkeypatch.setattr(ComponentStore, "_write_history", after_a_request)
     fds = _open_fds()
     ingest_into(tmp_path / "early.db", df)
     assert calls and all(flags == writeback._SYNC_FILE_RANGE_WRITE for _, flags in calls)
