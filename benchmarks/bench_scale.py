@@ -9,7 +9,8 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
   (default 2000 x 1000 = 2M rows; HI growing exponentially with noise, rows in time order as
   a feed delivers them). Goal: <= 2 s and <= 250 MB. Beside it, in the same run, the floor of
   its writes: the same rows read by pyarrow and written bare as the same packed history rows;
-  with ``--against SRC``, another checkout's ``track`` (e.g. main's ``src/``) in turns.
+  with ``--against SRC``, another checkout's ``track`` (e.g. main's ``src/``) in turns, and
+  the databases of the last two runs compared table by table (:func:`same_tables`).
 * ``status --format table|csv|json`` on a database of ``--status-components`` components
   (default 10^5; ``--status-fleet flat``: 3 acquisitions each, no RUL estimated yet;
   ``growing``: 12 each, every running unit with its own RUL), output to /dev/null. Goal:
@@ -34,8 +35,10 @@ core, so the CPU time is printed beside it; medians over ``--repeats``.
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import shutil
+import sqlite3
 import statistics
 import subprocess
 import sys
@@ -249,11 +252,14 @@ def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) ->
     for k in range(args.repeats):
         db = tmp / f"track{k}.db"
         runs.append(measure([*RULKIT, "track", "--db", str(db), str(src)]))
-        db.unlink()
         if args.against is not None:  # in turns: the same load for both
-            other.append(measure([*RULKIT, "track", "--db", str(db), str(src)],
+            theirs = tmp / f"against{k}.db"
+            other.append(measure([*RULKIT, "track", "--db", str(theirs), str(src)],
                                  {"PYTHONPATH": str(args.against.resolve())}))
-            db.unlink()
+            if k == args.repeats - 1:
+                print(f"the databases of the last runs: {same_tables(db, theirs)}")
+            theirs.unlink()
+        db.unlink()
     if other:
         ow, oc, om = median3(other)
         print(f"track with {args.against}: wall {ow:.2f} s, CPU {oc:.2f} s, peak {om:.0f} MB")
@@ -274,6 +280,42 @@ def track_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) ->
           + (f"; track CPU ours / {args.against} = {c / oc:.2f}" if other else "")
           + f"; load average {os.getloadavg()[0]:.1f}")
     src.unlink()
+
+
+CLOCK_COLUMNS = {"components": ("seen", "due"), "alerts": ("raised",)}
+"""Columns that hold the clock at the ingestion (the runs differ by their start)."""
+
+
+def same_tables(a: Path, b: Path) -> str:
+    """Whether the databases ``a`` and ``b`` hold the same tables, row by row in rowid order
+    (rowids included), every value of the same type and, for a float, the same bits, every
+    blob byte for byte (:data:`CLOCK_COLUMNS` apart); the first difference otherwise."""
+    import struct
+
+    def cell(v: object) -> object:
+        return ("f", struct.pack("<d", v)) if isinstance(v, float) else (type(v).__name__, v)
+
+    ca, cb = sqlite3.connect(a), sqlite3.connect(b)
+    try:
+        tables = [t for (t,) in ca.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")]
+        if tables != [t for (t,) in cb.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")]:
+            return "different tables"
+        rows = 0
+        for t in tables:
+            cols = [c for (c,) in ca.execute(f"SELECT name FROM pragma_table_info('{t}')")
+                    if c not in CLOCK_COLUMNS.get(t, ())]
+            q = f"SELECT rowid, {', '.join(cols)} FROM {t} ORDER BY rowid"
+            for ra, rb in itertools.zip_longest(ca.execute(q), cb.execute(q)):
+                if ra is None or rb is None or [cell(v) for v in ra] != [cell(v) for v in rb]:
+                    return f"table {t} differs at rowid {(ra or rb)[0]}"
+                rows += 1
+        return (f"the same {rows:,} rows in {len(tables)} tables (every value's type and "
+                f"bits, the blobs byte for byte; {CLOCK_COLUMNS} apart)")
+    finally:
+        ca.close()
+        cb.close()
 
 
 def status_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) -> None:

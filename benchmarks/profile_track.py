@@ -3,7 +3,8 @@
 runs it, with each stage's function wrapped to add up its CPU time and to read the
 process's resident memory (``/proc/self/status``) as the stage ends.
 
-Prints, per stage, the CPU time, the resident memory at its end (``VmRSS``) and the highest
+Prints, per stage, the CPU time, the wall time (a stage whose wall exceeds its CPU waited:
+for the disk, another thread or a core), the resident memory at its end (``VmRSS``) and the highest
 resident memory of the process so far (``VmHWM``, Linux's high-water mark) at its end: the
 stage where the high-water mark rises is where the peak is made. Nested stages are indented
 under the stage that calls them. The first call of the trackers and of the trend pass is
@@ -24,6 +25,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +33,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from timing import stage_depth
 
+WORKER = "stage's worker: "
+"""The label's start of a stage the history stage's worker thread runs."""
 STAGES = (
     ("inputs (settings, the file)", "rulkit.fleet.store.cli", "_track_inputs"),
     ("  read the file", "rulkit.fleet.store.acquisitions", "read_acquisitions"),
@@ -53,12 +57,18 @@ STAGES = (
     ("    SQLite inserts", "rulkit.fleet.store.sqlite.ComponentStore", "_write_history"),
     ("    final columns", "rulkit.fleet.store.prognosis.BatchPrognosis", "finish"),
     ("    components upsert", "rulkit.fleet.store.sqlite.ComponentStore", "_write_states"),
+    ("  alerts recorded", "rulkit.fleet.store.sqlite.ComponentStore", "_record_alerts"),
     ("printout", "rulkit.fleet.store.cli", "_echo_track"),
+    (f"{WORKER}records made, written", "rulkit.fleet.store.history_stage",
+     "_write_at"),
+    (f"{WORKER}blocks read back", "rulkit.fleet.store.history_stage.HistoryStage",
+     "_chunks"),
 )
 """(label, where the name is looked up, name): the stages measured. The stages from "new
 database" on are timed with the CPU clock of the thread that runs them (work another thread
-does beside them is not theirs); the others with the process's (pyarrow's reader parses on
-its own threads)."""
+does beside them is not theirs; the history stage's worker thread, which makes and writes a
+window's records while the next window is computed and reads the next block back while
+SQLite inserts this one, is timed apart); the others with the process's."""
 THREAD_CLOCK = "new database"
 
 # The child: the stages wrapped, then rulkit's console entry point on the given arguments.
@@ -71,10 +81,11 @@ def mem():
         d = {{l.split(":")[0]: int(l.split()[1]) // 1024 for l in f if l.startswith("Vm")
              or l.startswith("Rss")}}
     return d
-cpu, calls, first, rss, hwm = defaultdict(float), defaultdict(int), {{}}, {{}}, {{}}
+cpu, wall, calls, first, rss, hwm = (defaultdict(float), defaultdict(float), defaultdict(int),
+                                     {{}}, {{}}, {{}})
 sys.path.insert(0, {here!r})
 from timing import stage_owner as owner
-start = time.process_time()
+start, start_wall = time.process_time(), time.perf_counter()
 import rulkit.cli
 rulkit_cli = time.process_time()
 labels = [label for label, _, _ in STAGES]
@@ -86,31 +97,32 @@ for label, where, name in STAGES:
     except (ImportError, AttributeError):
         continue
     clock = time.thread_time if label in threaded else time.process_time
-    def note(label, dt):
+    def note(label, dt, dw):
         cpu[label] += dt
+        wall[label] += dw
         calls[label] += 1
         first.setdefault(label, dt)
         m = mem()
         rss[label], hwm[label] = m["VmRSS"], m["VmHWM"]
     def timed(*a, _fn=fn, _label=label, _clock=clock, **k):
-        t0 = _clock()
+        t0, w0 = _clock(), time.perf_counter()
         try:
             return _fn(*a, **k)
         finally:
-            note(_label, _clock() - t0)
+            note(_label, _clock() - t0, time.perf_counter() - w0)
     def timed_items(*a, _fn=fn, _label=label, _clock=clock, **k):  # each item as it is taken
         items = _fn(*a, **k)
         while True:
-            t0 = _clock()
+            t0, w0 = _clock(), time.perf_counter()
             try:
                 item = next(items)
             except StopIteration:
                 return
             finally:
-                note(_label, _clock() - t0)
+                note(_label, _clock() - t0, time.perf_counter() - w0)
             yield item
     setattr(o, name, timed_items if inspect.isgeneratorfunction(fn) else timed)
-instrumented = time.process_time()
+instrumented, instrumented_wall = time.process_time(), time.perf_counter()
 imported = mem()
 sys.argv = ["rulkit", *sys.argv[1:]]
 try:
@@ -119,43 +131,48 @@ except SystemExit as e:
     if e.code:
         raise
 finally:
-    end = time.process_time()
+    end, end_wall = time.process_time(), time.perf_counter()
     m = mem()
     print("start", start, rulkit_cli - start, instrumented - rulkit_cli, end - instrumented,
+          end_wall - instrumented_wall,
           m["VmHWM"], m["RssFile"], m["RssAnon"], imported["VmRSS"], imported["VmHWM"],
           file=sys.stderr)
     for label, _, _ in STAGES:
-        print("stage", label, cpu[label], calls[label], first.get(label, 0.0),
+        print("stage", label, cpu[label], wall[label], calls[label], first.get(label, 0.0),
               rss.get(label, 0), hwm.get(label, 0), sep="\t", file=sys.stderr)
 """
 
 
-def report(err: str) -> None:
-    """Print the child's figures (its stderr's last lines)."""
-    stages: dict[str, tuple[float, int, float, int, int]] = {}
+def report(err: str, wall: float) -> None:
+    """Print the child's figures (its stderr's last lines); ``wall``: the child process's
+    wall time, measured from outside."""
+    stages: dict[str, tuple[float, float, int, float, int, int]] = {}
     head: list[str] = []
     for line in err.splitlines():
         if line.startswith("start "):
             head = line.split()[1:]
         elif line.startswith("stage\t"):
-            label, c, n, f, r, h = line.split("\t")[1:]
-            stages[label] = (float(c), int(n), float(f), int(r), int(h))
-    py, imp, store, run, peak, file_mb, anon_mb, rss0, hwm0 = (float(x) for x in head)
+            label, c, w, n, f, r, h = line.split("\t")[1:]
+            stages[label] = (float(c), float(w), int(n), float(f), int(r), int(h))
+    py, imp, store, run, run_wall, peak, file_mb, anon_mb, rss0, hwm0 = (
+        float(x) for x in head)
     total = py + imp + store + run
-    print(f"CPU {total:.2f} s in all, peak resident memory {peak:.0f} MB "
+    print(f"CPU {total:.2f} s in all, wall {wall:.2f} s, peak resident memory {peak:.0f} MB "
           f"(at exit: {file_mb:.0f} MB of it shared libraries' code, {anon_mb:.0f} MB data)")
-    print(f"  {'stage':30s} {'CPU s':>7s} {'share':>6s} {'RSS MB':>7s} {'peak MB':>8s}")
-    print(f"  {'interpreter start':30s} {py:7.2f} {py / total:6.1%}")
-    print(f"  {'import rulkit.cli':30s} {imp:7.2f} {imp / total:6.1%}")
-    print(f"  {'import the store':30s} {store:7.2f} {store / total:6.1%} {rss0:7.0f} "
+    print(f"  {'stage':38s} {'CPU s':>6s} {'share':>6s} {'wall s':>6s} {'RSS MB':>7s} "
+          f"{'peak MB':>8s}")
+    print(f"  {'interpreter start':38s} {py:6.2f} {py / total:6.1%}")
+    print(f"  {'import rulkit.cli':38s} {imp:6.2f} {imp / total:6.1%}")
+    print(f"  {'import the store':38s} {store:6.2f} {store / total:6.1%} {'':6s} {rss0:7.0f} "
           f"{hwm0:8.0f}  (the command imports numpy and pyarrow when it runs)")
+    print(f"  {'(the three above, and the exit)':38s} {'':6s} {'':6s} {wall - run_wall:6.2f}")
     labels = [label for label, _, _ in STAGES]
     for j, label in enumerate(labels):
-        c, n, f, r, h = stages[label]
+        c, w, n, f, r, h = stages[label]
         note = f"  ({n} calls; the first {f:.2f} s: numba loaded)" if (
             label.strip() in ("trackers", "trend pass") and n > 1 and f > 0.05) else (
             f"  ({n} calls)" if n > 1 else "")
-        print(f"  {label:30s} {c:7.2f} {c / total:6.1%} {r:7d} {h:8d}{note}")
+        print(f"  {label:38s} {c:6.2f} {c / total:6.1%} {w:6.2f} {r:7d} {h:8d}{note}")
         kids = []
         for other in labels[j + 1:]:
             if stage_depth(other) <= stage_depth(label):
@@ -164,10 +181,14 @@ def report(err: str) -> None:
                 kids.append(other)
         if kids:
             rest = c - sum(stages[k][0] for k in kids)
-            print(f"  {'  ' * (stage_depth(label) + 1) + 'the rest':30s} {rest:7.2f} "
-                  f"{rest / total:6.1%}")
+            rest_w = w - sum(stages[k][1] for k in kids)
+            print(f"  {'  ' * (stage_depth(label) + 1) + 'the rest':38s} {rest:6.2f} "
+                  f"{rest / total:6.1%} {rest_w:6.2f}")
     outer = sum(stages[k][0] for k in labels if stage_depth(k) == 0)
-    print(f"  {'the command otherwise':30s} {run - outer:7.2f} {(run - outer) / total:6.1%}"
+    outer_w = sum(stages[k][1] for k in labels if stage_depth(k) == 0
+                  and not k.startswith(WORKER))  # the worker's time overlaps the others'
+    print(f"  {'the command otherwise':38s} {run - outer:6.2f} {(run - outer) / total:6.1%} "
+          f"{run_wall - outer_w:6.2f}"
           "  (typer, options, imports inside the command)")
 
 
@@ -192,10 +213,12 @@ def main() -> None:
             db.unlink(missing_ok=True)
             child = _CHILD.format(stages=STAGES, here=str(Path(__file__).parent),
                                   thread_clock=THREAD_CLOCK)
+            t0 = time.perf_counter()
             proc = subprocess.run(
                 [sys.executable, "-c", child, "track", "--db", str(db),
                  str(src)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                 env=env)
+            wall = time.perf_counter() - t0
             if proc.returncode != 0:
                 raise SystemExit(proc.stderr[-2000:])
         print(f"rulkit track{f' with {args.against}' if args.against else ''} of "
@@ -203,7 +226,7 @@ def main() -> None:
               f"({args.components} components x {args.acquisitions}, CSV "
               f"{src.stat().st_size / 2**20:.0f} MB) into a new database; load average "
               f"{os.getloadavg()[0]:.1f}")
-        report(proc.stderr)
+        report(proc.stderr, wall)
 
 
 if __name__ == "__main__":

@@ -299,21 +299,26 @@ def read_csv_columns(
     max_rows: int | None = None,
 ) -> dict[str, Any] | pd.DataFrame:
     """A CSV file or CSV bytes (:func:`read_csv_table`) as numpy columns without pandas when
-    every column is plain (:func:`arrow_columns`), else as a frame (:func:`arrow_frame`:
+    every column is plain (:func:`plain_columns`), else as a frame (:func:`arrow_frame`:
     date-times, booleans, text in a numeric column, an all-empty column), so that what is
     refused, and how, is the frame's. Every other column is parsed as float64 first (what
     validation makes of a number: :func:`numeric_values`; no type inference over the rows);
     a column that is not all numbers (date-times, booleans, text) is read as
-    :func:`read_csv_table` reads it otherwise."""
+    :func:`read_csv_table` reads it otherwise. The columns are copied out of the table one
+    at a time, each column's Arrow memory released once copied (the table and all its copies
+    are never held at once)."""
     import pyarrow as pa
 
     table = read_csv_table(source, error=error, name=name, text_columns=text_columns,
                            max_rows=max_rows, float_columns=True)
-    cols = arrow_columns(table)
-    if cols is None:
+    if not plain_columns(table):
         return arrow_frame(table)
-    del table
-    pa.default_memory_pool().release_unused()  # the parse buffers and the table's columns
+    table = table.unify_dictionaries()
+    cols: dict[str, Any] = {}
+    for col in table.column_names:
+        cols[col] = column_array(table.column(col))
+        table = table.drop_columns([col])  # the last reference to the copied column
+        pa.default_memory_pool().release_unused()  # its buffers (and the parse's) returned
     return cols
 
 
@@ -390,13 +395,23 @@ def read_csv_table(
 
 def _read_blocks(source: str | Path | bytes | memoryview, convert: Any, parse: Any) -> Any:
     """The CSV as a pyarrow table, streamed in blocks of :data:`CSV_BLOCK_BYTES` (the text is
-    not held whole beside the table), its dictionaries unified."""
+    not held whole beside the table), its dictionaries unified. A large plain file is parsed
+    in two halves at once where that gives what one pass gives
+    (:func:`rulkit.fleet.csv_halves.read`); else in one pass on this thread (pyarrow's own
+    threads parsed no faster and took more CPU)."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
+    from rulkit.fleet import csv_halves
+
+    if isinstance(source, str | Path) and not str(source).endswith(_COMPRESSED):
+        halves = csv_halves.read(Path(source), convert, CSV_BLOCK_BYTES)
+        if halves is not None:
+            return pa.Table.from_batches(halves).unify_dictionaries()
     with _stream_input(source) as inp:
         reader = pacsv.open_csv(inp, convert_options=convert, parse_options=parse,
-                                read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES))
+                                read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES,
+                                                               use_threads=False))
         batches = list(reader)
     return pa.Table.from_batches(batches, schema=reader.schema).unify_dictionaries()
 
@@ -414,31 +429,29 @@ def _checked_table(table: Any, source: str | Path | bytes | memoryview, error: E
     return table
 
 
-def arrow_columns(table: Any) -> dict[str, Any] | None:
-    """A pyarrow table as numpy columns (copies: the table can be freed) when every column is
-    of an integer or floating type (as arrays of that type, NaN for an empty cell of a
-    floating column) or text dictionary-encoded with int32 codes (:class:`CodedText`, as
-    :func:`read_csv_table` reads ``text_columns``); ``None`` when a column
-    is of another type or an integer or text column has empty cells."""
+def plain_columns(table: Any) -> bool:
+    """Whether every column of a pyarrow table is of an integer or floating type or text
+    dictionary-encoded with int32 codes (as :func:`read_csv_table` reads ``text_columns``),
+    and no integer or text column has empty cells: what :func:`column_array` takes."""
     import pyarrow.types as pt
 
-    for col in table.columns:
-        typ = col.type
-        if not (pt.is_floating(typ) or (col.null_count == 0 and (pt.is_integer(typ) or (
-                pt.is_dictionary(typ) and pt.is_string(typ.value_type)
-                and pt.is_int32(typ.index_type))))):
-            return None
-    table = table.unify_dictionaries()
-    out: dict[str, Any] = {}
-    for name in table.column_names:
-        col = table.column(name)
-        if pt.is_dictionary(col.type):
-            values = col.chunks[0].dictionary.to_pylist() if col.num_chunks else []
-            codes = _joined([c.indices for c in col.chunks], np.dtype(np.int32))
-            out[name] = CodedText(codes=codes, values=values)
-        else:
-            out[name] = _joined(col.chunks, np.dtype(col.type.to_pandas_dtype()))
-    return out
+    return all(pt.is_floating(col.type) or (col.null_count == 0 and (
+        pt.is_integer(col.type) or (pt.is_dictionary(col.type) and pt.is_string(
+            col.type.value_type) and pt.is_int32(col.type.index_type))))
+        for col in table.columns)
+
+
+def column_array(col: Any) -> Any:
+    """A plain pyarrow column (:func:`plain_columns`, its chunks' dictionaries unified) as a
+    numpy array of its type (a copy; NaN for an empty cell of a floating column) or, for
+    text, :class:`CodedText`."""
+    import pyarrow.types as pt
+
+    if pt.is_dictionary(col.type):
+        values = col.chunks[0].dictionary.to_pylist() if col.num_chunks else []
+        return CodedText(codes=_joined([c.indices for c in col.chunks], np.dtype(np.int32)),
+                         values=values)
+    return _joined(col.chunks, np.dtype(col.type.to_pandas_dtype()))
 
 
 def _joined(chunks: list[Any], dtype: np.dtype) -> NDArray[Any]:

@@ -353,3 +353,57 @@ def test_track_reads_a_plain_csv_without_pandas_and_stores_the_frames_values(tmp
     cli = dump(tmp_path / "cli.db")
     assert cli == dump(tmp_path / "frame.db")  # every value (floats exactly)
     assert cli[0] and cli[1]
+
+
+@pytest.mark.parametrize("failure", ["stage full", "later window refused"])
+def test_track_failing_in_a_later_window_writes_nothing(tmp_path, monkeypatch, failure):
+    """A batch run in rank windows whose staging (on the stage's worker thread) or whose
+    later window fails: no new database, and an existing one left as it was; the error is the
+    store's (disk full: exit code 74) or the batch's (exit code 1)."""
+    import errno
+    import os
+
+    import rulkit.fleet.store.history_stage as stage_module
+    import rulkit.fleet.store.sqlite as sqlite_module
+    from rulkit.fleet.store.acquisitions import IngestError
+    from rulkit.fleet.store.sqlite import ComponentStore
+
+    monkeypatch.setattr(ComponentStore, "BLOCK_ROWS", 3)
+    monkeypatch.setattr(ComponentStore, "WINDOW_ROWS", 5)
+    monkeypatch.setattr(stage_module, "tracker_strategy", lambda ranks, n: "ranks")
+    old = tmp_path / "old.db"
+    r = runner.invoke(app, ["track", "--db", str(old), str(fleet_csv(tmp_path / "a.csv", 0, 10))])
+    assert r.exit_code == 0, r.output
+    before = db_dump(old)
+    calls = []
+    if failure == "stage full":
+        pwrite = os.pwrite
+
+        def full(fd, data, offset):
+            calls.append(offset)
+            if len(calls) == 3:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            return pwrite(fd, data, offset)
+
+        monkeypatch.setattr(stage_module.os, "pwrite", full)
+        code, message = 74, "cannot stage the batch's history in a temporary file"
+    else:
+        refuse = sqlite_module.refuse_non_finite
+
+        def late(*args):
+            calls.append(1)
+            if len(calls) == 4:
+                raise IngestError("refused in the fourth window")
+            refuse(*args)
+
+        monkeypatch.setattr(sqlite_module, "refuse_non_finite", late)
+        code, message = 1, "refused in the fourth window"
+    src = fleet_csv(tmp_path / "b.csv", 10, 30)
+    for db in (tmp_path / "new.db", old):
+        calls.clear()
+        r = runner.invoke(app, ["track", "--db", str(db), str(src)])
+        assert r.exit_code == code, r.output
+        assert message in r.output
+        assert len(calls) >= 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv", "old.db"]
+    assert db_dump(old) == before

@@ -77,3 +77,28 @@ def test_the_system_temporary_directory_when_the_databases_cannot_hold_the_stage
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "missing-too"))
     with pytest.raises(StoreError, match="cannot stage the batch's history"):
         HistoryStage(order, tmp_path / "missing")
+
+
+def test_a_failed_write_of_the_stage_is_the_stores_error(tmp_path, monkeypatch):
+    """A write of the worker that fails (a full disk) raises the store's error for it when
+    the batch next stages or reads back, naming the directory; nothing is given back."""
+    import errno
+    import os
+
+    import rulkit.fleet.store.history_stage as stage_module
+    from rulkit.fleet.store.database_file import StoreFullError
+
+    def full(fd, data, offset):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(stage_module.os, "pwrite", full)
+    codes = np.repeat(np.arange(3, dtype=np.int32), 4)
+    order = order_by_component(codes, ["a", "b", "c"])
+    values = np.ones((codes.size, WIDTH))
+    with HistoryStage(order, tmp_path) as stage:
+        (r0, r1), *_ = rank_windows(order, 6)
+        piece = window_piece(order, r0, r1)
+        stage.add(piece, values[piece.rows])
+        with pytest.raises(StoreFullError, match=f"{tmp_path}: cannot stage the batch's "
+                           "history in a temporary file: .*No space left"):
+            list(stage.blocks(10))

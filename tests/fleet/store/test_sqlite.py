@@ -309,3 +309,75 @@ def test_a_wide_batch_runs_in_rank_windows_without_compiled_passes(tmp_path, mon
     res, _ = ingest_into(tmp_path / "w.db", df)
     assert res.n_rows == 3000
     assert not tracker_run._JITTED and not unit_trend._COMPILED  # no compiled pass loaded
+
+
+def test_new_databases_have_16_kb_pages_and_4_kb_ones_store_the_same_values(tmp_path):
+    """A new database is made with 16 KB pages; one of SQLite's default 4 KB pages (every
+    database made before) takes the same second batch to the same stored values."""
+    from rulkit.fleet.store.ingest import ingest_into
+
+    rng = np.random.default_rng(3)
+    rows = [(f"u{i}", float(s), 0.05 * np.exp(0.03 * s) + abs(rng.normal(0, 0.01)))
+            for i in range(5) for s in range(80)]
+    df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sort_values("time",
+                                                                            kind="stable")
+    first, second = df[df.time < 40], df[df.time >= 40]
+    big, small = tmp_path / "16k.db", tmp_path / "4k.db"
+    ingest_into(big, first)
+    ingest_into(small, first)
+    con = sqlite3.connect(small)
+    con.execute("PRAGMA journal_mode=DELETE")
+    con.execute("PRAGMA page_size=4096")
+    con.execute("VACUUM")  # rewritten with 4 KB pages
+    con.execute("PRAGMA journal_mode=WAL")
+    con.close()
+    sizes = {}
+    for db in (big, small):
+        ingest_into(db, second)
+        con = sqlite3.connect(db)
+        sizes[db] = con.execute("PRAGMA page_size").fetchone()[0]
+        con.close()
+    assert sizes == {big: 16384, small: 4096}
+
+    def dump(db):
+        con = sqlite3.connect(db)
+        try:
+            cols = [c for (c,) in con.execute("SELECT name FROM pragma_table_info('components')")
+                    if c not in ("seen", "due")]  # the clock at the ingestion
+            return (con.execute(f"SELECT {', '.join(cols)} FROM components ORDER BY 1"
+                                ).fetchall(),
+                    con.execute("SELECT * FROM history ORDER BY rowid").fetchall(),
+                    con.execute("SELECT component, t, level, hi, rul FROM alerts ORDER BY id"
+                                ).fetchall())
+        finally:
+            con.close()
+
+    assert dump(big) == dump(small)
+    with ComponentStore(small, readonly=True) as store:
+        assert store.history("u3")["t"].tolist() == df[df.component == "u3"].time.tolist()
+
+
+def test_recorded_alerts_carry_the_ids_they_were_stored_with(tmp_path):
+    """The alerts of a batch are inserted in one statement: each alert returned carries the
+    id of its own row (read back by component and time), also after the table's last rows
+    were deleted (ids continue from the largest one left)."""
+    rng = np.random.default_rng(8)
+    rows = [(f"u{i}", float(s), min(0.05 * np.exp((0.04 + 0.01 * i) * s)
+                                    + abs(rng.normal(0, 0.01)), 1.5))
+            for i in range(12) for s in range(60)]
+    df = pd.DataFrame(rows, columns=["component", "time", "hi"]).sort_values("time",
+                                                                            kind="stable")
+    db = tmp_path / "a.db"
+    with ComponentStore(db, config=CFG) as store:
+        first = store.ingest(df[df.time < 30]).alerts
+        store._conn.execute("DELETE FROM alerts WHERE id >= ?", (first[-1].id - 1,))
+        second = store.ingest(df[df.time >= 30]).alerts
+    assert len(first) > 2 and len(second) > 2
+    con = sqlite3.connect(db)
+    stored = {(c, t, lvl): i for i, c, t, lvl in con.execute(
+        "SELECT id, component, t, level FROM alerts")}
+    top = con.execute("SELECT max(id) FROM alerts WHERE id < ?", (second[0].id,)).fetchone()[0]
+    con.close()
+    assert [stored[(a.component, a.t, a.level)] for a in second] == [a.id for a in second]
+    assert [a.id for a in second] == list(range(top + 1, top + 1 + len(second)))
+    assert top == first[-1].id - 2

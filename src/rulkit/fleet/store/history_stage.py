@@ -9,6 +9,12 @@ last window would hold the file's (104 bytes an acquisition). The stage appends 
 records to an unlinked temporary file (the operating system's page cache holds them, not the
 process) and reads a block's back with one read per window: a block of consecutive components
 is one contiguous range of each window's records (both are in key order).
+
+The file's writes and reads run on one worker thread beside the batch's: a window's records
+are written while the next window is computed (one write in flight at most: its records are
+held until written), and the next block is read back while the caller writes the current one
+into the database (the file's and SQLite's calls release the interpreter's lock). The bytes,
+their order and the blocks given back are those of writing and reading in line.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import errno
 import os
 import tempfile
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -57,22 +64,33 @@ class HistoryStage:
                 raise self._error(err2) from err2
         self._windows: list[tuple[np.ndarray, np.ndarray, int, int]] = []
         self._size = 0
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rulkit-stage")
+        self._written: Future[None] | None = None
 
     def __enter__(self) -> HistoryStage:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self._worker.shutdown(wait=True, cancel_futures=True)
         self._file.close()
 
     def add(self, piece: Piece, rec: np.ndarray) -> None:
-        """Stage the records ``rec`` of the window ``piece`` (its rows' order)."""
+        """Stage the records ``rec`` of the window ``piece`` (its rows' order): written by
+        the worker once the previous window's are."""
         rec = np.ascontiguousarray(rec, dtype="<f8")
-        try:
-            self._file.write(rec.data.cast("B"))
-        except OSError as err:
-            raise self._error(err) from err
+        self._wait_written()
+        self._written = self._worker.submit(_write_at, self._file.fileno(), rec, self._size)
         self._windows.append((piece.keys, piece.seg, piece.rank0, self._size))
         self._size += rec.nbytes
+
+    def _wait_written(self) -> None:
+        """Wait for the window in flight; a failed write raises the store's error."""
+        if self._written is not None:
+            done, self._written = self._written, None
+            try:
+                done.result()
+            except OSError as err:
+                raise self._error(err) from err
 
     def blocks(self, block_rows: int, max_chunk: int = MAX_CHUNK
                ) -> Iterator[tuple[int, int, Chunks]]:
@@ -82,22 +100,35 @@ class HistoryStage:
         ``max_chunk`` acquisitions each) of the components at key-order positions ``k0`` to
         ``k1 - 1``, ``owner`` counted from ``k0``. Each window's records of the block are
         read straight into their places beside the chunks' headers: one scattered read per
-        window (a component's run of ranks is one contiguous stretch of its chunk)."""
-        self._file.flush()
-        st = self.order.start
-        for k0, k1 in component_blocks(self.order, block_rows):
-            chunks = layout(st[k0:k1 + 1] - st[k0], max_chunk)
-            first = np.searchsorted(chunks.owner, np.arange(k1 - k0))  # each one's first chunk
-            raw = chunks.words.data.cast("B")
-            for keys, seg, rank0, offset in self._windows:
-                a, b = (int(x) for x in np.searchsorted(keys, (k0, k1)))
-                if a < b:
-                    at, size = _runs(keys[a:b] - k0, np.diff(seg[a:b + 1]), rank0, max_chunk,
-                                     first, chunks.start)
-                    _read_scattered(self._file.fileno(), [
-                        raw[8 * w:8 * (w + m)] for w, m in zip(at, size, strict=True)],
-                        offset + int(seg[a]) * WIDTH * 8)
+        window (a component's run of ranks is one contiguous stretch of its chunk); the next
+        block is read while the caller has this one."""
+        self._wait_written()
+        bounds = component_blocks(self.order, block_rows)
+        ahead = [self._worker.submit(self._chunks, *bounds[0], max_chunk)] if bounds else []
+        for i, (k0, k1) in enumerate(bounds):
+            chunks = ahead.pop().result()
+            if i + 1 < len(bounds):
+                ahead.append(self._worker.submit(self._chunks, *bounds[i + 1], max_chunk))
+                if i + 2 == len(bounds):  # the file's pages freed once the last block is read
+                    self._worker.submit(os.ftruncate, self._file.fileno(), 0)
             yield k0, k1, chunks
+
+    def _chunks(self, k0: int, k1: int, max_chunk: int) -> Chunks:
+        """The chunks of the components at key-order positions ``k0`` to ``k1 - 1``
+        (:meth:`blocks`)."""
+        st = self.order.start
+        chunks = layout(st[k0:k1 + 1] - st[k0], max_chunk)
+        first = np.searchsorted(chunks.owner, np.arange(k1 - k0))  # each one's first chunk
+        raw = chunks.words.data.cast("B")
+        for keys, seg, rank0, offset in self._windows:
+            a, b = (int(x) for x in np.searchsorted(keys, (k0, k1)))
+            if a < b:
+                at, size = _runs(keys[a:b] - k0, np.diff(seg[a:b + 1]), rank0, max_chunk,
+                                 first, chunks.start)
+                _read_scattered(self._file.fileno(), [
+                    raw[8 * w:8 * (w + m)] for w, m in zip(at, size, strict=True)],
+                    offset + int(seg[a]) * WIDTH * 8)
+        return chunks
 
     def _error(self, err: OSError) -> StoreError:
         """The store's error for a failed write of the temporary file (nothing is stored)."""
@@ -110,6 +141,14 @@ class HistoryStage:
             return StoreReadOnlyError(msg)
         return StoreError(msg)
 
+
+
+def _write_at(fd: int, rec: np.ndarray, offset: int) -> None:
+    """Write the bytes of ``rec`` (contiguous) to the file ``fd`` at ``offset``."""
+    view = rec.data.cast("B")
+    done = 0
+    while done < view.nbytes:
+        done += os.pwrite(fd, view[done:], offset + done)
 
 
 def _runs(comp: np.ndarray, length: np.ndarray, rank0: int, max_chunk: int,
