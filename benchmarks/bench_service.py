@@ -14,8 +14,10 @@ For each backend (SQLite file; PostgreSQL: a throwaway server from the installed
    filled through the store: every alert level, due dates, half of them stale), then
    ``--readers`` threads x ``--reads`` requests of each page: every sort (worst, rul, due) x
    level filter (all, alarm, ok, stale) x depth (first page, middle and 99 % deep by
-   cursor), then the middle page by ``offset``; PostgreSQL's fill ends with VACUUM ANALYZE
-   (what autovacuum does to a freshly loaded table). Prints p50/p99 and service CPU per
+   cursor), then the middle page by ``offset``, each request a different page of its kind
+   (shifted one component at a time: none is answered from the service's page cache);
+   PostgreSQL's fill ends with VACUUM ANALYZE (what autovacuum does to a freshly loaded
+   table). Prints p50/p99 and service CPU per
    request after ``--warmup`` requests per reader (their worst latency printed apart), the
    worst p99 of the pages by cursor and how many are under 50 ms, and the full collections of
    Python's garbage collector in the service meanwhile (its ``/metrics``). With ``--against
@@ -212,16 +214,36 @@ DEPTHS = {"first": None, "middle": 0.5, "deep": 0.99}
 """Page depths by cursor: the fraction of the matching components before the page."""
 
 
-def _cursor(port: int, token: str, query: str, depth: float) -> str | None:
-    """The cursor after ``depth`` of the matching components (one request by offset: its
+def _cursor(port: int, token: str, query: str, depth: float, room: int) -> str | None:
+    """The cursor after ``depth`` of the matching components, moved back so that ``room``
+    components follow it where the filter matches that many (one request by offset: its
     ``next``; ``None`` when nothing matches)."""
     _, body = request(port, "GET", f"/api/v1/components?limit=1&{query}", None, token)
-    k = min(int(body["total"] * depth), max(body["total"] - 2, 0))
+    k = max(min(int(body["total"] * depth), body["total"] - 2 - room), 0)
     status, body = request(port, "GET", f"/api/v1/components?limit=1&offset={k}&{query}",
                            None, token, timeout=600.0)
     if status != 200:
         raise SystemExit(f"cursor request failed: {status} {body!r}")
     return body["next"]
+
+
+def _cursors_from(port: int, token: str, query: str, start: str | None, n: int
+                  ) -> list[str | None]:
+    """``start`` and the cursors after each of the next ``n - 1`` components (one request of
+    one component each), as far as the filter matches components."""
+    from urllib.parse import quote
+
+    out = [start]
+    while len(out) < n:
+        after = "" if out[-1] is None else f"&after={quote(out[-1])}"
+        status, body = request(port, "GET", f"/api/v1/components?limit=1&{query}{after}",
+                               None, token)
+        if status != 200:
+            raise SystemExit(f"cursor request failed: {status} {body!r}")
+        if body["next"] is None:
+            break
+        out.append(body["next"])
+    return out
 
 
 def metrics_text(port: int) -> str:
@@ -262,9 +284,12 @@ def gc_pauses(text: str, generation: int = 2) -> tuple[int, float]:
     return count, total
 
 
-def page_kinds(port: int, token: str, n: int) -> list[tuple[str, str]]:
-    """(label, path) of every page: sort x level filter x depth by cursor, then the middle
-    page of the default order by offset."""
+def page_kinds(port: int, token: str, n: int, need: int) -> list[tuple[str, list[str]]]:
+    """(label, paths) of every page: sort x level filter x depth by cursor, then the middle
+    page of the default order by offset. Each kind has ``need`` paths, one per request, each
+    a different page: the page of its depth and the pages after it, shifted one component
+    at a time (so that no request is answered from the service's page cache, which keys on
+    the query); a filter matching fewer components repeats its pages."""
     from urllib.parse import quote
 
     kinds = []
@@ -272,30 +297,34 @@ def page_kinds(port: int, token: str, n: int) -> list[tuple[str, str]]:
         for level in ("all", "alarm", "ok", "stale"):
             query = f"sort={sort}" + ("" if level == "all" else f"&level={level}")
             for depth, frac in DEPTHS.items():
-                after = ""
+                start = None
                 if frac is not None:
-                    cur = _cursor(port, token, query, frac)
-                    if cur is None:
+                    start = _cursor(port, token, query, frac, need)
+                    if start is None:
                         continue
-                    after = f"&after={quote(cur)}"
+                cursors = _cursors_from(port, token, query, start, need)
+                paths = [f"/api/v1/components?limit=50&{query}"
+                         + ("" if c is None else f"&after={quote(c)}") for c in cursors]
                 kinds.append((f"{sort}/{level}/{depth}",
-                              f"/api/v1/components?limit=50&{query}{after}"))
-    kinds.append(("worst/all/middle_offset", f"/api/v1/components?limit=50&offset={n // 2}"))
+                              [paths[j % len(paths)] for j in range(need)]))
+    kinds.append(("worst/all/middle_offset",
+                  [f"/api/v1/components?limit=50&offset={n // 2 + j}" for j in range(need)]))
     return kinds
 
 
-def measure_page(srv: Any, token: str, path: str, args: argparse.Namespace
+def measure_page(srv: Any, token: str, paths: list[str], args: argparse.Namespace
                  ) -> dict[str, float]:
     """One page's figures on server ``srv``: each reader's ``--warmup`` requests (their
     worst latency), then ``--readers`` x ``--reads`` timed ones: p50, p99, the service's CPU
     per request and busy fraction, the requests it served over 50 ms, its full garbage
     collections meanwhile."""
-    warm = timed_reads(srv.port, token, path, args.readers, args.warmup) \
+    n_warm = args.readers * args.warmup
+    warm = timed_reads(srv.port, token, paths[:n_warm], args.readers, args.warmup) \
         if args.warmup else [math.nan]
     text = metrics_text(srv.port)
     over0, gc0 = served_over(text, "/api/v1/components"), gc_pauses(text)
     cpu0, wall0 = srv.cpu_seconds(), time.perf_counter()
-    lat = timed_reads(srv.port, token, path, args.readers, args.reads)
+    lat = timed_reads(srv.port, token, paths[n_warm:], args.readers, args.reads)
     cpu = srv.cpu_seconds() - cpu0
     busy = cpu / (time.perf_counter() - wall0)
     text = metrics_text(srv.port)
@@ -321,10 +350,11 @@ def pages_phase(db: str, args: argparse.Namespace) -> dict[str, Any]:
     try:
         if args.against is not None:
             servers["theirs"] = start_server(db, env={"PYTHONPATH": str(args.against.resolve())})
-        kinds = page_kinds(servers["ours"].port, token, n)
-        for label, path in kinds:
+        kinds = page_kinds(servers["ours"].port, token, n,
+                           args.readers * (args.warmup + args.reads))
+        for label, paths in kinds:
             for side, srv in servers.items():
-                out[(side, label)] = measure_page(srv, token, path, args)
+                out[(side, label)] = measure_page(srv, token, paths, args)
     finally:
         for srv in servers.values():
             srv.stop()
@@ -407,17 +437,24 @@ def history_phase(dbs: list[str], args: argparse.Namespace) -> dict[str, float]:
     return out
 
 
-def timed_reads(port: int, token: str, path: str, threads: int, per_thread: int) -> list[float]:
+def timed_reads(port: int, token: str, path: str | list[str], threads: int, per_thread: int
+                ) -> list[float]:
+    """Latencies of ``threads`` x ``per_thread`` GETs on one connection per thread: of
+    ``path`` each, or of the list's paths, thread ``i`` requesting ``path[i * per_thread:
+    (i + 1) * per_thread]``."""
+    paths = [path] * (threads * per_thread) if isinstance(path, str) else path
+    if len(paths) < threads * per_thread:
+        raise ValueError(f"{len(paths)} paths for {threads} x {per_thread} requests")
     lat: list[float] = []
     lock = threading.Lock()
     errors: list[str] = []
 
-    def run() -> None:
+    def run(i: int) -> None:
         conn = http.client.HTTPConnection("127.0.0.1", port, timeout=600)  # offset pages: s
         try:
-            for _ in range(per_thread):
+            for j in range(per_thread):
                 t0 = time.perf_counter()
-                status, _ = request(port, "GET", path, None, token, conn)
+                status, _ = request(port, "GET", paths[i * per_thread + j], None, token, conn)
                 dt = time.perf_counter() - t0
                 with lock:
                     lat.append(dt)
@@ -426,7 +463,7 @@ def timed_reads(port: int, token: str, path: str, threads: int, per_thread: int)
         finally:
             conn.close()
 
-    ts = [threading.Thread(target=run) for _ in range(threads)]
+    ts = [threading.Thread(target=run, args=(i,)) for i in range(threads)]
     for t in ts:
         t.start()
     for t in ts:
