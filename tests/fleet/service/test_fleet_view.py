@@ -144,6 +144,48 @@ def test_a_keyset_page_seeks_an_index(sdb, sort, level):
             assert "Index" in plan and "Seq Scan" not in plan, plan
 
 
+def test_a_tie_that_fills_the_page_is_not_followed_past_it(sdb):
+    """A cursor inside a tie of the sort key that holds the next page (stale alarms that all
+    failed at one time: one due date), followed in the level's order by many rows the filter
+    skips (fresh alarms): the page after it reads what the first page reads, not every fresh
+    alarm (SQLite: the tie's range, then the keys after it only for a short page; counted in
+    the virtual machine's steps), and both pages are the Python sort's."""
+    with sdb.store() as s:
+        s.set_rules(MonitoringRules(time_unit="h", lead_time=30.0, alarm_hi=0.9,
+                                    stale_after=3600.0))
+    names = [f"c{i:04d}" for i in range(3000)]
+    df = pd.DataFrame({"component": np.repeat(names, 2), "time": np.tile([0.0, 1.0], 3000),
+                       "hi": np.tile([0.5, 1.1], 3000)})  # failed: RUL 0, due at the time seen
+    stale = df["component"] < "c0200"
+    sdb.ingest(df[stale], "old", now=NOW - 7200.0)
+    sdb.ingest(df[~stale], "new", now=NOW)
+    rows, est = table(sdb)
+    want = expected(rows, "due", "stale")
+    assert len(want) == 200 and rows["level"].eq(2).all()
+    _, first, cur = sdb.components(limit=50, level="stale", sort="due", now=NOW)
+    _, second, _ = sdb.components(limit=50, level="stale", sort="due", after=cur, now=NOW)
+    assert [i["component"] for i in first + second] == want[:100]
+    if sdb.dialect != "sqlite":
+        return
+    steps = {}
+    with sdb.store() as s, s.snapshot() as conn:
+        for name, key in (("first", None), ("second", fleet_view.decode_cursor(cur, "due"))):
+            count = [0]
+
+            def step(count=count):
+                count[0] += 1
+                return 0
+
+            sql, params = page_query("due", "stale", est, NOW, key, 50)
+            conn.set_progress_handler(step, 100)
+            try:
+                conn.execute(sql, params).fetchall()
+            finally:
+                conn.set_progress_handler(None, 0)
+            steps[name] = count[0]
+    assert steps["second"] < 3 * steps["first"] + 10, steps
+
+
 def test_a_page_of_few_stale_components_reads_the_seen_index(sdb):
     """With few stale components, their page is one range of the ``seen`` index (a cursor's
     key a filter, the order a sort of the few), never a walk of an order's index that reads

@@ -103,38 +103,58 @@ def _stale_filter(level: str | None, est: Estimator, now: float) -> tuple[str, l
 
 
 def _ranges(sort: str, level: str | None, est: Estimator, now: float,
-            key: list[Any] | None, dialect: str) -> list[tuple[str, list[Any], str]]:
-    """The ranges of a page in ``sort`` order after ``key`` (:func:`page_query`): (condition,
-    parameters, order) of each, every one of one level; for ``worst`` in the page's order."""
+            key: list[Any] | None, dialect: str) -> list[list[tuple[str, list[Any], str]]]:
+    """The ranges of a page in ``sort`` order after ``key`` (:func:`page_query`), one group
+    per level, each range (condition, parameters, order) and a group's ranges in the order
+    of its rows; for ``worst`` the groups in the page's order."""
     cond, params = _stale_filter(level, est, now)
     k, order = SORTS[sort][0], ", ".join(SORTS[sort])
     levels = [LEVEL_CODES[level]] if level in LEVEL_CODES else [2, 1, 0]
-    ranges: list[tuple[str, list[Any], str]] = []
+    groups: list[list[tuple[str, list[Any], str]]] = []
     for lv in levels:
         where, p = f"{cond} AND level = ?", [*params, lv]
         if key is None or (sort == "worst" and lv < key[0]):
-            ranges.append((where, p, order))
+            groups.append([(where, p, order)])
         elif dialect == "postgresql" and (sort != "worst" or lv == key[0]):
-            ranges.append((f"{where} AND ({k}, component) > (?, ?)", [*p, key[1], key[2]],
-                           order))
+            groups.append([(f"{where} AND ({k}, component) > (?, ?)",
+                            [*p, key[1], key[2]], order)])
         elif sort != "worst" or lv == key[0]:  # ordered by id alone: the key is fixed
-            ranges += [(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]],
-                        "component"),
-                       (f"{where} AND {k} > ?", [*p, key[1]], order)]
-    return ranges
+            groups.append([(f"{where} AND {k} = ? AND component > ?", [*p, key[1], key[2]],
+                            "component"),
+                           (f"{where} AND {k} > ?", [*p, key[1]], order)])
+    return groups
 
 
-def _ranges_query(cols: str, outer_order: str, ranges: list[tuple[str, list[Any], str]],
-                  sort: str, n: int, skip: int = 0) -> tuple[str, list[Any]]:
-    """SQL and parameters of rows ``skip`` to ``skip + n`` of the union of ``ranges`` (each
-    stops after ``skip + n`` rows), selecting ``cols``, merged by ``outer_order``."""
+def _ranges_query(cols: str, outer_order: str,
+                  groups: list[list[tuple[str, list[Any], str]]], sort: str, n: int,
+                  skip: int = 0) -> tuple[str, list[Any]]:
+    """SQL and parameters of rows ``skip`` to ``skip + n`` of the union of the ranges of
+    ``groups`` (:func:`_ranges`), selecting ``cols``, merged by ``outer_order``. Each range
+    stops after ``skip + n`` rows, and so does each group: its ranges are read in turn, a
+    later one only while the earlier ones gave fewer rows (the rest of a tie on the cursor's
+    key first: when that holds a page, the keys after it in a level with a filter that
+    skips most of them are not walked). This takes a compound's rows in the order of its
+    arms, as SQLite reads them (every page is checked against a Python sort of the table in
+    tests/fleet/service/test_fleet_view.py)."""
+    m = int(n + skip)
     tail = f"LIMIT {int(n)}" + (f" OFFSET {int(skip)}" if skip else "")
-    args = [v for _, p, _ in ranges for v in p]
+    args = [v for g in groups for _, p, _ in g for v in p]
+    ranges = [r for g in groups for r in g]
     if len(ranges) <= 1:  # none: a cursor of a level before the filter's, in worst order
         w, _, o = ranges[0] if ranges else ("1 = 0", [], "component")
         return f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} {tail}", args
-    parts = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} LIMIT {int(n + skip)}"
-             for w, _, o in ranges]
+    if len(groups) == 1:  # one level: its ranges in turn are its order
+        return " UNION ALL ".join(
+            f"SELECT * FROM (SELECT {cols} FROM components WHERE {w} ORDER BY {o} "
+            f"LIMIT {m}) AS r{j}" for j, (w, _, o) in enumerate(ranges)) + f" {tail}", args
+    parts = []
+    for i, g in enumerate(groups):
+        arms = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} LIMIT {m}"
+                for w, _, o in g]
+        if len(arms) > 1:  # in turn: a compound stops reading its arms at its limit
+            arms = [" UNION ALL ".join(f"SELECT * FROM ({a}) AS r{i}_{j}"
+                                       for j, a in enumerate(arms)) + f" LIMIT {m}"]
+        parts.append(arms[0])
     union = " UNION ALL ".join(f"SELECT * FROM ({q}) AS p{i}" for i, q in enumerate(parts))
     lead = "level DESC, " if sort == "worst" else ""
     return f"SELECT * FROM ({union}) AS page ORDER BY {lead}{outer_order} {tail}", args
@@ -151,7 +171,7 @@ def page_query(sort: str, level: str | None, est: Estimator, now: float,
     the key; ``rul`` and ``due`` merge the levels' ranges. A range after the cursor's key is
     one row comparison ``(key, id) > (?, ?)`` on PostgreSQL (an index condition there); on
     SQLite, which seeks only the level with it, two: the rest of the key's tie (later ids)
-    and the keys after it.
+    and the keys after it, read in turn (:func:`_ranges_query`).
 
     One level per range, and the row comparison, keep the plan right on PostgreSQL: the
     levels follow the RUL (the alarms hold the shortest; the pending RULs are rarely
