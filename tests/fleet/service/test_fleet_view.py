@@ -186,6 +186,59 @@ def test_a_tie_that_fills_the_page_is_not_followed_past_it(sdb):
     assert steps["second"] < 3 * steps["first"] + 10, steps
 
 
+def test_first_done_answers_with_the_plan_that_ends_and_leaves_the_connection_clean(tmp_path):
+    """A plan that would run for seconds is stopped within its budget and the other plan's
+    rows are returned; an error of a plan's own is raised; no progress handler is left."""
+    import sqlite3
+
+    conn = sqlite3.connect(tmp_path / "x.db")
+    endless = "WITH RECURSIVE c(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM c " \
+              "WHERE i < 100000000) SELECT count(*) FROM c"
+
+    def slow():
+        return conn.execute(endless).fetchall()
+
+    def quick():
+        return conn.execute("SELECT 7").fetchall()
+
+    assert fleet_view.first_done(conn, [slow, quick], budget=1e-4) == [(7,)]
+    assert fleet_view.first_done(conn, [quick, slow], budget=1e-4) == [(7,)]
+    with pytest.raises(sqlite3.OperationalError, match="no such table"):
+        fleet_view.first_done(conn, [lambda: conn.execute("SELECT * FROM absent").fetchall(),
+                                     quick])
+    assert conn.execute("WITH RECURSIVE c(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM c "
+                        "WHERE i < 200000) SELECT count(*) FROM c").fetchone() == (200000,)
+
+
+@pytest.mark.parametrize("level", ["stale"])
+def test_stale_pages_by_either_plan_are_the_python_sort(sdb, level, monkeypatch):
+    """Beyond ``STALE_BY_SEEN`` the stale pages on SQLite come from whichever plan ends first
+    (:func:`fleet_view.first_done`); with budgets so small that every plan is stopped many
+    times before one ends, and with each plan alone, every page is still the Python sort's."""
+    monkeypatch.setattr(fleet_view, "STALE_BY_SEEN", 0)
+    fleet(sdb)
+    df, _ = table(sdb)
+    variants = {"tiny budgets": lambda conn, plans: real(conn, plans, budget=1e-7),
+                "by order": lambda conn, plans: plans[0](),
+                "by seen": lambda conn, plans: plans[1]()}
+    real = fleet_view.first_done
+    for name, variant in variants.items():
+        monkeypatch.setattr(fleet_view, "first_done", variant)
+        for sort in SORTS:
+            want = expected(df, sort, level)
+            got, after = [], None
+            while True:
+                total, items, after = sdb.components(limit=7, level=level, sort=sort,
+                                                     after=after, now=NOW)
+                assert total == len(want)
+                got += [i["component"] for i in items]
+                if after is None:
+                    break
+            assert got == want, (name, sort)
+            _, items, _ = sdb.components(limit=4, offset=5, level=level, sort=sort, now=NOW)
+            assert [i["component"] for i in items] == want[5:9], (name, sort)
+
+
 def test_a_page_of_few_stale_components_reads_the_seen_index(sdb):
     """With few stale components, their page is one range of the ``seen`` index (a cursor's
     key a filter, the order a sort of the few), never a walk of an order's index that reads

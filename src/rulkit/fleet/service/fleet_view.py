@@ -12,6 +12,9 @@ then a ``null`` quantile is unbounded, it lies in the never-failing mass).
 from __future__ import annotations
 
 import math
+import sqlite3
+import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -203,6 +206,42 @@ few); beyond, :func:`page_query` reads each level's order and skips the fresh on
 50 come soon when many are stale; with few, that would read whole levels)."""
 
 
+FIRST_BUDGET = 0.0005
+"""Seconds of this thread's CPU time each plan of :func:`first_done` is given in its first
+round; every further round doubles it."""
+
+
+def first_done(conn: Any, plans: list[Callable[[], list[Any]]],
+               budget: float | None = None) -> list[Any]:
+    """The rows of whichever of ``plans`` (the same rows read by different plans) ends first
+    within a budget of this thread's CPU time: each tried in turn, stopped by SQLite's
+    progress handler once its budget is spent, the budget doubled after every round, so the
+    time spent is at most about 4 times that of the cheaper plan (and the rows are the same
+    whichever answers). For the stale filter beyond :data:`STALE_BY_SEEN`: each level's
+    order read past the fresh components is cheap while stale ones come soon in every level
+    and dear where a level holds few of them before its end; the ``seen`` index read whole
+    is dear when many are stale. SQLite, without statistics, cannot tell which."""
+    budget = FIRST_BUDGET if budget is None else budget
+    while True:
+        for plan in plans:
+            stop = time.thread_time() + budget
+            over = [False]
+
+            def spent(over: list[bool] = over, stop: float = stop) -> bool:
+                over[0] = time.thread_time() > stop
+                return over[0]
+
+            conn.set_progress_handler(spent, 1000)  # every 1000 virtual machine steps
+            try:
+                return plan()
+            except sqlite3.OperationalError:
+                if not over[0]:  # not the handler's interruption
+                    raise
+            finally:
+                conn.set_progress_handler(None, 0)
+        budget *= 2
+
+
 def stale_page_query(sort: str, cutoff: float, key: list[Any] | None, n: int
                      ) -> tuple[str, list[Any]]:
     """SQL and parameters of the first ``n`` components seen before ``cutoff`` in ``sort``
@@ -304,16 +343,26 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     total = level_total(conn, level, est, now)
     stale_after = est.rules.stale_after
     dialect = getattr(conn, "dialect", "sqlite")
-    if level == "stale" and stale_after is not None and total <= STALE_BY_SEEN:
+    def by_seen() -> list[Any]:
+        assert stale_after is not None
         sql, params = stale_page_query(sort, now - stale_after, key, offset + limit)
-        rows = conn.execute(sql, params).fetchall()[offset:]
-    else:
+        return list(conn.execute(sql, params).fetchall()[offset:])
+
+    def by_order() -> list[Any]:
+        at = key
         if offset:  # the rows skipped read in their order's index alone, then a page after
-            row = conn.execute(*skip_query(sort, level, est, now, key, offset, dialect)
+            row = conn.execute(*skip_query(sort, level, est, now, at, offset, dialect)
                                ).fetchone()
-            key = None if row is None else [int(row[0]), float(row[1]), row[2]]
-        sql, params = page_query(sort, level, est, now, key, limit, dialect)
-        rows = [] if offset and key is None else conn.execute(sql, params).fetchall()
+            at = None if row is None else [int(row[0]), float(row[1]), row[2]]
+        sql, params = page_query(sort, level, est, now, at, limit, dialect)
+        return [] if offset and at is None else list(conn.execute(sql, params).fetchall())
+
+    if level == "stale" and stale_after is not None and total <= STALE_BY_SEEN:
+        rows = by_seen()
+    elif level == "stale" and stale_after is not None and dialect == "sqlite":
+        rows = first_done(conn, [by_order, by_seen])
+    else:
+        rows = by_order()
     nxt = cursor_of(rows[-1], sort) if len(rows) == limit else None
     items = component_items([r[:len(FIELDS)] for r in rows], est, now)
     return total, items, nxt
