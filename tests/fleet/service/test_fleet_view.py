@@ -216,6 +216,7 @@ def test_stale_pages_by_either_plan_are_the_python_sort(sdb, level, monkeypatch)
     (:func:`fleet_view.first_done`); with budgets so small that every plan is stopped many
     times before one ends, and with each plan alone, every page is still the Python sort's."""
     monkeypatch.setattr(fleet_view, "STALE_BY_SEEN", 0)
+    monkeypatch.setattr(fleet_view, "HANDLER_STEPS", 100)
     fleet(sdb)
     df, _ = table(sdb)
     variants = {"tiny budgets": lambda conn, plans: real(conn, plans, budget=1e-7),

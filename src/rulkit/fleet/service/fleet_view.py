@@ -206,9 +206,12 @@ few); beyond, :func:`page_query` reads each level's order and skips the fresh on
 50 come soon when many are stale; with few, that would read whole levels)."""
 
 
-FIRST_BUDGET = 0.0005
+FIRST_BUDGET = 0.002
 """Seconds of this thread's CPU time each plan of :func:`first_done` is given in its first
-round; every further round doubles it."""
+round (a page that comes soon takes a fraction of it); every further round doubles it."""
+HANDLER_STEPS = 10_000
+"""SQLite virtual machine steps between two calls of :func:`first_done`'s progress handler
+(each call takes the interpreter's lock, which the query otherwise runs without)."""
 
 
 def first_done(conn: Any, plans: list[Callable[[], list[Any]]],
@@ -231,7 +234,7 @@ def first_done(conn: Any, plans: list[Callable[[], list[Any]]],
                 over[0] = time.thread_time() > stop
                 return over[0]
 
-            conn.set_progress_handler(spent, 1000)  # every 1000 virtual machine steps
+            conn.set_progress_handler(spent, HANDLER_STEPS)
             try:
                 return plan()
             except sqlite3.OperationalError:
