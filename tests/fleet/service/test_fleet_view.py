@@ -62,6 +62,18 @@ def expected(df, sort, level):
     return [r[3] for r in rows]
 
 
+def walk(sdb, limit, level, sort, total):
+    """The components of every page by cursor from the first, each page's total checked."""
+    got, after = [], None
+    while True:
+        n, items, after = sdb.components(limit=limit, level=level, sort=sort, after=after,
+                                         now=NOW)
+        assert n == total
+        got += [i["component"] for i in items]
+        if after is None:
+            return got
+
+
 @pytest.mark.parametrize("level", [None, "ok", "alarm", "stale", "stale by level"])
 def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level, monkeypatch):
     """(``stale by level``: the stale filter as many stale components are read, each level's
@@ -75,15 +87,7 @@ def test_walking_the_cursors_visits_every_component_once_in_order(sdb, level, mo
     assert np.array_equal(df["due"].isna(), df["rul_median"].isna())  # the stored due
     for sort in SORTS:
         want = expected(df, sort, level)
-        got, after = [], None
-        while True:
-            total, items, after = sdb.components(limit=8, level=level, sort=sort,
-                                                 after=after, now=NOW)
-            assert total == len(want)
-            got += [i["component"] for i in items]
-            if after is None:
-                break
-        assert got == want, (sort, level)
+        assert walk(sdb, 8, level, sort, len(want)) == want, (sort, level)
         # offset after a cursor skips rows of the same order
         _, _, cur = sdb.components(limit=3, level=level, sort=sort, now=NOW)
         if cur is not None:
@@ -227,15 +231,7 @@ def test_stale_pages_by_either_plan_are_the_python_sort(sdb, level, monkeypatch)
         monkeypatch.setattr(fleet_view, "first_done", variant)
         for sort in SORTS:
             want = expected(df, sort, level)
-            got, after = [], None
-            while True:
-                total, items, after = sdb.components(limit=7, level=level, sort=sort,
-                                                     after=after, now=NOW)
-                assert total == len(want)
-                got += [i["component"] for i in items]
-                if after is None:
-                    break
-            assert got == want, (name, sort)
+            assert walk(sdb, 7, level, sort, len(want)) == want, (name, sort)
             _, items, _ = sdb.components(limit=4, offset=5, level=level, sort=sort, now=NOW)
             assert [i["component"] for i in items] == want[5:9], (name, sort)
 
