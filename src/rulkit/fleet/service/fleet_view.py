@@ -142,22 +142,23 @@ def _ranges_query(cols: str, outer_order: str,
     m = int(n + skip)
     tail = f"LIMIT {int(n)}" + (f" OFFSET {int(skip)}" if skip else "")
     args = [v for g in groups for _, p, _ in g for v in p]
-    ranges = [r for g in groups for r in g]
-    if len(ranges) <= 1:  # none: a cursor of a level before the filter's, in worst order
-        w, _, o = ranges[0] if ranges else ("1 = 0", [], "component")
+    if sum(map(len, groups)) <= 1:  # none: a cursor of a level before the filter's (worst)
+        w, _, o = groups[0][0] if groups else ("1 = 0", [], "component")
         return f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} {tail}", args
-    if len(groups) == 1:  # one level: its ranges in turn are its order
-        return " UNION ALL ".join(
-            f"SELECT * FROM (SELECT {cols} FROM components WHERE {w} ORDER BY {o} "
-            f"LIMIT {m}) AS r{j}" for j, (w, _, o) in enumerate(ranges)) + f" {tail}", args
-    parts = []
-    for i, g in enumerate(groups):
+
+    def group_sql(i: int, g: list[tuple[str, list[Any], str]], limit: str) -> str:
+        """A group's rows in its order: its ranges in turn (a compound stops reading its
+        arms at its limit)."""
         arms = [f"SELECT {cols} FROM components WHERE {w} ORDER BY {o} LIMIT {m}"
                 for w, _, o in g]
-        if len(arms) > 1:  # in turn: a compound stops reading its arms at its limit
-            arms = [" UNION ALL ".join(f"SELECT * FROM ({a}) AS r{i}_{j}"
-                                       for j, a in enumerate(arms)) + f" LIMIT {m}"]
-        parts.append(arms[0])
+        if len(arms) == 1:
+            return arms[0]
+        return " UNION ALL ".join(f"SELECT * FROM ({a}) AS r{i}_{j}"
+                                  for j, a in enumerate(arms)) + f" {limit}"
+
+    if len(groups) == 1:  # one level: its ranges in turn are the page's order
+        return group_sql(0, groups[0], tail), args
+    parts = [group_sql(i, g, f"LIMIT {m}") for i, g in enumerate(groups)]
     union = " UNION ALL ".join(f"SELECT * FROM ({q}) AS p{i}" for i, q in enumerate(parts))
     lead = "level DESC, " if sort == "worst" else ""
     return f"SELECT * FROM ({union}) AS page ORDER BY {lead}{outer_order} {tail}", args
@@ -346,6 +347,7 @@ def list_components(conn: Any, est: Estimator, *, limit: int, offset: int,
     total = level_total(conn, level, est, now)
     stale_after = est.rules.stale_after
     dialect = getattr(conn, "dialect", "sqlite")
+
     def by_seen() -> list[Any]:
         assert stale_after is not None
         sql, params = stale_page_query(sort, now - stale_after, key, offset + limit)
