@@ -83,6 +83,35 @@ def test_run_equals_one_update_per_row(strategy, equal):
     np.testing.assert_array_equal(state.t, ref.t)
 
 
+def test_ranks_of_equal_length_from_a_mixed_state_equal_one_update_per_row():
+    """The ranks' direct path (every unit at every rank) from a state where some units have
+    sums and others none, and with a NaN row (each unit's rows then run as the general
+    path): the sums after every row those of trend_update, bit for bit."""
+    rng = np.random.default_rng(3)
+    cfg = TrendConfig(forgetting=0.93)
+    b, k = 12, 9
+    start = TrendState.empty(b)
+    old = rng.random(b) < 0.5  # these units have 4 earlier acquisitions
+    for r in range(4):
+        start = trend_update(start, np.where(old, r - 10.0, np.nan),
+                             np.where(old, rng.uniform(0.1, 0.5, b), np.nan), cfg)
+    t = (np.arange(k) + rng.uniform(0.0, 0.5, (b, k))).ravel()
+    hi = rng.uniform(0.05, 0.6, b * k)
+    seg = np.arange(0, b * k + 1, k)
+    for bad in (False, True):
+        h = hi.copy()
+        if bad:
+            h[5] = np.nan  # unit 0's sixth row: trend_update keeps its state there
+        ref = start
+        want = np.empty((b * k, 7))
+        for r in range(k):
+            ref = trend_update(ref, t[r::k], h[r::k], cfg)
+            want[r::k] = ref.s
+        state, rows = trend_run(start, seg, t, h, cfg, strategy="ranks")
+        np.testing.assert_array_equal(rows.s, want)
+        np.testing.assert_array_equal(state.s, ref.s)
+
+
 @pytest.mark.parametrize("forgetting", [1.0, 0.8])
 def test_posterior_is_weighted_least_squares(forgetting):
     """a, b, their covariance and the degrees of freedom of (EI-17), computed from the raw

@@ -234,13 +234,11 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
     counts = np.diff(seg)
     b = counts.size
     rows_s = np.empty((t.size, len(SUM_NAMES)))
-    full = bool(b) and bool((counts == counts[0]).all())  # every unit at every rank
-    every = int(counts[0]) if full else 0
+    if b and bool((counts == counts[0]).all()) and bool(np.isfinite(t).all()) \
+            and bool(np.isfinite(hi).all()):  # every unit at every rank
+        _run_full(state, t.reshape(b, -1), hi, config, rows_s.reshape(b, -1, len(SUM_NAMES)))
+        return rows_s
     for r in range(int(counts.max(initial=0))):
-        if full:  # unit c's row of rank r is c * every + r
-            state = trend_update(state, t[r::every], hi[r::every], config)
-            rows_s[r::every] = state.s
-            continue
         have = np.flatnonzero(counts > r)
         idx = seg[have] + r
         tt, hh = np.full(b, np.nan), np.full(b, np.nan)
@@ -248,6 +246,48 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
         state = trend_update(state, tt, hh, config)
         rows_s[idx] = state.s[have]
     return rows_s
+
+
+def _run_full(state: TrendState, t: FloatArray, hi: FloatArray, config: TrendConfig,
+              out: FloatArray) -> None:
+    """:func:`trend_update` once per rank when every unit has a (finite) acquisition at every
+    rank: ``t`` (B, K) unit c's times in order, ``hi`` its HI values (B * K,), ``out``
+    (B, K, 7) receives the sums after each row. The same operations on the same values in the
+    same order as :func:`trend_update` (so the same bits), with the rows' weights computed
+    once for all ranks and each new sum written in place, not stacked."""
+    z, w = _weights(hi, config.hi_floor)
+    wz = (w * z).reshape(t.shape)
+    wzz = (wz.ravel() * z).reshape(t.shape)
+    w = w.reshape(t.shape)
+    lam = config.forgetting
+    n_, s0, s1, s2, sz, sxz, szz = (state.s[:, k] for k in range(len(SUM_NAMES)))
+    started = state.n > 0
+    tp = state.t
+    for r in range(t.shape[1]):
+        d = t[:, r] - tp
+        if r == 0 and not started.all():
+            d = np.where(started, d, 0.0)
+        tmp = np.multiply(2.0, d)
+        tmp *= s1
+        s2 = s2 - tmp  # s2 - 2 d s1 + d d s0, evaluated left to right
+        np.multiply(d, d, out=tmp)
+        tmp *= s0
+        s2 += tmp
+        s1 = s1 - d * s0
+        sxz = sxz - d * sz
+        o = out[:, r]
+        n_ = np.multiply(lam, n_, out=o[:, 0])
+        n_ += 1.0
+        s0 = np.multiply(lam, s0, out=o[:, 1])
+        s0 += w[:, r]
+        s1 = np.multiply(lam, s1, out=o[:, 2])
+        s2 = np.multiply(lam, s2, out=o[:, 3])
+        sz = np.multiply(lam, sz, out=o[:, 4])
+        sz += wz[:, r]
+        sxz = np.multiply(lam, sxz, out=o[:, 5])
+        szz = np.multiply(lam, szz, out=o[:, 6])
+        szz += wzz[:, r]
+        tp = t[:, r]
 
 
 def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
