@@ -158,6 +158,10 @@ def _runs(comp: np.ndarray, length: np.ndarray, rank0: int, max_chunk: int,
     chunk bounds (ranks at multiples of ``max_chunk``). Returns the word offset of each
     piece in the chunks' buffer and its length in words, in the window's record order."""
     end = rank0 + length
+    q = rank0 // max_chunk
+    if int(end.max()) <= (q + 1) * max_chunk:  # every run inside its component's chunk q
+        at = start[first[comp] + q] + 1 + (rank0 - q * max_chunk) * WIDTH
+        return at.tolist(), (length * WIDTH).tolist()
     parts = []
     for q in range(rank0 // max_chunk, int(end.max() - 1) // max_chunk + 1):
         lo = max(rank0, q * max_chunk)
