@@ -253,41 +253,44 @@ def _run_full(state: TrendState, t: FloatArray, hi: FloatArray, config: TrendCon
     """:func:`trend_update` once per rank when every unit has a (finite) acquisition at every
     rank: ``t`` (B, K) unit c's times in order, ``hi`` its HI values (B * K,), ``out``
     (B, K, 7) receives the sums after each row. The same operations on the same values in the
-    same order as :func:`trend_update` (so the same bits), with the rows' weights computed
-    once for all ranks and each new sum written in place, not stacked."""
+    same order as :func:`trend_update` (so the same bits), on each rank's contiguous values
+    (the rows' weights computed once for all ranks), copied into their rows."""
     z, w = _weights(hi, config.hi_floor)
-    wz = (w * z).reshape(t.shape)
-    wzz = (wz.ravel() * z).reshape(t.shape)
-    w = w.reshape(t.shape)
+    wz = w * z
+    wzz = wz * z
+    w, wz, wzz, tt = (np.ascontiguousarray(x.reshape(t.shape).T) for x in (w, wz, wzz, t))
     lam = config.forgetting
-    n_, s0, s1, s2, sz, sxz, szz = (state.s[:, k] for k in range(len(SUM_NAMES)))
+    n_, s0, s1, s2, sz, sxz, szz = state.s.T.copy()
     started = state.n > 0
     tp = state.t
+    tmp = np.empty(t.shape[0])
     for r in range(t.shape[1]):
-        d = t[:, r] - tp
+        d = tt[r] - tp
         if r == 0 and not started.all():
             d = np.where(started, d, 0.0)
-        tmp = np.multiply(2.0, d)
+        np.multiply(2.0, d, out=tmp)
         tmp *= s1
         s2 = s2 - tmp  # s2 - 2 d s1 + d d s0, evaluated left to right
         np.multiply(d, d, out=tmp)
         tmp *= s0
         s2 += tmp
-        s1 = s1 - d * s0
-        sxz = sxz - d * sz
-        o = out[:, r]
-        n_ = np.multiply(lam, n_, out=o[:, 0])
+        s1 = s1 - np.multiply(d, s0, out=tmp)
+        sxz = sxz - np.multiply(d, sz, out=tmp)
+        n_ = lam * n_
         n_ += 1.0
-        s0 = np.multiply(lam, s0, out=o[:, 1])
-        s0 += w[:, r]
-        s1 = np.multiply(lam, s1, out=o[:, 2])
-        s2 = np.multiply(lam, s2, out=o[:, 3])
-        sz = np.multiply(lam, sz, out=o[:, 4])
-        sz += wz[:, r]
-        sxz = np.multiply(lam, sxz, out=o[:, 5])
-        szz = np.multiply(lam, szz, out=o[:, 6])
-        szz += wzz[:, r]
-        tp = t[:, r]
+        s0 = lam * s0
+        s0 += w[r]
+        s1 *= lam
+        s2 *= lam
+        sz = lam * sz
+        sz += wz[r]
+        sxz *= lam
+        szz = lam * szz
+        szz += wzz[r]
+        o = out[:, r]
+        o[:, 0], o[:, 1], o[:, 2], o[:, 3], o[:, 4], o[:, 5], o[:, 6] = \
+            n_, s0, s1, s2, sz, sxz, szz
+        tp = tt[r]
 
 
 def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,

@@ -203,8 +203,9 @@ def _run_full(state: TrackerState, t: np.ndarray, z: np.ndarray, config: Tracker
     (B, K) each component's row of rank r in column r, ``rows`` and ``n`` (B, K) views of the
     outputs. The ranks where a component starts its trackers (every rank in mode
     ``"measured"``), or whose values are not all finite, are :func:`tracker_update` calls; the
-    others its operations on the same values in the same order (the same bits), each result
-    written straight into its rows, without the checks and copies of a general call."""
+    others its operations on the same values in the same order (the same bits) on each rank's
+    contiguous values, copied into their rows, without the checks and copies of a general
+    call."""
     n_init = {"floor": 1, "two-point": 3, "measured": 2}[config.initiation]
     simple = config.initiation != "measured" and bool(np.isfinite(t).all()) \
         and bool(np.isfinite(z).all()) and all(math.isfinite(g) for g in (
@@ -219,11 +220,12 @@ def _run_full(state: TrackerState, t: np.ndarray, z: np.ndarray, config: Tracker
         return state
     fhi, dhi, rul, frul, drul, d2rul = (rows[c] for c in (
         "fhi", "dhi", "rul", "frul", "drul", "d2rul"))
-    x, v, fx, fv, fa = state.ab[:, 0], state.ab[:, 1], state.abg[:, 0], state.abg[:, 1], \
-        state.abg[:, 2]
+    x, v, fx, fv, fa = (np.ascontiguousarray(c) for c in (
+        state.ab[:, 0], state.ab[:, 1], state.abg[:, 0], state.abg[:, 1], state.abg[:, 2]))
+    tt, zt = np.ascontiguousarray(t.T), np.ascontiguousarray(z.T)
     tp, hp, rp, dhi_min = state.t, state.hi, state.rul, 1.0 / config.design_life
     for r in range(r0, k):
-        dt = t[:, r] - tp
+        dt = tt[r] - tp
         if not bool((dt > 0.0).all()):  # tracker_update's own error names the component
             now = _state_of(tp, state.n + (r - r0), hp, x, v, rp, fx, fv, fa)
             tracker_update(now, t[:, r].copy(), z[:, r].copy(), config, gains)
@@ -231,14 +233,16 @@ def _run_full(state: TrackerState, t: np.ndarray, z: np.ndarray, config: Tracker
         # alpha-beta on HI (alpha_beta_update), then the floor of its rate
         xp = v * dt
         xp += x  # x + v dt
-        res = z[:, r] - xp
-        x = np.multiply(gains.alpha1, res, out=fhi[:, r])
-        np.add(xp, x, out=x)
+        res = zt[r] - xp
+        x = gains.alpha1 * res
+        x += xp
         res *= gains.beta1
         res /= dt
-        v = np.add(v, res, out=dhi[:, r])
+        v = v + res
         np.maximum(v, dhi_min, out=v)
-        rul[:, r] = raw = paris_rul(x, v, config.hi_floor, config.paris_exponent)
+        raw = paris_rul(x, v, config.hi_floor, config.paris_exponent)
+        fhi[:, r], dhi[:, r], rul[:, r] = x, v, raw
+        rp = rul[:, r]
         # alpha-beta-gamma on the RUL (alpha_beta_gamma_update)
         adt = fa * dt
         xp = np.multiply(0.5, adt)
@@ -248,16 +252,17 @@ def _run_full(state: TrackerState, t: np.ndarray, z: np.ndarray, config: Tracker
         res = np.subtract(raw, xp, out=raw)
         rdt = res / dt
         res *= gains.alpha2
-        fx = np.add(xp, res, out=frul[:, r])
+        fx = np.add(xp, res, out=xp)
         adt += fv
-        fv = np.multiply(gains.beta2, rdt, out=drul[:, r])
-        np.add(adt, fv, out=fv)  # v + a dt + beta r / dt
+        fv = gains.beta2 * rdt
+        fv += adt  # v + a dt + beta r / dt
         rdt *= gains.gamma2
         rdt /= dt
-        fa = np.add(fa, rdt, out=d2rul[:, r])
+        fa = fa + rdt
         if config.rul_clip and bool((fx < 0.0).any()):
             np.maximum(fx, 0.0, out=fx)
-        tp, hp, rp = t[:, r], z[:, r], rul[:, r]
+        frul[:, r], drul[:, r], d2rul[:, r] = fx, fv, fa
+        tp, hp = tt[r], zt[r]
     n[:, r0:] = state.n[:, None] + np.arange(1, k - r0 + 1)
     return _state_of(tp, n[:, -1], hp, x, v, rp, fx, fv, fa)
 
