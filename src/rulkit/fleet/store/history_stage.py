@@ -22,6 +22,7 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
+from bisect import bisect_left
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -62,7 +63,9 @@ class HistoryStage:
                 self._file = tempfile.TemporaryFile()
             except OSError as err2:
                 raise self._error(err2) from err2
-        self._windows: list[tuple[np.ndarray, np.ndarray, int, int]] = []
+        # per window: its components' key-order positions (array and list), their records'
+        # offsets and counts, its first batch rank and its records' file offset
+        self._windows: list[tuple[np.ndarray, list[int], np.ndarray, np.ndarray, int, int]] = []
         self._size = 0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rulkit-stage")
         self._written: Future[None] | None = self._worker.submit(
@@ -81,7 +84,8 @@ class HistoryStage:
         rec = np.ascontiguousarray(rec, dtype="<f8")
         self._wait_written()
         self._written = self._worker.submit(_write_at, self._file.fileno(), rec, self._size)
-        self._windows.append((piece.keys, piece.seg, piece.rank0, self._size))
+        self._windows.append((piece.keys, piece.keys.tolist(), piece.seg, np.diff(piece.seg),
+                              piece.rank0, self._size))
         self._size += rec.nbytes
 
     def _wait_written(self) -> None:
@@ -121,11 +125,11 @@ class HistoryStage:
         chunks = layout(st[k0:k1 + 1] - st[k0], max_chunk)
         first = np.searchsorted(chunks.owner, np.arange(k1 - k0))  # each one's first chunk
         raw = chunks.words.data.cast("B")
-        for keys, seg, rank0, offset in self._windows:
-            a, b = (int(x) for x in np.searchsorted(keys, (k0, k1)))
+        for keys, key_list, seg, counts, rank0, offset in self._windows:
+            a, b = bisect_left(key_list, k0), bisect_left(key_list, k1)
             if a < b:
-                at, size = _runs(keys[a:b] - k0, np.diff(seg[a:b + 1]), rank0, max_chunk,
-                                 first, chunks.start)
+                at, size = _runs(keys[a:b] - k0, counts[a:b], rank0, max_chunk, first,
+                                 chunks.start)
                 _read_scattered(self._file.fileno(), [
                     raw[8 * w:8 * (w + m)] for w, m in zip(at, size, strict=True)],
                     offset + int(seg[a]) * WIDTH * 8)
