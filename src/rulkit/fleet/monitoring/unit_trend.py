@@ -230,15 +230,13 @@ def _pass(compiled: bool) -> Any:
 def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArray,
                  config: TrendConfig) -> FloatArray:
     """The sums after each row by one :func:`trend_update` per acquisition rank (the
-    reference the passes are tested against), each sum's column contiguous (Fortran order:
-    what :func:`trend_posterior` reads)."""
+    reference the passes are tested against)."""
     counts = np.diff(seg)
     b = counts.size
-    rows_s = np.empty((t.size, len(SUM_NAMES)), order="F")
+    rows_s = np.empty((t.size, len(SUM_NAMES)))
     if b and bool((counts == counts[0]).all()) and bool(np.isfinite(t).all()) \
             and bool(np.isfinite(hi).all()):  # every unit at every rank
-        _run_full(state, t.reshape(b, -1), hi, config,
-                  [rows_s[:, j].reshape(b, -1) for j in range(len(SUM_NAMES))])
+        _run_full(state, t.reshape(b, -1), hi, config, rows_s.reshape(b, -1, len(SUM_NAMES)))
         return rows_s
     for r in range(int(counts.max(initial=0))):
         have = np.flatnonzero(counts > r)
@@ -251,13 +249,12 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
 
 
 def _run_full(state: TrendState, t: FloatArray, hi: FloatArray, config: TrendConfig,
-              out: list[FloatArray]) -> None:
+              out: FloatArray) -> None:
     """:func:`trend_update` once per rank when every unit has a (finite) acquisition at every
-    rank: ``t`` (B, K) unit c's times in order, ``hi`` its HI values (B * K,), ``out`` one
-    (B, K) array per sum of :data:`SUM_NAMES` receives the sums after each row. The same
-    operations on the same values in the same order as :func:`trend_update` (so the same
-    bits), on each rank's contiguous values (the rows' weights computed once for all ranks),
-    copied into their rows."""
+    rank: ``t`` (B, K) unit c's times in order, ``hi`` its HI values (B * K,), ``out``
+    (B, K, 7) receives the sums after each row. The same operations on the same values in the
+    same order as :func:`trend_update` (so the same bits), on each rank's contiguous values
+    (the rows' weights computed once for all ranks), copied into their rows."""
     z, w = _weights(hi, config.hi_floor)
     wz = w * z
     wzz = wz * z
@@ -290,8 +287,9 @@ def _run_full(state: TrendState, t: FloatArray, hi: FloatArray, config: TrendCon
         sxz *= lam
         szz = lam * szz
         szz += wzz[r]
-        for col, v in zip(out, (n_, s0, s1, s2, sz, sxz, szz), strict=True):
-            col[:, r] = v
+        o = out[:, r]
+        o[:, 0], o[:, 1], o[:, 2], o[:, 3], o[:, 4], o[:, 5], o[:, 6] = \
+            n_, s0, s1, s2, sz, sxz, szz
         tp = tt[r]
 
 
@@ -338,8 +336,8 @@ def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
 def trend_posterior(state: TrendState, config: TrendConfig) -> TrendPosterior:
     """The line's Student-t posterior per unit (EI-17); NaN where fewer than
     ``min_points`` acquisitions or a degenerate design (all weight on one time)."""
-    # the sums as contiguous columns (a copy, the passes below' own: they read each column
-    # many times, and write into some; a copy without transposing of trend_run's rows)
+    # the sums as contiguous columns (one transposing copy, the passes below' own: they read
+    # each column many times, and write into some)
     n_, s0, s1, s2, sz, sxz, szz = state.s.T.copy()
     # each result written into a buffer whose value is no longer needed: the operations of
     # the formulas as written, in their order, with fewer temporaries
