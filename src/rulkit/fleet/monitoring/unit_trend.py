@@ -255,10 +255,10 @@ def _run_full(state: TrendState, t: FloatArray, hi: FloatArray, config: TrendCon
     (B, K, 7) receives the sums after each row. The same operations on the same values in the
     same order as :func:`trend_update` (so the same bits), on each rank's contiguous values
     (the rows' weights computed once for all ranks), copied into their rows."""
-    z, w = _weights(hi, config.hi_floor)
+    tt, ht = (np.ascontiguousarray(x.reshape(t.shape).T) for x in (t, hi))  # (K, B)
+    z, w = _weights(ht, config.hi_floor)
     wz = w * z
     wzz = wz * z
-    w, wz, wzz, tt = (np.ascontiguousarray(x.reshape(t.shape).T) for x in (w, wz, wzz, t))
     lam = config.forgetting
     n_, s0, s1, s2, sz, sxz, szz = state.s.T.copy()
     started = state.n > 0
@@ -321,9 +321,8 @@ def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
                                  np.ascontiguousarray(state.s), rows_s)
     else:
         raise ValueError(f"strategy: expected ranks, python or jit, got {strategy!r}")
-    unit = np.repeat(np.arange(b), counts)
-    rank = np.arange(m) - seg[:-1][unit]
-    rows = TrendState(t=t.copy(), hi=hi.copy(), n=state.n[unit] + rank + 1, s=rows_s)
+    n_rows = np.repeat(state.n - seg[:-1], counts) + np.arange(1, m + 1)  # n + rank + 1
+    rows = TrendState(t=t.copy(), hi=hi.copy(), n=n_rows, s=rows_s)
     new = state.take(np.arange(b))
     upd = np.flatnonzero(counts > 0)
     last = seg[1:][upd] - 1
