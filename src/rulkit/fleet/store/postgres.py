@@ -216,10 +216,19 @@ class PgComponentStore(ComponentStore):
             return
         self._states = StateCache(self.STATE_COLUMNS, limit, signed_zeros=True)  # float8 -0.0
 
-    def _data_version(self) -> int:
-        """The write counter (:data:`WRITES`), its row locked until this transaction ends:
-        nobody else's write to ``components`` can commit meanwhile."""
-        return int(self._conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE").fetchone()[0])
+    def _open_group(self, keep: bool, sql: str | None) -> tuple[int | None, list[tuple]]:
+        """:meth:`ComponentStore._open_group` in one round trip: the write counter
+        (:data:`WRITES`), its row locked until this transaction ends (nobody else's write to
+        ``components`` can commit meanwhile), and the admission's query, sent as one
+        string."""
+        if not keep and sql is None:
+            return None, []
+        cur = self._conn.execute("; ".join(
+            ([f"SELECT n FROM {WRITES} FOR UPDATE"] if keep else []) + ([sql] if sql else [])))
+        version = int(cur.fetchone()[0]) if keep else None
+        if keep and sql is not None:
+            cur.nextset()
+        return version, (cur.fetchall() if sql is not None else [])
 
     def _load_states(self, names: list[str]) -> StoredRows:
         """The stored rows of ``names`` (:meth:`ComponentStore._load_states`): those kept,
@@ -254,8 +263,8 @@ class PgComponentStore(ComponentStore):
             if not self._conn.staging:  # outside any transaction: no rollback undoes it
                 self._conn.execute(_staging_sql())
                 self._conn.staging = True
-            self._conn.execute("BEGIN")
-            self._conn.execute("SELECT pg_advisory_xact_lock(?)", (WRITE_LOCK_KEY,))
+            # one round trip (a string of statements without parameters)
+            self._conn.execute(f"BEGIN; SELECT pg_advisory_xact_lock({WRITE_LOCK_KEY})")
         try:
             yield self._conn
         except BaseException:
@@ -264,10 +273,11 @@ class PgComponentStore(ComponentStore):
                 self._conn.staged = False
             raise
         else:
-            if self._states is not None and self._ingesting:  # the count after our writes
-                self._states.version = int(
-                    self._conn.execute(f"SELECT n FROM {WRITES}").fetchone()[0])
-            self._conn.execute("COMMIT")
+            if self._states is not None and self._ingesting:  # the count after our writes,
+                self._states.version = int(  # read and committed in one round trip
+                    self._conn.execute(f"SELECT n FROM {WRITES}; COMMIT").fetchone()[0])
+            else:
+                self._conn.execute("COMMIT")
             self._conn.staged = False
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
