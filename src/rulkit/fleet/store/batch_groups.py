@@ -108,7 +108,7 @@ class GroupCommits:
         def _open_group(self, keep: bool, sql: str | None
                         ) -> tuple[int | None, list[tuple]]: ...
         def _load_states(self, names: list[str]) -> StoredRows: ...
-        def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int: ...
+        def _insert_ingests(self, rows: list[tuple[str, int, int]]) -> list[int]: ...
         def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                    ingest_ids: Any = None) -> IngestResult: ...
         def _record_alerts(self, alerts: list[Alert]) -> list[Alert]: ...
@@ -202,8 +202,8 @@ class GroupCommits:
                 parts.append((acq, source, n_dup, len(acq.names) - known.size))
                 stored.append(mine)
             live = [p for p in parts if len(p[0])]
-            ids = [self._insert_ingest(source, len(acq), len(acq.names))
-                   for acq, source, _, _ in live]
+            ids = self._insert_ingests([(source, len(acq), len(acq.names))
+                                        for acq, source, _, _ in live])
             alerts: list[list[Alert]] = [[] for _ in parts]
             if live:
                 counts = [len(p[0].names) for p in live]

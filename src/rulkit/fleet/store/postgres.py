@@ -49,8 +49,15 @@ from rulkit.fleet.store.database_file import (
     time_axis_from_meta,
 )
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
-from rulkit.fleet.store.schema import COMPONENTS, HISTORY, create_schema, needs_migration
-from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.store.schema import (
+    ALERTS,
+    COMPONENTS,
+    HISTORY,
+    INGESTS,
+    create_schema,
+    needs_migration,
+)
+from rulkit.fleet.store.sqlite import ALERT_COLUMNS, ComponentStore
 from rulkit.fleet.store.state_cache import StateCache
 from rulkit.fleet.store.tracker_rows import ROW_FIELDS, StoredRows
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -340,9 +347,33 @@ class PgComponentStore(ComponentStore):
         self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
-        return int(self._conn.execute(
-            "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?) RETURNING id",
-            (source, n_rows, n_components)).fetchone()[0])
+        return self._insert_ingests([(source, n_rows, n_components)])[0]
+
+    def _insert_ingests(self, rows: list[tuple[str, int, int]]) -> list[int]:
+        """:meth:`ComponentStore._insert_ingests` in one statement (:func:`_insert_rows`)."""
+        return _insert_rows(self._conn, INGESTS, ("source", "n_rows", "n_components"), rows)
+
+    def _insert_alerts(self, rows: list[tuple]) -> list[int]:
+        """:meth:`ComponentStore._insert_alerts` in one statement (:func:`_insert_rows`)."""
+        return _insert_rows(self._conn, ALERTS, ALERT_COLUMNS, rows)
+
+
+def _insert_rows(conn: PgConnection, table: Any, columns: Sequence[str],
+                 rows: Sequence[Sequence[Any]]) -> list[int]:
+    """``rows`` of ``columns`` into ``table`` (a :class:`~rulkit.fleet.store.schema.Table`
+    whose key ``id`` PostgreSQL numbers) by one ``INSERT ... SELECT`` from an array parameter
+    per column, in the rows' order; their ids, in that order. The table's identity gives
+    the rows of one statement increasing ids in the order they are inserted, which the
+    ordinality fixes, so the ids sorted are the rows' ids in order."""
+    if not rows:
+        return []
+    cols = ", ".join(columns)
+    arrays = ", ".join(f"%s::{_column_type(table, c)}[]" for c in columns)
+    with conn.raw.cursor() as cur:
+        cur.execute(f"INSERT INTO {table.name} ({cols}) SELECT {cols} FROM unnest({arrays}) "
+                    f"WITH ORDINALITY AS u({cols}, o) ORDER BY o RETURNING id",
+                    [list(col) for col in zip(*rows, strict=True)])
+        return sorted(int(r[0]) for r in cur.fetchall())
 
 
 def _count_writes(conn: PgConnection) -> None:

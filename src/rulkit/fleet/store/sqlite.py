@@ -155,6 +155,14 @@ def _of_components(ingest_id: Any, comps: np.ndarray) -> Any:
     return ingest_id if np.ndim(ingest_id) == 0 else ingest_id[comps]
 
 
+ALERT_COLUMNS = ("component", "t", "level", "previous", "hi", "fhi", "rul", "valid", "rul_low",
+                 "rul_high", "reason", "raised")
+"""The columns of table ``alerts`` a new alert's row fills (:meth:`ComponentStore.
+_record_alerts`)."""
+_INSERT_ALERT = (f"INSERT INTO alerts ({', '.join(ALERT_COLUMNS)}) "
+                 f"VALUES ({', '.join('?' * len(ALERT_COLUMNS))})")
+
+
 def _finite(v: float) -> float | None:
     """``v``, or ``None`` (SQL NULL) when it is NaN or infinite."""
     return v if math.isfinite(v) else None
@@ -561,23 +569,19 @@ class ComponentStore(GroupCommits, StoreSettings):
         rows = [(a.component, a.t, a.level, a.previous, _finite(a.hi), _finite(a.fhi),
                  _finite(a.rul), math.isfinite(a.rul), _finite(a.rul_low),
                  _finite(a.rul_high), a.reason, now) for a in alerts]
-        insert = ("INSERT INTO alerts (component, t, level, previous, hi, fhi, rul, valid, "
-                  "rul_low, rul_high, reason, raised) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                  "?, ?)")
-        first = None
-        if rows and isinstance(self._conn, sqlite3.Connection):
-            # SQLite numbers a row one above the table's largest id while that stays below
-            # the largest integer: the rows of one statement take consecutive ids
-            top = self._conn.execute("SELECT max(id) FROM alerts").fetchone()[0] or 0
-            if top + len(rows) < 2**63 - 1:
-                self._conn.executemany(insert, rows)
-                first = top + 1
-        if first is None:
-            ids = [int(self._conn.execute(f"{insert} RETURNING id", r).fetchone()[0])
-                   for r in rows]
-        else:
-            ids = list(range(first, first + len(rows)))
+        ids = self._insert_alerts(rows) if rows else []
         return [replace(a, id=i, raised=now) for a, i in zip(alerts, ids, strict=True)]
+
+    def _insert_alerts(self, rows: list[tuple]) -> list[int]:
+        """Insert alert rows ``ALERT_COLUMNS``; their ids, in order (backend hook). SQLite
+        numbers a row one above the table's largest id while that stays below the largest
+        integer: the rows of one statement take consecutive ids; past it, one insert each."""
+        top = self._conn.execute("SELECT max(id) FROM alerts").fetchone()[0] or 0
+        if top + len(rows) < 2**63 - 1:
+            self._conn.executemany(_INSERT_ALERT, rows)
+            return list(range(top + 1, top + 1 + len(rows)))
+        return [int(self._conn.execute(f"{_INSERT_ALERT} RETURNING id", r).fetchone()[0])
+                for r in rows]
 
     def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                ingest_ids: np.ndarray | None = None) -> IngestResult:
@@ -723,6 +727,11 @@ class ComponentStore(GroupCommits, StoreSettings):
         :attr:`HISTORY_CHUNK` acquisitions."""
         self._write_history(history_chunks.chunk_rows(names, seg, rec, ingest_id,
                                                       self.HISTORY_CHUNK))
+
+    def _insert_ingests(self, rows: list[tuple[str, int, int]]) -> list[int]:
+        """Record ingestions ``(source, n_rows, n_components)`` (audit rows); their ids, in
+        order (backend hook)."""
+        return [self._insert_ingest(*r) for r in rows]
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         """Record one ingestion (audit row) and return its id (backend hook)."""
