@@ -65,7 +65,9 @@ def test_validation_first_and_rollback(db_url, monkeypatch):
         def boom(*args):
             raise RuntimeError("disk full")
 
-        monkeypatch.setattr(store, "_write_states", boom)  # after history rows were written
+        # after the history rows and the stored component's update were written
+        monkeypatch.setattr(store, "_upsert_staged" if hasattr(store, "_upsert_staged")
+                            else "_write_states", boom)
         with pytest.raises(RuntimeError, match="disk full"):
             store.ingest(batch(["a", "d"], 5, 3))
         monkeypatch.undo()

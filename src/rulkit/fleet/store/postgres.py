@@ -36,6 +36,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
@@ -48,6 +49,7 @@ from rulkit.fleet.store.database_file import (
     is_postgres_url,
     time_axis_from_meta,
 )
+from rulkit.fleet.store.pg_copy import binary_rows
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
 from rulkit.fleet.store.schema import (
     ALERTS,
@@ -114,6 +116,13 @@ class PgConnection:
             copy.set_types(types)
             for row in rows:
                 copy.write_row(row)
+
+    def copy_data(self, table: str, columns: tuple[str, ...], data: bytes) -> None:
+        """Binary ``COPY`` data ``data`` (header and trailer included:
+        :func:`~rulkit.fleet.store.pg_copy.binary_rows`) into ``table``'s ``columns``."""
+        with self.raw.cursor() as cur, cur.copy(
+                f"COPY {table} ({', '.join(columns)}) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.write(data)
 
     def close(self) -> None:
         self.raw.close()
@@ -309,42 +318,82 @@ class PgComponentStore(ComponentStore):
                       ) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``: binary
         ``COPY`` into the connection's temporary table :data:`STAGING`, then one statement
-        that empties it into ``components`` (``INSERT ... SELECT ... ON CONFLICT (component)
-        DO UPDATE``), instead of one upsert per row: the same stored values (float8 bits as
-        sent), the same conflict handling. The cheapest of the ways measured by
-        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest"). The commit empties the
-        table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction (group
-        commits whose batches share components) empties it first."""
+        that empties it into ``components`` (:meth:`_upsert_staged`), instead of one upsert
+        per row: the same stored values (float8 bits as sent), the same conflict handling.
+        The cheapest of the ways measured by benchmarks/bench_pg_writes.py (docs/service.md,
+        "PostgreSQL ingest")."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
         self._stage(cols, rows)
+        self._upsert_staged(cols)
+
+    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                       ) -> None:
+        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
+        (:meth:`ComponentStore._update_states`): binary ``COPY`` into :data:`STAGING`, then
+        one ``UPDATE ... FROM`` it (:meth:`_update_staged`)."""
+        cols = (*ROW_FIELDS, "max_level", *extra_cols, "component")
+        self._stage(cols, rows)
+        self._update_staged(cols, len(rows))
+
+    def _write_components(self, names: list[str], values: np.ndarray, columns: tuple[str, ...],
+                          nullable: tuple[str, ...], known: np.ndarray) -> None:
+        """:meth:`ComponentStore._write_components` with the rows' binary ``COPY`` data made
+        from ``values`` by :func:`~rulkit.fleet.store.pg_copy.binary_rows` (the bytes
+        ``COPY`` of the rows of :func:`~rulkit.fleet.store.tracker_rows.component_rows`
+        sends, without a Python object per value), then :meth:`_update_staged` and
+        :meth:`_upsert_staged`."""
+        types = [_column_type(COMPONENTS, c) for c in columns]
+        nulls = [c in nullable for c in columns]
+        if known.size:
+            cols = (*columns, "component")
+            self._stage_data(cols, binary_rows([names[i] for i in known.tolist()],
+                                               values[known], columns, types, nulls,
+                                               key_last=True))
+            self._update_staged(cols, known.size)
+        new = np.setdiff1d(np.arange(len(names)), known)
+        if new.size:
+            cols = ("component", *columns)
+            self._stage_data(cols, binary_rows([names[i] for i in new.tolist()],
+                                               values[new], columns, types, nulls))
+            self._upsert_staged(cols)
+
+    def _update_staged(self, cols: tuple[str, ...], n_rows: int) -> None:
+        """``components`` updated from the ``n_rows`` rows of :data:`STAGING` (columns ``cols``,
+        the key last) by one ``UPDATE ... FROM``; a row that is not stored raises
+        :class:`StoreError` (the write transaction is then rolled back)."""
+        sets = ", ".join(f"{c} = s.{c}" for c in cols[:-1])
+        n = self._conn.execute(f"UPDATE components AS c SET {sets} FROM {STAGING} AS s "
+                               "WHERE c.component = s.component").rowcount
+        if n != n_rows:
+            raise StoreError(f"{self.path}: {n_rows - n} of the batch's components read "
+                             "as stored are not in table components")
+
+    def _upsert_staged(self, cols: tuple[str, ...]) -> None:
+        """The rows of :data:`STAGING` (columns ``cols``, the key first) into ``components``
+        (``INSERT ... SELECT ... ON CONFLICT (component) DO UPDATE``). The commit empties the
+        table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction
+        (group commits whose batches share components) empties it first."""
         names = ", ".join(cols)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
         self._conn.execute(
             f"INSERT INTO components ({names}) SELECT {names} FROM {STAGING} "
             f"ON CONFLICT (component) DO UPDATE SET {updates}")
 
-    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
-                       ) -> None:
-        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
-        (:meth:`ComponentStore._update_states`): binary ``COPY`` into :data:`STAGING`, then one
-        ``UPDATE ... FROM`` it; a row that is not stored raises :class:`StoreError` (the
-        write transaction is then rolled back)."""
-        cols = (*ROW_FIELDS, "max_level", *extra_cols, "component")
-        self._stage(cols, rows)
-        sets = ", ".join(f"{c} = s.{c}" for c in cols[:-1])
-        n = self._conn.execute(f"UPDATE components AS c SET {sets} FROM {STAGING} AS s "
-                               "WHERE c.component = s.component").rowcount
-        if n != len(rows):
-            raise StoreError(f"{self.path}: {len(rows) - n} of the batch's components read "
-                             "as stored are not in table components")
-
     def _stage(self, cols: tuple[str, ...], rows: Sequence[Sequence[Any]]) -> None:
         """``rows`` of columns ``cols`` into the empty :data:`STAGING` (emptied first when an
         earlier write of this transaction used it)."""
+        self._empty_staging()
+        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
+
+    def _stage_data(self, cols: tuple[str, ...], data: bytes) -> None:
+        """Binary ``COPY`` data ``data`` of columns ``cols`` into the empty :data:`STAGING`."""
+        self._empty_staging()
+        self._conn.copy_data(STAGING, cols, data)
+
+    def _empty_staging(self) -> None:
         if self._conn.staged:
             self._conn.execute(f"DELETE FROM {STAGING}")
         self._conn.staged = True
-        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         return self._insert_ingests([(source, n_rows, n_components)])[0]

@@ -650,18 +650,27 @@ class ComponentStore(GroupCommits, StoreSettings):
         values = np.column_stack([cols[c] for c in write]).astype(np.float64, copy=False)
         if self._states is not None and self._ingesting:
             self._states.put(names, values[:, [write.index(c) for c in self.STATE_COLUMNS]])
-        extra = write[len(ROW_FIELDS) + 1:]
-        if known.size:  # the stored ones first: the new ones' rowids in batch order
-            self._update_states(component_rows([names[i] for i in known.tolist()],
-                                               values[known], write, prog_cols, key_last=True),
-                                extra)
-        new = np.setdiff1d(np.arange(len(names)), known)
-        if new.size:
-            self._write_states(component_rows([names[i] for i in new.tolist()], values[new],
-                                              write, prog_cols), extra)
+        self._write_components(names, values, write, tuple(prog_cols), known)
         add_level_counts(self._conn, stored_vals[:, ROW_FIELDS.index("level")], cols["level"])
         add_seen_counts(self._conn, stored_vals[:, len(ROW_FIELDS) + PROGNOSIS_COLUMNS.index(
             "seen")], cols["seen"])
+
+    def _write_components(self, names: list[str], values: np.ndarray, columns: tuple[str, ...],
+                          nullable: tuple[str, ...], known: np.ndarray) -> None:
+        """The batch's ``components`` rows ``values`` (a float64 row per name, a column per
+        name of ``columns``, ``ROW_FIELDS`` and ``max_level`` first; NaN is NULL in the
+        ``nullable`` ones): an ``UPDATE`` of the stored ones (``known``, indices into
+        ``names``) first, so the new ones' rowids follow batch order, then the upsert of the
+        new ones (backend hook; :func:`~rulkit.fleet.store.tracker_rows.component_rows`)."""
+        extra = columns[len(ROW_FIELDS) + 1:]
+        if known.size:
+            self._update_states(component_rows([names[i] for i in known.tolist()],
+                                               values[known], columns, nullable,
+                                               key_last=True), extra)
+        new = np.setdiff1d(np.arange(len(names)), known)
+        if new.size:
+            self._write_states(component_rows([names[i] for i in new.tolist()], values[new],
+                                              columns, nullable), extra)
 
     def _run_pieces(self, acq: Batch, order: ComponentOrder, state: TrackerState,
                     prog: BatchPrognosis, ingest_id: Any) -> list[tuple[int, int, Alert]]:

@@ -1,0 +1,94 @@
+"""PostgreSQL's binary ``COPY`` data of a table of rows made from arrays, built by numpy
+(docs/systems/embedded-rul.md §4: the component rows of a batch, written by the PostgreSQL
+store through its staging table).
+
+:func:`binary_rows` gives the bytes psycopg's own ``write_row`` sends for the same rows (the
+format's header, one tuple per row: its field count, then each field's length and its
+bytes in network order, ``-1`` and no bytes for NULL; the trailer), from one text key per
+row and a float64 array of the other columns, without a Python object per value: every
+column is one array operation, and the rows are cut out of one byte matrix at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+HEADER = b"PGCOPY\n\xff\r\n\x00" + bytes(8)
+"""The binary format's signature, its flags (none) and its header extension's length (0)."""
+TRAILER = b"\xff\xff"
+"""The field count -1 that ends the data."""
+_FIXED = {"float8": ">f8", "int8": ">i8", "int2": ">i2", "bool": "u1"}
+"""The network-order layout of each fixed-size type a column may have."""
+
+
+def binary_rows(keys: Sequence[str], values: np.ndarray, columns: Sequence[str],
+                types: Sequence[str], nullable: Sequence[bool], key_last: bool = False
+                ) -> bytes:
+    """The rows ``[key, *row]`` (``[*row, key]`` with ``key_last``) of ``keys`` (text) and
+    ``values`` (one float64 row per key, a column per name of ``columns``, of the type of
+    ``types``: ``float8``, ``int8``, ``int2`` or ``bool``) as binary ``COPY`` data, header
+    and trailer included. A NaN is NULL in a column that is ``nullable``; in another it is
+    NaN in a ``float8`` column and refused (``ValueError``) in an integer or boolean one.
+    Integers are the values truncated toward zero (refused out of their type's range),
+    booleans whether they are non-zero: the values
+    :func:`~rulkit.fleet.store.tracker_rows.component_rows` gives the same columns."""
+    b, k = values.shape
+    if not (len(keys) == b and len(columns) == len(types) == len(nullable) == k):
+        raise ValueError(f"{len(keys)} keys, {len(columns)} columns, {len(types)} types "
+                         f"and {len(nullable)} null flags for {b} rows of {k} values")
+    count = np.empty((b, 2), np.uint8)
+    count[:] = np.frombuffer(np.array(k + 1, ">i2").tobytes(), np.uint8)
+    fields = [_column(values[:, j], c, t, n)
+              for j, (c, t, n) in enumerate(zip(columns, types, nullable, strict=True))]
+    key = _text(keys)
+    parts = [(count, np.ones((b, 2), bool)), *fields]
+    parts.insert(len(parts) if key_last else 1, key)
+    data = np.hstack([p[0] for p in parts])
+    keep = np.hstack([p[1] for p in parts])
+    return HEADER + data[keep].tobytes() + TRAILER
+
+
+def _column(v: np.ndarray, name: str, typ: str, nullable: bool
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """One column's fields: a byte matrix (the length, then the value) and which of its
+    bytes are sent (a NULL's value is not)."""
+    null = np.isnan(v)
+    if typ != "float8" and not nullable and null.any():
+        raise ValueError(f"column {name}: NaN where an integer is required")
+    if typ == "float8":
+        vals = v.astype(">f8")
+    elif typ == "bool":
+        vals = (np.nan_to_num(v) != 0).astype("u1")
+    else:
+        ints = np.nan_to_num(v).astype(np.int64)
+        info = np.iinfo(_FIXED[typ])
+        if ints.size and (ints.min() < info.min or ints.max() > info.max):
+            raise ValueError(f"column {name}: a value out of the range of {typ}")
+        vals = ints.astype(_FIXED[typ])
+    size = vals.dtype.itemsize
+    if not nullable:
+        null = np.zeros(v.size, bool)
+    length = np.where(null, -1, size).astype(">i4")
+    mat = np.hstack([length.view(np.uint8).reshape(-1, 4),
+                     vals.view(np.uint8).reshape(-1, size)])
+    keep = np.ones(mat.shape, bool)
+    keep[:, 4:] = ~null[:, None]
+    return mat, keep
+
+
+def _text(keys: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The text fields of ``keys`` (UTF-8): their lengths, then their bytes, padded to the
+    longest in the matrix and not sent."""
+    enc = [s.encode("utf-8") for s in keys]
+    lengths = np.fromiter(map(len, enc), np.int64, len(enc))
+    width = int(lengths.max(initial=0))
+    raw = np.array(enc, dtype=f"S{max(width, 1)}").view(np.uint8).reshape(len(enc), -1)
+    mat = np.hstack([lengths.astype(">i4").view(np.uint8).reshape(-1, 4), raw[:, :width]])
+    keep = np.ones(mat.shape, bool)
+    keep[:, 4:] = np.arange(width) < lengths[:, None]
+    return mat, keep
+
+
+__all__ = ["HEADER", "TRAILER", "binary_rows"]
