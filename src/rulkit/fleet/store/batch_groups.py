@@ -105,8 +105,8 @@ class GroupCommits:
 
         def _transaction(self, mode: str = "IMMEDIATE"
                          ) -> AbstractContextManager[sqlite3.Connection]: ...
-        def _open_group(self, keep: bool, sql: str | None
-                        ) -> tuple[int | None, list[tuple]]: ...
+        def _group_transaction(self, keep: bool, sql: str | None
+                               ) -> AbstractContextManager[tuple[int | None, list[tuple]]]: ...
         def _load_states(self, names: list[str]) -> StoredRows: ...
         def _insert_ingests(self, rows: list[tuple[str, int, int]]) -> list[int]: ...
         def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
@@ -127,9 +127,8 @@ class GroupCommits:
         states = self._states
         self._ingesting = True
         try:
-            with self._transaction("IMMEDIATE"):
-                version, rows = self._open_group(states is not None,
-                                                 None if admit is None else admit.sql)
+            with self._group_transaction(states is not None,
+                                         None if admit is None else admit.sql) as (version, rows):
                 if states is not None:
                     states.begin(version)  # type: ignore[arg-type]
                 verdicts: list[str | BaseException] = (

@@ -151,6 +151,7 @@ class PgComponentStore(ComponentStore):
     dialect = "postgresql"
 
     _conn: Any  # a PgConnection: sqlite3-like execute/executemany/close over psycopg
+    _opened: list[list[tuple]]  # the rows of the reads begun with the write transaction
 
     def __init__(
         self,
@@ -232,19 +233,18 @@ class PgComponentStore(ComponentStore):
             return
         self._states = StateCache(self.STATE_COLUMNS, limit, signed_zeros=True)  # float8 -0.0
 
-    def _open_group(self, keep: bool, sql: str | None) -> tuple[int | None, list[tuple]]:
-        """:meth:`ComponentStore._open_group` in one round trip: the write counter
-        (:data:`WRITES`), its row locked until this transaction ends (nobody else's write to
-        ``components`` can commit meanwhile), and the admission's query, sent as one
-        string."""
-        if not keep and sql is None:
-            return None, []
-        cur = self._conn.execute("; ".join(
-            ([f"SELECT n FROM {WRITES} FOR UPDATE"] if keep else []) + ([sql] if sql else [])))
-        version = int(cur.fetchone()[0]) if keep else None
-        if keep and sql is not None:
-            cur.nextset()
-        return version, (cur.fetchall() if sql is not None else [])
+    @contextmanager
+    def _group_transaction(self, keep: bool, sql: str | None
+                           ) -> Iterator[tuple[int | None, list[tuple]]]:
+        """:meth:`ComponentStore._group_transaction` in one round trip: ``BEGIN``, the
+        writers' lock, the write counter (:data:`WRITES`, its row locked until this
+        transaction ends: nobody else's write to ``components`` can commit meanwhile) and the
+        admission's query, sent as one string."""
+        reads = ([f"SELECT n FROM {WRITES} FOR UPDATE"] if keep else []) + (
+            [sql] if sql is not None else [])
+        with self._transaction("IMMEDIATE", reads):
+            got = self._opened
+            yield (int(got[0][0][0]) if keep else None), (got[-1] if sql is not None else [])
 
     def _load_states(self, names: list[str]) -> StoredRows:
         """The stored rows of ``names`` (:meth:`ComponentStore._load_states`): those kept,
@@ -270,18 +270,24 @@ class PgComponentStore(ComponentStore):
         return dict(self._conn.execute("SELECT key, value FROM meta").fetchall())
 
     @contextmanager
-    def _transaction(self, mode: str = "IMMEDIATE") -> Iterator[Any]:
+    def _transaction(self, mode: str = "IMMEDIATE", reads: Sequence[str] = ()
+                     ) -> Iterator[Any]:
+        """A transaction: ``DEFERRED``, a read-only snapshot (``REPEATABLE READ``); else a
+        write transaction under the writers' advisory lock, begun in one round trip with the
+        queries ``reads`` (without parameters; their rows in :attr:`_opened`)."""
         if self._states is not None and mode != "DEFERRED" and not self._ingesting:
             self._states.drop()  # a write the kept rows do not follow
         if mode == "DEFERRED":
             self._conn.execute("BEGIN ISOLATION LEVEL REPEATABLE READ READ ONLY")
-        else:
-            if not self._conn.staging:  # outside any transaction: no rollback undoes it
-                self._conn.execute(_staging_sql())
-                self._conn.staging = True
-            # one round trip (a string of statements without parameters)
-            self._conn.execute(f"BEGIN; SELECT pg_advisory_xact_lock({WRITE_LOCK_KEY})")
+        elif not self._conn.staging:  # outside any transaction: no rollback undoes it
+            self._conn.execute(_staging_sql())
+            self._conn.staging = True
         try:
+            if mode != "DEFERRED":  # one string of statements: one round trip
+                cur = self._conn.execute("; ".join(
+                    [f"BEGIN; SELECT pg_advisory_xact_lock({WRITE_LOCK_KEY})", *reads]))
+                cur.nextset()  # past BEGIN's result: the lock's
+                self._opened = [list(cur.fetchall()) for _ in reads if cur.nextset()]
             yield self._conn
         except BaseException:
             if not self._conn.raw.closed:

@@ -356,12 +356,15 @@ class ComponentStore(GroupCommits, StoreSettings):
         """SQLite's ``PRAGMA data_version``: changes whenever another connection commits."""
         return int(self._conn.execute("PRAGMA data_version").fetchone()[0])
 
-    def _open_group(self, keep: bool, sql: str | None) -> tuple[int | None, list[tuple]]:
-        """At the start of a group commit's transaction (:meth:`ingest_many`): the version
-        the kept rows are checked against (``keep``; else ``None``) and the rows of the
-        admission's query ``sql`` (none without it)."""
-        version = self._data_version() if keep else None
-        return version, ([] if sql is None else self._conn.execute(sql).fetchall())
+    @contextmanager
+    def _group_transaction(self, keep: bool, sql: str | None
+                           ) -> Iterator[tuple[int | None, list[tuple]]]:
+        """A group commit's write transaction (:meth:`ingest_many`), yielding what is read at
+        its start: the version the kept rows are checked against (``keep``; else ``None``)
+        and the rows of the admission's query ``sql`` (none without it)."""
+        with self._transaction("IMMEDIATE"):
+            version = self._data_version() if keep else None
+            yield version, ([] if sql is None else self._conn.execute(sql).fetchall())
 
     # -- plumbing
     def close(self) -> None:
