@@ -7,11 +7,16 @@ format's header, one tuple per row: its field count, then each field's length an
 bytes in network order, ``-1`` and no bytes for NULL; the trailer), from one text key per
 row and a float64 array of the other columns, without a Python object per value: every
 column is one array operation, and the rows are cut out of one byte matrix at once.
+:func:`binary_tuples` does the same for rows of Python values with variable-length
+columns (text, bytea) of any length: the fixed-size fields between them made by numpy,
+each row joined from its pieces.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import chain
+from typing import Any
 
 import numpy as np
 
@@ -91,4 +96,35 @@ def _text(keys: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     return mat, keep
 
 
-__all__ = ["HEADER", "TRAILER", "binary_rows"]
+def binary_tuples(rows: Sequence[Sequence[Any]], types: Sequence[str]) -> bytes:
+    """``rows`` (tuples of Python values, no NULL) of columns of ``types`` (``text``,
+    ``bytea`` or a fixed-size type of :func:`binary_rows`: ``float8`` from floats, ``int8``
+    and ``int2`` from ints, exactly) as binary ``COPY`` data, header and trailer included:
+    the bytes psycopg's ``write_row`` sends for them."""
+    cols = list(zip(*rows, strict=True)) if rows else [() for _ in types]
+    b = len(rows)
+    count = np.empty((b, 2), np.uint8)
+    count[:] = np.frombuffer(np.array(len(types), ">i2").tobytes(), np.uint8)
+    pieces: list[list[bytes] | tuple[bytes, ...]] = []  # per column group, one per row
+    run = [count]  # fixed-size bytes since the last variable-length value
+    for col, typ in zip(cols, types, strict=True):
+        if typ in _FIXED:
+            vals = np.asarray(col, np.float64 if typ == "float8" else np.int64)
+            run.append(_column(vals, "", typ, False)[0])
+            continue
+        data = tuple(v.encode("utf-8") if typ == "text" else bytes(v) for v in col)
+        run.append(np.fromiter(map(len, data), ">i4", b).view(np.uint8).reshape(b, 4))
+        pieces += [_split(np.hstack(run)), data]
+        run = []
+    if run:
+        pieces.append(_split(np.hstack(run)))
+    return HEADER + b"".join(chain.from_iterable(zip(*pieces, strict=True))) + TRAILER
+
+
+def _split(mat: np.ndarray) -> list[bytes]:
+    """The bytes of each row of the byte matrix ``mat``."""
+    buf, w = mat.tobytes(), mat.shape[1]
+    return [buf[i:i + w] for i in range(0, len(buf), w)]
+
+
+__all__ = ["HEADER", "TRAILER", "binary_rows", "binary_tuples"]

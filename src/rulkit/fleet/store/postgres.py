@@ -49,7 +49,7 @@ from rulkit.fleet.store.database_file import (
     is_postgres_url,
     time_axis_from_meta,
 )
-from rulkit.fleet.store.pg_copy import binary_rows
+from rulkit.fleet.store.pg_copy import binary_rows, binary_tuples
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
 from rulkit.fleet.store.schema import (
     ALERTS,
@@ -314,11 +314,12 @@ class PgComponentStore(ComponentStore):
 
     def _write_history(self, rows: list[tuple]) -> None:
         """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by binary ``COPY``
-        (:meth:`PgConnection.copy_binary`: the blobs as raw bytes, not hex text; the server
-        parses no statement per row). The cheapest of the ways measured by
-        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest")."""
-        self._conn.copy_binary("history", history_chunks.COLUMNS,
-                               [_column_type(HISTORY, c) for c in history_chunks.COLUMNS], rows)
+        (the blobs as raw bytes, not hex text; the server parses no statement per row; the
+        data made by :func:`~rulkit.fleet.store.pg_copy.binary_tuples`). The cheapest of the
+        ways measured by benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL
+        ingest")."""
+        self._conn.copy_data("history", history_chunks.COLUMNS, binary_tuples(
+            rows, [_column_type(HISTORY, c) for c in history_chunks.COLUMNS]))
 
     def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
                       ) -> None:
