@@ -43,44 +43,56 @@ def binary_rows(keys: Sequence[str], values: np.ndarray, columns: Sequence[str],
     if not (len(keys) == b and len(columns) == len(types) == len(nullable) == k):
         raise ValueError(f"{len(keys)} keys, {len(columns)} columns, {len(types)} types "
                          f"and {len(nullable)} null flags for {b} rows of {k} values")
+    null = np.isnan(values) & np.asarray(nullable, bool)
+    sizes = np.array([np.dtype(_FIXED[t]).itemsize for t in types], np.int64)
+    starts = np.concatenate([[0], np.cumsum(4 + sizes)[:-1]])  # each field's offset
+    fields = np.empty((b, int((4 + sizes).sum())), np.uint8)
+    keep = np.ones(fields.shape, bool)
+    lengths = np.where(null, -1, sizes).astype(">i4")
+    fields[:, starts[:, None] + np.arange(4)] = lengths.view(np.uint8).reshape(b, k, 4)
+    for typ in dict.fromkeys(types):  # the columns of each type in one operation
+        idx = [j for j, t in enumerate(types) if t == typ]
+        vals = np.ascontiguousarray(_typed(values[:, idx], [columns[j] for j in idx], typ,
+                                           [bool(nullable[j]) for j in idx]))
+        pos = starts[idx][:, None] + 4 + np.arange(vals.dtype.itemsize)
+        fields[:, pos] = vals.view(np.uint8).reshape(b, len(idx), -1)
+        keep[:, pos] = ~null[:, idx][:, :, None]
     count = np.empty((b, 2), np.uint8)
     count[:] = np.frombuffer(np.array(k + 1, ">i2").tobytes(), np.uint8)
-    fields = [_column(values[:, j], c, t, n)
-              for j, (c, t, n) in enumerate(zip(columns, types, nullable, strict=True))]
-    key = _text(keys)
-    parts = [(count, np.ones((b, 2), bool)), *fields]
-    parts.insert(len(parts) if key_last else 1, key)
+    parts = [(count, np.ones((b, 2), bool)), (fields, keep)]
+    parts.insert(len(parts) if key_last else 1, _text(keys))
     data = np.hstack([p[0] for p in parts])
-    keep = np.hstack([p[1] for p in parts])
-    return HEADER + data[keep].tobytes() + TRAILER
+    return HEADER + data[np.hstack([p[1] for p in parts])].tobytes() + TRAILER
 
 
-def _column(v: np.ndarray, name: str, typ: str, nullable: bool
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """One column's fields: a byte matrix (the length, then the value) and which of its
-    bytes are sent (a NULL's value is not)."""
-    null = np.isnan(v)
-    if typ != "float8" and not nullable and null.any():
-        raise ValueError(f"column {name}: NaN where an integer is required")
+def _typed(v: np.ndarray, names: list[str], typ: str, nullable: list[bool]) -> np.ndarray:
+    """Columns ``v`` (float64, a column per name of ``names``) as values of ``typ`` in
+    network order (a NULL's value is there, and not sent)."""
     if typ == "float8":
-        vals = v.astype(">f8")
-    elif typ == "bool":
-        vals = (np.nan_to_num(v) != 0).astype("u1")
-    else:
-        ints = np.nan_to_num(v).astype(np.int64)
-        info = np.iinfo(_FIXED[typ])
-        if ints.size and (ints.min() < info.min or ints.max() > info.max):
-            raise ValueError(f"column {name}: a value out of the range of {typ}")
-        vals = ints.astype(_FIXED[typ])
+        return v.astype(">f8")
+    bad = np.isnan(v).any(axis=0) & ~np.asarray(nullable, bool)
+    if bad.any():
+        raise ValueError(f"column {names[int(np.argmax(bad))]}: NaN where an integer is "
+                         "required")
+    if typ == "bool":
+        return (np.nan_to_num(v) != 0).astype("u1")
+    ints = np.nan_to_num(v).astype(np.int64)
+    info = np.iinfo(_FIXED[typ])
+    if ints.size and (ints.min() < info.min or ints.max() > info.max):
+        raise ValueError(f"column {names[0] if len(names) == 1 else names}: a value out "
+                         f"of the range of {typ}")
+    return ints.astype(_FIXED[typ])
+
+
+def _column(v: np.ndarray, typ: str) -> np.ndarray:
+    """One column without NULL (float64, or int64 for the integer types) as fields: a
+    byte matrix of each row's length, then its value."""
+    vals = _typed(v[:, None].astype(np.float64) if typ == "bool" else v[:, None], [""], typ,
+                  [False])
     size = vals.dtype.itemsize
-    if not nullable:
-        null = np.zeros(v.size, bool)
-    length = np.where(null, -1, size).astype(">i4")
-    mat = np.hstack([length.view(np.uint8).reshape(-1, 4),
-                     vals.view(np.uint8).reshape(-1, size)])
-    keep = np.ones(mat.shape, bool)
-    keep[:, 4:] = ~null[:, None]
-    return mat, keep
+    length = np.full(v.size, size, ">i4")
+    return np.hstack([length.view(np.uint8).reshape(-1, 4),
+                      vals.view(np.uint8).reshape(-1, size)])
 
 
 def _text(keys: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +122,7 @@ def binary_tuples(rows: Sequence[Sequence[Any]], types: Sequence[str]) -> bytes:
     for col, typ in zip(cols, types, strict=True):
         if typ in _FIXED:
             vals = np.asarray(col, np.float64 if typ == "float8" else np.int64)
-            run.append(_column(vals, "", typ, False)[0])
+            run.append(_column(vals, typ))
             continue
         data = tuple(v.encode("utf-8") if typ == "text" else bytes(v) for v in col)
         run.append(np.fromiter(map(len, data), ">i4", b).view(np.uint8).reshape(b, 4))

@@ -319,7 +319,7 @@ class PgComponentStore(ComponentStore):
         ways measured by benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL
         ingest")."""
         self._conn.copy_data("history", history_chunks.COLUMNS, binary_tuples(
-            rows, [_column_type(HISTORY, c) for c in history_chunks.COLUMNS]))
+            rows, _column_types(HISTORY, history_chunks.COLUMNS)))
 
     def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
                       ) -> None:
@@ -349,7 +349,7 @@ class PgComponentStore(ComponentStore):
         ``COPY`` of the rows of :func:`~rulkit.fleet.store.tracker_rows.component_rows`
         sends, without a Python object per value), then :meth:`_update_staged` and
         :meth:`_upsert_staged`."""
-        types = [_column_type(COMPONENTS, c) for c in columns]
+        types = _column_types(COMPONENTS, columns)
         nulls = [c in nullable for c in columns]
         if known.size:
             cols = (*columns, "component")
@@ -390,7 +390,7 @@ class PgComponentStore(ComponentStore):
         """``rows`` of columns ``cols`` into the empty :data:`STAGING` (emptied first when an
         earlier write of this transaction used it)."""
         self._empty_staging()
-        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
+        self._conn.copy_binary(STAGING, cols, _column_types(COMPONENTS, cols), rows)
 
     def _stage_data(self, cols: tuple[str, ...], data: bytes) -> None:
         """Binary ``COPY`` data ``data`` of columns ``cols`` into the empty :data:`STAGING`."""
@@ -424,7 +424,7 @@ def _insert_rows(conn: PgConnection, table: Any, columns: Sequence[str],
     if not rows:
         return []
     cols = ", ".join(columns)
-    arrays = ", ".join(f"%s::{_column_type(table, c)}[]" for c in columns)
+    arrays = ", ".join(f"%s::{t}[]" for t in _column_types(table, tuple(columns)))
     with conn.raw.cursor() as cur:
         cur.execute(f"INSERT INTO {table.name} ({cols}) SELECT {cols} FROM unnest({arrays}) "
                     f"WITH ORDINALITY AS u({cols}, o) ORDER BY o RETURNING id",
@@ -454,11 +454,19 @@ def _count_writes(conn: PgConnection) -> None:
     conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE")
 
 
-@lru_cache(maxsize=64)
-def _column_type(table: Any, name: str) -> str:
-    """PostgreSQL's type of column ``name`` of ``table`` (a :class:`~rulkit.fleet.store.
-    schema.Table`), as binary COPY sends it."""
-    return _BINARY_TYPES[next(c.kind for c in table.columns if c.name == name)]
+_TYPES: dict[tuple[str, tuple[str, ...]], list[str]] = {}
+
+
+def _column_types(table: Any, names: tuple[str, ...]) -> list[str]:
+    """PostgreSQL's types of columns ``names`` of ``table`` (a :class:`~rulkit.fleet.store.
+    schema.Table`), as binary COPY sends them; kept by the table's name (hashing the table
+    itself hashes every column of it, at every call)."""
+    key = (table.name, names)
+    got = _TYPES.get(key)
+    if got is None:
+        kinds = {c.name: c.kind for c in table.columns}
+        got = _TYPES[key] = [_BINARY_TYPES[kinds[n]] for n in names]
+    return got
 
 
 @lru_cache(maxsize=1)
