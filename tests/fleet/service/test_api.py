@@ -61,6 +61,29 @@ def test_auth_required_and_roles(client, sdb, tokens):
     assert all(len(row[2]) == 64 for row in stored)
 
 
+def test_a_bad_token_is_refused_before_the_bodys_errors(client, sdb, tokens):
+    """401 and 403 come before the body's own 413, 415 and 422, on both backends (PostgreSQL
+    checks a batch's token in the group's transaction, and the token of a body that fails
+    before it)."""
+    bad, huge = b'{"rows": [{"component": "c", "time": 0}]}', {"Content-Length": str(2**40)}
+    for token, status in [("rk_not-a-token", 401), (tokens["read"], 403),
+                          (tokens["write"], 422)]:
+        r = client.post("/api/v1/acquisitions", content=bad, headers={
+            **auth(token), "Content-Type": "application/json"})
+        assert r.status_code == status, r.text
+        r = client.post("/api/v1/acquisitions", content=b"x", headers={
+            **auth(token), "Content-Type": "application/x-nothing"})
+        assert r.status_code == (415 if status == 422 else status), r.text
+    for token, status in [("rk_not-a-token", 401), (tokens["read"], 403),
+                          (tokens["write"], 413)]:
+        r = client.post("/api/v1/acquisitions", content=b"{}", headers={
+            **auth(token), "Content-Type": "application/json", **huge})
+        assert r.status_code == status, r.text
+    assert client.post("/api/v1/acquisitions", json=as_rows(fleet_frame(1, 5)), headers=auth(
+        "rk_not-a-token")).headers["www-authenticate"] == "Bearer"
+    assert sdb.components(limit=1)[0] == 0
+
+
 def test_ingest_matches_direct_store_and_is_idempotent(client, sdb, tokens, tmp_path):
     df = fleet_frame()
     first, second = df[df.time < 90], df[df.time >= 80]  # 10 steps overlap per component
