@@ -417,19 +417,24 @@ class PgComponentStore(ComponentStore):
 def _insert_rows(conn: PgConnection, table: Any, columns: Sequence[str],
                  rows: Sequence[Sequence[Any]]) -> list[int]:
     """``rows`` of ``columns`` into ``table`` (a :class:`~rulkit.fleet.store.schema.Table`
-    whose key ``id`` PostgreSQL numbers) by one ``INSERT ... SELECT`` from an array parameter
-    per column, in the rows' order; their ids, in that order. The table's identity gives
-    the rows of one statement increasing ids in the order they are inserted, which the
-    ordinality fixes, so the ids sorted are the rows' ids in order."""
+    whose key ``id`` PostgreSQL numbers) by one statement from an array parameter per column;
+    their ids, in the rows' order. Each position takes its id from the key's sequence in a
+    ``WITH`` query of its own (one that calls ``nextval`` is evaluated once, however often it
+    is read), the rows are inserted with those ids, and the ids are returned by position:
+    nothing depends on the order in which PostgreSQL inserts or returns rows."""
     if not rows:
         return []
     cols = ", ".join(columns)
     arrays = ", ".join(f"%s::{t}[]" for t in _column_types(table, tuple(columns)))
     with conn.raw.cursor() as cur:
-        cur.execute(f"INSERT INTO {table.name} ({cols}) SELECT {cols} FROM unnest({arrays}) "
-                    f"WITH ORDINALITY AS u({cols}, o) ORDER BY o RETURNING id",
-                    [list(col) for col in zip(*rows, strict=True)])
-        return sorted(int(r[0]) for r in cur.fetchall())
+        cur.execute(
+            f"WITH k AS (SELECT o, nextval(pg_get_serial_sequence('{table.name}', 'id')) "
+            f"AS id FROM generate_series(1, %s) AS o), "
+            f"ins AS (INSERT INTO {table.name} (id, {cols}) SELECT k.id, {cols} "
+            f"FROM unnest({arrays}) WITH ORDINALITY AS u({cols}, o) JOIN k USING (o)) "
+            f"SELECT id FROM k ORDER BY o",
+            [len(rows), *(list(col) for col in zip(*rows, strict=True))])
+        return [int(r[0]) for r in cur.fetchall()]
 
 
 def _count_writes(conn: PgConnection) -> None:
