@@ -84,6 +84,33 @@ def test_a_bad_token_is_refused_before_the_bodys_errors(client, sdb, tokens):
     assert sdb.components(limit=1)[0] == 0
 
 
+def test_a_token_not_known_to_write_is_refused_before_its_body_is_read(
+        client, sdb, tokens, monkeypatch):
+    """An unknown or read-only token, or one refused since it last wrote, gets its 401 or
+    403 before the body is decoded or anything reaches the writer, on both backends
+    (PostgreSQL checks a known write token only in the group's transaction, so a token
+    revoked after it wrote is refused there once, then at the door)."""
+    import rulkit.fleet.service.routes_acquisitions as routes
+
+    decoded = []
+    real = routes.batch_frame
+    monkeypatch.setattr(routes, "batch_frame",
+                        lambda body, ctype: decoded.append(1) or real(body, ctype))
+    df = fleet_frame(2, 5)
+    writes = sdb._writes
+    for token, status in [("rk_" + "x" * 43, 401), (tokens["read"], 403)]:
+        assert post(client, token, df).status_code == status
+    assert (decoded, sdb._writes) == ([], writes)
+    assert post(client, tokens["write"], df).status_code == 200
+    assert (len(decoded), sdb._writes) == (1, writes + 1)
+    sdb.revoke_token(name="writer")
+    assert post(client, tokens["write"], fleet_frame(2, 5, seed=1)).status_code == 401
+    seen = len(decoded)  # 1 on SQLite (refused at the door), 2 on PostgreSQL
+    assert post(client, tokens["write"], fleet_frame(2, 5, seed=2)).status_code == 401
+    assert len(decoded) == seen
+    assert sdb.components(limit=1)[0] == 2
+
+
 def test_ingest_matches_direct_store_and_is_idempotent(client, sdb, tokens, tmp_path):
     df = fleet_frame()
     first, second = df[df.time < 90], df[df.time >= 80]  # 10 steps overlap per component

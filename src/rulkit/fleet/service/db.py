@@ -155,6 +155,7 @@ class ServiceDB:
         self._queue_lock = threading.Lock()
         self._queue: list[_Pending] = []
         self._writes = 0  # committed groups (tests count them)
+        self._writers_seen: set[str] = set()  # hashes of tokens writer_token last passed
         self._writer: ComponentStore | None = None  # the group commits' own connection
         self.watch: CommitWatch | None = None
         if self.dialect == "sqlite":
@@ -267,11 +268,23 @@ class ServiceDB:
 
     def writer_token(self, token: str) -> Token:
         """The active write token with this value (:meth:`check_token`), else
-        :class:`TokenRefused` (401 or 403)."""
+        :class:`TokenRefused` (401 or 403). The outcome is remembered for
+        :meth:`known_writer`."""
         tok = self.check_token(token)
         if tok is None or not tok.can_write:
+            self._writers_seen.discard(hash_token(token))
             raise TokenRefused(401 if tok is None else 403)
+        self._writers_seen.add(hash_token(token))
         return tok
+
+    def known_writer(self, token: str) -> bool:
+        """Whether ``token`` passed :meth:`writer_token` the last time it was checked there.
+        Not a check: a token may have been revoked since; the ingest on PostgreSQL uses it
+        to check a token at the door the first time it is seen (an unknown token is refused
+        before its body is read), and only inside the group's transaction after that. The
+        set holds only tokens that were in ``api_tokens``, so it stays as small as that
+        table."""
+        return hash_token(token) in self._writers_seen
 
     # ------------------------------------------------------------------ ingestion
     def ingest(self, df: pd.DataFrame | Columns, source: str, *, now: float | None = None,

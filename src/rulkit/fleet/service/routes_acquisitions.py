@@ -63,15 +63,22 @@ async def post_acquisitions(request: Request) -> Response:
 
     Rows already stored (same component, time and HI) are skipped and counted in
     ``duplicates``; the response lists the new alerts. The token (a write token) is checked
-    before the body on SQLite, and inside the group commit's transaction on PostgreSQL
-    (:meth:`ServiceDB.ingest`), where a body that fails has its token checked first: a bad
-    token gets its 401 or 403 either way."""
+    before the body on SQLite. On PostgreSQL it is checked inside the group commit's
+    transaction (:meth:`ServiceDB.ingest`), and before the body too unless it passed that
+    check before (:meth:`ServiceDB.known_writer`): a token never seen, or refused since, is
+    refused before its body is read or anything is queued for the writer; a body that fails
+    has its token checked first. A bad token gets its 401 or 403 either way."""
     sdb: ServiceDB = request.app.state.db
     token: str | None = None  # checked by the ingest
     if sdb.watch is not None:  # SQLite: a few microseconds on the event loop
         source = f"api:{(await write_token(request)).name}"
     else:
         source, token = "api:", await bearer_token(request)
+        if not sdb.known_writer(token):
+            try:
+                await run_in_threadpool(sdb.writer_token, token)
+            except TokenRefused as err:
+                raise refusal(err) from None
     metrics: Metrics = request.app.state.metrics
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     t0 = time.perf_counter()
