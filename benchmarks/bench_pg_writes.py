@@ -24,6 +24,7 @@ import argparse
 import os
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -54,12 +55,16 @@ def captured_rows(store: PgComponentStore, size: int, steps: int
 
     store._write_states = keep_states  # type: ignore[method-assign]
     store._write_history = keep_history  # type: ignore[method-assign]
+    # the rows as tuples (the base store's way), through keep_states
+    store._write_components = partial(  # type: ignore[method-assign]
+        ComponentStore._write_components, store)
     rng = np.random.default_rng(0)
     t = np.tile(np.arange(steps, dtype=float), size)
     hi = np.repeat(rng.uniform(0.1, 0.6, size), steps) + 0.01 * t
     store.ingest(pd.DataFrame({"component": np.repeat([f"u{i:06d}" for i in range(size)],
                                                       steps), "time": t, "hi": hi}))
     store._write_states, store._write_history = write_states, write_history  # type: ignore
+    del store._write_components
     return got["states"], [(c, a, b, n, i, bytes(d)) for c, a, b, n, i, d in got["history"]]
 
 

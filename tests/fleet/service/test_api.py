@@ -61,6 +61,56 @@ def test_auth_required_and_roles(client, sdb, tokens):
     assert all(len(row[2]) == 64 for row in stored)
 
 
+def test_a_bad_token_is_refused_before_the_bodys_errors(client, sdb, tokens):
+    """401 and 403 come before the body's own 413, 415 and 422, on both backends (PostgreSQL
+    checks a batch's token in the group's transaction, and the token of a body that fails
+    before it)."""
+    bad, huge = b'{"rows": [{"component": "c", "time": 0}]}', {"Content-Length": str(2**40)}
+    for token, status in [("rk_not-a-token", 401), (tokens["read"], 403),
+                          (tokens["write"], 422)]:
+        r = client.post("/api/v1/acquisitions", content=bad, headers={
+            **auth(token), "Content-Type": "application/json"})
+        assert r.status_code == status, r.text
+        r = client.post("/api/v1/acquisitions", content=b"x", headers={
+            **auth(token), "Content-Type": "application/x-nothing"})
+        assert r.status_code == (415 if status == 422 else status), r.text
+    for token, status in [("rk_not-a-token", 401), (tokens["read"], 403),
+                          (tokens["write"], 413)]:
+        r = client.post("/api/v1/acquisitions", content=b"{}", headers={
+            **auth(token), "Content-Type": "application/json", **huge})
+        assert r.status_code == status, r.text
+    assert client.post("/api/v1/acquisitions", json=as_rows(fleet_frame(1, 5)), headers=auth(
+        "rk_not-a-token")).headers["www-authenticate"] == "Bearer"
+    assert sdb.components(limit=1)[0] == 0
+
+
+def test_a_token_not_known_to_write_is_refused_before_its_body_is_read(
+        client, sdb, tokens, monkeypatch):
+    """An unknown or read-only token, or one refused since it last wrote, gets its 401 or
+    403 before the body is decoded or anything reaches the writer, on both backends
+    (PostgreSQL checks a known write token only in the group's transaction, so a token
+    revoked after it wrote is refused there once, then at the door)."""
+    import rulkit.fleet.service.routes_acquisitions as routes
+
+    decoded = []
+    real = routes.batch_frame
+    monkeypatch.setattr(routes, "batch_frame",
+                        lambda body, ctype: decoded.append(1) or real(body, ctype))
+    df = fleet_frame(2, 5)
+    writes = sdb._writes
+    for token, status in [("rk_" + "x" * 43, 401), (tokens["read"], 403)]:
+        assert post(client, token, df).status_code == status
+    assert (decoded, sdb._writes) == ([], writes)
+    assert post(client, tokens["write"], df).status_code == 200
+    assert (len(decoded), sdb._writes) == (1, writes + 1)
+    sdb.revoke_token(name="writer")
+    assert post(client, tokens["write"], fleet_frame(2, 5, seed=1)).status_code == 401
+    seen = len(decoded)  # 1 on SQLite (refused at the door), 2 on PostgreSQL
+    assert post(client, tokens["write"], fleet_frame(2, 5, seed=2)).status_code == 401
+    assert len(decoded) == seen
+    assert sdb.components(limit=1)[0] == 2
+
+
 def test_ingest_matches_direct_store_and_is_idempotent(client, sdb, tokens, tmp_path):
     df = fleet_frame()
     first, second = df[df.time < 90], df[df.time >= 80]  # 10 steps overlap per component

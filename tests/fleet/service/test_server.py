@@ -81,10 +81,10 @@ def test_shutdown_finishes_the_batch_in_flight(tmp_path):
     started, release = threading.Event(), threading.Event()
     ingest = sdb.ingest
 
-    def held(df, source):  # the batch is in flight when the shutdown starts
+    def held(df, source, **kw):  # the batch is in flight when the shutdown starts
         started.set()
         release.wait(60)
-        return ingest(df, source)
+        return ingest(df, source, **kw)
 
     sdb.ingest = held
     cfg = config(create_app(sdb), "127.0.0.1", 0, grace=30, log_level="warning")

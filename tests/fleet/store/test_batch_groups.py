@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from rulkit.fleet.store.acquisitions import IngestError, validate_acquisitions
-from rulkit.fleet.store.batch_groups import disjoint_runs, join
+from rulkit.fleet.store.batch_groups import Admission, disjoint_runs, join
 from rulkit.fleet.store.history_stage import plan_pieces
 from rulkit.fleet.store.sqlite import ComponentStore
 from rulkit.fleet.tracking.tracker_chain import TrackerConfig
@@ -155,3 +155,48 @@ def test_a_refused_batch_leaves_the_others_and_nothing_of_itself(tmp_path, join_
         assert isinstance(res[1], IngestError) and "time units apart" in str(res[1])
         n = store.status().set_index("component")["n"].to_dict()
     assert n == {"a": 9, "b": 5, "c": 4}
+
+
+class Refused(Exception):
+    pass
+
+
+@pytest.mark.parametrize("join_batches", [True, False])
+def test_admitted_batches_store_and_answer_as_the_others_left_out(tmp_path, join_batches):
+    """An admission that refuses every other batch of each group (read in the transaction,
+    after the lock): the refused get their exception, nothing of them is stored, and the
+    admitted, under the sources it gives, store and answer as groups without the refused."""
+    queries = []
+
+    def admission(group):
+        def decide(rows):
+            queries.append(rows)
+            return [f"ok{i}" if i % 2 == 0 else Refused(i) for i in range(len(group))]
+
+        return Admission("SELECT count(*) FROM components", decide)
+
+    runs = []
+    for admit in (True, False):
+        path = tmp_path / f"{admit}.db"
+        with ComponentStore(path, config=CFG) as store:
+            store.JOIN_BATCHES = join_batches
+            store.keep_states()
+            out = []
+            for group in GROUPS:
+                batches = [(validate_acquisitions(f, CFG, None), f"ok{i}", NOW)
+                           for i, f in enumerate(group)]
+                res = (store.ingest_many(batches, admission(group)) if admit else
+                       store.ingest_many(batches[::2]))
+                out.append([r if isinstance(r, Refused) else _result(r) for r in res])
+        con = sqlite3.connect(path)
+        runs.append((out, [con.execute(f"SELECT * FROM {t} ORDER BY 1, 2").fetchall()
+                           for t in TABLES]))
+        con.close()
+    (admitted, tables), (alone, tables_alone) = runs
+    assert [[type(r) for r in g[1::2]] for g in admitted] == [
+        [Refused] * (len(g) // 2) for g in GROUPS]
+    assert [g[::2] for g in admitted] == alone
+    assert tables == tables_alone
+    # read in each group's transaction: the components the admitted batches stored before
+    # (none; a, b; and e, f; and c, d, g)
+    assert [rows[0][0] for rows in queries] == [0, 2, 4, 7]

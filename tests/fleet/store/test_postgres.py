@@ -65,7 +65,9 @@ def test_validation_first_and_rollback(db_url, monkeypatch):
         def boom(*args):
             raise RuntimeError("disk full")
 
-        monkeypatch.setattr(store, "_write_states", boom)  # after history rows were written
+        # after the history rows and the stored component's update were written
+        monkeypatch.setattr(store, "_upsert_staged" if hasattr(store, "_upsert_staged")
+                            else "_write_states", boom)
         with pytest.raises(RuntimeError, match="disk full"):
             store.ingest(batch(["a", "d"], 5, 3))
         monkeypatch.undo()
@@ -315,3 +317,29 @@ def test_a_kept_row_the_table_lacks_fails_the_group_on_postgresql(pg_server):
         pd.testing.assert_frame_equal(store.status(), before[0], check_exact=True)
         pd.testing.assert_frame_equal(store.history(), before[1], check_exact=True)
         assert len(store._states) == 0
+
+
+def test_a_groups_ingests_and_alerts_rows_carry_their_own_ids(db_url):
+    """A group's ``ingests`` rows and a batch's alerts are inserted by one statement each on
+    PostgreSQL: every id returned is the id of its own row (an alert read back by
+    component, time and level; a batch's history rows carry its ``ingests`` row, the one
+    with its source)."""
+    with open_store(db_url, config=CFG) as store:
+        store.ingest(batch(["a", "b", "c", "d"], 0, 40))
+        frames = [batch([f"g{k}"], 0, 3, seed=k) for k in range(5)]
+        from rulkit.fleet.store.acquisitions import validate_acquisitions
+
+        store.ingest_many([(validate_acquisitions(f, CFG, None), f"s{k}", 1.7e9)
+                           for k, f in enumerate(frames)])
+        rises = pd.DataFrame([(c, 40.0 + s, 0.4 + 0.12 * s + 0.05 * j)
+                              for j, c in enumerate("abcd") for s in range(8)],
+                             columns=["component", "time", "hi"])
+        alerts = store.ingest(rises).alerts
+        con = store._conn
+        stored = {(c, t, lvl): i for i, c, t, lvl in con.execute(
+            "SELECT id, component, t, level FROM alerts").fetchall()}
+        sources = dict(con.execute("SELECT id, source FROM ingests").fetchall())
+        owner = dict(con.execute("SELECT component, ingest FROM history").fetchall())
+    assert len(alerts) >= 4
+    assert [stored[(a.component, a.t, a.level)] for a in alerts] == [a.id for a in alerts]
+    assert [sources[owner[f"g{k}"]] for k in range(5)] == [f"s{k}" for k in range(5)]

@@ -7,17 +7,24 @@ the framework's share of a request. The token's database lookup
 (:meth:`~rulkit.fleet.service.db.ServiceDB.check_token`) runs on the event loop on SQLite
 (a few microseconds on the connection of :mod:`.commit_watch`, which never waits for a
 writer) and in a worker thread on PostgreSQL (a round trip to its server, and a wait for a
-pooled connection).
+pooled connection). The ingest route on PostgreSQL checks its token inside the group
+commit's transaction instead (:meth:`~rulkit.fleet.service.db.ServiceDB.ingest`): one query
+for a group's batches, no hand-off of its own.
 """
 
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from rulkit.fleet.service.bodies import http_error
-from rulkit.fleet.service.db import ServiceDB, Token
+from rulkit.fleet.service.db import (
+    ServiceDB,
+    Token,
+    TokenRefused,
+    plausible_token,
+)
 from rulkit.fleet.service.metrics import Metrics
 
 BEARER = HTTPBearer(auto_error=False, description="A token from `rulkit token create`.")
@@ -45,15 +52,36 @@ async def authenticated(
 
 
 async def _valid(creds: HTTPAuthorizationCredentials | None, sdb: ServiceDB) -> Token:
+    token = _credential(creds)
+    if sdb.watch is not None:
+        tok = sdb.check_token(token)
+    else:
+        tok = await run_in_threadpool(sdb.check_token, token)
+    if tok is None:
+        raise refusal(TokenRefused(401))
+    return tok
+
+
+def _credential(creds: HTTPAuthorizationCredentials | None) -> str:
+    """The bearer token of the request's credentials (401 when there is none, or one that
+    cannot be a token)."""
     if creds is None or creds.scheme.lower() != "bearer":
         raise http_error(401, "missing bearer token", {"WWW-Authenticate": "Bearer"})
-    if sdb.watch is not None:
-        tok = sdb.check_token(creds.credentials)
-    else:
-        tok = await run_in_threadpool(sdb.check_token, creds.credentials)
-    if tok is None:
-        raise http_error(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
-    return tok
+    if not plausible_token(creds.credentials):
+        raise refusal(TokenRefused(401))
+    return creds.credentials
+
+
+async def bearer_token(request: Request) -> str:
+    """The request's bearer token, not yet checked (401 when it has none): the ingest route
+    on PostgreSQL has it checked in the group's transaction."""
+    return _credential(await BEARER(request))
+
+
+def refusal(err: TokenRefused) -> HTTPException:
+    """The response of a refused token: 401 (with ``WWW-Authenticate``) or 403."""
+    return http_error(err.status, str(err),
+                      {"WWW-Authenticate": "Bearer"} if err.status == 401 else None)
 
 
 async def writer(tok: Annotated[Token, Depends(authenticated)]) -> Token:
@@ -70,8 +98,7 @@ async def write_token(request: Request) -> Token:
 
 def _writes(tok: Token) -> Token:
     if not tok.can_write:
-        raise http_error(403, "this token is read-only; writes and acknowledgements need "
-                              "a write token")
+        raise refusal(TokenRefused(403))
     return tok
 
 

@@ -52,6 +52,7 @@ from rulkit.fleet.store.acquisitions import (
     IngestResult,
     validate_acquisitions,
 )
+from rulkit.fleet.store.batch_groups import Admission
 from rulkit.fleet.store.postgres import open_store, store_dialect
 from rulkit.fleet.store.prognosis import current_estimator
 from rulkit.fleet.store.schema import migrate
@@ -70,8 +71,24 @@ STALE_MARGIN = 1e-3
 (:meth:`ServiceDB.stale_horizon`): far above the rounding of calendar times."""
 
 
+INVALID_TOKEN = "invalid or revoked token"
+"""The 401's message for a token that is unknown or revoked."""
+READ_ONLY_TOKEN = ("this token is read-only; writes and acknowledgements need a write "
+                   "token")
+"""The 403's message for a read-only token where a write token is needed."""
+
+
 class NotFound(LookupError):
     """No such component or alert (HTTP 404)."""
+
+
+class TokenRefused(PermissionError):
+    """A batch's token is not an active write token (``status`` 401: unknown or revoked;
+    403: read-only); nothing of the batch is written."""
+
+    def __init__(self, status: int) -> None:
+        super().__init__(INVALID_TOKEN if status == 401 else READ_ONLY_TOKEN)
+        self.status = status
 
 
 @dataclass(frozen=True)
@@ -138,6 +155,7 @@ class ServiceDB:
         self._queue_lock = threading.Lock()
         self._queue: list[_Pending] = []
         self._writes = 0  # committed groups (tests count them)
+        self._writers_seen: set[str] = set()  # hashes of tokens writer_token last passed
         self._writer: ComponentStore | None = None  # the group commits' own connection
         self.watch: CommitWatch | None = None
         if self.dialect == "sqlite":
@@ -237,7 +255,7 @@ class ServiceDB:
 
     def check_token(self, token: str) -> Token | None:
         """The active token with this value, or None."""
-        if not token or len(token) > 256:
+        if not plausible_token(token):
             return None
         if self.watch is not None:  # SQLite: read on the watch's connection, every time
             found = self.watch.token_row(hash_token(token))
@@ -248,9 +266,29 @@ class ServiceDB:
                 (hash_token(token),)).fetchone()
         return Token(int(row[0]), str(row[1]), str(row[2])) if row else None
 
+    def writer_token(self, token: str) -> Token:
+        """The active write token with this value (:meth:`check_token`), else
+        :class:`TokenRefused` (401 or 403). The outcome is remembered for
+        :meth:`known_writer`."""
+        tok = self.check_token(token)
+        if tok is None or not tok.can_write:
+            self._writers_seen.discard(hash_token(token))
+            raise TokenRefused(401 if tok is None else 403)
+        self._writers_seen.add(hash_token(token))
+        return tok
+
+    def known_writer(self, token: str) -> bool:
+        """Whether ``token`` passed :meth:`writer_token` the last time it was checked there.
+        Not a check: a token may have been revoked since; the ingest on PostgreSQL uses it
+        to check a token at the door the first time it is seen (an unknown token is refused
+        before its body is read), and only inside the group's transaction after that. The
+        set holds only tokens that were in ``api_tokens``, so it stays as small as that
+        table."""
+        return hash_token(token) in self._writers_seen
+
     # ------------------------------------------------------------------ ingestion
-    def ingest(self, df: pd.DataFrame | Columns, source: str, *, now: float | None = None
-               ) -> dict[str, Any]:
+    def ingest(self, df: pd.DataFrame | Columns, source: str, *, now: float | None = None,
+               token: str | None = None) -> dict[str, Any]:
         """Validate and apply one batch through the store's one ingestion path
         (:meth:`~rulkit.fleet.store.sqlite.ComponentStore.ingest_many`: duplicates skipped,
         conflicts refused, alerts recorded), with group commit: batches that arrive while
@@ -258,10 +296,24 @@ class ServiceDB:
         own savepoint, so each is still all or nothing) with one commit. The call returns
         once its batch is committed (durable); JSON-ready result. ``now``: the calendar time
         of the ingestion (seconds since 1970; default the clock), the time a batch of ages
-        was acquired at."""
-        with self.store() as s:  # validation needs no lock: it runs beside the writer
-            acq = validate_acquisitions(df, s.config, s.hi_model, s.time_axis)
-        req = _Pending(acq, source, now)
+        was acquired at.
+
+        ``token``: a bearer token, checked inside the group's transaction, after the
+        writers' lock (one query for the group's tokens): the batch is written, under the
+        source ``source`` followed by the token's name, only if it is an active write token
+        then; else :class:`TokenRefused` and nothing of it is written. A revocation
+        committed before the group's transaction is seen. A batch that fails before it is
+        checked (invalid, or its group's transaction failed) has its token checked first
+        (:meth:`writer_token`), so a bad token is refused before anything else, as a check
+        before the body gives it."""
+        try:
+            with self.store() as s:  # validation needs no lock: it runs beside the writer
+                acq = validate_acquisitions(df, s.config, s.hi_model, s.time_axis)
+        except BaseException:
+            if token is not None:
+                self.writer_token(token)
+            raise
+        req = _Pending(acq, source, now, None if token is None else hash_token(token))
         with self._queue_lock:
             self._queue.append(req)
         with self._write_lock:
@@ -270,6 +322,8 @@ class ServiceDB:
                     group, self._queue = self._queue, []
                 self._commit(group)
         if isinstance(req.outcome, BaseException):
+            if token is not None and not req.admitted:
+                self.writer_token(token)
             raise req.outcome
         res = req.outcome
         assert res is not None
@@ -284,7 +338,7 @@ class ServiceDB:
                 self._writer = open_store(self.db, create=False)
                 self._writer.keep_states()
             outcomes: list[Any] = list(self._writer.ingest_many(
-                [(r.acq, r.source, r.now) for r in group]))
+                [(r.acq, r.source, r.now) for r in group], _admission(group)))
             self._writes += 1
         except BaseException as err:  # the commit failed: nothing of the group is stored
             outcomes = [err] * len(group)
@@ -423,14 +477,50 @@ class ServiceDB:
 
 
 class _Pending:
-    """A validated batch waiting for its group's commit."""
+    """A validated batch waiting for its group's commit; ``token``: the SHA-256 of its
+    bearer token, checked in the group's transaction (``admitted`` once it passed)."""
 
-    __slots__ = ("acq", "done", "now", "outcome", "source")
+    __slots__ = ("acq", "admitted", "done", "now", "outcome", "source", "token")
 
-    def __init__(self, acq: Batch, source: str, now: float | None) -> None:
-        self.acq, self.source, self.now = acq, source, now
-        self.done = False
+    def __init__(self, acq: Batch, source: str, now: float | None,
+                 token: str | None = None) -> None:
+        self.acq, self.source, self.now, self.token = acq, source, now, token
+        self.done = self.admitted = False
         self.outcome: IngestResult | BaseException | None = None
+
+
+def plausible_token(token: str) -> bool:
+    """Whether ``token`` could be a token at all (the others are refused unread)."""
+    return bool(token) and len(token) <= 256
+
+
+def _admission(group: list[_Pending]) -> Admission | None:
+    """The check of the group's tokens in its transaction (:class:`Admission`): one query of
+    the active tokens among the group's hashes (hex digests, so the query carries them as
+    literals); a batch whose token is active and may write gets the source ``source``
+    followed by the token's name, the others :class:`TokenRefused`. ``None`` when no batch
+    of the group has a token."""
+    hashes = sorted({r.token for r in group if r.token is not None})
+    if not hashes:
+        return None
+    assert all(len(h) == 64 and h.isalnum() and h.isascii() for h in hashes)  # hex digests
+
+    def decide(rows: list[tuple]) -> list[str | BaseException]:
+        found = {str(h): (str(name), str(role)) for h, name, role in rows}
+        out: list[str | BaseException] = []
+        for r in group:
+            if r.token is None:
+                out.append(r.source)
+            elif r.token not in found or found[r.token][1] != "write":
+                out.append(TokenRefused(401 if r.token not in found else 403))
+            else:
+                r.admitted = True
+                out.append(r.source + found[r.token][0])
+        return out
+
+    return Admission(
+        "SELECT hash, name, role FROM api_tokens WHERE revoked IS NULL AND hash IN ("
+        + ", ".join(f"'{h}'" for h in hashes) + ")", decide)
 
 
 def _in_transaction(store: ComponentStore) -> bool:

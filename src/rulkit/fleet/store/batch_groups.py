@@ -12,8 +12,9 @@ store's writes instead of one per batch.
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -34,6 +35,19 @@ if TYPE_CHECKING:
 Queued = tuple[Batch, str, float | None]
 """A validated batch, its source and the calendar time it was received at (``None``: the
 clock), as :meth:`~rulkit.fleet.store.sqlite.ComponentStore.ingest_many` takes them."""
+
+
+@dataclass(frozen=True)
+class Admission:
+    """Which batches of a group commit may be written, decided inside its write transaction
+    (the service's token check: a token revoked by a commit before the group's transaction
+    is refused). ``sql``: one query without parameters, read once per group after the
+    writers' lock is taken; ``decide(rows)``: per batch of the group, in order, its source
+    (the batch is written under it) or the exception it gets instead (nothing of it
+    written)."""
+
+    sql: str
+    decide: Callable[[list[tuple]], list[str | BaseException]]
 
 
 def disjoint_runs(batches: Sequence[Queued]) -> Iterator[list[Queued]]:
@@ -91,34 +105,35 @@ class GroupCommits:
 
         def _transaction(self, mode: str = "IMMEDIATE"
                          ) -> AbstractContextManager[sqlite3.Connection]: ...
-        def _data_version(self) -> int: ...
+        def _group_transaction(self, keep: bool, sql: str | None
+                               ) -> AbstractContextManager[tuple[int | None, list[tuple]]]: ...
         def _load_states(self, names: list[str]) -> StoredRows: ...
-        def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int: ...
+        def _insert_ingests(self, rows: list[tuple[str, int, int]]) -> list[int]: ...
         def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                    ingest_ids: Any = None) -> IngestResult: ...
         def _record_alerts(self, alerts: list[Alert]) -> list[Alert]: ...
         def _ingest_in_transaction(self, acq: Batch, source: str) -> IngestResult: ...
 
-    def ingest_many(self, batches: list[tuple[Batch, str, float | None]]
-                    ) -> list[IngestResult | IngestError]:
+    def ingest_many(self, batches: list[tuple[Batch, str, float | None]],
+                    admit: Admission | None = None) -> list[IngestResult | BaseException]:
         """Validated batches (:func:`validate_acquisitions`' :class:`Batch`, their sources and the
         calendar times ``now`` they were received at, ``None``: the clock) in one write
         transaction, each under its own savepoint: a batch that fails (conflict, a
         non-finite tracker output) is rolled back alone and gets its error, the others are
         committed together (one commit, one sync: group commit). A failing commit raises
-        for all of them; nothing is then stored."""
-        out: list[IngestResult | IngestError] = []
+        for all of them; nothing is then stored. ``admit``: which batches may be written and
+        under which source, read in the transaction (:class:`Admission`); a batch it refuses
+        gets its exception and nothing of it is written."""
         states = self._states
         self._ingesting = True
         try:
-            with self._transaction("IMMEDIATE"):
+            with self._group_transaction(states is not None,
+                                         None if admit is None else admit.sql) as (version, rows):
                 if states is not None:
-                    states.begin(self._data_version())
-                runs = disjoint_runs(batches) if self.JOIN_BATCHES else ([b] for b in batches)
-                for run in runs:
-                    joined = self._ingest_joined(run) if len(run) > 1 else None
-                    out += joined if joined is not None else [
-                        self._ingest_savepoint(acq, source, now) for acq, source, now in run]
+                    states.begin(version)  # type: ignore[arg-type]
+                verdicts: list[str | BaseException] = (
+                    [b[1] for b in batches] if admit is None else admit.decide(rows))
+                out = self._ingest_admitted(batches, verdicts)
         except BaseException:
             if states is not None:
                 states.drop()
@@ -128,6 +143,21 @@ class GroupCommits:
         if states is not None:
             states.commit()
         return out
+
+    def _ingest_admitted(self, batches: list[Queued], verdicts: list[str | BaseException]
+                         ) -> list[IngestResult | BaseException]:
+        """The batches whose verdict is a source applied under it (runs of them with no
+        component in common in one pass); the others get their verdict."""
+        live = [(acq, v, now) for (acq, _, now), v in zip(batches, verdicts, strict=True)
+                if isinstance(v, str)]
+        done: list[IngestResult | IngestError] = []
+        runs = disjoint_runs(live) if self.JOIN_BATCHES else ([b] for b in live)
+        for run in runs:
+            joined = self._ingest_joined(run) if len(run) > 1 else None
+            done += joined if joined is not None else [
+                self._ingest_savepoint(acq, source, now) for acq, source, now in run]
+        it = iter(done)
+        return [next(it) if isinstance(v, str) else v for v in verdicts]
 
     def _ingest_savepoint(self, acq: Batch, source: str, now: float | None
                           ) -> IngestResult | IngestError:
@@ -171,8 +201,8 @@ class GroupCommits:
                 parts.append((acq, source, n_dup, len(acq.names) - known.size))
                 stored.append(mine)
             live = [p for p in parts if len(p[0])]
-            ids = [self._insert_ingest(source, len(acq), len(acq.names))
-                   for acq, source, _, _ in live]
+            ids = self._insert_ingests([(source, len(acq), len(acq.names))
+                                        for acq, source, _, _ in live])
             alerts: list[list[Alert]] = [[] for _ in parts]
             if live:
                 counts = [len(p[0].names) for p in live]
@@ -210,4 +240,4 @@ class GroupCommits:
 
 
 
-__all__ = ["GroupCommits", "Queued", "disjoint_runs", "join"]
+__all__ = ["Admission", "GroupCommits", "Queued", "disjoint_runs", "join"]

@@ -36,6 +36,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from rulkit.fleet.monitoring.rules import MonitoringRules
@@ -48,9 +49,17 @@ from rulkit.fleet.store.database_file import (
     is_postgres_url,
     time_axis_from_meta,
 )
+from rulkit.fleet.store.pg_copy import binary_rows, binary_tuples
 from rulkit.fleet.store.prognosis import monitoring_meta, read_monitoring, upgrade
-from rulkit.fleet.store.schema import COMPONENTS, HISTORY, create_schema, needs_migration
-from rulkit.fleet.store.sqlite import ComponentStore
+from rulkit.fleet.store.schema import (
+    ALERTS,
+    COMPONENTS,
+    HISTORY,
+    INGESTS,
+    create_schema,
+    needs_migration,
+)
+from rulkit.fleet.store.sqlite import ALERT_COLUMNS, ComponentStore
 from rulkit.fleet.store.state_cache import StateCache
 from rulkit.fleet.store.tracker_rows import ROW_FIELDS, StoredRows
 from rulkit.fleet.tracking.health_index import HealthIndexModel
@@ -108,6 +117,13 @@ class PgConnection:
             for row in rows:
                 copy.write_row(row)
 
+    def copy_data(self, table: str, columns: tuple[str, ...], data: bytes) -> None:
+        """Binary ``COPY`` data ``data`` (header and trailer included:
+        :func:`~rulkit.fleet.store.pg_copy.binary_rows`) into ``table``'s ``columns``."""
+        with self.raw.cursor() as cur, cur.copy(
+                f"COPY {table} ({', '.join(columns)}) FROM STDIN (FORMAT BINARY)") as copy:
+            copy.write(data)
+
     def close(self) -> None:
         self.raw.close()
 
@@ -135,6 +151,7 @@ class PgComponentStore(ComponentStore):
     dialect = "postgresql"
 
     _conn: Any  # a PgConnection: sqlite3-like execute/executemany/close over psycopg
+    _opened: list[list[tuple]]  # the rows of the reads begun with the write transaction
 
     def __init__(
         self,
@@ -216,10 +233,18 @@ class PgComponentStore(ComponentStore):
             return
         self._states = StateCache(self.STATE_COLUMNS, limit, signed_zeros=True)  # float8 -0.0
 
-    def _data_version(self) -> int:
-        """The write counter (:data:`WRITES`), its row locked until this transaction ends:
-        nobody else's write to ``components`` can commit meanwhile."""
-        return int(self._conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE").fetchone()[0])
+    @contextmanager
+    def _group_transaction(self, keep: bool, sql: str | None
+                           ) -> Iterator[tuple[int | None, list[tuple]]]:
+        """:meth:`ComponentStore._group_transaction` in one round trip: ``BEGIN``, the
+        writers' lock, the write counter (:data:`WRITES`, its row locked until this
+        transaction ends: nobody else's write to ``components`` can commit meanwhile) and the
+        admission's query, sent as one string."""
+        reads = ([f"SELECT n FROM {WRITES} FOR UPDATE"] if keep else []) + (
+            [sql] if sql is not None else [])
+        with self._transaction("IMMEDIATE", reads):
+            got = self._opened
+            yield (int(got[0][0][0]) if keep else None), (got[-1] if sql is not None else [])
 
     def _load_states(self, names: list[str]) -> StoredRows:
         """The stored rows of ``names`` (:meth:`ComponentStore._load_states`): those kept,
@@ -245,18 +270,24 @@ class PgComponentStore(ComponentStore):
         return dict(self._conn.execute("SELECT key, value FROM meta").fetchall())
 
     @contextmanager
-    def _transaction(self, mode: str = "IMMEDIATE") -> Iterator[Any]:
+    def _transaction(self, mode: str = "IMMEDIATE", reads: Sequence[str] = ()
+                     ) -> Iterator[Any]:
+        """A transaction: ``DEFERRED``, a read-only snapshot (``REPEATABLE READ``); else a
+        write transaction under the writers' advisory lock, begun in one round trip with the
+        queries ``reads`` (without parameters; their rows in :attr:`_opened`)."""
         if self._states is not None and mode != "DEFERRED" and not self._ingesting:
             self._states.drop()  # a write the kept rows do not follow
         if mode == "DEFERRED":
             self._conn.execute("BEGIN ISOLATION LEVEL REPEATABLE READ READ ONLY")
-        else:
-            if not self._conn.staging:  # outside any transaction: no rollback undoes it
-                self._conn.execute(_staging_sql())
-                self._conn.staging = True
-            self._conn.execute("BEGIN")
-            self._conn.execute("SELECT pg_advisory_xact_lock(?)", (WRITE_LOCK_KEY,))
+        elif not self._conn.staging:  # outside any transaction: no rollback undoes it
+            self._conn.execute(_staging_sql())
+            self._conn.staging = True
         try:
+            if mode != "DEFERRED":  # one string of statements: one round trip
+                cur = self._conn.execute("; ".join(
+                    [f"BEGIN; SELECT pg_advisory_xact_lock({WRITE_LOCK_KEY})", *reads]))
+                cur.nextset()  # past BEGIN's result: the lock's
+                self._opened = [list(cur.fetchall()) for _ in reads if cur.nextset()]
             yield self._conn
         except BaseException:
             if not self._conn.raw.closed:
@@ -264,10 +295,11 @@ class PgComponentStore(ComponentStore):
                 self._conn.staged = False
             raise
         else:
-            if self._states is not None and self._ingesting:  # the count after our writes
-                self._states.version = int(
-                    self._conn.execute(f"SELECT n FROM {WRITES}").fetchone()[0])
-            self._conn.execute("COMMIT")
+            if self._states is not None and self._ingesting:  # the count after our writes,
+                self._states.version = int(  # read and committed in one round trip
+                    self._conn.execute(f"SELECT n FROM {WRITES}; COMMIT").fetchone()[0])
+            else:
+                self._conn.execute("COMMIT")
             self._conn.staged = False
 
     def _query(self, sql: str, params: tuple = ()) -> pd.DataFrame:
@@ -282,57 +314,127 @@ class PgComponentStore(ComponentStore):
 
     def _write_history(self, rows: list[tuple]) -> None:
         """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by binary ``COPY``
-        (:meth:`PgConnection.copy_binary`: the blobs as raw bytes, not hex text; the server
-        parses no statement per row). The cheapest of the ways measured by
-        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest")."""
-        self._conn.copy_binary("history", history_chunks.COLUMNS,
-                               [_column_type(HISTORY, c) for c in history_chunks.COLUMNS], rows)
+        (the blobs as raw bytes, not hex text; the server parses no statement per row; the
+        data made by :func:`~rulkit.fleet.store.pg_copy.binary_tuples`). The cheapest of the
+        ways measured by benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL
+        ingest")."""
+        self._conn.copy_data("history", history_chunks.COLUMNS, binary_tuples(
+            rows, _column_types(HISTORY, history_chunks.COLUMNS)))
 
     def _write_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
                       ) -> None:
         """Upsert component rows ``(component, *ROW_FIELDS, max_level, *extra_cols)``: binary
         ``COPY`` into the connection's temporary table :data:`STAGING`, then one statement
-        that empties it into ``components`` (``INSERT ... SELECT ... ON CONFLICT (component)
-        DO UPDATE``), instead of one upsert per row: the same stored values (float8 bits as
-        sent), the same conflict handling. The cheapest of the ways measured by
-        benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL ingest"). The commit empties the
-        table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction (group
-        commits whose batches share components) empties it first."""
+        that empties it into ``components`` (:meth:`_upsert_staged`), instead of one upsert
+        per row: the same stored values (float8 bits as sent), the same conflict handling.
+        The cheapest of the ways measured by benchmarks/bench_pg_writes.py (docs/service.md,
+        "PostgreSQL ingest")."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
         self._stage(cols, rows)
+        self._upsert_staged(cols)
+
+    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
+                       ) -> None:
+        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
+        (:meth:`ComponentStore._update_states`): binary ``COPY`` into :data:`STAGING`, then
+        one ``UPDATE ... FROM`` it (:meth:`_update_staged`)."""
+        cols = (*ROW_FIELDS, "max_level", *extra_cols, "component")
+        self._stage(cols, rows)
+        self._update_staged(cols, len(rows))
+
+    def _write_components(self, names: list[str], values: np.ndarray, columns: tuple[str, ...],
+                          nullable: tuple[str, ...], known: np.ndarray) -> None:
+        """:meth:`ComponentStore._write_components` with the rows' binary ``COPY`` data made
+        from ``values`` by :func:`~rulkit.fleet.store.pg_copy.binary_rows` (the bytes
+        ``COPY`` of the rows of :func:`~rulkit.fleet.store.tracker_rows.component_rows`
+        sends, without a Python object per value), then :meth:`_update_staged` and
+        :meth:`_upsert_staged`."""
+        types = _column_types(COMPONENTS, columns)
+        nulls = [c in nullable for c in columns]
+        if known.size:
+            cols = (*columns, "component")
+            self._stage_data(cols, binary_rows([names[i] for i in known.tolist()],
+                                               values[known], columns, types, nulls,
+                                               key_last=True))
+            self._update_staged(cols, known.size)
+        new = np.setdiff1d(np.arange(len(names)), known)
+        if new.size:
+            cols = ("component", *columns)
+            self._stage_data(cols, binary_rows([names[i] for i in new.tolist()],
+                                               values[new], columns, types, nulls))
+            self._upsert_staged(cols)
+
+    def _update_staged(self, cols: tuple[str, ...], n_rows: int) -> None:
+        """``components`` updated from the ``n_rows`` rows of :data:`STAGING` (columns ``cols``,
+        the key last) by one ``UPDATE ... FROM``; a row that is not stored raises
+        :class:`StoreError` (the write transaction is then rolled back)."""
+        sets = ", ".join(f"{c} = s.{c}" for c in cols[:-1])
+        n = self._conn.execute(f"UPDATE components AS c SET {sets} FROM {STAGING} AS s "
+                               "WHERE c.component = s.component").rowcount
+        if n != n_rows:
+            raise StoreError(f"{self.path}: {n_rows - n} of the batch's components read "
+                             "as stored are not in table components")
+
+    def _upsert_staged(self, cols: tuple[str, ...]) -> None:
+        """The rows of :data:`STAGING` (columns ``cols``, the key first) into ``components``
+        (``INSERT ... SELECT ... ON CONFLICT (component) DO UPDATE``). The commit empties the
+        table (``ON COMMIT DELETE ROWS``, in place); a second write in one transaction
+        (group commits whose batches share components) empties it first."""
         names = ", ".join(cols)
         updates = ", ".join(f"{c} = excluded.{c}" for c in cols[1:])
         self._conn.execute(
             f"INSERT INTO components ({names}) SELECT {names} FROM {STAGING} "
             f"ON CONFLICT (component) DO UPDATE SET {updates}")
 
-    def _update_states(self, rows: Sequence[Sequence[Any]], extra_cols: tuple[str, ...] = ()
-                       ) -> None:
-        """Update stored component rows ``(*ROW_FIELDS, max_level, *extra_cols, component)``
-        (:meth:`ComponentStore._update_states`): binary ``COPY`` into :data:`STAGING`, then one
-        ``UPDATE ... FROM`` it; a row that is not stored raises :class:`StoreError` (the
-        write transaction is then rolled back)."""
-        cols = (*ROW_FIELDS, "max_level", *extra_cols, "component")
-        self._stage(cols, rows)
-        sets = ", ".join(f"{c} = s.{c}" for c in cols[:-1])
-        n = self._conn.execute(f"UPDATE components AS c SET {sets} FROM {STAGING} AS s "
-                               "WHERE c.component = s.component").rowcount
-        if n != len(rows):
-            raise StoreError(f"{self.path}: {len(rows) - n} of the batch's components read "
-                             "as stored are not in table components")
-
     def _stage(self, cols: tuple[str, ...], rows: Sequence[Sequence[Any]]) -> None:
         """``rows`` of columns ``cols`` into the empty :data:`STAGING` (emptied first when an
         earlier write of this transaction used it)."""
+        self._empty_staging()
+        self._conn.copy_binary(STAGING, cols, _column_types(COMPONENTS, cols), rows)
+
+    def _stage_data(self, cols: tuple[str, ...], data: bytes) -> None:
+        """Binary ``COPY`` data ``data`` of columns ``cols`` into the empty :data:`STAGING`."""
+        self._empty_staging()
+        self._conn.copy_data(STAGING, cols, data)
+
+    def _empty_staging(self) -> None:
         if self._conn.staged:
             self._conn.execute(f"DELETE FROM {STAGING}")
         self._conn.staged = True
-        self._conn.copy_binary(STAGING, cols, [_column_type(COMPONENTS, c) for c in cols], rows)
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
-        return int(self._conn.execute(
-            "INSERT INTO ingests (source, n_rows, n_components) VALUES (?, ?, ?) RETURNING id",
-            (source, n_rows, n_components)).fetchone()[0])
+        return self._insert_ingests([(source, n_rows, n_components)])[0]
+
+    def _insert_ingests(self, rows: list[tuple[str, int, int]]) -> list[int]:
+        """:meth:`ComponentStore._insert_ingests` in one statement (:func:`_insert_rows`)."""
+        return _insert_rows(self._conn, INGESTS, ("source", "n_rows", "n_components"), rows)
+
+    def _insert_alerts(self, rows: list[tuple]) -> list[int]:
+        """:meth:`ComponentStore._insert_alerts` in one statement (:func:`_insert_rows`)."""
+        return _insert_rows(self._conn, ALERTS, ALERT_COLUMNS, rows)
+
+
+def _insert_rows(conn: PgConnection, table: Any, columns: Sequence[str],
+                 rows: Sequence[Sequence[Any]]) -> list[int]:
+    """``rows`` of ``columns`` into ``table`` (a :class:`~rulkit.fleet.store.schema.Table`
+    whose key ``id`` PostgreSQL numbers) by one statement from an array parameter per column;
+    their ids, in the rows' order. Each position takes its id from the key's sequence in a
+    ``WITH`` query of its own (one that calls ``nextval`` is evaluated once, however often it
+    is read), the rows are inserted with those ids, and the ids are returned by position:
+    nothing depends on the order in which PostgreSQL inserts or returns rows."""
+    if not rows:
+        return []
+    cols = ", ".join(columns)
+    arrays = ", ".join(f"%s::{t}[]" for t in _column_types(table, tuple(columns)))
+    with conn.raw.cursor() as cur:
+        cur.execute(
+            f"WITH k AS (SELECT o, nextval(pg_get_serial_sequence('{table.name}', 'id')) "
+            f"AS id FROM generate_series(1, %s) AS o), "
+            f"ins AS (INSERT INTO {table.name} (id, {cols}) SELECT k.id, {cols} "
+            f"FROM unnest({arrays}) WITH ORDINALITY AS u({cols}, o) JOIN k USING (o)) "
+            f"SELECT id FROM k ORDER BY o",
+            [len(rows), *(list(col) for col in zip(*rows, strict=True))])
+        return [int(r[0]) for r in cur.fetchall()]
 
 
 def _count_writes(conn: PgConnection) -> None:
@@ -357,11 +459,19 @@ def _count_writes(conn: PgConnection) -> None:
     conn.execute(f"SELECT n FROM {WRITES} FOR UPDATE")
 
 
-@lru_cache(maxsize=64)
-def _column_type(table: Any, name: str) -> str:
-    """PostgreSQL's type of column ``name`` of ``table`` (a :class:`~rulkit.fleet.store.
-    schema.Table`), as binary COPY sends it."""
-    return _BINARY_TYPES[next(c.kind for c in table.columns if c.name == name)]
+_TYPES: dict[tuple[str, tuple[str, ...]], list[str]] = {}
+
+
+def _column_types(table: Any, names: tuple[str, ...]) -> list[str]:
+    """PostgreSQL's types of columns ``names`` of ``table`` (a :class:`~rulkit.fleet.store.
+    schema.Table`), as binary COPY sends them; kept by the table's name (hashing the table
+    itself hashes every column of it, at every call)."""
+    key = (table.name, names)
+    got = _TYPES.get(key)
+    if got is None:
+        kinds = {c.name: c.kind for c in table.columns}
+        got = _TYPES[key] = [_BINARY_TYPES[kinds[n]] for n in names]
+    return got
 
 
 @lru_cache(maxsize=1)

@@ -296,8 +296,9 @@ def add_level_counts(conn: Any, old: Any, new: Any) -> None:
     the levels ``old`` (their stored levels; new components have none) for ``new``."""
     delta = (np.bincount(np.asarray(new, dtype=np.int64), minlength=3)
              - np.bincount(np.asarray(old, dtype=np.int64), minlength=3))
-    conn.executemany("UPDATE level_counts SET n = n + ? WHERE level = ?",
-                     [(int(d), lv) for lv, d in enumerate(delta.tolist()) if d])
+    moved = [(int(d), lv) for lv, d in enumerate(delta.tolist()) if d]
+    if moved:  # psycopg's executemany of nothing still costs a pipeline's set-up
+        conn.executemany("UPDATE level_counts SET n = n + ? WHERE level = ?", moved)
 
 
 def seen_buckets(seen: Any) -> np.ndarray:
@@ -317,10 +318,13 @@ def add_seen_counts(conn: Any, old: Any, new: Any) -> None:
     delta = np.bincount(inv, weights=sign, minlength=buckets.size).astype(np.int64)
     moved = [(int(b), int(d)) for b, d in zip(buckets.tolist(), delta.tolist(), strict=True)
              if d]
+    if not moved:  # psycopg's executemany of nothing still costs a pipeline's set-up
+        return
     conn.executemany("INSERT INTO seen_counts (bucket, n) VALUES (?, ?) ON CONFLICT (bucket) "
                      "DO UPDATE SET n = seen_counts.n + excluded.n", moved)
-    conn.executemany("DELETE FROM seen_counts WHERE bucket = ? AND n = 0",
-                     [(b,) for b, d in moved if d < 0])
+    emptied = [(b,) for b, d in moved if d < 0]
+    if emptied:
+        conn.executemany("DELETE FROM seen_counts WHERE bucket = ? AND n = 0", emptied)
 
 
 def needs_migration(conn: Any, dialect: str) -> bool:

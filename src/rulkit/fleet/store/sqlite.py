@@ -155,6 +155,14 @@ def _of_components(ingest_id: Any, comps: np.ndarray) -> Any:
     return ingest_id if np.ndim(ingest_id) == 0 else ingest_id[comps]
 
 
+ALERT_COLUMNS = ("component", "t", "level", "previous", "hi", "fhi", "rul", "valid", "rul_low",
+                 "rul_high", "reason", "raised")
+"""The columns of table ``alerts`` a new alert's row fills (:meth:`ComponentStore.
+_record_alerts`)."""
+_INSERT_ALERT = (f"INSERT INTO alerts ({', '.join(ALERT_COLUMNS)}) "
+                 f"VALUES ({', '.join('?' * len(ALERT_COLUMNS))})")
+
+
 def _finite(v: float) -> float | None:
     """``v``, or ``None`` (SQL NULL) when it is NaN or infinite."""
     return v if math.isfinite(v) else None
@@ -347,6 +355,16 @@ class ComponentStore(GroupCommits, StoreSettings):
     def _data_version(self) -> int:
         """SQLite's ``PRAGMA data_version``: changes whenever another connection commits."""
         return int(self._conn.execute("PRAGMA data_version").fetchone()[0])
+
+    @contextmanager
+    def _group_transaction(self, keep: bool, sql: str | None
+                           ) -> Iterator[tuple[int | None, list[tuple]]]:
+        """A group commit's write transaction (:meth:`ingest_many`), yielding what is read at
+        its start: the version the kept rows are checked against (``keep``; else ``None``)
+        and the rows of the admission's query ``sql`` (none without it)."""
+        with self._transaction("IMMEDIATE"):
+            version = self._data_version() if keep else None
+            yield version, ([] if sql is None else self._conn.execute(sql).fetchall())
 
     # -- plumbing
     def close(self) -> None:
@@ -554,23 +572,19 @@ class ComponentStore(GroupCommits, StoreSettings):
         rows = [(a.component, a.t, a.level, a.previous, _finite(a.hi), _finite(a.fhi),
                  _finite(a.rul), math.isfinite(a.rul), _finite(a.rul_low),
                  _finite(a.rul_high), a.reason, now) for a in alerts]
-        insert = ("INSERT INTO alerts (component, t, level, previous, hi, fhi, rul, valid, "
-                  "rul_low, rul_high, reason, raised) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                  "?, ?)")
-        first = None
-        if rows and isinstance(self._conn, sqlite3.Connection):
-            # SQLite numbers a row one above the table's largest id while that stays below
-            # the largest integer: the rows of one statement take consecutive ids
-            top = self._conn.execute("SELECT max(id) FROM alerts").fetchone()[0] or 0
-            if top + len(rows) < 2**63 - 1:
-                self._conn.executemany(insert, rows)
-                first = top + 1
-        if first is None:
-            ids = [int(self._conn.execute(f"{insert} RETURNING id", r).fetchone()[0])
-                   for r in rows]
-        else:
-            ids = list(range(first, first + len(rows)))
+        ids = self._insert_alerts(rows) if rows else []
         return [replace(a, id=i, raised=now) for a, i in zip(alerts, ids, strict=True)]
+
+    def _insert_alerts(self, rows: list[tuple]) -> list[int]:
+        """Insert alert rows ``ALERT_COLUMNS``; their ids, in order (backend hook). SQLite
+        numbers a row one above the table's largest id while that stays below the largest
+        integer: the rows of one statement take consecutive ids; past it, one insert each."""
+        top = self._conn.execute("SELECT max(id) FROM alerts").fetchone()[0] or 0
+        if top + len(rows) < 2**63 - 1:
+            self._conn.executemany(_INSERT_ALERT, rows)
+            return list(range(top + 1, top + 1 + len(rows)))
+        return [int(self._conn.execute(f"{_INSERT_ALERT} RETURNING id", r).fetchone()[0])
+                for r in rows]
 
     def _apply(self, acq: Batch, source: str, stored: StoredRows | None = None,
                ingest_ids: np.ndarray | None = None) -> IngestResult:
@@ -639,20 +653,29 @@ class ComponentStore(GroupCommits, StoreSettings):
         values = np.column_stack([cols[c] for c in write]).astype(np.float64, copy=False)
         if self._states is not None and self._ingesting:
             self._states.put(names, values[:, [write.index(c) for c in self.STATE_COLUMNS]])
-        extra = write[len(ROW_FIELDS) + 1:]
-        if known.size:  # the stored ones first: the new ones' rowids in batch order
+        self._write_components(names, values, write, tuple(prog_cols), known)
+        add_level_counts(self._conn, stored_vals[:, ROW_FIELDS.index("level")], cols["level"])
+        add_seen_counts(self._conn, stored_vals[:, len(ROW_FIELDS) + PROGNOSIS_COLUMNS.index(
+            "seen")], cols["seen"])
+
+    def _write_components(self, names: list[str], values: np.ndarray, columns: tuple[str, ...],
+                          nullable: tuple[str, ...], known: np.ndarray) -> None:
+        """The batch's ``components`` rows ``values`` (a float64 row per name, a column per
+        name of ``columns``, ``ROW_FIELDS`` and ``max_level`` first; NaN is NULL in the
+        ``nullable`` ones): an ``UPDATE`` of the stored ones (``known``, indices into
+        ``names``) first, so the new ones' rowids follow batch order, then the upsert of the
+        new ones (backend hook; :func:`~rulkit.fleet.store.tracker_rows.component_rows`)."""
+        extra = columns[len(ROW_FIELDS) + 1:]
+        if known.size:
             self._update_states(component_rows([names[i] for i in known.tolist()],
-                                               values[known], write, prog_cols, key_last=True),
-                                extra)
+                                               values[known], columns, nullable,
+                                               key_last=True), extra)
         fresh = np.ones(len(names), dtype=bool)
         fresh[known] = False
         new = np.flatnonzero(fresh)  # np.setdiff1d's, without its import of numpy.ma
         if new.size:
             self._write_states(component_rows([names[i] for i in new.tolist()], values[new],
-                                              write, prog_cols), extra)
-        add_level_counts(self._conn, stored_vals[:, ROW_FIELDS.index("level")], cols["level"])
-        add_seen_counts(self._conn, stored_vals[:, len(ROW_FIELDS) + PROGNOSIS_COLUMNS.index(
-            "seen")], cols["seen"])
+                                              columns, nullable), extra)
 
     def _run_pieces(self, acq: Batch, order: ComponentOrder, state: TrackerState,
                     prog: BatchPrognosis, ingest_id: Any) -> list[tuple[int, int, Alert]]:
@@ -718,6 +741,11 @@ class ComponentStore(GroupCommits, StoreSettings):
         :attr:`HISTORY_CHUNK` acquisitions."""
         self._write_history(history_chunks.chunk_rows(names, seg, rec, ingest_id,
                                                       self.HISTORY_CHUNK))
+
+    def _insert_ingests(self, rows: list[tuple[str, int, int]]) -> list[int]:
+        """Record ingestions ``(source, n_rows, n_components)`` (audit rows); their ids, in
+        order (backend hook)."""
+        return [self._insert_ingest(*r) for r in rows]
 
     def _insert_ingest(self, source: str, n_rows: int, n_components: int) -> int:
         """Record one ingestion (audit row) and return its id (backend hook)."""
