@@ -363,6 +363,20 @@ def status_part(args: argparse.Namespace, tmp: Path, rng: np.random.Generator) -
         mmap_part(sdb, args.repeats)
 
 
+def measured_environment(tmp: Path) -> None:
+    """The environment of the measured processes (this one's, which they inherit): they read
+    compiled bytecode as an installed package does (pip writes it at install), written by
+    each command's untimed first run and kept apart from the trees; and their BLAS libraries
+    start with one thread, as every rulkit command's root option (``--blas-threads 1``) has
+    them start before the command imports numpy (a process importing numpy without it starts
+    OpenBLAS's threads, whose spinning adds about 0.1 s of CPU to the floors)."""
+    from rulkit.cli import limit_blas_threads
+
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    os.environ["PYTHONPYCACHEPREFIX"] = str(tmp / "bytecode")
+    limit_blas_threads(1)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--components", type=int, default=2000)
@@ -381,10 +395,7 @@ def main() -> None:
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     tmp = Path(tempfile.mkdtemp(prefix="rulkit-bench-scale-"))
-    # the measured processes read compiled bytecode as an installed package does (pip writes
-    # it at install): written by each command's untimed first run, kept apart from the trees
-    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
-    os.environ["PYTHONPYCACHEPREFIX"] = str(tmp / "bytecode")
+    measured_environment(tmp)
     try:
         print(f"rulkit bench_scale: {os.cpu_count()} cores, load average "
               f"{os.getloadavg()[0]:.1f}, seed {args.seed}, medians of {args.repeats} runs "

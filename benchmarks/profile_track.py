@@ -11,7 +11,10 @@ under the stage that calls them. The first call of the trackers and of the trend
 printed apart: it loads numba and its cached machine code (more memory than numpy and
 pyarrow together). At the end, the share of the peak that is shared libraries' code
 (``RssFile``: numpy, pyarrow, numba's LLVM; pandas when the input needs it), against the
-process's own data (``RssAnon``).
+process's own data (``RssAnon``). The child reads cached bytecode and starts BLAS with one
+thread (``bench_scale.measured_environment``); it imports the store before the command's root
+option runs, which then caps the loaded BLAS through threadpoolctl (a few ms in "the command
+otherwise" that ``rulkit track`` itself does not spend).
 
     .venv/bin/python benchmarks/profile_track.py                      # 2000 x 1000 rows
     .venv/bin/python benchmarks/profile_track.py --components 200     # a quick look
@@ -200,12 +203,13 @@ def main() -> None:
     ap.add_argument("--against", type=Path, default=None,
                     help="the src/ of another checkout: profile its track instead")
     args = ap.parse_args()
-    env = {**os.environ}
-    if args.against is not None:
-        env["PYTHONPATH"] = str(args.against.resolve())
-    from bench_scale import fleet_csv
+    from bench_scale import fleet_csv, measured_environment
 
     with tempfile.TemporaryDirectory(prefix="rulkit-profile-track-") as tmp:
+        measured_environment(Path(tmp))
+        env = {**os.environ}
+        if args.against is not None:
+            env["PYTHONPATH"] = str(args.against.resolve())
         src = Path(tmp) / "acquisitions.csv"
         fleet_csv(src, args.components, args.acquisitions, np.random.default_rng(args.seed))
         for _ in range(2):  # the first run writes bytecode and numba's cache: not reported

@@ -83,6 +83,35 @@ def test_run_equals_one_update_per_row(strategy, equal):
     np.testing.assert_array_equal(state.t, ref.t)
 
 
+def test_ranks_of_equal_length_from_a_mixed_state_equal_one_update_per_row():
+    """The ranks' direct path (every unit at every rank) from a state where some units have
+    sums and others none, and with a NaN row (each unit's rows then run as the general
+    path): the sums after every row those of trend_update, bit for bit."""
+    rng = np.random.default_rng(3)
+    cfg = TrendConfig(forgetting=0.93)
+    b, k = 12, 9
+    start = TrendState.empty(b)
+    old = rng.random(b) < 0.5  # these units have 4 earlier acquisitions
+    for r in range(4):
+        start = trend_update(start, np.where(old, r - 10.0, np.nan),
+                             np.where(old, rng.uniform(0.1, 0.5, b), np.nan), cfg)
+    t = (np.arange(k) + rng.uniform(0.0, 0.5, (b, k))).ravel()
+    hi = rng.uniform(0.05, 0.6, b * k)
+    seg = np.arange(0, b * k + 1, k)
+    for bad in (False, True):
+        h = hi.copy()
+        if bad:
+            h[5] = np.nan  # unit 0's sixth row: trend_update keeps its state there
+        ref = start
+        want = np.empty((b * k, 7))
+        for r in range(k):
+            ref = trend_update(ref, t[r::k], h[r::k], cfg)
+            want[r::k] = ref.s
+        state, rows = trend_run(start, seg, t, h, cfg, strategy="ranks")
+        np.testing.assert_array_equal(rows.s, want)
+        np.testing.assert_array_equal(state.s, ref.s)
+
+
 @pytest.mark.parametrize("forgetting", [1.0, 0.8])
 def test_posterior_is_weighted_least_squares(forgetting):
     """a, b, their covariance and the degrees of freedom of (EI-17), computed from the raw
@@ -104,6 +133,38 @@ def test_posterior_is_weighted_least_squares(forgetting):
     np.testing.assert_allclose([post.vaa[0], post.vab[0], post.vbb[0]],
                                [cov[0, 0], cov[0, 1], cov[1, 1]], rtol=1e-7)
     assert post.nu[0] == np.floor(n_eff - 2.0)
+
+
+def test_posterior_keeps_the_bits_of_its_formulas():
+    """trend_posterior against (EI-17) written plainly, element by element, on states with
+    few points, one time only (a degenerate design), a perfect fit and zeros: the same
+    bits."""
+    rng = np.random.default_rng(7)
+    cfg = TrendConfig(forgetting=0.9, min_points=4)
+    b, k = 64, 9
+    t = np.cumsum(rng.uniform(0.1, 2.0, (b, k)), axis=1)
+    t[:4] = 5.0 + np.arange(k) * 1e-300  # no spread in time
+    hi = np.clip(0.2 * np.exp(0.05 * t) + rng.normal(0, 0.01, (b, k)), 0.0, 2.0)
+    hi[4:8] = 0.2 * np.exp(0.05 * t[4:8])  # a perfect fit but for the rounding
+    hi[8:10] = 0.0
+    counts = rng.integers(0, k + 1, b)
+    idx = np.concatenate([np.arange(c) + u * k for u, c in enumerate(counts)])
+    seg = np.concatenate([[0], np.cumsum(counts)])
+    state, _ = trend_run(TrendState.empty(b), seg, t.ravel()[idx], hi.ravel()[idx], cfg)
+    got = trend_posterior(state, cfg)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n_, s0, s1, s2, sz, sxz, szz = state.s.T
+        det = s0 * s2 - s1 * s1
+        ok = (state.n >= cfg.min_points) & (det > 1e-12 * s0 * s2) & (n_ > 3.0)
+        bb = (s0 * sxz - s1 * sz) / det
+        a = (sz - bb * s1) / s0
+        sig2 = np.maximum(np.maximum(szz - a * sz - bb * sxz, 0.0) / (n_ - 2.0),
+                          1e-24 * np.maximum(szz / s0, 1e-300))
+        want = (a, bb, sig2 * s2 / det, -sig2 * s1 / det, sig2 * s0 / det, np.floor(n_ - 2.0))
+    assert ok.any() and not ok.all()
+    for name, g, w in zip(("a", "b", "vaa", "vab", "vbb", "nu"), got.__dict__.values(), want,
+                          strict=True):
+        assert g.tobytes() == np.where(ok, w, np.nan).tobytes(), name
 
 
 def test_no_estimate_before_min_points():

@@ -102,3 +102,41 @@ def test_a_failed_write_of_the_stage_is_the_stores_error(tmp_path, monkeypatch):
         with pytest.raises(StoreFullError, match=f"{tmp_path}: cannot stage the batch's "
                            "history in a temporary file: .*No space left"):
             list(stage.blocks(10))
+
+
+@pytest.mark.parametrize("failure", [None, "EOPNOTSUPP", "ENOSPC"])
+def test_the_stage_reserves_its_bytes_at_once(tmp_path, monkeypatch, failure):
+    """The stage reserves the batch's records (104 bytes a row) on the disk before its first
+    write; a file system that cannot reserve gives the same blocks; a full disk raises the
+    store's error for it."""
+    import errno
+    import os
+
+    import rulkit.fleet.store.history_stage as stage_module
+    from rulkit.fleet.store.database_file import StoreFullError
+
+    calls = []
+
+    def reserve(fd, offset, size):
+        calls.append((offset, size, os.fstat(fd).st_size))
+        if failure is not None:
+            code = getattr(errno, failure)
+            raise OSError(code, os.strerror(code))
+
+    monkeypatch.setattr(stage_module.os, "posix_fallocate", reserve, raising=False)
+    codes = np.repeat(np.arange(3, dtype=np.int32), 4)
+    order = order_by_component(codes, ["a", "b", "c"])
+    values = np.arange(codes.size * WIDTH, dtype=np.float64).reshape(-1, WIDTH)
+    with HistoryStage(order, tmp_path) as stage:
+        windows = [window_piece(order, r0, r1) for r0, r1 in rank_windows(order, 6)]
+        if failure == "ENOSPC":
+            with pytest.raises(StoreFullError, match="No space left"):
+                stage.add(windows[0], values[windows[0].rows])
+            return
+        for piece in windows:
+            stage.add(piece, values[piece.rows])
+        got = [bytes(b) for _, _, chunks in stage.blocks(10) for b in chunks.blobs()]
+    assert calls == [(0, codes.size * WIDTH * 8, 0)]  # before any write
+    want = [bytes(r[5]) for r in chunk_rows(np.array(["a", "b", "c"], dtype=object),
+                                            order.start, values[order.by_comp], 1)]
+    assert got == want

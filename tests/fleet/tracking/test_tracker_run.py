@@ -81,6 +81,20 @@ def test_tracker_run_equals_rank_by_rank_updates(strategy, initiation, clip, m, 
         np.testing.assert_array_equal(got_state.columns()[k], v, err_msg=k)
 
 
+def test_ranks_of_equal_length_refuse_a_time_not_after_the_last_as_tracker_update_does():
+    """A time that does not advance at a later rank of the ranks' direct path: the error
+    tracker_update raises for that rank's state (the component and both times named)."""
+    cfg = TrackerConfig(dt=1.0, design_life=1e4)
+    b, k = 5, 8
+    t = np.tile(np.arange(1.0, k + 1), b)
+    hi = np.full(b * k, 0.3)
+    t[3 * k + 6] = t[3 * k + 5]  # component 3's seventh time repeats its sixth
+    seg = np.arange(0, b * k + 1, k)
+    with pytest.raises(ValueError, match=r"component index 3: time 6\.0 is not after its last "
+                                         r"acquisition 6\.0"):
+        tracker_run(TrackerState.empty(b), seg, t, hi, cfg, strategy="ranks")
+
+
 def test_strategy_follows_the_shape_of_the_batch(monkeypatch):
     monkeypatch.setattr(tc, "_JITTED", {})
     assert tc.tracker_strategy(1, 100_000) == "ranks"  # a fleet's periodic batch

@@ -234,13 +234,11 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
     counts = np.diff(seg)
     b = counts.size
     rows_s = np.empty((t.size, len(SUM_NAMES)))
-    full = bool(b) and bool((counts == counts[0]).all())  # every unit at every rank
-    every = int(counts[0]) if full else 0
+    if b and bool((counts == counts[0]).all()) and bool(np.isfinite(t).all()) \
+            and bool(np.isfinite(hi).all()):  # every unit at every rank
+        _run_full(state, t.reshape(b, -1), hi, config, rows_s.reshape(b, -1, len(SUM_NAMES)))
+        return rows_s
     for r in range(int(counts.max(initial=0))):
-        if full:  # unit c's row of rank r is c * every + r
-            state = trend_update(state, t[r::every], hi[r::every], config)
-            rows_s[r::every] = state.s
-            continue
         have = np.flatnonzero(counts > r)
         idx = seg[have] + r
         tt, hh = np.full(b, np.nan), np.full(b, np.nan)
@@ -248,6 +246,51 @@ def _run_by_rank(state: TrendState, seg: np.ndarray, t: FloatArray, hi: FloatArr
         state = trend_update(state, tt, hh, config)
         rows_s[idx] = state.s[have]
     return rows_s
+
+
+def _run_full(state: TrendState, t: FloatArray, hi: FloatArray, config: TrendConfig,
+              out: FloatArray) -> None:
+    """:func:`trend_update` once per rank when every unit has a (finite) acquisition at every
+    rank: ``t`` (B, K) unit c's times in order, ``hi`` its HI values (B * K,), ``out``
+    (B, K, 7) receives the sums after each row. The same operations on the same values in the
+    same order as :func:`trend_update` (so the same bits), on each rank's contiguous values
+    (the rows' weights computed once for all ranks), copied into their rows."""
+    tt, ht = (np.ascontiguousarray(x.reshape(t.shape).T) for x in (t, hi))  # (K, B)
+    z, w = _weights(ht, config.hi_floor)
+    wz = w * z
+    wzz = wz * z
+    lam = config.forgetting
+    n_, s0, s1, s2, sz, sxz, szz = state.s.T.copy()
+    started = state.n > 0
+    tp = state.t
+    tmp = np.empty(t.shape[0])
+    for r in range(t.shape[1]):
+        d = tt[r] - tp
+        if r == 0 and not started.all():
+            d = np.where(started, d, 0.0)
+        np.multiply(2.0, d, out=tmp)
+        tmp *= s1
+        s2 = s2 - tmp  # s2 - 2 d s1 + d d s0, evaluated left to right
+        np.multiply(d, d, out=tmp)
+        tmp *= s0
+        s2 += tmp
+        s1 = s1 - np.multiply(d, s0, out=tmp)
+        sxz = sxz - np.multiply(d, sz, out=tmp)
+        n_ = lam * n_
+        n_ += 1.0
+        s0 = lam * s0
+        s0 += w[r]
+        s1 *= lam
+        s2 *= lam
+        sz = lam * sz
+        sz += wz[r]
+        sxz *= lam
+        szz = lam * szz
+        szz += wzz[r]
+        o = out[:, r]
+        o[:, 0], o[:, 1], o[:, 2], o[:, 3], o[:, 4], o[:, 5], o[:, 6] = \
+            n_, s0, s1, s2, sz, sxz, szz
+        tp = tt[r]
 
 
 def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
@@ -278,9 +321,8 @@ def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
                                  np.ascontiguousarray(state.s), rows_s)
     else:
         raise ValueError(f"strategy: expected ranks, python or jit, got {strategy!r}")
-    unit = np.repeat(np.arange(b), counts)
-    rank = np.arange(m) - seg[:-1][unit]
-    rows = TrendState(t=t.copy(), hi=hi.copy(), n=state.n[unit] + rank + 1, s=rows_s)
+    n_rows = np.repeat(state.n - seg[:-1], counts) + np.arange(1, m + 1)  # n + rank + 1
+    rows = TrendState(t=t.copy(), hi=hi.copy(), n=n_rows, s=rows_s)
     new = state.take(np.arange(b))
     upd = np.flatnonzero(counts > 0)
     last = seg[1:][upd] - 1
@@ -293,22 +335,50 @@ def trend_run(state: TrendState, seg: np.ndarray, t: np.ndarray, hi: np.ndarray,
 def trend_posterior(state: TrendState, config: TrendConfig) -> TrendPosterior:
     """The line's Student-t posterior per unit (EI-17); NaN where fewer than
     ``min_points`` acquisitions or a degenerate design (all weight on one time)."""
-    # the sums as contiguous columns (one transposing copy): the passes below read each
-    # column many times
-    n_, s0, s1, s2, sz, sxz, szz = np.ascontiguousarray(state.s.T)
+    # the sums as contiguous columns (one transposing copy, the passes below' own: they read
+    # each column many times, and write into some)
+    n_, s0, s1, s2, sz, sxz, szz = state.s.T.copy()
+    # each result written into a buffer whose value is no longer needed: the operations of
+    # the formulas as written, in their order, with fewer temporaries
     with np.errstate(invalid="ignore", divide="ignore"):
-        det = s0 * s2 - s1 * s1
-        ok = (state.n >= config.min_points) & (det > 1e-12 * s0 * s2) & (n_ > 3.0)
-        b = (s0 * sxz - s1 * sz) / det
-        a = (sz - b * s1) / s0
-        rss = np.maximum(szz - a * sz - b * sxz, 0.0)
-        nu = np.floor(n_ - 2.0)
-        sig2 = rss / (n_ - 2.0)
+        det = s0 * s2
+        tmp = s1 * s1
+        det -= tmp  # s0 s2 - s1 s1
+        np.multiply(1e-12, s0, out=tmp)
+        tmp *= s2
+        ok = det > tmp
+        ok &= state.n >= config.min_points
+        ok &= n_ > 3.0
+        b = s0 * sxz
+        b -= np.multiply(s1, sz, out=tmp)
+        b /= det  # (s0 sxz - s1 sz) / det
+        a = np.multiply(b, s1)
+        np.subtract(sz, a, out=a)
+        a /= s0  # (sz - b s1) / s0
+        rss = np.multiply(a, sz)
+        np.subtract(szz, rss, out=rss)
+        rss -= np.multiply(b, sxz, out=tmp)
+        np.maximum(rss, 0.0, out=rss)  # max(szz - a sz - b sxz, 0)
+        n_ -= 2.0
+        nu = np.floor(n_)
+        sig2 = rss
+        sig2 /= n_
         # a perfect fit (sig2 = 0) still has the rounding of its sums: keep a floor
-        sig2 = np.maximum(sig2, 1e-24 * np.maximum(szz / s0, 1e-300))
-        vaa, vab, vbb = sig2 * s2 / det, -sig2 * s1 / det, sig2 * s0 / det
-    nan = np.nan
-    return TrendPosterior(*(np.where(ok, v, nan) for v in (a, b, vaa, vab, vbb, nu)))
+        np.divide(szz, s0, out=tmp)
+        np.maximum(tmp, 1e-300, out=tmp)
+        tmp *= 1e-24
+        np.maximum(sig2, tmp, out=sig2)
+        vaa = np.multiply(sig2, s2, out=s2)
+        vaa /= det
+        vab = np.negative(sig2, out=tmp)
+        vab *= s1
+        vab /= det
+        vbb = np.multiply(sig2, s0, out=s0)
+        vbb /= det
+    np.logical_not(ok, out=ok)
+    for v in (a, b, vaa, vab, vbb, nu):
+        v[ok] = np.nan
+    return TrendPosterior(a, b, vaa, vab, vbb, nu)
 
 
 def t_cdf(x: FloatArray, nu: FloatArray) -> FloatArray:
@@ -334,11 +404,10 @@ def t_cdf(x: FloatArray, nu: FloatArray) -> FloatArray:
 _T_QUANTILES: dict[tuple[int, float], float] = {}
 
 
-def _t_quantiles(nus: np.ndarray, p: float) -> FloatArray:
-    """t_nu^-1(p) for the integers ``nus`` by bisection of :func:`t_cdf` (to the last bit;
-    tested against scipy's stdtrit); the normal quantile above :data:`NU_TABLE`."""
-    if p == 0.5:  # the centre of a symmetric law, exactly
-        return np.zeros(nus.size)
+def _t_quantiles(nus: np.ndarray, p: np.ndarray) -> FloatArray:
+    """t_nu^-1(p) for the integers ``nus`` and the levels ``p`` (element by element) by
+    bisection of :func:`t_cdf` (to the last bit; tested against scipy's stdtrit); the normal
+    quantile above :data:`NU_TABLE`; 0 at p = 1/2, the centre of a symmetric law, exactly."""
     normal = nus > NU_TABLE
     nu = np.where(normal, 1.0, nus)
     lo, hi = np.full(nus.size, -1e12), np.full(nus.size, 1e12)
@@ -346,7 +415,7 @@ def _t_quantiles(nus: np.ndarray, p: float) -> FloatArray:
         mid = 0.5 * (lo + hi)
         below = np.where(normal, _normal_cdf(mid), t_cdf(mid, nu)) < p
         lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
-    return 0.5 * (lo + hi)
+    return np.where(p == 0.5, 0.0, 0.5 * (lo + hi))
 
 
 def _normal_cdf(x: FloatArray) -> FloatArray:
@@ -368,12 +437,12 @@ def t_quantiles(nu: FloatArray, levels: tuple[float, ...]) -> FloatArray:
     key = np.where(np.isfinite(nu), np.clip(nu, 1, NU_TABLE + 1), 0).astype(np.int64)
     present = (np.flatnonzero(np.bincount(key, minlength=NU_TABLE + 2)[1:]) + 1).tolist()
     table = np.full((len(levels), NU_TABLE + 2), np.nan)
+    need = [(k, p) for p in levels for k in present if (k, p) not in _T_QUANTILES]
+    if need:  # every level's in one bisection
+        arr = np.array(need, dtype=np.float64).T
+        for kp, v in zip(need, _t_quantiles(arr[0], arr[1]).tolist(), strict=True):
+            _T_QUANTILES[kp] = v
     for j, p in enumerate(levels):
-        need = [k for k in present if (k, p) not in _T_QUANTILES]
-        if need:
-            arr = np.array(need, dtype=np.float64)
-            for k, v in zip(need, _t_quantiles(arr, p).tolist(), strict=True):
-                _T_QUANTILES[(k, p)] = v
         table[j, present] = [_T_QUANTILES[(k, p)] for k in present]
     return np.take(table, key, axis=1)  # a faster gather than table[:, key]
 
@@ -407,29 +476,57 @@ def first_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
 def _quadratic_crossing(a: FloatArray, b: FloatArray, v0: FloatArray, v1: FloatArray,
                         v2: FloatArray, c: FloatArray) -> FloatArray:
     """:func:`first_crossing`'s smallest root r >= 0 of the quadratic (+inf if none), before
-    its median and r = 0 cases (inside its error state)."""
+    its median and r = 0 cases (inside its error state). Each result is written into a
+    buffer whose value is no longer needed (the same operations on the same values: fewer
+    temporaries)."""
+    shape = np.broadcast_shapes(a.shape, c.shape)
+    if not shape:  # scalars: as arrays of one
+        return _quadratic_crossing(*(x.reshape(1) for x in (a, b, v0, v1, v2, c))).reshape(())
     c2 = c * c
-    q2 = b * b - c2 * v2
-    q1 = 2.0 * a * b - c2 * v1
-    q0 = a * a - c2 * v0
-    q1q1, q2q0 = q1 * q1, 4.0 * q2 * q0
+    q2, q1, q0 = c2 * v2, c2 * v1, c2 * v0
+    np.subtract(b * b, q2, out=q2)  # b b - c2 v2
+    np.subtract(2.0 * a * b, q1, out=q1)  # 2 a b - c2 v1
+    np.subtract(a * a, q0, out=q0)  # a a - c2 v0
+    q1q1 = q1 * q1
+    q2q0 = 4.0 * q2
+    q2q0 *= q0
     disc = q1q1 - q2q0
-    real = disc >= -(1e-12 * (q1q1 + np.abs(q2q0)))
-    del q1q1, q2q0
-    qq = -0.5 * (q1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), q1))
-    del disc
-    lin = np.abs(q2) <= 1e-14 * (np.abs(q1) + np.abs(q0) + 1e-300)
-    r1 = np.where(lin, -q0 / q1, qq / q2)
-    r2 = np.where(lin, np.inf, q0 / qq)
-    del q0, q1, q2, qq
-    best = np.full(np.broadcast_shapes(a.shape, c.shape), np.inf)
+    np.abs(q2q0, out=q2q0)
+    q2q0 += q1q1
+    q2q0 *= -1e-12  # -(1e-12 (q1 q1 + |4 q2 q0|))
+    real = disc >= q2q0
+    np.maximum(disc, 0.0, out=disc)
+    np.sqrt(disc, out=disc)
+    np.copysign(disc, q1, out=disc)
+    disc += q1
+    qq = np.multiply(-0.5, disc, out=disc)  # -(q1 + sign(q1) sqrt(disc)) / 2
+    small = np.abs(q1, out=q1q1)
+    small += np.abs(q0, out=q2q0)
+    small += 1e-300
+    small *= 1e-14
+    lin = np.abs(q2, out=q2q0) <= small
+    r1 = np.divide(qq, q2, out=q2)
+    r2 = np.divide(q0, qq, out=q1q1)
+    if lin.any():
+        r1[lin] = -q0[lin] / q1[lin]
+        r2[lin] = np.inf
+    del q0, q1, qq, small
+    best = np.full(shape, np.inf)
     abs_a, sign_c = np.abs(a), np.sign(c)
     for r in (r1, r2):
         br = b * r
         num = a + br
         # near c = 0 the two roots merge and each carries ~sqrt(eps) of rounding
-        sign_ok = (np.sign(num) == sign_c) | (np.abs(num) <= 1e-7 * (abs_a + np.abs(br)))
-        ok = real & np.isfinite(r) & (r >= 0.0) & sign_ok & (r < best)
+        sign_ok = np.sign(num) == sign_c
+        np.abs(br, out=br)
+        br += abs_a
+        br *= 1e-7
+        sign_ok |= np.abs(num, out=num) <= br
+        ok = np.isfinite(r)
+        ok &= real
+        ok &= r >= 0.0
+        ok &= sign_ok
+        ok &= r < best
         np.copyto(best, r, where=ok)
     return best
 

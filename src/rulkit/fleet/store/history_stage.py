@@ -22,6 +22,7 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
+from bisect import bisect_left
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -62,10 +63,13 @@ class HistoryStage:
                 self._file = tempfile.TemporaryFile()
             except OSError as err2:
                 raise self._error(err2) from err2
-        self._windows: list[tuple[np.ndarray, np.ndarray, int, int]] = []
+        # per window: its components' key-order positions (array and list), their records'
+        # offsets and counts, its first batch rank and its records' file offset
+        self._windows: list[tuple[np.ndarray, list[int], np.ndarray, np.ndarray, int, int]] = []
         self._size = 0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rulkit-stage")
-        self._written: Future[None] | None = None
+        self._written: Future[None] | None = self._worker.submit(
+            _reserve, self._file.fileno(), int(order.start[-1]) * WIDTH * 8)
 
     def __enter__(self) -> HistoryStage:
         return self
@@ -80,7 +84,8 @@ class HistoryStage:
         rec = np.ascontiguousarray(rec, dtype="<f8")
         self._wait_written()
         self._written = self._worker.submit(_write_at, self._file.fileno(), rec, self._size)
-        self._windows.append((piece.keys, piece.seg, piece.rank0, self._size))
+        self._windows.append((piece.keys, piece.keys.tolist(), piece.seg, np.diff(piece.seg),
+                              piece.rank0, self._size))
         self._size += rec.nbytes
 
     def _wait_written(self) -> None:
@@ -120,11 +125,11 @@ class HistoryStage:
         chunks = layout(st[k0:k1 + 1] - st[k0], max_chunk)
         first = np.searchsorted(chunks.owner, np.arange(k1 - k0))  # each one's first chunk
         raw = chunks.words.data.cast("B")
-        for keys, seg, rank0, offset in self._windows:
-            a, b = (int(x) for x in np.searchsorted(keys, (k0, k1)))
+        for keys, key_list, seg, counts, rank0, offset in self._windows:
+            a, b = bisect_left(key_list, k0), bisect_left(key_list, k1)
             if a < b:
-                at, size = _runs(keys[a:b] - k0, np.diff(seg[a:b + 1]), rank0, max_chunk,
-                                 first, chunks.start)
+                at, size = _runs(keys[a:b] - k0, counts[a:b], rank0, max_chunk, first,
+                                 chunks.start)
                 _read_scattered(self._file.fileno(), [
                     raw[8 * w:8 * (w + m)] for w, m in zip(at, size, strict=True)],
                     offset + int(seg[a]) * WIDTH * 8)
@@ -143,6 +148,18 @@ class HistoryStage:
 
 
 
+def _reserve(fd: int, size: int) -> None:
+    """Reserve the file's ``size`` bytes on the disk at once: its writes then fill blocks the
+    file system has already allocated (less of the kernel's work per write). A file system
+    that cannot reserve leaves it to the writes; a full disk raises as a write would."""
+    if size and hasattr(os, "posix_fallocate"):
+        try:
+            os.posix_fallocate(fd, 0, size)
+        except OSError as err:
+            if err.errno not in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+                raise
+
+
 def _write_at(fd: int, rec: np.ndarray, offset: int) -> None:
     """Write the bytes of ``rec`` (contiguous) to the file ``fd`` at ``offset``."""
     view = rec.data.cast("B")
@@ -158,6 +175,10 @@ def _runs(comp: np.ndarray, length: np.ndarray, rank0: int, max_chunk: int,
     chunk bounds (ranks at multiples of ``max_chunk``). Returns the word offset of each
     piece in the chunks' buffer and its length in words, in the window's record order."""
     end = rank0 + length
+    q = rank0 // max_chunk
+    if int(end.max()) <= (q + 1) * max_chunk:  # every run inside its component's chunk q
+        at = start[first[comp] + q] + 1 + (rank0 - q * max_chunk) * WIDTH
+        return at.tolist(), (length * WIDTH).tolist()
     parts = []
     for q in range(rank0 // max_chunk, int(end.max() - 1) // max_chunk + 1):
         lo = max(rank0, q * max_chunk)

@@ -670,7 +670,9 @@ class ComponentStore(GroupCommits, StoreSettings):
             self._update_states(component_rows([names[i] for i in known.tolist()],
                                                values[known], columns, nullable,
                                                key_last=True), extra)
-        new = np.setdiff1d(np.arange(len(names)), known)
+        fresh = np.ones(len(names), dtype=bool)
+        fresh[known] = False
+        new = np.flatnonzero(fresh)  # np.setdiff1d's, without its import of numpy.ma
         if new.size:
             self._write_states(component_rows([names[i] for i in new.tolist()], values[new],
                                               columns, nullable), extra)

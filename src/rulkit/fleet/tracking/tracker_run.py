@@ -9,6 +9,7 @@ ingestion of a batch, docs/systems/embedded-rul.md sections 2-3), with the same 
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -169,29 +170,109 @@ def _run_by_rank(state: TrackerState, seg: np.ndarray, t: np.ndarray, z: np.ndar
     rows: dict[str, np.ndarray] = {k: np.empty(m) for k in (
         "fhi", "dhi", "rul", "frul", "drul", "d2rul")}
     n = np.empty(m, dtype=np.int64)
-    full = bool(counts.size) and bool((counts == counts[0]).all())  # every unit at every rank
-    every = int(counts[0]) if full else 0
-    idx: np.ndarray | slice
-    for r in range(int(counts.max(initial=0))):
-        if full:  # unit c's row of rank r is c * every + r
-            idx = slice(r, None, every)
-            t_r, z_r = t[idx].copy(), z[idx].copy()
-        else:
+    if b and bool((counts == counts[0]).all()):  # every unit at every rank
+        state = _run_full(state, t.reshape(b, -1), z.reshape(b, -1), config, gains,
+                          {k: v.reshape(b, -1) for k, v in rows.items()}, n.reshape(b, -1))
+    else:
+        for r in range(int(counts.max(initial=0))):
             have = np.flatnonzero(counts > r)
             idx = seg[have] + r
             t_r = np.full(b, np.nan)  # fresh: the new state may hold these arrays
             z_r = np.full(b, np.nan)
             t_r[have] = t[idx]
             z_r[have] = z[idx]
-        state, _ = tracker_update(state, t_r, z_r, config, gains, outputs=False)
-        sel = slice(None) if full else have
-        rows["fhi"][idx], rows["dhi"][idx] = state.ab[sel, 0], state.ab[sel, 1]
-        rows["frul"][idx], rows["drul"][idx] = state.abg[sel, 0], state.abg[sel, 1]
-        rows["d2rul"][idx], rows["rul"][idx], n[idx] = state.abg[sel, 2], state.rul[sel], \
-            state.n[sel]
+            state, _ = tracker_update(state, t_r, z_r, config, gains, outputs=False)
+            _rank_rows(rows, n, idx, state, have)
     rows.update(_row_outputs(rows["fhi"], rows["dhi"], rows["drul"], rows["d2rul"],
                              rows["frul"], n, config))
     return state, rows
+
+
+def _rank_rows(rows: dict[str, np.ndarray], n: np.ndarray, idx: Any, state: TrackerState,
+               sel: Any) -> None:
+    """The rows ``idx`` of one rank: the state after it of the components ``sel``."""
+    rows["fhi"][idx], rows["dhi"][idx] = state.ab[sel, 0], state.ab[sel, 1]
+    rows["frul"][idx], rows["drul"][idx] = state.abg[sel, 0], state.abg[sel, 1]
+    rows["d2rul"][idx], rows["rul"][idx], n[idx] = state.abg[sel, 2], state.rul[sel], \
+        state.n[sel]
+
+
+def _run_full(state: TrackerState, t: np.ndarray, z: np.ndarray, config: TrackerConfig,
+              gains: TrackerGains, rows: dict[str, np.ndarray], n: np.ndarray) -> TrackerState:
+    """:func:`_run_by_rank` when every component has an acquisition at every rank: ``t``, ``z``
+    (B, K) each component's row of rank r in column r, ``rows`` and ``n`` (B, K) views of the
+    outputs. The ranks where a component starts its trackers (every rank in mode
+    ``"measured"``), or whose values are not all finite, are :func:`tracker_update` calls; the
+    others its operations on the same values in the same order (the same bits) on each rank's
+    contiguous values, copied into their rows, without the checks and copies of a general
+    call."""
+    n_init = {"floor": 1, "two-point": 3, "measured": 2}[config.initiation]
+    simple = config.initiation != "measured" and bool(np.isfinite(t).all()) \
+        and bool(np.isfinite(z).all()) and all(math.isfinite(g) for g in (
+            gains.alpha1, gains.beta1, gains.alpha2, gains.beta2, gains.gamma2))
+    k, r0 = t.shape[1], 0
+    while r0 < k and not (simple and bool((state.n >= n_init).all())):
+        state, _ = tracker_update(state, t[:, r0].copy(), z[:, r0].copy(), config, gains,
+                                  outputs=False)
+        _rank_rows(rows, n, (slice(None), r0), state, slice(None))
+        r0 += 1
+    if r0 == k:
+        return state
+    fhi, dhi, rul, frul, drul, d2rul = (rows[c] for c in (
+        "fhi", "dhi", "rul", "frul", "drul", "d2rul"))
+    x, v, fx, fv, fa = (np.ascontiguousarray(c) for c in (
+        state.ab[:, 0], state.ab[:, 1], state.abg[:, 0], state.abg[:, 1], state.abg[:, 2]))
+    tt, zt = np.ascontiguousarray(t.T), np.ascontiguousarray(z.T)
+    tp, hp, rp, dhi_min = state.t, state.hi, state.rul, 1.0 / config.design_life
+    for r in range(r0, k):
+        dt = tt[r] - tp
+        if not bool((dt > 0.0).all()):  # tracker_update's own error names the component
+            now = _state_of(tp, state.n + (r - r0), hp, x, v, rp, fx, fv, fa)
+            tracker_update(now, t[:, r].copy(), z[:, r].copy(), config, gains)
+            raise AssertionError("tracker_update accepted a step it must refuse")
+        # alpha-beta on HI (alpha_beta_update), then the floor of its rate
+        xp = v * dt
+        xp += x  # x + v dt
+        res = zt[r] - xp
+        x = gains.alpha1 * res
+        x += xp
+        res *= gains.beta1
+        res /= dt
+        v = v + res
+        np.maximum(v, dhi_min, out=v)
+        raw = paris_rul(x, v, config.hi_floor, config.paris_exponent)
+        fhi[:, r], dhi[:, r], rul[:, r] = x, v, raw
+        rp = rul[:, r]
+        # alpha-beta-gamma on the RUL (alpha_beta_gamma_update)
+        adt = fa * dt
+        xp = np.multiply(0.5, adt)
+        xp += fv
+        xp *= dt
+        xp += fx  # x + (v + a dt / 2) dt
+        res = np.subtract(raw, xp, out=raw)
+        rdt = res / dt
+        res *= gains.alpha2
+        fx = np.add(xp, res, out=xp)
+        adt += fv
+        fv = gains.beta2 * rdt
+        fv += adt  # v + a dt + beta r / dt
+        rdt *= gains.gamma2
+        rdt /= dt
+        fa = fa + rdt
+        if config.rul_clip and bool((fx < 0.0).any()):
+            np.maximum(fx, 0.0, out=fx)
+        frul[:, r], drul[:, r], d2rul[:, r] = fx, fv, fa
+        tp, hp = tt[r], zt[r]
+    n[:, r0:] = state.n[:, None] + np.arange(1, k - r0 + 1)
+    return _state_of(tp, n[:, -1], hp, x, v, rp, fx, fv, fa)
+
+
+def _state_of(t: np.ndarray, n: np.ndarray, hi: np.ndarray, fhi: np.ndarray, dhi: np.ndarray,
+              rul: np.ndarray, frul: np.ndarray, drul: np.ndarray, d2rul: np.ndarray
+              ) -> TrackerState:
+    """A :class:`TrackerState` of copies of the given columns."""
+    return TrackerState(t=t.copy(), n=n.copy(), hi=hi.copy(), ab=np.column_stack([fhi, dhi]),
+                        rul=rul.copy(), abg=np.column_stack([frul, drul, d2rul]))
 
 
 def _row_outputs(fhi: np.ndarray, dhi: np.ndarray, drul: np.ndarray, d2rul: np.ndarray,
