@@ -1,4 +1,4 @@
-"""A group commit's batches joined or applied one by one (docs/service.md, "Joined batches"):
+"""A group commit's batches joined or applied one by one (docs/service-load.md, "Joined batches"):
 ``ComponentStore.ingest_many`` in this process over groups of ``--group`` validated batches
 (``writer_batch``: one acquisition per component, each writer its own components, as
 bench_service.py sends them), with ``JOIN_BATCHES`` on and off in turns on new SQLite

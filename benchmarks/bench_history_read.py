@@ -1,5 +1,5 @@
 """Benchmark: a component's history read in process on SQLite, at 10^5 and 10^7 history rows
-(docs/service.md, "History reads at 10^7 rows, packed").
+(docs/service-load.md, "History reads at 10^7 rows, packed").
 
 The databases are filled as benchmarks/bench_service.py fills its history databases (1000
 acquisitions per component, the packed layout: one chunk of 1000 records, a 104 KB blob, per

@@ -1,6 +1,6 @@
 """A measurement, not a design in use: the write floor of the service's ingest today beside the
 floor of a durable per-batch log with the ``components`` rows and the history materialised
-behind it in bulk (docs/service.md, "How far the goals remain").
+behind it in bulk (docs/service-load.md, "How far the goals remain").
 
 Three ways to write the same acquisitions (``writer_batch``: 8 writers, one acquisition per
 component per batch, as bench_service.py sends them) into new SQLite databases of the store's

@@ -1,6 +1,6 @@
 """Benchmark: the middle page by ``offset`` over HTTP, this checkout's service beside another's.
 
-docs/service.md, "Pages by offset". A SQLite database of ``--components`` components filled as
+docs/service-load.md, "Pages by offset". A SQLite database of ``--components`` components filled as
 bench_service.py fills its pages' database (or ``--db``, an existing one), then ``rulkit
 serve`` on it and ``--readers`` threads x ``--reads`` requests of
 ``GET /api/v1/components?limit=50&offset=<half>`` (after one warm-up request): the service's

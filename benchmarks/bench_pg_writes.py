@@ -1,4 +1,5 @@
-"""Benchmark: the ways to send a batch's rows to PostgreSQL (docs/service.md, "PostgreSQL").
+"""Benchmark: the ways to send a batch's rows to PostgreSQL (docs/service-load.md,
+"PostgreSQL ingest").
 
 A batch's writes on PostgreSQL are its ``components`` rows (an upsert of one row per
 component: tracker state, RUL columns, five indexes) and its packed history rows

@@ -1,4 +1,4 @@
-"""Benchmark: the service's fixed CPU cost per request (docs/service.md, "The framework's
+"""Benchmark: the service's fixed CPU cost per request (docs/service-load.md, "The framework's
 share").
 
 ``rulkit serve`` on a new SQLite database in a subprocess, one client thread on one kept-alive

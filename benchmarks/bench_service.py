@@ -1,4 +1,4 @@
-"""Benchmark: the fleet service over HTTP on loopback (docs/service.md, "Load figures").
+"""Benchmark: the fleet service over HTTP on loopback (docs/service-load.md).
 
 For each backend (SQLite file; PostgreSQL: a throwaway server from the installed binaries):
 

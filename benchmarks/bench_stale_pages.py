@@ -1,5 +1,5 @@
 """Benchmark: the stale filter's pages on a fleet whose stale components are all in one
-level (docs/service.md, "Stale pages when a level has few stale components"), in process,
+level (docs/service-load.md, "Stale pages when a level has few stale components"), in process,
 on SQLite or on a throwaway PostgreSQL server (analysed after the fill).
 
 A fleet of ``--components`` components acquired now, ``--alarm-share`` of them alarms, and

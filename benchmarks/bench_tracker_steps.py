@@ -1,6 +1,6 @@
 """Benchmark: the trackers' and the trend's recursions stepped by acquisition rank across units
 (numpy) against their compiled per-unit passes (numba), by the width of the step
-(docs/service.md, "Where track's 2M rows go").
+(docs/service-load.md, "Where track's 2M rows go").
 
 ``rulkit track`` runs a wide batch in windows of acquisition ranks of every unit
 (``history_stage.plan_pieces``): one vectorised update per rank, whose cost per row falls with

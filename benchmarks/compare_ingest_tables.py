@@ -4,7 +4,7 @@ re-sent batch of duplicates and a conflicting one, alerts) written by this code 
 code at ``--against SRC`` into new SQLite databases, with and without the writer's kept rows
 (``keep_states``); every row of every table the store writes (rowids included) and every
 result, with each value's type and, for a float, its exact bits, must be the same
-(docs/service.md, "The store's rows as arrays").
+(docs/service-load.md, "The store's rows as arrays").
 
     git archive main src | tar -x -C /tmp/main
     .venv/bin/python benchmarks/compare_ingest_tables.py --against /tmp/main/src

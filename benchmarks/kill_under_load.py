@@ -1,5 +1,4 @@
-"""Benchmark: ``kill -9`` of `rulkit serve` at the ingest goal's rate (docs/service.md, "Load
-figures").
+"""Benchmark: ``kill -9`` of `rulkit serve` at the ingest goal's rate (docs/service-load.md).
 
 8 writers POST batches of one acquisition for each of their components (the requests' bytes
 built before the clock starts, as in ``bench_service.py``) on one kept-alive connection each;

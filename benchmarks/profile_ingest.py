@@ -1,7 +1,7 @@
-"""Where one ``POST /api/v1/acquisitions`` batch spends its CPU (docs/service.md, "Load
-figures"): the service's ASGI app called in this process (no sockets, no client, no readers)
-on a new SQLite database, with the batches bench_service.py sends (``writer_batch``: 8
-writers, one acquisition per component per batch, ``--batches`` batches each, in turns).
+"""Where one ``POST /api/v1/acquisitions`` batch spends its CPU (docs/service-load.md):
+the service's ASGI app called in this process (no sockets, no client, no readers) on a new
+SQLite database, with the batches bench_service.py sends (``writer_batch``: 8 writers, one
+acquisition per component per batch, ``--batches`` batches each, in turns).
 
 Prints, per body type (JSON, CSV, Parquet) and per batch, the CPU time of the whole request
 and of its stages, each timed by a wrapper around the function that does it (a few

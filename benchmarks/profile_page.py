@@ -1,6 +1,6 @@
-"""Where one page of ``GET /api/v1/components`` spends its CPU (docs/service.md, "Load
-figures"): the service's ASGI app called in this process (no sockets, no client), on a
-database of ``--components`` components filled as bench_service.py fills its pages' database.
+"""Where one page of ``GET /api/v1/components`` spends its CPU
+(docs/service-load.md): the service's ASGI app called in this process (no sockets, no client),
+on a database of ``--components`` components filled as bench_service.py fills its pages' database.
 
 Prints the CPU time per request of the whole app for a few pages and a history, each through
 the lean reads (:mod:`rulkit.fleet.service.lean_reads`) and through the FastAPI routes alone

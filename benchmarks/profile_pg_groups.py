@@ -1,4 +1,4 @@
-"""Where a PostgreSQL group commit spends the writer's time (docs/service.md, "Where
+"""Where a PostgreSQL group commit spends the writer's time (docs/service-load.md, "Where
 PostgreSQL stands against the goals"): ``ServiceDB.ingest`` in this process (no HTTP) on a
 throwaway PostgreSQL server with its durable defaults, ``--writers`` threads each sending
 ``--batches`` batches of ``--batch-size`` (bench_service.py's batches, each with a write

@@ -1,5 +1,5 @@
 """Where ``rulkit track`` of one file into a new database spends its CPU and its memory
-(docs/service.md, "Where the goals stand"): one ``rulkit track`` process, as bench_scale.py
+(docs/service-load.md, "Where the goals stand"): one ``rulkit track`` process, as bench_scale.py
 runs it, with each stage's function wrapped to add up its CPU time and to read the
 process's resident memory (``/proc/self/status``) as the stage ends.
 

@@ -1,5 +1,5 @@
 """A large plain CSV file parsed in two halves at once, the second on a thread of its own, for
-:func:`rulkit.fleet.rows.read_csv_table` (docs/file-formats.md; docs/service.md, "Track's
+:func:`rulkit.fleet.rows.read_csv_table` (docs/file-formats.md; docs/service-load.md, "Track's
 wall time").
 
 pyarrow's streaming reader parses on the thread that asks for the blocks. The file is cut

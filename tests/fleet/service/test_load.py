@@ -1,6 +1,6 @@
 """A real `rulkit serve` process on loopback: short bounded load, and kill -9 mid-batch.
 
-The full load test is benchmarks/bench_service.py (figures in docs/service.md).
+The full load test is benchmarks/bench_service.py (figures in docs/service-load.md).
 """
 
 import threading

@@ -1,4 +1,4 @@
-"""A SQLite connection of the service's own that only reads (docs/service.md, "The client,
+"""A SQLite connection of the service's own that only reads (docs/service-load.md, "The client,
 the fixed cost of a request and the pollers' pages"): the tokens, and whether anything was
 committed since it last looked.
 

@@ -1,5 +1,5 @@
-"""The lean path of the service's most frequent reads (docs/service.md, "Pages at 10^6
-components"): a page of components and a component's history, answered without FastAPI's
+"""The lean path of the service's most frequent reads (docs/service-load.md, "Lean
+reads"): a page of components and a component's history, answered without FastAPI's
 routing, parameter validation and dependencies.
 
 :class:`LeanReads` is an ASGI layer inside the access log. It answers a ``GET`` of

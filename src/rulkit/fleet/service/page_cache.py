@@ -1,5 +1,5 @@
 """The pages of components the service has answered, kept for as long as they are exactly
-what a new read would answer (docs/service.md, "The client, the fixed cost of a request
+what a new read would answer (docs/service-load.md, "The client, the fixed cost of a request
 and the pollers' pages").
 
 A page (``GET /api/v1/components`` with its query) is a function of the committed database

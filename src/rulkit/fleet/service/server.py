@@ -14,7 +14,7 @@ Before it serves, :func:`serve` collects the start-up's garbage and freezes what
 (:func:`gc.freeze`): the ~10^5 objects of the libraries and the app are then never scanned
 again, so a full collection, when one comes, looks at what the requests made since instead
 of stopping every thread over the whole heap (``benchmarks/profile_page.py`` times both;
-docs/service.md, "Pages at 10^6 components"). The app's metrics time each collection
+docs/service-load.md, "Lean reads"). The app's metrics time each collection
 (``rulkit_gc_seconds``).
 """
 

@@ -230,7 +230,7 @@ def validate_acquisitions(
     (:meth:`~rulkit.fleet.time_axis.TimeAxis.values`: date-times converted into its unit, and
     refused where numbers were fitted, or the reverse); without one, date-times are seconds
     since 1970 and numbers are taken as they are. Every check is an array operation over the
-    batch's columns (docs/service.md, "Load figures").
+    batch's columns (docs/service-load.md).
     """
     cols = _batch_columns(df)
     installed = time_axis is not None and time_axis.origin == "installed"

@@ -1,7 +1,7 @@
 """A wide batch's history records staged by rank window in a temporary file, then given back
 per block of consecutive components in the order of the per-component path, so that the
 history holds one chunk per component and ingestion whatever the windows
-(docs/systems/embedded-rul.md §4; docs/service.md, "Where track's 2M rows go").
+(docs/systems/embedded-rul.md §4; docs/service-load.md, "Where track's 2M rows go").
 
 A batch run in windows of acquisition ranks (:func:`~rulkit.fleet.store.batch_order.
 rank_windows`) has each component's records spread over the windows; holding them until the

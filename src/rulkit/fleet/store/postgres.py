@@ -316,7 +316,7 @@ class PgComponentStore(ComponentStore):
         """Packed history rows (:mod:`rulkit.fleet.store.history_chunks`) by binary ``COPY``
         (the blobs as raw bytes, not hex text; the server parses no statement per row; the
         data made by :func:`~rulkit.fleet.store.pg_copy.binary_tuples`). The cheapest of the
-        ways measured by benchmarks/bench_pg_writes.py (docs/service.md, "PostgreSQL
+        ways measured by benchmarks/bench_pg_writes.py (docs/service-load.md, "PostgreSQL
         ingest")."""
         self._conn.copy_data("history", history_chunks.COLUMNS, binary_tuples(
             rows, _column_types(HISTORY, history_chunks.COLUMNS)))
@@ -327,7 +327,7 @@ class PgComponentStore(ComponentStore):
         ``COPY`` into the connection's temporary table :data:`STAGING`, then one statement
         that empties it into ``components`` (:meth:`_upsert_staged`), instead of one upsert
         per row: the same stored values (float8 bits as sent), the same conflict handling.
-        The cheapest of the ways measured by benchmarks/bench_pg_writes.py (docs/service.md,
+        The cheapest of the ways measured by benchmarks/bench_pg_writes.py (docs/service-load.md,
         "PostgreSQL ingest")."""
         cols = ("component", *ROW_FIELDS, "max_level", *extra_cols)
         self._stage(cols, rows)

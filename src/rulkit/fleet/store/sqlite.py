@@ -140,7 +140,7 @@ def _return_freed_memory() -> None:
     """Give the C heap's free pages back to the system (glibc's ``malloc_trim``; nothing
     elsewhere). A batch's checks free arrays of 8 bytes per row that glibc keeps in its heap
     once its mmap threshold has grown; without this they stay resident through the blocks
-    (docs/service.md, "Where track's 2M rows go")."""
+    (docs/service-load.md, "Where track's 2M rows go")."""
     import ctypes
 
     try:

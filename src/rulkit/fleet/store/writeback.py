@@ -1,6 +1,6 @@
 """A new database's pages sent to the disk while it is still being written, so that the one
 ``fsync`` before it is published (:func:`~rulkit.fleet.store.database_file.link_into_place`)
-waits for little (docs/systems/embedded-rul.md §4; docs/service.md, "Track's wall time").
+waits for little (docs/systems/embedded-rul.md §4; docs/service-load.md, "Track's wall time").
 
 A new database is built without syncs and synced once at the end; of a large batch's file
 (some 100 bytes an acquisition) the operating system would start writing nothing before that
