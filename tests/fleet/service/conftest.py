@@ -5,6 +5,8 @@ Without chromium the browser tests skip with the reason, unless RULKIT_REQUIRE_I
 (set by .ci/run), which turns the skip into a failure.
 """
 
+import subprocess
+import sys
 import threading
 import time
 import warnings
@@ -71,3 +73,11 @@ class LiveServer:
 def live_server():
     """``with live_server(app) as srv: srv.url``: a real HTTP server on loopback."""
     return LiveServer
+
+
+def token_cli(db: str, *args: str) -> str:
+    """``rulkit token ARGS --db DB`` in another process; its standard output."""
+    out = subprocess.run([sys.executable, "-c", "from rulkit.cli import main; main()", "token",
+                          *args, "--db", db], check=True, capture_output=True, text=True,
+                         timeout=120)
+    return out.stdout

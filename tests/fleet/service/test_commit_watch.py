@@ -12,6 +12,8 @@ from rulkit.fleet.service.commit_watch import CommitWatch
 from rulkit.fleet.service.db import ServiceDB, hash_token
 from rulkit.fleet.service.loadgen import request, start_server
 
+from .conftest import token_cli
+
 
 def _other_process(code: str) -> None:
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
@@ -58,13 +60,6 @@ def test_token_rows_are_read_every_time(tmp_path):
         sdb.close()
 
 
-def _cli(db: str, *args: str) -> str:
-    out = subprocess.run([sys.executable, "-c", "from rulkit.cli import main; main()", "token",
-                          *args, "--db", db], check=True, capture_output=True, text=True,
-                         timeout=120)
-    return out.stdout
-
-
 def test_revocation_by_another_process_takes_effect_on_the_next_request(tmp_path):
     db = str(tmp_path / "fleet.db")
     sdb = ServiceDB(db)
@@ -78,13 +73,13 @@ def test_revocation_by_another_process_takes_effect_on_the_next_request(tmp_path
         for _ in range(3):  # the page cached, the token checked each time
             assert request(srv.port, "GET", page, token=read)[0] == 200
         assert request(srv.port, "POST", "/api/v1/acquisitions", batch, write)[0] == 200
-        _cli(db, "revoke", "--name", "dash")
+        token_cli(db, "revoke", "--name", "dash")
         assert request(srv.port, "GET", page, token=read)[0] == 401
         assert request(srv.port, "GET", "/api/v1/summary", token=read)[0] == 401
-        _cli(db, "revoke", "--name", "ops")
+        token_cli(db, "revoke", "--name", "ops")
         batch["rows"][0]["time"] = 1.0
         assert request(srv.port, "POST", "/api/v1/acquisitions", batch, write)[0] == 401
-        fresh = _cli(db, "create", "--role", "write", "--name", "new").strip().splitlines()[-1]
+        fresh = token_cli(db, "create", "--role", "write", "--name", "new").strip().splitlines()[-1]
         assert request(srv.port, "POST", "/api/v1/acquisitions", batch, fresh)[0] == 200
         assert request(srv.port, "GET", page, token=fresh)[0] == 200
     finally:

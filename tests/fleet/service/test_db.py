@@ -3,8 +3,6 @@ bounds a cached page's clock window, against the stale flags recomputed at every
 a fine grid; the ingest's token check inside the group commit's transaction."""
 
 import math
-import subprocess
-import sys
 import threading
 
 import numpy as np
@@ -16,6 +14,8 @@ from rulkit.fleet.service.db import STALE_MARGIN, ServiceDB, TokenRefused
 from rulkit.fleet.service.loadgen import request, start_server
 from rulkit.fleet.store.acquisitions import IngestError
 from rulkit.fleet.store.postgres import open_store
+
+from .conftest import token_cli
 
 T0 = 1.7e9
 
@@ -132,13 +132,6 @@ def test_a_bad_token_is_refused_before_the_batchs_own_error(db_url):
         sdb.close()
 
 
-def _cli(db: str, *args: str) -> str:
-    out = subprocess.run([sys.executable, "-c", "from rulkit.cli import main; main()", "token",
-                          *args, "--db", db], check=True, capture_output=True, text=True,
-                         timeout=120)
-    return out.stdout
-
-
 @pytest.mark.parametrize("db_url", ["postgresql"], indirect=True)
 def test_revocation_by_another_process_refuses_the_next_post_on_postgresql(db_url):
     """``rulkit token revoke`` in another process: the server's next batch of that token is
@@ -150,10 +143,11 @@ def test_revocation_by_another_process_refuses_the_next_post_on_postgresql(db_ur
     try:
         batch = {"rows": [{"component": "c0", "time": 0.0, "hi": 0.2}]}
         assert request(srv.port, "POST", "/api/v1/acquisitions", batch, write)[0] == 200
-        _cli(db_url, "revoke", "--name", "ops")
+        token_cli(db_url, "revoke", "--name", "ops")
         batch["rows"][0]["time"] = 1.0
         assert request(srv.port, "POST", "/api/v1/acquisitions", batch, write)[0] == 401
-        fresh = _cli(db_url, "create", "--role", "write", "--name", "new").strip().splitlines()[-1]
+        fresh = token_cli(db_url, "create", "--role", "write", "--name", "new")
+        fresh = fresh.strip().splitlines()[-1]
         batch["rows"][0]["time"] = 2.0
         assert request(srv.port, "POST", "/api/v1/acquisitions", batch, fresh)[0] == 200
     finally:
