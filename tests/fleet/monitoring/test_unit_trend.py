@@ -9,6 +9,8 @@ import pytest
 from scipy import stats
 
 from rulkit.fleet.monitoring.unit_trend import (
+    NU_BLOCK,
+    NU_TABLE,
     TrendConfig,
     TrendPosterior,
     TrendState,
@@ -238,6 +240,24 @@ def test_levels_at_once_equal_one_level_at_a_time():
         assert table[j].tobytes() == c.tobytes(), p
         one = first_crossing(post.a, post.b, post.vaa, 2.0 * post.vab, post.vbb, c)
         assert got[j].tobytes() == one.tobytes(), p
+
+
+def test_quantile_blocks_hold_each_degree_of_freedoms_own_bits(monkeypatch):
+    """A degree of freedom asked for brings its block of NU_BLOCK into the table, and every
+    entry has the bits of a bisection of that degree of freedom alone, whichever were asked
+    first."""
+    from rulkit.fleet.monitoring import unit_trend
+
+    monkeypatch.setattr(unit_trend, "_T_QUANTILES", {})
+    got = t_quantiles(np.array([3.0, 150.0, 1e6]), (0.05, 0.5))
+    blocks = [*range(1, NU_BLOCK + 1), *range(145, 161), NU_TABLE + 1]
+    assert set(unit_trend._T_QUANTILES) == {(k, p) for k in blocks for p in (0.05, 0.5)}
+    nus = np.array([1.0, 2.0, 3.0, 16.0, 17.0, 150.0, 199.0, 200.0])
+    for p in (0.05, 0.5, 0.95):
+        alone = np.array([unit_trend._t_quantiles(np.array([k]), np.array([p]))[0]
+                          for k in nus])
+        assert t_quantile(nus, p).tobytes() == alone.tobytes(), p
+    assert got.tobytes() == t_quantiles(np.array([3.0, 150.0, 1e6]), (0.05, 0.5)).tobytes()
 
 
 def test_first_crossing_cases():

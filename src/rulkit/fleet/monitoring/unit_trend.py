@@ -46,6 +46,8 @@ SUM_NAMES = ("N", "S0", "S1", "S2", "Sz", "Sxz", "Szz")
 x = t - t_last and z (:class:`TrendState`)."""
 NU_TABLE = 200
 """Degrees of freedom above this use the normal quantile (t_200 differs by < 0.5 %)."""
+NU_BLOCK = 16
+"""Degrees of freedom computed together in :func:`t_quantiles`' table (1-16, 17-32, ...)."""
 
 
 @dataclass(frozen=True)
@@ -432,12 +434,20 @@ def t_quantile(nu: FloatArray, p: float) -> FloatArray:
 def t_quantiles(nu: FloatArray, levels: tuple[float, ...]) -> FloatArray:
     """Student-t quantiles t_nu^-1(p), one row per level ``p`` (shape (levels, nu's size)),
     for integer ``nu`` >= 1: each computed once per degree of freedom and level, then looked
-    up; the normal quantile above :data:`NU_TABLE`; NaN where ``nu`` is NaN."""
+    up; the normal quantile above :data:`NU_TABLE`; NaN where ``nu`` is NaN. A degree of
+    freedom not yet computed brings the others of its block of :data:`NU_BLOCK` into the same
+    bisection: a pass costs about what its largest degree of freedom does, and a fleet's
+    units gain degrees of freedom one acquisition at a time. Each element's bits are its own
+    whatever else is in the pass (the series' terms past an element's ``nu`` add 0)."""
     nu = np.asarray(nu, dtype=np.float64)
     key = np.where(np.isfinite(nu), np.clip(nu, 1, NU_TABLE + 1), 0).astype(np.int64)
     present = (np.flatnonzero(np.bincount(key, minlength=NU_TABLE + 2)[1:]) + 1).tolist()
     table = np.full((len(levels), NU_TABLE + 2), np.nan)
-    need = [(k, p) for p in levels for k in present if (k, p) not in _T_QUANTILES]
+    missing = {k for p in levels for k in present if (k, p) not in _T_QUANTILES}
+    wanted = sorted({m for k in missing for m in (
+        [k] if k > NU_TABLE else range(k - (k - 1) % NU_BLOCK,
+                                       min(k - (k - 1) % NU_BLOCK + NU_BLOCK, NU_TABLE + 1)))})
+    need = [(k, p) for p in levels for k in wanted if (k, p) not in _T_QUANTILES]
     if need:  # every level's in one bisection
         arr = np.array(need, dtype=np.float64).T
         for kp, v in zip(need, _t_quantiles(arr[0], arr[1]).tolist(), strict=True):
@@ -566,6 +576,7 @@ def hi_quantiles(post: TrendPosterior, horizons: np.ndarray,
 
 
 __all__ = [
+    "NU_BLOCK",
     "NU_TABLE",
     "SUM_NAMES",
     "TrendConfig",
