@@ -10,6 +10,8 @@ import sys
 import threading
 import time
 import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import pytest
 
@@ -81,3 +83,25 @@ def token_cli(db: str, *args: str) -> str:
                           *args, "--db", db], check=True, capture_output=True, text=True,
                          timeout=120)
     return out.stdout
+
+
+@contextmanager
+def one_group(sdb, calls: list[Callable[[], object]]) -> Iterator[None]:
+    """Run ``calls`` (each ingests one batch through ``sdb``) on threads while the writers'
+    lock is held, as while another group is being written, so that their batches queue up;
+    the body runs once all are queued and before any is written. On exit they are written,
+    checked to have been one group (one transaction)."""
+    sdb._write_lock.acquire()
+    try:
+        threads = [threading.Thread(target=call) for call in calls]
+        for th in threads:
+            th.start()
+        while len(sdb._queue) < len(calls):
+            threading.Event().wait(0.01)
+        writes = sdb._writes
+        yield
+    finally:
+        sdb._write_lock.release()
+    for th in threads:
+        th.join(60)
+    assert sdb._writes == writes + 1

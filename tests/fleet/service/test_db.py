@@ -3,7 +3,6 @@ bounds a cached page's clock window, against the stale flags recomputed at every
 a fine grid; the ingest's token check inside the group commit's transaction."""
 
 import math
-import threading
 
 import numpy as np
 import pandas as pd
@@ -15,7 +14,7 @@ from rulkit.fleet.service.loadgen import request, start_server
 from rulkit.fleet.store.acquisitions import IngestError
 from rulkit.fleet.store.postgres import open_store
 
-from .conftest import token_cli
+from .conftest import one_group, token_cli
 
 T0 = 1.7e9
 
@@ -88,21 +87,9 @@ def test_a_group_checks_its_tokens_in_its_transaction(db_url):
         cases = [("w", "api:", write), ("r", "api:", read), ("g", "api:", gone),
                  ("u", "api:", "rk_" + "x" * 43), ("d", "direct", None)]
         out: dict[str, object] = {}
-        sdb._write_lock.acquire()  # a group being written: the five queue up
-        try:
-            threads = [threading.Thread(target=lambda c=c: out.__setitem__(
-                c[0], _outcome(sdb, _batch(c[0]), c[1], c[2]))) for c in cases]
-            for th in threads:
-                th.start()
-            while len(sdb._queue) < len(cases):
-                threading.Event().wait(0.01)
-            assert other.revoke_token(name="gone") == 1
-            writes = sdb._writes
-        finally:
-            sdb._write_lock.release()
-        for th in threads:
-            th.join(60)
-        assert sdb._writes == writes + 1  # one transaction for the five
+        with one_group(sdb, [lambda c=c: out.__setitem__(
+                c[0], _outcome(sdb, _batch(c[0]), c[1], c[2])) for c in cases]):
+            assert other.revoke_token(name="gone") == 1  # queued, not yet written
         assert [getattr(out[k], "status", None) for k in "rgu"] == [403, 401, 401]
         assert out["w"]["ingested"] == 5 and out["d"]["ingested"] == 5  # type: ignore[index]
         names = [c["component"] for c in sdb.components(limit=100)[1]]

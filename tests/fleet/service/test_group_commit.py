@@ -2,47 +2,28 @@
 written share one transaction and one commit, each still all or nothing. Before, every batch
 paid its own commit."""
 
-import threading
 
 import pandas as pd
+
+from .conftest import one_group
 
 
 def test_concurrent_batches_share_one_commit(sdb):
     batches = [pd.DataFrame({"component": [f"g{k}-{i}" for i in range(20)], "time": 1.0,
                              "hi": 0.3}) for k in range(8)]
     out = [None] * 8
-    sdb._write_lock.acquire()  # a group being written: the next batches queue up
-    try:
-        threads = [threading.Thread(target=lambda k=k: out.__setitem__(
-            k, sdb.ingest(batches[k], f"b{k}"))) for k in range(8)]
-        for th in threads:
-            th.start()
-        while len(sdb._queue) < 8:
-            threading.Event().wait(0.01)
-        writes = sdb._writes
-    finally:
-        sdb._write_lock.release()
-    for th in threads:
-        th.join(60)
-    assert sdb._writes == writes + 1  # one transaction for the eight
+    with one_group(sdb, [lambda k=k: out.__setitem__(k, sdb.ingest(batches[k], f"b{k}"))
+                         for k in range(8)]):
+        pass  # one transaction for the eight
     assert [o["ingested"] for o in out] == [20] * 8
     assert sdb.components(limit=1, offset=0)[0] == 160
     # a batch that conflicts with the stored rows is refused alone, in the same group
     bad = batches[0].assign(time=0.5)
-    sdb._write_lock.acquire()
     res = {}
-    try:
-        ths = [threading.Thread(target=lambda: res.setdefault("ok", sdb.ingest(
-                   batches[1].assign(time=2.0), "ok"))),
-               threading.Thread(target=lambda: res.setdefault("bad", _catch(sdb, bad)))]
-        for th in ths:
-            th.start()
-        while len(sdb._queue) < 2:
-            threading.Event().wait(0.01)
-    finally:
-        sdb._write_lock.release()
-    for th in ths:
-        th.join(60)
+    with one_group(sdb, [lambda: res.setdefault("ok", sdb.ingest(batches[1].assign(time=2.0),
+                                                                  "ok")),
+                         lambda: res.setdefault("bad", _catch(sdb, bad))]):
+        pass
     assert res["ok"]["ingested"] == 20 and "before the component's last stored" in res["bad"]
     assert sdb.components(limit=1, offset=0)[0] == 160
 
